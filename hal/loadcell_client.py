@@ -1,0 +1,366 @@
+"""Cable tensions from the Modbus load cells, for a control loop.
+
+A background thread polls the eight cells at the sensors' own rate (tens of
+hertz on an RS-485 line, one read of the register block per unit id); the
+control cycle calls :meth:`LoadCellClient.read`, which does no I/O and returns
+at once the latest tensions with their age and a status per cable::
+
+    with LoadCellClient("127.0.0.1:5020", calibration=cal) as cells:
+        r = cells.read()            # TensionReading
+        if not r.all_ok:
+            log(r.faults())         # e.g. "Modbus unit 3 (cable 21): stale: ..."
+        tau = r.values_N            # (8,) [N], NaN where the status is not OK
+
+A value is only ever a number when its status is ``OK``; every problem
+(no answer, Modbus exception, stale counter, overload or out-of-range value,
+NaN, sensor fault) is reported as such, with a message naming the Modbus
+unit id and the cable. Calibration: ``measured = gain*true + offset``, so
+``values_N = (measured - offset) / gain``.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from pymodbus.constants import ExcCodes
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from controller.loadcell_map import DEFAULT_MAP, RegisterMap
+
+from .loadcell_calibration import LoadCellCalibration
+from .modbus_config import ModbusEndpoint, parse_modbus_spec
+
+
+class CableStatus(enum.IntEnum):
+    """Status of one cable's tension in a :class:`TensionReading`."""
+
+    OK = 0
+    NO_DATA = 1  #: nothing received yet
+    STALE = 2  #: the sample counter has not advanced for longer than ``stale_s``
+    TIMEOUT = 3  #: the unit did not answer within ``timeout_s``
+    EXCEPTION = 4  #: the unit answered a Modbus exception
+    COMM_ERROR = 5  #: cannot connect, connection lost or malformed answer
+    SENSOR_FAULT = 6  #: the cell reports a sensor fault (status bit)
+    OUT_OF_RANGE = 7  #: overload bit set or value outside the rated range
+    NAN = 8  #: the value is not a number
+
+
+@dataclass(frozen=True)
+class TensionReading:
+    """Latest cable tensions, arrays in cable id order (``cables``)."""
+
+    values_N: np.ndarray  #: (n,) calibrated tensions [N]; NaN where status != OK
+    age_s: np.ndarray  #: (n,) time since the current sample arrived [s]; inf if none
+    status: np.ndarray  #: (n,) CableStatus codes
+    messages: tuple[str, ...]  #: (n,) "" where OK, else what is wrong (unit id and cable)
+    counter: np.ndarray  #: (n,) last sample counter read, -1 if none
+    t: float  #: monotonic clock time of this read [s]
+    cables: tuple[str, ...]
+    unit_ids: tuple[int, ...]
+
+    @property
+    def ok(self) -> np.ndarray:
+        """(n,) bool: the value is valid."""
+        return self.status == CableStatus.OK
+
+    @property
+    def all_ok(self) -> bool:
+        return bool(np.all(self.status == CableStatus.OK))
+
+    def faults(self) -> list[str]:
+        """Messages of the cables that are not OK."""
+        return [m for m in self.messages if m]
+
+    def status_of(self, cable: str) -> CableStatus:
+        return CableStatus(int(self.status[self.cables.index(cable)]))
+
+
+# pymodbus logs an error for every unanswered request; our statuses report
+# them already, so records emitted during our own requests are dropped.
+_quiet = threading.local()
+
+
+class _QuietDuringPolls(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not getattr(_quiet, "active", False) or record.levelno >= logging.CRITICAL
+
+
+_PYMODBUS_LOGGER = logging.getLogger("pymodbus.logging")
+if not any(isinstance(f, _QuietDuringPolls) for f in _PYMODBUS_LOGGER.filters):
+    _PYMODBUS_LOGGER.addFilter(_QuietDuringPolls())
+
+
+class LoadCellClient:
+    """Polls the load cells in the background; :meth:`read` hands out the latest values.
+
+    :param endpoint: a ``--modbus`` spec string or a :class:`ModbusEndpoint`
+    :param register_map: layout and unit ids (default: the built-in map)
+    :param calibration: gain/offset per cable (default: identity)
+    :param rate_hz: sweeps (reads of all cells) per second
+    :param timeout_s: answer timeout per request (also the connect timeout)
+    :param stale_s: a counter not advancing for longer makes the value STALE
+    :param clock: monotonic time source [s]
+    """
+
+    def __init__(
+        self,
+        endpoint: str | ModbusEndpoint,
+        *,
+        register_map: RegisterMap = DEFAULT_MAP,
+        calibration: LoadCellCalibration | None = None,
+        rate_hz: float = 50.0,
+        timeout_s: float = 0.1,
+        stale_s: float = 0.25,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.endpoint = (
+            endpoint if isinstance(endpoint, ModbusEndpoint) else parse_modbus_spec(endpoint)
+        )
+        self.map = register_map
+        n = register_map.n
+        if calibration is None:
+            calibration = LoadCellCalibration.identity(register_map.cables)
+        if calibration.cables != register_map.cables:
+            raise ValueError(
+                f"calibration {calibration.source} is for cables {calibration.cables}, "
+                f"register map {register_map.source} for {register_map.cables}"
+            )
+        if not rate_hz > 0 or not timeout_s > 0 or not stale_s > 0:
+            raise ValueError("rate_hz, timeout_s and stale_s must be > 0")
+        self.calibration = calibration
+        self.rate_hz = float(rate_hz)
+        self.timeout_s = float(timeout_s)
+        self.stale_s = float(stale_s)
+        self.clock = clock
+
+        self._client = self.endpoint.make_client(self.timeout_s)
+        self._io_lock = threading.Lock()  # one request at a time on the line
+        self._lock = threading.Lock()  # guards the state arrays below
+        self._swept = threading.Condition(self._lock)
+        self._raw = np.full(n, np.nan)  # measured tension as read [N]
+        self._bits = np.zeros(n, dtype=np.int64)  # status register
+        self._counter = np.full(n, -1, dtype=np.int64)
+        self._t_sample = np.full(n, np.nan)  # when the current counter value arrived
+        self._t_answer = np.full(n, np.nan)  # last valid answer
+        self._comm = np.full(n, int(CableStatus.NO_DATA), dtype=np.int8)
+        self._comm_msg = [f"{register_map.describe(k)}: no data yet" for k in range(n)]
+        self.sweeps = 0  #: completed sweeps
+        self.errors = np.zeros(n, dtype=np.int64)  #: failed requests per cable
+        self.last_sweep_s = float("nan")  #: duration of the last sweep [s]
+
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    def __repr__(self) -> str:
+        return f"LoadCellClient({str(self.endpoint)!r}, units={self.map.unit_ids})"
+
+    # ---- polling (I/O) ----------------------------------------------------
+    def _fail(self, k: int, status: CableStatus, why: str) -> None:
+        with self._lock:
+            self._comm[k] = status
+            self._comm_msg[k] = f"{self.map.describe(k)} at {self.endpoint}: {why}"
+            self.errors[k] += 1
+
+    def _poll_unit(self, k: int) -> bool:
+        """Read one cell; False when the connection is unusable (skip the rest of the sweep)."""
+        uid = self.map.unit_ids[k]
+        start, count = self.map.block_start, self.map.block_count
+        try:
+            rr = self._client.read_input_registers(start, count=count, device_id=uid)
+        except ConnectionException as exc:
+            self._client.close()
+            self._fail(k, CableStatus.COMM_ERROR, f"connection failed ({exc})")
+            return False
+        except ModbusIOException as exc:
+            why = f"no answer within {self.timeout_s:g} s"
+            if "No response received" not in str(exc):  # e.g. an answer from another unit
+                why += f" ({exc})"
+            self._fail(k, CableStatus.TIMEOUT, why)
+            return True
+        except (ModbusException, OSError, ValueError) as exc:
+            self._client.close()
+            self._fail(k, CableStatus.COMM_ERROR, f"{type(exc).__name__}: {exc}")
+            return True
+        t = self.clock()
+        if rr.isError():
+            code = int(getattr(rr, "exception_code", 0))
+            try:
+                name = ExcCodes(code).name
+            except ValueError:
+                name = "unknown"
+            self._fail(k, CableStatus.EXCEPTION, f"Modbus exception {code:#04x} ({name})")
+            return True
+        regs = list(getattr(rr, "registers", []))
+        if len(regs) != count:
+            self._fail(
+                k, CableStatus.COMM_ERROR, f"answered {len(regs)} registers, expected {count}"
+            )
+            return True
+        value, bits, counter = self.map.decode(np.asarray(regs))
+        with self._lock:
+            if int(counter) != self._counter[k] or not np.isfinite(self._t_sample[k]):
+                self._t_sample[k] = t
+            self._counter[k] = int(counter)
+            self._raw[k] = float(value)
+            self._bits[k] = int(bits)
+            self._t_answer[k] = t
+            self._comm[k] = CableStatus.OK
+            self._comm_msg[k] = ""
+        return True
+
+    def poll_once(self) -> None:
+        """One synchronous sweep: read every cell once (blocking I/O, up to n x timeout)."""
+        t0 = self.clock()
+        with self._io_lock:
+            _quiet.active = True
+            try:
+                for k in range(self.map.n):
+                    if not self._poll_unit(k):
+                        for j in range(k + 1, self.map.n):
+                            self._fail(j, CableStatus.COMM_ERROR, "connection failed")
+                        break
+            finally:
+                _quiet.active = False
+        with self._swept:
+            self.sweeps += 1
+            self.last_sweep_s = self.clock() - t0
+            self._swept.notify_all()
+
+    def wait_sweeps(self, count: int = 1, timeout_s: float = 5.0) -> bool:
+        """Block until ``count`` more sweeps have completed (False on timeout).
+
+        For start-up and tests, not for the control loop.
+        """
+        deadline = time.monotonic() + timeout_s
+        with self._swept:
+            target = self.sweeps + count
+            while self.sweeps < target:
+                left = deadline - time.monotonic()
+                if left <= 0 or not self._swept.wait(left):
+                    return self.sweeps >= target
+        return True
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            self.poll_once()
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < 0:  # fell behind (slow line, timeouts): do not try to catch up
+                next_t = time.monotonic()
+                delay = 0.0
+            self._stop.wait(delay)
+
+    def start(self) -> LoadCellClient:
+        """Start the background poller (returns at once)."""
+        if self._thread is not None:
+            raise RuntimeError("load cell poller already running")
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="loadcell-poller", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the poller and close the connection."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(self.timeout_s * self.map.n + 2.0)
+            self._thread = None
+        with self._io_lock:
+            self._client.close()
+
+    def __enter__(self) -> LoadCellClient:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ---- control-cycle side (no I/O) -------------------------------------
+    def read(self, now: float | None = None) -> TensionReading:
+        """Latest tensions with age and status; never blocks on I/O."""
+        t = self.clock() if now is None else now
+        with self._lock:
+            raw = self._raw.copy()
+            bits = self._bits.copy()
+            counter = self._counter.copy()
+            t_sample = self._t_sample.copy()
+            t_answer = self._t_answer.copy()
+            status = self._comm.copy()
+            comm_msg = list(self._comm_msg)
+        m = self.map
+        have = np.isfinite(t_sample)
+        age = np.where(have, t - np.where(have, t_sample, 0.0), np.inf)
+        live = status == CableStatus.OK
+        sensor = live & ((bits >> m.sensor_fault_bit) & 1).astype(bool)
+        with np.errstate(invalid="ignore"):
+            beyond = (raw < m.rated_min_N) | (raw > m.rated_max_N)
+        overload = live & (((bits >> m.overload_bit) & 1).astype(bool) | beyond)
+        nan = live & np.isnan(raw)
+        stale = live & (age > self.stale_s)
+        # priority: what the cell says about itself first, then what we infer
+        status[stale] = CableStatus.STALE
+        status[nan] = CableStatus.NAN
+        status[overload] = CableStatus.OUT_OF_RANGE
+        status[sensor] = CableStatus.SENSOR_FAULT
+        ok = status == CableStatus.OK
+        values = np.full(m.n, np.nan)
+        values[ok] = self.calibration.true_from_measured(raw)[ok]
+        messages = [""] * m.n
+        for k in np.flatnonzero(~ok):
+            messages[k] = self._message(
+                k, CableStatus(int(status[k])), comm_msg[k], raw[k], bits[k],
+                counter[k], age[k], t - t_answer[k],
+            )
+        return TensionReading(
+            values_N=values,
+            age_s=age,
+            status=status,
+            messages=tuple(messages),
+            counter=counter,
+            t=t,
+            cables=m.cables,
+            unit_ids=m.unit_ids,
+        )
+
+    def _message(
+        self, k: int, st: CableStatus, comm_msg: str, raw: float, bits: int,
+        counter: int, age: float, since_answer: float,
+    ) -> str:
+        m = self.map
+        who = f"{m.describe(k)} at {self.endpoint}"
+        if st in (CableStatus.NO_DATA, CableStatus.TIMEOUT, CableStatus.EXCEPTION,
+                  CableStatus.COMM_ERROR):
+            return f"{comm_msg} [{st.name}]"
+        if st is CableStatus.SENSOR_FAULT:
+            return f"{who}: sensor fault (status register {bits:#06x}) [{st.name}]"
+        if st is CableStatus.OUT_OF_RANGE:
+            parts = []
+            if (bits >> m.overload_bit) & 1:
+                parts.append(f"overload bit set (status register {bits:#06x})")
+            if not m.rated_min_N <= raw <= m.rated_max_N:
+                parts.append(
+                    f"value {raw:.6g} N outside the rated range "
+                    f"[{m.rated_min_N:g}, {m.rated_max_N:g}] N"
+                )
+            else:
+                parts.append(f"value {raw:.6g} N")
+            return f"{who}: {', '.join(parts)} [{st.name}]"
+        if st is CableStatus.NAN:
+            return f"{who}: value is NaN (status register {bits:#06x}) [{st.name}]"
+        # STALE
+        if since_answer > self.stale_s:
+            return (
+                f"{who}: no answer for {since_answer:.3f} s (poller stalled?), "
+                f"last counter {counter} [{st.name}]"
+            )
+        return (
+            f"{who}: sample counter stuck at {counter} for {age:.3f} s "
+            f"(limit {self.stale_s:g} s) [{st.name}]"
+        )
