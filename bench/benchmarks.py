@@ -17,6 +17,7 @@ BenchFn = Callable[[bool], dict[str, float]]
 #: Modules whose import registers benchmarks. Add one line per module.
 MODULES: tuple[str, ...] = (
     "bench.bench_physics",
+    "bench.bench_hil_modbus",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}
