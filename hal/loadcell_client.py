@@ -31,9 +31,9 @@ import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from controller.loadcell_map import DEFAULT_MAP, RegisterMap
+from controller.loadcell_map import DEFAULT_MAP, RegisterMap, load_register_map
 
-from .loadcell_calibration import LoadCellCalibration
+from .loadcell_calibration import LoadCellCalibration, load_calibration
 from .modbus_config import ModbusEndpoint, parse_modbus_spec
 
 
@@ -82,13 +82,25 @@ class TensionReading:
 
 
 # pymodbus logs an error for every unanswered request; our statuses report
-# them already, so records emitted during our own requests are dropped.
+# them already, so records emitted during our own requests are not printed
+# but kept, and the last one goes into the status message of a failed connect
+# (it holds the reason, e.g. "[Errno 111] Connection refused").
 _quiet = threading.local()
 
 
 class _QuietDuringPolls(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
-        return not getattr(_quiet, "active", False) or record.levelno >= logging.CRITICAL
+        if not getattr(_quiet, "active", False) or record.levelno >= logging.CRITICAL:
+            return True
+        if record.levelno >= logging.WARNING:
+            _quiet.last = record.getMessage().strip().splitlines()[0][:300]
+        return False
+
+
+def _last_pymodbus_error() -> str:
+    msg = getattr(_quiet, "last", "")
+    _quiet.last = ""
+    return msg
 
 
 _PYMODBUS_LOGGER = logging.getLogger("pymodbus.logging")
@@ -175,7 +187,8 @@ class LoadCellClient:
             rr = self._client.read_input_registers(start, count=count, device_id=uid)
         except ConnectionException as exc:
             self._client.close()
-            self._fail(k, CableStatus.COMM_ERROR, f"connection failed ({exc})")
+            reason = _last_pymodbus_error() or str(exc)
+            self._fail(k, CableStatus.COMM_ERROR, f"connection failed: {reason}")
             return False
         except ModbusIOException as exc:
             why = f"no answer within {self.timeout_s:g} s"
@@ -219,11 +232,13 @@ class LoadCellClient:
         t0 = self.clock()
         with self._io_lock:
             _quiet.active = True
+            _quiet.last = ""
             try:
                 for k in range(self.map.n):
                     if not self._poll_unit(k):
                         for j in range(k + 1, self.map.n):
-                            self._fail(j, CableStatus.COMM_ERROR, "connection failed")
+                            self._fail(j, CableStatus.COMM_ERROR, "connection failed (see unit "
+                                       f"{self.map.unit_ids[k]}), not polled")
                         break
             finally:
                 _quiet.active = False
@@ -364,3 +379,24 @@ class LoadCellClient:
             f"{who}: sample counter stuck at {counter} for {age:.3f} s "
             f"(limit {self.stale_s:g} s) [{st.name}]"
         )
+
+
+def client_from_args(args) -> LoadCellClient:
+    """A (not started) client from the options of :func:`hal.modbus_config.add_modbus_arguments`."""
+    if getattr(args, "modbus", None) is None:
+        raise ValueError("no load cell endpoint: give --modbus HOST:PORT, rtu:DEVICE:BAUD "
+                         "or rtu-tcp:HOST:PORT")
+    rmap = load_register_map(args.loadcell_map) if args.loadcell_map else DEFAULT_MAP
+    cal = (
+        load_calibration(args.loadcell_calibration, rmap.cables)
+        if args.loadcell_calibration
+        else None
+    )
+    return LoadCellClient(
+        args.modbus,
+        register_map=rmap,
+        calibration=cal,
+        rate_hz=args.loadcell_rate,
+        timeout_s=args.loadcell_timeout,
+        stale_s=args.loadcell_stale,
+    )

@@ -125,3 +125,22 @@ def test_calibration_errors_name_file_and_key(tmp_path, text, match):
 def test_identity_calibration():
     cal = LoadCellCalibration.identity()
     assert cal.true_from_measured(np.arange(8.0)).tolist() == list(np.arange(8.0))
+
+
+def test_client_from_command_line(tmp_path):
+    from hal.loadcell_client import client_from_args
+
+    cal = tmp_path / "cal.toml"
+    cal.write_text("gain_22 = 1.1\n")
+    p = argparse.ArgumentParser()
+    add_modbus_arguments(p)
+    args = p.parse_args(
+        ["--modbus", "rtu-tcp:127.0.0.1:1502", "--loadcell-calibration", str(cal),
+         "--loadcell-timeout", "0.05", "--loadcell-stale", "0.5"]
+    )
+    client = client_from_args(args)
+    assert str(client.endpoint) == "rtu-tcp:127.0.0.1:1502"
+    assert client.calibration.gain[3] == 1.1 and client.timeout_s == 0.05
+    assert client.stale_s == 0.5
+    with pytest.raises(ValueError, match="give --modbus"):
+        client_from_args(p.parse_args([]))

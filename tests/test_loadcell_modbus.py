@@ -269,3 +269,40 @@ def test_serial_rtu_client_through_a_pyserial_url(make_client):
         srv.update(T)
         client.poll_once()
         assert client.read().status_of("31") == CableStatus.EXCEPTION
+
+
+def test_a_stalled_poller_makes_values_stale(server, make_client):
+    clock = FakeClock()
+    client = make_client(server.endpoint, clock=clock, stale_s=0.25)
+    server.update(T)
+    client.poll_once()
+    clock.t += 0.2
+    r = client.read()
+    assert r.all_ok and np.allclose(r.age_s, 0.2)
+    clock.t += 0.1  # no poll for 0.3 s > stale_s
+    r = client.read()
+    assert (r.status == CableStatus.STALE).all() and np.isnan(r.values_N).all()
+    assert "no answer for 0.300 s (poller stalled?)" in r.messages[0]
+    np.testing.assert_allclose(r.age_s, 0.3)
+
+
+def test_connection_refused_names_the_reason(make_client):
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on (bound, then released)
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    client = make_client(f"127.0.0.1:{port}")
+    client.poll_once()
+    r = client.read()
+    assert (r.status == CableStatus.COMM_ERROR).all()
+    assert "connection failed" in r.messages[0] and "refused" in r.messages[0].lower()
+    assert "Modbus unit 8 (cable 42)" in r.messages[7]
+
+
+def test_missing_serial_device_names_the_reason(make_client):
+    client = make_client("rtu:/dev/ttyNO-SUCH-PORT:19200")
+    client.poll_once()
+    r = client.read()
+    assert (r.status == CableStatus.COMM_ERROR).all()
+    assert "/dev/ttyNO-SUCH-PORT" in r.messages[0] and "could not open port" in r.messages[0]
