@@ -43,7 +43,7 @@ class CableStatus(enum.IntEnum):
     OK = 0
     NO_DATA = 1  #: nothing received yet
     STALE = 2  #: the sample counter has not advanced for longer than ``stale_s``
-    TIMEOUT = 3  #: the unit did not answer within ``timeout_s``
+    TIMEOUT = 3  #: no answer within ``timeout_s``, or no fresh answer for ``max_age_s``
     EXCEPTION = 4  #: the unit answered a Modbus exception
     COMM_ERROR = 5  #: cannot connect, connection lost or malformed answer
     SENSOR_FAULT = 6  #: the cell reports a sensor fault (status bit)
@@ -116,7 +116,9 @@ class LoadCellClient:
     :param calibration: gain/offset per cable (default: identity)
     :param rate_hz: sweeps (reads of all cells) per second
     :param timeout_s: answer timeout per request (also the connect timeout)
-    :param stale_s: a counter not advancing for longer makes the value STALE
+    :param stale_s: a counter not advancing for longer (between answers) makes the value STALE
+    :param max_age_s: no valid answer for longer makes the value TIMEOUT (poller stopped, or
+        sweeps slowed down by units that time out); default ``max(0.5, 2 * stale_s)``
     :param clock: monotonic time source [s]
     """
 
@@ -129,6 +131,7 @@ class LoadCellClient:
         rate_hz: float = 50.0,
         timeout_s: float = 0.1,
         stale_s: float = 0.25,
+        max_age_s: float | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.endpoint = (
@@ -143,12 +146,15 @@ class LoadCellClient:
                 f"calibration {calibration.source} is for cables {calibration.cables}, "
                 f"register map {register_map.source} for {register_map.cables}"
             )
-        if not rate_hz > 0 or not timeout_s > 0 or not stale_s > 0:
-            raise ValueError("rate_hz, timeout_s and stale_s must be > 0")
+        if max_age_s is None:
+            max_age_s = max(0.5, 2.0 * stale_s)
+        if not (rate_hz > 0 and timeout_s > 0 and stale_s > 0 and max_age_s > 0):
+            raise ValueError("rate_hz, timeout_s, stale_s and max_age_s must be > 0")
         self.calibration = calibration
         self.rate_hz = float(rate_hz)
         self.timeout_s = float(timeout_s)
         self.stale_s = float(stale_s)
+        self.max_age_s = float(max_age_s)
         self.clock = clock
 
         self._client = self.endpoint.make_client(self.timeout_s)
@@ -310,20 +316,25 @@ class LoadCellClient:
             status = self._comm.copy()
             comm_msg = list(self._comm_msg)
         m = self.map
-        have = np.isfinite(t_sample)
-        age = np.where(have, t - np.where(have, t_sample, 0.0), np.inf)
+        # NaN times (nothing received yet) give infinite ages
+        age = np.where(np.isnan(t_sample), np.inf, t - t_sample)
+        since_answer = np.where(np.isnan(t_answer), np.inf, t - t_answer)
+        stuck_for = np.nan_to_num(t_answer - t_sample, nan=0.0)
         live = status == CableStatus.OK
         sensor = live & ((bits >> m.sensor_fault_bit) & 1).astype(bool)
         with np.errstate(invalid="ignore"):
             beyond = (raw < m.rated_min_N) | (raw > m.rated_max_N)
         overload = live & (((bits >> m.overload_bit) & 1).astype(bool) | beyond)
         nan = live & np.isnan(raw)
-        stale = live & (age > self.stale_s)
-        # priority: what the cell says about itself first, then what we infer
+        stale = live & (stuck_for > self.stale_s)
+        expired = live & (since_answer > self.max_age_s)
+        # priority (last wins): no fresh answer at all, then what the cell says
+        # about itself, then what we infer from its answers
         status[stale] = CableStatus.STALE
         status[nan] = CableStatus.NAN
         status[overload] = CableStatus.OUT_OF_RANGE
         status[sensor] = CableStatus.SENSOR_FAULT
+        status[expired] = CableStatus.TIMEOUT
         ok = status == CableStatus.OK
         values = np.full(m.n, np.nan)
         values[ok] = self.calibration.true_from_measured(raw)[ok]
@@ -331,7 +342,7 @@ class LoadCellClient:
         for k in np.flatnonzero(~ok):
             messages[k] = self._message(
                 k, CableStatus(int(status[k])), comm_msg[k], raw[k], bits[k],
-                counter[k], age[k], t - t_answer[k],
+                counter[k], stuck_for[k], since_answer[k], bool(live[k]),
             )
         return TensionReading(
             values_N=values,
@@ -346,13 +357,18 @@ class LoadCellClient:
 
     def _message(
         self, k: int, st: CableStatus, comm_msg: str, raw: float, bits: int,
-        counter: int, age: float, since_answer: float,
+        counter: int, stuck_for: float, since_answer: float, live: bool,
     ) -> str:
         m = self.map
         who = f"{m.describe(k)} at {self.endpoint}"
-        if st in (CableStatus.NO_DATA, CableStatus.TIMEOUT, CableStatus.EXCEPTION,
-                  CableStatus.COMM_ERROR):
+        if not live:  # the last request failed: NO_DATA, TIMEOUT, EXCEPTION, COMM_ERROR
             return f"{comm_msg} [{st.name}]"
+        if st is CableStatus.TIMEOUT:
+            return (
+                f"{who}: no fresh answer for {since_answer:.3f} s (limit {self.max_age_s:g} s; "
+                f"poller stopped or sweeps slowed by timeouts), last counter {counter} "
+                f"[{st.name}]"
+            )
         if st is CableStatus.SENSOR_FAULT:
             return f"{who}: sensor fault (status register {bits:#06x}) [{st.name}]"
         if st is CableStatus.OUT_OF_RANGE:
@@ -369,14 +385,8 @@ class LoadCellClient:
             return f"{who}: {', '.join(parts)} [{st.name}]"
         if st is CableStatus.NAN:
             return f"{who}: value is NaN (status register {bits:#06x}) [{st.name}]"
-        # STALE
-        if since_answer > self.stale_s:
-            return (
-                f"{who}: no answer for {since_answer:.3f} s (poller stalled?), "
-                f"last counter {counter} [{st.name}]"
-            )
-        return (
-            f"{who}: sample counter stuck at {counter} for {age:.3f} s "
+        return (  # STALE
+            f"{who}: sample counter stuck at {counter} for {stuck_for:.3f} s "
             f"(limit {self.stale_s:g} s) [{st.name}]"
         )
 

@@ -271,19 +271,39 @@ def test_serial_rtu_client_through_a_pyserial_url(make_client):
         assert client.read().status_of("31") == CableStatus.EXCEPTION
 
 
-def test_a_stalled_poller_makes_values_stale(server, make_client):
+def test_a_stalled_poller_expires_the_values(server, make_client):
     clock = FakeClock()
-    client = make_client(server.endpoint, clock=clock, stale_s=0.25)
+    client = make_client(server.endpoint, clock=clock, stale_s=0.1, max_age_s=0.25)
     server.update(T)
     client.poll_once()
     clock.t += 0.2
     r = client.read()
     assert r.all_ok and np.allclose(r.age_s, 0.2)
-    clock.t += 0.1  # no poll for 0.3 s > stale_s
+    clock.t += 0.1  # no answer for 0.3 s > max_age_s
     r = client.read()
-    assert (r.status == CableStatus.STALE).all() and np.isnan(r.values_N).all()
-    assert "no answer for 0.300 s (poller stalled?)" in r.messages[0]
+    assert (r.status == CableStatus.TIMEOUT).all() and np.isnan(r.values_N).all()
+    assert "no fresh answer for 0.300 s (limit 0.25 s" in r.messages[0]
     np.testing.assert_allclose(r.age_s, 0.3)
+
+
+def test_slow_sweeps_are_not_stale_counters(server, make_client):
+    # Staleness is judged between answers: a long gap between two polls (a
+    # sweep slowed by a unit that times out) with the counter moving on is fine.
+    clock = FakeClock()
+    client = make_client(server.endpoint, clock=clock, stale_s=0.1, max_age_s=1.0)
+    server.update(T)
+    client.poll_once()
+    clock.t += 0.4
+    server.update(T + 1)
+    client.poll_once()
+    r = client.read()
+    assert r.all_ok, r.faults()
+    # ... while the same gap without a new sample is a stuck counter
+    clock.t += 0.4
+    client.poll_once()
+    r = client.read()
+    assert (r.status == CableStatus.STALE).all()
+    assert "sample counter stuck at 2 for 0.400 s (limit 0.1 s)" in r.messages[3]
 
 
 def test_connection_refused_names_the_reason(make_client):
