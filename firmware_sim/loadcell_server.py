@@ -10,11 +10,14 @@ test drives it with plain calls::
 
 ``rtu=True`` serves RTU framing (CRC, no MBAP header) over TCP, as a serial
 line behind a transparent TCP gateway; ``endpoint`` is then
-``"rtu-tcp:127.0.0.1:PORT"``.
+``"rtu-tcp:127.0.0.1:PORT"``. ``serial="/dev/ttyUSB1"`` serves RTU on a real
+serial line (pyserial; any ``serial_for_url`` name), ``endpoint``
+``"rtu:/dev/ttyUSB1:BAUD"`` as seen from the other end of a null-modem pair.
 
 Standalone (for tests in another process and for mbpoll)::
 
     python -m firmware_sim.loadcell_server --port 0 [--rtu] [--source sine]
+    python -m firmware_sim.loadcell_server --serial /dev/ttyUSB1 --baud 115200
 
 prints one JSON line with the endpoint on stdout, then feeds the cells from a
 built-in tension source (constant or slow sine per cable) until SIGTERM/SIGINT.
@@ -36,7 +39,7 @@ import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
 from pymodbus.framer import FramerType
-from pymodbus.server import ModbusTcpServer
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from controller.loadcell_map import RegisterMap, load_register_map
@@ -78,6 +81,8 @@ class LoadCellServer:
     :param host: interface to bind [default 127.0.0.1]
     :param port: TCP port, 0 = OS-assigned (read :attr:`port` after :meth:`start`)
     :param rtu: RTU framing instead of Modbus/TCP (MBAP) framing
+    :param serial: serve RTU on this serial device instead of TCP (``host``/``port`` unused)
+    :param baudrate: serial line speed [bit/s], 8N1
     """
 
     def __init__(
@@ -87,15 +92,19 @@ class LoadCellServer:
         host: str = "127.0.0.1",
         port: int = 0,
         rtu: bool = False,
+        serial: str | None = None,
+        baudrate: int = 19200,
     ) -> None:
         self.bank = bank if bank is not None else LoadCellBank()
         self.host = host
         self._requested_port = int(port)
-        self.rtu = bool(rtu)
+        self.serial = serial
+        self.baudrate = int(baudrate)
+        self.rtu = bool(rtu) or serial is not None
         self._port: int | None = None
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: ModbusTcpServer | None = None
+        self._server: ModbusTcpServer | ModbusSerialServer | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
 
@@ -120,12 +129,14 @@ class LoadCellServer:
     def port(self) -> int:
         """The bound TCP port (after :meth:`start`)."""
         if self._port is None:
-            raise RuntimeError("load cell server not started")
+            raise RuntimeError("load cell server not started (or on a serial line)")
         return self._port
 
     @property
     def endpoint(self) -> str:
         """The endpoint in the HAL's ``--modbus`` form."""
+        if self.serial is not None:
+            return f"rtu:{self.serial}:{self.baudrate}"
         base = f"{self.host}:{self.port}"
         return f"rtu-tcp:{base}" if self.rtu else base
 
@@ -152,15 +163,25 @@ class LoadCellServer:
         """Run the server in the current event loop until :meth:`stop` (or cancellation)."""
         self._loop = asyncio.get_running_loop()
         try:
-            self._server = ModbusTcpServer(
-                self._devices(),
-                framer=FramerType.RTU if self.rtu else FramerType.SOCKET,
-                address=(self.host, self._requested_port),
-                ignore_missing_devices=True,
-            )
-            await self._server.serve_forever(background=True)
-            sockets = self._server.transport.sockets  # type: ignore[attr-defined]
-            self._port = int(sockets[0].getsockname()[1])
+            if self.serial is not None:
+                self._server = ModbusSerialServer(
+                    self._devices(),
+                    framer=FramerType.RTU,
+                    port=self.serial,
+                    baudrate=self.baudrate,
+                    ignore_missing_devices=True,
+                )
+                await self._server.serve_forever(background=True)
+            else:
+                self._server = ModbusTcpServer(
+                    self._devices(),
+                    framer=FramerType.RTU if self.rtu else FramerType.SOCKET,
+                    address=(self.host, self._requested_port),
+                    ignore_missing_devices=True,
+                )
+                await self._server.serve_forever(background=True)
+                sockets = self._server.transport.sockets  # type: ignore[attr-defined]
+                self._port = int(sockets[0].getsockname()[1])
         except BaseException as exc:
             self._error = exc
             self._ready.set()
@@ -186,12 +207,12 @@ class LoadCellServer:
 
         self._thread = threading.Thread(target=run, name="loadcell-modbus-server", daemon=True)
         self._thread.start()
+        where = self.serial or f"{self.host}:{self._requested_port}"
         if not self._ready.wait(timeout_s):
-            raise TimeoutError(f"load cell server on {self.host}:{self._requested_port} not ready")
+            raise TimeoutError(f"load cell server on {where} not ready")
         if self._error is not None:
             raise RuntimeError(
-                f"load cell server cannot listen on {self.host}:{self._requested_port}: "
-                f"{self._error}"
+                f"load cell server cannot listen on {where}: {self._error}"
             ) from self._error
         return self
 
@@ -260,6 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1", help="interface to bind [127.0.0.1]")
     p.add_argument("--port", type=int, default=5020, help="TCP port, 0 = any free port [5020]")
     p.add_argument("--rtu", action="store_true", help="RTU framing over TCP instead of Modbus/TCP")
+    p.add_argument("--serial", metavar="DEVICE", help="serve RTU on a serial line instead of TCP")
+    p.add_argument("--baud", type=int, default=19200, help="serial baud rate, 8N1 [19200]")
     p.add_argument("--map", help="register map TOML [firmware_sim/data/loadcell_registers.toml]")
     p.add_argument("--source", choices=("constant", "sine"), default="constant")
     p.add_argument(
@@ -280,7 +303,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     rmap = load_register_map(args.map) if args.map else None
     base = args.tensions if args.tensions is not None else default_tensions()
     bank = LoadCellBank(rmap, initial_N=base)
-    server = LoadCellServer(bank, host=args.host, port=args.port, rtu=args.rtu)
+    server = LoadCellServer(
+        bank, host=args.host, port=args.port, rtu=args.rtu, serial=args.serial, baudrate=args.baud
+    )
     for cable, kind in args.fault:
         try:
             bank.inject(cable, kind)
@@ -288,15 +313,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"--fault: {exc.args[0]}", file=sys.stderr)
             return 2
     bank.update(base)  # first sample before anyone can read
-    server.start()
+    try:
+        server.start()
+    except (RuntimeError, TimeoutError) as exc:
+        print(str(exc), file=sys.stderr)
+        return 1
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     info = {
         "endpoint": server.endpoint,
-        "host": server.host,
-        "port": server.port,
-        "framer": "rtu" if args.rtu else "socket",
+        "host": None if args.serial else server.host,
+        "port": None if args.serial else server.port,
+        "serial": args.serial,
+        "framer": "rtu" if server.rtu else "socket",
         "units": dict(zip(bank.map.cables, bank.map.unit_ids, strict=True)),
         "source": args.source,
         "tensions_N": [float(v) for v in base],
