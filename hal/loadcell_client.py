@@ -409,4 +409,5 @@ def client_from_args(args) -> LoadCellClient:
         rate_hz=args.loadcell_rate,
         timeout_s=args.loadcell_timeout,
         stale_s=args.loadcell_stale,
+        max_age_s=getattr(args, "loadcell_max_age", None),
     )

@@ -136,11 +136,11 @@ def test_client_from_command_line(tmp_path):
     add_modbus_arguments(p)
     args = p.parse_args(
         ["--modbus", "rtu-tcp:127.0.0.1:1502", "--loadcell-calibration", str(cal),
-         "--loadcell-timeout", "0.05", "--loadcell-stale", "0.5"]
+         "--loadcell-timeout", "0.05", "--loadcell-stale", "0.5", "--loadcell-max-age", "2"]
     )
     client = client_from_args(args)
     assert str(client.endpoint) == "rtu-tcp:127.0.0.1:1502"
     assert client.calibration.gain[3] == 1.1 and client.timeout_s == 0.05
-    assert client.stale_s == 0.5
+    assert client.stale_s == 0.5 and client.max_age_s == 2.0
     with pytest.raises(ValueError, match="give --modbus"):
         client_from_args(p.parse_args([]))
