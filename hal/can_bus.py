@@ -1,0 +1,149 @@
+"""Open the CAN bus from one command-line form shared by every command.
+
+``--can SPEC`` where SPEC is
+
+- ``virtual:NAME``             python-can's in-process virtual bus (tests, one process)
+- ``socketcand:HOST:PORT``     a socketcand server, e.g. the simulated rig's hub
+  (``socketcand:HOST:PORT:CHANNEL`` to open another channel than ``can0``; IPv6 hosts in
+  brackets: ``socketcand:[::1]:29536``)
+- ``socketcan:CHANNEL``        Linux SocketCAN, e.g. ``socketcan:can0`` on the robot
+- ``INTERFACE:CHANNEL``        any other python-can interface (``pcan:PCAN_USBBUS1``,
+  ``kvaser:0``, ...), passed to :func:`can.Bus` as is
+
+:func:`parse_can_spec` checks the form and raises :class:`CanSpecError` naming what is
+wrong; :func:`open_bus` opens it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+from can.interfaces import VALID_INTERFACES
+
+DEFAULT_SOCKETCAND_CHANNEL = "can0"
+
+
+class CanSpecError(ValueError):
+    """A ``--can`` specification is malformed; the message says which part and why."""
+
+
+@dataclass(frozen=True)
+class CanSpec:
+    """A parsed ``--can`` specification."""
+
+    interface: str
+    channel: str
+    host: str | None = None
+    port: int | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def bus_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for :func:`can.Bus`."""
+        kw: dict[str, Any] = {"interface": self.interface, "channel": self.channel}
+        if self.interface == "socketcand":
+            kw.update(host=self.host, port=self.port, tcp_tune=True)
+        kw.update(self.options)
+        return kw
+
+    def __str__(self) -> str:
+        if self.interface == "socketcand":
+            host = f"[{self.host}]" if self.host and ":" in self.host else self.host
+            tail = "" if self.channel == DEFAULT_SOCKETCAND_CHANNEL else f":{self.channel}"
+            return f"socketcand:{host}:{self.port}{tail}"
+        return f"{self.interface}:{self.channel}"
+
+
+_FORMS = "virtual:NAME, socketcan:CHANNEL, socketcand:HOST:PORT[:CHANNEL] or INTERFACE:CHANNEL"
+
+
+def _port(text: str, spec: str) -> int:
+    try:
+        port = int(text, 10)
+    except ValueError:
+        raise CanSpecError(f"--can {spec!r}: port {text!r} is not a number") from None
+    if not 1 <= port <= 65535:
+        raise CanSpecError(f"--can {spec!r}: port {port} is not in 1..65535")
+    return port
+
+
+def parse_can_spec(spec: str) -> CanSpec:
+    """Parse a ``--can`` specification (see the module docstring)."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise CanSpecError(f"--can: empty specification; expected {_FORMS}")
+    spec = spec.strip()
+    interface, sep, rest = spec.partition(":")
+    if not sep:
+        raise CanSpecError(f"--can {spec!r}: missing ':'; expected {_FORMS}")
+    if interface not in VALID_INTERFACES:
+        raise CanSpecError(
+            f"--can {spec!r}: unknown python-can interface {interface!r}; "
+            f"known: {', '.join(sorted(VALID_INTERFACES))}"
+        )
+    if interface == "socketcand":
+        if rest.startswith("["):
+            close = rest.find("]")
+            if close < 0:
+                raise CanSpecError(f"--can {spec!r}: '[' of an IPv6 host without ']'")
+            host, after = rest[1:close], rest[close + 1:]
+            if not after.startswith(":"):
+                raise CanSpecError(f"--can {spec!r}: expected ':PORT' after the host")
+            parts = after[1:].split(":")
+        else:
+            host, *parts = rest.split(":")
+        if not host:
+            raise CanSpecError(f"--can {spec!r}: missing host; expected socketcand:HOST:PORT")
+        if not parts or not parts[0]:
+            raise CanSpecError(f"--can {spec!r}: missing port; expected socketcand:HOST:PORT")
+        if len(parts) > 2:
+            raise CanSpecError(f"--can {spec!r}: too many ':' fields; "
+                               "expected socketcand:HOST:PORT[:CHANNEL]")
+        port = _port(parts[0], spec)
+        channel = parts[1] if len(parts) == 2 else DEFAULT_SOCKETCAND_CHANNEL
+        if not channel:
+            raise CanSpecError(f"--can {spec!r}: empty channel after the port")
+        return CanSpec("socketcand", channel, host=host, port=port)
+    if not rest:
+        raise CanSpecError(f"--can {spec!r}: missing channel after '{interface}:'")
+    if interface in ("virtual", "socketcan") and ":" in rest:
+        raise CanSpecError(f"--can {spec!r}: channel {rest!r} must not contain ':'")
+    return CanSpec(interface, rest)
+
+
+def open_bus(spec: str | CanSpec, **options: Any) -> can.BusABC:
+    """Open the bus of a ``--can`` specification (extra ``options`` go to :func:`can.Bus`)."""
+    s = parse_can_spec(spec) if isinstance(spec, str) else spec
+    if s.interface == "socketcand":
+        # python-can retries a refused connection for 10 s; fail fast with a clear message
+        try:
+            socket.create_connection((s.host, s.port), timeout=2.0).close()
+        except OSError as exc:
+            raise can.CanInitializationError(
+                f"--can {s}: no socketcand server at {s.host}:{s.port}: {exc}") from exc
+    kw = s.bus_kwargs()
+    kw.update(options)
+    try:
+        return can.Bus(**kw)
+    except (can.CanError, OSError, TimeoutError, ValueError) as exc:
+        raise can.CanInitializationError(f"--can {s}: cannot open the bus: {exc}") from exc
+
+
+def add_can_argument(parser: argparse.ArgumentParser, default: str | None = None) -> None:
+    """Add the shared ``--can SPEC`` option (parsed into a :class:`CanSpec`)."""
+
+    def _type(text: str) -> CanSpec:
+        try:
+            return parse_can_spec(text)
+        except CanSpecError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parser.add_argument(
+        "--can",
+        type=_type,
+        default=parse_can_spec(default) if default else None,
+        metavar="SPEC",
+        help=f"CAN bus: {_FORMS}" + (f" (default {default})" if default else ""),
+    )

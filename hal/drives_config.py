@@ -1,0 +1,255 @@
+"""Start-up configuration of the winch drives: the SDO table, written and verified.
+
+:func:`drive_settings` turns the winch parameters (``controller/data/rocaspect_winches.toml``)
+into the list of object writes one drive needs for cyclic synchronous position (CSP):
+communication (SYNC 0x1005/0x1006, heartbeat 0x1017), the PDO mapping (RPDO1 =
+controlword + target position, TPDO1 = statusword + position actual value, transmission
+type 1 = every SYNC, RPDO deadline 0x1400 sub 5) following the CiA 301 procedure
+(invalidate, clear, map, count, validate), and the drive parameters (mode 8, following
+error, software limits, velocity/acceleration limits, ramps, quick stop and fault
+reaction options). Every entry is checked against the EDS first (object exists, is
+writable, the value fits its type, mapped objects are mappable), then written by SDO and
+read back (:func:`configure_node`). Blocking: run it at start-up, never in the cycle.
+Errors name the node, the cable, the object and the value.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import canopen
+from canopen import objectdictionary
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from controller.winch import WinchSet, limits_counts, m_to_counts_rate, metres_per_count
+
+PDO_INVALID = 1 << 31
+MODE_CSP = 8
+RPDO_MAP: tuple[tuple[int, int], ...] = ((0x6040, 0), (0x607A, 0))  # controlword, target
+TPDO_MAP: tuple[tuple[int, int], ...] = ((0x6041, 0), (0x6064, 0))  # statusword, position
+SUPPORTED_MODE_CSP_BIT = 1 << 7  # 0x6502
+
+SDO_ABORT_TEXT = {
+    0x05040000: "SDO protocol timed out",
+    0x06010000: "unsupported access to an object",
+    0x06010002: "attempt to write a read only object",
+    0x06020000: "object does not exist",
+    0x06040041: "object cannot be mapped to the PDO",
+    0x06040042: "the number and length of the mapped objects would exceed the PDO length",
+    0x06070010: "data type does not match, length of service parameter does not match",
+    0x06090011: "sub-index does not exist",
+    0x06090030: "value range of parameter exceeded",
+    0x08000020: "data cannot be transferred or stored to the application",
+    0x08000022: "data cannot be transferred or stored because of the present device state",
+    0x08000024: "no data available",
+}
+
+
+class DriveConfigError(RuntimeError):
+    """A drive could not be configured or does not match; the message names node and object."""
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One object write of the start-up configuration."""
+
+    index: int
+    subindex: int
+    value: int
+    name: str
+    verify: bool = True  #: read back and compare after writing
+
+    def where(self) -> str:
+        return f"0x{self.index:04X}:{self.subindex:02X} {self.name}"
+
+
+def _od_var(od: canopen.ObjectDictionary, index: int, subindex: int) -> objectdictionary.ODVariable:
+    obj = od[index]
+    if not isinstance(obj, objectdictionary.ODVariable):
+        obj = obj[subindex]
+    return obj
+
+
+def interpolation_period(period_us: int) -> tuple[int, int]:
+    """0x60C2 (value, index) with value * 10**index s = ``period_us``, value 1..255."""
+    for index in (-3, -4, -5, -6, -2, -1):
+        scale = 10 ** (index + 6)  # microseconds per unit
+        if period_us % scale == 0 and 1 <= period_us // scale <= 255:
+            return period_us // scale, index
+    raise DriveConfigError(f"SYNC period {period_us} us cannot be written as 0x60C2 value*10^index")
+
+
+def pdo_settings(
+    od: canopen.ObjectDictionary,
+    kind: str,
+    entries: tuple[tuple[int, int], ...],
+    trans_type: int,
+    event_timer_ms: int | None = None,
+) -> list[Setting]:
+    """CiA 301 sequence mapping ``entries`` (index, subindex) to PDO 1 of ``kind`` rpdo/tpdo."""
+    comm, mapping = (0x1400, 0x1600) if kind == "rpdo" else (0x1800, 0x1A00)
+    name = kind.upper() + "1"
+    cob = int(_od_var(od, comm, 1).default) & 0x7FF
+    out = [
+        Setting(comm, 1, cob | PDO_INVALID, f"{name} COB-ID (invalid)", verify=False),
+        Setting(comm, 2, trans_type, f"{name} transmission type"),
+    ]
+    if event_timer_ms is not None:
+        out.append(Setting(comm, 5, event_timer_ms, f"{name} event timer [ms]"))
+    out.append(Setting(mapping, 0, 0, f"{name} mapping count (clear)", verify=False))
+    for i, (index, sub) in enumerate(entries, start=1):
+        var = _od_var(od, index, sub)
+        out.append(Setting(mapping, i, index << 16 | sub << 8 | len(var), f"{name} map {var.name}"))
+    out.append(Setting(mapping, 0, len(entries), f"{name} mapping count"))
+    out.append(Setting(comm, 1, cob, f"{name} COB-ID (valid)"))
+    return out
+
+
+def drive_settings(w: WinchSet, k: int, od: canopen.ObjectDictionary) -> list[Setting]:
+    """The start-up writes of winch ``k`` (array index) for CSP, in order."""
+    bus = w.bus
+    mpc = metres_per_count(w)[k]
+    lo, hi = (int(x[k]) for x in limits_counts(w))
+
+    def rate(x: float) -> int:
+        return int(round(float(m_to_counts_rate(x, w)[k])))
+
+    period_us = bus.sync_period_us
+    ip_value, ip_index = interpolation_period(period_us)
+    s: list[Setting] = [
+        Setting(0x1005, 0, 0x80, "COB-ID SYNC"),
+        Setting(0x1006, 0, period_us, "communication cycle period [us]"),
+        Setting(0x1017, 0, bus.heartbeat_ms, "producer heartbeat time [ms]"),
+    ]
+    s += pdo_settings(od, "rpdo", RPDO_MAP, 1, bus.rpdo_timeout_ms)
+    s += pdo_settings(od, "tpdo", TPDO_MAP, 1)
+    s += [
+        Setting(0x6060, 0, MODE_CSP, "modes of operation (CSP)"),
+        Setting(0x60C2, 1, ip_value, "interpolation time period value"),
+        Setting(0x60C2, 2, ip_index, "interpolation time index"),
+        Setting(0x6065, 0, int(round(w.following_error_m[k] / mpc)), "following error window"),
+        Setting(0x6066, 0, int(round(w.following_error_time_s[k] * 1e3)),
+                "following error time out [ms]"),
+        Setting(0x6067, 0, int(round(w.position_window_m[k] / mpc)), "position window"),
+        Setting(0x607D, 1, lo, "software position limit min"),
+        Setting(0x607D, 2, hi, "software position limit max"),
+        Setting(0x607F, 0, rate(w.max_speed_m_s[k]), "max profile velocity"),
+        Setting(0x60C5, 0, rate(w.max_accel_m_s2[k]), "max acceleration"),
+        Setting(0x6081, 0, rate(w.profile_speed_m_s[k]), "profile velocity"),
+        Setting(0x6083, 0, rate(w.profile_accel_m_s2[k]), "profile acceleration"),
+        Setting(0x6084, 0, rate(w.profile_accel_m_s2[k]), "profile deceleration"),
+        Setting(0x6085, 0, rate(w.quick_stop_decel_m_s2[k]), "quick stop deceleration"),
+        Setting(0x605A, 0, int(w.quick_stop_option[k]), "quick stop option code"),
+        Setting(0x605E, 0, int(w.fault_reaction_option[k]), "fault reaction option code"),
+        Setting(0x6076, 0, int(round(w.rated_torque_nm[k] * 1e3)), "motor rated torque [mN*m]"),
+    ]
+    return s
+
+
+def check_against_eds(settings: list[Setting], od: canopen.ObjectDictionary, who: str) -> None:
+    """Every setting names a writable object of the EDS and fits its type; PDO maps mappable."""
+    for st in settings:
+        try:
+            var = _od_var(od, st.index, st.subindex)
+        except KeyError:
+            raise DriveConfigError(f"{who}: {st.where()}: not in the EDS") from None
+        if not var.writable:
+            raise DriveConfigError(f"{who}: {st.where()}: read-only in the EDS ({var.access_type})")
+        try:
+            var.encode_raw(st.value)
+        except (ValueError, struct.error) as exc:
+            raise DriveConfigError(
+                f"{who}: {st.where()} = {st.value}: does not fit the EDS data type "
+                f"0x{var.data_type:04X}: {exc}") from None
+        if 0x1600 <= st.index <= 0x17FF or 0x1A00 <= st.index <= 0x1BFF:
+            if st.subindex and st.value:
+                index, sub = st.value >> 16, (st.value >> 8) & 0xFF
+                mapped = _od_var(od, index, sub)
+                if not mapped.pdo_mappable:
+                    raise DriveConfigError(f"{who}: {st.where()}: 0x{index:04X} {mapped.name} "
+                                           "is not PDO-mappable in the EDS")
+
+
+def _abort_text(exc: SdoAbortedError) -> str:
+    return f"SDO abort 0x{exc.code:08X} ({SDO_ABORT_TEXT.get(exc.code, 'see CiA 301')})"
+
+
+def sdo_read(node: canopen.RemoteNode, index: int, subindex: int, who: str) -> int | str:
+    """Read one object by SDO, decoded with the EDS type; DriveConfigError on failure."""
+    var = _od_var(node.object_dictionary, index, subindex)
+    try:
+        data = node.sdo.upload(index, subindex)
+    except SdoAbortedError as exc:
+        raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
+                               f"{_abort_text(exc)}") from exc
+    except SdoCommunicationError as exc:
+        raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
+                               f"no SDO answer ({exc})") from exc
+    return var.decode_raw(data)
+
+
+def sdo_write(node: canopen.RemoteNode, st: Setting, who: str) -> None:
+    """Write one setting by SDO; DriveConfigError naming the object on failure."""
+    var = _od_var(node.object_dictionary, st.index, st.subindex)
+    try:
+        node.sdo.download(st.index, st.subindex, var.encode_raw(st.value))
+    except SdoAbortedError as exc:
+        raise DriveConfigError(f"{who}: writing {st.where()} = {st.value}: {_abort_text(exc)}"
+                               ) from exc
+    except SdoCommunicationError as exc:
+        raise DriveConfigError(f"{who}: writing {st.where()} = {st.value}: no SDO answer ({exc})"
+                               ) from exc
+
+
+def verify_identity(node: canopen.RemoteNode, who: str) -> None:
+    """Device type (0x1000), vendor id and product code (0x1018) and CSP support match the EDS."""
+    od = node.object_dictionary
+    checks = [
+        (0x1000, 0, _od_var(od, 0x1000, 0).default, "device type"),
+        (0x1018, 1, od.device_information.vendor_number or _od_var(od, 0x1018, 1).default,
+         "vendor id"),
+        (0x1018, 2, od.device_information.product_number or _od_var(od, 0x1018, 2).default,
+         "product code"),
+    ]
+    for index, sub, want, what in checks:
+        got = sdo_read(node, index, sub, who)
+        if got != want:
+            raise DriveConfigError(f"{who}: 0x{index:04X}:{sub:02X} {what} is 0x{got:08X}, "
+                                   f"the EDS says 0x{want:08X}: wrong device on this node id?")
+    modes = sdo_read(node, 0x6502, 0, who)
+    if not int(modes) & SUPPORTED_MODE_CSP_BIT:
+        raise DriveConfigError(f"{who}: 0x6502 supported drive modes 0x{modes:08X} lacks "
+                               "cyclic synchronous position (bit 7)")
+
+
+def configure_node(node: canopen.RemoteNode, settings: list[Setting], who: str) -> None:
+    """Write ``settings`` in order, then read back and compare every verified one."""
+    check_against_eds(settings, node.object_dictionary, who)
+    for st in settings:
+        sdo_write(node, st, who)
+    final: dict[tuple[int, int], Setting] = {}
+    for st in settings:
+        if st.verify:
+            final[(st.index, st.subindex)] = st
+    for st in final.values():
+        got = sdo_read(node, st.index, st.subindex, who)
+        if got != st.value:
+            raise DriveConfigError(f"{who}: {st.where()} reads back {got}, wrote {st.value}")
+    mode = sdo_read(node, 0x6061, 0, who)
+    if mode != MODE_CSP:
+        raise DriveConfigError(f"{who}: 0x6061 modes of operation display is {mode}, expected "
+                               f"{MODE_CSP} (CSP) after writing 0x6060")
+
+
+def pdo_struct(od: canopen.ObjectDictionary, entries: tuple[tuple[int, int], ...]) -> struct.Struct:
+    """Little-endian struct packing the mapped objects of a PDO, from their EDS types."""
+    fmt = "<"
+    for index, sub in entries:
+        var = _od_var(od, index, sub)
+        st = var.STRUCT_TYPES.get(var.data_type)
+        if st is None:
+            raise DriveConfigError(f"0x{index:04X} {var.name}: type 0x{var.data_type:04X} "
+                                   "cannot be packed in a PDO")
+        fmt += st.format.lstrip("<>=!@")
+    return struct.Struct(fmt)
