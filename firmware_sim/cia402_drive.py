@@ -377,23 +377,37 @@ class SimulatedDrive:
             self._advance_to(int(round(self._clock() * 1e6)))
 
     def _advance_to(self, now_us: int) -> None:
-        dt_us = now_us - self.now_us
-        if dt_us <= 0:
+        if now_us <= self.now_us:
             return
         if not self.powered:
             self.now_us = now_us
             return
-        if self._clock is not None:
-            dt_us = min(dt_us, 200_000)  # a stalled clock does not make the axis jump
-        n = max(1, math.ceil(dt_us / 2000))
-        t0 = self.now_us
-        for i in range(n):
-            h_us = (dt_us * (i + 1)) // n - (dt_us * i) // n
-            self._motion_step(h_us)
-        self.now_us = max(now_us, t0 + dt_us)
-        self._heartbeat()
-        self._rpdo_deadline()
+        if self._clock is not None and now_us - self.now_us > 200_000:
+            # a stalled wall clock: do not replay the gap (no axis jump, no heartbeat burst)
+            self.now_us = now_us - 200_000
+            if self._next_hb_us is not None and self._next_hb_us < self.now_us:
+                self._next_hb_us = self.now_us
+        while True:
+            stop = now_us
+            hb_due = self._next_hb_us is not None and self._next_hb_us <= now_us
+            if hb_due:
+                stop = max(self._next_hb_us, self.now_us)
+            self._integrate(stop - self.now_us)
+            self.now_us = stop
+            if hb_due:
+                self._heartbeat()
+            self._rpdo_deadline()
+            if stop >= now_us:
+                break
         self._async_tpdos()
+
+    def _integrate(self, dt_us: int) -> None:
+        """Motion over ``dt_us`` in sub-steps of at most 2 ms."""
+        if dt_us <= 0:
+            return
+        n = max(1, math.ceil(dt_us / 2000))
+        for i in range(n):
+            self._motion_step((dt_us * (i + 1)) // n - (dt_us * i) // n)
 
     # ------------------------------------------------------------------ NMT / heartbeat
 
@@ -402,13 +416,14 @@ class SimulatedDrive:
         self._next_hb_us = self.now_us + period_ms * 1000 if period_ms > 0 else None
 
     def _heartbeat(self) -> None:
+        """Send the heartbeat due now and schedule the next one."""
         if self._next_hb_us is None or self.now_us < self._next_hb_us:
             return
         period_us = int(self.param(0x1017)) * 1000
         if not self.heartbeat_stopped:
             self._send(0x700 + self.node_id, bytes([self.nmt_state]), "heartbeat")
         self._next_hb_us += period_us
-        if self._next_hb_us <= self.now_us:
+        if self._next_hb_us <= self.now_us - period_us:
             self._next_hb_us = self.now_us + period_us
 
     def _on_nmt(self, can_id: int, data: bytes, timestamp: float) -> None:

@@ -40,6 +40,7 @@ class SimulatedWinchBank:
         self.lock = threading.RLock()
         self.clock = clock
         self.network = canopen.Network(bus)
+        self.network.NOTIFIER_CYCLE = 0.05  # quick shutdown
         self.drives: list[SimulatedDrive] = [
             SimulatedDrive(
                 self.winches.axis(k),
