@@ -188,6 +188,7 @@ class WinchDrives:
         self._last_cw = np.zeros(n, np.int64)
         self._reset_left = np.zeros(n, np.int64)  # cycles left holding fault reset
         self._started = np.zeros(n, bool)  # configured and NMT started by us
+        self._armed = np.zeros(n, bool)  # got a SYNC since it was started: owes TPDOs
         self._rebooted = np.zeros(n, bool)
         self._hb_last = np.zeros(n)
         self._hb_lost = np.zeros(n, bool)
@@ -389,6 +390,7 @@ class WinchDrives:
         for k in ks:
             self._send_nmt(k, 0x01)  # start remote node
             self._started[k] = True
+            self._armed[k] = False
             self._rebooted[k] = False
             self._hb_lost[k] = False
             self._hb_last[k] = now
@@ -478,7 +480,7 @@ class WinchDrives:
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise ValueError(
-                f"set_lengths: {self.who(k)}: {x[k]!r} m is not within "
+                f"set_lengths: {self.who(k)}: {float(x[k])!r} m is not within "
                 f"[{self.winches.min_length_m[k]}, {self.winches.max_length_m[k]}] m")
         self.set_positions_counts(m_to_counts(x, self.winches))
 
@@ -492,7 +494,7 @@ class WinchDrives:
     # ------------------------------------------------------------------ the cycle
 
     def _expected(self) -> np.ndarray:
-        return self._started & ~self._rebooted & ~self._hb_lost
+        return self._started & self._armed & ~self._rebooted & ~self._hb_lost
 
     def exchange(self) -> None:
         """One control cycle: process what arrived, run the state machine, send RPDOs + SYNC.
@@ -518,8 +520,6 @@ class WinchDrives:
         self.cycle += 1
 
     def _check_pdos(self, fresh: np.ndarray, n_new: np.ndarray, expected: np.ndarray) -> None:
-        if self._syncs == 0:
-            return
         for k in np.flatnonzero(expected & ~fresh):
             if self._miss_streak[k] == 0:
                 self._event(k, "tpdo_missing", CODE_PDO_TIMEOUT,
@@ -602,6 +602,7 @@ class WinchDrives:
                 self._expect = self._rx_count.copy()
             bus_send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
             self._syncs += 1
+            self._armed |= send
 
     def wait_feedback(self, timeout: float = 0.5) -> bool:
         """Wait until every expected drive answered the last SYNC (lock-step; blocks)."""

@@ -75,7 +75,8 @@ def test_socketcand_without_server_fails_fast_and_clearly():
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()  # nothing listens there now
-    with pytest.raises(can.CanInitializationError, match=f"no socketcand server at 127.0.0.1:{port}"):
+    with pytest.raises(can.CanInitializationError,
+                       match=f"no socketcand server at 127.0.0.1:{port}"):
         open_bus(f"socketcand:127.0.0.1:{port}")
 
 

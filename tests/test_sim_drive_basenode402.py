@@ -17,8 +17,8 @@ import pytest
 from canopen.profiles.p402 import BaseNode402
 
 from controller.winch import load_winches
-from firmware_sim.drive_bank import SimulatedWinchBank
 from firmware_sim.cia402_drive import EDS_PATH, State
+from firmware_sim.drive_bank import SimulatedWinchBank
 
 
 @pytest.fixture
