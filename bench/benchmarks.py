@@ -18,6 +18,7 @@ BenchFn = Callable[[bool], dict[str, float]]
 MODULES: tuple[str, ...] = (
     "bench.bench_physics",
     "bench.bench_hil_modbus",
+    "bench.bench_hil_can",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}

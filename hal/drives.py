@@ -37,7 +37,8 @@ Detection (reported by :meth:`faults` while active and as :class:`DriveEvent` hi
 - heartbeat lost: no heartbeat for ``heartbeat_misses`` periods (code 0x8130);
 - unexpected boot-up (node reset; code 0x8130) or NMT state other than OPERATIONAL;
 - TPDO missing for a SYNC or arriving late (code 0x8250 from the master's side);
-- internal limit active (software position limit reached, statusword bit 11).
+- internal limit active (software position limit reached, statusword bit 11);
+- the bus refusing frames (node id 0, code 0x8100), without raising out of the cycle.
 
 Clock: ``clock="wall"`` (time.monotonic) for real drives, ``clock="sync"`` (number of SYNCs
 sent x SYNC period) with a rig on the deterministic simulated clock, or any callable.
@@ -82,6 +83,7 @@ from hal.drives_config import (
 
 CODE_HEARTBEAT = 0x8130  # life guard / heartbeat error (CiA 301)
 CODE_PDO_TIMEOUT = 0x8250  # RPDO timeout, here: the master's receive PDO = drive's TPDO
+CODE_BUS = 0x8100  # communication, generic: the bus refused our frames
 
 NMT_NAMES = {0x00: "BOOT-UP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 NMT_OPERATIONAL = 0x05
@@ -98,7 +100,8 @@ class DriveEvent:
     node_id: int
     cable: str
     kind: str  #: emcy, fault, fault_cleared, heartbeat_lost, heartbeat_resumed, boot_up,
-    #: nmt_state, tpdo_missing, tpdo_late, internal_limit, fault_reset_failed, recovered
+    #: nmt_state, tpdo_missing, tpdo_late, tpdo_short, internal_limit, fault_reset_failed,
+    #: recovered, bus_error (node_id 0)
     code: int  #: EMCY / error code (0 when none applies)
     text: str
     source: str  #: "drive" (EMCY it sent) or "hal" (detected by the master)
@@ -197,6 +200,7 @@ class WinchDrives:
         self._limit = np.zeros(n, bool)
         self._code = np.zeros(n, np.int64)  # last active EMCY code (0 = none)
         self._events: list[DriveEvent] = []
+        self._bus_failing = False
         self._send_lock = network.send_lock
         self._subs: list[tuple[int, Callable]] = []
         for k, node in enumerate(self.nodes):
@@ -294,6 +298,10 @@ class WinchDrives:
     def _event(self, k: int, kind: str, code: int, text: str, source: str = "hal") -> None:
         self._events.append(DriveEvent(self.node_ids[k], self.winches.cables[k], kind, code,
                                        text, source, self.cycle, self._clock()))
+
+    def _bus_event(self, text: str) -> None:
+        self._events.append(DriveEvent(0, "-", "bus_error", CODE_BUS, text, "hal", self.cycle,
+                                       self._clock()))
 
     def events(self, clear: bool = True) -> list[DriveEvent]:
         """Events since the last call (all of them with ``clear=False``: kept)."""
@@ -593,16 +601,27 @@ class WinchDrives:
         send = self._started & ~self._rebooted
         bus_send = self.network.bus.send
         pack = self._rpdo.pack
-        with self._send_lock:
-            for k in np.flatnonzero(send):
-                bus_send(can.Message(arbitration_id=0x200 + self.node_ids[k],
-                                     data=pack(int(cw[k]), int(target[k])),
-                                     is_extended_id=False))
-            with self._rx:
-                self._expect = self._rx_count.copy()
-            bus_send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
-            self._syncs += 1
-            self._armed |= send
+        try:
+            with self._send_lock:
+                for k in np.flatnonzero(send):
+                    bus_send(can.Message(arbitration_id=0x200 + self.node_ids[k],
+                                         data=pack(int(cw[k]), int(target[k])),
+                                         is_extended_id=False))
+                with self._rx:
+                    self._expect = self._rx_count.copy()
+                bus_send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+        except (can.CanError, OSError) as exc:
+            # the bus refused the frames (bus off, link down): report once per streak and
+            # keep cycling; the drives' heartbeats and TPDOs tell what happened to them
+            if not self._bus_failing:
+                self._bus_event(f"sending RPDOs/SYNC failed: {exc}")
+            self._bus_failing = True
+        else:
+            if self._bus_failing:
+                self._bus_event("sending works again")
+            self._bus_failing = False
+        self._syncs += 1
+        self._armed |= send
 
     def wait_feedback(self, timeout: float = 0.5) -> bool:
         """Wait until every expected drive answered the last SYNC (lock-step; blocks)."""
