@@ -407,6 +407,14 @@ class WinchDrives:
             self._request[k] = Request.DISABLE
             self._setpoint_ok[k] = False
         self._states = decode_states(self._sw, self._have)
+        for k in ks:
+            if faulted(self._states[k:k + 1])[0]:
+                if not self._code[k]:  # its EMCY may have gone out before we listened
+                    self._code[k] = int(sdo_read(self.nodes[k], 0x603F, 0, self.who(k)))
+                code = int(self._code[k])
+                text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
+                self._event(k, "fault", code, f"in {DriveState(self._states[k]).name} at "
+                            f"start-up: {text}")
 
     def _drain_startup(self, ks: list[int]) -> None:
         """Consume events of the start-up (boot-ups we caused); keep EMCYs."""

@@ -432,3 +432,45 @@ def test_wrong_device_or_missing_csp_is_refused():
             r.hal.start()
     finally:
         r.close()
+
+
+def test_drive_faulted_at_start_up_is_reported_and_blocks_enable():
+    r = Rig(start=False, enable=False, before_start=lambda b: b.drives[7].inject_encoder_fault())
+    try:
+        r.hal.start()
+        assert _codes(r.hal.faults()) == [(8, "drive_fault", 0x7305)]
+        assert [(e.node_id, e.kind, e.code) for e in r.hal.events() if e.kind == "fault"] == [
+            (8, "fault", 0x7305)]
+        with pytest.raises(DriveStartupError, match=r"node 8 \(cable 42\): FAULT"):
+            r.hal.enable_and_wait(max_cycles=10)
+        assert np.all(np.delete(r.hal.states(), 7) == OE)
+    finally:
+        r.close()
+
+
+def test_wall_clock_rig_and_master():
+    """Real-time mode: drives follow time.monotonic (heartbeats from the bank's ticker thread),
+    the master checks heartbeats on the wall clock."""
+    w = W.replace(bus=dataclasses.replace(W.bus, heartbeat_period_s=0.02))
+    ch = f"haldrives-wall-{uuid.uuid4().hex}"
+    bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=ch), w, clock=time.monotonic)
+    bank.set_positions_m(L0)
+    bank.start()
+    hal = WinchDrives.open(f"virtual:{ch}", w, EDS_PATH, clock="wall")
+    try:
+        hal.start()
+        hal.enable_and_wait()
+        l0 = hal.lengths_m()
+        for i in range(1, 100):
+            hal.set_lengths(l0 + 0.01 * (1 - np.cos(2 * np.pi * i / 100)))
+            assert hal.step()
+        bank.drives[0].stop_heartbeat()
+        deadline = time.monotonic() + 5.0
+        while not any(f.kind == "heartbeat_lost" for f in hal.faults()):
+            assert time.monotonic() < deadline, "heartbeat loss not detected on the wall clock"
+            hal.step()
+            time.sleep(0.004)
+        assert {(f.node_id, f.kind) for f in hal.faults()} == {(1, "heartbeat_lost")}
+    finally:
+        hal.close()
+        bank.close()
