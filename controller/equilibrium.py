@@ -1,0 +1,359 @@
+"""Elasto-static equilibrium: the pose of a platform hung on elastic cables from compliant masts.
+
+Unknowns: the pose (6) and the mast rotations theta (m,3). For unstretched
+lengths L0 (n,) the equations are
+
+    W(x) tau(x) + w_g(x) = 0                (force and moment on the platform)
+    theta_i - c_i * M_i(x) = 0              (each mast, c = 1/k, rigid: c = 0)
+
+with ``tau = ea (L - L0)/L0`` (0 when slack), L the geometric length to the
+displaced exit points A# (pulleys included) and M_i the cable moments about the
+pivots (:mod:`controller.masts`). Newton's method with the analytic Jacobian
+(:func:`residual_and_jacobian`), a backtracking line search and a warm start;
+non-convergence is reported, never hidden.
+
+Pose increments are ``(dt, w)`` with w a small rotation in F_b (see
+:func:`controller.pose.compose`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+
+from controller.energy import potential_energy
+from controller.kinematics import (
+    CableState,
+    cable_state,
+    gravity_wrench,
+    unit_vector_derivative,
+)
+from controller.masts import deflect, lever_arms, mast_incidence, mast_moments
+from controller.pose import compose, cross, skew
+from controller.robot import Robot
+from controller.statics import elastic_tensions, settled_exits
+
+
+class ConvergenceError(RuntimeError):
+    """A solver did not converge; the message says how far it got."""
+
+
+@dataclass(frozen=True)
+class EquilibriumResult:
+    """Result of :func:`solve_equilibrium`.
+
+    ``pose`` (6,); ``theta`` (m,3) [rad]; ``tensions`` (n,) [N]; ``exits`` A#
+    (n,3) [m]; ``success``; ``message``; ``nit`` Newton iterations;
+    ``residual`` scaled residual norm (force/weight, moment/(weight*1 m), rad).
+    The Jacobian at the solution (for sensitivities) comes from
+    :func:`residual_and_jacobian`.
+    """
+
+    pose: np.ndarray
+    theta: np.ndarray
+    tensions: np.ndarray
+    exits: np.ndarray
+    success: bool
+    message: str
+    nit: int
+    residual: float
+
+    def raise_if_failed(self) -> EquilibriumResult:
+        if not self.success:
+            raise ConvergenceError(self.message)
+        return self
+
+
+@dataclass(frozen=True)
+class EquilibriumTerms:
+    """Everything evaluated at one iterate (shared by residual, Jacobian and results)."""
+
+    state: CableState
+    exits: np.ndarray
+    tensions: np.ndarray
+    taut: np.ndarray
+    forces: np.ndarray  # (n,3) cable forces on the platform, tau*u
+    residual: np.ndarray
+
+
+def _terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
+           a_star: np.ndarray, r: np.ndarray) -> EquilibriumTerms:
+    exits = deflect(a_star, r, theta, robot.mast_index) if robot.compliant else a_star
+    st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+    tau = elastic_tensions(st.length, l0, robot.ea)
+    f = tau[:, None] * st.u
+    wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
+    F = np.empty(6 + 3 * robot.n_masts)
+    F[:3] = f.sum(axis=0) + wg[:3]
+    F[3:6] = cross(st.Rb, f).sum(axis=0) + wg[3:]
+    M = mast_moments(r, tau, st.u, robot.mast_index, robot.n_masts)
+    F[6:] = (theta - robot.compliance * M).ravel()
+    return EquilibriumTerms(st, exits, tau, st.length > l0, f, F)
+
+
+def residual_and_jacobian(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
+                          a_star: np.ndarray | None = None
+                          ) -> tuple[EquilibriumTerms, np.ndarray]:
+    """Residual terms and the analytic Jacobian d(residual)/d(dt, w, theta) (6+3m square)."""
+    a_star = settled_exits(robot) if a_star is None else a_star
+    r = lever_arms(a_star, robot.pivots, robot.mast_index)
+    T = _terms(robot, pose, theta, l0, a_star, r)
+    return T, _jacobian(robot, T, l0, r)
+
+
+def _jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray) -> np.ndarray:
+    st, tau, f = T.state, T.tensions, T.forces
+    n, m = robot.n_cables, robot.n_masts
+    u = st.u
+    # df_j = K_j (dB_j - dA_j)
+    kax = np.where(T.taut, robot.ea / l0, 0.0)
+    K = -kax[:, None, None] * (u[:, :, None] * u[:, None, :]) \
+        + tau[:, None, None] * unit_vector_derivative(st)
+    sRb = skew(st.Rb)
+    # dB/d(t, w) = [I, -[Rb]x]  ->  K dB = [K, -K [Rb]x]
+    dF_pose = np.empty((n, 3, 6))
+    dF_pose[:, :, :3] = K
+    dF_pose[:, :, 3:] = -(K @ sRb)
+    J = np.zeros((6 + 3 * m, 6 + 3 * m))
+    J[0:3, 0:6] = dF_pose.sum(axis=0)
+    # moment: d(Rb x f) = [f]x [Rb]x w + [Rb]x df
+    J[3:6, 0:6] = (sRb @ dF_pose).sum(axis=0)
+    J[3:6, 3:6] += (skew(f) @ sRb).sum(axis=0)
+    mg = np.array([0.0, 0.0, -robot.mass * robot.gravity])
+    J[3:6, 3:6] += skew(mg) @ skew(st.R @ robot.com)
+    J[6:, 6:] = np.eye(3 * m)
+    if not robot.compliant:
+        return J
+    # mast rotations: dA_j = -[r_j]x dtheta_i  ->  df_j/dtheta_i = K_j [r_j]x
+    sr = skew(r)
+    dF_theta = K @ sr
+    S = mast_incidence(robot.mast_index, m)  # (m, n)
+    J[0:3, 6:] = (S @ dF_theta.reshape(n, 9)).reshape(m, 3, 3).transpose(1, 0, 2).reshape(3, 3 * m)
+    J[3:6, 6:] = (S @ (sRb @ dF_theta).reshape(n, 9)).reshape(m, 3, 3) \
+        .transpose(1, 0, 2).reshape(3, 3 * m)
+    # mast rows: theta_i - c_i * M_i,  M_i = -sum_j [r_j]x f_j
+    c = robot.compliance  # (m, 3)
+    dM_pose = (S @ (sr @ dF_pose).reshape(n, 18)).reshape(m, 3, 6)  # = -dM/dx
+    J[6:, 0:6] = (c[:, :, None] * dM_pose).reshape(3 * m, 6)
+    dM_theta = (S @ (sr @ dF_theta).reshape(n, 9)).reshape(m, 3, 3)  # = -dM/dtheta (per mast)
+    blocks = c[:, :, None] * dM_theta
+    for i in range(m):
+        J[6 + 3 * i:9 + 3 * i, 6 + 3 * i:9 + 3 * i] += blocks[i]
+    return J
+
+
+def _scale(robot: Robot) -> np.ndarray:
+    w = max(robot.weight, 1.0)
+    return np.concatenate([np.full(3, 1.0 / w), np.full(3, 1.0 / w), np.full(3 * robot.n_masts,
+                                                                             1e3)])
+
+
+def solve_equilibrium(robot: Robot, l0: np.ndarray, guess: np.ndarray,
+                      theta: np.ndarray | None = None, tol: float = 1e-10,
+                      max_iter: int = 60) -> EquilibriumResult:
+    """Pose and mast rotations where elastic cables of unstretched lengths ``l0`` balance gravity.
+
+    ``guess`` (6,) is the first pose (e.g. the desired one or the last
+    solution); ``theta`` (m,3) the mast rotations to start from (warm start).
+    Converged when the scaled residual is below ``tol`` (forces relative to the
+    weight, moments relative to weight x 1 m, mast rotations in mrad).
+
+    If Newton's method fails from the guess (cables slack or over-tensioned
+    there, several cables changing state on the way) or lands far away on an
+    unstable equilibrium, a trust-region descent of the potential energy
+    (:mod:`controller.energy`) takes over from the guess and Newton polishes.
+    """
+    # forces cannot be resolved finer than round-off in ea * (L - L0) / L0
+    tol = max(tol, 20 * np.finfo(float).eps * float(np.max(robot.ea))
+              * np.sqrt(robot.n_cables) / max(robot.weight, 1.0))
+    res = _newton(robot, l0, guess, theta, tol, max_iter)
+    if res.success and (_near(res.pose, guess) or is_stable(robot, res, l0)):
+        return res
+    if max_iter < 5:
+        return res
+    descent = _energy_descent(robot, np.asarray(l0, float), np.array(guess, float), theta, tol)
+    polished = _newton(robot, l0, descent.pose, descent.theta, tol, max_iter)
+    if polished.success and is_stable(robot, polished, l0):
+        return polished
+    if descent.success:
+        return descent
+    if res.success:
+        return EquilibriumResult(res.pose, res.theta, res.tensions, res.exits, False,
+                                 "equilibrium: only an unstable equilibrium found", res.nit,
+                                 res.residual)
+    return min((res, descent, polished), key=lambda x: x.residual)
+
+
+def _energy_descent(robot: Robot, l0: np.ndarray, guess: np.ndarray,
+                    theta: np.ndarray | None, tol: float = 1e-10,
+                    max_iter: int = 300) -> EquilibriumResult:
+    """Trust-region minimisation of the potential energy over (pose, compliant mast axes).
+
+    Gradient and model Hessian (symmetrised) come from the equilibrium equations
+    and their Jacobian; steps are accepted on the actual energy decrease, so slack and
+    taut cables change state safely and saddle points repel.
+    """
+    m = robot.n_masts
+    pose = guess.copy()
+    th = np.zeros((m, 3)) if theta is None else np.array(theta, dtype=float)
+    a_star = settled_exits(robot)
+    r = lever_arms(a_star, robot.pivots, robot.mast_index)
+    free_th = np.isfinite(robot.stiffness).ravel()
+    k = np.where(np.isfinite(robot.stiffness), robot.stiffness, 0.0).ravel()[free_th]
+    idx = np.concatenate([np.arange(6), 6 + np.flatnonzero(free_th)])
+    # variable scales: metres, radians x 1 m of platform, mast radians x mast height
+    height = float(np.mean(np.linalg.norm(r, axis=1)))
+    D = np.concatenate([np.ones(6), np.full(len(k), height)])
+    S = _scale(robot)
+    E = potential_energy(robot, pose, th, l0, a_star, r)
+    delta = 0.05
+    T = _terms(robot, pose, th, l0, a_star, r)
+    it = 0
+    for it in range(1, max_iter + 1):
+        phi = float(np.linalg.norm(S * T.residual))
+        if phi < tol:
+            return EquilibriumResult(pose, th, T.tensions, T.exits, True, "converged", it - 1,
+                                     phi)
+        J = _jacobian(robot, T, l0, r)[np.ix_(idx, idx)]
+        # dE/d(pose) = -F_pose;  dE/dtheta = K theta - M = K F_theta
+        g = -T.residual[idx]
+        g[6:] *= -k
+        H = -J
+        H[6:] *= -k[:, None]
+        H = 0.5 * (H + H.T)
+        gs = g / D
+        Hs = H / D[:, None] / D[None, :]
+        lam_all, V = np.linalg.eigh(Hs)
+        gv = V.T @ gs
+        for _ in range(40):  # trust region: shrink until the energy goes down enough
+            p_s = _trust_step(lam_all, V, gv, delta)
+            p = p_s / D
+            pred = float(g @ p + 0.5 * p @ H @ p)
+            new_pose = compose(pose, p[:6])
+            new_th = th.copy().ravel()
+            new_th[free_th] += p[6:]
+            new_th = new_th.reshape(m, 3)
+            E_new = potential_energy(robot, new_pose, new_th, l0, a_star, r)
+            rho = (E_new - E) / pred if pred < 0 else -1.0
+            if rho > 0.1 or (abs(E_new - E) <= 1e-15 * max(1.0, abs(E)) and pred > -1e-14):
+                break
+            delta *= 0.25
+        else:
+            break
+        if rho > 0.75 and np.linalg.norm(p_s) > 0.8 * delta:
+            delta = min(2.0 * delta, 1.0)
+        pose, th, E = new_pose, new_th, E_new
+        T = _terms(robot, pose, th, l0, a_star, r)
+    phi = float(np.linalg.norm(S * T.residual))
+    return EquilibriumResult(pose, th, T.tensions, T.exits, phi < tol,
+                             "converged" if phi < tol else
+                             f"equilibrium: energy descent stopped (scaled residual {phi:.3g})",
+                             it, phi)
+
+
+def _trust_step(lam: np.ndarray, V: np.ndarray, gv: np.ndarray, delta: float) -> np.ndarray:
+    """Minimiser of ``g.p + p.H.p/2`` with ``|p| <= delta`` (H = V diag(lam) V^T, gv = V^T g)."""
+    lo = max(0.0, -float(lam.min())) + 1e-12 * max(1.0, float(np.abs(lam).max()))
+    if lam.min() > 0:
+        p = -gv / lam
+        if np.linalg.norm(p) <= delta:
+            return V @ p
+    hi = lo + np.linalg.norm(gv) / delta + 1.0
+    while np.linalg.norm(gv / (lam + hi)) > delta:
+        hi *= 2.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if np.linalg.norm(gv / (lam + mid)) > delta:
+            lo = mid
+        else:
+            hi = mid
+    return V @ (-gv / (lam + hi))
+
+
+def _near(pose: np.ndarray, guess: np.ndarray) -> bool:
+    """Within 5 cm and 0.05 rad of the guess: Newton stayed in the guess's basin."""
+    d = np.abs(np.asarray(pose) - np.asarray(guess))
+    return bool(d[:3].max() < 0.05 and d[3:].max() < 0.05)
+
+
+def platform_stiffness(robot: Robot, res: EquilibriumResult, l0: np.ndarray) -> np.ndarray:
+    """Stiffness of the platform at an equilibrium, masts condensed out: K (6,6) with
+    ``dF = -K dx`` for a pose increment dx = (dt, w) [N/m, N, N m/rad]."""
+    _, J = residual_and_jacobian(robot, res.pose, res.theta, l0)
+    A, B, C, D = J[:6, :6], J[:6, 6:], J[6:, :6], J[6:, 6:]
+    return -(A - B @ np.linalg.solve(D, C))
+
+
+def is_stable(robot: Robot, res: EquilibriumResult, l0: np.ndarray) -> bool:
+    """A stable equilibrium: every eigenvalue of the platform stiffness has a positive real part."""
+    return bool(np.linalg.eigvals(platform_stiffness(robot, res, l0)).real.min() > 0)
+
+
+def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray | None,
+            tol: float, max_iter: int) -> EquilibriumResult:
+    """Newton's method for :func:`solve_equilibrium`. Steps keep their factorised
+    Jacobian while it still contracts the residual tenfold per step (chord steps)
+    and refresh it otherwise."""
+    if not np.all(np.isfinite(robot.ea)):
+        raise ValueError("solve_equilibrium needs elastic cables (ea); use forward_rigid for "
+                         "inextensible ones")
+    l0 = np.asarray(l0, dtype=float)
+    pose = np.array(guess, dtype=float)
+    th = np.zeros((robot.n_masts, 3)) if theta is None else np.array(theta, dtype=float)
+    a_star = settled_exits(robot)
+    r = lever_arms(a_star, robot.pivots, robot.mast_index)
+    S = _scale(robot)
+    T = _terms(robot, pose, th, l0, a_star, r)
+    phi = float(np.linalg.norm(S * T.residual))
+    lu = None
+    fresh = False
+    for it in range(1, max_iter + 1):
+        if phi < tol:
+            return EquilibriumResult(pose, th, T.tensions, T.exits, True, "converged", it - 1,
+                                     phi)
+        if lu is None:
+            if not T.taut.any():
+                return EquilibriumResult(pose, th, T.tensions, T.exits, False,
+                                         f"equilibrium: every cable slack at iteration {it}",
+                                         it, phi)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", LinAlgWarning)
+                lu = lu_factor(_jacobian(robot, T, l0, r), check_finite=False)
+            fresh = True
+        dx = lu_solve(lu, -T.residual, check_finite=False)
+        if not np.all(np.isfinite(dx)):
+            if not fresh:
+                lu = None
+                continue
+            return EquilibriumResult(pose, th, T.tensions, T.exits, False,
+                                     f"equilibrium: singular Jacobian at iteration {it} "
+                                     f"(scaled residual {phi:.3g})", it, phi)
+        step = 1.0
+        for _ in range(30):
+            p_new = compose(pose, step * dx[:6])
+            th_new = th + step * dx[6:].reshape(-1, 3)
+            T_new = _terms(robot, p_new, th_new, l0, a_star, r)
+            phi_new = float(np.linalg.norm(S * T_new.residual))
+            if phi_new < (1.0 - 1e-4 * step) * phi or phi_new < tol:
+                break
+            step *= 0.5
+            if not fresh:
+                break  # a stale Jacobian that needs damping: refresh it instead
+        else:
+            return EquilibriumResult(pose, th, T.tensions, T.exits, False,
+                                     f"equilibrium: line search failed at iteration {it} "
+                                     f"(scaled residual {phi:.3g})", it, phi)
+        if not fresh and step < 1.0:
+            lu = None
+            continue
+        if phi_new > 0.1 * phi:
+            lu = None  # slow contraction: refresh the Jacobian next step
+        fresh = False
+        pose, th, T, phi = p_new, th_new, T_new, phi_new
+    ok = phi < tol
+    msg = "converged" if ok else (f"equilibrium: no convergence in {max_iter} iterations "
+                                  f"(scaled residual {phi:.3g})")
+    return EquilibriumResult(pose, th, T.tensions, T.exits, ok, msg, max_iter, phi)

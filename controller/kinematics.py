@@ -1,0 +1,145 @@
+"""Inverse kinematics (eq. 1), pulley kinematics, wrench matrix (eq. 3), derivatives.
+
+All functions are vectorised over the n cables. Frames: exit points ``exits``
+(A_ij, or the displaced A#_ij) in F_b; anchors (B_ij) in F_p; pose as in
+:mod:`controller.pose`.
+
+Pulleys (Pott 2012): with radius r > 0 the exit point A is the fixed entry
+point on the vertical swivel axis where the cable arrives from below (+z_b).
+The pulley swivels to the vertical plane that holds A and B (swivel angle
+``gamma = atan2(b_y, b_x)`` of ``b = B - A``); its centre is ``M = A + r e_h``
+with ``e_h`` the horizontal unit vector towards B. The cable wraps over the
+pulley by the angle beta and leaves tangentially at C towards B:
+``l_f = sqrt(|BM|^2 - r^2)``, ``beta = acos(l_f/|BM|) + acos(d_z/|BM|)`` with
+``d_z = B_z - M_z`` (written below with atan2, which is the same where
+``b_h >= r`` and stays right where B is closer than r to the axis), and the
+geometric length is ``r beta + l_f``. ``u`` then points from B to C.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.pose import cross, rotation, skew
+
+EZ = np.array([0.0, 0.0, 1.0])
+_NO_PLANE = np.zeros((0, 3))  # e_h placeholder when no cable has a pulley
+
+
+@dataclass(frozen=True)
+class CableState:
+    """Geometry of all cables at one pose (arrays over the n cables).
+
+    ``Rb`` (n,3): anchors rotated into F_b, relative to the platform origin [m];
+    ``B`` (n,3): anchors in F_b; ``A`` (n,3): exit points used; ``C`` (n,3):
+    points where the cables leave their pulleys (= A without pulley);
+    ``u`` (n,3): unit vectors from B to C; ``free`` (n,): free length |BC| [m];
+    ``beta`` (n,): wrap angle [rad]; ``length`` (n,): r*beta + free [m];
+    ``e_h`` (n,3) and ``b_h`` (n,): pulley plane direction and horizontal
+    distance from the swivel axis to B (used by derivatives; ``e_h`` is empty
+    when no cable has a pulley).
+    """
+
+    R: np.ndarray
+    Rb: np.ndarray
+    B: np.ndarray
+    A: np.ndarray
+    C: np.ndarray
+    u: np.ndarray
+    free: np.ndarray
+    beta: np.ndarray
+    length: np.ndarray
+    radius: np.ndarray
+    e_h: np.ndarray
+    b_h: np.ndarray
+
+
+def cable_state(
+    pose: np.ndarray,
+    anchors: np.ndarray,
+    exits: np.ndarray,
+    radius: np.ndarray | None = None,
+) -> CableState:
+    """Inverse kinematics: cable geometry at ``pose`` for exit points ``exits`` (n,3)."""
+    R = rotation(pose[3:6])
+    Rb = anchors @ R.T
+    B = pose[:3] + Rb
+    b = B - exits  # from A to B
+    n = len(exits)
+    if radius is None or not (radius > 0).any():
+        d = np.sqrt((b * b).sum(axis=1))
+        u = b / -d[:, None]
+        zeros = np.zeros(n)
+        return CableState(R, Rb, B, exits, exits, u, d, zeros, d, zeros, _NO_PLANE, zeros)
+    r = np.asarray(radius, dtype=float)
+    b_h = np.hypot(b[:, 0], b[:, 1])
+    safe = np.where(b_h > 0, b_h, 1.0)
+    e_h = np.stack([b[:, 0] / safe, b[:, 1] / safe, np.zeros(n)], axis=1)
+    e_h[b_h == 0] = (1.0, 0.0, 0.0)
+    h = b_h - r  # horizontal distance from the pulley centre M to B
+    z = b[:, 2]  # vertical distance from M (at A's height) to B
+    D = np.hypot(h, z)
+    free = np.sqrt(np.maximum(D * D - r * r, 0.0))
+    phi_b = np.arctan2(z, h)
+    phi_c = phi_b + np.arccos(np.clip(np.where(D > 0, r / np.where(D > 0, D, 1), 0), -1, 1))
+    beta = np.where(r > 0, np.pi - phi_c, 0.0)
+    M = exits + r[:, None] * e_h
+    C = M + r[:, None] * (np.cos(phi_c)[:, None] * e_h + np.sin(phi_c)[:, None] * EZ)
+    u = (C - B) / free[:, None]
+    length = r * beta + free
+    return CableState(R, Rb, B, exits, C, u, free, beta, length, r, e_h, b_h)
+
+
+def cable_lengths(pose: np.ndarray, anchors: np.ndarray, exits: np.ndarray,
+                  radius: np.ndarray | None = None) -> np.ndarray:
+    """Geometric cable lengths (n,) [m] at ``pose`` (straight, or over the pulleys)."""
+    return cable_state(pose, anchors, exits, radius).length
+
+
+def wrench_matrix(st: CableState) -> np.ndarray:
+    """Wrench matrix W (6, n): column ij is ``[u_ij ; (R b_ij) x u_ij]`` (eq. 3)."""
+    W = np.empty((6, len(st.u)))
+    W[:3] = st.u.T
+    W[3:] = cross(st.Rb, st.u).T
+    return W
+
+
+def gravity_wrench(mass: float, com: np.ndarray, gravity: float, R: np.ndarray) -> np.ndarray:
+    """Gravity wrench ``w_g = [m g ; (R c) x m g]`` (6,) [N, N m] with g = [0, 0, -gravity]."""
+    mg = mass * gravity
+    c = R @ com
+    return np.array([0.0, 0.0, -mg, -c[1] * mg, c[0] * mg, 0.0])
+
+
+def length_jacobian(st: CableState) -> np.ndarray:
+    """dL/d(t, w) (n, 6): ``-W^T`` (w: small rotation in F_b). Holds with pulleys too."""
+    return -wrench_matrix(st).T
+
+
+def unit_vector_derivative(st: CableState) -> np.ndarray:
+    """D (n,3,3) with ``du = D (dB - dA)``: derivative of u w.r.t. the anchor point B
+    (in F_b) minus the exit point A, pulley swivel included.
+
+    The tangent point slides along u (removed by the projector), and the swivel
+    moves C perpendicular to the pulley plane by ``dgamma * ez x (C - A)``.
+    """
+    u = st.u
+    P = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
+    G = np.zeros((len(u), 3, 3))
+    has = (st.radius > 0) & (st.b_h > 0)
+    if np.any(has):
+        perp = cross(EZ, st.C - st.A)  # motion of C per unit swivel angle
+        n_plane = cross(EZ, st.e_h)  # dgamma = n_plane . db / b_h
+        G[has] = perp[has][:, :, None] * n_plane[has][:, None, :] / st.b_h[has][:, None, None]
+    return P @ (G - np.eye(3)[None]) / st.free[:, None, None]
+
+
+def pose_point_jacobian(Rb: np.ndarray) -> np.ndarray:
+    """dB/d(t, w) (n,3,6) for points ``B = t + Rb``: ``[I, -[Rb]x]``."""
+    n = len(Rb)
+    J = np.empty((n, 3, 6))
+    J[:, :, :3] = np.eye(3)
+    J[:, :, 3:] = -skew(Rb)
+    return J

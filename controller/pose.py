@@ -1,0 +1,105 @@
+"""Poses and rotations.
+
+A pose is ``(x, y, z, roll, pitch, yaw)``: the position of the platform frame F_p
+in the base frame F_b [m] and ``R = Rz(yaw) Ry(pitch) Rx(roll)`` [rad], i.e.
+scipy ``Rotation.from_euler("xyz", [roll, pitch, yaw])``.
+
+Solvers update orientations with a small rotation ``w`` expressed in F_b
+(``R <- exp([w]x) R``); :func:`compose` applies such an increment and
+:func:`euler_rate_matrix` maps Euler-angle rates to it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def rotation(rpy: np.ndarray) -> np.ndarray:
+    """Rotation matrix ``Rz(yaw) Ry(pitch) Rx(roll)`` (3, 3) from ``rpy`` [rad]."""
+    r, p, y = (float(a) for a in rpy)
+    cr, sr = math.cos(r), math.sin(r)
+    cp, sp = math.cos(p), math.sin(p)
+    cy, sy = math.cos(y), math.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def euler_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rotation`: ``[roll, pitch, yaw]`` [rad], pitch in [-pi/2, pi/2]."""
+    pitch = math.asin(min(1.0, max(-1.0, -float(R[2, 0]))))
+    roll = math.atan2(float(R[2, 1]), float(R[2, 2]))
+    yaw = math.atan2(float(R[1, 0]), float(R[0, 0]))
+    return np.array([roll, pitch, yaw])
+
+
+_I1 = np.array([1, 2, 0])
+_I2 = np.array([2, 0, 1])
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product ``a x b`` along the last axis of (..., 3) arrays (np.cross is slower)."""
+    return a.take(_I1, axis=-1) * b.take(_I2, axis=-1) - a.take(_I2, axis=-1) * b.take(_I1, axis=-1)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrix ``[v]x`` (..., 3, 3) with ``[v]x a = v x a``."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape + (3,))
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    out[..., 0, 1] = -z
+    out[..., 0, 2] = y
+    out[..., 1, 0] = z
+    out[..., 1, 2] = -x
+    out[..., 2, 0] = -y
+    out[..., 2, 1] = x
+    return out
+
+
+def rotvec_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the rotation vector ``w`` [rad] (Rodrigues)."""
+    x, y, z = (float(a) for a in w)
+    th = math.sqrt(x * x + y * y + z * z)
+    if th < 1e-12:
+        s, c1 = 1.0, 0.5
+    else:
+        s, c1 = math.sin(th) / th, (1.0 - math.cos(th)) / (th * th)
+    return np.array([
+        [1.0 - c1 * (y * y + z * z), c1 * x * y - s * z, c1 * x * z + s * y],
+        [c1 * x * y + s * z, 1.0 - c1 * (x * x + z * z), c1 * y * z - s * x],
+        [c1 * x * z - s * y, c1 * y * z + s * x, 1.0 - c1 * (x * x + y * y)],
+    ])
+
+
+def compose(pose: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """Pose after the increment ``dx = (dt, w)``: ``t + dt`` and ``exp([w]x) R``, w in F_b [rad]."""
+    R = rotvec_matrix(dx[3:6]) @ rotation(pose[3:6])
+    out = np.empty(6)
+    out[:3] = pose[:3] + dx[:3]
+    rpy = euler_from_rotation(R)
+    # keep angles continuous with the previous pose (yaw/roll wrap at +-pi)
+    for k in range(3):
+        d = rpy[k] - pose[3 + k]
+        out[3 + k] = pose[3 + k] + (d + math.pi) % (2 * math.pi) - math.pi
+    return out
+
+
+def euler_rate_matrix(rpy: np.ndarray) -> np.ndarray:
+    """Matrix E with ``w = E(rpy) d(rpy)``: angular velocity in F_b from Euler-angle rates."""
+    _, p, y = rpy
+    cp, sp = np.cos(p), np.sin(p)
+    cy, sy = np.cos(y), np.sin(y)
+    return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+
+
+def pose_jacobian_to_euler(J_w: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Convert a Jacobian w.r.t. ``(t, w)`` into one w.r.t. ``(t, rpy)`` (columns 3..5)."""
+    out = np.array(J_w, dtype=float, copy=True)
+    out[..., 3:6] = J_w[..., 3:6] @ euler_rate_matrix(pose[3:6])
+    return out

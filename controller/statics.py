@@ -1,0 +1,100 @@
+"""Statics of a robot description: exit points, tensions and cable lengths at a pose.
+
+The inverse problem the controller solves every cycle: for a desired pose,
+the tensions (tension distribution) and the exit points (compliant masts)
+depend on each other; :func:`pose_statics` solves both together by fixed-point
+iteration (deflections are millimetres to centimetres against cables of metres,
+so it contracts in a few steps). :func:`unstretched_lengths` turns geometric
+lengths and tensions into the unstretched lengths the winches must hold.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.kinematics import CableState, cable_state, gravity_wrench, wrench_matrix
+from controller.masts import deflect, lever_arms, mast_rotations, settle
+from controller.robot import Robot
+from controller.tension import TensionResult, distribute
+
+
+@dataclass(frozen=True)
+class PoseStatics:
+    """Statics at one pose: ``tensions`` (n,) [N]; ``exits`` A# (n,3) [m];
+    ``theta`` (m,3) mast rotations [rad]; ``state`` the cable geometry with A#;
+    ``feasible``/``reason`` from the tension distribution; ``iterations``."""
+
+    tensions: np.ndarray
+    exits: np.ndarray
+    theta: np.ndarray
+    state: CableState
+    feasible: bool
+    reason: str
+    iterations: int
+
+
+def settled_exits(robot: Robot) -> np.ndarray:
+    """Exit points A* (n,3) [m]: the surveyed exits after the masts' settlement tilt."""
+    return settle(robot.exits, robot.pivots, robot.mast_index, robot.tilt)
+
+
+def deflected_exits(robot: Robot, tensions: np.ndarray, u: np.ndarray,
+                    exits_star: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One mast update: ``(A#, theta)`` for tensions (n,) [N] and cable directions u (n,3)."""
+    a_star = settled_exits(robot) if exits_star is None else exits_star
+    if not robot.compliant:
+        return a_star, np.zeros((robot.n_masts, 3))
+    r = lever_arms(a_star, robot.pivots, robot.mast_index)
+    theta = mast_rotations(robot.compliance, r, tensions, u, robot.mast_index)
+    return deflect(a_star, r, theta, robot.mast_index), theta
+
+
+def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
+                 tensions: np.ndarray | None = None, tol: float = 1e-10,
+                 max_iter: int = 50) -> PoseStatics:
+    """Tensions and exit points at ``pose``, solved together.
+
+    With ``tensions`` given (e.g. measured), only the exit points are solved
+    for them; otherwise the tension distribution ``method`` computes tensions
+    that balance gravity with the current exit points, iterating until the exit
+    points move less than ``tol`` [m].
+    """
+    pose = np.asarray(pose, dtype=float)
+    a_star = settled_exits(robot)
+    exits = a_star
+    theta = np.zeros((robot.n_masts, 3))
+    result: TensionResult | None = None
+    for it in range(1, max_iter + 1):
+        st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+        if tensions is None:
+            W = wrench_matrix(st)
+            wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
+            result = distribute(W, wg, robot.tension_min, robot.tension_max, method)
+            if not result.feasible:
+                return PoseStatics(result.tensions, exits, theta, st, False, result.reason, it)
+            tau = result.tensions
+        else:
+            tau = np.asarray(tensions, dtype=float)
+        if not robot.compliant:
+            return PoseStatics(tau, exits, theta, st, True, "", it)
+        new_exits, theta = deflected_exits(robot, tau, st.u, a_star)
+        step = float(np.abs(new_exits - exits).max())
+        exits = new_exits
+        if step < tol:
+            st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+            return PoseStatics(tau, exits, theta, st, True, "", it)
+    st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+    return PoseStatics(tau, exits, theta, st, False,
+                       f"exit points did not settle in {max_iter} iterations", max_iter)
+
+
+def unstretched_lengths(lengths: np.ndarray, tensions: np.ndarray, ea: np.ndarray) -> np.ndarray:
+    """Unstretched lengths ``L0 = L / (1 + tau/ea)`` [m] (L0 = L for inextensible cables)."""
+    return lengths / (1.0 + tensions / ea)
+
+
+def elastic_tensions(lengths: np.ndarray, l0: np.ndarray, ea: np.ndarray) -> np.ndarray:
+    """Tensions ``tau = ea (L - L0)/L0`` [N] of elastic cables, 0 where slack."""
+    return np.where(lengths > l0, ea * (lengths - l0) / l0, 0.0)
