@@ -94,6 +94,17 @@ def _terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
     return EquilibriumTerms(st, exits, tau, st.length > l0, f, F)
 
 
+def energy_gradient(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
+                    a_star: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Gradient of :func:`controller.energy.potential_energy` w.r.t. ``(dt, w, theta)``
+    (6+3m,): ``-F`` on the platform and ``K theta - M`` on the masts (0 on rigid axes)."""
+    T = _terms(robot, pose, theta, l0, a_star, r)
+    g = -T.residual
+    k = np.where(np.isfinite(robot.stiffness), robot.stiffness, 0.0).ravel()
+    g[6:] = k * T.residual[6:]
+    return g
+
+
 def residual_and_jacobian(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
                           a_star: np.ndarray | None = None
                           ) -> tuple[EquilibriumTerms, np.ndarray]:

@@ -98,3 +98,38 @@ def unstretched_lengths(lengths: np.ndarray, tensions: np.ndarray, ea: np.ndarra
 def elastic_tensions(lengths: np.ndarray, l0: np.ndarray, ea: np.ndarray) -> np.ndarray:
     """Tensions ``tau = ea (L - L0)/L0`` [N] of elastic cables, 0 where slack."""
     return np.where(lengths > l0, ea * (lengths - l0) / l0, 0.0)
+
+
+def true_tensions(robot: Robot, measured: np.ndarray) -> np.ndarray:
+    """Tensions [N] a load cell reading means under ``robot``'s calibration
+    (measured = gain * true + offset)."""
+    return (np.asarray(measured, dtype=float) - robot.load_cell_offset) / robot.load_cell_gain
+
+
+def init_unstretched(robot: Robot, init_pose: np.ndarray,
+                     init_tensions: np.ndarray | None = None,
+                     method: str = "closed_form") -> tuple[np.ndarray, np.ndarray]:
+    """Unstretched lengths at initialisation under ``robot``: ``d(p0, tau0)/(1 + tau0/ea)``.
+
+    ``init_tensions`` are true tensions at p0 (None: the tension distribution).
+    Returns ``(u0 (n,) [m], tau0 (n,) [N])``. Raises ValueError if p0 is infeasible.
+    """
+    ps = pose_statics(robot, np.asarray(init_pose, float), method=method, tensions=init_tensions)
+    if not ps.feasible:
+        raise ValueError(f"initialisation pose is not feasible under {robot.name}: {ps.reason}")
+    return unstretched_lengths(ps.state.length, ps.tensions, robot.ea), ps.tensions
+
+
+def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.ndarray,
+                              u0: np.ndarray, length_offset: np.ndarray | None = None
+                              ) -> np.ndarray:
+    """Unstretched lengths [m] behind encoder readings, by the initialisation convention:
+    ``L0 = s (l_meas - d_model(p0)) + u0 + dl`` (cdpr-conventions.md).
+
+    ``readings`` (..., n) [m]; ``reference`` = d_model(p0) (n,) of the model the
+    controller ran with; ``u0`` from :func:`init_unstretched` under ``robot``;
+    ``s`` and ``dl`` are ``robot``'s drum scales and length offsets (or
+    ``length_offset`` when given, e.g. an offset that starts at a slip).
+    """
+    dl = robot.length_offset if length_offset is None else length_offset
+    return robot.drum_scale * (np.asarray(readings, float) - reference) + u0 + dl

@@ -1,0 +1,268 @@
+"""The physical plant: the real robot as the simulation knows it.
+
+The truth is a robot description (the model the controller runs with, plus the
+effects a scenario conceals: :func:`controller.effects.apply_effects`) and a few
+nuisances outside the effect vocabulary (hysteresis by approach direction, slow
+drift, per-visit process noise of the cable lengths). For the encoder readings
+of the winches the plant finds where the platform comes to rest.
+
+It solves the statics its own way, not with the controller's and the
+diagnosis's Newton solver: it minimises the potential energy
+(:func:`controller.energy.potential_energy`) over the pose (Euler angles) and
+the mast joint rotations by preconditioned descent and BFGS (Hessian by finite
+differences, never the analytic Jacobian), and checks each rest position by
+finite differences of the energy alone, so an error in the force model cannot
+pass unnoticed into the truth. Cables that the truth leaves inextensible get a
+very stiff stand-in (``RIGID_EA``) so that their tensions are defined.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+
+from controller.cycle import reference_lengths
+from controller.energy import potential_energy
+from controller.equilibrium import energy_gradient
+from controller.kinematics import cable_state
+from controller.masts import deflect, lever_arms
+from controller.pose import euler_rate_matrix, rotation
+from controller.robot import Robot
+from controller.statics import (
+    elastic_tensions,
+    init_unstretched,
+    settled_exits,
+    unstretched_from_readings,
+)
+
+#: E*A [N] standing in for an inextensible cable (stretch of micrometres at working tensions).
+RIGID_EA = 1.0e9
+
+
+class PlantError(RuntimeError):
+    """The plant found no rest position (the message says why)."""
+
+
+@dataclass(frozen=True)
+class Nuisances:
+    """Effects outside the vocabulary, small by design.
+
+    ``hysteresis_m``: each cable is longer by this much after paying out than after
+    reeling in [m]; ``drift_m_per_s`` (scalar or (n,)): slow creep of the
+    unstretched lengths [m/s]; ``process_noise_m``: standard deviation of a random
+    change of each unstretched length per visit (repeatability) [m].
+    """
+
+    hysteresis_m: float = 0.0
+    drift_m_per_s: float | np.ndarray = 0.0
+    process_noise_m: float = 0.0
+
+
+@dataclass(frozen=True)
+class PlantState:
+    """Where the platform rests: ``pose`` (6,); ``tensions`` true (n,) [N] at the exit
+    points; ``exits`` A# (n,3) [m]; ``theta`` mast rotations (m,3) [rad];
+    ``unstretched`` true L0 (n,) [m]."""
+
+    pose: np.ndarray
+    tensions: np.ndarray
+    exits: np.ndarray
+    theta: np.ndarray
+    unstretched: np.ndarray
+
+
+@dataclass
+class Plant:
+    """The real robot: ``model`` is what the controller runs with, ``truth`` what the robot is.
+
+    ``init_pose`` is where the platform stood when the controller referenced its
+    encoders; the tensions then are the truth's tension distribution at that pose
+    (the operator pretensioned the cables). ``slip_times`` (n,) [s]: a truth
+    ``length_offset`` of a cable takes effect at this time (a slip), 0 = from the
+    start. ``rng`` draws the per-visit process noise.
+    """
+
+    model: Robot
+    truth: Robot
+    init_pose: np.ndarray
+    nuisances: Nuisances = field(default_factory=Nuisances)
+    slip_times: np.ndarray | None = None
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+
+    def __post_init__(self) -> None:
+        t = self.truth
+        if not np.all(np.isfinite(t.ea)):
+            t = t.replace(ea=np.where(np.isfinite(t.ea), t.ea, RIGID_EA))
+        self.truth = t
+        self.init_pose = np.asarray(self.init_pose, dtype=float)
+        self.reference = reference_lengths(self.model, self.init_pose)  # d_model(p0)
+        self.u0, self.init_tensions = init_unstretched(t, self.init_pose)
+        self._a_star = settled_exits(t)
+        self._r = lever_arms(self._a_star, t.pivots, t.mast_index)
+        self._free = np.isfinite(t.stiffness).ravel()
+        height = float(np.mean(np.linalg.norm(self._r, axis=1)))
+        self._scale = np.concatenate([np.ones(6), np.full(int(self._free.sum()), height)])
+        self._hess_inv: np.ndarray | None = None
+        self._last_readings = self.reference.copy()
+        self._direction = np.zeros(t.n_cables)
+        n = t.n_cables
+        self._slip = np.zeros(n) if self.slip_times is None else np.asarray(self.slip_times, float)
+        ps_exits = self._exits(np.zeros((t.n_masts, 3)))
+        self.state = PlantState(self.init_pose.copy(), self.init_tensions.copy(), ps_exits,
+                                np.zeros((t.n_masts, 3)), self.u0.copy())
+
+    # ----- the truth's unstretched lengths ------------------------------------------
+    def unstretched(self, readings: np.ndarray, t: float = 0.0,
+                    visit_noise: np.ndarray | None = None) -> np.ndarray:
+        """True unstretched lengths [m] behind encoder ``readings`` (n,) [m] at time ``t`` [s]."""
+        readings = np.asarray(readings, dtype=float)
+        dl = np.where(t >= self._slip, self.truth.length_offset, 0.0)
+        l0 = unstretched_from_readings(self.truth, readings, self.reference, self.u0, dl)
+        nz = self.nuisances
+        if nz.hysteresis_m:
+            move = np.sign(readings - self._last_readings)
+            self._direction = np.where(move != 0, move, self._direction)
+            l0 = l0 + nz.hysteresis_m * 0.5 * self._direction
+        l0 = l0 + np.asarray(nz.drift_m_per_s) * t
+        if visit_noise is not None:
+            l0 = l0 + visit_noise
+        self._last_readings = readings
+        return l0
+
+    def visit_noise(self) -> np.ndarray:
+        """A fresh per-visit random change of the unstretched lengths [m]."""
+        return self.rng.normal(0.0, self.nuisances.process_noise_m, self.truth.n_cables)
+
+    def measured_tensions(self, tensions: np.ndarray) -> np.ndarray:
+        """What the load cells read for true tensions [N] (gain and offset of the truth)."""
+        return self.truth.load_cell_gain * tensions + self.truth.load_cell_offset
+
+    # ----- statics by energy minimisation -------------------------------------------
+    def _exits(self, theta: np.ndarray) -> np.ndarray:
+        t = self.truth
+        return deflect(self._a_star, self._r, theta, t.mast_index) if t.compliant \
+            else self._a_star
+
+    def _unpack(self, y: np.ndarray, pose0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = y / self._scale
+        pose = pose0 + x[:6]
+        theta = np.zeros(self.truth.n_masts * 3)
+        theta[self._free] = x[6:]
+        return pose, theta.reshape(-1, 3)
+
+    def _energy(self, y: np.ndarray, pose0: np.ndarray, l0: np.ndarray, e0: float) -> float:
+        pose, theta = self._unpack(y, pose0)
+        return potential_energy(self.truth, pose, theta, l0, self._a_star, self._r) - e0
+
+    def _gradient(self, y: np.ndarray, pose0: np.ndarray, l0: np.ndarray, e0: float
+                  ) -> np.ndarray:
+        pose, theta = self._unpack(y, pose0)
+        g = energy_gradient(self.truth, pose, theta, l0, self._a_star, self._r)
+        out = np.empty_like(y)
+        out[:3] = g[:3]
+        out[3:6] = g[3:6] @ euler_rate_matrix(pose[3:6])  # w = E(rpy) d(rpy)
+        out[6:] = g[6:][self._free]
+        return out / self._scale
+
+    def _fd_gradient(self, y: np.ndarray, *args) -> np.ndarray:
+        """Central finite differences of the energy (checks the force model)."""
+        h = 1e-6
+        g = np.empty_like(y)
+        for i in range(len(y)):
+            yp = y.copy()
+            ym = y.copy()
+            yp[i] += h
+            ym[i] -= h
+            g[i] = (self._energy(yp, *args) - self._energy(ym, *args)) / (2 * h)
+        return g
+
+    def _hessian(self, y: np.ndarray, *args) -> np.ndarray:
+        h = 1e-6
+        g0 = self._gradient(y, *args)
+        H = np.empty((len(y), len(y)))
+        for i in range(len(y)):
+            yp = y.copy()
+            yp[i] += h
+            H[:, i] = (self._gradient(yp, *args) - g0) / h
+        return 0.5 * (H + H.T)
+
+    def rest(self, l0: np.ndarray, guess: np.ndarray | None = None) -> PlantState:
+        """Where the platform rests with true unstretched lengths ``l0`` (n,) [m].
+
+        The search starts from the last rest position, or from the pose ``guess``
+        (6,) when the platform moved far since (e.g. the pose the controller aimed at).
+        """
+        start = self.state
+        pose0 = start.pose.copy() if guess is None else np.asarray(guess, dtype=float).copy()
+        y0 = np.concatenate([np.zeros(6), start.theta.ravel()[self._free] * self._scale[6:]])
+        e0 = potential_energy(self.truth, pose0, start.theta, l0, self._a_star, self._r)
+        args = (pose0, l0, e0)
+        if self._hess_inv is None:
+            self._hess_inv = _safe_inverse(self._hessian(y0, *args))
+        gtol = 1e-7 * self.truth.weight
+        y, ok = self._chord(y0, args, gtol)
+        if not ok:
+            res = minimize(self._energy, y, args=args, jac=self._gradient, method="BFGS",
+                           options={"gtol": gtol, "maxiter": 400, "hess_inv0": self._hess_inv})
+            if np.linalg.norm(res.jac, np.inf) > 100 * gtol:
+                # far from the last rest position: precondition afresh and go on
+                self._hess_inv = _safe_inverse(self._hessian(res.x, *args))
+                res = minimize(self._energy, res.x, args=args, jac=self._gradient,
+                               method="BFGS", options={"gtol": gtol, "maxiter": 800,
+                                                       "hess_inv0": self._hess_inv})
+            if np.linalg.norm(res.jac, np.inf) > 100 * gtol:
+                raise PlantError(f"plant: no rest position found ({res.message}; energy "
+                                 f"gradient {np.linalg.norm(res.jac, np.inf):.3g})")
+            y = res.x
+        fd = self._fd_gradient(y, *args)
+        if np.linalg.norm(fd, np.inf) > 1e3 * gtol:
+            raise PlantError(f"plant: the rest position is not an energy minimum (energy "
+                             f"gradient {np.linalg.norm(fd, np.inf):.3g}): force model and "
+                             f"energy disagree")
+        pose, theta = self._unpack(y, pose0)
+        exits = self._exits(theta)
+        st = cable_state(pose, self.truth.anchors, exits, self.truth.pulley_radius)
+        tau = elastic_tensions(st.length, l0, self.truth.ea)
+        return PlantState(pose, tau, exits, theta, np.asarray(l0, float).copy())
+
+    def _chord(self, y: np.ndarray, args: tuple, gtol: float,
+               max_iter: int = 30) -> tuple[np.ndarray, bool]:
+        """Preconditioned descent ``y -= H0^-1 g`` with the stored inverse Hessian, steps
+        halved until the energy decreases; True when the gradient is below ``gtol``."""
+        e = self._energy(y, *args)
+        for _ in range(max_iter):
+            g = self._gradient(y, *args)
+            if np.linalg.norm(g, np.inf) < gtol:
+                return y, True
+            step = -self._hess_inv @ g
+            for _ in range(8):
+                e_new = self._energy(y + step, *args)
+                if e_new <= e:
+                    break
+                step *= 0.5
+            else:
+                return y, False
+            y, e = y + step, e_new
+        return y, False
+
+    def settle(self, readings: np.ndarray, t: float = 0.0,
+               visit_noise: np.ndarray | None = None,
+               guess: np.ndarray | None = None) -> PlantState:
+        """Rest position for encoder ``readings`` (n,) [m] at time ``t`` [s]; becomes the state.
+        ``guess``: a pose near the answer after a long move (see :meth:`rest`)."""
+        self.state = self.rest(self.unstretched(readings, t, visit_noise), guess)
+        return self.state
+
+    def platform_point(self, state: PlantState, point: np.ndarray) -> np.ndarray:
+        """A platform point (F_p) in F_b for ``state`` [m]."""
+        return state.pose[:3] + rotation(state.pose[3:6]) @ point
+
+
+def _safe_inverse(H: np.ndarray) -> np.ndarray:
+    """Inverse of a (nearly) positive definite Hessian, eigenvalues floored."""
+    w, V = np.linalg.eigh(H)
+    floor = max(1e-6 * float(np.abs(w).max()), 1e-9)
+    inv = (V / np.maximum(w, floor)) @ V.T
+    return 0.5 * (inv + inv.T)

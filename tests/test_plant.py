@@ -1,0 +1,92 @@
+"""The plant: the truth solved by energy minimisation, independent of the Newton solver."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from robots import inner_pose, random_robots, rocaspect
+
+import controller.equilibrium as equilibrium
+from controller.cycle import LengthController
+from controller.effects import apply_effects
+from controller.equilibrium import solve_equilibrium
+from controller.statics import pose_statics
+from firmware_sim import plant as plant_mod
+from firmware_sim.plant import Nuisances, Plant, PlantError
+
+P0 = np.array([10.0, 8.56, 1.0, 0.0, 0.0, 0.0])
+PAPER_K = {f"k{a}_{m}": k for m in "1234" for a, k in zip("xyz", (2e5, 5e5, 3e5), strict=True)}
+
+
+def test_model_equal_to_truth_lands_on_the_commanded_pose():
+    model = rocaspect()
+    plant = Plant(model, model, P0)
+    ctl = LengthController(model, P0)
+    for target in ([4.5, 4.5, 1.0, 0, 0, 0], [15.5, 12.5, 1.5, 0.02, -0.01, 0.05]):
+        target = np.array(target)
+        s = plant.settle(ctl.step(target).lengths, guess=target)
+        np.testing.assert_allclose(s.pose, target, atol=1e-7)
+        np.testing.assert_allclose(s.tensions, ctl.step(target).tensions, rtol=1e-5, atol=1e-3)
+
+
+def test_concealed_compliance_moves_the_platform_away_from_the_initialisation_pose():
+    model = rocaspect()
+    plant = Plant(model, apply_effects(model, {"mast_compliance": PAPER_K}), P0)
+    ctl = LengthController(model, P0)
+    at_init = plant.settle(ctl.step(P0).lengths, guess=P0)
+    np.testing.assert_allclose(at_init.pose, P0, atol=1e-7)  # invisible at p0
+    far = np.array([4.5, 4.5, 1.0, 0, 0, 0])
+    s = plant.settle(ctl.step(far).lengths, guess=far)
+    err = np.linalg.norm(s.pose[:3] - far[:3])
+    assert 0.003 < err < 0.05  # centimetres, as in the paper
+
+
+@settings(max_examples=15)
+@given(data=st.data())
+def test_plant_agrees_with_the_newton_solver(data):
+    """Two independent solutions of the same statics: energy minimum vs force balance."""
+    model = data.draw(random_robots(elastic=True, compliant=True))
+    pose = inner_pose(data.draw, model)
+    ps = pose_statics(model, pose)
+    assume(ps.feasible)
+    plant = Plant(model, model, pose)
+    l0 = plant.u0 * (1 + np.array(data.draw(st.tuples(*[st.floats(-1e-4, 1e-4)] * 8))))
+    s = plant.rest(l0, guess=pose)
+    eq = solve_equilibrium(plant.truth, l0, pose)
+    assert eq.success
+    np.testing.assert_allclose(s.pose, eq.pose, atol=1e-6)
+    np.testing.assert_allclose(s.tensions, eq.tensions, atol=1e-3 * model.weight)
+
+
+def test_a_wrong_force_model_is_caught(monkeypatch):
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, P0)
+    good = equilibrium.energy_gradient
+
+    def bad(*args):
+        g = good(*args)
+        g[3:6] *= -1.0  # moment sign error
+        return g
+
+    monkeypatch.setattr(plant_mod, "energy_gradient", bad)
+    with pytest.raises(PlantError):
+        plant.rest(plant.u0 * 1.0001, guess=P0 + np.array([0.01, 0, 0, 0, 0, 0.01]))
+
+
+def test_sensor_effects_and_nuisances():
+    model = rocaspect()
+    truth = apply_effects(model, {"drum_scale": {"s_11": 1.01},
+                                  "cable_length_offset": {"dl_21": 0.004},
+                                  "load_cell_calibration": {"gain_32": 1.05, "offset_32": 2.0}})
+    plant = Plant(model, truth, P0, nuisances=Nuisances(hysteresis_m=2e-4, drift_m_per_s=1e-6),
+                  slip_times=np.array([0, 0, 50.0, 0, 0, 0, 0, 0]))
+    ref = plant.reference
+    l0a = plant.unstretched(ref + 0.1, t=10.0)  # before the slip, paying out
+    l0b = plant.unstretched(ref + 0.1, t=60.0)  # after it, no motion
+    assert l0a[0] - plant.u0[0] == pytest.approx(1.01 * 0.1 + 1e-4 + 1e-5)
+    assert l0b[2] - l0a[2] == pytest.approx(0.004 + 50e-6)
+    tau = np.full(8, 100.0)
+    meas = plant.measured_tensions(tau)
+    assert meas[5] == pytest.approx(107.0) and meas[0] == 100.0
