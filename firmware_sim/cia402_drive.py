@@ -474,6 +474,8 @@ class SimulatedDrive:
             return self.error_code
         if index == 0x1001:
             return self.error_register()
+        if index == 0x1010 and subindex == 1:
+            return 1  # capability: saves on command (writing "save" stores everything)
         if index == 0x1003:
             if subindex == 0:
                 return len(self.error_history)

@@ -183,6 +183,7 @@ def test_reset_communication_node_and_stored_parameters(h):
         h.w(0x1010, 1, 0x12345678)
     assert exc.value.code == 0x08000020
     h.w(0x1010, 1, 0x65766173)  # "save"
+    assert h.r(0x1010, 1) == 1  # reads back the capability, not the signature
     h.drive.reset_node()
     h.barrier()
     assert h.r(0x6065) == 4321
