@@ -62,32 +62,39 @@ def cable_state(
     exits: np.ndarray,
     radius: np.ndarray | None = None,
 ) -> CableState:
-    """Inverse kinematics: cable geometry at ``pose`` for exit points ``exits`` (n,3)."""
-    R = rotation(pose[3:6])
-    Rb = anchors @ R.T
-    B = pose[:3] + Rb
+    """Inverse kinematics: cable geometry at ``pose`` (6,) for exit points ``exits`` (n,3).
+
+    Stacked poses (..., 6) with exits (n,3) or (..., n,3) give stacked states
+    (leading dimensions first, e.g. ``u`` (..., n, 3)).
+    """
+    R = rotation(pose[..., 3:6])
+    if pose.ndim == 1:
+        Rb = anchors @ R.T
+        B = pose[:3] + Rb
+    else:
+        Rb = anchors @ np.swapaxes(R, -1, -2)
+        B = pose[..., None, :3] + Rb
     b = B - exits  # from A to B
-    n = len(exits)
     if radius is None or not (radius > 0).any():
-        d = np.sqrt((b * b).sum(axis=1))
-        u = b / -d[:, None]
-        zeros = np.zeros(n)
+        d = np.sqrt((b * b).sum(axis=-1))
+        u = b / -d[..., None]
+        zeros = np.zeros(d.shape)
         return CableState(R, Rb, B, exits, exits, u, d, zeros, d, zeros, _NO_PLANE, zeros)
     r = np.asarray(radius, dtype=float)
-    b_h = np.hypot(b[:, 0], b[:, 1])
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    b_h = np.hypot(bx, by)
     safe = np.where(b_h > 0, b_h, 1.0)
-    e_h = np.stack([b[:, 0] / safe, b[:, 1] / safe, np.zeros(n)], axis=1)
+    e_h = np.stack([bx / safe, by / safe, np.zeros(b_h.shape)], axis=-1)
     e_h[b_h == 0] = (1.0, 0.0, 0.0)
     h = b_h - r  # horizontal distance from the pulley centre M to B
-    z = b[:, 2]  # vertical distance from M (at A's height) to B
-    D = np.hypot(h, z)
+    D = np.hypot(h, bz)  # bz: vertical distance from M (at A's height) to B
     free = np.sqrt(np.maximum(D * D - r * r, 0.0))
-    phi_b = np.arctan2(z, h)
+    phi_b = np.arctan2(bz, h)
     phi_c = phi_b + np.arccos(np.clip(np.where(D > 0, r / np.where(D > 0, D, 1), 0), -1, 1))
     beta = np.where(r > 0, np.pi - phi_c, 0.0)
     M = exits + r[:, None] * e_h
-    C = M + r[:, None] * (np.cos(phi_c)[:, None] * e_h + np.sin(phi_c)[:, None] * EZ)
-    u = (C - B) / free[:, None]
+    C = M + r[:, None] * (np.cos(phi_c)[..., None] * e_h + np.sin(phi_c)[..., None] * EZ)
+    u = (C - B) / free[..., None]
     length = r * beta + free
     return CableState(R, Rb, B, exits, C, u, free, beta, length, r, e_h, b_h)
 
@@ -99,18 +106,31 @@ def cable_lengths(pose: np.ndarray, anchors: np.ndarray, exits: np.ndarray,
 
 
 def wrench_matrix(st: CableState) -> np.ndarray:
-    """Wrench matrix W (6, n): column ij is ``[u_ij ; (R b_ij) x u_ij]`` (eq. 3)."""
-    W = np.empty((6, len(st.u)))
-    W[:3] = st.u.T
-    W[3:] = cross(st.Rb, st.u).T
+    """Wrench matrix W (6, n): column ij is ``[u_ij ; (R b_ij) x u_ij]`` (eq. 3).
+    (..., 6, n) for stacked states."""
+    if st.u.ndim == 2:
+        W = np.empty((6, len(st.u)))
+        W[:3] = st.u.T
+        W[3:] = cross(st.Rb, st.u).T
+        return W
+    W = np.empty(st.u.shape[:-2] + (6, st.u.shape[-2]))
+    W[..., :3, :] = np.swapaxes(st.u, -1, -2)
+    W[..., 3:, :] = np.swapaxes(cross(st.Rb, st.u), -1, -2)
     return W
 
 
 def gravity_wrench(mass: float, com: np.ndarray, gravity: float, R: np.ndarray) -> np.ndarray:
-    """Gravity wrench ``w_g = [m g ; (R c) x m g]`` (6,) [N, N m] with g = [0, 0, -gravity]."""
+    """Gravity wrench ``w_g = [m g ; (R c) x m g]`` (6,) [N, N m] with g = [0, 0, -gravity];
+    (..., 6) for stacked rotations (..., 3, 3)."""
     mg = mass * gravity
     c = R @ com
-    return np.array([0.0, 0.0, -mg, -c[1] * mg, c[0] * mg, 0.0])
+    if c.ndim == 1:
+        return np.array([0.0, 0.0, -mg, -c[1] * mg, c[0] * mg, 0.0])
+    w = np.zeros(c.shape[:-1] + (6,))
+    w[..., 2] = -mg
+    w[..., 3] = -c[..., 1] * mg
+    w[..., 4] = c[..., 0] * mg
+    return w
 
 
 def length_jacobian(st: CableState) -> np.ndarray:

@@ -59,7 +59,7 @@ def lever_arms(exits_star: np.ndarray, pivots: np.ndarray, mast_index: np.ndarra
 def mast_moments(r: np.ndarray, tensions: np.ndarray, u: np.ndarray, mast_index: np.ndarray,
                  n_masts: int) -> np.ndarray:
     """Moments ``M_i`` (m,3) [N m] of the cable forces about the mast pivots."""
-    per_cable = -tensions[:, None] * cross(r, u)
+    per_cable = -tensions[..., None] * cross(r, u)
     return mast_incidence(mast_index, n_masts) @ per_cable
 
 
@@ -79,8 +79,9 @@ _INCIDENCE: dict[tuple[bytes, int], np.ndarray] = {}
 
 def deflect(exits_star: np.ndarray, r: np.ndarray, theta: np.ndarray,
             mast_index: np.ndarray) -> np.ndarray:
-    """Displaced exit points ``A# = A* + dtheta_i x r_ij`` (n,3) [m]."""
-    return exits_star + cross(theta[mast_index], r)
+    """Displaced exit points ``A# = A* + dtheta_i x r_ij`` (n,3) [m] ((..., n, 3) for stacked
+    rotations (..., m, 3))."""
+    return exits_star + cross(theta[..., mast_index, :], r)
 
 
 def mast_rotations(compliance: np.ndarray, r: np.ndarray, tensions: np.ndarray, u: np.ndarray,

@@ -17,7 +17,10 @@ import numpy as np
 
 
 def rotation(rpy: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``Rz(yaw) Ry(pitch) Rx(roll)`` (3, 3) from ``rpy`` [rad]."""
+    """Rotation matrix ``Rz(yaw) Ry(pitch) Rx(roll)`` (3, 3) from ``rpy`` [rad]; (..., 3, 3)
+    for stacked angles (..., 3)."""
+    if np.ndim(rpy) > 1:
+        return _rotation_batch(np.asarray(rpy, dtype=float))
     r, p, y = (float(a) for a in rpy)
     cr, sr = math.cos(r), math.sin(r)
     cp, sp = math.cos(p), math.sin(p)
@@ -29,6 +32,23 @@ def rotation(rpy: np.ndarray) -> np.ndarray:
             [-sp, cp * sr, cp * cr],
         ]
     )
+
+
+def _rotation_batch(rpy: np.ndarray) -> np.ndarray:
+    cr, sr = np.cos(rpy[..., 0]), np.sin(rpy[..., 0])
+    cp, sp = np.cos(rpy[..., 1]), np.sin(rpy[..., 1])
+    cy, sy = np.cos(rpy[..., 2]), np.sin(rpy[..., 2])
+    R = np.empty(rpy.shape[:-1] + (3, 3))
+    R[..., 0, 0] = cy * cp
+    R[..., 0, 1] = cy * sp * sr - sy * cr
+    R[..., 0, 2] = cy * sp * cr + sy * sr
+    R[..., 1, 0] = sy * cp
+    R[..., 1, 1] = sy * sp * sr + cy * cr
+    R[..., 1, 2] = sy * sp * cr - cy * sr
+    R[..., 2, 0] = -sp
+    R[..., 2, 1] = cp * sr
+    R[..., 2, 2] = cp * cr
+    return R
 
 
 def euler_from_rotation(R: np.ndarray) -> np.ndarray:

@@ -133,3 +133,39 @@ def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.
     """
     dl = robot.length_offset if length_offset is None else length_offset
     return robot.drum_scale * (np.asarray(readings, float) - reference) + u0 + dl
+
+
+def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None = None,
+                  method: str = "closed_form", tol: float = 1e-10, max_iter: int = 20
+                  ) -> tuple[np.ndarray, np.ndarray, CableState, np.ndarray]:
+    """:func:`pose_statics` for N poses (N,6) at once.
+
+    With ``tensions`` (N,n) the exit points of all poses are iterated together
+    (vectorised); without, each pose gets its tension distribution. Returns
+    ``(tensions (N,n), exits (N,n,3), state (stacked), feasible (N,))``.
+    """
+    poses = np.asarray(poses, dtype=float)
+    N = len(poses)
+    if tensions is None:
+        tau = np.full((N, robot.n_cables), np.nan)
+        exits = np.empty((N, robot.n_cables, 3))
+        ok = np.zeros(N, dtype=bool)
+        for i in range(N):
+            ps = pose_statics(robot, poses[i], method=method)
+            tau[i], exits[i], ok[i] = ps.tensions, ps.exits, ps.feasible
+        return tau, exits, cable_state(poses, robot.anchors, exits, robot.pulley_radius), ok
+    tau = np.asarray(tensions, dtype=float)
+    a_star = settled_exits(robot)
+    exits = np.broadcast_to(a_star, (N,) + a_star.shape)
+    st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
+    if robot.compliant:
+        r = lever_arms(a_star, robot.pivots, robot.mast_index)
+        for _ in range(max_iter):
+            theta = mast_rotations(robot.compliance, r, tau, st.u, robot.mast_index)
+            new = deflect(a_star, r, theta, robot.mast_index)
+            step = float(np.abs(new - exits).max())
+            exits = new
+            st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
+            if step < tol:
+                break
+    return tau, np.array(exits), st, np.isfinite(tau).all(axis=1)

@@ -1,0 +1,297 @@
+"""Choosing the effects the data need: screening, refits, held-out checks, look-alikes.
+
+1. Candidates are the vocabulary effects the recording can see (tensions for
+   load cells and mass, encoder lengths for scale and offsets, ...).
+2. Forward selection: each candidate's linearised signature at the current fit
+   predicts its chi-square drop; the most promising are refitted with the full
+   nonlinear model; the best enters when its BIC drops by more than
+   ``BIC_ENTER``. A backward pass drops effects the others make unnecessary.
+3. Every chosen effect must also improve held-out samples the fits never saw:
+   every k-th target pose, and a whole region of the workspace.
+4. Look-alikes: each chosen effect is swapped for each other candidate and
+   refitted; near-ties become ``alternatives`` (a declared ambiguity beats a
+   confident wrong answer), and the imitation of each effect's signature by
+   the others is computed on the recording's own poses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bench.diagnosis.fit import FitResult, fd_jacobian, fit_effects
+from bench.diagnosis.residuals import ResidualModel
+from bench.diagnosis.space import ParamSpace, effect_fit_params
+
+#: BIC drop an effect must bring to enter (strong evidence)
+BIC_ENTER = 10.0
+#: BIC difference under which a swapped effect counts as an alternative
+BIC_TIE = 10.0
+#: the model explains the data within the noise below this reduced chi-square
+EXPLAINED = 1.3
+
+Progress = Callable[[str], None]
+
+
+def candidate_effects(rm: ResidualModel) -> list[str]:
+    """Effects this recording can see."""
+    out = []
+    have_len = bool(rm.has_len.any())
+    have_exit = bool(rm.has_exit.any())
+    if have_len or have_exit:
+        out += ["exit_point_offset", "mast_compliance"]
+    if have_len:
+        out += ["cable_elasticity", "cable_length_offset", "drum_scale"]
+    if rm.any_tau:
+        out += ["load_cell_calibration", "platform_mass"]
+    if have_len or have_exit:
+        out += ["pulley_kinematics"]
+    return out
+
+
+@dataclass
+class Selection:
+    """Outcome of the selection: the chosen set with its fit, and what was learnt on the way."""
+
+    effects: list[str]
+    fit: FitResult
+    baseline: FitResult
+    fits: dict[tuple[str, ...], FitResult] = field(default_factory=dict)
+    heldout: dict[str, dict[str, float]] = field(default_factory=dict)
+    alternatives: dict[str, list[tuple[str, float]]] = field(default_factory=dict)
+    imitation: dict[str, dict[str, float]] = field(default_factory=dict)
+    rejected: dict[str, str] = field(default_factory=dict)
+    screening: dict[str, float] = field(default_factory=dict)
+
+
+class Selector:
+    """Runs the selection for one recording (train / held-out sample indices given)."""
+
+    def __init__(self, rm: ResidualModel, train: np.ndarray, holdouts: list[np.ndarray],
+                 progress: Progress | None = None, pool: Executor | None = None) -> None:
+        self.rm = rm
+        self.train = train
+        self.holdouts = [h for h in holdouts if len(h)]
+        self.progress = progress or (lambda msg: None)
+        self.pool = pool
+        self.cache: dict[tuple[str, ...], FitResult] = {}
+        self.cache_ho: dict[tuple[tuple[str, ...], int], FitResult] = {}
+        self.model = rm.model
+
+    # ----- fits -----------------------------------------------------------------------
+    def fit(self, effects: tuple[str, ...], start: FitResult | None = None) -> FitResult:
+        key = tuple(sorted(effects))
+        if key in self.cache:
+            return self.cache[key]
+        space = ParamSpace(self.model, key)
+        phi0 = space.neutral.copy()
+        if start is not None:  # warm start from a fit that shares effects
+            for k, p in enumerate(space.params):
+                for j, q in enumerate(start.space.params):
+                    if p.key == q.key and p.effect == q.effect:
+                        phi0[k] = start.phi[j]
+        self.progress(f"fitting {' + '.join(key) or 'the model as it is'} "
+                      f"({len(space)} parameters)")
+        res = fit_effects(space, self.rm, self.train, phi0)
+        self.cache[key] = res
+        return res
+
+    def fit_many(self, sets: list[tuple[str, ...]], start: FitResult | None = None
+                 ) -> list[FitResult]:
+        todo = [tuple(sorted(s)) for s in sets if tuple(sorted(s)) not in self.cache]
+        if self.pool is not None and len(todo) > 1:
+            self.progress(f"fitting {len(todo)} candidate sets on the process pool")
+            futs = {s: self.pool.submit(_fit_job, self.rm, self.train, s, _warm(s, start))
+                    for s in todo}
+            for s, f in futs.items():
+                self.cache[s] = f.result()
+        return [self.fit(s, start) for s in sets]
+
+    # ----- screening ------------------------------------------------------------------
+    def screen(self, current: FitResult, candidates: list[str]) -> dict[str, float]:
+        """Predicted BIC change of adding each candidate (linearised at the current fit)."""
+        robot = current.space.robot(current.phi)
+        r0 = self.rm.whitened(robot, self.train)
+        n_res = len(r0)
+        out = {}
+        for eff in candidates:
+            sub = ParamSpace(robot, (eff,))
+            J = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
+                            sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi)
+            delta = _bounded_lstsq(J, -r0, sub.neutral, sub.lo, sub.hi)
+            r1 = r0 + J @ delta
+            out[eff] = float(r1 @ r1 - r0 @ r0) + len(sub) * np.log(n_res)
+        return out
+
+    # ----- held-out -------------------------------------------------------------------
+    def fit_on(self, effects: tuple[str, ...], k: int, start: FitResult | None) -> FitResult:
+        """Fit on the training samples minus held-out set ``k`` (the first set is already
+        outside the training samples)."""
+        if k == 0:
+            return self.fit(effects, start)
+        key = (tuple(sorted(effects)), k)
+        if key not in self.cache_ho:
+            idx = np.setdiff1d(self.train, self.holdouts[k])
+            space = ParamSpace(self.model, key[0])
+            self.cache_ho[key] = fit_effects(space, self.rm, idx,
+                                             _warm(key[0], start) if start else None)
+        return self.cache_ho[key]
+
+    def heldout_chi2(self, fit: FitResult, idx: np.ndarray) -> tuple[float, int]:
+        r = self.rm.whitened(fit.space.robot(fit.phi), idx)
+        return float(r @ r), len(r)
+
+    def heldout_improves(self, with_: tuple[str, ...], without: tuple[str, ...],
+                         start: FitResult) -> tuple[bool, dict]:
+        """Whether adding the effect predicts held-out samples better: clearly on every k-th
+        target pose (set 0), and at least not worse on the held-out region (set 1)."""
+        info: dict[str, float] = {}
+        ok = True
+        for k, idx in enumerate(self.holdouts):
+            a, n = self.heldout_chi2(self.fit_on(without, k, start), idx)
+            b, _ = self.heldout_chi2(self.fit_on(with_, k, start), idx)
+            info[f"heldout_{k}_chi2_without"] = a
+            info[f"heldout_{k}_chi2_with"] = b
+            info[f"heldout_{k}_n"] = n
+            noise = 3.0 * np.sqrt(2.0 * max(n, 1))  # chi-square of n residuals: sd sqrt(2n)
+            if k == 0 and not (a - b > max(noise * min(1.0, a / max(n, 1)), 0.02 * a)):
+                ok = False
+            if k > 0 and not (b < a + noise):
+                ok = False
+        return ok, info
+
+    # ----- the whole selection --------------------------------------------------------
+    def run(self, candidates: list[str]) -> Selection:
+        base = self.fit(())
+        current = base
+        chosen: list[str] = []
+        sel = Selection([], base, base)
+        while True:
+            if current.reduced_chi2 < EXPLAINED and chosen:
+                self.progress(f"residuals at the noise level (reduced chi-square "
+                              f"{current.reduced_chi2:.2f})")
+                break
+            rest = [c for c in candidates if c not in chosen]
+            if not rest:
+                break
+            self.progress(f"screening {len(rest)} candidate effects (reduced chi-square "
+                          f"{current.reduced_chi2:.3g})")
+            pred = self.screen(current, rest)
+            if not chosen:
+                sel.screening = dict(pred)
+            promising = sorted((d, e) for e, d in pred.items() if d < -BIC_ENTER)[:3]
+            if not promising:
+                break
+            fits = self.fit_many([tuple(chosen + [e]) for _, e in promising], current)
+            best_fit, best_eff = min(zip(fits, [e for _, e in promising], strict=True),
+                                     key=lambda x: x[0].bic)
+            if best_fit.bic - current.bic > -BIC_ENTER:
+                break
+            chosen.append(best_eff)
+            current = best_fit
+            # backward pass: drop what the others now make unnecessary
+            for e in list(chosen):
+                if len(chosen) < 2:
+                    break
+                reduced = self.fit(tuple(c for c in chosen if c != e), current)
+                if reduced.bic - current.bic < BIC_ENTER:
+                    self.progress(f"dropping {e}: the other effects explain it")
+                    chosen.remove(e)
+                    current = reduced
+        # held-out check of each chosen effect against the set without it
+        for e in list(chosen):
+            rest = tuple(c for c in chosen if c != e)
+            without = self.fit(rest, current)
+            ok, info = self.heldout_improves(tuple(chosen), rest, current)
+            info["delta_bic"] = current.bic - without.bic
+            sel.heldout[e] = info
+            if not ok:
+                self.progress(f"rejecting {e}: held-out poses do not improve")
+                sel.rejected[e] = "held-out poses do not improve"
+                chosen.remove(e)
+                current = self.fit(tuple(chosen), current)
+        sel.effects = sorted(chosen, key=lambda e: -self._importance(e, chosen, current))
+        sel.fit = current
+        sel.fits = dict(self.cache)
+        self._lookalikes(sel, candidates)
+        return sel
+
+    def _importance(self, e: str, chosen: list[str], current: FitResult) -> float:
+        without = self.fit(tuple(c for c in chosen if c != e), current)
+        return without.chi2 - current.chi2
+
+    def _lookalikes(self, sel: Selection, candidates: list[str]) -> None:
+        chosen = sel.effects
+        cur = sel.fit
+        for e in chosen:
+            others = [c for c in candidates if c not in chosen]
+            sets = [tuple(c for c in chosen if c != e) + (a,) for a in others]
+            alt = []
+            for a, f in zip(others, self.fit_many(sets, cur), strict=True):
+                d = f.bic - cur.bic
+                if d < BIC_TIE:
+                    alt.append((a, float(d)))
+            sel.alternatives[e] = sorted(alt, key=lambda x: x[1])
+            sel.imitation[e] = self.imitation(cur, e, others)
+
+    def imitation(self, fit: FitResult, effect: str, others: list[str]) -> dict[str, float]:
+        """How well each other effect reproduces ``effect``'s signature on these poses
+        (fraction of the signature explained, linearised, 0..1)."""
+        space = fit.space
+        phi_wo = fit.phi.copy()
+        ix = space.indices(effect)
+        phi_wo[ix] = space.neutral[ix]
+        robot_wo = space.robot(phi_wo)
+        r_with = self.rm.whitened(space.robot(fit.phi), self.train)
+        r_wo = self.rm.whitened(robot_wo, self.train)
+        sig = r_wo - r_with
+        norm = float(sig @ sig)
+        out = {}
+        if norm <= 0:
+            return out
+        for a in others:
+            sub = ParamSpace(robot_wo, (a,))
+            J = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
+                            sub.neutral, r_wo, sub.scale * 1e-2, sub.lo, sub.hi)
+            delta = _bounded_lstsq(J, -sig, sub.neutral, sub.lo, sub.hi)
+            rem = sig + J @ delta
+            out[a] = float(np.clip(1.0 - (rem @ rem) / norm, 0.0, 1.0))
+        return out
+
+
+def _warm(effects: tuple[str, ...], start: FitResult | None) -> np.ndarray | None:
+    if start is None:
+        return None
+    space = ParamSpace(start.space.model, effects)
+    phi0 = space.neutral.copy()
+    for k, p in enumerate(space.params):
+        for j, q in enumerate(start.space.params):
+            if p.key == q.key and p.effect == q.effect:
+                phi0[k] = start.phi[j]
+    return phi0
+
+
+def _fit_job(rm: ResidualModel, train: np.ndarray, effects: tuple[str, ...],
+             phi0: np.ndarray | None) -> FitResult:
+    return fit_effects(ParamSpace(rm.model, effects), rm, train, phi0)
+
+
+def _bounded_lstsq(J: np.ndarray, b: np.ndarray, x0: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> np.ndarray:
+    """min |J d - b| with x0 + d within bounds (scipy lsq_linear), d returned."""
+    from scipy.optimize import lsq_linear
+
+    if J.shape[1] == 0:
+        return np.zeros(0)
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    res = lsq_linear(J / scale, b, bounds=((lo - x0) * scale, (hi - x0) * scale),
+                     lsmr_tol="auto", method="bvls" if J.shape[1] < 60 else "trf")
+    return res.x / scale
+
+
+def effect_size(effect: str, model) -> int:
+    return len(effect_fit_params(effect, model))

@@ -1,0 +1,146 @@
+"""Effect parameters as a vector for fitting.
+
+Each vocabulary effect becomes a group of fit parameters with physical bounds
+and a scale. Compliance is fitted as c = 1/k and elasticity as e = 1/EA, so
+that "no effect" (rigid mast, inextensible cable) is c = 0, e = 0 and the
+neutral point is the model's own value. :meth:`ParamSpace.robot` builds the
+hypothesis robot through :func:`controller.effects.apply_effects`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.effects import apply_effects
+from controller.robot import Robot
+
+#: fit-parameter scale per effect (typical size of a meaningful change), for steps and scaling
+SCALES = {
+    "exit_point_offset": 1e-3, "mast_compliance": 1e-6, "cable_elasticity": 1e-7,
+    "cable_length_offset": 1e-4, "drum_scale": 1e-4, "load_cell_gain": 1e-3,
+    "load_cell_offset": 0.1, "mass": 0.1, "com": 1e-3, "pulley_kinematics": 1e-3,
+    "cable_sag": 1e-3,
+}
+
+#: what each effect explains, for the report
+EXPLAINS = {
+    "exit_point_offset": "exit points sit elsewhere than the model says (supporting ropes "
+                         "settled, masts tilted or a survey error): constant offsets",
+    "mast_compliance": "exit points move with the tension on their mast: the masts bend "
+                       "about their bases (eq. 4-8)",
+    "cable_elasticity": "cables stretch in proportion to tension times length",
+    "cable_length_offset": "a cable's length reading is off by a constant (slip on the drum, "
+                           "encoder jump)",
+    "drum_scale": "length changes are read with a wrong scale (drum radius, winding)",
+    "load_cell_calibration": "tension sensors read with a gain or offset error",
+    "platform_mass": "the platform's mass or centre of mass differs from the model",
+    "pulley_kinematics": "cables wrap on pulleys of finite radius that swivel towards the "
+                         "platform",
+    "cable_sag": "cables sag under their own weight",
+}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One fit parameter: report ``key``, ``effect``, ``kind`` (value, inverse), fit-space
+    ``neutral``, ``scale``, bounds ``lo``/``hi``."""
+
+    key: str
+    effect: str
+    kind: str
+    neutral: float
+    scale: float
+    lo: float
+    hi: float
+
+    def to_value(self, phi: float) -> float:
+        """Fit-space value -> the conventions' parameter value (k = 1/c, ea = 1/e)."""
+        if self.kind == "inverse":
+            return float("inf") if phi <= 0 else 1.0 / phi
+        return phi
+
+    def from_value(self, v: float) -> float:
+        if self.kind == "inverse":
+            return 0.0 if not np.isfinite(v) or v <= 0 else 1.0 / v
+        return v
+
+
+def effect_fit_params(effect: str, model: Robot) -> list[Param]:
+    """The fit parameters of one effect for ``model``."""
+    cids, mids = model.cable_ids, model.mast_ids
+    out: list[Param] = []
+    if effect == "exit_point_offset":
+        for cid in cids:
+            for ax in "xyz":
+                out.append(Param(f"d{ax}_{cid}", effect, "offset", 0.0,
+                                 SCALES[effect], -0.5, 0.5))
+    elif effect == "mast_compliance":
+        for i, mid in enumerate(mids):
+            for a, ax in enumerate("xyz"):
+                k = model.stiffness[i, a]
+                out.append(Param(f"k{ax}_{mid}", effect, "inverse",
+                                 0.0 if not np.isfinite(k) else 1.0 / k, SCALES[effect],
+                                 0.0, 1e-3))
+    elif effect == "cable_elasticity":
+        ea = model.ea[np.isfinite(model.ea)]
+        e0 = 0.0 if not len(ea) else 1.0 / float(np.mean(ea))
+        out.append(Param("ea", effect, "inverse", e0, SCALES[effect], 0.0, 1e-3))
+    elif effect == "cable_length_offset":
+        out = [Param(f"dl_{c}", effect, "offset", 0.0, SCALES[effect], -1.0, 1.0) for c in cids]
+    elif effect == "drum_scale":
+        out = [Param(f"s_{c}", effect, "value", float(model.drum_scale[k]), SCALES[effect],
+                     0.8, 1.25) for k, c in enumerate(cids)]
+    elif effect == "load_cell_calibration":
+        for k, c in enumerate(cids):
+            out.append(Param(f"gain_{c}", effect, "value", float(model.load_cell_gain[k]),
+                             SCALES["load_cell_gain"], 0.5, 2.0))
+            out.append(Param(f"offset_{c}", effect, "value", float(model.load_cell_offset[k]),
+                             SCALES["load_cell_offset"], -500.0, 500.0))
+    elif effect == "platform_mass":
+        out.append(Param("mass", effect, "value", model.mass, SCALES["mass"], 0.1,
+                         10 * model.mass + 100))
+        for a, ax in enumerate("xyz"):
+            out.append(Param(f"com_{ax}", effect, "value", float(model.com[a]), SCALES["com"],
+                             -2.0, 2.0))
+    elif effect == "pulley_kinematics":
+        out = [Param(f"r_{c}", effect, "value", float(model.pulley_radius[k]),
+                     SCALES[effect], 0.0, 1.0) for k, c in enumerate(cids)]
+    elif effect == "cable_sag":
+        out = [Param("rho", effect, "value", model.rho, SCALES[effect], 0.0, 5.0)]
+    else:
+        raise KeyError(f"unknown effect {effect!r}")
+    return out
+
+
+class ParamSpace:
+    """Fit parameters of a set of effects on a model robot."""
+
+    def __init__(self, model: Robot, effects: list[str] | tuple[str, ...]) -> None:
+        self.model = model
+        self.effects = tuple(effects)
+        self.params: list[Param] = []
+        for e in self.effects:
+            self.params += effect_fit_params(e, model)
+        self.neutral = np.array([p.neutral for p in self.params])
+        self.scale = np.array([p.scale for p in self.params])
+        self.lo = np.array([p.lo for p in self.params])
+        self.hi = np.array([p.hi for p in self.params])
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    def values(self, phi: np.ndarray) -> dict[str, dict[str, float]]:
+        """{effect: {key: value in the conventions' units}}."""
+        out: dict[str, dict[str, float]] = {e: {} for e in self.effects}
+        for p, v in zip(self.params, phi, strict=True):
+            out[p.effect][p.key] = p.to_value(float(v))
+        return out
+
+    def robot(self, phi: np.ndarray) -> Robot:
+        """The hypothesis robot for fit-space values ``phi``."""
+        return apply_effects(self.model, self.values(phi))
+
+    def indices(self, effect: str) -> np.ndarray:
+        return np.array([k for k, p in enumerate(self.params) if p.effect == effect], dtype=int)

@@ -1,0 +1,261 @@
+"""Recordings in the ``cdpr-recording/1`` format (``../shared/spec/recording-format.md``).
+
+A recording is a directory with ``meta.toml``, ``robot.toml`` (the model the
+controller ran with) and ``recording.csv``. :func:`read_recording` validates it
+and returns arrays ordered as the robot's cables; errors name the file, the
+line and the column. :func:`write_recording` writes one.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from controller.robot import Robot, RobotFileError, dumps_robot, load_robot
+
+FORMAT = "cdpr-recording/1"
+POSE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+#: tolerance [m, rad] within which a desired pose still counts as the initialisation pose
+INIT_TOL_DES = 1e-6
+#: same for a measured pose (tracker noise) when there is no desired pose
+INIT_TOL_MEAS = 2e-3
+
+
+class RecordingError(ValueError):
+    """An invalid recording; the message names the file, line and column."""
+
+
+@dataclass
+class Recording:
+    """A recording as arrays (N samples, n cables in the robot's order; NaN = not measured).
+
+    ``pose_des``/``pose_meas`` (N,6); ``l_cmd``/``l_meas``/``tau`` (N,n);
+    ``exit_meas`` (N,n,3); ``state`` (N,) strings or None; ``extra`` other
+    numeric columns by name; ``init_rows`` the rows taken at initialisation.
+    """
+
+    path: Path
+    robot: Robot
+    meta: dict[str, Any]
+    init_pose: np.ndarray
+    t: np.ndarray
+    pose_des: np.ndarray
+    pose_meas: np.ndarray
+    l_cmd: np.ndarray
+    l_meas: np.ndarray
+    tau: np.ndarray
+    exit_meas: np.ndarray
+    state: list[str] | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    init_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.t)
+
+    def has(self, group: str) -> bool:
+        """Whether a column group (``pose_des``, ``pose_meas``, ``l_cmd``, ``l_meas``, ``tau``,
+        ``exit_meas``) holds any measured value."""
+        return bool(np.isfinite(getattr(self, group)).any())
+
+    @property
+    def init_tensions(self) -> np.ndarray | None:
+        """Measured tensions at initialisation (mean of the init rows), or None."""
+        if not len(self.init_rows) or not self.has("tau"):
+            return None
+        tau = self.tau[self.init_rows]
+        if not np.isfinite(tau).all(axis=0).any():
+            return None
+        with np.errstate(all="ignore"):
+            out = np.nanmean(tau, axis=0)
+        return out if np.all(np.isfinite(out)) else None
+
+
+def _column_groups(robot: Robot) -> dict[str, tuple[str, int, int]]:
+    """Known column name -> (group, cable index or axis, component)."""
+    cols: dict[str, tuple[str, int, int]] = {}
+    for a, ax in enumerate(POSE_AXES):
+        cols[f"{ax}_des"] = ("pose_des", a, 0)
+        cols[f"{ax}_meas"] = ("pose_meas", a, 0)
+    for k, cid in enumerate(robot.cable_ids):
+        cols[f"l_cmd_{cid}"] = ("l_cmd", k, 0)
+        cols[f"l_meas_{cid}"] = ("l_meas", k, 0)
+        cols[f"tau_{cid}"] = ("tau", k, 0)
+        for c, ax in enumerate("xyz"):
+            cols[f"a{ax}_meas_{cid}"] = ("exit_meas", k, c)
+    return cols
+
+
+_CABLE_COL = re.compile(r"^(l_cmd|l_meas|tau|ax_meas|ay_meas|az_meas|vel|current)_(\w+)$")
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read and validate a recording directory."""
+    d = Path(path)
+    meta_path = d / "meta.toml"
+    try:
+        meta_text = meta_path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise RecordingError(f"{meta_path}: cannot read: {e.strerror or e}") from e
+    try:
+        meta = tomllib.loads(meta_text)
+    except tomllib.TOMLDecodeError as e:
+        raise RecordingError(f"{meta_path}: not valid TOML: {e}") from e
+    if meta.get("format") != FORMAT:
+        raise RecordingError(f"{meta_path}: format: expected {FORMAT!r}, got "
+                             f"{meta.get('format')!r}")
+    for key in ("robot", "samples", "init_pose"):
+        if key not in meta:
+            raise RecordingError(f"{meta_path}: {key}: missing field")
+    ip = meta["init_pose"]
+    if (not isinstance(ip, list) or len(ip) != 6
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       and math.isfinite(v) for v in ip)):
+        raise RecordingError(f"{meta_path}: init_pose: must be 6 finite numbers "
+                             f"(x, y, z, roll, pitch, yaw), got {ip!r}")
+    try:
+        robot = load_robot(d / str(meta["robot"]))
+    except RobotFileError as e:
+        raise RecordingError(str(e)) from e
+    samples_path = d / str(meta["samples"])
+    return _read_csv(d, samples_path, robot, meta, np.array(ip, dtype=float))
+
+
+def _read_csv(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndarray) -> Recording:
+    try:
+        f = p.open(newline="", encoding="utf-8")
+    except OSError as e:
+        raise RecordingError(f"{p}: cannot read: {e.strerror or e}") from e
+    with f:
+        reader = csv.reader(f)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise RecordingError(f"{p}:1: empty file (no header)") from None
+        if "t" not in header:
+            raise RecordingError(f"{p}:1: column 't' (time) is missing")
+        seen = set()
+        for c, name in enumerate(header):
+            if name in seen:
+                raise RecordingError(f"{p}:1: column {c + 1} '{name}': duplicate column")
+            seen.add(name)
+        known = _column_groups(robot)
+        for c, name in enumerate(header):
+            m = _CABLE_COL.match(name)
+            if m and name not in known and m.group(2) not in robot.cable_ids:
+                raise RecordingError(
+                    f"{p}:1: column {c + 1} '{name}': cable {m.group(2)!r} is not in the robot "
+                    f"(cables: {', '.join(robot.cable_ids)})")
+        rows: list[list[float]] = []
+        states: list[str] = []
+        state_col = header.index("state") if "state" in header else -1
+        numeric = [c for c, name in enumerate(header) if c != state_col]
+        for lineno, row in enumerate(reader, start=2):
+            if not row or all(not x.strip() for x in row):
+                continue
+            if len(row) != len(header):
+                raise RecordingError(f"{p}:{lineno}: {len(row)} fields, the header has "
+                                     f"{len(header)}")
+            vals = []
+            for c in numeric:
+                s = row[c].strip()
+                if s == "" or s.lower() == "nan":
+                    vals.append(math.nan)
+                    continue
+                try:
+                    v = float(s)
+                except ValueError:
+                    raise RecordingError(f"{p}:{lineno}: column {c + 1} '{header[c]}': not a "
+                                         f"number: {s!r}") from None
+                if math.isinf(v):
+                    raise RecordingError(f"{p}:{lineno}: column {c + 1} '{header[c]}': "
+                                         f"infinite value")
+                vals.append(v)
+            rows.append(vals)
+            if state_col >= 0:
+                states.append(row[state_col].strip())
+    names = [header[c] for c in numeric]
+    data = np.array(rows, dtype=float).reshape(len(rows), len(names))
+    N, n = len(rows), robot.n_cables
+    if N == 0:
+        raise RecordingError(f"{p}: no samples")
+    col = {name: data[:, k] for k, name in enumerate(names)}
+    t = col["t"]
+    if np.isnan(t).any():
+        line = int(np.flatnonzero(np.isnan(t))[0]) + 2
+        raise RecordingError(f"{p}:{line}: column {header.index('t') + 1} 't': time missing")
+    groups = {
+        "pose_des": np.full((N, 6), np.nan), "pose_meas": np.full((N, 6), np.nan),
+        "l_cmd": np.full((N, n), np.nan), "l_meas": np.full((N, n), np.nan),
+        "tau": np.full((N, n), np.nan), "exit_meas": np.full((N, n, 3), np.nan),
+    }
+    extra = {}
+    for name, values in col.items():
+        if name == "t":
+            continue
+        if name in known:
+            g, k, c = known[name]
+            if g == "exit_meas":
+                groups[g][:, k, c] = values
+            else:
+                groups[g][:, k] = values
+        else:
+            extra[name] = values
+    rec = Recording(d, robot, meta, init_pose, t, groups["pose_des"], groups["pose_meas"],
+                    groups["l_cmd"], groups["l_meas"], groups["tau"], groups["exit_meas"],
+                    states if state_col >= 0 else None, extra)
+    rec.init_rows = _init_rows(rec)
+    return rec
+
+
+def _init_rows(rec: Recording) -> np.ndarray:
+    """Rows taken at initialisation: those before the first row where the platform leaves
+    init_pose (by the desired pose if recorded, else the measured one)."""
+    if rec.has("pose_des"):
+        pose, tol = rec.pose_des, INIT_TOL_DES
+    elif rec.has("pose_meas"):
+        pose, tol = rec.pose_meas, INIT_TOL_MEAS
+    else:
+        return np.zeros(0, dtype=int)
+    with np.errstate(invalid="ignore"):
+        off = np.nanmax(np.abs(pose - rec.init_pose), axis=1) > tol
+    leave = np.flatnonzero(off)
+    if not len(leave):
+        return np.arange(rec.n_samples)
+    t_leave = rec.t[leave[0]]
+    return np.flatnonzero(rec.t < t_leave)
+
+
+def write_recording(path: str | Path, robot: Robot, init_pose: np.ndarray,
+                    columns: dict[str, np.ndarray], meta: dict[str, Any] | None = None,
+                    robot_header: str = "", states: list[str] | None = None) -> Path:
+    """Write a recording directory: ``columns`` maps column names (``t`` first) to (N,) arrays."""
+    d = Path(path)
+    d.mkdir(parents=True, exist_ok=True)
+    m = {"format": FORMAT, "robot": "robot.toml", "samples": "recording.csv",
+         "init_pose": [float(v) for v in init_pose], "pose_source": "laser tracker",
+         "tension_source": "load cells"}
+    m.update(meta or {})
+    (d / "meta.toml").write_text(tomli_w.dumps(m), encoding="utf-8")
+    (d / "robot.toml").write_text(dumps_robot(robot, robot_header), encoding="utf-8")
+    names = list(columns)
+    if names[0] != "t":
+        raise ValueError("the first column must be 't'")
+    arrays = [np.asarray(columns[k], dtype=float) for k in names]
+    with (d / "recording.csv").open("w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(names + (["state"] if states is not None else []))
+        for i in range(len(arrays[0])):
+            row = ["nan" if not math.isfinite(a[i]) else repr(float(a[i])) for a in arrays]
+            if states is not None:
+                row.append(states[i])
+            w.writerow(row)
+    return d

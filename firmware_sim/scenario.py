@@ -1,0 +1,274 @@
+"""Scenario files (``cdpr-scenario/1``): what the simulated robot really is, and how it is run.
+
+Only the simulation reads a scenario: the concealed effects (``[truth.<effect>]``
+tables with the parameter keys of the conventions' effect vocabulary), the
+nuisances outside the vocabulary, the measurement noise and the poses of a
+campaign. A recording made from a scenario carries the model (``robot``) but
+never the truth.
+
+```toml
+format = "cdpr-scenario/1"
+robot = "rocaspect"              # the model the controller runs with: shipped name or path
+seed = 1
+init_pose = [10.0, 8.56, 1.0, 0.0, 0.0, 0.0]
+
+[truth.mast_compliance]          # effects the robot has and the model leaves out
+k = [2.0e5, 5.0e5, 3.0e5]        # shortcut: kx, ky, kz of every mast
+[truth.exit_point_offset]
+dx_21 = 0.05
+[truth.cable_length_offset]
+dl_21 = 0.004
+slip_time_21 = 120.0             # the offset appears at t = 120 s (a slip); default 0
+
+[noise]                          # standard deviations (encoder: quantisation step)
+tracker_m = 3.0e-5
+tracker_rad = 2.0e-5
+load_cell_n = 0.5
+encoder_m = 1.0e-6
+process_m = 2.0e-4               # per visit, on each unstretched length (repeatability)
+exit_m = 5.0e-5                  # tracker on exit points
+
+[nuisance]
+hysteresis_m = 1.0e-4
+drift_m_per_h = 5.0e-5
+
+[poses]
+kind = "grid"                    # grid | random | list
+x = [3.0, 17.0]
+y = [2.5, 14.5]
+z = [0.8, 1.6]
+n = [5, 4, 2]                    # grid points along x, y, z (grid) / count (random: n = 60)
+rpy_deg = 2.0                    # orientation amplitude (random, uniform) [deg]
+visits = 3
+dwell_s = 3.0
+rate_hz = 2.0
+init_s = 4.0
+speed_m_s = 0.25
+exit_points = []                 # cable ids whose exit point the tracker also measures
+```
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller.effects import EFFECT_NAMES, apply_effects
+from controller.robot import Robot, RobotFileError, resolve_robot
+
+FORMAT = "cdpr-scenario/1"
+
+
+class ScenarioError(ValueError):
+    """An invalid scenario; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Measurement noise (standard deviations) and encoder quantisation step."""
+
+    tracker_m: float = 3.0e-5
+    tracker_rad: float = 2.0e-5
+    load_cell_n: float = 0.5
+    encoder_m: float = 1.0e-6
+    process_m: float = 2.0e-4
+    exit_m: float = 5.0e-5
+
+
+@dataclass(frozen=True)
+class PoseSet:
+    """How a campaign visits the workspace."""
+
+    kind: str = "grid"
+    x: tuple[float, float] = (3.0, 17.0)
+    y: tuple[float, float] = (2.5, 14.5)
+    z: tuple[float, float] = (0.8, 1.6)
+    n: tuple[int, ...] = (5, 4, 2)
+    rpy_deg: float = 0.0
+    poses: tuple[tuple[float, ...], ...] = ()
+    visits: int = 3
+    dwell_s: float = 3.0
+    rate_hz: float = 2.0
+    init_s: float = 4.0
+    speed_m_s: float = 0.25
+    exit_points: tuple[str, ...] = ()
+
+    def generate(self, rng: np.random.Generator) -> np.ndarray:
+        """The poses (P, 6) of one round of visits."""
+        if self.kind == "list":
+            return np.array(self.poses, dtype=float).reshape(-1, 6)
+        if self.kind == "grid":
+            nx, ny, nz = (list(self.n) + [1, 1, 1])[:3]
+            xs = np.linspace(*self.x, nx)
+            ys = np.linspace(*self.y, ny)
+            zs = np.linspace(*self.z, nz) if nz > 1 else np.array([np.mean(self.z)])
+            pts = np.array([[x, y, z] for z in zs for y in ys for x in xs])
+        elif self.kind == "random":
+            count = int(self.n[0])
+            lo = np.array([self.x[0], self.y[0], self.z[0]])
+            hi = np.array([self.x[1], self.y[1], self.z[1]])
+            pts = rng.uniform(lo, hi, (count, 3))
+        else:
+            raise ValueError(f"unknown pose set kind {self.kind!r}")
+        ang = np.radians(self.rpy_deg) * rng.uniform(-1, 1, (len(pts), 3)) if self.rpy_deg \
+            else np.zeros((len(pts), 3))
+        return np.hstack([pts, ang])
+
+
+@dataclass
+class Scenario:
+    """A parsed scenario: ``model`` as the controller knows it, ``truth`` the real robot."""
+
+    path: Path
+    model: Robot
+    truth: Robot
+    effects: dict[str, dict[str, float]]
+    slip_times: np.ndarray
+    init_pose: np.ndarray
+    seed: int = 0
+    noise: Noise = field(default_factory=Noise)
+    hysteresis_m: float = 0.0
+    drift_m_per_s: float = 0.0
+    poses: PoseSet = field(default_factory=PoseSet)
+    notes: str = ""
+
+
+_TOP = {"format", "robot", "seed", "init_pose", "truth", "noise", "nuisance", "poses", "notes"}
+
+
+def _num(path: Path, where: str, v: Any, positive: bool = False, nonneg: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise ScenarioError(f"{path}: {where}: must be a finite number, got {v!r}")
+    if positive and v <= 0:
+        raise ScenarioError(f"{path}: {where}: must be > 0, got {v}")
+    if nonneg and v < 0:
+        raise ScenarioError(f"{path}: {where}: must be >= 0, got {v}")
+    return float(v)
+
+
+def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scenario:
+    """Validate a parsed scenario mapping."""
+    p = Path(path)
+    for k in data:
+        if k not in _TOP:
+            raise ScenarioError(f"{p}: {k}: unknown key (allowed: {', '.join(sorted(_TOP))})")
+    if data.get("format") != FORMAT:
+        raise ScenarioError(f"{p}: format: expected {FORMAT!r}, got {data.get('format')!r}")
+    robot_ref = str(data.get("robot", "rocaspect"))
+    candidate = (p.parent / robot_ref) if p.name != "<memory>" else Path(robot_ref)
+    try:
+        model = resolve_robot(candidate if candidate.exists() else robot_ref)
+    except RobotFileError as e:
+        raise ScenarioError(f"{p}: robot: {e}") from e
+    ip = data.get("init_pose", [10.0, 8.56, 1.0, 0.0, 0.0, 0.0])
+    if not isinstance(ip, list) or len(ip) != 6:
+        raise ScenarioError(f"{p}: init_pose: must be 6 numbers")
+    init_pose = np.array([_num(p, "init_pose", v) for v in ip])
+
+    effects: dict[str, dict[str, float]] = {}
+    slips = np.zeros(model.n_cables)
+    truth_tab = data.get("truth", {})
+    if not isinstance(truth_tab, dict):
+        raise ScenarioError(f"{p}: truth: must be a table of effects")
+    for eff, params in truth_tab.items():
+        if eff not in EFFECT_NAMES:
+            raise ScenarioError(f"{p}: truth.{eff}: unknown effect (known: "
+                                f"{', '.join(EFFECT_NAMES)})")
+        if not isinstance(params, dict):
+            raise ScenarioError(f"{p}: truth.{eff}: must be a table of parameters")
+        vals: dict[str, float] = {}
+        for key, v in params.items():
+            where = f"truth.{eff}.{key}"
+            if eff == "mast_compliance" and key == "k":
+                if not isinstance(v, list) or len(v) != 3:
+                    raise ScenarioError(f"{p}: {where}: must be [kx, ky, kz]")
+                for mid in model.mast_ids:
+                    for ax, kv in zip("xyz", v, strict=True):
+                        vals[f"k{ax}_{mid}"] = _num(p, where, kv, positive=True)
+            elif eff == "cable_length_offset" and key.startswith("slip_time_"):
+                cid = key[len("slip_time_"):]
+                if cid not in model.cable_ids:
+                    raise ScenarioError(f"{p}: {where}: no cable {cid!r}")
+                slips[model.cable_ids.index(cid)] = _num(p, where, v, nonneg=True)
+            else:
+                vals[key] = _num(p, where, v)
+        effects[eff] = vals
+    try:
+        truth = apply_effects(model, effects, name=f"{model.name} (truth)")
+    except (KeyError, ValueError) as e:
+        raise ScenarioError(f"{p}: truth: {e.args[0] if e.args else e}") from e
+
+    noise_tab = data.get("noise", {})
+    known = set(Noise.__dataclass_fields__)
+    for k in noise_tab:
+        if k not in known:
+            raise ScenarioError(f"{p}: noise.{k}: unknown key "
+                                f"(allowed: {', '.join(sorted(known))})")
+    noise = Noise(**{k: _num(p, f"noise.{k}", v, nonneg=True) for k, v in noise_tab.items()})
+
+    nz = data.get("nuisance", {})
+    for k in nz:
+        if k not in ("hysteresis_m", "drift_m_per_h"):
+            raise ScenarioError(f"{p}: nuisance.{k}: unknown key (allowed: drift_m_per_h, "
+                                f"hysteresis_m)")
+    hyst = _num(p, "nuisance.hysteresis_m", nz.get("hysteresis_m", 0.0), nonneg=True)
+    drift = _num(p, "nuisance.drift_m_per_h", nz.get("drift_m_per_h", 0.0)) / 3600.0
+
+    ps = data.get("poses", {})
+    pknown = {"kind", "x", "y", "z", "n", "rpy_deg", "list", "visits", "dwell_s", "rate_hz",
+              "init_s", "speed_m_s", "exit_points"}
+    for k in ps:
+        if k not in pknown:
+            raise ScenarioError(f"{p}: poses.{k}: unknown key "
+                                f"(allowed: {', '.join(sorted(pknown))})")
+    kw: dict[str, Any] = {}
+    for k in ("x", "y", "z"):
+        if k in ps:
+            v = ps[k]
+            if not isinstance(v, list) or len(v) != 2:
+                raise ScenarioError(f"{p}: poses.{k}: must be [min, max]")
+            kw[k] = (_num(p, f"poses.{k}", v[0]), _num(p, f"poses.{k}", v[1]))
+    if "n" in ps:
+        n = ps["n"] if isinstance(ps["n"], list) else [ps["n"]]
+        kw["n"] = tuple(int(_num(p, "poses.n", v, positive=True)) for v in n)
+    if "list" in ps:
+        lst = ps["list"]
+        if not isinstance(lst, list) or not all(isinstance(r, list) and len(r) == 6 for r in lst):
+            raise ScenarioError(f"{p}: poses.list: must be a list of [x, y, z, roll, pitch, yaw]")
+        kw["poses"] = tuple(tuple(_num(p, "poses.list", v) for v in r) for r in lst)
+        kw["kind"] = "list"
+    if "kind" in ps:
+        if ps["kind"] not in ("grid", "random", "list"):
+            raise ScenarioError(f"{p}: poses.kind: must be grid, random or list")
+        kw["kind"] = ps["kind"]
+    for k in ("rpy_deg", "dwell_s", "rate_hz", "init_s", "speed_m_s"):
+        if k in ps:
+            kw[k] = _num(p, f"poses.{k}", ps[k], nonneg=True)
+    if "visits" in ps:
+        kw["visits"] = int(_num(p, "poses.visits", ps["visits"], positive=True))
+    if "exit_points" in ps:
+        ep = [str(c) for c in ps["exit_points"]]
+        for c in ep:
+            if c not in model.cable_ids:
+                raise ScenarioError(f"{p}: poses.exit_points: no cable {c!r}")
+        kw["exit_points"] = tuple(ep)
+    return Scenario(p, model, truth, effects, slips, init_pose,
+                    int(data.get("seed", 0)), noise, hyst, drift, PoseSet(**kw),
+                    str(data.get("notes", "")))
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ScenarioError(f"{p}: cannot read: {e.strerror or e}") from e
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(f"{p}: not valid TOML: {e}") from e
+    return parse_scenario(data, p)
