@@ -15,6 +15,7 @@ Life cycle (blocking calls, outside the control cycle)::
 Control cycle (never blocks, no SDO, no sleep)::
 
     drives.exchange()               # latest TPDOs in, state machine, RPDOs + SYNC out
+                                    # (= drives.receive(); drives.transmit())
     l = drives.lengths_m()          # cable lengths [m] from the drives' positions
     drives.set_lengths(cmd_m)       # setpoints [m] sent with the next exchange()
 
@@ -515,8 +516,15 @@ class WinchDrives:
     def exchange(self) -> None:
         """One control cycle: process what arrived, run the state machine, send RPDOs + SYNC.
 
-        Never blocks (no SDO, no sleep).
+        Never blocks (no SDO, no sleep). Same as :meth:`receive` then :meth:`transmit`.
         """
+        self.receive()
+        self.transmit()
+
+    def receive(self) -> None:
+        """First half of a cycle: process the TPDOs, heartbeats and EMCYs that arrived since
+        the last call (positions, states, detection). Never blocks. Call once per cycle,
+        before :meth:`transmit` (a TPDO is expected per SYNC sent)."""
         self._drain()
         with self._rx:
             counts = self._rx_count.copy()
@@ -532,6 +540,10 @@ class WinchDrives:
         self._have |= fresh
         self._update_states(expected)
         self._check_heartbeats()
+
+    def transmit(self) -> None:
+        """Second half of a cycle: state machine requests, RPDOs (setpoints) + SYNC out.
+        Never blocks."""
         self._send_outputs()
         self.cycle += 1
 

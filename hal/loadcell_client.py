@@ -63,6 +63,8 @@ class TensionReading:
     t: float  #: monotonic clock time of this read [s]
     cables: tuple[str, ...]
     unit_ids: tuple[int, ...]
+    #: (n,) Modbus exception code of the last answer where the status is EXCEPTION, else 0
+    exception_codes: np.ndarray | None = None
 
     @property
     def ok(self) -> np.ndarray:
@@ -167,6 +169,7 @@ class LoadCellClient:
         self._t_sample = np.full(n, np.nan)  # when the current counter value arrived
         self._t_answer = np.full(n, np.nan)  # last valid answer
         self._comm = np.full(n, int(CableStatus.NO_DATA), dtype=np.int8)
+        self._exc = np.zeros(n, dtype=np.int64)  # Modbus exception code of the last answer
         self._comm_msg = [f"{register_map.describe(k)}: no data yet" for k in range(n)]
         self.sweeps = 0  #: completed sweeps
         self.errors = np.zeros(n, dtype=np.int64)  #: failed requests per cable
@@ -179,9 +182,10 @@ class LoadCellClient:
         return f"LoadCellClient({str(self.endpoint)!r}, units={self.map.unit_ids})"
 
     # ---- polling (I/O) ----------------------------------------------------
-    def _fail(self, k: int, status: CableStatus, why: str) -> None:
+    def _fail(self, k: int, status: CableStatus, why: str, exception_code: int = 0) -> None:
         with self._lock:
             self._comm[k] = status
+            self._exc[k] = exception_code
             self._comm_msg[k] = f"{self.map.describe(k)} at {self.endpoint}: {why}"
             self.errors[k] += 1
 
@@ -213,7 +217,7 @@ class LoadCellClient:
                 name = ExcCodes(code).name
             except ValueError:
                 name = "unknown"
-            self._fail(k, CableStatus.EXCEPTION, f"Modbus exception {code:#04x} ({name})")
+            self._fail(k, CableStatus.EXCEPTION, f"Modbus exception {code:#04x} ({name})", code)
             return True
         regs = list(getattr(rr, "registers", []))
         if len(regs) != count:
@@ -230,6 +234,7 @@ class LoadCellClient:
             self._bits[k] = int(bits)
             self._t_answer[k] = t
             self._comm[k] = CableStatus.OK
+            self._exc[k] = 0
             self._comm_msg[k] = ""
         return True
 
@@ -314,6 +319,7 @@ class LoadCellClient:
             t_sample = self._t_sample.copy()
             t_answer = self._t_answer.copy()
             status = self._comm.copy()
+            exc = self._exc.copy()
             comm_msg = list(self._comm_msg)
         m = self.map
         # NaN times (nothing received yet) give infinite ages
@@ -353,6 +359,7 @@ class LoadCellClient:
             t=t,
             cables=m.cables,
             unit_ids=m.unit_ids,
+            exception_codes=np.where(status == CableStatus.EXCEPTION, exc, 0),
         )
 
     def _message(

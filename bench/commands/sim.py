@@ -1,0 +1,156 @@
+"""``cdpr sim [SCENARIO]``: run the simulated robot until interrupted.
+
+Eight simulated CiA 402 drives, eight Modbus load cells and the plant
+(:class:`firmware_sim.rig.SimRig`). The CAN bus is served on TCP by a socketcand hub
+(``--can-port``, 0 = any free port) bridged to the rig's in-process bus, or the drives sit
+on a real bus given with ``--can`` (e.g. ``socketcan:can0``; then no hub). The command
+prints where it listens, in the forms the HAL takes::
+
+    --can socketcand:127.0.0.1:40123
+    --modbus 127.0.0.1:40124
+
+(one JSON object on one line with ``--json``) and runs until SIGINT or SIGTERM (exit 0).
+A scenario file that is not valid is reported with file and field (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+
+import numpy as np
+
+from firmware_sim.rig import SimRig
+from firmware_sim.scenario import ScenarioError, load_scenario
+from hal.can_bus import CanSpecError, open_bus, parse_can_spec
+
+NAME = "sim"
+HELP = "run the simulated robot (drives on CAN, load cells on Modbus, plant) until interrupted"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", nargs="?", default=None,
+                   help="scenario file (cdpr-scenario/1); default: the rocaspect model as the "
+                        "truth, init pose [10, 8.56, 1, 0, 0, 0]")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address the hub and the load cells bind [127.0.0.1]")
+    p.add_argument("--can-port", type=int, default=0, metavar="P",
+                   help="TCP port of the socketcand hub (0: any free one) [0]")
+    p.add_argument("--modbus-port", type=int, default=0, metavar="Q",
+                   help="TCP port of the load cells (0: any free one) [0]")
+    p.add_argument("--rtu", action="store_true",
+                   help="load cells with RTU framing over TCP (--modbus rtu-tcp:HOST:PORT)")
+    p.add_argument("--can", metavar="SPEC", default=None,
+                   help="put the drives on this bus instead of a hub, e.g. socketcan:can0")
+    p.add_argument("--clock", choices=("sync", "wall"), default="sync",
+                   help="sync: drive and plant time advance by the SYNC period per SYNC "
+                        "(deterministic; the HAL's --hal-clock sync); wall: real time [sync]")
+    p.add_argument("--plant-rate", type=float, default=20.0, metavar="HZ",
+                   help="plant settles per second at most [20]")
+    p.add_argument("--exit-on-stdin-eof", action="store_true",
+                   help="also stop when stdin closes (the parent process went away)")
+    p.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
+
+
+def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
+    print(f"cdpr sim: {msg}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"error": msg}), flush=True)
+    return code
+
+
+def _port(args: argparse.Namespace, name: str) -> str | None:
+    value = getattr(args, name.replace("-", "_"))
+    if not 0 <= value <= 65535:
+        return f"--{name} {value}: not a TCP port (0..65535)"
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    for name in ("can-port", "modbus-port"):
+        if (msg := _port(args, name)) is not None:
+            return _fail(args, 2, msg)
+    if not args.plant_rate > 0:
+        return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
+    try:
+        scenario = load_scenario(args.scenario) if args.scenario else None
+    except ScenarioError as exc:
+        return _fail(args, 2, str(exc))
+    bus = None
+    if args.can:
+        try:
+            spec = parse_can_spec(args.can)
+            bus = open_bus(spec)
+        except CanSpecError as exc:
+            return _fail(args, 2, str(exc))
+        except Exception as exc:  # CanInitializationError, OSError
+            return _fail(args, 1, str(exc))
+    try:
+        rig = SimRig(scenario, clock=args.clock, bus=bus,
+                     hub_port=None if bus is not None else args.can_port, hub_host=args.host,
+                     modbus_host=args.host, modbus_port=args.modbus_port, rtu=args.rtu,
+                     plant_rate_hz=args.plant_rate)
+    except OSError as exc:
+        if bus is not None:
+            bus.shutdown()
+        return _fail(args, 1, f"cannot listen on {args.host}:{args.can_port}: {exc}")
+    except ValueError as exc:
+        if bus is not None:
+            bus.shutdown()
+        return _fail(args, 2, str(exc))
+
+    stop = threading.Event()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    try:
+        try:
+            rig.start()
+        except (RuntimeError, TimeoutError, OSError) as exc:
+            return _fail(args, 1, str(exc))
+        can_spec = rig.can_spec if bus is None else str(parse_can_spec(args.can))
+        sc = rig.scenario
+        info = {
+            "can": can_spec,
+            "modbus": rig.modbus_spec,
+            "node_ids": [int(x) for x in rig.winches.node_id],
+            "unit_ids": list(rig.cells.map.unit_ids),
+            "cables": list(rig.winches.cables),
+            "clock": args.clock,
+            "scenario": str(args.scenario) if args.scenario else None,
+            "robot": sc.model.name,
+            "init_pose": [float(v) for v in sc.init_pose],
+            "reference_m": [float(v) for v in rig.reference_m],
+            "pid": os.getpid(),
+        }
+        if args.json:
+            print(json.dumps(info), flush=True)
+        else:
+            where = args.scenario or "default: rocaspect as the truth"
+            print(f"simulated robot {sc.model.name} (scenario {where}), {args.clock} clock, "
+                  f"init pose {np.round(sc.init_pose, 4).tolist()}")
+            print(f"  --can {can_spec}")
+            print(f"  --modbus {rig.modbus_spec}")
+            print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)
+        if args.exit_on_stdin_eof:
+            def _watch() -> None:
+                try:
+                    sys.stdin.read()
+                except (OSError, ValueError):
+                    pass
+                stop.set()
+            threading.Thread(target=_watch, name="stdin-eof", daemon=True).start()
+        while not stop.wait(0.5):
+            pass
+    finally:
+        rig.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print(f"cdpr sim: stopped ({rig.settles} plant settles, {len(rig.plant_errors)} without "
+          f"a rest position)", file=sys.stderr)
+    return 0
