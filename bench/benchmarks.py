@@ -19,6 +19,7 @@ MODULES: tuple[str, ...] = (
     "bench.bench_physics",
     "bench.bench_hil_modbus",
     "bench.bench_hil_can",
+    "bench.bench_hil",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}
