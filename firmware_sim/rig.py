@@ -18,6 +18,10 @@ the true tensions go to the drives (torque actual), the tensions the cells measu
 the scenario's load-cell noise at each sample (``cell_rate_hz``, always running: real
 cells sample on their own).
 
+Of the scenario's noise the rig uses ``load_cell_n``; lengths are quantised by the drives'
+encoder counts (not ``encoder_m``), and there is no per-visit process noise in a
+continuous run. Drift and slips act on the plant's time.
+
 Clocks: ``clock="sync"`` (deterministic): the drives advance by the SYNC period on each
 SYNC, and the plant's time [s] is the drives' time; ``clock="wall"``: both follow
 ``time.monotonic``. ``plant_thread=False`` settles only in :meth:`SimRig.settle_now`

@@ -323,6 +323,7 @@ class WinchDrives:
                         self._rebooted[k] = True
                         self._request[k] = Request.DISABLE
                         self._setpoint_ok[k] = False
+                        self._have[k] = False  # state UNKNOWN until recover() reads it
                         self._event(k, "boot_up", CODE_HEARTBEAT,
                                     "unexpected boot-up: the node was reset; recover() it")
                     self._nmt[k] = 0x7F

@@ -9,9 +9,9 @@ tests. Each :meth:`~FakeHardware.write_lengths` is one control cycle of ``period
   (start-up -> Switch On Disabled, enable -> Operation Enabled, quick stop -> Quick Stop
   Active -> Switch On Disabled, fault -> Fault, fault reset -> Ready To Switch On);
 - load cells: every ``tension_period_s`` a new sample of ``plant(lengths_m, t_s)`` (the
-  tensions the cells measure [N]; e.g. a simulated plant settling for the cable lengths)
-  or of the constant ``tensions_N``; the calibration turns them into tensions as the
-  Modbus client does.
+  tensions the cells measure [N]; e.g. a simulated plant settling for the cable lengths;
+  called again only when the lengths changed) or of the constant ``tensions_N``; the
+  calibration turns them into tensions as the Modbus client does.
 
 Fault injection mirrors the simulated drives and cells: :meth:`~FakeHardware.inject_drive_fault`
 (EMCY code), :meth:`~FakeHardware.stop_heartbeat` (lost after ``heartbeat_misses``
@@ -169,7 +169,7 @@ class FakeHardware(WinchHardware):
         """A drive resets (boot-up): disabled until :meth:`recover`."""
         k = self._index(node)
         self.rebooted[k] = True
-        self.states[k] = S.SWITCH_ON_DISABLED
+        self.states[k] = S.UNKNOWN  # as the master sees it until recover()
         self.target[k] = self.pos[k]
         self._event(k, "boot_up", CODE_HEARTBEAT,
                     "unexpected boot-up: the node was reset; recover() it")

@@ -228,7 +228,8 @@ class WinchHardware(ABC):
 
     @abstractmethod
     def shutdown(self) -> None:
-        """Disable the drives (brakes hold), leave NMT operational; stop the load cells."""
+        """Disable the drives (Switch On Disabled, brakes hold), then NMT pre-operational;
+        stop polling the load cells."""
 
     @abstractmethod
     def close(self) -> None:
@@ -272,7 +273,8 @@ class WinchHardware(ABC):
         (a synchronous sweep, or waiting for the poller); False on timeout."""
 
     def step(self, lengths_m: np.ndarray | None = None, timeout_s: float = 0.5) -> Readings:
-        """One lock-step cycle: write, wait for the drives' answers, read."""
+        """One lock-step cycle: write, wait for the drives' answers, read (a drive that did
+        not answer in time shows as a missing TPDO in the next read's events)."""
         self.write_lengths(lengths_m)
         self.wait_feedback(timeout_s)
         return self.read()

@@ -13,6 +13,7 @@ import queue
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -279,3 +280,13 @@ def test_scenario_errors_name_file_and_field_exit_2(tmp_path, capsys):
     assert "--can-port 70000" in capsys.readouterr().err
     assert main(["sim", "--can", "nonsense"]) == 2
     assert "--can 'nonsense'" in capsys.readouterr().err
+
+
+def test_ports_in_use_exit_1(capsys):
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = str(busy.getsockname()[1])
+        assert main(["sim", "--can-port", port]) == 1
+        assert f"127.0.0.1:{port}" in capsys.readouterr().err
+        assert main(["sim", "--modbus-port", port, "--json"]) == 1
+        out = json.loads(capsys.readouterr().out)
+        assert port in out["error"]

@@ -8,6 +8,7 @@ gets the same plant as the rig, so "the tensions the plant says" is one notion f
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 
 import numpy as np
@@ -21,8 +22,11 @@ from hal.drives_cia402 import DriveState
 from hal.fake import FakeHardware
 from hal.interface import (
     CanModbusHardware,
+    DriveStartupError,
     HardwareFault,
     WinchHardware,
+    add_hardware_arguments,
+    hardware_from_args,
     open_hardware,
 )
 from hal.loadcell_client import CableStatus
@@ -52,6 +56,9 @@ class Harness:
         raise NotImplementedError
 
     def clear_loadcell(self, cable: str) -> None:
+        raise NotImplementedError
+
+    def reset_node(self, node: int) -> None:
         raise NotImplementedError
 
     def mode_of_operation(self) -> list[int]:
@@ -85,6 +92,9 @@ class FakeHarness(Harness):
     def clear_loadcell(self, cable):
         self.fake.clear_loadcell_fault(cable)
 
+    def reset_node(self, node):
+        self.fake.reset_node(node)
+
     def mode_of_operation(self):
         return [8] * self.hw.n  # the fake has no other mode
 
@@ -110,6 +120,9 @@ class SimHarness(Harness):
 
     def clear_loadcell(self, cable):
         self.rig.server.clear(cable)
+
+    def reset_node(self, node):
+        self.rig.bank.drive(node).reset_node()
 
     def mode_of_operation(self):
         return [int(d.mode) for d in self.rig.bank.drives]
@@ -310,6 +323,32 @@ def test_loadcell_fault_is_reported_with_unit_and_code(enabled, kind, status, co
     assert ev == [("loadcell", 3, kind), ("loadcell", 3, "ok")]
 
 
+def test_a_faulted_drive_blocks_enable_and_is_named(enabled):
+    h = enabled
+    h.drive_fault(8)
+    _until(h.hw, lambda r: bool(r.faults), 10)
+    with pytest.raises(DriveStartupError, match=r"node 8 \(cable 42\): FAULT"):
+        h.hw.enable(max_cycles=10)
+    r = h.hw.read()
+    assert np.all(r.states[:7] == OE) and r.states[7] == DriveState.FAULT
+
+
+def test_node_reset_is_reported_and_recovered(enabled):
+    h = enabled
+    hw = h.hw
+    h.reset_node(2)
+    r = _until(hw, lambda r: bool(r.faults), 10)
+    assert [(f.device, f.address, f.cable, f.kind, f.code) for f in r.faults] == [
+        ("drive", 2, "12", "boot_up", 0x8130)]
+    assert r.states[1] != OE and np.all(np.delete(r.states, 1) == OE)
+    assert hw.recover() == [2]
+    hw.enable()
+    r = hw.step()
+    assert r.all_enabled and r.faults == ()
+    kinds = [(e.address, e.kind) for e in hw.events()]
+    assert (2, "boot_up") in kinds and (2, "recovered") in kinds
+
+
 def test_quick_stop_holds_and_disables(enabled):
     hw = enabled.hw
     l0 = hw.read().lengths_m
@@ -350,3 +389,44 @@ def test_mismatched_register_map_is_refused(tmp_path):
     w = dataclasses.replace(W, cables=("11", "12", "21", "22", "31", "32", "41", "43"))
     with pytest.raises(ValueError, match="register map .* lists cables"):
         open_hardware("virtual:unused-channel", "127.0.0.1:1", eds=EDS_PATH, winches=w)
+
+
+def test_hardware_from_the_command_line_options():
+    rig = SimRig().start()
+    try:
+        parser = argparse.ArgumentParser()
+        add_hardware_arguments(parser, eds_default=str(EDS_PATH))
+        args = parser.parse_args(["--can", rig.can_spec, "--modbus", rig.modbus_spec,
+                                  "--hal-clock", "sync", "--loadcell-rate", "40"])
+        hw = hardware_from_args(args)
+        try:
+            assert hw.cells.rate_hz == 40 and str(hw.cells.endpoint) == rig.modbus_spec
+            hw.start()
+            hw.enable()
+            assert hw.read().ok
+        finally:
+            hw.close()
+        with pytest.raises(SystemExit):  # a malformed spec is a usage error
+            parser.parse_args(["--can", "socketcand:127.0.0.1"])
+        with pytest.raises(ValueError, match="no CAN bus"):
+            hardware_from_args(parser.parse_args(["--modbus", rig.modbus_spec]))
+    finally:
+        rig.close()
+
+
+def test_without_load_cells_tensions_are_missing_not_faults():
+    rig = SimRig().start()
+    try:
+        hw = open_hardware(rig.can_spec, None, eds=EDS_PATH, clock="sync")
+        try:
+            hw.start()
+            hw.enable()
+            r = hw.step()
+            assert r.all_enabled and r.faults == ()
+            assert np.all(np.isnan(r.tensions_N))
+            assert np.all(r.tension_status == CableStatus.NO_DATA)
+            assert not hw.sample_tensions()
+        finally:
+            hw.close()
+    finally:
+        rig.close()

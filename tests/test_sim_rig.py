@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import socket
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -197,3 +198,29 @@ def test_winches_for_other_cables_are_refused():
     w = dataclasses.replace(W, cables=("11", "12", "21", "22", "31", "32", "41", "43"))
     with pytest.raises(ValueError, match="winches .* are for cables"):
         SimRig(winches=w)
+
+
+def test_wall_clock_rig_with_a_wall_clock_hal():
+    """Real-time mode: drives on time.monotonic, the plant's time is the wall clock."""
+    with SimRig(clock="wall") as rig:
+        hw = open_hardware(rig.can_spec, rig.modbus_spec, eds=EDS_PATH, clock="wall")
+        try:
+            hw.start()
+            hw.enable()
+            t0 = rig.time_s()
+            l0 = hw.read().lengths_m
+            for i in range(1, 51):  # not paced: only the coupling is checked here
+                hw.step(l0 + np.array([0.002] + [0.0] * 7) * i / 50)
+            deadline = time.monotonic() + 10.0
+            while np.abs(rig.bank.positions_m()[0] - (l0[0] + 0.002)) > 1e-5:
+                assert time.monotonic() < deadline, "drive did not reach the setpoint"
+                hw.step()
+            rec = rig.wait_settled(timeout_s=10.0)
+            assert rec.t_s > t0 and rig.time_s() > t0
+            assert hw.sample_tensions()
+            r = hw.read()
+            assert np.all(r.tension_status == 0), r.faults
+            np.testing.assert_allclose(r.tensions_N, rec.measured_N,
+                                       atol=5 * rig.scenario.noise.load_cell_n + 0.05)
+        finally:
+            hw.close()
