@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from controller.cycle import LengthController
 from controller.winch import load_winches, metres_per_count
 from firmware_sim.cia402_drive import EDS_PATH
 from firmware_sim.plant import Plant
@@ -44,6 +45,10 @@ class Harness:
 
     def truth_N(self) -> np.ndarray:
         """Tensions [N] the load cells measure for the cable lengths now (noise-free)."""
+        raise NotImplementedError
+
+    def pose(self) -> np.ndarray:
+        """Where the platform rests now (the plant's truth)."""
         raise NotImplementedError
 
     def drive_fault(self, node: int) -> None:
@@ -80,6 +85,10 @@ class FakeHarness(Harness):
     def truth_N(self):
         return self.plant.measured_tensions(self.plant.state.tensions)
 
+    def pose(self):
+        self.fake.sample_tensions()  # the fake settles its plant when it samples
+        return self.plant.state.pose
+
     def drive_fault(self, node):
         self.fake.inject_drive_fault(node, 0x2310)
 
@@ -108,6 +117,9 @@ class SimHarness(Harness):
 
     def truth_N(self):
         return self.rig.wait_settled().measured_N
+
+    def pose(self):
+        return self.rig.wait_settled().pose
 
     def drive_fault(self, node):
         self.rig.bank.drive(node).inject_over_current()
@@ -253,6 +265,26 @@ def test_bad_setpoints_are_refused_and_name_the_node(enabled):
     r = hw.step()
     np.testing.assert_allclose(r.lengths_m, l0, atol=COUNT_M)  # nothing moved
     assert r.faults == ()
+
+
+def test_a_controller_moves_the_platform_through_the_interface(enabled):
+    """The length controller of the model (= the truth here) drives the plant 3 cm in x
+    and 2 cm up through write_lengths; the plant's platform ends where it was sent."""
+    h = enabled
+    hw = h.hw
+    sc = default_scenario()
+    ctl = LengthController(sc.model, sc.init_pose)
+    np.testing.assert_allclose(ctl.step(sc.init_pose).lengths, hw.read().lengths_m,
+                               atol=COUNT_M)
+    goal = sc.init_pose + np.array([0.03, 0.0, 0.02, 0.0, 0.0, 0.0])
+    for i in range(1, 101):
+        out = ctl.step(sc.init_pose + (goal - sc.init_pose) * 0.5 * (1 - np.cos(np.pi * i / 100)))
+        assert out.feasible
+        hw.step(out.lengths)
+    for _ in range(15):
+        r = hw.step()
+    assert r.all_enabled and r.faults == ()
+    np.testing.assert_allclose(h.pose(), goal, atol=1e-4)
 
 
 # ---------------------------------------------------------------------------- faults
