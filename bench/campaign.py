@@ -29,12 +29,14 @@ def run_campaign(sc: Scenario, out: str | Path,
     rng = np.random.default_rng(sc.seed)
     model, n = sc.model, sc.model.n_cables
     nz = sc.noise
+    ps = sc.poses
+    # a length offset is a slip after initialisation: never before the init dwell ends
+    slips = np.maximum(sc.slip_times, ps.init_s)
     plant = Plant(model, sc.truth, sc.init_pose,
                   Nuisances(sc.hysteresis_m, sc.drift_m_per_s, nz.process_m),
-                  slip_times=sc.slip_times, rng=np.random.default_rng(sc.seed + 1))
+                  slip_times=slips, rng=np.random.default_rng(sc.seed + 1))
     tau0_meas = plant.measured_tensions(plant.init_tensions)
     ctl = LengthController(model, sc.init_pose, init_tensions=None)
-    ps = sc.poses
     targets = ps.generate(rng) if poses is None else np.asarray(poses, float)
     exit_idx = [model.cable_ids.index(c) for c in ps.exit_points]
     rows: dict[str, list[float]] = {"t": []}

@@ -15,6 +15,7 @@ import sys
 COMMANDS: tuple[str, ...] = (
     "bench.commands.model",
     "bench.commands.bench",
+    "bench.commands.diagnose",
     "bench.commands.sim",
 )
 

@@ -18,7 +18,8 @@ k = [2.0e5, 5.0e5, 3.0e5]        # shortcut: kx, ky, kz of every mast
 dx_21 = 0.05
 [truth.cable_length_offset]
 dl_21 = 0.004
-slip_time_21 = 120.0             # the offset appears at t = 120 s (a slip); default 0
+slip_time_21 = 120.0             # the offset appears at t = 120 s (a slip); default: right
+                                 # after the initialisation dwell
 
 [noise]                          # standard deviations (encoder: quantisation step)
 tracker_m = 3.0e-5

@@ -85,22 +85,27 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     r = res.fun
     chi2 = float(r @ r)
     n_res = len(r)
-    cov, se = standard_errors(res.jac, chi2, n_res)
+    cov, se = standard_errors(res.jac, chi2, n_res, space.scale)
     return FitResult(space, res.x, chi2, n_res, bic(chi2, len(res.x), n_res), se, cov,
                      bool(res.success), str(res.message), int(res.nfev))
 
 
-def standard_errors(J: np.ndarray, chi2: float, n_res: int) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance and standard errors from the whitened Jacobian; inflated by the reduced
-    chi-square when the fit leaves more than the noise."""
+def standard_errors(J: np.ndarray, chi2: float, n_res: int,
+                    scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance and standard errors from the whitened Jacobian (computed in parameter
+    units of ``scale``); inflated by the reduced chi-square when the fit leaves more than
+    the noise. Directions the data do not constrain get infinite standard errors."""
     p = J.shape[1]
-    JtJ = J.T @ J
-    cov = np.linalg.pinv(JtJ, rcond=1e-12)
-    red = chi2 / max(n_res - p, 1)
-    cov = cov * max(red, 1.0)
-    # directions the data do not constrain: infinite uncertainty
+    D = np.ones(p) if scale is None else np.asarray(scale, dtype=float)
+    Js = J * D
+    JtJ = Js.T @ Js
     w, V = np.linalg.eigh(JtJ)
-    weak = w < 1e-10 * max(float(w.max()), 1e-300)
+    top = max(float(w.max()), 1e-300)
+    weak = w < 1e-12 * top
+    inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
+    cov_s = (V * inv_w) @ V.T
+    red = chi2 / max(n_res - p, 1)
+    cov = cov_s * np.outer(D, D) * max(red, 1.0)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     if weak.any():
         null = (V[:, weak] ** 2).sum(axis=1) > 1e-3

@@ -91,9 +91,9 @@ class ResidualModel:
         self.any_tau = bool(self.has_tau.any())
         self.sigma = dict(DEFAULTS)
         self.sigma_source = "defaults (no replicate visits)"
-        # slack cables: measured tension within the load-cell noise of zero
-        sd = pooled_std(s.tau, s.target) if self.any_tau else None
-        tau_noise = float(np.nanmean(sd)) if sd is not None and np.isfinite(sd).any() else 0.5
+        # slack cables: measured tension within the load-cell noise of zero (the noise of
+        # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
+        tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
         self.slack_threshold = max(1.0, 4.0 * tau_noise)
 
     # ----- inverse residuals --------------------------------------------------------
@@ -138,6 +138,8 @@ class ResidualModel:
             W = wrench_matrix(st)
             wg = gravity_wrench(H.mass, H.com, H.gravity, st.R)
             wr = np.einsum("...ij,...j->...i", W, tau) + wg
+            # in load-cell units: a hypothesis must not shrink the sensor noise by its gains
+            wr *= float(np.exp(np.mean(np.log(H.load_cell_gain))))
             wr[~self.has_tau[sel]] = np.nan
             wrench[sel] = wr
         # exit points
@@ -162,6 +164,10 @@ class ResidualModel:
             if sd is None or not np.isfinite(sd).any():
                 continue
             est[name] = max(float(np.sqrt(np.nanmean(sd ** 2))), FLOORS[name])
+        if self.has_pose.any():
+            sd = pooled_std(self.s.pose_meas[:, :3], tg)
+            if sd is not None and np.isfinite(sd).all():
+                est["pose_m"] = float(np.sqrt(np.sum(sd ** 2)))  # 3-D repeatability
         if est:
             self.sigma.update(est)
             self.sigma_source = "replicate visits"

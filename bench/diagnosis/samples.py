@@ -26,6 +26,7 @@ class Samples:
     count: np.ndarray
     target: np.ndarray
     is_init: np.ndarray
+    tau_row_sd: float | None = None  # load-cell noise of one row [N] (within dwells)
 
     @property
     def n(self) -> int:
@@ -43,7 +44,7 @@ class Samples:
     def take(self, idx: np.ndarray) -> Samples:
         return Samples(self.t[idx], self.pose_des[idx], self.pose_meas[idx], self.l_meas[idx],
                        self.tau[idx], self.exit_meas[idx], self.count[idx], self.target[idx],
-                       self.is_init[idx])
+                       self.is_init[idx], self.tau_row_sd)
 
 
 def _keys(rec: Recording) -> np.ndarray:
@@ -89,9 +90,17 @@ def average_dwells(rec: Recording) -> Samples:
         is_init.append(bool(init[a:b].any()))
     arr = {k: np.array(v) for k, v in fields.items()}
     count = np.array([b - a for a, b in bounds])
+    # load-cell noise: spread of the rows of a dwell around their mean (the state is static)
+    ss, dof = 0.0, 0
+    for a, b in bounds:
+        chunk = rec.tau[a:b]
+        if b - a >= 2 and np.isfinite(chunk).all():
+            ss += float(((chunk - chunk.mean(axis=0)) ** 2).sum())
+            dof += (b - a - 1) * chunk.shape[1]
+    tau_sd = float(np.sqrt(ss / dof)) if dof else None
     return Samples(arr["t"], arr["pose_des"], arr["pose_meas"], arr["l_meas"], arr["tau"],
                    arr["exit_meas"], count, _targets(arr["pose_des"], arr["pose_meas"]),
-                   np.array(is_init))
+                   np.array(is_init), tau_sd)
 
 
 def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:

@@ -30,6 +30,8 @@ from bench.diagnosis.space import ParamSpace, effect_fit_params
 BIC_ENTER = 10.0
 #: BIC difference under which a swapped effect counts as an alternative
 BIC_TIE = 10.0
+#: an effect reproducing this share of another's signature is listed as its alternative
+IMITATES = 0.98
 #: the model explains the data within the noise below this reduced chi-square
 EXPLAINED = 1.3
 
@@ -169,38 +171,18 @@ class Selector:
         current = base
         chosen: list[str] = []
         sel = Selection([], base, base)
-        while True:
-            if current.reduced_chi2 < EXPLAINED and chosen:
-                self.progress(f"residuals at the noise level (reduced chi-square "
-                              f"{current.reduced_chi2:.2f})")
+        for _ in range(3 * len(candidates) + 3):
+            changed = False
+            step = self._forward(current, chosen, candidates, sel)
+            if step is not None:
+                chosen, current = step
+                changed = True
+            chosen, current, dropped = self._backward(chosen, current)
+            swapped = self._swap(chosen, current, candidates)
+            if swapped is not None:
+                chosen, current = swapped
+            if not (changed or dropped or swapped is not None):
                 break
-            rest = [c for c in candidates if c not in chosen]
-            if not rest:
-                break
-            self.progress(f"screening {len(rest)} candidate effects (reduced chi-square "
-                          f"{current.reduced_chi2:.3g})")
-            pred = self.screen(current, rest)
-            if not chosen:
-                sel.screening = dict(pred)
-            promising = sorted((d, e) for e, d in pred.items() if d < -BIC_ENTER)[:3]
-            if not promising:
-                break
-            fits = self.fit_many([tuple(chosen + [e]) for _, e in promising], current)
-            best_fit, best_eff = min(zip(fits, [e for _, e in promising], strict=True),
-                                     key=lambda x: x[0].bic)
-            if best_fit.bic - current.bic > -BIC_ENTER:
-                break
-            chosen.append(best_eff)
-            current = best_fit
-            # backward pass: drop what the others now make unnecessary
-            for e in list(chosen):
-                if len(chosen) < 2:
-                    break
-                reduced = self.fit(tuple(c for c in chosen if c != e), current)
-                if reduced.bic - current.bic < BIC_ENTER:
-                    self.progress(f"dropping {e}: the other effects explain it")
-                    chosen.remove(e)
-                    current = reduced
         # held-out check of each chosen effect against the set without it
         for e in list(chosen):
             rest = tuple(c for c in chosen if c != e)
@@ -219,6 +201,60 @@ class Selector:
         self._lookalikes(sel, candidates)
         return sel
 
+    def _forward(self, current: FitResult, chosen: list[str], candidates: list[str],
+                 sel: Selection) -> tuple[list[str], FitResult] | None:
+        """Add the effect whose refit lowers the BIC most (screened by linearised signatures)."""
+        if current.reduced_chi2 < EXPLAINED and chosen:
+            return None
+        rest = [c for c in candidates if c not in chosen]
+        if not rest:
+            return None
+        self.progress(f"screening {len(rest)} candidate effects (reduced chi-square "
+                      f"{current.reduced_chi2:.3g})")
+        pred = self.screen(current, rest)
+        if not chosen:
+            sel.screening = dict(pred)
+        promising = sorted((d, e) for e, d in pred.items() if d < -BIC_ENTER)[:3]
+        if not promising:
+            return None
+        fits = self.fit_many([tuple(chosen + [e]) for _, e in promising], current)
+        best_fit, best_eff = min(zip(fits, [e for _, e in promising], strict=True),
+                                 key=lambda x: x[0].bic)
+        if best_fit.bic - current.bic > -BIC_ENTER:
+            return None
+        return chosen + [best_eff], best_fit
+
+    def _backward(self, chosen: list[str], current: FitResult
+                  ) -> tuple[list[str], FitResult, bool]:
+        """Drop effects the others make unnecessary."""
+        dropped = False
+        for e in list(chosen):
+            if len(chosen) < 2:
+                break
+            reduced = self.fit(tuple(c for c in chosen if c != e), current)
+            if reduced.bic - current.bic < BIC_ENTER:
+                self.progress(f"dropping {e}: the other effects explain it")
+                chosen = [c for c in chosen if c != e]
+                current = reduced
+                dropped = True
+        return chosen, current, dropped
+
+    def _swap(self, chosen: list[str], current: FitResult, candidates: list[str]
+              ) -> tuple[list[str], FitResult] | None:
+        """Replace a chosen effect by another when that lowers the BIC clearly (a look-alike
+        that entered first)."""
+        if not chosen:
+            return None
+        pairs = [(e, a) for e in chosen for a in candidates if a not in chosen]
+        sets = [tuple(c for c in chosen if c != e) + (a,) for e, a in pairs]
+        fits = self.fit_many(sets, current)
+        best = min(range(len(fits)), key=lambda k: fits[k].bic, default=None)
+        if best is None or fits[best].bic - current.bic > -BIC_ENTER:
+            return None
+        e, a = pairs[best]
+        self.progress(f"swapping {e} for {a}: it explains the data better")
+        return [c for c in chosen if c != e] + [a], fits[best]
+
     def _importance(self, e: str, chosen: list[str], current: FitResult) -> float:
         without = self.fit(tuple(c for c in chosen if c != e), current)
         return without.chi2 - current.chi2
@@ -234,8 +270,14 @@ class Selector:
                 d = f.bic - cur.bic
                 if d < BIC_TIE:
                     alt.append((a, float(d)))
-            sel.alternatives[e] = sorted(alt, key=lambda x: x[1])
             sel.imitation[e] = self.imitation(cur, e, others)
+            # an effect that reproduces this one's signature almost entirely is a declared
+            # ambiguity even when its extra parameters cost it BIC
+            for a, v in sel.imitation[e].items():
+                if v >= IMITATES and a not in [x for x, _ in alt]:
+                    alt.append((a, float(self.fit(tuple(c for c in chosen if c != e) + (a,),
+                                                  cur).bic - cur.bic)))
+            sel.alternatives[e] = sorted(alt, key=lambda x: x[1])
 
     def imitation(self, fit: FitResult, effect: str, others: list[str]) -> dict[str, float]:
         """How well each other effect reproduces ``effect``'s signature on these poses

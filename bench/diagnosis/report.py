@@ -1,0 +1,375 @@
+"""The diagnosis of one recording, as the ``cdpr-diagnosis/1`` report object.
+
+:func:`diagnose` prepares the samples, measures the baseline, locates the
+mismatch, selects and fits the effects, checks them on held-out samples, and
+assembles the report (``../shared/spec/diagnosis-report.md``). Figures a
+recording cannot give are None (JSON null), never 0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.diagnosis import locate
+from bench.diagnosis.fit import FitResult
+from bench.diagnosis.residuals import Forward, ResidualModel
+from bench.diagnosis.samples import Samples, average_dwells
+from bench.diagnosis.select import Selection, Selector, candidate_effects
+from bench.diagnosis.space import EXPLAINS, SCALES, Param, ParamSpace
+from bench.recording import Recording, read_recording
+from controller.kinematics import gravity_wrench, wrench_matrix
+from controller.robot import Robot, save_robot
+from controller.statics import batch_statics
+
+FORMAT = "cdpr-diagnosis/1"
+#: changes too small to matter (fit-space units): not reported as differing from the model
+PRACTICAL = {"exit_point_offset": 5e-4, "cable_length_offset": 1e-4, "drum_scale": 1e-4,
+             "load_cell_calibration": 2e-3, "platform_mass": 2e-3, "pulley_kinematics": 2e-3,
+             "cable_sag": 1e-3}
+#: every k-th target pose is held out of the fits
+HOLDOUT_EVERY = 5
+
+#: which measurement separates two look-alike effects
+SEPARATE = {
+    frozenset({"pulley_kinematics", "exit_point_offset"}):
+        "poses that swing the cables through different swivel angles and elevations around "
+        "each mast, or exit points measured by the tracker at several poses",
+    frozenset({"mast_compliance", "cable_elasticity"}):
+        "exit points measured by the tracker under different loads (compliance moves them, "
+        "elasticity does not)",
+    frozenset({"mast_compliance", "exit_point_offset"}):
+        "the same poses at two pretension levels or payloads (offsets do not change with "
+        "tension)",
+    frozenset({"drum_scale", "exit_point_offset"}):
+        "long moves that change one cable's length at a constant direction",
+    frozenset({"load_cell_calibration", "platform_mass"}):
+        "a known extra mass on the platform, or the same poses at two pretension levels",
+    frozenset({"cable_elasticity", "drum_scale"}):
+        "the same pose at two pretension levels (elasticity follows tension, scale does not)",
+    frozenset({"cable_length_offset", "exit_point_offset"}):
+        "poses spread further from the initialisation pose",
+}
+
+Progress = Callable[[str], None]
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report and the plots are made of."""
+
+    report: dict
+    recording: Recording
+    samples: Samples
+    rm: ResidualModel
+    selection: Selection
+    fitted_robot: Robot
+    baseline_forward: Forward
+    fitted_forward: Forward
+    heldout: np.ndarray
+
+
+def _f(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def pose_figures(fw: Forward, idx: np.ndarray | None = None) -> dict[str, float | None]:
+    sl = slice(None) if idx is None else idx
+    pe = fw.pose_err[sl]
+    d = np.linalg.norm(pe[:, :3], axis=1)
+    a = np.linalg.norm(pe[:, 3:], axis=1)
+    ok = np.isfinite(d)
+    return {
+        "pose_rms_m": _f(locate.rms(d)) if ok.any() else None,
+        "pose_max_m": _f(float(d[ok].max())) if ok.any() else None,
+        "angle_rms_rad": _f(locate.rms(a)) if np.isfinite(a).any() else None,
+        "tension_rms_n": _f(locate.rms(fw.tension_err[sl])),
+    }
+
+
+def wrench_rms(H: Robot, s: Samples, raw: bool) -> float | None:
+    """RMS of |W tau + w_g| (forces) at the measured poses [N]; ``raw``: tensions as read."""
+    ok = np.isfinite(s.pose_meas).all(axis=1) & np.isfinite(s.tau).all(axis=1)
+    if not ok.any():
+        return None
+    tau = s.tau[ok] if raw else (s.tau[ok] - H.load_cell_offset) / H.load_cell_gain
+    tau, _, st, _ = batch_statics(H, s.pose_meas[ok], tau)
+    f = np.einsum("...ij,...j->...i", wrench_matrix(st), tau) \
+        + gravity_wrench(H.mass, H.com, H.gravity, st.R)
+    return _f(locate.rms(np.linalg.norm(f[:, :3], axis=1)))
+
+
+def exit_rms(rm: ResidualModel, H: Robot) -> float | None:
+    if not rm.has_exit.any():
+        return None
+    e = rm.blocks(H).exit
+    return _f(locate.rms(np.linalg.norm(e, axis=2)))
+
+
+def _undetermined(p: Param, phi: float, se: float) -> bool:
+    """Whether the poses cannot fix this parameter."""
+    if not math.isfinite(se):
+        return True
+    if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or wide
+        return phi - 2.0 * se <= 0.0 or se > 0.5 * phi
+    limits = {"exit_point_offset": 5e-3, "cable_length_offset": 1e-3, "drum_scale": 5e-3,
+              "pulley_kinematics": 0.03, "cable_sag": 0.05}
+    if p.effect in limits:
+        return se > max(limits[p.effect], 0.5 * abs(phi - p.neutral))
+    if p.key.startswith("gain_"):
+        return se > 0.05
+    if p.key.startswith("offset_"):
+        return se > 5.0
+    if p.key == "mass":
+        return se > 2.0
+    if p.key.startswith("com_"):
+        return se > 0.05
+    return se > 100 * SCALES.get(p.effect, 1.0)
+
+
+def effect_entries(fit: FitResult, effects: list[str]) -> tuple[dict, dict, dict]:
+    """Per effect: report params and stderr (only those that differ from the model), and
+    the undetermined keys."""
+    params: dict[str, dict] = {e: {} for e in effects}
+    errs: dict[str, dict] = {e: {} for e in effects}
+    undet: dict[str, list] = {e: [] for e in effects}
+    for k, p in enumerate(fit.space.params):
+        if p.effect not in params:
+            continue
+        phi, se = float(fit.phi[k]), float(fit.stderr[k])
+        if _undetermined(p, phi, se):
+            undet[p.effect].append(p.key)
+            continue
+        if abs(phi - p.neutral) <= max(3.0 * se, PRACTICAL.get(p.effect, 0.0)
+                                       if not p.key.startswith("offset_") else 0.3):
+            continue  # the model's value within the uncertainty, or a negligible change
+        value = p.to_value(phi)
+        err = se / phi**2 if p.kind == "inverse" else se
+        params[p.effect][p.key] = float(value)
+        errs[p.effect][p.key] = float(err)
+    return params, errs, undet
+
+
+def cleaned_robot(fit: FitResult) -> Robot:
+    """The fitted robot; parameters with no information at all (infinite standard error)
+    are left at the model's values."""
+    phi = fit.phi.copy()
+    for k, p in enumerate(fit.space.params):
+        if not math.isfinite(float(fit.stderr[k])):
+            phi[k] = p.neutral
+    return fit.space.robot(phi)
+
+
+def split_heldout(s: Samples, init_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Train / held-out (every k-th target) / held-out region (the quarter of targets farthest
+    from the initialisation pose along the workspace's long axis)."""
+    targets = np.unique(s.target[~s.is_init])
+    ho_t = targets[HOLDOUT_EVERY // 2::HOLDOUT_EVERY] if len(targets) >= 2 * HOLDOUT_EVERY \
+        else targets[:0]
+    heldout = np.flatnonzero(np.isin(s.target, ho_t) & ~s.is_init)
+    train = np.setdiff1d(np.arange(s.n), heldout)
+    pos = np.where(np.isfinite(s.pose_meas[:, :3]), s.pose_meas[:, :3], s.pose_des[:, :3])
+    region = np.zeros(0, dtype=int)
+    if np.isfinite(pos).all(axis=1).sum() >= 12:
+        spread = np.nanmax(pos, axis=0) - np.nanmin(pos, axis=0)
+        ax = int(np.argmax(spread[:2]))
+        side = 1.0 if init_pose[ax] < np.nanmedian(pos[:, ax]) else -1.0
+        key = side * (pos[:, ax] - init_pose[ax])
+        cut = np.nanquantile(key[train], 0.75)
+        region = np.intersect1d(train, np.flatnonzero(key > cut))
+        if len(region) > 0.4 * len(train):
+            region = np.zeros(0, dtype=int)
+    return train, heldout, region
+
+
+def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor | None = None,
+             write_model: str | Path | None = None) -> Diagnosis:
+    """Diagnose the recording directory ``path``."""
+    say = progress or (lambda m: None)
+    rec = read_recording(path)
+    model = rec.robot
+    s = average_dwells(rec)
+    say(f"{rec.n_samples} rows -> {s.n} dwell samples of {s.n_targets} target poses")
+    rm = ResidualModel(s, model, rec.init_pose, rec.init_tensions)
+    rm.estimate_noise(model)
+    say(f"noise ({rm.sigma_source}): lengths {rm.sigma['length'] * 1e3:.3f} mm, forces "
+        f"{rm.sigma['force']:.2f} N, exit points {rm.sigma['exit'] * 1e3:.2f} mm")
+
+    # where: baseline residuals, steps in time
+    base_blocks = rm.blocks(model)
+    steps = locate.steps_in_time(s, base_blocks.length, rm.sigma["length"], model.cable_ids) \
+        if rm.has_len.any() else []
+    if steps:
+        slips = np.zeros(model.n_cables)
+        for st in steps:
+            slips[model.cable_ids.index(st["cable"])] = st["t_s"]
+            say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s")
+        rm.slip_times = slips
+    say("baseline: equilibrium of every sample under the recording's model")
+    base_fw = rm.forward(model)
+
+    train, heldout, region = split_heldout(s, rec.init_pose)
+    selector = Selector(rm, train, [heldout, region], progress=say, pool=pool)
+    sel = selector.run(candidate_effects(rm))
+    fitted = cleaned_robot(sel.fit)
+    say("fitted: equilibrium of every sample under the corrected model")
+    fit_fw = rm.forward(fitted)
+
+    params, errs, undet = effect_entries(sel.fit, sel.effects)
+    effects = []
+    for e in sel.effects:
+        rest = tuple(c for c in sel.effects if c != e)
+        without = cleaned_robot(selector.fit(rest, sel.fit))
+        before = pose_figures(rm.forward(without, heldout), heldout)["pose_rms_m"] \
+            if len(heldout) else None
+        after = pose_figures(fit_fw, heldout)["pose_rms_m"] if len(heldout) else None
+        ho = sel.heldout.get(e, {})
+        entry = {
+            "name": e,
+            "params": params[e],
+            "stderr": errs[e],
+            "explains": EXPLAINS[e],
+            "evidence": {"heldout_pose_rms_before_m": before,
+                         "heldout_pose_rms_after_m": after,
+                         "delta_bic": _f(ho.get("delta_bic"))},
+            "undetermined": undet[e],
+            "alternatives": [{"name": a, "delta_bic": d} for a, d in sel.alternatives.get(e, [])],
+        }
+        if rm.slip_times.any() and e == "cable_length_offset":
+            entry["explains"] += "; from " + ", ".join(
+                f"t = {t:.1f} s on cable {c}" for c, t in zip(model.cable_ids, rm.slip_times,
+                                                             strict=True) if t > 0)
+        effects.append(entry)
+
+    baseline = pose_figures(base_fw)
+    baseline["wrench_rms"] = wrench_rms(model, s, raw=True)
+    baseline["exit_point_rms_m"] = exit_rms(rm, model)
+    fitted_fig = pose_figures(fit_fw)
+    fitted_out = {
+        "pose_rms_m": fitted_fig["pose_rms_m"],
+        "angle_rms_rad": fitted_fig["angle_rms_rad"],
+        "tension_rms_n": fitted_fig["tension_rms_n"],
+        "exit_point_rms_m": exit_rms(rm, fitted),
+        "heldout_pose_rms_m": pose_figures(fit_fw, heldout)["pose_rms_m"] if len(heldout)
+        else None,
+    }
+    if fitted_out["pose_rms_m"] is None and baseline["pose_rms_m"] is None:
+        fitted_out["heldout_pose_rms_m"] = None
+
+    mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel)
+    model_path = None
+    if write_model is not None:
+        header = (f"corrected model written by cdpr diagnose from {path}\n"
+                  f"effects: {', '.join(sel.effects) or 'none'}")
+        model_path = str(save_robot(fitted.replace(name=f"{model.name}-corrected"),
+                                    write_model, header))
+    report = {
+        "format": FORMAT,
+        "recording": str(path),
+        "samples": int(s.n),
+        "baseline": baseline,
+        "mismatch": mismatch,
+        "effects": effects,
+        "fitted": fitted_out,
+        "model": model_path,
+    }
+    return Diagnosis(report, rec, s, rm, sel, fitted, base_fw, fit_fw, heldout)
+
+
+def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Forward,
+              steps: list[dict], sel: Selection) -> dict:
+    model = rec.robot
+    tension = base_fw.tension_err if np.isfinite(base_fw.tension_err).any() else None
+    dist = np.linalg.norm(base_fw.pose_err[:, :3], axis=1)
+    if not np.isfinite(dist).any() and rm.has_exit.any():
+        dist = np.sqrt(np.nanmean(np.linalg.norm(blocks.exit, axis=2) ** 2, axis=1))
+        label = "exit_point_rms_m"
+    else:
+        label = "pose_rms_m"
+    regions = locate.regions(s, dist, rec.init_pose, model.pivots, model.mast_ids, label)
+    growth = locate.growth_from_init(s, dist, rec.init_pose)
+    out = {
+        "summary": _summary(rec, s, rm, blocks, dist, label, growth, steps, sel),
+        "by_cable": locate.by_cable(model.cable_ids, blocks.length, tension),
+        "by_mast": locate.by_mast(model.mast_ids, model.mast_index, blocks.length),
+        "regions": regions[:6],
+        "noise": {k: float(v) for k, v in rm.sigma.items()} | {"source": rm.sigma_source},
+        "steps": steps,
+        "signatures": {e: float(v) for e, v in _explained(sel).items()},
+        "imitation": {e: {a: round(v, 3) for a, v in d.items()}
+                      for e, d in sel.imitation.items()},
+    }
+    if growth:
+        out["growth_from_init"] = growth
+    return out
+
+
+def _explained(sel: Selection) -> dict[str, float]:
+    """Fraction of the baseline chi-square each effect explains alone (linearised)."""
+    base = sel.baseline.chi2
+    n = sel.baseline.n_res
+    out = {}
+    for e, d in sel.screening.items():
+        p = len(ParamSpace(sel.baseline.space.model, (e,)))
+        dchi = d - p * math.log(max(n, 2))
+        out[e] = float(np.clip(-dchi / base, 0.0, 1.0)) if base > 0 else 0.0
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
+def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.ndarray,
+             label: str, growth: dict | None, steps: list[dict], sel: Selection) -> str:
+    model = rec.robot
+    parts = []
+    what = "pose error" if label == "pose_rms_m" else "exit-point error"
+    r = locate.rms(dist)
+    red = sel.baseline.reduced_chi2
+    if not sel.effects:
+        parts.append(f"the model explains the data within the noise (reduced chi-square "
+                     f"{red:.2f}" + (f", {what} {r * 1e3:.2f} mm RMS" if r else "") + ")")
+    elif r is not None:
+        parts.append(f"{what} {r * 1e3:.1f} mm RMS against a noise level of "
+                     f"{rm.sigma['length' if label == 'pose_rms_m' else 'exit'] * 1e3:.2f} mm "
+                     f"(reduced chi-square {red:.3g})")
+    if growth and sel.effects and growth["near_rms"] and growth["far_rms"]:
+        if growth["far_rms"] > 1.5 * growth["near_rms"]:
+            parts.append(f"it grows away from the initialisation pose: "
+                         f"{growth['near_rms'] * 1e3:.1f} mm within {growth['near_m']:.1f} m of "
+                         f"it, {growth['far_rms'] * 1e3:.1f} mm beyond {growth['far_m']:.1f} m")
+    if sel.effects and np.isfinite(blocks.length).any():
+        per = np.sqrt(np.nanmean(blocks.length ** 2, axis=0))
+        worst = np.argsort(-per)[:2]
+        if per[worst[0]] > 2 * np.median(per):
+            masts = sorted({model.mast_ids[model.mast_index[k]] for k in worst})
+            parts.append(f"length residuals are largest on cable{'s' if len(worst) > 1 else ''} "
+                         f"{', '.join(model.cable_ids[k] for k in worst)} "
+                         f"(mast{'s' if len(masts) > 1 else ''} {', '.join(masts)})")
+    for st in steps:
+        parts.append(f"cable {st['cable']}'s length reading steps by about "
+                     f"{st['step_m'] * 1e3:.1f} mm at t = {st['t_s']:.0f} s (a slip or an "
+                     f"encoder jump)")
+    sig = _explained(sel)
+    if sel.effects and sig:
+        top = [f"{e} ({v:.0%})" for e, v in list(sig.items())[:3] if v > 0.05]
+        if top:
+            parts.append("the residuals match the signatures of " + ", ".join(top)
+                         + " (share explained alone, linearised)")
+    if sel.effects:
+        parts.append("left out: " + ", ".join(sel.effects))
+    for e, alts in sel.alternatives.items():
+        for a, d in alts:
+            how = SEPARATE.get(frozenset({e, a}), "more poses spread over the workspace")
+            parts.append(f"{a} fits about as well as {e} (delta BIC {d:+.1f}); {how} would "
+                         f"separate them")
+    for e, imit in sel.imitation.items():
+        close = [a for a, v in imit.items() if v > 0.8 and a not in
+                 [x for x, _ in sel.alternatives.get(e, [])]]
+        for a in close:
+            parts.append(f"on these poses {a} can imitate {imit[a]:.0%} of {e}'s signature")
+    for e, why in sel.rejected.items():
+        parts.append(f"{e} improved the fit but {why}: not reported")
+    return "; ".join(parts) + "."
