@@ -17,6 +17,8 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.bench",
     "bench.commands.diagnose",
     "bench.commands.sim",
+    "bench.commands.campaign",
+    "bench.commands.evaluate",
 )
 
 

@@ -1,0 +1,158 @@
+"""``cdpr campaign SCENARIO OUT_DIR``: record a campaign on the simulated robot.
+
+Runs the scenario's campaign (:func:`bench.campaign.run_campaign`: the controller with
+the scenario's model visits the pose set; the plant is the scenario's truth) and writes
+the recording directory (``cdpr-recording/1``: ``meta.toml``, ``robot.toml`` = the model,
+``recording.csv``). The recording never holds the truth.
+
+The recording is first written into a temporary directory beside OUT_DIR and moved into
+place only when complete: an error or an interruption leaves OUT_DIR as it was. A
+non-empty OUT_DIR is refused unless ``--force``, which replaces the recording's three
+files and leaves any other file there untouched.
+
+Exit status: 0 written, 1 the campaign failed, 2 bad scenario or arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from firmware_sim.scenario import Scenario, ScenarioError, load_scenario
+
+NAME = "campaign"
+HELP = "record a campaign of a scenario on the simulated robot (cdpr-recording/1 directory)"
+
+#: the files a recording directory consists of (replaced by --force)
+RECORDING_FILES = ("meta.toml", "robot.toml", "recording.csv")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", help="scenario file (cdpr-scenario/1)")
+    p.add_argument("out_dir", help="recording directory to write (created if absent)")
+    p.add_argument("--poses", type=int, metavar="N",
+                   help="visit N of the scenario's poses (random pose sets: draw N; grid and "
+                        "list: N of them, chosen with the scenario's seed)")
+    p.add_argument("--visits", type=int, metavar="V",
+                   help="visits of each pose (default: the scenario's poses.visits)")
+    p.add_argument("--seed", type=int, metavar="S",
+                   help="random seed of the campaign and its noise (default: the scenario's)")
+    p.add_argument("--force", action="store_true",
+                   help="write into a non-empty OUT_DIR (replaces the recording's files)")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object: path, samples, rows, visits, poses, seconds")
+
+
+def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
+    print(f"cdpr campaign: {msg}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"error": msg}))
+    return code
+
+
+def _adjust(sc: Scenario, args: argparse.Namespace) -> tuple[Scenario, np.ndarray | None]:
+    """The scenario with --seed/--visits applied, and the pose subset of --poses (or None)."""
+    if args.seed is not None:
+        sc = dataclasses.replace(sc, seed=args.seed)
+    if args.visits is not None:
+        sc = dataclasses.replace(sc, poses=dataclasses.replace(sc.poses, visits=args.visits))
+    if args.poses is None:
+        return sc, None
+    if sc.poses.kind == "random":
+        return dataclasses.replace(sc, poses=dataclasses.replace(sc.poses, n=(args.poses,))), None
+    # grid/list: the same draw as the campaign's, then N of those poses in their order
+    every = sc.poses.generate(np.random.default_rng(sc.seed))
+    if args.poses > len(every):
+        raise ScenarioError(f"{sc.path}: poses: --poses {args.poses} but the {sc.poses.kind} "
+                            f"has {len(every)} poses")
+    keep = np.sort(np.random.default_rng([sc.seed, args.poses]).choice(
+        len(every), size=args.poses, replace=False))
+    return sc, every[keep]
+
+
+def _occupied(out: Path) -> bool:
+    return out.exists() and (not out.is_dir() or any(out.iterdir()))
+
+
+def _place(tmp: Path, out: Path) -> None:
+    """Move the finished recording ``tmp`` to ``out`` (replacing only its own files)."""
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    if not any(out.iterdir()):
+        out.rmdir()
+        os.replace(tmp, out)
+        return
+    for name in RECORDING_FILES:
+        os.replace(tmp / name, out / name)
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench.campaign import run_campaign
+    from bench.recording import read_recording
+
+    for opt in ("poses", "visits"):
+        v = getattr(args, opt)
+        if v is not None and v < 1:
+            return _fail(args, 2, f"--{opt} {v}: must be >= 1")
+    out = Path(args.out_dir)
+    if out.exists() and not out.is_dir():
+        return _fail(args, 2, f"{out}: exists and is not a directory")
+    if _occupied(out) and not args.force:
+        return _fail(args, 2, f"{out}: not empty (use --force to replace the recording there)")
+    try:
+        sc, subset = _adjust(load_scenario(args.scenario), args)
+    except ScenarioError as e:
+        return _fail(args, 2, str(e))
+
+    n_poses = len(subset) if subset is not None else len(sc.poses.generate(
+        np.random.default_rng(sc.seed)))
+    t0 = time.perf_counter()
+    last = [0.0]
+
+    def progress(done: int, total: int) -> None:
+        now = time.perf_counter() - t0
+        if args.quiet or (done < total and now - last[0] < 1.0):
+            return
+        last[0] = now
+        eta = now / done * (total - done)
+        print(f"[{now:6.1f} s] visit {done}/{total}, ETA {eta:.0f} s", file=sys.stderr,
+              flush=True)
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    tmp.chmod(0o777 & ~umask)  # mkdtemp's 0700 would stay on the recording
+    try:
+        try:
+            run_campaign(sc, tmp, progress=progress, poses=subset)
+        except ValueError as e:  # a pose the model cannot reach, ...
+            return _fail(args, 1, f"{sc.path}: campaign failed: {e}")
+        _place(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    seconds = time.perf_counter() - t0
+    rec = read_recording(out)
+    visits = n_poses * sc.poses.visits
+    result = {"path": str(out), "samples": visits + 1, "rows": rec.n_samples,
+              "visits": visits, "poses": n_poses, "seconds": round(seconds, 3)}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"recording {out}: {rec.n_samples} rows, {visits + 1} dwell samples "
+              f"(initialisation + {n_poses} poses x {sc.poses.visits} visits) "
+              f"in {seconds:.1f} s")
+    return 0
