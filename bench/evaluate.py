@@ -10,6 +10,7 @@ within 10 %, ...), and whether held-out poses came down to the noise.
 
 from __future__ import annotations
 
+import copy
 import math
 import tempfile
 import time
@@ -70,9 +71,18 @@ def draw_effect(effect: str, rng: np.random.Generator, model) -> dict[str, float
     return out
 
 
+#: the pose set of a case unless ``make_case(poses=...)`` overrides some of its keys
+CASE_POSES: dict[str, Any] = {"kind": "grid", "n": [5, 4, 2], "rpy_deg": 2.0, "visits": 3}
+
+
 def make_case(seed: int, robot: str = "rocaspect", n_effects: int | None = None,
-              effects: tuple[str, ...] | None = None) -> dict[str, Any]:
-    """A scenario mapping (cdpr-scenario/1) with randomly drawn concealed effects."""
+              effects: tuple[str, ...] | None = None,
+              poses: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A scenario mapping (cdpr-scenario/1) with randomly drawn concealed effects.
+
+    ``poses`` overrides keys of the ``[poses]`` table (:data:`CASE_POSES`), e.g.
+    ``{"n": [3, 2, 1], "visits": 2}`` for a quick case; the random draws do not change.
+    """
     rng = np.random.default_rng(seed)
     model = resolve_robot(robot)
     if effects is None:
@@ -87,7 +97,7 @@ def make_case(seed: int, robot: str = "rocaspect", n_effects: int | None = None,
         "truth": truth,
         "nuisance": {"hysteresis_m": float(rng.uniform(0, 1.5e-4)),
                      "drift_m_per_h": float(rng.uniform(0, 8e-5))},
-        "poses": {"kind": "grid", "n": [5, 4, 2], "rpy_deg": 2.0, "visits": 3},
+        "poses": copy.deepcopy({**CASE_POSES, **(poses or {})}),
     }
 
 

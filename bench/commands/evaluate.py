@@ -1,0 +1,333 @@
+"""``cdpr evaluate --cases N``: blind evaluation of the diagnosis on generated cases.
+
+Case ``k`` is :func:`bench.evaluate.run_case` of seed ``S + k``: a scenario with randomly
+drawn concealed effects, its campaign on the plant, the diagnosis, and the score against
+the truth. Cases run on a local process pool (``--jobs``) or, with ``--scheduler
+ADDRESS``, on a Dask distributed cluster (every worker needs cdpr-bench installed).
+
+``--out FILE`` appends one JSON line per case as it completes (a header line first
+holds the case configuration): an interruption loses nothing, and a re-run with the same
+FILE skips the seeds already there (``--retry-errors``: except the ones that raised). A
+FILE made with another configuration (robot, effects, pose set) is refused.
+
+A case that raises is recorded as an error (seed and message) and counted; the others
+go on. Exit status: 0 all cases scored, 1 some case raised, 2 bad arguments or FILE,
+or the scheduler cannot be reached.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from contextlib import closing
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+NAME = "evaluate"
+HELP = "blind evaluation of the diagnosis on N generated cases (process pool or Dask)"
+
+#: format of the header line of an --out file
+OUT_FORMAT = "cdpr-evaluation/1"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cases", type=int, required=True, metavar="N", help="number of cases")
+    p.add_argument("--seed", type=int, default=0, metavar="S",
+                   help="seed of the first case; case k has seed S + k [0]")
+    p.add_argument("--jobs", type=int, default=2, metavar="J",
+                   help="local worker processes (1: in this process) [2]")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="Dask scheduler, e.g. tcp://127.0.0.1:8786 (then --jobs is unused)")
+    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
+                   help="time allowed to reach the scheduler [10]")
+    p.add_argument("--effects", metavar="A,B",
+                   help="conceal exactly these effects in every case ('none': no effect); "
+                        "default: a random mix of 0 to 2 per case")
+    p.add_argument("--robot", default="rocaspect",
+                   help="model of every case: shipped name or robot.toml path [rocaspect]")
+    p.add_argument("--grid", metavar="NX,NY,NZ",
+                   help="pose grid of each case's campaign [5,4,2]")
+    p.add_argument("--visits", type=int, metavar="V", help="visits of each pose [3]")
+    p.add_argument("--out", metavar="FILE",
+                   help="append per-case results as JSON lines; a re-run skips seeds in FILE")
+    p.add_argument("--retry-errors", action="store_true",
+                   help="with --out: run again the seeds whose case raised")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--json", action="store_true",
+                   help="print {summary, cases, errors, config} as one JSON object")
+
+
+class UsageError(ValueError):
+    """Bad arguments or --out file (exit 2)."""
+
+
+def case_config(args: argparse.Namespace) -> dict[str, Any]:
+    """What every case is made with (recorded in the --out header), from the arguments."""
+    from bench.evaluate import DRAWN
+
+    effects: list[str] | None = None
+    if args.effects is not None:
+        names = [e.strip() for e in args.effects.split(",") if e.strip()]
+        if names == ["none"]:
+            effects = []
+        else:
+            bad = [e for e in names if e not in DRAWN]
+            if bad or not names:
+                raise UsageError(f"--effects {args.effects}: unknown effect(s) "
+                                 f"{', '.join(bad) or '(empty)'} (known: {', '.join(DRAWN)}, "
+                                 f"or 'none')")
+            effects = sorted(set(names), key=names.index)
+    poses: dict[str, Any] = {}
+    if args.grid is not None:
+        try:
+            n = [int(v) for v in args.grid.split(",")]
+        except ValueError:
+            n = []
+        if len(n) != 3 or min(n) < 1:
+            raise UsageError(f"--grid {args.grid}: must be three counts >= 1, e.g. 5,4,2")
+        poses["n"] = n
+    if args.visits is not None:
+        if args.visits < 1:
+            raise UsageError(f"--visits {args.visits}: must be >= 1")
+        poses["visits"] = args.visits
+    return {"robot": args.robot, "effects": effects, "poses": poses}
+
+
+def case_kwargs(config: dict[str, Any]) -> dict[str, Any]:
+    """Keyword arguments of :func:`bench.evaluate.run_case` for a configuration."""
+    kw: dict[str, Any] = {"robot": config["robot"]}
+    if config["effects"] is not None:
+        kw["effects"] = tuple(config["effects"])
+    if config["poses"]:
+        kw["poses"] = dict(config["poses"])
+    return kw
+
+
+def _plain(o: Any) -> Any:
+    """JSON fallback for numpy scalars and arrays."""
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def _dumps(o: Any) -> str:
+    return json.dumps(o, default=_plain)
+
+
+# ----- the --out file ---------------------------------------------------------------------
+
+def read_results(path: Path) -> tuple[dict | None, dict[int, dict]]:
+    """The header and the records by seed (the last line of a seed wins) of an --out file.
+
+    A line that is not a JSON object is reported on stderr with its file and line and
+    skipped (the last line of an interrupted run may be cut short).
+    """
+    header, records = None, {}
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None, {}
+    except OSError as e:
+        raise UsageError(f"{path}: cannot read: {e.strerror or e}") from e
+    for i, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError as e:
+            print(f"cdpr evaluate: {path}:{i}: not JSON ({e.msg}), line skipped",
+                  file=sys.stderr)
+            continue
+        if not isinstance(rec, dict):
+            print(f"cdpr evaluate: {path}:{i}: not a JSON object, line skipped", file=sys.stderr)
+        elif "format" in rec:
+            if rec["format"] != OUT_FORMAT:
+                raise UsageError(f"{path}:{i}: format {rec['format']!r}, expected {OUT_FORMAT!r}")
+            header = rec
+        elif isinstance(rec.get("seed"), int):
+            records[rec["seed"]] = rec
+        else:
+            print(f"cdpr evaluate: {path}:{i}: no integer 'seed', line skipped", file=sys.stderr)
+    if records and header is None:
+        raise UsageError(f"{path}: no {OUT_FORMAT} header line: not written by cdpr evaluate")
+    return header, records
+
+
+def _open_out(path: Path, config: dict, header: dict | None) -> TextIO:
+    if header is not None and header.get("config") != config:
+        raise UsageError(f"{path}: made with another case configuration "
+                         f"{_dumps(header.get('config'))}; this run: {_dumps(config)} "
+                         f"(use another --out FILE)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        f = path.open("a+", encoding="utf-8")
+    except OSError as e:
+        raise UsageError(f"{path}: cannot write: {e.strerror or e}") from e
+    f.seek(0, os.SEEK_END)
+    if f.tell() > 0:  # an interrupted run may have left a line without its newline
+        f.seek(f.tell() - 1)
+        if f.read(1) != "\n":
+            f.write("\n")
+    if header is None:
+        _append(f, {"format": OUT_FORMAT, "config": config})
+    return f
+
+
+def _append(f: TextIO, rec: dict) -> None:
+    f.write(_dumps(rec) + "\n")
+    f.flush()
+    os.fsync(f.fileno())
+
+
+# ----- report -----------------------------------------------------------------------------
+
+def _abbrev(name: str) -> str:
+    return "".join(w[0] for w in name.split("_")).upper()
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f} %"
+
+
+def matrix_lines(matrix: dict[str, dict[str, int]]) -> list[str]:
+    """The detection matrix as text: rows concealed effect (or none), columns named effects."""
+    from controller.effects import EFFECT_NAMES
+
+    if not matrix:
+        return ["  (no scored case)"]
+    cols = [e for e in EFFECT_NAMES
+            if e in matrix or any(row.get(e, 0) for row in matrix.values())]
+    rows = [e for e in (*EFFECT_NAMES, "none") if e in matrix]
+    label = "concealed \\ named"
+    w = max(len(label), *(len(r) for r in rows))
+    out = [f"  {label:<{w}} {'cases':>5} " + " ".join(f"{_abbrev(c):>4}" for c in cols)]
+    for r in rows:
+        row = matrix[r]
+        out.append(f"  {r:<{w}} {row['cases']:>5} "
+                   + " ".join(f"{row.get(c, 0):>4}" for c in cols))
+    out.append("  columns: " + ", ".join(f"{_abbrev(c)} {c}" for c in cols))
+    return out
+
+
+def human(summary: dict, errors: list[dict], seeds: range) -> str:
+    """The evaluation in words."""
+    s = summary
+    z = s["z_scores"]
+    lo, hi = s["false_positive_ci95"]
+    elo, ehi = s["exact_detection_ci95"]
+    med = s["median_case_s"]
+    lines = [f"evaluation: {len(seeds)} cases (seeds {seeds.start}..{seeds.stop - 1}): "
+             f"{s['cases']} scored, {len(errors)} raised",
+             f"  exact detection      {_pct(s['exact_detection'])} "
+             f"(95 % CI {_pct(elo)} .. {_pct(ehi)})",
+             f"  false positives      {_pct(s['false_positive_rate'])} of effects not concealed "
+             f"(95 % CI {_pct(lo)} .. {_pct(hi)})",
+             f"  parameters in tol.   {_pct(s['params_within_tolerance'])} "
+             f"of {s['params_total']}",
+             "  z-scores             " + ("none" if not z["n"] else
+                                          f"n {z['n']}, mean {z['mean']:+.2f}, "
+                                          f"std {z['std']:.2f}, |z| < 2: {_pct(z['within_2'])}"),
+             "  held-out / noise     " + ("n/a" if s["heldout_over_noise_median"] is None
+                                          else f"{s['heldout_over_noise_median']:.2f} (median)"),
+             "  seconds per case     " + ("n/a" if med is None else f"{med:.1f} (median)"),
+             "  detection matrix (counts of cases):"]
+    lines += ["  " + ln for ln in matrix_lines(s["matrix"])]
+    for e in errors:
+        lines.append(f"  error: seed {e['seed']}: {e['error']}")
+    return "\n".join(lines)
+
+
+# ----- run --------------------------------------------------------------------------------
+
+def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
+    print(f"cdpr evaluate: {msg}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"error": msg}))
+    return code
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench import evaluate
+    from bench.parallel import SchedulerError, run_each
+
+    if args.cases < 1:
+        return _fail(args, 2, f"--cases {args.cases}: must be >= 1")
+    if args.jobs < 1:
+        return _fail(args, 2, f"--jobs {args.jobs}: must be >= 1")
+    if not args.connect_timeout > 0:
+        return _fail(args, 2, f"--connect-timeout {args.connect_timeout}: must be > 0")
+    if args.retry_errors and not args.out:
+        return _fail(args, 2, "--retry-errors needs --out FILE")
+    try:
+        config = case_config(args)
+        from controller.robot import RobotFileError, resolve_robot
+
+        try:
+            resolve_robot(args.robot)
+        except RobotFileError as e:
+            raise UsageError(f"--robot: {e}") from e
+        out_path = Path(args.out) if args.out else None
+        header, previous = read_results(out_path) if out_path else (None, {})
+        out = _open_out(out_path, config, header) if out_path else None
+    except UsageError as e:
+        return _fail(args, 2, str(e))
+
+    seeds = range(args.seed, args.seed + args.cases)
+    results = {s: previous[s] for s in seeds if s in previous
+               and not (args.retry_errors and "error" in previous[s])}
+    todo = [s for s in seeds if s not in results]
+    if results and not args.quiet:
+        print(f"cdpr evaluate: {len(results)} of {len(seeds)} seeds already in {out_path}, "
+              f"{len(todo)} to run", file=sys.stderr)
+
+    def say(o, done: int) -> None:
+        if args.quiet:
+            return
+        scored = [r for r in results.values() if "error" not in r]
+        exact = sum(bool(r["exact"]) for r in scored)
+        rate = f"{exact}/{len(scored)} = {_pct(exact / len(scored))}" if scored else "n/a"
+        eta = o.elapsed_s / done * (len(todo) - done)
+        what = (f"error {o.error}" if not o.ok else
+                ("exact" if o.value["exact"] else
+                 f"named {','.join(o.value['named']) or 'none'} "
+                 f"(concealed {','.join(o.value['truth']) or 'none'})"))
+        print(f"[{o.elapsed_s:6.1f} s] case {done}/{len(todo)} seed {o.item}: {what}; "
+              f"exact detection {rate}; ETA {math.ceil(eta)} s", file=sys.stderr, flush=True)
+
+    try:
+        if todo:
+            outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
+                                scheduler=args.scheduler,
+                                connect_timeout_s=args.connect_timeout, **case_kwargs(config))
+            with closing(outcomes):
+                for done, o in enumerate(outcomes, 1):
+                    rec = (o.value if o.ok else
+                           {"seed": o.item, "error": o.error, "trace": o.trace})
+                    rec = json.loads(_dumps(rec))  # plain types, as read back from --out
+                    results[o.item] = rec
+                    if out is not None:
+                        _append(out, rec)
+                    say(o, done)
+    except SchedulerError as e:
+        return _fail(args, 2, str(e))
+    finally:
+        if out is not None:
+            out.close()
+
+    cases = [results[s] for s in seeds if "error" not in results[s]]
+    errors = [{"seed": s, "error": results[s]["error"], "trace": results[s].get("trace")}
+              for s in seeds if "error" in results[s]]
+    summary = evaluate.summarise(cases) | {"errors": len(errors), "requested": len(seeds)}
+    if args.json:
+        print(_dumps({"summary": summary, "cases": cases, "errors": errors, "config": config,
+                      "seeds": [seeds.start, seeds.stop - 1]}))
+    else:
+        print(human(summary, errors, seeds))
+    return 1 if errors else 0

@@ -1,0 +1,146 @@
+"""Run one plain function over many items, in-process, on a local process pool or on Dask.
+
+:func:`run_each` calls ``fn(item, **kw)`` for every item and yields an :class:`Outcome`
+per item **as it completes** (not in submission order). An exception in one call is
+caught and reported in its outcome (type and message); it never stops or hides the
+other items. ``fn`` must be a module-level function (it is pickled by reference), and on
+a Dask cluster every worker must be able to import it (cdpr-bench installed there).
+
+Backends: ``scheduler`` (a Dask distributed address such as ``tcp://127.0.0.1:8786``)
+takes precedence; otherwise ``jobs`` > 1 is a :class:`~concurrent.futures.ProcessPoolExecutor`
+of ``jobs`` processes and ``jobs`` == 1 runs in this process, one item after the other.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+
+class SchedulerError(RuntimeError):
+    """The Dask scheduler cannot be reached (or Dask is not installed); names the address."""
+
+
+@dataclass
+class Outcome:
+    """The result of ``fn(item)``: ``value``, or ``error`` (``"Type: message"``) if it raised.
+
+    ``elapsed_s`` is the wall time from the start of the run to this completion [s];
+    ``trace`` the formatted traceback when it is known.
+    """
+
+    item: Any
+    value: Any = None
+    error: str | None = None
+    elapsed_s: float = 0.0
+    trace: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def describe_error(exc: BaseException) -> str:
+    """``"Type: message"`` of an exception (the type alone if the message is empty)."""
+    msg = str(exc).strip()
+    name = type(exc).__name__
+    if isinstance(exc, BrokenProcessPool):
+        msg = f"a worker process died ({msg})" if msg else "a worker process died"
+    return f"{name}: {msg}" if msg else name
+
+
+def _trace(exc: BaseException) -> str:
+    return "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+
+
+def run_each(fn: Callable[..., Any], items: Iterable[Any], *, jobs: int = 2,
+             scheduler: str | None = None, connect_timeout_s: float = 10.0,
+             **kw: Any) -> Iterator[Outcome]:
+    """Yield the :class:`Outcome` of ``fn(item, **kw)`` for each item, as they complete.
+
+    Closing the iterator early (or an exception in the consumer, such as
+    KeyboardInterrupt) cancels the items not yet started and releases the pool or the
+    cluster connection. :class:`SchedulerError` if the Dask scheduler cannot be reached.
+    """
+    items = list(items)
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if scheduler:
+        return _run_dask(fn, items, scheduler, connect_timeout_s, kw)
+    if jobs == 1:
+        return _run_serial(fn, items, kw)
+    return _run_pool(fn, items, jobs, kw)
+
+
+def _run_serial(fn, items, kw) -> Iterator[Outcome]:
+    t0 = time.perf_counter()
+    for item in items:
+        try:
+            value = fn(item, **kw)
+        except Exception as e:  # noqa: BLE001 - reported in the outcome
+            yield Outcome(item, error=describe_error(e), elapsed_s=time.perf_counter() - t0,
+                          trace=_trace(e))
+        else:
+            yield Outcome(item, value=value, elapsed_s=time.perf_counter() - t0)
+
+
+def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
+    pool = ProcessPoolExecutor(max_workers=min(jobs, max(len(items), 1)))
+    try:
+        t0 = time.perf_counter()
+        pending = {pool.submit(fn, item, **kw): item for item in items}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                item = pending.pop(fut)
+                exc = fut.exception()
+                dt = time.perf_counter() - t0
+                if exc is None:
+                    yield Outcome(item, value=fut.result(), elapsed_s=dt)
+                else:
+                    yield Outcome(item, error=describe_error(exc), elapsed_s=dt, trace=_trace(exc))
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _run_dask(fn, items, address, connect_timeout_s, kw) -> Iterator[Outcome]:
+    try:
+        from distributed import Client, as_completed
+    except ImportError as e:  # pragma: no cover - depends on the installation
+        raise SchedulerError(f"--scheduler {address}: Dask is not installed "
+                             f"(pip install 'cdpr-bench[dask]'): {e}") from e
+    try:
+        client = Client(address, timeout=connect_timeout_s, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as e:
+        raise SchedulerError(f"--scheduler {address}: cannot connect: "
+                             f"{describe_error(e)}") from e
+    return _dask_outcomes(client, as_completed, fn, items, kw)
+
+
+def _dask_outcomes(client, as_completed, fn, items, kw) -> Iterator[Outcome]:
+    futures = {}
+    try:
+        t0 = time.perf_counter()
+        for item in items:
+            fut = client.submit(fn, item, pure=False, retries=0, **kw)
+            futures[fut] = item
+        for fut in as_completed(list(futures), loop=client.loop):
+            item = futures.pop(fut)
+            dt = time.perf_counter() - t0
+            if fut.status == "error":
+                exc = fut.exception()
+                yield Outcome(item, error=describe_error(exc), elapsed_s=dt, trace=_trace(exc))
+            elif fut.status == "cancelled":
+                yield Outcome(item, error="CancelledError: cancelled on the cluster", elapsed_s=dt)
+            else:
+                yield Outcome(item, value=fut.result(), elapsed_s=dt)
+            fut.release()
+    finally:
+        if futures:
+            client.cancel(list(futures))
+        client.close()

@@ -1,0 +1,252 @@
+"""``cdpr evaluate``: generated cases on the local process pool and on a Dask cluster (an
+in-process ``distributed.LocalCluster`` reached over TCP on 127.0.0.1), the summary, --out
+resumption after an interruption, and a case that raises (recorded, the others go on).
+
+Cases are small (a 3 x 2 x 1 pose grid, 2 visits: about a second each). Replacement case
+functions are module-level so that worker processes can unpickle them by name.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from pathlib import Path
+
+import distributed  # the dev extra installs it
+import pytest
+
+from bench import evaluate
+from bench.cli import main
+from bench.commands.evaluate import OUT_FORMAT, read_results
+
+SMALL = ["--grid", "3,2,1", "--visits", "2"]
+SMALL_KW = {"poses": {"n": [3, 2, 1], "visits": 2}}
+REAL_RUN_CASE = evaluate.run_case
+FAILING_SEED = 6
+
+
+def pid_case(seed: int, **kw) -> dict:
+    """The real case, tagged with the id of the process that ran it."""
+    return REAL_RUN_CASE(seed, **kw) | {"pid": os.getpid()}
+
+
+def flaky_case(seed: int, **kw) -> dict:
+    """The real case, except that seed FAILING_SEED raises."""
+    if seed == FAILING_SEED:
+        raise RuntimeError(f"plant exploded at seed {seed}")
+    return REAL_RUN_CASE(seed, **kw)
+
+
+def run_json(capsys, *argv: str) -> tuple[int, dict, str]:
+    rc = main(["evaluate", *argv, "--json"])
+    cap = capsys.readouterr()
+    return rc, json.loads(cap.out), cap.err
+
+
+def without_seconds(case: dict) -> dict:
+    return {k: v for k, v in case.items() if k not in ("seconds", "pid")}
+
+
+def plain(case: dict) -> dict:
+    return json.loads(json.dumps(case, default=lambda o: o.item()))
+
+
+def test_two_cases_on_the_local_process_pool(capsys, monkeypatch):
+    monkeypatch.setattr(evaluate, "run_case", pid_case)
+    rc, out, err = run_json(capsys, "--cases", "2", "--seed", "5", "--jobs", "2", *SMALL)
+    assert rc == 0
+    assert [c["seed"] for c in out["cases"]] == [5, 6]
+    assert out["errors"] == [] and out["summary"]["errors"] == 0
+    # the cases ran in worker processes, not here
+    assert all(c["pid"] != os.getpid() for c in out["cases"])
+    # each case is what run_case gives in this process (but for the time it took)
+    for c in out["cases"]:
+        assert without_seconds(c) == without_seconds(plain(REAL_RUN_CASE(c["seed"], **SMALL_KW)))
+    s = out["summary"]
+    assert s == json.loads(json.dumps(evaluate.summarise(out["cases"])
+                                      | {"errors": 0, "requested": 2}))
+    assert s["cases"] == 2 and s["median_case_s"] > 0
+    assert out["config"] == {"robot": "rocaspect", "effects": None,
+                             "poses": {"n": [3, 2, 1], "visits": 2}}
+    # progress: cases done, running exact-detection rate, ETA
+    assert "case 1/2" in err and "case 2/2" in err and "exact detection" in err and "ETA" in err
+
+
+def test_jobs_1_runs_in_this_process_and_effects_are_imposed(capsys, monkeypatch):
+    monkeypatch.setattr(evaluate, "run_case", pid_case)
+    rc, out, _ = run_json(capsys, "--cases", "2", "--jobs", "1", "--effects", "drum_scale",
+                          *SMALL)
+    assert rc == 0
+    assert all(c["pid"] == os.getpid() for c in out["cases"])
+    assert all(c["truth"] == ["drum_scale"] for c in out["cases"])
+    assert set(out["summary"]["matrix"]) == {"drum_scale"}
+
+
+def test_human_report(capsys):
+    rc = main(["evaluate", "--cases", "2", "--seed", "5", "--jobs", "2", *SMALL])
+    cap = capsys.readouterr()
+    assert rc == 0
+    text = cap.out
+    for words in ("2 cases (seeds 5..6)", "exact detection", "false positives", "95 % CI",
+                  "parameters in tol.", "z-scores", "seconds per case", "concealed \\ named"):
+        assert words in text, words
+    # seeds 5 and 6: exit_point_offset + load_cell_calibration, drum_scale
+    for row in ("exit_point_offset", "load_cell_calibration", "drum_scale"):
+        assert any(line.strip().startswith(row) for line in text.splitlines()), row
+    assert "columns: EPO exit_point_offset" in text
+
+
+def test_a_case_that_raises_is_an_error_and_hides_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(evaluate, "run_case", flaky_case)
+    out_file = tmp_path / "cases.jsonl"
+    rc, out, err = run_json(capsys, "--cases", "3", "--seed", "5", "--jobs", "2",
+                            "--out", str(out_file), *SMALL)
+    assert rc == 1
+    assert [c["seed"] for c in out["cases"]] == [5, 7]
+    assert [(e["seed"], e["error"]) for e in out["errors"]] == [
+        (FAILING_SEED, f"RuntimeError: plant exploded at seed {FAILING_SEED}")]
+    assert "flaky_case" in out["errors"][0]["trace"]
+    assert out["summary"]["cases"] == 2 and out["summary"]["errors"] == 1
+    assert out["summary"]["requested"] == 3
+    assert f"seed {FAILING_SEED}: error RuntimeError" in err
+    _, records = read_results(out_file)
+    assert sorted(records) == [5, 6, 7] and "error" in records[FAILING_SEED]
+    # the human report lists it too
+    monkeypatch.setattr(evaluate, "run_case", flaky_case)
+    assert main(["evaluate", "--cases", "3", "--seed", "5", "--out", str(out_file), *SMALL]) == 1
+    text = capsys.readouterr().out
+    assert f"error: seed {FAILING_SEED}: RuntimeError: plant exploded" in text
+    assert "2 scored, 1 raised" in text
+    # --retry-errors runs it again (and only it); now it passes
+    calls: list[int] = []
+    monkeypatch.setattr(evaluate, "run_case",
+                        lambda seed, **kw: calls.append(seed) or REAL_RUN_CASE(seed, **kw))
+    rc, out, _ = run_json(capsys, "--cases", "3", "--seed", "5", "--jobs", "1",
+                          "--out", str(out_file), "--retry-errors", *SMALL)
+    assert rc == 0 and calls == [FAILING_SEED]
+    assert [c["seed"] for c in out["cases"]] == [5, 6, 7] and out["errors"] == []
+
+
+def test_out_file_resumes_after_an_interruption(tmp_path, capsys, monkeypatch):
+    out_file = tmp_path / "runs" / "cases.jsonl"
+    calls: list[int] = []
+
+    def interrupted_at_2(seed: int, **kw) -> dict:
+        calls.append(seed)
+        if seed == 2:
+            raise KeyboardInterrupt
+        return REAL_RUN_CASE(seed, **kw)
+
+    monkeypatch.setattr(evaluate, "run_case", interrupted_at_2)
+    argv = ["evaluate", "--cases", "4", "--jobs", "1", "--effects", "none",
+            "--out", str(out_file), *SMALL]
+    assert main(argv) == 130
+    capsys.readouterr()
+    lines = out_file.read_text(encoding="utf-8").splitlines()
+    assert json.loads(lines[0])["format"] == OUT_FORMAT
+    assert [json.loads(x)["seed"] for x in lines[1:]] == [0, 1]
+    # a line cut short by the interruption is reported and its case run again
+    with out_file.open("a", encoding="utf-8") as f:
+        f.write('{"seed": 2, "truth": [], "nam')
+    calls.clear()
+    monkeypatch.setattr(evaluate, "run_case",
+                        lambda seed, **kw: calls.append(seed) or REAL_RUN_CASE(seed, **kw))
+    rc, out, err = run_json(capsys, *argv[1:])
+    assert rc == 0
+    assert calls == [2, 3]
+    assert "2 of 4 seeds already in" in err and "not JSON" in err and ":4:" in err
+    assert [c["seed"] for c in out["cases"]] == [0, 1, 2, 3]
+    assert out["summary"]["matrix"] == {"none": out["summary"]["matrix"]["none"]}
+    assert out["summary"]["matrix"]["none"]["cases"] == 4
+    _, records = read_results(out_file)
+    assert sorted(records) == [0, 1, 2, 3]
+    # all done: a re-run runs nothing and reports the same cases
+    calls.clear()
+    rc, again, _ = run_json(capsys, *argv[1:])
+    assert rc == 0 and calls == [] and again["cases"] == out["cases"]
+    # more cases: only the new seeds
+    rc, more, _ = run_json(capsys, argv[1], "5", *argv[3:])
+    assert rc == 0 and calls == [4] and len(more["cases"]) == 5
+
+
+def test_out_file_of_another_configuration_is_refused(tmp_path, capsys):
+    out_file = tmp_path / "cases.jsonl"
+    out_file.write_text(json.dumps({"format": OUT_FORMAT, "config": {
+        "robot": "rocaspect", "effects": ["drum_scale"], "poses": {}}}) + "\n", encoding="utf-8")
+    rc, out, _ = run_json(capsys, "--cases", "1", "--out", str(out_file), *SMALL)
+    assert rc == 2 and str(out_file) in out["error"]
+    assert "another case configuration" in out["error"]
+    other = tmp_path / "other.jsonl"
+    other.write_text('{"seed": 1, "exact": true}\n', encoding="utf-8")
+    rc, out, _ = run_json(capsys, "--cases", "1", "--out", str(other), *SMALL)
+    assert rc == 2 and "header" in out["error"]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--cases", "0"], "--cases 0"),
+    (["--cases", "1", "--jobs", "0"], "--jobs 0"),
+    (["--cases", "1", "--effects", "drum_scale,warp_drive"], "warp_drive"),
+    (["--cases", "1", "--grid", "3,2"], "--grid 3,2"),
+    (["--cases", "1", "--visits", "0"], "--visits 0"),
+    (["--cases", "1", "--retry-errors"], "--retry-errors"),
+    (["--cases", "1", "--robot", "no-such-robot"], "no-such-robot"),
+])
+def test_bad_arguments_exit_2(capsys, argv, words):
+    rc, out, err = run_json(capsys, *argv)
+    assert rc == 2 and words in out["error"] and words in err
+
+
+# ----- Dask ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def dask_cluster():
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                       protocol="tcp://", host="127.0.0.1", scheduler_port=0,
+                                       dashboard_address=None)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+def test_cases_on_a_dask_cluster(dask_cluster, tmp_path, capsys, monkeypatch):
+    address = dask_cluster.scheduler_address
+    assert address.startswith("tcp://127.0.0.1:")
+    monkeypatch.setattr(evaluate, "run_case", flaky_case)
+    out_file = tmp_path / "dask.jsonl"
+    rc, out, err = run_json(capsys, "--cases", "3", "--seed", "5", "--scheduler", address,
+                            "--out", str(out_file), *SMALL)
+    assert rc == 1
+    assert [c["seed"] for c in out["cases"]] == [5, 7]
+    assert [e["seed"] for e in out["errors"]] == [FAILING_SEED]
+    assert out["errors"][0]["error"] == f"RuntimeError: plant exploded at seed {FAILING_SEED}"
+    for c in out["cases"]:
+        assert without_seconds(c) == without_seconds(plain(REAL_RUN_CASE(c["seed"], **SMALL_KW)))
+    assert "case 3/3" in err
+    # resumed on the cluster: only the failed seed again
+    monkeypatch.setattr(evaluate, "run_case", REAL_RUN_CASE)
+    rc, out, err = run_json(capsys, "--cases", "3", "--seed", "5", "--scheduler", address,
+                            "--out", str(out_file), "--retry-errors", *SMALL)
+    assert rc == 0 and [c["seed"] for c in out["cases"]] == [5, 6, 7]
+    assert "2 of 3 seeds already in" in err and "case 1/1 seed 6" in err
+
+
+def test_unreachable_scheduler_message(capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rc, out, _ = run_json(capsys, "--cases", "1", "--scheduler", f"tcp://127.0.0.1:{port}",
+                          "--connect-timeout", "1", *SMALL)
+    assert rc == 2
+    assert f"tcp://127.0.0.1:{port}" in out["error"] and "cannot connect" in out["error"]
+
+
+def test_read_results_ignores_blank_lines(tmp_path: Path):
+    p = tmp_path / "r.jsonl"
+    p.write_text(json.dumps({"format": OUT_FORMAT, "config": {}}) + "\n\n"
+                 + json.dumps({"seed": 3, "error": "X: y"}) + "\n"
+                 + json.dumps({"seed": 3, "exact": True}) + "\n", encoding="utf-8")
+    header, records = read_results(p)
+    assert header == {"format": OUT_FORMAT, "config": {}}
+    assert records == {3: {"seed": 3, "exact": True}}  # the last line of a seed wins
