@@ -3,8 +3,10 @@
 :func:`run_each` calls ``fn(item, **kw)`` for every item and yields an :class:`Outcome`
 per item **as it completes** (not in submission order). An exception in one call is
 caught and reported in its outcome (type and message); it never stops or hides the
-other items. ``fn`` must be a module-level function (it is pickled by reference), and on
-a Dask cluster every worker must be able to import it (cdpr-bench installed there).
+other items. A local worker process that dies is reported for the item that killed it
+(the items running beside it are run again). ``fn`` must be a module-level function (it
+is pickled by reference), and on a Dask cluster every worker must be able to import it
+(cdpr-bench installed there).
 
 Backends: ``scheduler`` (a Dask distributed address such as ``tcp://127.0.0.1:8786``)
 takes precedence; otherwise ``jobs`` > 1 is a :class:`~concurrent.futures.ProcessPoolExecutor`
@@ -15,10 +17,12 @@ from __future__ import annotations
 
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 
@@ -90,20 +94,44 @@ def _run_serial(fn, items, kw) -> Iterator[Outcome]:
 
 
 def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
-    pool = ProcessPoolExecutor(max_workers=min(jobs, max(len(items), 1)))
+    """At most ``jobs`` items in flight. If a worker process dies (the pool breaks), the
+    items then in flight run again one at a time in a fresh pool: the one that kills its
+    worker alone is reported (``BrokenProcessPool``), the others are not lost."""
+    workers = min(jobs, max(len(items), 1))
+    queue, suspects = deque(items), deque()
+    inflight: dict = {}  # future -> (item, runs alone)
+    pool = ProcessPoolExecutor(max_workers=workers)
+    t0 = time.perf_counter()
     try:
-        t0 = time.perf_counter()
-        pending = {pool.submit(fn, item, **kw): item for item in items}
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+        while queue or suspects or inflight:
+            if suspects and not inflight:
+                item = suspects.popleft()
+                inflight[pool.submit(fn, item, **kw)] = (item, True)
+            elif not suspects:
+                while queue and len(inflight) < workers:
+                    item = queue.popleft()
+                    inflight[pool.submit(fn, item, **kw)] = (item, False)
+            done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+            broken = False
             for fut in done:
-                item = pending.pop(fut)
+                item, alone = inflight.pop(fut)
                 exc = fut.exception()
                 dt = time.perf_counter() - t0
                 if exc is None:
                     yield Outcome(item, value=fut.result(), elapsed_s=dt)
+                elif isinstance(exc, BrokenProcessPool) and not alone:
+                    suspects.append(item)
+                    broken = True
                 else:
+                    broken |= isinstance(exc, BrokenProcessPool)
                     yield Outcome(item, error=describe_error(exc), elapsed_s=dt, trace=_trace(exc))
+            if broken:
+                for fut, (item, _) in inflight.items():  # all fail with the pool
+                    fut.cancel()
+                    suspects.append(item)
+                inflight.clear()
+                pool.shutdown(wait=False, cancel_futures=True)
+                pool = ProcessPoolExecutor(max_workers=workers)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
 
@@ -127,7 +155,7 @@ def _dask_outcomes(client, as_completed, fn, items, kw) -> Iterator[Outcome]:
     try:
         t0 = time.perf_counter()
         for item in items:
-            fut = client.submit(fn, item, pure=False, retries=0, **kw)
+            fut = client.submit(partial(fn, **kw), item, pure=False, retries=0)
             futures[fut] = item
         for fut in as_completed(list(futures), loop=client.loop):
             item = futures.pop(fut)

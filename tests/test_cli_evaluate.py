@@ -19,6 +19,7 @@ import pytest
 from bench import evaluate
 from bench.cli import main
 from bench.commands.evaluate import OUT_FORMAT, read_results
+from bench.parallel import run_each
 
 SMALL = ["--grid", "3,2,1", "--visits", "2"]
 SMALL_KW = {"poses": {"n": [3, 2, 1], "visits": 2}}
@@ -197,10 +198,36 @@ def test_bad_arguments_exit_2(capsys, argv, words):
     assert rc == 2 and words in out["error"] and words in err
 
 
+# ----- the executor ---------------------------------------------------------------------------
+
+def dies_at_2(x: int) -> int:
+    """Kills its worker process at item 2 (as a segfault or the OOM killer would)."""
+    if x == 2:
+        os._exit(3)
+    if x == 4:
+        raise ValueError("four")
+    return 10 * x
+
+
+def test_a_worker_that_dies_is_reported_and_the_others_are_not_lost():
+    outcomes = {o.item: o for o in run_each(dies_at_2, range(7), jobs=2)}
+    assert sorted(outcomes) == list(range(7))
+    assert outcomes[2].error.startswith("BrokenProcessPool: a worker process died")
+    assert outcomes[4].error == "ValueError: four"
+    assert {k: o.value for k, o in outcomes.items() if o.ok} == {
+        k: 10 * k for k in (0, 1, 3, 5, 6)}
+
+
+def test_run_each_in_process_reports_errors_in_order():
+    got = [(o.item, o.value, o.error) for o in run_each(dies_at_2, [0, 4, 1], jobs=1)]
+    assert got == [(0, 0, None), (4, None, "ValueError: four"), (1, 10, None)]
+
+
 # ----- Dask ---------------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def dask_cluster():
+    """A scheduler and one worker (2 threads) in this process, on TCP, closed after the test."""
     cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                                        protocol="tcp://", host="127.0.0.1", scheduler_port=0,
                                        dashboard_address=None)

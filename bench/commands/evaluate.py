@@ -11,8 +11,11 @@ FILE skips the seeds already there (``--retry-errors``: except the ones that rai
 FILE made with another configuration (robot, effects, pose set) is refused.
 
 A case that raises is recorded as an error (seed and message) and counted; the others
-go on. Exit status: 0 all cases scored, 1 some case raised, 2 bad arguments or FILE,
-or the scheduler cannot be reached.
+go on. A case that kills its worker process is an error too (``BrokenProcessPool``); the
+cases that ran beside it run again (see :mod:`bench.parallel`).
+
+Exit status: 0 all cases scored, 1 some case raised, 2 bad arguments or FILE, or the
+scheduler cannot be reached.
 """
 
 from __future__ import annotations
@@ -239,6 +242,7 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
              "  seconds per case     " + ("n/a" if med is None else f"{med:.1f} (median)"),
              "  detection matrix (counts of cases):"]
     lines += ["  " + ln for ln in matrix_lines(s["matrix"])]
+    lines.append("    (a case concealing two effects counts in both rows)")
     for e in errors:
         lines.append(f"  error: seed {e['seed']}: {e['error']}")
     return "\n".join(lines)
