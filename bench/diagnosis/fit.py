@@ -63,8 +63,35 @@ def fd_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.n
 
 
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
-                phi0: np.ndarray | None = None, max_nfev: int = 60) -> FitResult:
-    """Fit the parameters of ``space`` to the samples ``idx`` (whitened inverse residuals)."""
+                phi0: np.ndarray | None = None, max_nfev: int = 60,
+                hold: np.ndarray | None = None, prune: bool = True) -> FitResult:
+    """Fit the parameters of ``space`` to the samples ``idx`` (whitened inverse residuals).
+
+    ``hold`` marks parameters kept at the model's values. With ``prune``, parameters
+    that come out within two standard errors of the model's value are then held there
+    and the rest refitted, when that lowers the BIC: an effect counts only the
+    parameters the data need (three offset cables, not twenty-four).
+    """
+    full = _fit(space, rm, idx, phi0, max_nfev, hold)
+    if not prune or len(space) == 0:
+        return full
+    weak = np.isfinite(full.stderr) & (np.abs(full.phi - space.neutral) < 2.0 * full.stderr)
+    if hold is not None:
+        weak &= ~hold
+    if not weak.any():
+        return full
+    held = weak | ~np.isfinite(full.stderr)
+    if hold is not None:
+        held |= hold
+    pruned = _fit(space, rm, idx, full.phi, max_nfev, held)
+    if pruned.bic < full.bic:
+        pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
+        return pruned
+    return full
+
+
+def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray | None,
+         max_nfev: int, hold: np.ndarray | None) -> FitResult:
 
     def fun(phi: np.ndarray) -> np.ndarray:
         return rm.whitened(space.robot(phi), idx)
@@ -80,22 +107,83 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
         chi2 = float(r @ r)
         return FitResult(space, x0, chi2, len(r), bic(chi2, 0, len(r)), np.zeros(0),
                          np.zeros((0, 0)), True, "no parameters")
-    res = least_squares(fun, x0, jac=jac, bounds=(space.lo, space.hi), x_scale=space.scale,
-                        method="trf", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
-    r = res.fun
+    # parameters the data cannot fix at all (seen at the start, before the fit can wander
+    # along them) stay at the model's values; compliance-like ones are held first
+    fixed = null_parameters(jac(x0), space) if hold is None else hold.copy()
+    free = ~fixed
+    x = np.where(fixed, space.neutral, x0)
+    # start inside the bounds: the trust region of 'trf' cannot leave a bound it starts on
+    x = np.where(free, np.clip(x, space.lo + 0.1 * space.scale, space.hi - 0.1 * space.scale), x)
+
+    def fun_free(z: np.ndarray) -> np.ndarray:
+        full = x.copy()
+        full[free] = z
+        return fun(full)
+
+    if free.any():
+        res = least_squares(fun_free, x[free], bounds=(space.lo[free], space.hi[free]),
+                            jac=lambda z: fd_jacobian(fun_free, z, fun_free(z), steps[free],
+                                                      space.lo[free], space.hi[free]),
+                            x_scale=space.scale[free], method="trf", max_nfev=max_nfev,
+                            xtol=1e-8, ftol=1e-8, gtol=1e-8)
+        x[free] = res.x
+        r, Jf, nfev, ok, msg = res.fun, res.jac, int(res.nfev), bool(res.success), str(
+            res.message)
+    else:
+        r, Jf, nfev, ok, msg = fun(x), np.zeros((0, 0)), 1, True, "nothing to fit"
     chi2 = float(r @ r)
     n_res = len(r)
-    cov, se = standard_errors(res.jac, chi2, n_res, space.scale)
-    return FitResult(space, res.x, chi2, n_res, bic(chi2, len(res.x), n_res), se, cov,
-                     bool(res.success), str(res.message), int(res.nfev))
+    cov, se = standard_errors(Jf, chi2, n_res, space.scale[free]) if free.any() else \
+        (np.zeros((0, 0)), np.zeros(0))
+    se_all = np.full(len(x), np.inf)
+    se_all[free] = se
+    cov_all = np.zeros((len(x), len(x)))
+    cov_all[np.ix_(free, free)] = cov
+    return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_res), se_all,
+                     cov_all, ok, msg, nfev)
+
+
+#: a parameter whose Jacobian column is within this fraction of the span of the columns
+#: before it adds no information
+NULL_RATIO = 1e-4
+
+
+def null_parameters(J: np.ndarray, space: ParamSpace) -> np.ndarray:
+    """Parameters to hold at the model's values because the data cannot tell them from the
+    others (their Jacobian column lies in the span of the columns before them).
+
+    Columns are taken simplest explanation first: constant offsets, scales and values
+    before compliance-like (inverse) parameters, so that a mast seen at a single pose keeps
+    exit-point offsets and leaves its compliance undetermined.
+    """
+    order = sorted(range(J.shape[1]), key=lambda k: space.params[k].kind == "inverse")
+    fixed = np.ones(J.shape[1], dtype=bool)
+    basis: list[np.ndarray] = []
+    for k in order:
+        c = J[:, k].astype(float)
+        norm = float(np.linalg.norm(c))
+        if norm == 0.0 or not np.isfinite(norm):
+            continue
+        v = c / norm
+        for b in basis:  # modified Gram-Schmidt, twice for stability
+            v = v - (b @ v) * b
+        for b in basis:
+            v = v - (b @ v) * b
+        left = float(np.linalg.norm(v))
+        if left > NULL_RATIO:
+            basis.append(v / left)
+            fixed[k] = False
+    return fixed
 
 
 def standard_errors(J: np.ndarray, chi2: float, n_res: int,
                     scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Covariance and standard errors from the whitened Jacobian (computed in parameter
     units of ``scale``); inflated by the reduced chi-square when the fit leaves more than
-    the noise. Directions the data do not constrain get infinite standard errors."""
+    the noise."""
     p = J.shape[1]
+    if p == 0:
+        return np.zeros((0, 0)), np.zeros(0)
     D = np.ones(p) if scale is None else np.asarray(scale, dtype=float)
     Js = J * D
     JtJ = Js.T @ Js
@@ -106,8 +194,8 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: int,
     cov_s = (V * inv_w) @ V.T
     red = chi2 / max(n_res - p, 1)
     cov = cov_s * np.outer(D, D) * max(red, 1.0)
+    # directions without information (a gauge such as the load cells' common mode, which
+    # the reported values divide out) are left out of the covariance: parameters the data
+    # cannot fix at all were held at the model's values before the fit
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    if weak.any():
-        null = (V[:, weak] ** 2).sum(axis=1) > 1e-3
-        se = np.where(null, np.inf, se)
     return cov, se

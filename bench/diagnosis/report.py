@@ -20,7 +20,7 @@ from bench.diagnosis import locate
 from bench.diagnosis.fit import FitResult
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, average_dwells
-from bench.diagnosis.select import Selection, Selector, candidate_effects
+from bench.diagnosis.select import BIC_TIE, Selection, Selector, candidate_effects
 from bench.diagnosis.space import EXPLAINS, SCALES, Param, ParamSpace
 from bench.recording import Recording, read_recording
 from controller.kinematics import gravity_wrench, wrench_matrix
@@ -28,6 +28,8 @@ from controller.robot import Robot, save_robot
 from controller.statics import batch_statics
 
 FORMAT = "cdpr-diagnosis/1"
+#: a stiffness or EA known only to this relative standard error is called undetermined
+UNDETERMINED_REL = 0.15
 #: changes too small to matter (fit-space units): not reported as differing from the model
 PRACTICAL = {"exit_point_offset": 5e-4, "cable_length_offset": 1e-4, "drum_scale": 1e-4,
              "load_cell_calibration": 2e-3, "platform_mass": 2e-3, "pulley_kinematics": 2e-3,
@@ -115,8 +117,8 @@ def _undetermined(p: Param, phi: float, se: float) -> bool:
     """Whether the poses cannot fix this parameter."""
     if not math.isfinite(se):
         return True
-    if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or wide
-        return phi - 2.0 * se <= 0.0 or se > 0.5 * phi
+    if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or too wide
+        return phi - 2.0 * se <= 0.0 or se > UNDETERMINED_REL * phi
     limits = {"exit_point_offset": 5e-3, "cable_length_offset": 1e-3, "drum_scale": 5e-3,
               "pulley_kinematics": 0.03, "cable_sag": 0.05}
     if p.effect in limits:
@@ -138,17 +140,20 @@ def effect_entries(fit: FitResult, effects: list[str]) -> tuple[dict, dict, dict
     params: dict[str, dict] = {e: {} for e in effects}
     errs: dict[str, dict] = {e: {} for e in effects}
     undet: dict[str, list] = {e: [] for e in effects}
+    values = fit.space.values(fit.phi)
     for k, p in enumerate(fit.space.params):
         if p.effect not in params:
             continue
-        phi, se = float(fit.phi[k]), float(fit.stderr[k])
+        se = float(fit.stderr[k])
+        phi = p.from_value(values[p.effect][p.key])
         if _undetermined(p, phi, se):
             undet[p.effect].append(p.key)
             continue
-        if abs(phi - p.neutral) <= max(3.0 * se, PRACTICAL.get(p.effect, 0.0)
-                                       if not p.key.startswith("offset_") else 0.3):
+        if p.kind != "inverse" and abs(phi - p.neutral) <= max(
+                3.0 * se, PRACTICAL.get(p.effect, 0.0) if not p.key.startswith("offset_")
+                else 0.3):
             continue  # the model's value within the uncertainty, or a negligible change
-        value = p.to_value(phi)
+        value = values[p.effect][p.key]
         err = se / phi**2 if p.kind == "inverse" else se
         params[p.effect][p.key] = float(value)
         errs[p.effect][p.key] = float(err)
@@ -156,13 +161,9 @@ def effect_entries(fit: FitResult, effects: list[str]) -> tuple[dict, dict, dict
 
 
 def cleaned_robot(fit: FitResult) -> Robot:
-    """The fitted robot; parameters with no information at all (infinite standard error)
-    are left at the model's values."""
-    phi = fit.phi.copy()
-    for k, p in enumerate(fit.space.params):
-        if not math.isfinite(float(fit.stderr[k])):
-            phi[k] = p.neutral
-    return fit.space.robot(phi)
+    """The fitted robot (every parameter at its fitted value: where the data cannot fix a
+    parameter alone, the fit still holds the combination they do fix)."""
+    return fit.space.robot(fit.phi)
 
 
 def split_heldout(s: Samples, init_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -240,6 +241,10 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
             "undetermined": undet[e],
             "alternatives": [{"name": a, "delta_bic": d} for a, d in sel.alternatives.get(e, [])],
         }
+        if e == "platform_mass" and "mass" in params[e] and rm.any_tau:
+            alt = _common_gain_alternative(rm, sel.fit, train)
+            if alt is not None and alt["delta_bic"] < BIC_TIE:
+                entry["alternatives"].append(alt)
         if rm.slip_times.any() and e == "cable_length_offset":
             entry["explains"] += "; from " + ", ".join(
                 f"t = {t:.1f} s on cable {c}" for c, t in zip(model.cable_ids, rm.slip_times,
@@ -279,6 +284,21 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         "model": model_path,
     }
     return Diagnosis(report, rec, s, rm, sel, fitted, base_fw, fit_fw, heldout)
+
+
+def _common_gain_alternative(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> dict | None:
+    """A gain shared by every load cell in place of the fitted mass change: in statics the
+    two are the same (W tau_meas / g balances m g), only the stretch of the cables can tell
+    them apart. Its BIC change is evaluated, not refitted."""
+    robot = fit.space.robot(fit.phi)
+    model = rm.model
+    ratio = robot.mass / model.mass
+    alt = robot.replace(mass=model.mass, load_cell_gain=robot.load_cell_gain * ratio)
+    r_fit = rm.whitened(robot, idx)
+    r_alt = rm.whitened(alt, idx)
+    d = float(r_alt @ r_alt - r_fit @ r_fit)  # one parameter for one: no penalty change
+    return {"name": "load_cell_calibration", "delta_bic": d,
+            "note": f"a gain of {ratio:.4f} shared by every load cell instead of the mass"}
 
 
 def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Forward,

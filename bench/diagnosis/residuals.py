@@ -91,6 +91,7 @@ class ResidualModel:
         self.any_tau = bool(self.has_tau.any())
         self.sigma = dict(DEFAULTS)
         self.sigma_source = "defaults (no replicate visits)"
+        self._warm_exits: np.ndarray | None = None  # last deflected exits (warm start)
         # slack cables: measured tension within the load-cell noise of zero (the noise of
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
         tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
@@ -114,7 +115,11 @@ class ResidualModel:
             if not measured.all():
                 tau_td, *_ = batch_statics(H, poses[~measured])
                 tau[~measured] = tau_td
-            tau, exits, st, good = batch_statics(H, poses, tau)
+            warm = self._warm_exits if self._warm_exits is not None and \
+                len(self._warm_exits) == len(sel) else None
+            tau, exits, st, good = batch_statics(H, poses, tau, exits0=warm)
+            if H.compliant:
+                self._warm_exits = exits
         else:
             tau, exits, st, good = batch_statics(H, poses)
         ok[sel] = good

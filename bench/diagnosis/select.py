@@ -30,6 +30,10 @@ from bench.diagnosis.space import ParamSpace, effect_fit_params
 BIC_ENTER = 10.0
 #: BIC difference under which a swapped effect counts as an alternative
 BIC_TIE = 10.0
+#: swaps whose linearised BIC change is below this are refitted (linearisation is rough)
+SWAP_SCREEN = 50.0
+#: look-alikes within this much of a tie (linearised) are refitted to decide
+SWAP_SCREEN_MARGIN = 50.0
 #: an effect reproducing this share of another's signature is listed as its alternative
 IMITATES = 0.98
 #: the model explains the data within the noise below this reduced chi-square
@@ -81,6 +85,7 @@ class Selector:
         self.pool = pool
         self.cache: dict[tuple[str, ...], FitResult] = {}
         self.cache_ho: dict[tuple[tuple[str, ...], int], FitResult] = {}
+        self._swap_cache: dict[tuple, dict[tuple[str, str], float]] = {}
         self.model = rm.model
 
     # ----- fits -----------------------------------------------------------------------
@@ -239,17 +244,66 @@ class Selector:
                 dropped = True
         return chosen, current, dropped
 
+    def swap_screen(self, current: FitResult, chosen: list[str], candidates: list[str]
+                    ) -> dict[tuple[str, str], float]:
+        """Predicted BIC change of replacing each chosen effect by each other candidate,
+        linearised at the current fit with the remaining effects refitted jointly."""
+        key = (id(current), tuple(chosen))
+        if key in self._swap_cache:
+            return self._swap_cache[key]
+        space = current.space
+        out: dict[tuple[str, str], float] = {}
+        r_cur = self.rm.whitened(space.robot(current.phi), self.train)
+        n_res = len(r_cur)
+        for e in chosen:
+            phi_wo = current.phi.copy()
+            ix = space.indices(e)
+            phi_wo[ix] = space.neutral[ix]
+            keep = np.setdiff1d(np.arange(len(space)), ix)
+            robot_wo = space.robot(phi_wo)
+            r_wo = self.rm.whitened(robot_wo, self.train)
+
+            def fun_keep(z: np.ndarray, phi_wo=phi_wo, keep=keep) -> np.ndarray:
+                full = phi_wo.copy()
+                full[keep] = z
+                return self.rm.whitened(space.robot(full), self.train)
+
+            J_keep = fd_jacobian(fun_keep, phi_wo[keep], r_wo, space.scale[keep] * 1e-2,
+                                 space.lo[keep], space.hi[keep]) if len(keep) else \
+                np.zeros((n_res, 0))
+            p_keep = int(np.isfinite(current.stderr[keep]).sum())
+            for a in candidates:
+                if a in chosen:
+                    continue
+                sub = ParamSpace(robot_wo, (a,))
+                J_a = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
+                                  sub.neutral, r_wo, sub.scale * 1e-2, sub.lo, sub.hi)
+                J = np.hstack([J_keep, J_a])
+                x0 = np.concatenate([phi_wo[keep], sub.neutral])
+                lo = np.concatenate([space.lo[keep], sub.lo])
+                hi = np.concatenate([space.hi[keep], sub.hi])
+                d = _bounded_lstsq(J, -r_wo, x0, lo, hi)
+                r1 = r_wo + J @ d
+                bic_pred = float(r1 @ r1) + (p_keep + len(sub)) * np.log(n_res)
+                out[(e, a)] = bic_pred - current.bic
+        self._swap_cache[key] = out
+        return out
+
     def _swap(self, chosen: list[str], current: FitResult, candidates: list[str]
               ) -> tuple[list[str], FitResult] | None:
         """Replace a chosen effect by another when that lowers the BIC clearly (a look-alike
-        that entered first)."""
+        that entered first). Only swaps the linearised screen finds promising are refitted."""
         if not chosen:
             return None
-        pairs = [(e, a) for e in chosen for a in candidates if a not in chosen]
+        pred = self.swap_screen(current, chosen, candidates)
+        pairs = [p for p, d in sorted(pred.items(), key=lambda kv: kv[1])
+                 if d < SWAP_SCREEN][:4]
+        if not pairs:
+            return None
         sets = [tuple(c for c in chosen if c != e) + (a,) for e, a in pairs]
         fits = self.fit_many(sets, current)
-        best = min(range(len(fits)), key=lambda k: fits[k].bic, default=None)
-        if best is None or fits[best].bic - current.bic > -BIC_ENTER:
+        best = min(range(len(fits)), key=lambda k: fits[k].bic)
+        if fits[best].bic - current.bic > -BIC_ENTER:
             return None
         e, a = pairs[best]
         self.progress(f"swapping {e} for {a}: it explains the data better")
@@ -262,11 +316,13 @@ class Selector:
     def _lookalikes(self, sel: Selection, candidates: list[str]) -> None:
         chosen = sel.effects
         cur = sel.fit
+        pred = self.swap_screen(cur, chosen, candidates) if chosen else {}
         for e in chosen:
             others = [c for c in candidates if c not in chosen]
-            sets = [tuple(c for c in chosen if c != e) + (a,) for a in others]
+            near = [a for a in others if pred.get((e, a), np.inf) < BIC_TIE + SWAP_SCREEN_MARGIN]
+            sets = [tuple(c for c in chosen if c != e) + (a,) for a in near]
             alt = []
-            for a, f in zip(others, self.fit_many(sets, cur), strict=True):
+            for a, f in zip(near, self.fit_many(sets, cur), strict=True):
                 d = f.bic - cur.bic
                 if d < BIC_TIE:
                     alt.append((a, float(d)))

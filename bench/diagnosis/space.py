@@ -124,6 +124,8 @@ class ParamSpace:
         for e in self.effects:
             self.params += effect_fit_params(e, model)
         self.neutral = np.array([p.neutral for p in self.params])
+        self._gains = np.array([k for k, p in enumerate(self.params)
+                                if p.key.startswith("gain_")], dtype=int)
         self.scale = np.array([p.scale for p in self.params])
         self.lo = np.array([p.lo for p in self.params])
         self.hi = np.array([p.hi for p in self.params])
@@ -132,10 +134,21 @@ class ParamSpace:
         return len(self.params)
 
     def values(self, phi: np.ndarray) -> dict[str, dict[str, float]]:
-        """{effect: {key: value in the conventions' units}}."""
+        """{effect: {key: value in the conventions' units}}.
+
+        Load-cell gains keep the model's common mode: a gain shared by every cell is, in
+        statics, the platform mass (exactly confounded), so the fit's common mode (the
+        median ratio to the model, robust to the few cells that are really off) is divided
+        out here and a common error shows as the mass (with the common gain named as its
+        alternative)."""
         out: dict[str, dict[str, float]] = {e: {} for e in self.effects}
-        for p, v in zip(self.params, phi, strict=True):
-            out[p.effect][p.key] = p.to_value(float(v))
+        vals = np.array([p.to_value(float(v)) for p, v in zip(self.params, phi, strict=True)])
+        if len(self._gains):
+            g = np.maximum(vals[self._gains], 1e-9)
+            ref = self.neutral[self._gains]
+            vals[self._gains] = g / float(np.median(g / ref))
+        for p, v in zip(self.params, vals, strict=True):
+            out[p.effect][p.key] = float(v)
         return out
 
     def robot(self, phi: np.ndarray) -> Robot:
