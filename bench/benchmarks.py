@@ -17,6 +17,7 @@ BenchFn = Callable[[bool], dict[str, float]]
 #: Modules whose import registers benchmarks. Add one line per module.
 MODULES: tuple[str, ...] = (
     "bench.bench_physics",
+    "bench.bench_diagnose",
     "bench.bench_hil_modbus",
     "bench.bench_hil_can",
     "bench.bench_hil",

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     pool = ProcessPoolExecutor(args.jobs) if args.jobs > 1 else None
     try:
         dg = diagnose(args.recording, progress, pool, args.write_model)
-    except (RecordingError, ValueError) as e:
+    except RecordingError as e:
         print(f"cdpr diagnose: {e}", file=sys.stderr)
         return 2
     finally:

@@ -62,6 +62,24 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
         ax.set_title("per-cable length residuals")
         written.append(_save(fig, d / "cables.png", plt))
 
+    # 2b. exit points measured by the tracker
+    if dg.rm.has_exit.any():
+        e0 = np.linalg.norm(dg.rm.blocks(model).exit, axis=2) * 1e3
+        e1 = np.linalg.norm(dg.rm.blocks(dg.fitted_robot).exit, axis=2) * 1e3
+        fig, ax = plt.subplots(figsize=(9, 4.5))
+        x = np.arange(model.n_cables)
+        with np.errstate(invalid="ignore"):
+            rb = np.sqrt(np.nanmean(e0 ** 2, axis=0))
+            ra = np.sqrt(np.nanmean(e1 ** 2, axis=0))
+        ax.bar(x - 0.2, rb, 0.4, label="recording's model")
+        ax.bar(x + 0.2, ra, 0.4, label="corrected model")
+        ax.set_xticks(x, model.cable_ids)
+        ax.set_xlabel("cable")
+        ax.set_ylabel("exit point error RMS [mm]")
+        ax.legend()
+        ax.set_title("measured minus predicted exit points")
+        written.append(_save(fig, d / "exit_points.png", plt))
+
     # 3. error against distance from the initialisation pose
     e0 = np.linalg.norm(dg.baseline_forward.pose_err[:, :3], axis=1)
     e1 = np.linalg.norm(dg.fitted_forward.pose_err[:, :3], axis=1)

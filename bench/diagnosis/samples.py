@@ -50,13 +50,14 @@ class Samples:
 def _keys(rec: Recording) -> np.ndarray:
     """A per-row key that stays constant during a dwell (what the controller aimed at)."""
     for arr, scale in ((rec.pose_des, 1e6), (rec.l_cmd, 1e6)):
-        if np.isfinite(arr).all(axis=1).any():
-            k = np.round(np.nan_to_num(arr, nan=1e9) * scale)
+        cols = np.isfinite(arr).any(axis=0)  # the columns the recording has
+        if cols.any():
+            k = np.round(np.nan_to_num(arr[:, cols], nan=1e9) * scale)
             return k.reshape(len(k), -1)
-    if np.isfinite(rec.pose_meas).all(axis=1).any():
+    cols = np.isfinite(rec.pose_meas).any(axis=0)
+    if cols.any():
         # no commanded values: rows whose measured pose stays within 2 mm / 2 mrad
-        k = np.round(np.nan_to_num(rec.pose_meas, nan=1e9) / 2e-3)
-        return k
+        return np.round(np.nan_to_num(rec.pose_meas[:, cols], nan=1e9) / 2e-3)
     return np.arange(rec.n_samples)[:, None].astype(float)
 
 
@@ -107,7 +108,9 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
     """Number target poses: equal desired poses (0.1 mm) or, without them, measured poses
     within 5 mm / 5 mrad of each other."""
     N = len(pose_des)
-    have_des = np.isfinite(pose_des).all(axis=1)
+    cols = np.isfinite(pose_des).any(axis=0)
+    have_des = np.isfinite(pose_des[:, cols]).all(axis=1) & cols.any()
+    pose_des = np.where(cols, pose_des, 0.0)
     key = np.where(have_des[:, None], np.round(pose_des / 1e-4), np.nan)
     ids = np.full(N, -1)
     reps: list[tuple[np.ndarray, bool]] = []
@@ -116,8 +119,8 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
             if have_des[i] and is_des and np.array_equal(key[i], rep):
                 ids[i] = j
                 break
-            if (not have_des[i] and not is_des and np.isfinite(pose_meas[i]).all()
-                    and np.all(np.abs(pose_meas[i] - rep) < 5e-3)):
+            if (not have_des[i] and not is_des and np.isfinite(pose_meas[i, :3]).all()
+                    and np.all(np.nan_to_num(np.abs(pose_meas[i] - rep)) < 5e-3)):
                 ids[i] = j
                 break
         if ids[i] < 0:

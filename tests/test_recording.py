@@ -1,0 +1,103 @@
+"""Reading recordings (cdpr-recording/1): strict, with file, line and column in errors."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.recording import RecordingError, read_recording, write_recording
+from controller.robot import resolve_robot
+
+EXAMPLE = Path(__file__).parent.parent / "examples" / "paper_tables"
+
+
+@pytest.fixture()
+def rec_dir(tmp_path):
+    d = tmp_path / "rec"
+    shutil.copytree(EXAMPLE, d)
+    return d
+
+
+def error(d: Path) -> str:
+    with pytest.raises(RecordingError) as e:
+        read_recording(d)
+    return str(e.value)
+
+
+def test_write_then_read_round_trip(tmp_path):
+    robot = resolve_robot("rocaspect")
+    t = np.arange(5.0)
+    cols = {"t": t, "x_des": np.full(5, 10.0), "l_meas_11": np.linspace(10, 11, 5),
+            "tau_21": np.array([1.0, np.nan, 3.0, 4.0, 5.0]), "x_meas": np.full(5, 10.0)}
+    d = write_recording(tmp_path / "r", robot, [10.0, 8.0, 1.0, 0, 0, 0], cols,
+                        states=["init", "init", "dwell", "dwell", "dwell"])
+    rec = read_recording(d)
+    np.testing.assert_array_equal(rec.t, t)
+    np.testing.assert_array_equal(rec.l_meas[:, 0], cols["l_meas_11"])
+    assert np.isnan(rec.l_meas[:, 1]).all()
+    assert np.isnan(rec.tau[1, 2]) and rec.tau[2, 2] == 3.0
+    assert rec.state == ["init", "init", "dwell", "dwell", "dwell"]
+    assert rec.has("l_meas") and not rec.has("exit_meas")
+
+
+def test_missing_time_column(rec_dir):
+    p = rec_dir / "recording.csv"
+    p.write_text(p.read_text().replace("t,", "time,", 1))
+    assert "recording.csv:1" in error(rec_dir) and "'t'" in error(rec_dir)
+
+
+def test_non_numeric_value_names_line_and_column(rec_dir):
+    p = rec_dir / "recording.csv"
+    lines = p.read_text().splitlines()
+    fields = lines[3].split(",")
+    fields[8] = "twelve"
+    lines[3] = ",".join(fields)
+    p.write_text("\n".join(lines) + "\n")
+    msg = error(rec_dir)
+    assert "recording.csv:4" in msg and "column 9 'y_meas'" in msg and "twelve" in msg
+
+
+def test_cable_the_robot_does_not_have(rec_dir):
+    p = rec_dir / "recording.csv"
+    p.write_text(p.read_text().replace("ax_meas_42", "ax_meas_52", 1))
+    msg = error(rec_dir)
+    assert "cable '52'" in msg and "recording.csv:1" in msg
+
+
+def test_robot_with_fewer_than_six_cables_and_bad_geometry(rec_dir):
+    robot = rec_dir / "robot.toml"
+    text = robot.read_text()
+    robot.write_text(text.replace("exit = [0.0, 0.0, 3.565]", "exit = [0.0, inf, 3.565]"))
+    msg = error(rec_dir)
+    assert "robot.toml" in msg and "exit" in msg and "finite" in msg
+    cut = text[:text.index('[[cable]]  # high pulley -> +x face')]
+    robot.write_text(cut)
+    assert "at least 6 cables" in error(rec_dir)
+
+
+def test_meta_errors(rec_dir):
+    meta = rec_dir / "meta.toml"
+    text = meta.read_text()
+    meta.write_text(text.replace('format = "cdpr-recording/1"', 'format = "cdpr-recording/9"'))
+    assert "meta.toml: format" in error(rec_dir)
+    meta.write_text(text.replace("init_pose = [10.0, 8.56, 1.0, 0.0, 0.0, 0.0]",
+                                 "init_pose = [10.0, 8.56]"))
+    assert "init_pose" in error(rec_dir)
+
+
+def test_initialisation_rows_and_dwells(tmp_path):
+    robot = resolve_robot("rocaspect")
+    x = np.array([10, 10, 10, 12, 12, 12, 10.5, 10.5, 12, 12])
+    cols = {"t": np.arange(10.0), "x_des": x, "y_des": np.full(10, 8.0),
+            "z_des": np.ones(10), "x_meas": x + 1e-5}
+    rec = read_recording(write_recording(tmp_path / "r", robot, [10, 8, 1, 0, 0, 0], cols))
+    assert list(rec.init_rows) == [0, 1, 2]
+    from bench.diagnosis.samples import average_dwells
+
+    s = average_dwells(rec)
+    assert s.n == 4 and list(s.count) == [3, 3, 2, 2]
+    assert list(s.target) == [0, 1, 2, 1]  # the second visit of x = 12 is a replicate
+    assert list(s.is_init) == [True, False, False, False]
