@@ -79,7 +79,8 @@ def test_names_exactly_the_concealed_effects_and_recovers_them(diagnosed, name):
         assert rep["fitted"]["heldout_pose_rms_m"] < 1.6 * noise
         b, f = rep["baseline"], rep["fitted"]
         # the fit improves what the effect disturbs: poses, or tensions (load cells, mass)
-        assert b["pose_rms_m"] > 3 * f["pose_rms_m"] or b["tension_rms_n"] > 1.3 * f["tension_rms_n"]
+        assert (b["pose_rms_m"] > 3 * f["pose_rms_m"]
+                or b["tension_rms_n"] > 1.3 * f["tension_rms_n"])
         for e in rep["effects"]:
             assert e["evidence"]["delta_bic"] < -10
             before = e["evidence"]["heldout_pose_rms_before_m"]
