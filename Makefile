@@ -13,8 +13,14 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	@touch $(STAMP)
 
+# The main job on the simulated robot: the model, a campaign on the plant with the
+# paper's concealed effects, its blind diagnosis, then the paper's own data.
+DEMO := out/demo
 demo: $(STAMP)
-	$(VENV)/bin/cdpr model check rocaspect
+	$(VENV)/bin/cdpr model check rocaspect --plot $(DEMO)/workspace.png
+	$(VENV)/bin/cdpr campaign bench/data/paper_scenario.toml $(DEMO)/recording --force
+	$(VENV)/bin/cdpr diagnose $(DEMO)/recording --plots $(DEMO)/plots --write-model $(DEMO)/corrected.toml
+	$(VENV)/bin/cdpr diagnose examples/paper_tables --plots $(DEMO)/paper_plots
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -140,6 +140,9 @@ def _plot(report: dict, robot: Robot, path: str) -> None:
     ax.set_title(f"{robot.name}: wrench-feasible workspace at z = {grid.z} m, "
                  f"{grid.area:.1f} m² ({grid.method})")
     ax.legend(loc="upper right")
+    from pathlib import Path
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
 

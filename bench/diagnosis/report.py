@@ -352,9 +352,11 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
         parts.append(f"the model explains the data within the noise (reduced chi-square "
                      f"{red:.2f}" + (f", {what} {r * 1e3:.2f} mm RMS" if r else "") + ")")
     elif r is not None:
+        assumed = "" if rm.sigma_source == "replicate visits" else \
+            ", assumed: no replicate visits to measure it"
         parts.append(f"{what} {r * 1e3:.1f} mm RMS against a noise level of "
-                     f"{rm.sigma['length' if label == 'pose_rms_m' else 'exit'] * 1e3:.2f} mm "
-                     f"(reduced chi-square {red:.3g})")
+                     f"{rm.sigma['length' if label == 'pose_rms_m' else 'exit'] * 1e3:.2f} mm"
+                     f"{assumed} (reduced chi-square {red:.3g})")
     if growth and sel.effects and growth["near_rms"] and growth["far_rms"]:
         if growth["far_rms"] > 1.5 * growth["near_rms"]:
             parts.append(f"it grows away from the initialisation pose: "
