@@ -136,12 +136,14 @@ def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.
 
 
 def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None = None,
-                  method: str = "closed_form", tol: float = 1e-10, max_iter: int = 20
+                  method: str = "closed_form", tol: float = 1e-10, max_iter: int = 20,
+                  exits0: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, CableState, np.ndarray]:
     """:func:`pose_statics` for N poses (N,6) at once.
 
     With ``tensions`` (N,n) the exit points of all poses are iterated together
-    (vectorised); without, each pose gets its tension distribution. Returns
+    (vectorised), starting from ``exits0`` (N,n,3) when given (a warm start);
+    without, each pose gets its tension distribution. Returns
     ``(tensions (N,n), exits (N,n,3), state (stacked), feasible (N,))``.
     """
     poses = np.asarray(poses, dtype=float)
@@ -157,6 +159,8 @@ def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None =
     tau = np.asarray(tensions, dtype=float)
     a_star = settled_exits(robot)
     exits = np.broadcast_to(a_star, (N,) + a_star.shape)
+    if robot.compliant and exits0 is not None and exits0.shape == (N,) + a_star.shape:
+        exits = exits0
     st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
     if robot.compliant:
         r = lever_arms(a_star, robot.pivots, robot.mast_index)
