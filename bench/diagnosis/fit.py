@@ -73,7 +73,10 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     parameters the data need (three offset cables, not twenty-four).
     """
     full = _fit(space, rm, idx, phi0, max_nfev, hold)
-    if not prune or len(space) == 0:
+    if len(space) == 0:
+        return full
+    full.phi = space.canonical(full.phi)  # same robot, gauge removed
+    if not prune:
         return full
     weak = np.isfinite(full.stderr) & (np.abs(full.phi - space.neutral) < 2.0 * full.stderr)
     if hold is not None:
@@ -85,6 +88,7 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
         held |= hold
     pruned = _fit(space, rm, idx, full.phi, max_nfev, held)
     if pruned.bic < full.bic:
+        pruned.phi = space.canonical(pruned.phi)
         pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
         return pruned
     return full

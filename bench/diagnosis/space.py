@@ -142,13 +142,19 @@ class ParamSpace:
         out here and a common error shows as the mass (with the common gain named as its
         alternative)."""
         out: dict[str, dict[str, float]] = {e: {} for e in self.effects}
+        phi = self.canonical(phi)
         vals = np.array([p.to_value(float(v)) for p, v in zip(self.params, phi, strict=True)])
-        if len(self._gains):
-            g = np.maximum(vals[self._gains], 1e-9)
-            ref = self.neutral[self._gains]
-            vals[self._gains] = g / float(np.median(g / ref))
         for p, v in zip(self.params, vals, strict=True):
             out[p.effect][p.key] = float(v)
+        return out
+
+    def canonical(self, phi: np.ndarray) -> np.ndarray:
+        """Fit-space values with the gauge removed (load-cell gains' common mode divided out,
+        as :meth:`values` reports them); the hypothesis is the same robot."""
+        out = np.array(phi, dtype=float, copy=True)
+        if len(self._gains):
+            g = np.maximum(out[self._gains], 1e-9)
+            out[self._gains] = g / float(np.median(g / self.neutral[self._gains]))
         return out
 
     def robot(self, phi: np.ndarray) -> Robot:
