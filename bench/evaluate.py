@@ -23,9 +23,10 @@ import numpy as np
 from controller.effects import EFFECT_NAMES
 from controller.robot import resolve_robot
 
-#: effects a case may conceal (cable_sag is diagnosed only where the model supports it)
+#: effects a case may conceal
 DRAWN = ("exit_point_offset", "mast_compliance", "cable_elasticity", "cable_length_offset",
-         "drum_scale", "load_cell_calibration", "platform_mass", "pulley_kinematics")
+         "drum_scale", "load_cell_calibration", "platform_mass", "pulley_kinematics",
+         "cable_sag")
 
 
 def draw_effect(effect: str, rng: np.random.Generator, model) -> dict[str, float]:
@@ -66,6 +67,8 @@ def draw_effect(effect: str, rng: np.random.Generator, model) -> dict[str, float
     elif effect == "pulley_kinematics":
         r = float(rng.uniform(0.05, 0.12))
         out = {f"r_{c}": r for c in cids}
+    elif effect == "cable_sag":
+        out["rho"] = float(rng.uniform(0.03, 0.10))
     else:
         raise KeyError(effect)
     return out
@@ -125,6 +128,8 @@ def _param_ok(effect: str, key: str, truth: float, got: float) -> tuple[bool, st
         return abs(got - truth) <= 5e-3, "5 mm"
     if effect == "pulley_kinematics":
         return abs(got - truth) <= 0.01, "10 mm"
+    if effect == "cable_sag":
+        return abs(got - truth) <= 0.10 * truth, "10 %"
     return abs(got - truth) <= 1e-3 * max(1.0, abs(truth)), "0.1 %"
 
 

@@ -63,7 +63,7 @@ class LengthController:
             raise ValueError(f"initialisation pose {p0.tolist()} is not feasible: {ps0.reason}")
         self._u = ps0.state.u  # cable directions of the last cycle, for the mast update
         self._exits = ps0.exits
-        u0 = unstretched_lengths(ps0.state.length, ps0.tensions, robot.ea)
+        u0 = ps0.unstretched
         self._offset = reference_lengths(robot, p0) - u0
         self._last = u0 + self._offset
         self.init_tensions = ps0.tensions
@@ -72,6 +72,12 @@ class LengthController:
         """Setpoints for the desired ``pose`` (6,), exit points from ``measured_tensions`` (n,)."""
         rob = self.robot
         pose = np.asarray(pose, dtype=float)
+        if rob.rho > 0:  # sagging cables: catenaries and exit points solved together
+            ps = pose_statics(rob, pose, self.method)
+            if not ps.feasible:
+                return CycleOutput(self._last.copy(), ps.tensions, ps.exits, False, ps.reason)
+            self._last = ps.unstretched + self._offset
+            return CycleOutput(self._last.copy(), ps.tensions, ps.exits, True)
         if rob.compliant and measured_tensions is not None:
             theta = mast_rotations(rob.compliance, self._r, measured_tensions, self._u,
                                    rob.mast_index)

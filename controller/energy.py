@@ -3,16 +3,19 @@
     E = sum_j ea_j (L_j - L0_j)_+^2 / (2 L0_j)  +  m g z_G  +  sum_i theta_i^T K_i theta_i / 2
 
 (cable strain energy, slack cables store none; gravity of the platform's
-centre of mass G; mast joint springs). Its stationary points are the
-elasto-static equilibria of :mod:`controller.equilibrium` (the mast model of
-the conventions is conservative: dL/dA = u, and A# is linear in theta), its
-minima the stable ones. [J] for lengths in m, forces in N.
+centre of mass G; mast joint springs). Sagging cables (rho > 0) store the
+strain and gravity energy of their catenary instead (:mod:`controller.cables`).
+Its stationary points are the elasto-static equilibria of
+:mod:`controller.equilibrium` (the mast model of the conventions is
+conservative: dL/dA = u, and A# is linear in theta), its minima the stable ones.
+[J] for lengths in m, forces in N.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from controller import cables as cable_forces
 from controller.kinematics import cable_state
 from controller.masts import deflect
 from controller.robot import Robot
@@ -24,8 +27,8 @@ def potential_energy(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.n
     ``l0`` (n,) [m]; ``a_star`` settled exits (n,3) and ``r`` lever arms (n,3) [m]."""
     exits = deflect(a_star, r, theta, robot.mast_index) if robot.compliant else a_star
     st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
-    stretch = np.maximum(st.length - l0, 0.0)
-    cables = float(np.sum(robot.ea * stretch * stretch / (2.0 * l0)))
+    cf = cable_forces.from_lengths(robot, st, l0) if robot.rho > 0 else None
+    cables = float(np.sum(cable_forces.energy(robot, st, l0, cf)))
     z_g = float(pose[2] + (st.R @ robot.com)[2])
     k = np.where(np.isfinite(robot.stiffness), robot.stiffness, 0.0)
     masts = 0.5 * float(np.sum(k * theta * theta))

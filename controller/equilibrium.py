@@ -24,6 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 
+from controller import cables
+from controller.cables import CableForces
 from controller.energy import potential_energy
 from controller.kinematics import (
     CableState,
@@ -77,12 +79,16 @@ class EquilibriumTerms:
     taut: np.ndarray
     forces: np.ndarray  # (n,3) cable forces on the platform, tau*u
     residual: np.ndarray
+    cables: CableForces | None = None  # sagging cables' forces (rho > 0)
 
 
 def _terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
-           a_star: np.ndarray, r: np.ndarray) -> EquilibriumTerms:
+           a_star: np.ndarray, r: np.ndarray, guess: CableForces | None = None
+           ) -> EquilibriumTerms:
     exits = deflect(a_star, r, theta, robot.mast_index) if robot.compliant else a_star
     st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+    if robot.rho > 0:
+        return _terms_sag(robot, st, exits, theta, l0, r, guess)
     tau = elastic_tensions(st.length, l0, robot.ea)
     f = tau[:, None] * st.u
     wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
@@ -92,6 +98,22 @@ def _terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
     M = mast_moments(r, tau, st.u, robot.mast_index, robot.n_masts)
     F[6:] = (theta - robot.compliance * M).ravel()
     return EquilibriumTerms(st, exits, tau, st.length > l0, f, F)
+
+
+def _terms_sag(robot: Robot, st: CableState, exits: np.ndarray, theta: np.ndarray,
+               l0: np.ndarray, r: np.ndarray, guess: CableForces | None) -> EquilibriumTerms:
+    """Terms with sagging cables: catenary forces at both ends (:mod:`controller.cables`)."""
+    cf = cables.from_lengths(robot, st, l0, guess)
+    f = cf.platform
+    wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
+    F = np.empty(6 + 3 * robot.n_masts)
+    F[:3] = f.sum(axis=0) + wg[:3]
+    F[3:6] = cross(st.Rb, f).sum(axis=0) + wg[3:]
+    u_exit = cf.exit / np.maximum(cf.tension, 1e-12)[:, None]
+    M = mast_moments(r, cf.tension, u_exit, robot.mast_index, robot.n_masts)
+    F[6:] = (theta - robot.compliance * M).ravel()
+    return EquilibriumTerms(st, exits, cf.tension, np.ones(robot.n_cables, dtype=bool), f, F,
+                            cf)
 
 
 def energy_gradient(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
@@ -120,9 +142,12 @@ def _jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray) 
     n, m = robot.n_cables, robot.n_masts
     u = st.u
     # df_j = K_j (dB_j - dA_j)
-    kax = np.where(T.taut, robot.ea / l0, 0.0)
-    K = -kax[:, None, None] * (u[:, :, None] * u[:, None, :]) \
-        + tau[:, None, None] * unit_vector_derivative(st)
+    if T.cables is not None:
+        K = cables.stiffness(robot, st, T.cables)
+    else:
+        kax = np.where(T.taut, robot.ea / l0, 0.0)
+        K = -kax[:, None, None] * (u[:, :, None] * u[:, None, :]) \
+            + tau[:, None, None] * unit_vector_derivative(st)
     sRb = skew(st.Rb)
     # dB/d(t, w) = [I, -[Rb]x]  ->  K dB = [K, -K [Rb]x]
     dF_pose = np.empty((n, 3, 6))

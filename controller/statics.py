@@ -14,17 +14,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller import cables
+from controller.cables import CableForces
 from controller.kinematics import CableState, cable_state, gravity_wrench, wrench_matrix
 from controller.masts import deflect, lever_arms, mast_rotations, settle
+from controller.pose import cross
 from controller.robot import Robot
 from controller.tension import TensionResult, distribute
 
 
 @dataclass(frozen=True)
 class PoseStatics:
-    """Statics at one pose: ``tensions`` (n,) [N]; ``exits`` A# (n,3) [m];
-    ``theta`` (m,3) mast rotations [rad]; ``state`` the cable geometry with A#;
-    ``feasible``/``reason`` from the tension distribution; ``iterations``."""
+    """Statics at one pose: ``tensions`` (n,) [N] at the exit ends (what the load cells
+    read); ``exits`` A# (n,3) [m]; ``theta`` (m,3) mast rotations [rad]; ``state`` the
+    cable geometry with A#; ``unstretched`` (n,) [m] the unstretched lengths that hang the
+    platform so; ``forces`` the cable forces (sagging cables); ``feasible``/``reason``
+    from the tension distribution; ``iterations``."""
 
     tensions: np.ndarray
     exits: np.ndarray
@@ -33,6 +38,8 @@ class PoseStatics:
     feasible: bool
     reason: str
     iterations: int
+    unstretched: np.ndarray | None = None
+    forces: CableForces | None = None
 
 
 def settled_exits(robot: Robot) -> np.ndarray:
@@ -42,7 +49,8 @@ def settled_exits(robot: Robot) -> np.ndarray:
 
 def deflected_exits(robot: Robot, tensions: np.ndarray, u: np.ndarray,
                     exits_star: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """One mast update: ``(A#, theta)`` for tensions (n,) [N] and cable directions u (n,3)."""
+    """One mast update: ``(A#, theta)`` for exit tensions (n,) [N] and the directions u (n,3)
+    in which the cables leave their exit points."""
     a_star = settled_exits(robot) if exits_star is None else exits_star
     if not robot.compliant:
         return a_star, np.zeros((robot.n_masts, 3))
@@ -56,38 +64,68 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
                  max_iter: int = 50) -> PoseStatics:
     """Tensions and exit points at ``pose``, solved together.
 
-    With ``tensions`` given (e.g. measured), only the exit points are solved
-    for them; otherwise the tension distribution ``method`` computes tensions
-    that balance gravity with the current exit points, iterating until the exit
-    points move less than ``tol`` [m].
+    With ``tensions`` given (measured at the exit ends), only the exit points are
+    solved for them; otherwise the tension distribution ``method`` computes
+    tensions that balance gravity with the current exit points, iterating until
+    the exit points move less than ``tol`` [m]. Sagging cables (``rho > 0``) pull
+    the platform along their catenary's end tangents, iterated together.
     """
     pose = np.asarray(pose, dtype=float)
     a_star = settled_exits(robot)
     exits = a_star
     theta = np.zeros((robot.n_masts, 3))
+    sag = robot.rho > 0
+    dirs = None
     result: TensionResult | None = None
+    cf: CableForces | None = None
     for it in range(1, max_iter + 1):
         st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+        d = st.u if dirs is None else dirs
         if tensions is None:
-            W = wrench_matrix(st)
+            W = wrench_matrix(st) if not sag else np.vstack([d.T, cross(st.Rb, d).T])
             wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
             result = distribute(W, wg, robot.tension_min, robot.tension_max, method)
             if not result.feasible:
                 return PoseStatics(result.tensions, exits, theta, st, False, result.reason, it)
             tau = result.tensions
+            if sag:
+                cf, l0 = cables.from_platform_tensions(robot, st, tau)
         else:
             tau = np.asarray(tensions, dtype=float)
+            if sag:
+                cf, l0 = cables.from_tensions(robot, st, tau)
+        if sag:
+            new_dirs = cables.platform_directions(robot, st, cf)
+            turn = 0.0 if dirs is None else float(np.abs(new_dirs - dirs).max())
+            dirs = new_dirs
+            tau_exit, u_exit = cf.tension, cf.exit / cf.tension[:, None]
+        else:
+            turn, tau_exit, u_exit = 0.0, tau, st.u
         if not robot.compliant:
-            return PoseStatics(tau, exits, theta, st, True, "", it)
-        new_exits, theta = deflected_exits(robot, tau, st.u, a_star)
+            if not sag or (turn < 1e-12 and it > 1):
+                return _done(robot, st, exits, theta, tau_exit, cf, it)
+            continue
+        new_exits, theta = deflected_exits(robot, tau_exit, u_exit, a_star)
         step = float(np.abs(new_exits - exits).max())
         exits = new_exits
-        if step < tol:
+        if step < tol and turn < 1e-12:
             st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
-            return PoseStatics(tau, exits, theta, st, True, "", it)
+            if sag:  # forces for the final exit points
+                cf, _ = (cables.from_tensions(robot, st, tau_exit) if tensions is not None
+                         else cables.from_platform_tensions(robot, st, tau))
+            return _done(robot, st, exits, theta, tau_exit, cf, it)
     st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
     return PoseStatics(tau, exits, theta, st, False,
                        f"exit points did not settle in {max_iter} iterations", max_iter)
+
+
+def _done(robot: Robot, st: CableState, exits: np.ndarray, theta: np.ndarray,
+          tau_exit: np.ndarray, cf: CableForces | None, it: int) -> PoseStatics:
+    if cf is None:
+        l0 = unstretched_lengths(st.length, tau_exit, robot.ea)
+    else:
+        l0 = cables.from_tensions(robot, st, cf.tension)[1]
+    return PoseStatics(tau_exit, exits, theta, st, True, "", it, l0, cf)
 
 
 def unstretched_lengths(lengths: np.ndarray, tensions: np.ndarray, ea: np.ndarray) -> np.ndarray:
@@ -117,7 +155,7 @@ def init_unstretched(robot: Robot, init_pose: np.ndarray,
     ps = pose_statics(robot, np.asarray(init_pose, float), method=method, tensions=init_tensions)
     if not ps.feasible:
         raise ValueError(f"initialisation pose is not feasible under {robot.name}: {ps.reason}")
-    return unstretched_lengths(ps.state.length, ps.tensions, robot.ea), ps.tensions
+    return ps.unstretched, ps.tensions
 
 
 def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.ndarray,
@@ -137,39 +175,65 @@ def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.
 
 def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None = None,
                   method: str = "closed_form", tol: float = 1e-10, max_iter: int = 20,
-                  exits0: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, CableState, np.ndarray]:
+                  exits0: np.ndarray | None = None) -> BatchStatics:
     """:func:`pose_statics` for N poses (N,6) at once.
 
-    With ``tensions`` (N,n) the exit points of all poses are iterated together
-    (vectorised), starting from ``exits0`` (N,n,3) when given (a warm start);
-    without, each pose gets its tension distribution. Returns
-    ``(tensions (N,n), exits (N,n,3), state (stacked), feasible (N,))``.
+    With ``tensions`` (N,n) measured at the exit ends, the exit points of all poses
+    are iterated together (vectorised), starting from ``exits0`` (N,n,3) when given
+    (a warm start); without, each pose gets its tension distribution.
     """
     poses = np.asarray(poses, dtype=float)
-    N = len(poses)
+    N, n = len(poses), robot.n_cables
     if tensions is None:
-        tau = np.full((N, robot.n_cables), np.nan)
-        exits = np.empty((N, robot.n_cables, 3))
+        tau = np.full((N, n), np.nan)
+        exits = np.empty((N, n, 3))
         ok = np.zeros(N, dtype=bool)
+        l0 = np.full((N, n), np.nan)
         for i in range(N):
             ps = pose_statics(robot, poses[i], method=method)
             tau[i], exits[i], ok[i] = ps.tensions, ps.exits, ps.feasible
-        return tau, exits, cable_state(poses, robot.anchors, exits, robot.pulley_radius), ok
+            if ps.feasible:
+                l0[i] = ps.unstretched
+        st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
+        cf = cables.from_tensions(robot, st, np.nan_to_num(tau, nan=1.0))[0] \
+            if robot.rho > 0 else None
+        return BatchStatics(tau, exits, st, ok, l0, _platform_forces(st, tau, cf))
     tau = np.asarray(tensions, dtype=float)
     a_star = settled_exits(robot)
     exits = np.broadcast_to(a_star, (N,) + a_star.shape)
     if robot.compliant and exits0 is not None and exits0.shape == (N,) + a_star.shape:
         exits = exits0
     st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
+    cf, l0 = cables.from_tensions(robot, st, tau)
     if robot.compliant:
         r = lever_arms(a_star, robot.pivots, robot.mast_index)
         for _ in range(max_iter):
-            theta = mast_rotations(robot.compliance, r, tau, st.u, robot.mast_index)
+            u_exit = st.u if robot.rho <= 0 else cf.exit / cf.tension[..., None]
+            theta = mast_rotations(robot.compliance, r, tau, u_exit, robot.mast_index)
             new = deflect(a_star, r, theta, robot.mast_index)
             step = float(np.abs(new - exits).max())
             exits = new
             st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
+            cf, l0 = cables.from_tensions(robot, st, tau)
             if step < tol:
                 break
-    return tau, np.array(exits), st, np.isfinite(tau).all(axis=1)
+    return BatchStatics(tau, np.array(exits), st, np.isfinite(tau).all(axis=1), l0,
+                        _platform_forces(st, tau, cf))
+
+
+def _platform_forces(st: CableState, tau: np.ndarray, cf: CableForces | None) -> np.ndarray:
+    return cf.platform if cf is not None else tau[..., None] * st.u
+
+
+@dataclass(frozen=True)
+class BatchStatics:
+    """Statics of N poses: ``tensions`` (N,n) at the exit ends [N]; ``exits`` (N,n,3);
+    ``state`` (stacked); ``feasible`` (N,); ``unstretched`` (N,n) [m] the lengths that hang
+    the platform so; ``platform_forces`` (N,n,3) [N] the cable forces on the platform."""
+
+    tensions: np.ndarray
+    exits: np.ndarray
+    state: CableState
+    feasible: np.ndarray
+    unstretched: np.ndarray
+    platform_forces: np.ndarray

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize
 
+from controller import cables
 from controller.cycle import reference_lengths
 from controller.energy import potential_energy
 from controller.equilibrium import energy_gradient
@@ -31,7 +32,6 @@ from controller.masts import deflect, lever_arms
 from controller.pose import euler_rate_matrix, rotation
 from controller.robot import Robot
 from controller.statics import (
-    elastic_tensions,
     init_unstretched,
     settled_exits,
     unstretched_from_readings,
@@ -224,7 +224,7 @@ class Plant:
         pose, theta = self._unpack(y, pose0)
         exits = self._exits(theta)
         st = cable_state(pose, self.truth.anchors, exits, self.truth.pulley_radius)
-        tau = elastic_tensions(st.length, l0, self.truth.ea)
+        tau = cables.from_lengths(self.truth, st, l0).tension  # at the exit ends
         return PlantState(pose, tau, exits, theta, np.asarray(l0, float).copy())
 
     def _chord(self, y: np.ndarray, args: tuple, gtol: float,

@@ -35,6 +35,7 @@ CASES = {
     "load_cell_calibration.toml": {"load_cell_calibration"},
     "platform_mass.toml": {"platform_mass"},
     "pulley_kinematics.toml": {"pulley_kinematics"},
+    "cable_sag.toml": {"cable_sag"},
     "paper.toml": {"exit_point_offset", "mast_compliance"},
     "elasticity_drum.toml": {"cable_elasticity", "drum_scale"},
     "loadcell_slip.toml": {"load_cell_calibration", "cable_length_offset"},

@@ -23,7 +23,7 @@ from bench.diagnosis.samples import Samples, average_dwells
 from bench.diagnosis.select import BIC_TIE, Selection, Selector, candidate_effects
 from bench.diagnosis.space import EXPLAINS, SCALES, Param, ParamSpace
 from bench.recording import Recording, read_recording
-from controller.kinematics import gravity_wrench, wrench_matrix
+from controller.kinematics import gravity_wrench
 from controller.robot import Robot, save_robot
 from controller.statics import batch_statics
 
@@ -100,9 +100,9 @@ def wrench_rms(H: Robot, s: Samples, raw: bool) -> float | None:
     if not ok.any():
         return None
     tau = s.tau[ok] if raw else (s.tau[ok] - H.load_cell_offset) / H.load_cell_gain
-    tau, _, st, _ = batch_statics(H, s.pose_meas[ok], tau)
-    f = np.einsum("...ij,...j->...i", wrench_matrix(st), tau) \
-        + gravity_wrench(H.mass, H.com, H.gravity, st.R)
+    bs = batch_statics(H, s.pose_meas[ok], tau)
+    f = bs.platform_forces.sum(axis=-2) \
+        + gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)[..., :3]
     return _f(locate.rms(np.linalg.norm(f[:, :3], axis=1)))
 
 

@@ -27,14 +27,14 @@ import numpy as np
 from bench.diagnosis.samples import Samples, pooled_std
 from controller.cycle import reference_lengths
 from controller.forward import forward_pose
-from controller.kinematics import gravity_wrench, wrench_matrix
+from controller.kinematics import gravity_wrench
+from controller.pose import cross
 from controller.robot import Robot
 from controller.statics import (
     batch_statics,
     init_unstretched,
     true_tensions,
     unstretched_from_readings,
-    unstretched_lengths,
 )
 
 #: noise floors [m, N, N m, m] when replicates are missing or suspiciously quiet
@@ -113,15 +113,15 @@ class ResidualModel:
             tau = true_tensions(H, s.tau[sel])
             measured = self.has_tau[sel]
             if not measured.all():
-                tau_td, *_ = batch_statics(H, poses[~measured])
-                tau[~measured] = tau_td
+                tau[~measured] = batch_statics(H, poses[~measured]).tensions
             warm = self._warm_exits if self._warm_exits is not None and \
                 len(self._warm_exits) == len(sel) else None
-            tau, exits, st, good = batch_statics(H, poses, tau, exits0=warm)
+            bs = batch_statics(H, poses, tau, exits0=warm)
             if H.compliant:
-                self._warm_exits = exits
+                self._warm_exits = bs.exits
         else:
-            tau, exits, st, good = batch_statics(H, poses)
+            bs = batch_statics(H, poses)
+        tau, exits, st, good = bs.tensions, bs.exits, bs.state, bs.feasible
         ok[sel] = good
         # length residual
         try:
@@ -131,8 +131,7 @@ class ResidualModel:
             return Blocks(length, wrench, exits_err, ok)
         dl = np.where(s.t[sel, None] >= self.slip_times, H.length_offset, 0.0)
         read = unstretched_from_readings(H, s.l_meas[sel], self.reference, u0, dl)
-        need = unstretched_lengths(st.length, tau, H.ea)
-        lres = need - read
+        lres = bs.unstretched - read
         # a slack cable only says it is at least as long as the straight line
         slack = (tau < self.slack_threshold) & self.has_tau[sel][:, None]
         lres = np.where(slack, np.maximum(lres, 0.0), lres)
@@ -140,9 +139,9 @@ class ResidualModel:
         length[sel] = lres
         # wrench residual (measured tensions only)
         if self.any_tau:
-            W = wrench_matrix(st)
+            f = bs.platform_forces
             wg = gravity_wrench(H.mass, H.com, H.gravity, st.R)
-            wr = np.einsum("...ij,...j->...i", W, tau) + wg
+            wr = np.concatenate([f.sum(axis=-2), cross(st.Rb, f).sum(axis=-2)], axis=-1) + wg
             # in load-cell units: a hypothesis must not shrink the sensor noise by its gains
             wr *= float(np.exp(np.mean(np.log(H.load_cell_gain))))
             wr[~self.has_tau[sel]] = np.nan

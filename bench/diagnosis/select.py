@@ -55,6 +55,8 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
         out += ["load_cell_calibration", "platform_mass"]
     if have_len or have_exit:
         out += ["pulley_kinematics"]
+    if have_len:
+        out += ["cable_sag"]
     return out
 
 

@@ -1,0 +1,141 @@
+"""The elastic catenary (Irvine): a cable sagging under its own weight.
+
+A cable of unstretched length L0 [m], axial stiffness EA [N] and weight per
+unstretched length w = rho g [N/m] hangs from its lower end B (on the platform)
+to its upper end A (the exit point, or the point where it leaves its pulley).
+Along the cable, s in [0, L0] from B, the horizontal tension component H [N] is
+constant and the vertical one is V(s) = V_B + w s, so the cable pulls the
+platform at B with ``H e_h + V_B e_z`` (e_h: horizontal unit vector from B towards
+A) and pulls A with ``-(H e_h + V_A e_z)``, V_A = V_B + w L0. The spans are
+
+    h = H L0/EA + (H/w) [asinh(b) - asinh(a)]
+    v = (V_B L0 + w L0^2/2)/EA + (H/w) [sqrt(1+b^2) - sqrt(1+a^2)]
+
+with a = V_B/H, b = V_A/H. Functions work elementwise on arrays (any shape);
+``inv_ea`` = 1/EA (0 for an inextensible cable). Newton solutions report
+convergence per element.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def spans(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
+          w: float) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal and vertical spans (h, v) [m] of the cable for end forces (H, V_B)."""
+    a = VB / H
+    b = (VB + w * L0) / H
+    h = H * L0 * inv_ea + (H / w) * (np.arcsinh(b) - np.arcsinh(a))
+    v = (VB * L0 + 0.5 * w * L0 * L0) * inv_ea + (H / w) * (np.hypot(1.0, b) - np.hypot(1.0, a))
+    return h, v
+
+
+def flexibility(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
+                w: float) -> tuple[np.ndarray, ...]:
+    """Partial derivatives of the spans: (dh/dH, dh/dVB, dv/dH, dv/dVB, dh/dL0, dv/dL0)."""
+    a = VB / H
+    b = (VB + w * L0) / H
+    ra, rb = np.hypot(1.0, a), np.hypot(1.0, b)
+    dh_dH = L0 * inv_ea + (np.arcsinh(b) - np.arcsinh(a) - b / rb + a / ra) / w
+    dh_dV = (1.0 / rb - 1.0 / ra) / w
+    dv_dV = L0 * inv_ea + (b / rb - a / ra) / w
+    dh_dL = H * inv_ea + 1.0 / rb
+    dv_dL = (VB + w * L0) * inv_ea + b / rb
+    return dh_dH, dh_dV, dh_dV, dv_dV, dh_dL, dv_dL
+
+
+def _straight_guess(h, v, L0, inv_ea, w):
+    d = np.hypot(h, v)
+    strain = np.maximum(d / np.maximum(L0, 1e-9) - 1.0, 0.0)
+    T = np.where(inv_ea > 0, strain / np.where(inv_ea > 0, inv_ea, 1.0), 0.0)
+    T = np.maximum(T, w * L0)  # at least the weight of the cable
+    H = np.maximum(T * h / d, 1e-3 * (w * L0 + 1.0))
+    VB = T * v / d - 0.5 * w * L0
+    return H, VB
+
+
+def end_forces(h: np.ndarray, v: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray, w: float,
+               H0: np.ndarray | None = None, VB0: np.ndarray | None = None,
+               tol: float = 1e-12, max_iter: int = 60
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """End forces (H, V_B) [N] of a cable of unstretched length L0 spanning (h, v); the
+    third array says where Newton's method converged (relative span error < tol)."""
+    h, v, L0 = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (h, v, L0)))
+    inv_ea = np.broadcast_to(np.asarray(inv_ea, dtype=float), h.shape)
+    if H0 is None or VB0 is None:
+        H, VB = _straight_guess(h, v, L0, inv_ea, w)
+    else:
+        H, VB = np.array(H0, dtype=float, copy=True), np.array(VB0, dtype=float, copy=True)
+    scale = np.maximum(np.hypot(h, v), 1e-9)
+    ok = np.zeros(h.shape, dtype=bool)
+    for _ in range(max_iter):
+        hh, vv = spans(H, VB, L0, inv_ea, w)
+        eh, ev = hh - h, vv - v
+        ok = np.hypot(eh, ev) < tol * scale
+        if ok.all():
+            break
+        f11, f12, f21, f22, _, _ = flexibility(H, VB, L0, inv_ea, w)
+        det = f11 * f22 - f12 * f21
+        dH = (f22 * eh - f12 * ev) / det
+        dV = (-f21 * eh + f11 * ev) / det
+        # keep H positive: at most halve it per step
+        step = np.where(dH > 0.5 * H, 0.5 * H / np.where(dH != 0, dH, 1.0), 1.0)
+        H = H - step * dH
+        VB = VB - step * dV
+    return H, VB, ok
+
+
+def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray, w: float,
+                end: str = "A", tol: float = 1e-12, max_iter: int = 60
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Unstretched length L0 [m] and end forces (H, V_B) of the cable spanning (h, v) with
+    tension T [N] at end ``A`` (upper) or ``B`` (lower); the fourth array says where it
+    converged."""
+    h, v, T = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (h, v, T)))
+    inv_ea = np.broadcast_to(np.asarray(inv_ea, dtype=float), h.shape)
+    d = np.hypot(h, v)
+    L0 = d / (1.0 + T * inv_ea)
+    H = np.maximum(T * h / d, 1e-6)
+    VB = T * v / d - 0.5 * w * L0
+    scale = np.maximum(d, 1e-9)
+    ok = np.zeros(h.shape, dtype=bool)
+    for _ in range(max_iter):
+        hh, vv = spans(H, VB, L0, inv_ea, w)
+        V_end = VB + w * L0 if end == "A" else VB
+        r = np.stack([hh - h, vv - v, (np.hypot(H, V_end) - T) / np.maximum(T, 1e-9) * scale])
+        ok = np.abs(r).max(axis=0) < tol * scale
+        if ok.all():
+            break
+        f11, f12, f21, f22, f1L, f2L = flexibility(H, VB, L0, inv_ea, w)
+        Tn = np.maximum(np.hypot(H, V_end), 1e-12)
+        g = scale / np.maximum(T, 1e-9)
+        dT_dH, dT_dV = H / Tn * g, V_end / Tn * g
+        dT_dL = (w * V_end / Tn * g) if end == "A" else np.zeros_like(H)
+        J = np.stack([np.stack([f11, f12, f1L]), np.stack([f21, f22, f2L]),
+                      np.stack([dT_dH, dT_dV, dT_dL])])  # (3, 3, ...)
+        Jm = np.moveaxis(J, (0, 1), (-2, -1))
+        rm = np.moveaxis(r, 0, -1)[..., None]
+        dx = np.linalg.solve(Jm, rm)[..., 0]
+        dH, dV, dL = dx[..., 0], dx[..., 1], dx[..., 2]
+        step = np.where(dH > 0.5 * H, 0.5 * H / np.where(dH != 0, dH, 1.0), 1.0)
+        H, VB, L0 = H - step * dH, VB - step * dV, L0 - step * dL
+    return L0, H, VB, ok
+
+
+def energy(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray, w: float,
+           zB: np.ndarray) -> np.ndarray:
+    """Potential energy [J] of the hanging cable: strain energy plus the gravity of its own
+    weight (the lower end at height zB [m]); its derivative with respect to an end is
+    minus the force the cable exerts there."""
+    a = VB / H
+    b = (VB + w * L0) / H
+    VA = VB + w * L0
+    strain = 0.5 * inv_ea * (H * H * L0 + (VA**3 - VB**3) / (3.0 * w))
+
+    def G(u):
+        return 0.5 * (u * np.hypot(1.0, u) + np.arcsinh(u))
+
+    int_z = (VB * L0 * L0 / 2.0 + w * L0**3 / 6.0) * inv_ea \
+        + (H / w) * ((H / w) * (G(b) - G(a)) - L0 * np.hypot(1.0, a))
+    return strain + w * (zB * L0 + int_z)
