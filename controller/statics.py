@@ -68,13 +68,17 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
     solved for them; otherwise the tension distribution ``method`` computes
     tensions that balance gravity with the current exit points, iterating until
     the exit points move less than ``tol`` [m]. Sagging cables (``rho > 0``) pull
-    the platform along their catenary's end tangents, iterated together.
+    the platform along their catenary's end tangents, iterated together; there the
+    minimal-norm distribution is used (continuous in the directions, where the
+    closed form's clipping makes the iteration oscillate).
     """
     pose = np.asarray(pose, dtype=float)
     a_star = settled_exits(robot)
     exits = a_star
     theta = np.zeros((robot.n_masts, 3))
     sag = robot.rho > 0
+    if sag:
+        method = "qp"
     dirs = None
     result: TensionResult | None = None
     cf: CableForces | None = None
