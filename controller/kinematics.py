@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.pose import cross, rotation, skew
+from controller.pose import cross, rotation
 
 EZ = np.array([0.0, 0.0, 1.0])
 _NO_PLANE = np.zeros((0, 3))  # e_h placeholder when no cable has a pulley
@@ -154,12 +154,3 @@ def unit_vector_derivative(st: CableState) -> np.ndarray:
         n_plane = cross(EZ, st.e_h)  # dgamma = n_plane . db / b_h
         G[has] = perp[has][:, :, None] * n_plane[has][:, None, :] / st.b_h[has][:, None, None]
     return P @ (G - np.eye(3)[None]) / st.free[:, None, None]
-
-
-def pose_point_jacobian(Rb: np.ndarray) -> np.ndarray:
-    """dB/d(t, w) (n,3,6) for points ``B = t + Rb``: ``[I, -[Rb]x]``."""
-    n = len(Rb)
-    J = np.empty((n, 3, 6))
-    J[:, :, :3] = np.eye(3)
-    J[:, :, 3:] = -skew(Rb)
-    return J

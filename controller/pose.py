@@ -116,10 +116,3 @@ def euler_rate_matrix(rpy: np.ndarray) -> np.ndarray:
     cp, sp = np.cos(p), np.sin(p)
     cy, sy = np.cos(y), np.sin(y)
     return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
-
-
-def pose_jacobian_to_euler(J_w: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Convert a Jacobian w.r.t. ``(t, w)`` into one w.r.t. ``(t, rpy)`` (columns 3..5)."""
-    out = np.array(J_w, dtype=float, copy=True)
-    out[..., 3:6] = J_w[..., 3:6] @ euler_rate_matrix(pose[3:6])
-    return out

@@ -24,7 +24,7 @@ import numpy as np
 
 from bench.diagnosis.fit import FitResult, fd_jacobian, fit_effects
 from bench.diagnosis.residuals import ResidualModel
-from bench.diagnosis.space import ParamSpace, effect_fit_params
+from bench.diagnosis.space import ParamSpace
 
 #: BIC drop an effect must bring to enter (strong evidence)
 BIC_ENTER = 10.0
@@ -391,7 +391,3 @@ def _bounded_lstsq(J: np.ndarray, b: np.ndarray, x0: np.ndarray, lo: np.ndarray,
     res = lsq_linear(J / scale, b, bounds=((lo - x0) * scale, (hi - x0) * scale),
                      lsmr_tol="auto", method="bvls" if J.shape[1] < 60 else "trf")
     return res.x / scale
-
-
-def effect_size(effect: str, model) -> int:
-    return len(effect_fit_params(effect, model))
