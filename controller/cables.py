@@ -40,18 +40,30 @@ class CableForces:
     free: np.ndarray | None = None  # unstretched length of the sagging span [m]
 
 
-def _geometry(st: CableState) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Free span from B to C: horizontal span h, vertical span v, horizontal unit e_h and
-    the wrapped length r*beta."""
-    d = st.C - st.B
+def _geometry(st: CableState, C: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Free span from B to the leave point C (``st.C`` unless given): horizontal span h,
+    vertical span v and the horizontal unit vector e_h from B towards C."""
+    d = (st.C if C is None else C) - st.B
     h = np.hypot(d[..., 0], d[..., 1])
     safe = np.where(h > 0, h, 1.0)
     e_h = np.stack([d[..., 0] / safe, d[..., 1] / safe, np.zeros(h.shape)], axis=-1)
-    return h, d[..., 2], e_h, st.radius * st.beta
+    return h, d[..., 2], e_h
+
+
+def _leave(st: CableState, t_exit: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Leave point C and wrapped length r*beta: where the chord from B leaves the pulley
+    (the catenary's own end tangent differs by the sag angle; this approximation keeps
+    force and energy within a fraction of a percent of each other on pulleys)."""
+    return st.C, st.radius * st.beta
 
 
 def _inv_ea(robot: Robot) -> np.ndarray:
     return np.where(np.isfinite(robot.ea), 1.0 / robot.ea, 0.0)
+
+
+def _pulls(H, VB, VA, e_h):
+    return H[..., None] * e_h + VB[..., None] * EZ, H[..., None] * e_h + VA[..., None] * EZ
 
 
 def from_lengths(robot: Robot, st: CableState, l0: np.ndarray,
@@ -63,18 +75,20 @@ def from_lengths(robot: Robot, st: CableState, l0: np.ndarray,
         return CableForces(f, f, tau)
     w = robot.rho * robot.gravity
     inv = _inv_ea(robot)
-    h, v, e_h, wrap = _geometry(st)
+    pulleys = bool(np.any(st.radius > 0))
     H0 = None if guess is None or guess.H is None else guess.H
     V0 = None if guess is None or guess.VB is None else guess.VB
     T = None if guess is None else guess.tension
-    for _ in range(3 if np.any(wrap > 0) else 1):  # wrap stretched by the exit tension
+    t_exit = None
+    for _ in range(4 if pulleys else 1):  # the wrap is stretched by the exit tension
+        C, wrap = _leave(st, t_exit)
+        h, v, e_h = _geometry(st, C)
         lw = wrap / (1.0 + (0.0 if T is None else T) * inv)
         H, VB, _ = catenary.end_forces(h, v, l0 - lw, inv, w, H0, V0)
-        T = np.hypot(H, VB + w * (l0 - lw))
+        VA = VB + w * (l0 - lw)
+        T = np.hypot(H, VA)
         H0, V0 = H, VB
-    VA = VB + w * (l0 - lw)
-    fB = H[..., None] * e_h + VB[..., None] * EZ
-    fA = H[..., None] * e_h + VA[..., None] * EZ
+        fB, fA = _pulls(H, VB, VA, e_h)
     return CableForces(fB, fA, T, H, VB, l0 - lw)
 
 
@@ -85,17 +99,7 @@ def from_tensions(robot: Robot, st: CableState, tension: np.ndarray
     if robot.rho <= 0:
         f = tension[..., None] * st.u
         return CableForces(f, f, tension), st.length / (1.0 + tension / robot.ea)
-    w = robot.rho * robot.gravity
-    inv = _inv_ea(robot)
-    h, v, e_h, wrap = _geometry(st)
-    # a hanging cable holds at least its own weight at the top (slack readings are noise)
-    tension = np.maximum(np.asarray(tension, dtype=float), 1.05 * w * np.hypot(h, v) + 0.1)
-    lf, H, VB, _ = catenary.unstretched(h, v, tension, inv, w, end="A")
-    VA = VB + w * lf
-    fB = H[..., None] * e_h + VB[..., None] * EZ
-    fA = H[..., None] * e_h + VA[..., None] * EZ
-    return CableForces(fB, fA, np.asarray(tension, float), H, VB, lf), \
-        lf + wrap / (1.0 + tension * inv)
+    return _inverse(robot, st, tension, "A")
 
 
 def from_platform_tensions(robot: Robot, st: CableState, tension_b: np.ndarray
@@ -104,14 +108,25 @@ def from_platform_tensions(robot: Robot, st: CableState, tension_b: np.ndarray
     distribution computes): forces, and unstretched lengths [m]."""
     if robot.rho <= 0:
         return from_tensions(robot, st, tension_b)
+    return _inverse(robot, st, tension_b, "B")
+
+
+def _inverse(robot: Robot, st: CableState, tension: np.ndarray, end: str
+             ) -> tuple[CableForces, np.ndarray]:
     w = robot.rho * robot.gravity
     inv = _inv_ea(robot)
-    h, v, e_h, wrap = _geometry(st)
-    lf, H, VB, _ = catenary.unstretched(h, v, tension_b, inv, w, end="B")
+    tension = np.asarray(tension, dtype=float)
+    if end == "A":
+        # the top of a hanging cable pulls harder than its bottom by w times the height
+        # between them (slack readings below that are noise)
+        rise = np.maximum((st.C - st.B)[..., 2], 0.0)
+        tension = np.maximum(tension, 1.02 * w * rise + 0.1)
+    C, wrap = _leave(st, None)
+    h, v, e_h = _geometry(st, C)
+    lf, H, VB, _ = catenary.unstretched(h, v, tension, inv, w, end=end)
     VA = VB + w * lf
     TA = np.hypot(H, VA)
-    fB = H[..., None] * e_h + VB[..., None] * EZ
-    fA = H[..., None] * e_h + VA[..., None] * EZ
+    fB, fA = _pulls(H, VB, VA, e_h)
     return CableForces(fB, fA, TA, H, VB, lf), lf + wrap / (1.0 + TA * inv)
 
 
@@ -129,7 +144,7 @@ def stiffness(robot: Robot, st: CableState, cf: CableForces) -> np.ndarray:
     leave point moves with the exit point."""
     w = robot.rho * robot.gravity
     inv = _inv_ea(robot)
-    h, v, e_h, wrap = _geometry(st)
+    h, v, e_h = _geometry(st)
     H, VB = cf.H, cf.VB
     f11, f12, f21, f22, _, _ = catenary.flexibility(H, VB, cf.free, inv, w)
     det = f11 * f22 - f12 * f21
@@ -151,7 +166,6 @@ def energy(robot: Robot, st: CableState, l0: np.ndarray, cf: CableForces) -> np.
         stretch = np.maximum(st.length - l0, 0.0)
         return np.where(np.isfinite(robot.ea), robot.ea * stretch * stretch / (2.0 * l0), 0.0)
     w = robot.rho * robot.gravity
-    h, v, e_h, wrap = _geometry(st)
     T = cf.tension
     lw = l0 - cf.free
     span = catenary.energy(cf.H, cf.VB, cf.free, inv, w, st.B[..., 2])

@@ -20,7 +20,7 @@ from controller.kinematics import CableState, cable_state, gravity_wrench, wrenc
 from controller.masts import deflect, lever_arms, mast_rotations, settle
 from controller.pose import cross
 from controller.robot import Robot
-from controller.tension import TensionResult, distribute
+from controller.tension import TensionResult, closed_form, distribute
 
 
 @dataclass(frozen=True)
@@ -68,18 +68,24 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
     solved for them; otherwise the tension distribution ``method`` computes
     tensions that balance gravity with the current exit points, iterating until
     the exit points move less than ``tol`` [m]. Sagging cables (``rho > 0``) pull
-    the platform along their catenary's end tangents, iterated together; there the
-    minimal-norm distribution is used (continuous in the directions, where the
-    closed form's clipping makes the iteration oscillate).
+    the platform along their catenary's end tangents, iterated together; the
+    tensions stay closest to the distribution the straight cables would have
+    (otherwise the internal forces drift from one iteration to the next).
     """
     pose = np.asarray(pose, dtype=float)
     a_star = settled_exits(robot)
     exits = a_star
     theta = np.zeros((robot.n_masts, 3))
     sag = robot.rho > 0
-    if sag:
-        method = "qp"
+    if sag:  # slack-ish heavy cables contract slowly; 1e-9 of direction is 1e-7 of force
+        max_iter = max(max_iter, 400)
+    turn_tol = 1e-9
+    tmin = robot.tension_min
+    if sag:  # keep every cable above its own weight, or its end would swing down
+        d0 = cable_state(pose, robot.anchors, a_star, robot.pulley_radius).length
+        tmin = max(tmin, robot.rho * robot.gravity * float(d0.max()))
     dirs = None
+    target = None  # sagging cables: tensions closest to the straight cables' distribution
     result: TensionResult | None = None
     cf: CableForces | None = None
     for it in range(1, max_iter + 1):
@@ -88,7 +94,15 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
         if tensions is None:
             W = wrench_matrix(st) if not sag else np.vstack([d.T, cross(st.Rb, d).T])
             wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
-            result = distribute(W, wg, robot.tension_min, robot.tension_max, method)
+            if target is None:
+                result = distribute(W, wg, tmin, robot.tension_max, method)
+                if sag and result.feasible:
+                    target = result.tensions
+            else:
+                # the straight cables' internal forces anchor the iteration of directions
+                result = closed_form(W, -wg, tmin, robot.tension_max, target)
+                if not result.feasible:
+                    result = distribute(W, wg, tmin, robot.tension_max, "qp")
             if not result.feasible:
                 return PoseStatics(result.tensions, exits, theta, st, False, result.reason, it)
             tau = result.tensions
@@ -101,18 +115,21 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
         if sag:
             new_dirs = cables.platform_directions(robot, st, cf)
             turn = 0.0 if dirs is None else float(np.abs(new_dirs - dirs).max())
+            if dirs is not None and it > 8:  # damped: clipping can make it cycle
+                new_dirs = 0.5 * (new_dirs + dirs)
+                new_dirs /= np.linalg.norm(new_dirs, axis=1, keepdims=True)
             dirs = new_dirs
             tau_exit, u_exit = cf.tension, cf.exit / cf.tension[:, None]
         else:
             turn, tau_exit, u_exit = 0.0, tau, st.u
         if not robot.compliant:
-            if not sag or (turn < 1e-12 and it > 1):
+            if not sag or (turn < turn_tol and it > 1):
                 return _done(robot, st, exits, theta, tau_exit, cf, it)
             continue
         new_exits, theta = deflected_exits(robot, tau_exit, u_exit, a_star)
         step = float(np.abs(new_exits - exits).max())
         exits = new_exits
-        if step < tol and turn < 1e-12:
+        if step < tol and turn < turn_tol:
             st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
             if sag:  # forces for the final exit points
                 cf, _ = (cables.from_tensions(robot, st, tau_exit) if tensions is not None

@@ -59,8 +59,10 @@ def _check(W: np.ndarray, f: np.ndarray, tau: np.ndarray, tmin: float, tmax: flo
     return TensionResult(tau, True, "", res, it)
 
 
-def closed_form(W: np.ndarray, f: np.ndarray, tmin: float, tmax: float) -> TensionResult:
-    """Improved closed-form tension distribution (Pott 2014), ``W tau = f``."""
+def closed_form(W: np.ndarray, f: np.ndarray, tmin: float, tmax: float,
+                target: np.ndarray | None = None) -> TensionResult:
+    """Improved closed-form tension distribution (Pott 2014), ``W tau = f``: the tensions
+    closest to the middle of the range, or to ``target`` (n,) when given."""
     m, n = W.shape
     if not (np.isfinite(W).all() and np.isfinite(f).all()):
         return _fail(n, "closed-form: non-finite wrench matrix or wrench")
@@ -68,7 +70,7 @@ def closed_form(W: np.ndarray, f: np.ndarray, tmin: float, tmax: float) -> Tensi
     free = np.ones(n, dtype=bool)
     idx_free = np.arange(n)
     rhs = np.asarray(f, dtype=float)
-    tm = 0.5 * (tmin + tmax)
+    tm = np.full(n, 0.5 * (tmin + tmax)) if target is None else np.asarray(target, float)
     tol = _tolerance(f, tmax)
     Wf = W
     for it in range(1, n + 1):
@@ -77,12 +79,13 @@ def closed_form(W: np.ndarray, f: np.ndarray, tmin: float, tmax: float) -> Tensi
             return _fail(n, f"closed-form: {n - k} cables at their limits leave {k} < {m} "
                          f"to balance the wrench (outside the wrench-feasible workspace)", it)
         # minimal-norm correction around the middle tension, Cholesky on W W^T (SPD if rank m)
-        _, y, info = dposv(Wf @ Wf.T, rhs - tm * Wf.sum(axis=1))
+        tf = tm[idx_free]
+        _, y, info = dposv(Wf @ Wf.T, rhs - Wf @ tf)
         if info != 0:
             return _fail(n, "closed-form: the remaining cables cannot balance the wrench "
                          "(wrench matrix rank-deficient)", it)
         sol = y @ Wf
-        sol += tm
+        sol += tf
         lo_v = sol.min()
         hi_v = sol.max()
         if lo_v >= tmin - tol and hi_v <= tmax + tol:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.diagnosis.samples import Samples, pooled_std
+from controller import cables
 from controller.cycle import reference_lengths
 from controller.forward import forward_pose
 from controller.kinematics import gravity_wrench
@@ -52,6 +53,7 @@ class Blocks:
     wrench: np.ndarray
     exit: np.ndarray
     ok: np.ndarray
+    length_extra_sd: np.ndarray | None = None  # (N,n) load-cell noise carried into lengths
 
 
 @dataclass
@@ -96,6 +98,7 @@ class ResidualModel:
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
         tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
         self.slack_threshold = max(1.0, 4.0 * tau_noise)
+        self.tau_noise = tau_noise / np.sqrt(np.maximum(s.count, 1))  # per dwell sample [N]
 
     # ----- inverse residuals --------------------------------------------------------
     def blocks(self, H: Robot) -> Blocks:
@@ -132,6 +135,15 @@ class ResidualModel:
         dl = np.where(s.t[sel, None] >= self.slip_times, H.length_offset, 0.0)
         read = unstretched_from_readings(H, s.l_meas[sel], self.reference, u0, dl)
         lres = bs.unstretched - read
+        extra = None
+        if H.rho > 0 and self.any_tau:
+            # a sagging cable's length hangs on its tension (more so the slacker it is): the
+            # load cells' noise carries into its length residual
+            dT = 0.5
+            l_up = cables.from_tensions(H, st, tau + dT)[1]
+            sens = np.abs(l_up - bs.unstretched) / dT  # m/N
+            extra = np.full((N, n), 0.0)
+            extra[sel] = sens * self.tau_noise[sel][:, None]
         # a slack cable only says it is at least as long as the straight line
         slack = (tau < self.slack_threshold) & self.has_tau[sel][:, None]
         lres = np.where(slack, np.maximum(lres, 0.0), lres)
@@ -151,7 +163,7 @@ class ResidualModel:
             e = exits - s.exit_meas[sel]
             e[~self.has_exit[sel]] = np.nan
             exits_err[sel] = e
-        return Blocks(length, wrench, exits_err, ok)
+        return Blocks(length, wrench, exits_err, ok, extra)
 
     # ----- noise ----------------------------------------------------------------------
     def estimate_noise(self, H: Robot) -> dict[str, float]:
@@ -187,7 +199,12 @@ class ResidualModel:
     def whiten(self, b: Blocks, idx: np.ndarray | None = None) -> np.ndarray:
         sl = slice(None) if idx is None else idx
         sg = self.sigma
-        parts = [self._mask(b.length[sl], self.has_len[sl][:, None]) / sg["length"]]
+        present = self.has_len[sl][:, None]
+        if b.length_extra_sd is None:
+            parts = [self._mask(b.length[sl], present) / sg["length"]]
+        else:
+            sd = np.sqrt(sg["length"] ** 2 + b.length_extra_sd[sl] ** 2)
+            parts = [self._mask(b.length[sl] / sd, present)]
         if self.any_tau:
             m = self.has_tau[sl] & self.has_pose[sl]
             parts.append(self._mask(b.wrench[sl][:, :3], m[:, None]) / sg["force"])
