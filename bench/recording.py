@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ import numpy as np
 import tomli_w
 
 from controller.robot import Robot, RobotFileError, dumps_robot, load_robot
+from controller.tomlfile import read_toml
 
 FORMAT = "cdpr-recording/1"
 POSE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -101,14 +101,7 @@ def read_recording(path: str | Path) -> Recording:
     """Read and validate a recording directory."""
     d = Path(path)
     meta_path = d / "meta.toml"
-    try:
-        meta_text = meta_path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise RecordingError(f"{meta_path}: cannot read: {e.strerror or e}") from e
-    try:
-        meta = tomllib.loads(meta_text)
-    except tomllib.TOMLDecodeError as e:
-        raise RecordingError(f"{meta_path}: not valid TOML: {e}") from e
+    meta, _ = read_toml(meta_path, RecordingError)
     if meta.get("format") != FORMAT:
         raise RecordingError(f"{meta_path}: format: expected {FORMAT!r}, got "
                              f"{meta.get('format')!r}")

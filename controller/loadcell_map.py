@@ -20,12 +20,13 @@ register   content
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from controller.tomlfile import read_toml
 
 #: Cable ids in array order (cdpr-conventions.md).
 CABLE_IDS: tuple[str, ...] = ("11", "12", "21", "22", "31", "32", "41", "42")
@@ -278,12 +279,5 @@ def parse_register_map(data: dict[str, Any], source: str = "<memory>") -> Regist
 def load_register_map(path: str | Path) -> RegisterMap:
     """Read a register map TOML file (errors name the file, line or field)."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RegisterMapError(f"{p}: cannot read: {exc}") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:  # message carries "(at line L, column C)"
-        raise RegisterMapError(f"{p}: {exc}") from exc
+    data, _ = read_toml(p, RegisterMapError)
     return parse_register_map(data, str(p))

@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from controller.tomlfile import read_toml
+
 
 class RobotFileError(ValueError):
     """An invalid robot description; the message names file, line and field."""
@@ -361,16 +363,8 @@ def parse_robot(data: dict[str, Any], path: str = "<memory>", text: str = "") ->
 
 def load_robot(path: str | Path) -> Robot:
     """Read and validate a robot.toml file."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise RobotFileError(f"{p}: cannot read: {e.strerror or e}") from e
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise RobotFileError(f"{p}: not valid TOML: {e}") from e
-    return parse_robot(data, str(p), text)
+    data, text = read_toml(path, RobotFileError)
+    return parse_robot(data, str(Path(path)), text)
 
 
 SHIPPED = {

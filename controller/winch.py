@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from controller.tomlfile import read_toml
 
 #: Cable ids in array order (cdpr-conventions.md).
 CABLE_IDS: tuple[str, ...] = ("11", "12", "21", "22", "31", "32", "41", "42")
@@ -370,14 +371,7 @@ def parse_winches(doc: dict[str, Any], source: str = "<memory>") -> WinchSet:
 def load_winches(path: str | Path | None = None) -> WinchSet:
     """Load winch parameters from a TOML file (default: the ROCASPECT file)."""
     p = Path(path) if path is not None else DEFAULT_WINCHES
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise WinchConfigError(f"{p}: cannot read winch parameters: {exc}") from exc
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise WinchConfigError(f"{p}: TOML syntax error: {exc}") from exc
+    doc, _ = read_toml(p, WinchConfigError)
     return parse_winches(doc, source=str(p))
 
 
