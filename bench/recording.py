@@ -3,14 +3,18 @@
 A recording is a directory with ``meta.toml``, ``robot.toml`` (the model the
 controller ran with) and ``recording.csv``. :func:`read_recording` validates it
 and returns arrays ordered as the robot's cables; errors name the file, the
-line and the column. :func:`write_recording` writes one.
+line and the column. :func:`write_recording` writes one; :class:`RecordingWriter`
+streams one while a run goes.
 """
 
 from __future__ import annotations
 
 import csv
 import math
+import os
 import re
+import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -227,28 +231,173 @@ def _init_rows(rec: Recording) -> np.ndarray:
     return np.flatnonzero(rec.t < t_leave)
 
 
-def write_recording(path: str | Path, robot: Robot, init_pose: np.ndarray,
-                    columns: dict[str, np.ndarray], meta: dict[str, Any] | None = None,
-                    robot_header: str = "", states: list[str] | None = None) -> Path:
-    """Write a recording directory: ``columns`` maps column names (``t`` first) to (N,) arrays."""
-    d = Path(path)
+def write_header_files(d: Path, robot: Robot, init_pose: np.ndarray,
+                       meta: dict[str, Any] | None = None, robot_header: str = "") -> dict:
+    """Write ``meta.toml`` and ``robot.toml`` of a recording directory ``d``; the meta."""
     d.mkdir(parents=True, exist_ok=True)
     m = {"format": FORMAT, "robot": "robot.toml", "samples": "recording.csv",
          "init_pose": [float(v) for v in init_pose], "pose_source": "laser tracker",
          "tension_source": "load cells"}
     m.update(meta or {})
-    (d / "meta.toml").write_text(tomli_w.dumps(m), encoding="utf-8")
-    (d / "robot.toml").write_text(dumps_robot(robot, robot_header), encoding="utf-8")
+    _write_atomic(d / "robot.toml", dumps_robot(robot, robot_header))
+    _write_atomic(d / "meta.toml", tomli_w.dumps(m))
+    return m
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _cell(v: float) -> str:
+    return repr(float(v)) if math.isfinite(v) else "nan"
+
+
+class CsvStream:
+    """A CSV file written while a run goes: rows are queued by :meth:`append` (cheap, never
+    blocks on the disk) and written by a background thread at least every ``flush_s``
+    seconds, in small chunks so that a real-time loop in the same process keeps the
+    interpreter; :meth:`close` writes the rest. After a crash the file holds every row up
+    to the last flush, each row whole."""
+
+    def __init__(self, path: Path, header: list[str], flush_s: float = 1.0) -> None:
+        self.path = path
+        self.flush_s = float(flush_s)
+        self.rows = 0  #: rows written to the file so far
+        self._f = path.open("w", newline="", encoding="utf-8")
+        self._f.write(",".join(header) + "\n")
+        self._f.flush()
+        self._queue: list[tuple] = []
+        self._appended = 0
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._closed = False
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=f"csv-{path.name}", daemon=True)
+        self._thread.start()
+
+    def append(self, row: tuple) -> None:
+        """Queue one row (already in column order: numbers, or strings kept as they are)."""
+        if self._error is not None:
+            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
+        with self._lock:
+            self._queue.append(row)
+            self._appended += 1
+
+    def _take(self) -> list[tuple]:
+        with self._lock:
+            rows, self._queue = self._queue, []
+        return rows
+
+    def _write(self, rows: list[tuple], chunk: int = 25) -> None:
+        f = self._f
+        for i in range(0, len(rows), chunk):
+            lines = []
+            for row in rows[i:i + chunk]:
+                lines.append(",".join(v if isinstance(v, str) else _cell(v) for v in row))
+            f.write("\n".join(lines) + "\n")
+            time.sleep(0)  # let a real-time loop run between chunks
+        f.flush()
+        self.rows += len(rows)
+
+    def _run(self) -> None:
+        while not self._closed:
+            self._wake.wait(self.flush_s)
+            self._wake.clear()
+            try:
+                self._write(self._take())
+            except BaseException as e:  # disk full, ...: reported by append() and close()
+                self._error = e
+                return
+
+    def flush(self) -> None:
+        """Write what is queued now (blocks until it is on disk or the writer failed)."""
+        target = self._appended
+        self._wake.set()
+        while self.rows < target and self._thread.is_alive():
+            time.sleep(0.002)
+        if self._error is not None:
+            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
+
+    def close(self) -> None:
+        """Write the rest and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._wake.set()
+        self._thread.join()
+        try:
+            if self._error is None:
+                self._write(self._take())
+        finally:
+            self._f.close()
+        if self._error is not None:
+            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
+
+
+class RecordingWriter:
+    """A ``cdpr-recording/1`` directory written while the run goes.
+
+    ``meta.toml`` and ``robot.toml`` first, then ``recording.csv`` with the header
+    ``columns`` (``t`` first) and, when ``states``, a ``state`` column; rows are appended
+    with :meth:`append` and flushed at least every ``flush_s`` seconds (wall clock) by a
+    background thread, so that after a crash or Ctrl-C the directory is a valid recording
+    up to the last flushed row. Memory stays bounded by one flush interval of rows.
+    :meth:`update_meta` rewrites ``meta.toml`` atomically (e.g. notes at the end).
+    """
+
+    def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray,
+                 columns: list[str], meta: dict[str, Any] | None = None,
+                 robot_header: str = "", states: bool = True, flush_s: float = 1.0) -> None:
+        if not columns or columns[0] != "t":
+            raise ValueError("the first column must be 't'")
+        self.path = Path(path)
+        self.columns = list(columns)
+        self.states = states
+        self.meta = write_header_files(self.path, robot, init_pose, meta, robot_header)
+        header = self.columns + (["state"] if states else [])
+        self._csv = CsvStream(self.path / "recording.csv", header, flush_s)
+
+    @property
+    def rows(self) -> int:
+        """Rows written to disk so far."""
+        return self._csv.rows
+
+    def append(self, values: np.ndarray | list[float], state: str | None = None) -> None:
+        """One row: ``values`` in column order; ``state`` when the recording has the column."""
+        row = tuple(float(v) for v in values)
+        if len(row) != len(self.columns):
+            raise ValueError(f"{len(row)} values for {len(self.columns)} columns")
+        self._csv.append(row + ((state or "",) if self.states else ()))
+
+    def update_meta(self, **fields: Any) -> None:
+        self.meta.update(fields)
+        _write_atomic(self.path / "meta.toml", tomli_w.dumps(self.meta))
+
+    def flush(self) -> None:
+        self._csv.flush()
+
+    def close(self) -> None:
+        self._csv.close()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_recording(path: str | Path, robot: Robot, init_pose: np.ndarray,
+                    columns: dict[str, np.ndarray], meta: dict[str, Any] | None = None,
+                    robot_header: str = "", states: list[str] | None = None) -> Path:
+    """Write a recording directory: ``columns`` maps column names (``t`` first) to (N,) arrays."""
     names = list(columns)
-    if names[0] != "t":
+    if not names or names[0] != "t":
         raise ValueError("the first column must be 't'")
-    arrays = [np.asarray(columns[k], dtype=float) for k in names]
-    with (d / "recording.csv").open("w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(names + (["state"] if states is not None else []))
-        for i in range(len(arrays[0])):
-            row = ["nan" if not math.isfinite(a[i]) else repr(float(a[i])) for a in arrays]
-            if states is not None:
-                row.append(states[i])
-            w.writerow(row)
-    return d
+    arrays = np.column_stack([np.asarray(columns[k], dtype=float) for k in names])
+    with RecordingWriter(path, robot, init_pose, names, meta, robot_header,
+                         states=states is not None, flush_s=3600.0) as w:
+        for i, row in enumerate(arrays):
+            w.append(row, states[i] if states is not None else None)
+    return Path(path)

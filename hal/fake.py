@@ -7,7 +7,8 @@ tests. Each :meth:`~FakeHardware.write_lengths` is one control cycle of ``period
 - winches: a first-order lag (time constant ``lag_time_constant_s``) toward the setpoint,
   saturated at ``max_speed_m_s``, only while Operation Enabled; a CiA 402 state per drive
   (start-up -> Switch On Disabled, enable -> Operation Enabled, quick stop -> Quick Stop
-  Active -> Switch On Disabled, fault -> Fault, fault reset -> Ready To Switch On);
+  Active, holding (0x605A options 5-8) or then Switch On Disabled (0-4), fault -> Fault,
+  fault reset -> Ready To Switch On);
 - load cells: every ``tension_period_s`` a new sample of ``plant(lengths_m, t_s)`` (the
   tensions the cells measure [N]; e.g. a simulated plant settling for the cable lengths;
   called again only when the lengths changed) or of the constant ``tensions_N``; the
@@ -240,7 +241,7 @@ class FakeHardware(WinchHardware):
     def write_lengths(self, lengths_m: np.ndarray | None) -> None:
         w = self.winches
         if lengths_m is not None:
-            x = np.asarray(lengths_m, dtype=float)
+            x = self._to_drive(lengths_m)
             if x.shape != (self.n,):
                 raise ValueError(f"set_lengths: expected shape ({self.n},), got {x.shape}")
             bad = ~np.isfinite(x) | (x < w.min_length_m) | (x > w.max_length_m)
@@ -260,8 +261,9 @@ class FakeHardware(WinchHardware):
         if not self.started:
             return
         w = self.winches
-        # quick stop: stop now, then Switch On Disabled (0x605A option 2)
-        qs = self.states == S.QUICK_STOP_ACTIVE
+        # quick stop: stop now, then hold in Quick Stop Active (0x605A options 5-8) or
+        # drop to Switch On Disabled (options 0-4), as the winch file configures
+        qs = (self.states == S.QUICK_STOP_ACTIVE) & (w.quick_stop_option < 5)
         self.states[qs] = S.SWITCH_ON_DISABLED
         moving = self.states == S.OPERATION_ENABLED
         alpha = 1.0 - np.exp(-dt / np.maximum(self.tau, 1e-9))
@@ -349,8 +351,11 @@ class FakeHardware(WinchHardware):
         r = self._tension_reading()
         self._tracker.update(r, self.t, self.cycle)
         faults = self._drive_faults() + loadcell_faults(r)
-        return Readings(self.t, self.cycle, self.cables, self.pos.copy(), self.states.copy(),
-                        r.values_N, r.age_s, r.status, tuple(faults))
+        return Readings(self.t, self.cycle, self.cables, self._to_model(self.pos.copy()),
+                        self.states.copy(), r.values_N, r.age_s, r.status, tuple(faults))
+
+    def _raw_lengths(self) -> np.ndarray:
+        return self.pos.copy()
 
     def faults(self) -> list[HardwareFault]:
         return self._drive_faults() + loadcell_faults(self._tension_reading())

@@ -201,6 +201,7 @@ class WinchHardware(ABC):
     """The one hardware interface of the controller (see the module docstring)."""
 
     cables: tuple[str, ...]
+    winches: WinchSet  #: the winch parameters (limits, windows, bus timing)
     node_ids: tuple[int, ...]  #: CAN node id per winch
     unit_ids: tuple[int, ...]  #: Modbus unit id of the load cell per cable
     period_s: float  #: control cycle = SYNC period [s]
@@ -208,6 +209,44 @@ class WinchHardware(ABC):
     @property
     def n(self) -> int:
         return len(self.cables)
+
+    # ---- referencing (the paper's initialisation, Fig. 4d) ------------------------------
+    _ref_offset: np.ndarray | None = None
+
+    @property
+    def reference_offset_m(self) -> np.ndarray:
+        """Per-winch offset [m] added to every length read and subtracted from every
+        setpoint (zeros until :meth:`reference`)."""
+        return np.zeros(self.n) if self._ref_offset is None else self._ref_offset.copy()
+
+    def reference(self, lengths_m: np.ndarray) -> np.ndarray:
+        """Referencing: from now on the drives' latest positions (the last :meth:`read`)
+        read as the cable lengths ``lengths_m`` (n,) [m], e.g. the model's lengths at the
+        measured initialisation pose. A per-winch offset in the HAL, added to the lengths
+        read and subtracted from the setpoints; the drives are not changed (commissioning
+        homes them by setting their position instead). Returns the offsets [m]."""
+        target = np.asarray(lengths_m, dtype=float)
+        if target.shape != (self.n,) or not np.all(np.isfinite(target)):
+            raise ValueError(f"reference: expected {self.n} finite lengths [m], got "
+                             f"{np.asarray(lengths_m).tolist()}")
+        raw = self._raw_lengths()
+        if not np.all(np.isfinite(raw)):
+            bad = [self.cables[k] for k in np.flatnonzero(~np.isfinite(raw))]
+            raise ValueError(f"reference: no position read yet from the winches of cables "
+                             f"{', '.join(bad)}")
+        self._ref_offset = target - raw
+        return self._ref_offset.copy()
+
+    def _to_model(self, raw_m: np.ndarray) -> np.ndarray:
+        return raw_m if self._ref_offset is None else raw_m + self._ref_offset
+
+    def _to_drive(self, lengths_m: np.ndarray) -> np.ndarray:
+        x = np.asarray(lengths_m, dtype=float)
+        return x if self._ref_offset is None else x - self._ref_offset
+
+    @abstractmethod
+    def _raw_lengths(self) -> np.ndarray:
+        """The drives' latest lengths [m] without the referencing offset."""
 
     # ---- blocking, outside the cycle ------------------------------------------------
     @abstractmethod
@@ -313,6 +352,7 @@ class CanModbusHardware(WinchHardware):
         self.cells = cells
         self.poll = poll
         w = drives.winches
+        self.winches = w
         self.cables = tuple(w.cables)
         self.node_ids = tuple(drives.node_ids)
         if cells is not None:
@@ -392,13 +432,16 @@ class CanModbusHardware(WinchHardware):
             tensions = np.full(self.n, np.nan)
             age = np.full(self.n, np.inf)
             status = np.full(self.n, int(CableStatus.NO_DATA), np.int8)
-        return Readings(d.now(), d.cycle, self.cables, d.lengths_m(), d.states(), tensions,
-                        age, status, tuple(faults))
+        return Readings(d.now(), d.cycle, self.cables, self._to_model(d.lengths_m()),
+                        d.states(), tensions, age, status, tuple(faults))
+
+    def _raw_lengths(self) -> np.ndarray:
+        return self.drives.lengths_m()
 
     def write_lengths(self, lengths_m: np.ndarray | None) -> None:
         d = self.drives
         if lengths_m is not None:
-            d.set_lengths(lengths_m)  # validates first: raises with nothing changed
+            d.set_lengths(self._to_drive(lengths_m))  # validates first: raises, nothing changed
         if self._owes_receive:
             d.receive()  # the state machine acts on the latest states
         d.transmit()

@@ -385,8 +385,11 @@ def test_quick_stop_holds_and_disables(enabled):
     hw = enabled.hw
     l0 = hw.read().lengths_m
     hw.quick_stop()
-    r = _until(hw, lambda r: np.all(r.states == DriveState.SWITCH_ON_DISABLED), 40)
-    assert np.all(r.states == DriveState.SWITCH_ON_DISABLED)
+    # 0x605A options 5-8 end holding in Quick Stop Active, 0-4 in Switch On Disabled
+    end = (DriveState.QUICK_STOP_ACTIVE if hw.winches.quick_stop_option[0] >= 5
+           else DriveState.SWITCH_ON_DISABLED)
+    r = _until(hw, lambda r: np.all(r.states == end), 40)
+    assert np.all(r.states == end)
     np.testing.assert_allclose(r.lengths_m, l0, atol=COUNT_M)
     assert r.faults == ()
     hw.enable()
@@ -462,3 +465,36 @@ def test_without_load_cells_tensions_are_missing_not_faults():
             hw.close()
     finally:
         rig.close()
+
+
+# ---------------------------------------------------------------------------- referencing
+
+
+def test_referencing_maps_positions_to_model_lengths(enabled):
+    """After reference(), the drives' positions read as the given lengths, setpoints are
+    taken in that reference (the platform does not move), and a move is followed there."""
+    hw = enabled.hw
+    raw = hw.read().lengths_m
+    model = raw + np.linspace(-0.1, 0.1, hw.n)  # e.g. another robot.toml's d_model(p0)
+    off = hw.reference(model)
+    np.testing.assert_allclose(off, model - raw)
+    np.testing.assert_allclose(hw.reference_offset_m, off)
+    r = hw.read()
+    np.testing.assert_allclose(r.lengths_m, model, atol=COUNT_M)
+    for _ in range(10):  # holding the referenced lengths: nothing moves, nothing faults
+        r = hw.step(model)
+    np.testing.assert_allclose(r.lengths_m, model, atol=2 * COUNT_M)
+    assert r.all_enabled and r.faults == ()
+    amp = np.full(hw.n, 0.01)
+    cmd = _move(hw, amp)
+    np.testing.assert_allclose(hw.read().lengths_m, cmd, atol=2e-5)
+    np.testing.assert_allclose(cmd - model, amp, atol=1e-12)
+
+
+def test_referencing_refuses_bad_lengths(enabled):
+    hw = enabled.hw
+    with pytest.raises(ValueError, match="finite"):
+        hw.reference(np.full(hw.n, np.nan))
+    with pytest.raises(ValueError, match="8 finite"):
+        hw.reference(np.ones(3))
+    np.testing.assert_array_equal(hw.reference_offset_m, np.zeros(hw.n))

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.recording import RecordingError, read_recording, write_recording
+from bench.recording import RecordingError, RecordingWriter, read_recording, write_recording
 from controller.robot import resolve_robot
 
 EXAMPLE = Path(__file__).parent.parent / "examples" / "paper_tables"
@@ -101,3 +101,25 @@ def test_initialisation_rows_and_dwells(tmp_path):
     assert s.n == 4 and list(s.count) == [3, 3, 2, 2]
     assert list(s.target) == [0, 1, 2, 1]  # the second visit of x = 12 is a replicate
     assert list(s.is_init) == [True, False, False, False]
+
+
+def test_streaming_writer_is_readable_while_it_runs(tmp_path):
+    """Rows flushed so far form a valid recording before close(); close() writes the rest."""
+    robot = resolve_robot("rocaspect")
+    cols = ["t", "x_des", "tau_11"]
+    w = RecordingWriter(tmp_path / "r", robot, [10, 8.56, 1, 0, 0, 0], cols, flush_s=3600)
+    for i in range(5):
+        w.append([0.1 * i, 10.0, np.nan if i == 2 else 100.0 + i], "init")
+    w.flush()
+    rec = read_recording(tmp_path / "r")
+    assert rec.n_samples == 5 and rec.state == ["init"] * 5
+    assert np.isnan(rec.tau[2, 0]) and rec.tau[4, 0] == 104.0
+    w.append([0.5, 10.5, 105.0], "move")
+    w.update_meta(notes="ended")
+    w.close()
+    w.close()  # idempotent
+    rec = read_recording(tmp_path / "r")
+    assert rec.n_samples == 6 and rec.state[-1] == "move" and rec.meta["notes"] == "ended"
+    with RecordingWriter(tmp_path / "s", robot, [10, 8.56, 1, 0, 0, 0], cols) as w2:
+        with pytest.raises(ValueError, match="3 columns"):
+            w2.append([1.0])
