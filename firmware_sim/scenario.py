@@ -47,6 +47,9 @@ init_s = 4.0
 speed_m_s = 0.25
 exit_points = []                 # cable ids whose exit point the tracker also measures
 ```
+
+A scenario may also name the path a dry run follows: ``path = "paper-centre"`` (a
+shipped ``cdpr-path/1`` file by name, or a file relative to the scenario).
 """
 
 from __future__ import annotations
@@ -137,9 +140,12 @@ class Scenario:
     drift_m_per_s: float = 0.0
     poses: PoseSet = field(default_factory=PoseSet)
     notes: str = ""
+    #: the path a dry run follows (a ``cdpr-path/1`` file, by name or relative path), or ""
+    run_path: str = ""
 
 
-_TOP = {"format", "robot", "seed", "init_pose", "truth", "noise", "nuisance", "poses", "notes"}
+_TOP = {"format", "robot", "seed", "init_pose", "truth", "noise", "nuisance", "poses", "notes",
+        "path"}
 
 
 def _num(path: Path, where: str, v: Any, positive: bool = False, nonneg: bool = False) -> float:
@@ -258,9 +264,14 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
             if c not in model.cable_ids:
                 raise ScenarioError(f"{p}: poses.exit_points: no cable {c!r}")
         kw["exit_points"] = tuple(ep)
+    run_path = data.get("path", "")
+    if not isinstance(run_path, str):
+        raise ScenarioError(f"{p}: path: must be a path file name or relative path (string)")
+    if run_path and p.name != "<memory>" and (p.parent / run_path).exists():
+        run_path = str(p.parent / run_path)
     return Scenario(p, model, truth, effects, slips, init_pose,
                     int(data.get("seed", 0)), noise, hyst, drift, PoseSet(**kw),
-                    str(data.get("notes", "")))
+                    str(data.get("notes", "")), run_path)
 
 
 def load_scenario(path: str | Path) -> Scenario:
