@@ -19,6 +19,7 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.sim",
     "bench.commands.campaign",
     "bench.commands.evaluate",
+    "bench.commands.dryrun",
 )
 
 

@@ -1,0 +1,290 @@
+"""``cdpr dry-run SCENARIO``: the controller in the loop with the simulated robot.
+
+Starts the simulated drives, load cells and tracker (in this process on the virtual bus,
+or as a ``cdpr sim`` process over the socketcand hub and Modbus/TCP), runs the controller
+over the scenario's path (or ``--path``), shows progress, and prints a summary: pose
+errors along the path (tracker against the commanded path), supervisor events. The
+scenario is the truth the simulation plays; the controller runs with the scenario's model
+(``robot``) or ``--robot``, and never reads the scenario. Ctrl-C stops the platform (quick
+stop, drives held), closes everything and leaves the recording readable.
+
+``--json`` prints one object: ``{"scenario", "robot", "cycles", "rate_hz",
+"simulated_s", "wall_s", "overruns", "events": [{"t", "device", "address", "kind", "code",
+"reaction"}], "pose_error_rms_m", "pose_error_max_m", "recording"}`` plus ``ended``,
+``message``, ``trajectory_s``, ``path_s``, ``init_pose``, ``reference_offset_m``,
+``plots`` and ``rig``.
+
+Exit status: 0 when the path was completed, 1 when the run ended otherwise (quick stop,
+hold timeout, interrupted, refused path), 2 for bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+NAME = "dry-run"
+HELP = "run the controller in the loop with the simulated robot along a path"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", help="scenario file (cdpr-scenario/1) or shipped name "
+                                    "(paper-centre, paper-calibration)")
+    p.add_argument("--robot", metavar="PATH", default=None,
+                   help="robot.toml the controller runs with (name or file) [the scenario's "
+                        "robot]")
+    p.add_argument("--path", metavar="FILE", default=None,
+                   help="path file (cdpr-path/1, name or file) [the scenario's path]")
+    p.add_argument("--rig", choices=("inprocess", "process"), default="inprocess",
+                   help="simulated robot in this process (virtual bus) or as a `cdpr sim` "
+                        "process (socketcand hub, Modbus/TCP) [inprocess]")
+    p.add_argument("--realtime", action="store_true",
+                   help="run on the wall clock (default: lock-step, as fast as possible)")
+    p.add_argument("--rate", type=float, default=None, metavar="HZ",
+                   help="control rate (SYNC) [the highest the CAN bus load allows]")
+    p.add_argument("--speed-pct", type=float, default=None, metavar="P",
+                   help="velocity as a percentage of the path's maximum speed [the path's]")
+    p.add_argument("--init-pose", choices=("tracker", "given"), default="tracker",
+                   help="initialisation pose: measured by the tracker, or the scenario's "
+                        "init_pose as given [tracker]")
+    p.add_argument("--plant-rate", type=float, default=20.0, metavar="HZ",
+                   help="plant settles per second of simulated time [20]")
+    p.add_argument("--record", metavar="DIR", default=None,
+                   help="write the run as a cdpr-recording/1 directory (with events.csv)")
+    p.add_argument("--decimate", type=int, default=None, metavar="N",
+                   help="record every N-th cycle [about 50 rows per second]")
+    p.add_argument("--force", action="store_true", help="overwrite a non-empty --record DIR")
+    p.add_argument("--plots", metavar="DIR", default=None, help="write PNG plots of the run")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds of trajectory time")
+    p.add_argument("--faults", metavar="FILE", default=None,
+                   help="fault schedule (TOML, [[fault]] tables) applied to the simulated "
+                        "drives and load cells")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+
+
+def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
+    print(f"cdpr dry-run: {msg}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"error": msg}))
+    return code
+
+
+def _check_dir(path: str, force: bool, what: str) -> str | None:
+    """Why ``path`` cannot take the output, or None (checked before anything runs)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        return f"{what} {p}: exists and is not a directory"
+    if p.is_dir() and any(p.iterdir()) and not force:
+        return f"{what} {p}: not empty (use --force to overwrite)"
+    probe = p if p.is_dir() else next((q for q in p.parents if q.exists()), Path("."))
+    import os
+
+    if not os.access(probe, os.W_OK):
+        return f"{what} {p}: cannot write in {probe}"
+    return None
+
+
+def _progress_printer(quiet: bool):
+    t0 = time.perf_counter()
+    tty = sys.stderr.isatty()
+
+    def show(res, t_traj: float) -> None:
+        if quiet:
+            return
+        total = res.path_s or 1.0
+        frac = min(1.0, t_traj / total)
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        wall = time.perf_counter() - t0
+        speed = res.simulated_s / wall if wall > 0 else 0.0
+        rate = res.cycles / wall if wall > 0 else 0.0
+        err = res.pose_error_rms_m
+        line = (f"[{bar}] {100 * frac:5.1f}%  t {t_traj:7.1f}/{total:.1f} s  "
+                f"{rate:6.0f} cycles/s (x{speed:4.1f})  overruns {res.overruns}  "
+                f"events {sum(1 for e in res.events if e['reaction'] != 'event')}  "
+                f"pose error {'-' if err is None else f'{1e3 * err:.1f} mm rms'}")
+        print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr,
+              flush=True)
+
+    return show
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    import numpy as np
+
+    from bench.dryrun.scenarios import max_rate_hz, resolve_scenario
+    from controller.robot import RobotFileError, resolve_robot
+    from controller.winch import load_winches
+    from firmware_sim.scenario import ScenarioError, load_scenario
+
+    try:
+        sc_path = resolve_scenario(args.scenario)
+        sc = load_scenario(sc_path)
+        model = resolve_robot(args.robot) if args.robot else sc.model
+    except (FileNotFoundError, ScenarioError, RobotFileError) as exc:
+        return _fail(args, 2, str(exc))
+    path_ref = args.path or sc.run_path
+    if not path_ref:
+        return _fail(args, 2, f"{sc_path}: the scenario names no path (path = ...): give "
+                              f"--path FILE")
+    from controller.paths import PathFileError, build_trajectory, check_trajectory, load_path
+    try:
+        spec = load_path(path_ref)
+    except (FileNotFoundError, PathFileError) as exc:
+        return _fail(args, 2, str(exc))
+    winches = load_winches()
+    top = max_rate_hz(winches)
+    rate = top if args.rate is None else float(args.rate)
+    if not (rate > 0 and np.isfinite(rate)):
+        return _fail(args, 2, f"--rate {args.rate}: must be a positive number of Hz")
+    if rate > top * (1 + 1e-9):
+        return _fail(args, 2, f"--rate {rate:g} Hz: above the {top:.1f} Hz the CAN bus allows "
+                              f"for {len(winches)} drives at {winches.bus.bitrate} bit/s "
+                              f"(bus load 50 %, hal/bus_load.py)")
+    if args.speed_pct is not None and not 0 < args.speed_pct <= 100:
+        return _fail(args, 2, f"--speed-pct {args.speed_pct}: must be in (0, 100]")
+    if args.decimate is not None and args.decimate < 1:
+        return _fail(args, 2, f"--decimate {args.decimate}: must be >= 1")
+    if not args.plant_rate > 0:
+        return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
+    for d, what in ((args.record, "--record"), (args.plots, "--plots")):
+        if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what)):
+            return _fail(args, 2, msg)
+    faults = None
+    if args.faults:
+        from firmware_sim.faults import FaultScheduleError, load_fault_schedule
+        try:
+            faults = load_fault_schedule(args.faults)
+        except (FileNotFoundError, FaultScheduleError) as exc:
+            return _fail(args, 2, str(exc))
+
+    from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
+    from bench.dryrun.record import DryRunRecorder
+    from bench.dryrun.world import start_world, with_rate
+
+    winches = with_rate(winches, 1.0 / rate)
+    period = winches.bus.sync_period_s
+    rate = 1.0 / period
+    decimate = args.decimate or max(1, int(round(rate / 50.0)))
+    limits = None
+    if args.speed_pct is not None:
+        limits = dataclasses.replace(spec.limits, speed_pct=float(args.speed_pct))
+
+    def plan(p0):
+        traj = build_trajectory(spec, p0, limits)
+        chk = check_trajectory(model, traj, winches)
+        if not chk.ok:
+            raise PathRefused(f"path {spec.name or path_ref} refused before moving: at "
+                              f"t = {chk.t_s:.2f} s, pose {np.round(chk.pose, 3).tolist()}: "
+                              f"{chk.reason}")
+        return traj
+
+    def open_recorder(p0):
+        if args.record is None:
+            return None
+        import shutil
+
+        rec = Path(args.record)
+        if rec.exists() and args.force:
+            shutil.rmtree(rec)
+        meta = {"pose_source": "simulated laser tracker", "tension_source": "simulated load "
+                "cells", "notes": "dry run in progress", "scenario": str(sc_path),
+                "path": str(path_ref), "rate_hz": rate, "decimate": decimate}
+        return DryRunRecorder(rec, model, p0, meta,
+                              robot_header=f"model the controller ran with ({model.name})")
+
+    if not args.quiet:
+        print(f"cdpr dry-run: {sc_path.name} with model {model.name}, path "
+              f"{spec.name or path_ref}, {rate:.1f} Hz (bus limit {top:.1f} Hz), "
+              f"{'real time' if args.realtime else 'lock-step, as fast as possible'}, "
+              f"rig {args.rig}", file=sys.stderr)
+    stop = threading.Event()
+    previous = {}
+
+    def on_signal(signum, frame):
+        if stop.is_set():  # a second Ctrl-C: give up waiting
+            raise KeyboardInterrupt
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        for s in (signal.SIGINT, signal.SIGTERM):
+            previous[s] = signal.signal(s, on_signal)
+    tty = sys.stderr.isatty()
+    events_out: list[str] = []
+
+    def on_event(line: str) -> None:
+        events_out.append(line)
+        if not args.quiet:
+            print(("\r\033[K" if tty else "") + line, file=sys.stderr, flush=True)
+
+    sim_args: tuple[str, ...] = ()
+    if faults is not None and args.rig == "process":
+        sim_args = ("--faults", str(args.faults))
+    try:
+        try:
+            world = start_world(sc, winches, args.rig, args.realtime, args.plant_rate,
+                                sim_args=sim_args)
+        except Exception as exc:
+            return _fail(args, 1, f"cannot start the simulated robot: {exc}")
+        injector = None
+        try:
+            tick = world.tick if (world.rig is not None and not args.realtime) else None
+            if faults is not None and world.rig is not None:
+                from firmware_sim.faults import FaultInjector
+                injector = FaultInjector(world.rig, faults)
+                if tick is not None:
+                    base_tick = tick
+
+                    def tick(t_s, _b=base_tick, _i=injector):
+                        _i.advance(t_s)
+                        _b(t_s)
+                else:
+                    injector.start()
+            opts = LoopOptions(realtime=args.realtime, decimate=decimate,
+                               init_pose=sc.init_pose if args.init_pose == "given" else None,
+                               max_duration_s=args.duration)
+            loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
+                               tick=tick, on_event=on_event,
+                               on_progress=_progress_printer(args.quiet), stop=stop)
+            res = loop.run()
+        finally:
+            if injector is not None:
+                injector.stop()
+            world.close()
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if tty and not args.quiet:
+        print(file=sys.stderr)
+    plots = None
+    if args.plots and args.record and res.ended != "refused":
+        from bench.dryrun.report import plot_run
+        plots = [str(p) for p in plot_run(args.record, args.plots)]
+    out = {
+        "scenario": str(args.scenario), "robot": model.name, "cycles": res.cycles,
+        "rate_hz": res.rate_hz, "simulated_s": res.simulated_s, "wall_s": res.wall_s,
+        "overruns": res.overruns,
+        "events": [e for e in res.events if e["reaction"] != "event" or e["kind"] in
+                   ("fault", "emcy", "heartbeat_lost", "boot_up")],
+        "pose_error_rms_m": res.pose_error_rms_m, "pose_error_max_m": res.pose_error_max_m,
+        "recording": str(args.record) if args.record and res.ended != "refused" else None,
+        "ended": res.ended, "message": res.message, "trajectory_s": res.trajectory_s,
+        "path_s": res.path_s, "init_pose": res.init_pose,
+        "reference_offset_m": res.reference_offset_m, "plots": plots, "rig": args.rig,
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        from bench.dryrun.report import summary_text
+        print(summary_text(out))
+    if res.ended == "refused":
+        print(f"cdpr dry-run: {res.message}", file=sys.stderr)
+    return 0 if res.ended == "completed" else 1

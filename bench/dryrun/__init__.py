@@ -1,0 +1,12 @@
+"""The dry run: the controller in the loop with the drives, cycle after cycle.
+
+- :mod:`bench.dryrun.loop`: the control loop on the hardware interface only
+  (``read()`` -> trajectory setpoint -> ``LengthController.step`` -> supervisor ->
+  ``write_lengths()``), the same code for :class:`hal.fake.FakeHardware`, the simulated
+  rig in this process, ``cdpr sim`` in another process and real drives;
+- :mod:`bench.dryrun.world`: the simulated robot the loop runs against (drives, load
+  cells, tracker and plant; in this process or as a ``cdpr sim`` process);
+- :mod:`bench.dryrun.record`: the recording written while the run goes;
+- :mod:`bench.dryrun.scenarios`: shipped dry-run scenarios by name;
+- :mod:`bench.dryrun.report`: summary, text table and plots.
+"""

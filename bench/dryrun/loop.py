@@ -1,0 +1,492 @@
+"""The control loop of a dry run, on the hardware interface only.
+
+The same code drives :class:`hal.fake.FakeHardware`, the simulated rig in this process,
+``cdpr sim`` in another process and real drives: it only calls
+:class:`hal.interface.WinchHardware` and :class:`hal.tracker.Tracker`. Decisions are the
+controller's (:class:`controller.cycle.LengthController`, :class:`controller.supervisor
+.Supervisor`, :class:`controller.feedrate.FeedRate`); this module only wires them.
+
+Initialisation (the conventions' Fig. 4d): the platform's pose p0 is given or measured
+by the tracker (mean of fresh samples), the tensions tau0 are read at p0, the controller
+is built for p0 and tau0, and the HAL references the drives' length readings to the
+model's lengths ``d_model(p0)``: whatever robot.toml the controller runs with (nominal,
+remeasured, corrected by ``cdpr diagnose``), its first setpoints are the drives'
+positions. Then the whole trajectory is planned and checked before any drive is enabled.
+
+Each cycle (period T, absolute deadlines ``t0 + k T``, so no drift): the setpoints
+computed in the previous cycle go out with the SYNC at the deadline, the drives'
+answers and the tensions are read, the trajectory advances by ``rate * T`` (feed hold),
+the controller computes the next setpoints from the measured tensions (a load cell that
+is not valid is replaced by the planned tension), the supervisor decides, and the loop
+acts: hold (feed rate to 0, never an infeasible setpoint sent), quick stop (every drive,
+then wait until they stand in Quick Stop Active), or carry on. Without ``realtime`` the
+loop runs in lock-step with a simulated world (``tick``) as fast as it can.
+
+A cycle that ends after the next deadline is an overrun (counted, recorded; the loop
+then skips the deadlines it missed instead of bursting).
+"""
+
+from __future__ import annotations
+
+import array
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.dryrun.record import DryRunRecorder
+from controller.cycle import LengthController
+from controller.feedrate import FeedRate, ramp_time
+from controller.robot import Robot
+from controller.supervisor import (
+    DeviceFault,
+    Observation,
+    Supervisor,
+    SupervisorLimits,
+)
+from controller.trajectory import Trajectory
+from hal.drives_cia402 import DriveState
+from hal.interface import Readings, WinchHardware
+from hal.tracker import Tracker
+
+#: states of the ``state`` column
+INIT, HOLD, QUICK_STOP, END = "init", "hold", "quick_stop", "end"
+
+
+class PathRefused(ValueError):
+    """The trajectory was refused before anything moved (the message says where, why)."""
+
+
+@dataclass
+class LoopOptions:
+    """How the loop runs.
+
+    ``realtime``: on the wall clock with absolute deadlines (else lock-step, as fast as the
+    world allows); ``decimate``: record every n-th cycle; ``init_pose``: given p0 (None:
+    measure it with the tracker, mean of ``init_samples`` fresh samples);
+    ``init_dwell_s``/``end_dwell_s`` [s] standing still before and after the trajectory;
+    ``stop_timeout_s`` [s]: a quick stop must reach stand-still within it;
+    ``hold_timeout_s`` [s]: a hold that does not clear within it ends the run;
+    ``max_duration_s``: stop after this much trajectory time (None: the whole path).
+    """
+
+    realtime: bool = False
+    decimate: int = 1
+    init_pose: np.ndarray | None = None
+    init_samples: int = 20
+    init_dwell_s: float = 1.0
+    end_dwell_s: float = 0.5
+    stop_timeout_s: float = 2.0
+    hold_timeout_s: float = 5.0
+    max_duration_s: float | None = None
+    method: str = "closed_form"
+    supervisor: dict[str, Any] = field(default_factory=dict)  #: SupervisorLimits overrides
+
+
+@dataclass
+class LoopResult:
+    """What a run did (plain data; :meth:`summary` is the ``--json`` object's core)."""
+
+    ended: str = "not started"  #: completed, quick_stop, interrupted, hold_timeout, refused,
+    #: error
+    message: str = ""
+    cycles: int = 0
+    period_s: float = 0.0
+    simulated_s: float = 0.0
+    wall_s: float = 0.0
+    trajectory_s: float = 0.0  #: trajectory time reached [s]
+    path_s: float = 0.0  #: the trajectory's duration [s]
+    overruns: int = 0
+    events: list[dict] = field(default_factory=list)
+    pose_errors: int = 0
+    pose_error_sq: float = 0.0
+    pose_error_max_m: float | None = None
+    init_pose: list[float] | None = None
+    init_tensions: list[float] | None = None
+    reference_offset_m: list[float] | None = None
+    substituted_cycles: int = 0
+    lateness_s: array.array = field(default_factory=lambda: array.array("f"))
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / self.period_s if self.period_s else 0.0
+
+    @property
+    def pose_error_rms_m(self) -> float | None:
+        return math.sqrt(self.pose_error_sq / self.pose_errors) if self.pose_errors else None
+
+    def jitter_ms(self, q: float = 99.0) -> float | None:
+        """Percentile of the lateness of the cycles' start after their deadline [ms]."""
+        if not len(self.lateness_s):
+            return None
+        return float(np.percentile(np.frombuffer(self.lateness_s, np.float32), q) * 1e3)
+
+    def summary(self) -> dict:
+        return {"ended": self.ended, "message": self.message, "cycles": self.cycles,
+                "rate_hz": self.rate_hz, "simulated_s": self.simulated_s,
+                "wall_s": self.wall_s, "trajectory_s": self.trajectory_s,
+                "path_s": self.path_s, "overruns": self.overruns, "events": self.events,
+                "pose_error_rms_m": self.pose_error_rms_m,
+                "pose_error_max_m": self.pose_error_max_m, "init_pose": self.init_pose,
+                "reference_offset_m": self.reference_offset_m}
+
+
+class CrossTrack:
+    """Distance from measured positions to the commanded path (the positions commanded over
+    the last ``window_s`` seconds, as a polyline): the pose error without the lag along the
+    path of a quasi-static plant or a tracker."""
+
+    def __init__(self, period_s: float, window_s: float = 1.0) -> None:
+        self._pts: deque[np.ndarray] = deque(maxlen=max(2, int(window_s / period_s) + 1))
+
+    def command(self, pos: np.ndarray) -> None:
+        if not self._pts or np.any(self._pts[-1] != pos):
+            self._pts.append(np.array(pos[:3], float))
+
+    def error(self, pos: np.ndarray) -> float:
+        p = np.asarray(pos[:3], float)
+        if len(self._pts) == 1:
+            return float(np.linalg.norm(p - self._pts[0]))
+        pts = np.array(self._pts)
+        a, b = pts[:-1], pts[1:]
+        ab = b - a
+        den = (ab * ab).sum(1)
+        s = np.clip(np.where(den > 0, ((p - a) * ab).sum(1) / np.where(den > 0, den, 1), 0),
+                    0, 1)
+        d = a + s[:, None] * ab - p
+        return float(np.sqrt((d * d).sum(1).min()))
+
+
+def _faults(r: Readings) -> tuple[DeviceFault, ...]:
+    return tuple(DeviceFault(f.device, f.address, f.cable, f.kind, f.code, f.text)
+                 for f in r.faults)
+
+
+def measure_init_pose(tracker: Tracker, samples: int, timeout_s: float = 5.0) -> np.ndarray:
+    """Mean of ``samples`` fresh valid tracker poses (the platform stands still)."""
+    got = []
+    deadline = time.monotonic() + timeout_s
+    while len(got) < samples:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError(f"the tracker gave {len(got)} valid poses of the {samples} "
+                               f"wanted within {timeout_s} s: is it locked on the platform?")
+        rd = tracker.wait_fresh(min(left, 1.0))
+        if rd.valid and np.all(np.isfinite(rd.pose)):
+            got.append(np.asarray(rd.pose, float))
+    return np.mean(got, axis=0)
+
+
+def mean_tensions(hw: WinchHardware, sweeps: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of the valid tensions over ``sweeps`` fresh reads of all cells; (n,) [N] (NaN
+    where a cell never gave a valid value) and the valid mask."""
+    acc, cnt = np.zeros(hw.n), np.zeros(hw.n)
+    for _ in range(sweeps):
+        hw.sample_tensions()
+        r = hw.read()
+        ok = r.tensions_ok & np.isfinite(r.tensions_N)
+        acc[ok] += r.tensions_N[ok]
+        cnt[ok] += 1
+    with np.errstate(invalid="ignore"):
+        return np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan), cnt > 0
+
+
+class ControlLoop:
+    """One dry run (see the module docstring).
+
+    ``plan(p0) -> Trajectory`` builds and checks the trajectory from the measured init pose
+    (raises :class:`PathRefused`); ``open_recorder(p0)`` the recording (or None);
+    ``tick(t_s)`` advances a simulated world in lock-step after each SYNC (None for real
+    hardware); ``on_event(line)`` logs; ``on_progress(result, t_traj)`` is called about
+    four times a second; ``stop`` (set by SIGINT) ends the run with a quick stop.
+    """
+
+    def __init__(self, hw: WinchHardware, tracker: Tracker, model: Robot,
+                 plan: Callable[[np.ndarray], Trajectory], options: LoopOptions,
+                 open_recorder: Callable[[np.ndarray], DryRunRecorder | None] | None = None,
+                 tick: Callable[[float], None] | None = None,
+                 on_event: Callable[[str], None] | None = None,
+                 on_progress: Callable[[LoopResult, float], None] | None = None,
+                 stop: threading.Event | None = None) -> None:
+        self.hw, self.tracker, self.model = hw, tracker, model
+        self.plan, self.opt = plan, options
+        self.open_recorder = open_recorder
+        self.tick = tick
+        self.on_event = on_event or (lambda s: None)
+        self.on_progress = on_progress
+        self.stop = stop or threading.Event()
+        self.result = LoopResult(period_s=hw.period_s)
+        self.recorder: DryRunRecorder | None = None
+        self.controller: LengthController | None = None
+        self.trajectory: Trajectory | None = None
+
+    # ------------------------------------------------------------------ events
+    def _event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
+               reaction: str, active: bool, text: str) -> None:
+        self.result.events.append({"t": round(float(t), 6), "device": device,
+                                   "address": int(address), "cable": cable, "kind": kind,
+                                   "code": int(code), "reaction": reaction,
+                                   "active": bool(active), "text": text})
+        if self.recorder is not None:
+            self.recorder.event(t, device, address, cable, kind, code, reaction, active, text)
+        who = {"drive": f"CAN node {address}", "loadcell": f"Modbus unit {address}",
+               "bus": "CAN bus"}.get(device, device)
+        cab = f" (cable {cable})" if cable else ""
+        state = "" if active else "ended: "
+        self.on_event(f"t={t:8.3f} s  {state}{kind}{f' 0x{code:04X}' if code else ''} at "
+                      f"{who}{cab}: {text} -> {reaction}")
+
+    def _hw_events(self) -> None:
+        for e in self.hw.events():
+            self._event(e.time_s, e.device, e.address, e.cable, e.kind, e.code, "event",
+                        True, e.text)
+
+    # ------------------------------------------------------------------ initialisation
+    def _initialise(self) -> tuple[np.ndarray, Trajectory]:
+        hw, opt = self.hw, self.opt
+        hw.start()
+        self.tracker.start()
+        p0 = (np.asarray(opt.init_pose, float) if opt.init_pose is not None
+              else measure_init_pose(self.tracker, opt.init_samples))
+        tau0, ok = mean_tensions(hw)
+        init_tensions = tau0 if ok.all() else None
+        self.controller = LengthController(self.model, p0, init_tensions, method=opt.method)
+        traj = self.plan(p0)  # raises PathRefused before anything moves
+        self.trajectory = traj
+        if self.open_recorder is not None:
+            self.recorder = self.open_recorder(p0)
+        t = hw.read().t_s
+        if not ok.all():
+            bad = [hw.cables[k] for k in np.flatnonzero(~ok)]
+            self._event(t, "controller", 0, "", "init_tensions", 0, "substitute", True,
+                        f"no valid tension from cables {', '.join(bad)} at initialisation: "
+                        f"the tension distribution stands for tau0")
+        off = hw.reference(self.controller.reference)
+        res = self.result
+        res.init_pose = [float(v) for v in p0]
+        res.init_tensions = [float(v) for v in self.controller.init_tensions]
+        res.reference_offset_m = [float(v) for v in off]
+        res.path_s = traj.duration_s
+        how = "given" if opt.init_pose is not None else "tracker"
+        self._event(t, "controller", 0, "", "initialised", 0, "none", True,
+                    f"p0 {np.round(p0, 4).tolist()} ({how}); referenced: offsets "
+                    f"{np.round(1e3 * off, 2).tolist()} mm")
+        hw.enable()
+        return p0, traj
+
+    # ------------------------------------------------------------------ the run
+    def run(self) -> LoopResult:
+        res = self.result
+        wall0 = time.perf_counter()
+        try:
+            try:
+                p0, traj = self._initialise()
+            except PathRefused as exc:
+                res.ended, res.message = "refused", str(exc)
+                return res
+            self._cycle_loop(p0, traj)
+        except KeyboardInterrupt:
+            res.ended, res.message = "interrupted", "KeyboardInterrupt"
+            self._emergency_stop()
+        except Exception as exc:
+            res.ended, res.message = "error", f"{type(exc).__name__}: {exc}"
+            self._emergency_stop()
+            raise
+        finally:
+            res.wall_s = time.perf_counter() - wall0
+            if self.recorder is not None:
+                try:
+                    self.recorder.update_meta(notes=f"dry run: {res.ended}"
+                                              + (f" ({res.message})" if res.message else ""))
+                finally:
+                    self.recorder.close()
+        return res
+
+    def _emergency_stop(self) -> None:
+        """Quick-stop every drive (best effort, after an error or interruption)."""
+        try:
+            self.hw.quick_stop()
+            for _ in range(int(self.opt.stop_timeout_s / self.hw.period_s) + 1):
+                self.hw.write_lengths(None)
+                if self.tick is not None:
+                    self.hw.wait_feedback()
+                else:
+                    time.sleep(self.hw.period_s)
+                if not np.any(self.hw.read().states == DriveState.OPERATION_ENABLED):
+                    break
+        except Exception:  # the bus may be gone: the drives' own master-loss reaction acts
+            pass
+
+    def _cycle_loop(self, p0: np.ndarray, traj: Trajectory) -> None:
+        hw, opt, res = self.hw, self.opt, self.result
+        ctl = self.controller
+        assert ctl is not None
+        T = hw.period_s
+        w = hw.winches
+        lim = SupervisorLimits.for_robot(self.model.tension_min, self.model.tension_max,
+                                         w.following_error_m, **opt.supervisor)
+        sup = Supervisor(lim)
+        feed = FeedRate(ramp_time(traj.limits.speed_m_s, traj.limits.max_accel_m_s2))
+        xt = CrossTrack(T)
+        r = hw.read()
+        cmd = r.lengths_m.copy()  # hold where they stand: the referenced lengths
+        last_sent = cmd.copy()
+        init_cycles = int(round(opt.init_dwell_s / T))
+        end_at = traj.duration_s + opt.end_dwell_s
+        if opt.max_duration_s is not None:
+            end_at = min(end_at, opt.max_duration_s)
+        t_traj = 0.0
+        stopping = 0  # cycles since a quick stop was sent
+        held_since: float | None = None
+        last_track_t = -math.inf
+        nan6 = np.full(6, np.nan)
+        pose_des = p0.copy()
+        out_tensions = ctl.init_tensions
+        substituted = 0
+        state = INIT
+        k = 0
+        next_progress = time.perf_counter()
+        t_start = time.perf_counter()
+        deadline = t_start
+        overrun = False
+        while True:
+            # ---- output: the setpoints of the last cycle go out with the SYNC
+            if opt.realtime:
+                now = time.perf_counter()
+                wait = deadline - now
+                if wait > 0:
+                    if wait > 1.5e-3:
+                        time.sleep(wait - 1e-3)
+                    while time.perf_counter() < deadline:
+                        pass
+                res.lateness_s.append(time.perf_counter() - deadline)
+            hw.write_lengths(None if stopping else cmd)
+            if self.tick is not None:
+                hw.wait_feedback()
+                self.tick(hw.read().t_s)
+            r = hw.read()
+            k += 1
+            res.cycles = k
+            t = r.t_s
+            # ---- the trajectory advances (feed hold slows it down)
+            if k > init_cycles and not stopping:
+                hold = held_since is not None
+                t_traj += feed.advance(T, hold)
+                smp = traj.sample(t_traj)
+                pose_des = smp.pose
+                label = smp.label
+                state = HOLD if (hold or feed.rate < 1.0) else (
+                    END if t_traj >= traj.duration_s else label)
+            elif stopping:
+                state = QUICK_STOP
+            # ---- controller
+            valid = r.tensions_ok
+            out = ctl.step(pose_des, r.tensions_N, valid)
+            if out.feasible:
+                out_tensions = out.tensions
+            substituted = int(out.substituted.sum()) if out.substituted.size else 0
+            res.substituted_cycles += substituted > 0
+            # ---- supervisor
+            enabled = r.states == DriveState.OPERATION_ENABLED
+            ob = Observation(t, r.tensions_N, valid, r.lengths_m, last_sent, enabled,
+                             expect_enabled=not stopping, faults=_faults(r),
+                             feasible=out.feasible, reason=out.reason, overrun=overrun,
+                             cables=hw.cables, node_ids=hw.node_ids, unit_ids=hw.unit_ids)
+            d = sup.step(ob)
+            for e in d.events:
+                self._event(e.t_s, e.device, e.address, e.cable, e.kind, e.code,
+                            e.reaction.label, e.active, e.text)
+            if k % 5 == 0 or r.faults:
+                self._hw_events()
+            # ---- act
+            if (d.stop or self.stop.is_set()) and not stopping:
+                hw.quick_stop()
+                stopping = 1
+                if self.stop.is_set() and not d.stop:
+                    self._event(t, "controller", 0, "", "interrupted", 0, "quick_stop", True,
+                                "stop requested (SIGINT/SIGTERM)")
+                state = QUICK_STOP
+            elif stopping:
+                stopping += 1
+            elif d.hold:
+                if held_since is None:
+                    held_since = t
+                if not out.feasible:
+                    cmd = last_sent  # never send a setpoint the controller refused
+                else:
+                    cmd = out.lengths
+            else:
+                held_since = None
+                cmd = out.lengths if out.feasible else last_sent
+            if not stopping:
+                bad = ~np.isfinite(cmd) | (cmd - hw.reference_offset_m < w.min_length_m) | (
+                    cmd - hw.reference_offset_m > w.max_length_m)
+                if bad.any():  # the winch limits: checked again before sending
+                    j = int(np.flatnonzero(bad)[0])
+                    self._event(t, "drive", hw.node_ids[j], hw.cables[j], "workspace", 0,
+                                "hold", True, f"setpoint {cmd[j]:.4f} m outside the winch's "
+                                f"length limits: not sent")
+                    cmd = last_sent
+                    held_since = held_since if held_since is not None else t
+                last_sent = cmd
+            # ---- measurements: tracker, pose error against the commanded path
+            xt.command(pose_des)
+            tr = self.tracker.read()
+            pose_meas = nan6
+            if tr.valid and np.all(np.isfinite(tr.pose)):
+                pose_meas = tr.pose
+                if tr.t_s > last_track_t and state not in (INIT, QUICK_STOP):
+                    err = xt.error(tr.pose)
+                    res.pose_errors += 1
+                    res.pose_error_sq += err * err
+                    res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
+                last_track_t = tr.t_s
+            if self.recorder is not None and (k % opt.decimate == 0):
+                self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N, pose_meas,
+                                  out_tensions, substituted, state)
+            res.simulated_s = k * T
+            res.trajectory_s = t_traj
+            # ---- end conditions
+            if stopping:
+                standing = not np.any(r.states == DriveState.OPERATION_ENABLED)
+                if standing or stopping * T > opt.stop_timeout_s:
+                    res.ended = "interrupted" if self.stop.is_set() and not d.stop \
+                        else "quick_stop"
+                    if not standing:
+                        res.message = (f"drives still Operation Enabled {opt.stop_timeout_s} s "
+                                       f"after the quick stop")
+                    elif not res.message:
+                        res.message = next((e["text"] for e in reversed(res.events)
+                                            if e["reaction"] in ("quick_stop",)
+                                            and e["active"]), "")
+                    break
+            elif held_since is not None and t - held_since > opt.hold_timeout_s:
+                res.ended = "hold_timeout"
+                res.message = (f"held for {opt.hold_timeout_s} s: "
+                               f"{', '.join(d.conditions) or 'condition'} did not clear")
+                hw.shutdown()
+                break
+            elif t_traj >= end_at:
+                res.ended = "completed"
+                hw.shutdown()
+                break
+            # ---- timing
+            if opt.realtime:
+                deadline += T
+                now = time.perf_counter()
+                overrun = now > deadline
+                if overrun:
+                    res.overruns += 1
+                    missed = int((now - deadline) / T)
+                    deadline += missed * T  # skip the missed deadlines, do not burst
+            if self.on_progress is not None and time.perf_counter() >= next_progress:
+                self.on_progress(res, t_traj)
+                next_progress = time.perf_counter() + 0.25
+        self._hw_events()
+        if self.on_progress is not None:
+            self.on_progress(res, t_traj)

@@ -1,0 +1,89 @@
+"""What a dry run writes while it goes: a ``cdpr-recording/1`` directory plus an events file.
+
+``recording.csv`` columns (the recording format's names; extra columns are allowed):
+
+- ``t`` [s] the hardware clock of the cycle;
+- ``x_des`` .. ``yaw_des`` the trajectory's setpoint pose of the cycle;
+- ``l_cmd_{ij}`` [m] the lengths sent; ``l_meas_{ij}`` [m] the drives' lengths read (both in
+  the encoder reference of the initialisation);
+- ``tau_{ij}`` [N] the load cells' tensions as read (``nan`` when not valid);
+- ``x_meas`` .. ``yaw_meas`` the tracker's pose (``nan`` when it has none);
+- extra: ``tau_plan_{ij}`` [N] the tensions the controller planned, ``substituted`` the
+  number of load cells replaced by planned tensions in the mast update;
+- ``state``: ``init`` (initialisation dwell), ``move``/``dwell`` (the trajectory's labels:
+  a dwell stands at a target; replicate visits have equal ``*_des``), ``hold`` (feed hold),
+  ``quick_stop`` (drives stopped), ``end`` (final stand-still).
+
+``events.csv``: ``t, device, address, cable, kind, code, reaction, active, text``: every
+supervisor condition when it starts (``active`` 1) and ends (0), the hardware's own events
+(EMCY, heartbeat, load-cell status changes; reaction ``event``) and the loop's (start, end,
+interruption). Both files are flushed at least every second; after a crash or Ctrl-C the
+directory is a valid recording up to the last flushed row.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bench.recording import POSE_AXES, CsvStream, RecordingWriter
+from controller.robot import Robot
+
+EVENT_COLUMNS = ["t", "device", "address", "cable", "kind", "code", "reaction", "active",
+                 "text"]
+
+
+def columns(robot: Robot) -> list[str]:
+    """The recording's numeric columns in order (``t`` first)."""
+    c = robot.cable_ids
+    return (["t"] + [f"{a}_des" for a in POSE_AXES] + [f"l_cmd_{k}" for k in c]
+            + [f"l_meas_{k}" for k in c] + [f"tau_{k}" for k in c]
+            + [f"{a}_meas" for a in POSE_AXES] + [f"tau_plan_{k}" for k in c]
+            + ["substituted"])
+
+
+class DryRunRecorder:
+    """Rows and events of a run into ``path`` (created; must be empty or absent)."""
+
+    def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
+                 robot_header: str = "", flush_s: float = 1.0) -> None:
+        self.path = Path(path)
+        self.n = robot.n_cables
+        self.writer = RecordingWriter(self.path, robot, init_pose, columns(robot), meta,
+                                      robot_header, states=True, flush_s=flush_s)
+        self.events = CsvStream(self.path / "events.csv", EVENT_COLUMNS, flush_s)
+        self._row = np.empty(len(self.writer.columns))
+
+    @property
+    def rows(self) -> int:
+        return self.writer.rows
+
+    def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
+            tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
+            state: str) -> None:
+        n, r = self.n, self._row
+        r[0] = t
+        r[1:7] = pose_des
+        r[7:7 + n] = l_cmd
+        r[7 + n:7 + 2 * n] = l_meas
+        r[7 + 2 * n:7 + 3 * n] = tau
+        r[7 + 3 * n:13 + 3 * n] = pose_meas
+        r[13 + 3 * n:13 + 4 * n] = tau_plan
+        r[13 + 4 * n] = substituted
+        self.writer.append(r, state)
+
+    def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
+              reaction: str, active: bool, text: str) -> None:
+        self.events.append((float(t), device, str(int(address)), cable, kind,
+                            f"0x{int(code):04X}", reaction, "1" if active else "0",
+                            '"' + text.replace('"', "'") + '"'))
+
+    def update_meta(self, **fields) -> None:
+        self.writer.update_meta(**fields)
+
+    def close(self) -> None:
+        try:
+            self.writer.close()
+        finally:
+            self.events.close()

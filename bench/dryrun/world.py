@@ -1,0 +1,208 @@
+"""The simulated robot a dry run runs against: drives, load cells, tracker and plant.
+
+``kind="inprocess"``: a :class:`firmware_sim.rig.SimRig` in this process on python-can's
+``virtual`` bus, Modbus/TCP on loopback, the tracker called directly. Without real time
+(``clock="sync"``) the world advances in lock-step with the loop: the drives' clock moves
+by one SYNC period per SYNC, and :meth:`SimWorld.tick` settles the plant and sweeps the
+load cells every ``1/plant_rate_hz`` seconds of simulated time (deterministic, as fast as
+the machine allows). In real time the rig's own threads do it on the wall clock.
+
+``kind="process"``: ``cdpr sim`` in another process (socketcand hub, Modbus/TCP, tracker
+over TCP); the loop reaches it only through the wire protocols, as it would reach real
+drives. The process ends with this one (stdin closes when we die, whatever the signal).
+
+The scenario is the truth: the world reads it, the controller never does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import queue
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from controller.winch import WinchSet
+from firmware_sim.cia402_drive import EDS_PATH
+from firmware_sim.rig import SimRig
+from firmware_sim.scenario import Scenario
+from hal.interface import CanModbusHardware, open_hardware
+from hal.tracker import CallableTracker, Tracker, open_tracker
+
+
+def with_rate(winches: WinchSet, period_s: float) -> WinchSet:
+    """The winch set with its SYNC period (control cycle) set to ``period_s`` [s]; the
+    drives' RPDO deadline follows (1.5 periods, as the shipped file has it)."""
+    bus = winches.bus
+    ratio = bus.rpdo_timeout_s / bus.sync_period_s if bus.sync_period_s else 1.5
+    period_s = round(period_s * 1e6) * 1e-6
+    rpdo = 0.0 if bus.rpdo_timeout_s == 0 else max(1e-3, round(ratio * period_s, 3))
+    return dataclasses.replace(winches, bus=dataclasses.replace(
+        bus, sync_period_s=period_s, rpdo_timeout_s=rpdo))
+
+
+class SimWorld:
+    """The simulated robot: ``hw`` (the hardware interface), ``tracker``, ``tick`` (lock-step
+    hook or None), ``rig`` (in-process only), ``close()``."""
+
+    hw: CanModbusHardware
+    tracker: Tracker
+    rig: SimRig | None = None
+    info: dict
+
+    def tick(self, t_s: float) -> None:  # replaced per kind
+        return None
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> SimWorld:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class InProcessWorld(SimWorld):
+    def __init__(self, scenario: Scenario, winches: WinchSet, realtime: bool,
+                 plant_rate_hz: float, eds: str | Path = EDS_PATH) -> None:
+        clock = "wall" if realtime else "sync"
+        self.rig = SimRig(scenario, winches=winches, clock=clock, plant_thread=realtime,
+                          plant_rate_hz=plant_rate_hz)
+        try:
+            self.rig.start()
+            self.hw = open_hardware(self.rig.can_spec, self.rig.modbus_spec, eds=eds,
+                                    winches=winches, clock=clock,
+                                    poll="thread" if realtime else "manual")
+            self.tracker = CallableTracker(self.rig.measure_pose)
+        except BaseException:
+            self.rig.close()
+            raise
+        self.info = dict(self.rig.endpoints(), kind="inprocess")
+        self._plant_period = 1.0 / plant_rate_hz
+        self._next_plant = 0.0
+        self.lockstep = not realtime
+
+    def tick(self, t_s: float) -> None:
+        """Lock-step: settle the plant and sweep the load cells when the plant is due."""
+        if not self.lockstep or t_s + 1e-9 < self._next_plant:
+            return
+        self.rig.settle_now()
+        self.hw.sample_tensions()
+        self._next_plant += self._plant_period * max(1, int((t_s - self._next_plant)
+                                                            / self._plant_period) + 1)
+
+    def close(self) -> None:
+        try:
+            try:
+                self.tracker.close()
+            finally:
+                self.hw.close()
+        finally:
+            self.rig.close()
+
+
+class ProcessWorld(SimWorld):
+    """``cdpr sim`` in a child process; ``args`` extra command-line options for it."""
+
+    def __init__(self, scenario_path: str | Path | None, winches: WinchSet, realtime: bool,
+                 plant_rate_hz: float, eds: str | Path = EDS_PATH,
+                 args: tuple[str, ...] = (), startup_s: float = 60.0) -> None:
+        self._err = tempfile.TemporaryFile(mode="w+")
+        cmd = [sys.executable, "-m", "bench.cli", "sim", "--json", "--exit-on-stdin-eof",
+               "--clock", "wall" if realtime else "sync", "--plant-rate", str(plant_rate_hz),
+               *args]
+        if scenario_path is not None:
+            cmd.insert(4, str(scenario_path))
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=self._err, text=True, env=env)
+        self.rig = None
+        try:
+            self.info = self._endpoints(startup_s)
+            clock = "wall" if realtime else "sync"
+            self.hw = open_hardware(self.info["can"], self.info["modbus"], eds=eds,
+                                    winches=winches, clock=clock, poll="thread")
+            self.tracker = open_tracker(self.info["tracker"])
+        except BaseException:
+            self._stop()
+            raise
+        self.info["kind"] = "process"
+
+    def _endpoints(self, timeout_s: float) -> dict:
+        lines: queue.Queue[str | None] = queue.Queue()
+
+        def read() -> None:
+            assert self.proc.stdout is not None
+            for line in self.proc.stdout:
+                lines.put(line)
+            lines.put(None)
+
+        threading.Thread(target=read, name="sim-stdout", daemon=True).start()
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                line = lines.get(timeout=max(0.05, deadline - time.monotonic()))
+            except queue.Empty:
+                raise TimeoutError(f"cdpr sim gave no endpoints in {timeout_s} s: "
+                                   f"{self._stderr()}") from None
+            if line is None:
+                raise RuntimeError(f"cdpr sim ended at start-up (exit "
+                                   f"{self.proc.wait()}): {self._stderr()}")
+            try:
+                info = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if "error" in info:
+                raise RuntimeError(f"cdpr sim: {info['error']}")
+            return info
+
+    def _stderr(self) -> str:
+        self._err.seek(0)
+        text = self._err.read().strip()
+        return text[-2000:] if text else "(nothing on stderr)"
+
+    def _stop(self) -> None:
+        p = self.proc
+        if p.poll() is None:
+            try:
+                assert p.stdin is not None
+                p.stdin.close()  # --exit-on-stdin-eof
+            except OSError:
+                pass
+            try:
+                p.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                p.terminate()
+                try:
+                    p.wait(timeout=5.0)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+        self._err.close()
+
+    def close(self) -> None:
+        try:
+            try:
+                self.tracker.close()
+            finally:
+                self.hw.close()
+        finally:
+            self._stop()
+
+
+def start_world(scenario: Scenario, winches: WinchSet, kind: str = "inprocess",
+                realtime: bool = False, plant_rate_hz: float = 20.0,
+                eds: str | Path = EDS_PATH, sim_args: tuple[str, ...] = ()) -> SimWorld:
+    """The simulated robot for a dry run (see the module docstring)."""
+    if kind == "inprocess":
+        return InProcessWorld(scenario, winches, realtime, plant_rate_hz, eds)
+    if kind == "process":
+        path = scenario.path if scenario.path.name != "<memory>" else None
+        return ProcessWorld(path, winches, realtime, plant_rate_hz, eds, sim_args)
+    raise ValueError(f"rig must be 'inprocess' or 'process', got {kind!r}")

@@ -1,0 +1,276 @@
+"""The dry run's control loop (bench/dryrun/loop.py) on the pure-Python fake hardware: the
+platform follows a path, the model equal to the truth gives errors within the noise, every
+supervisor trigger gets its reaction within the bound, a stop leaves the drives held and the
+recording readable, an infeasible path is refused before anything moves."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
+from bench.dryrun.record import DryRunRecorder
+from bench.recording import read_recording
+from controller.effects import apply_effects
+from controller.paths import check_trajectory
+from controller.trajectory import Dwell, Move, Trajectory
+from controller.winch import load_winches
+from firmware_sim.plant import Plant
+from hal.drives_cia402 import DriveState
+from hal.fake import FakeHardware
+from hal.tracker import CallableTracker
+from tests.robots import rocaspect
+
+P0 = np.array([10.0, 8.56, 1.2, 0, 0, 0])
+TARGET = np.array([11.0, 9.06, 1.4, 0, 0, 0])
+W = load_winches()
+TRUTH_EFFECTS = {"mast_compliance": {f"k{a}_{m}": k for m in "1234"
+                                     for a, k in zip("xyz", (2e5, 5e5, 3e5), strict=True)},
+                 "exit_point_offset": {"dx_11": 0.03, "dy_21": -0.03, "dx_32": -0.03}}
+
+
+class World:
+    """FakeHardware over a plant, a noise-free tracker of the plant's pose."""
+
+    def __init__(self, model, truth, p0=P0, tension_hook=None, winches=W):
+        self.plant = Plant(model, truth, p0)
+        hook = tension_hook or (lambda t, tau: tau)
+        self.hw = FakeHardware(winches, initial_lengths_m=self.plant.reference,
+                               plant=lambda lm, t: hook(t, self.plant.measured_tensions(
+                                   self.plant.settle(lm, t).tensions)),
+                               tension_period_s=0.02)
+        self.tracker = CallableTracker(lambda: (self.hw.t, self.plant.state.pose.copy(), True))
+
+
+def _plan(model, specs):
+    def plan(p0):
+        traj = Trajectory(specs, p0)
+        chk = check_trajectory(model, traj)
+        if not chk.ok:
+            raise PathRefused(f"t={chk.t_s}: {chk.reason}")
+        return traj
+    return plan
+
+
+def _run(world, model, specs, tmp_path=None, stop=None, **opts):
+    rec = None
+    if tmp_path is not None:
+        def rec(p0):
+            return DryRunRecorder(tmp_path / "rec", model, p0, {"notes": "test"})
+    opt = LoopOptions(init_dwell_s=0.2, end_dwell_s=0.2, **opts)
+    loop = ControlLoop(world.hw, world.tracker, model, _plan(model, specs), opt, rec,
+                       stop=stop)
+    return loop, loop.run()
+
+
+SPECS = [Move(TARGET.tolist()), Dwell(0.5)]
+
+
+def test_model_equal_to_truth_follows_the_path_within_the_noise(tmp_path):
+    truth = apply_effects(rocaspect(), TRUTH_EFFECTS)
+    w = World(truth, truth)
+    loop, res = _run(w, truth, SPECS, tmp_path)
+    assert res.ended == "completed", res.message
+    assert res.overruns == 0 and res.cycles > 100
+    # the plant ends where the path ends; the tracker saw the path all along
+    np.testing.assert_allclose(w.plant.state.pose[:3], TARGET[:3], atol=2e-4)
+    assert res.pose_error_max_m < 5e-3 and res.pose_error_rms_m < 2e-3
+    assert not [e for e in res.events if e["reaction"] not in ("none", "event")]
+    rec = read_recording(tmp_path / "rec")
+    assert rec.state[0] == "init" and "move" in rec.state and rec.state[-1] == "end"
+    np.testing.assert_allclose(rec.init_pose, P0, atol=1e-9)
+    assert np.isfinite(rec.tau).all() and np.isfinite(rec.pose_meas).all()
+    # drives disabled at the end (brakes), nothing moving
+    assert not np.any(w.hw.read().states == DriveState.OPERATION_ENABLED)
+
+
+def test_nominal_model_misses_and_compliant_truth_is_what_it_misses():
+    truth = apply_effects(rocaspect(), TRUTH_EFFECTS)
+    nominal = rocaspect()
+    w = World(nominal, truth)
+    _, res = _run(w, nominal, SPECS)
+    assert res.ended == "completed"
+    err = np.linalg.norm(w.plant.state.pose[:3] - TARGET[:3])
+    assert err > 3e-3  # the model error shows away from p0
+
+
+def test_any_model_starts_at_the_drives_positions():
+    """Referencing: a model whose exits are 5 cm off starts without a jump (no following
+    error), the first setpoints within the stretch difference of the drives' positions."""
+    truth = rocaspect()
+    off = rocaspect(exits=rocaspect().exits + np.array([0.05, -0.04, 0.01]))
+    w = World(truth, truth)
+    loop, res = _run(w, off, [Dwell(0.3)])
+    assert res.ended == "completed", res.message
+    assert not [e for e in res.events if e["kind"] == "following_error"]
+    assert max(abs(v) for v in res.reference_offset_m) > 0.01
+
+
+def test_infeasible_path_is_refused_before_anything_moves(tmp_path):
+    model = rocaspect()
+    w = World(model, model)
+    far = [Move([19.5, 16.5, 0.3, 0, 0, 0])]  # into a corner, outside the feasible workspace
+    _, res = _run(w, model, far, tmp_path)
+    assert res.ended == "refused" and "t=" in res.message
+    assert not np.any(w.hw.read().states == DriveState.OPERATION_ENABLED)
+    assert not (tmp_path / "rec").exists()
+    assert w.hw.cycle < 5  # no cycles beyond start-up
+
+
+def _kinds(res, reaction=None):
+    return [(e["kind"], e["reaction"]) for e in res.events
+            if reaction is None or e["reaction"] == reaction]
+
+
+def _first_time(res, kind):
+    return min(e["t"] for e in res.events if e["kind"] == kind and e["active"])
+
+
+def test_drive_fault_quick_stops_every_drive_within_the_bound(tmp_path):
+    model = rocaspect()
+    w = World(model, model)
+    fired = {}
+
+    def hook(t, tau):
+        if t >= 0.6 and not fired:
+            fired["t"] = t
+            w.hw.inject_drive_fault(3, 0x2310)
+        return tau
+
+    w2 = World(model, model, tension_hook=hook)
+    w = w2
+    _, res = _run(w, model, SPECS, tmp_path)
+    assert res.ended == "quick_stop", res.message
+    t_detect = _first_time(res, "drive_fault")
+    assert t_detect - fired["t"] <= 3 * w.hw.period_s + 1e-9
+    st = w.hw.read().states
+    assert st[2] == DriveState.FAULT
+    assert np.all(np.delete(st, 2) == DriveState.QUICK_STOP_ACTIVE)  # held, not released
+    ev = [e for e in res.events if e["kind"] == "drive_fault"][0]
+    assert (ev["device"], ev["address"], ev["code"], ev["reaction"]) == (
+        "drive", 3, 0x2310, "quick_stop")
+    rec = read_recording(tmp_path / "rec")
+    assert rec.state[-1] == "quick_stop"
+    events = (tmp_path / "rec" / "events.csv").read_text()
+    assert "drive_fault" in events and "quick_stop" in events
+
+
+def test_loadcell_fault_is_substituted_and_logged_start_and_end(tmp_path):
+    model = rocaspect(compliant=True)
+    w = World(model, model)
+    calls = {"n": 0}
+
+    def tick_fault(t, tau):
+        calls["n"] += 1
+        if 0.5 <= t < 0.9:
+            w.hw.inject_loadcell_fault("21", "timeout")
+        else:
+            w.hw.clear_loadcell_fault("21")
+        return tau
+
+    w = World(model, model, tension_hook=tick_fault)
+    _, res = _run(w, model, SPECS, tmp_path)
+    assert res.ended == "completed", res.message
+    cell = [e for e in res.events if e["kind"] == "loadcell"]
+    assert [(e["address"], e["active"], e["reaction"]) for e in cell] == [
+        (3, True, "substitute"), (3, False, "substitute")]
+    assert res.substituted_cycles > 0
+    rec = read_recording(tmp_path / "rec")
+    sub = rec.extra["substituted"]
+    assert sub.max() == 1 and np.isnan(rec.tau[sub == 1, 2]).all()
+
+
+def test_nan_tension_never_stops_the_controller():
+    model = rocaspect(compliant=True)
+
+    def nan_hook(t, tau):
+        tau = tau.copy()
+        if 0.4 < t < 0.45:
+            tau[0] = np.nan
+        return tau
+
+    w = World(model, model, tension_hook=nan_hook)
+    _, res = _run(w, model, SPECS)
+    assert res.ended == "completed", res.message
+    assert ("loadcell", "substitute") in _kinds(res)
+
+
+def test_slack_cable_holds_the_platform(tmp_path):
+    model = rocaspect()
+
+    def slack(t, tau):
+        tau = tau.copy()
+        if t > 0.6:
+            tau[4] = 0.5
+        return tau
+
+    w = World(model, model, tension_hook=slack)
+    _, res = _run(w, model, SPECS, tmp_path, hold_timeout_s=0.5)
+    assert res.ended == "hold_timeout"
+    assert ("slack", "hold") in _kinds(res)
+    assert res.trajectory_s < res.path_s
+    rec = read_recording(tmp_path / "rec")
+    assert rec.state[-1] == "hold"
+    # the platform came to a stand-still along the path (no jump): last rows equal
+    np.testing.assert_allclose(rec.pose_des[-1], rec.pose_des[-5], atol=1e-6)
+
+
+def test_overload_quick_stops():
+    model = rocaspect()
+
+    def over(t, tau):
+        tau = tau.copy()
+        if t > 0.5:
+            tau[7] = 5000.0
+        return tau
+
+    w = World(model, model, tension_hook=over)
+    _, res = _run(w, model, SPECS)
+    assert res.ended == "quick_stop" and ("overload", "quick_stop") in _kinds(res)
+
+
+def test_following_error_quick_stops():
+    import dataclasses
+    model = rocaspect()
+    slow = dataclasses.replace(W, max_speed_m_s=np.full(8, 0.01))  # winches cannot follow
+    w = World(model, model, winches=slow)
+    _, res = _run(w, model, SPECS)
+    assert res.ended == "quick_stop"
+    assert ("following_error", "quick_stop") in _kinds(res)
+
+
+def test_stop_request_quick_stops_holds_and_leaves_a_readable_recording(tmp_path):
+    model = rocaspect()
+    stop = threading.Event()
+
+    def ask(t, tau):
+        if t > 0.7:
+            stop.set()
+        return tau
+
+    w = World(model, model, tension_hook=ask)
+    _, res = _run(w, model, SPECS, tmp_path, stop=stop)
+    assert res.ended == "interrupted"
+    assert np.all(w.hw.read().states == DriveState.QUICK_STOP_ACTIVE)
+    rec = read_recording(tmp_path / "rec")
+    assert rec.n_samples > 10 and rec.state[-1] == "quick_stop"
+    assert "dry run: interrupted" in (Path(tmp_path) / "rec" / "meta.toml").read_text()
+
+
+def test_decimation_records_every_nth_cycle(tmp_path):
+    model = rocaspect()
+    w = World(model, model)
+    _, res = _run(w, model, [Dwell(0.4)], tmp_path, decimate=5)
+    rec = read_recording(tmp_path / "rec")
+    assert rec.n_samples == res.cycles // 5
+
+
+@pytest.mark.parametrize("given", [True, False])
+def test_init_pose_given_or_measured(given):
+    model = rocaspect()
+    w = World(model, model)
+    _, res = _run(w, model, [Dwell(0.2)], init_pose=P0 if given else None)
+    np.testing.assert_allclose(res.init_pose, P0, atol=1e-9)
