@@ -584,7 +584,8 @@ class Segment:
     ``kind`` of the spec it comes from (move, line, circle, dwell, visits), ``label``
     (``move`` or ``dwell``), ``start`` and ``target`` poses (6,), the spec's ``name``;
     for visits, ``pose_index`` (index of the target in the spec's list) and ``round``
-    (0-based visit round), else -1."""
+    (0-based visit round), else -1; ``cycle``: which repetition of the whole segment list
+    (0-based, see ``repeat`` of :class:`Trajectory`; -1 for the approach)."""
 
     t0: float
     t1: float
@@ -595,6 +596,7 @@ class Segment:
     name: str = ""
     pose_index: int = -1
     round: int = -1
+    cycle: int = 0
     motion: _Motion = field(default=None, repr=False, compare=False)
 
     @property
@@ -618,6 +620,9 @@ class TrajectorySample(NamedTuple):
 class Trajectory:
     """A timed sequence of segments from ``start_pose`` (6,) under ``limits``.
 
+    ``repeat``: run the specs that many times (ISO 9283 path tests repeat a path), after
+    the first ``approach`` specs (not repeated: e.g. the move from the init pose to the
+    path's start).
     ``segments``: the :class:`Segment` list (zero-length moves are dropped);
     ``duration_s``; :meth:`sample` for a time or an array of times [s]; before 0 the
     platform is at the start, after the end at the last target (with the last segment's
@@ -625,7 +630,10 @@ class Trajectory:
     """
 
     def __init__(self, specs: Sequence[SegmentSpec], start_pose: Sequence[float],
-                 limits: MotionLimits | None = None) -> None:
+                 limits: MotionLimits | None = None, repeat: int = 1,
+                 approach: int = 0) -> None:
+        if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
+            raise TrajectoryError(f"repeat must be an integer >= 1, got {repeat!r}")
         self.limits = limits if limits is not None else MotionLimits()
         p = np.asarray(start_pose, dtype=float).ravel()
         if p.shape != (6,) or not np.isfinite(p).all():
@@ -635,17 +643,26 @@ class Trajectory:
         t = 0.0
         cur = p.copy()
 
+        cycle = -1
+
         def add(motion: _Motion, kind: str, target: np.ndarray, name: str,
                 pose_index: int = -1, rnd: int = -1) -> None:
             nonlocal t, cur
             if motion.duration <= 0.0:
                 return
             segs.append(Segment(t, t + motion.duration, kind, motion.label, cur.copy(),
-                                np.array(target, float), name, pose_index, rnd, motion))
+                                np.array(target, float), name, pose_index, rnd, cycle,
+                                motion))
             t += motion.duration
             cur = np.array(target, dtype=float)
 
-        for k, spec in enumerate(specs):
+        specs = list(specs)
+        plan = [(-1, k) for k in range(min(approach, len(specs)))]
+        plan += [(c, k) for c in range(repeat) for k in range(min(approach, len(specs)),
+                                                               len(specs))]
+        for cyc, k in plan:
+            cycle = cyc  # read by add()
+            spec = specs[k]
             where = spec.where or f"segment #{k + 1} ({type(spec).__name__.lower()})"
             try:
                 if isinstance(spec, Move):
