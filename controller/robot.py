@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -37,6 +36,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from controller.tomlfile import Locator as _Locator
 from controller.tomlfile import read_toml
 
 
@@ -159,43 +159,6 @@ _CABLE_KEYS = {
     "id", "mast", "exit", "anchor", "pulley_radius", "ea", "drum_scale", "length_offset",
     "load_cell_gain", "load_cell_offset",
 }
-
-
-class _Locator:
-    """Finds the line of a key in TOML text, for error messages."""
-
-    def __init__(self, text: str) -> None:
-        self.lines = text.splitlines()
-
-    def _table_start(self, table: str | None, index: int | None) -> int:
-        if table is None:
-            return 0
-        pat = re.compile(r"^\s*\[\[\s*" + re.escape(table) + r"\s*\]\]" if index is not None
-                         else r"^\s*\[\s*" + re.escape(table) + r"\s*\]")
-        count = -1
-        for i, line in enumerate(self.lines):
-            if pat.match(line):
-                count += 1
-                if index is None or count == index:
-                    return i
-        return -1
-
-    def line(self, table: str | None, index: int | None, key: str | None) -> int | None:
-        start = self._table_start(table, index)
-        if start < 0:
-            return None
-        if key is None:
-            return start + 1
-        pat = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
-        for i in range(start + (1 if table else 0), len(self.lines)):
-            line = self.lines[i]
-            if i > start and table and re.match(r"^\s*\[", line):
-                break
-            if table is None and re.match(r"^\s*\[", line):
-                break
-            if pat.match(line):
-                return i + 1
-        return start + 1
 
 
 class _Reader:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -19,3 +20,45 @@ def read_toml(path: str | Path, error: type[Exception]) -> tuple[dict[str, Any],
         return tomllib.loads(text), text
     except tomllib.TOMLDecodeError as e:
         raise error(f"{p}: TOML syntax error, not valid TOML: {e}") from e
+
+
+#: a table header line ([name], [[name]], ["quoted"]), not a line of a multi-line array
+_HEADER = re.compile(r"^\s*\[\[?\s*[A-Za-z_\"']")
+
+
+class Locator:
+    """Finds the line of a key in TOML text, for error messages: ``line(table, index, key)``
+    for key ``key`` of ``[table]`` (``index`` None) or of the ``index``-th ``[[table]]``
+    (0-based), or of the top level (``table`` None); the table's own line when the key is
+    not written there, None when the table is not found."""
+
+    def __init__(self, text: str) -> None:
+        self.lines = text.splitlines()
+
+    def _table_start(self, table: str | None, index: int | None) -> int:
+        if table is None:
+            return 0
+        pat = re.compile(r"^\s*\[\[\s*" + re.escape(table) + r"\s*\]\]" if index is not None
+                         else r"^\s*\[\s*" + re.escape(table) + r"\s*\]")
+        count = -1
+        for i, line in enumerate(self.lines):
+            if pat.match(line):
+                count += 1
+                if index is None or count == index:
+                    return i
+        return -1
+
+    def line(self, table: str | None, index: int | None, key: str | None) -> int | None:
+        start = self._table_start(table, index)
+        if start < 0:
+            return None
+        if key is None:
+            return start + 1
+        pat = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
+        for i in range(start + (1 if table else 0), len(self.lines)):
+            line = self.lines[i]
+            if (i > start or table is None) and _HEADER.match(line):
+                break
+            if pat.match(line):
+                return i + 1
+        return start + 1

@@ -7,7 +7,11 @@
   :class:`~firmware_sim.can_hub.CanHub`, or any bus handed in, e.g. SocketCAN);
 - a :class:`~firmware_sim.loadcell_bank.LoadCellBank` behind a
   :class:`~firmware_sim.loadcell_server.LoadCellServer` (Modbus/TCP, or RTU framing over TCP);
-- :class:`~firmware_sim.plant.Plant`, the robot as the scenario says it really is.
+- :class:`~firmware_sim.plant.Plant`, the robot as the scenario says it really is;
+- a :class:`~firmware_sim.tracker_sim.SimTracker` (the plant's pose plus the scenario's
+  tracker noise, time stamped with the plant's time): in process with
+  :meth:`SimRig.measure_pose`, and over TCP (``tracker_port``) with the ``cdpr-tracker/1``
+  protocol (:attr:`SimRig.tracker_spec`, the HAL's ``--tracker`` form).
 
 The drives' positions are the cable length readings. They start at the plant's encoder
 reference ``d_model(p0)``, so the platform stands at the scenario's init pose. The plant
@@ -50,6 +54,7 @@ from firmware_sim.loadcell_bank import LoadCellBank
 from firmware_sim.loadcell_server import LoadCellServer
 from firmware_sim.plant import Nuisances, Plant, PlantError, PlantState
 from firmware_sim.scenario import FORMAT, Scenario, parse_scenario
+from firmware_sim.tracker_sim import DEFAULT_RATE_HZ, SimTracker, TrackerServer
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +97,9 @@ class SimRig:
     :param plant_thread: settle in the rig's thread (else only in :meth:`settle_now`)
     :param plant_rate_hz: settles per second at most
     :param cell_rate_hz: load-cell samples per second
+    :param tracker_port: serve the simulated tracker over TCP on this port (0: any free
+        one; None: in process only); ``tracker_host`` the address it binds,
+        ``tracker_rate_hz`` measurements per second
     """
 
     def __init__(
@@ -110,6 +118,9 @@ class SimRig:
         plant_thread: bool = True,
         plant_rate_hz: float = 20.0,
         cell_rate_hz: float = 50.0,
+        tracker_port: int | None = None,
+        tracker_host: str = "127.0.0.1",
+        tracker_rate_hz: float = DEFAULT_RATE_HZ,
     ) -> None:
         if clock not in ("sync", "wall"):
             raise ValueError(f"clock must be 'sync' or 'wall', got {clock!r}")
@@ -162,6 +173,12 @@ class SimRig:
                              f"{self.cells.map.cables}, winches for {self.winches.cables}")
         self.server = LoadCellServer(self.cells, host=modbus_host, port=modbus_port, rtu=rtu)
 
+        # laser tracker: the plant's pose with the scenario's noise
+        self.tracker = SimTracker(lambda: (self.time_s(), self.last.pose),
+                                  sc.noise.tracker_m, sc.noise.tracker_rad, seed=sc.seed + 3)
+        self.tracker_server = None if tracker_port is None else TrackerServer(
+            self.tracker.measure, host=tracker_host, port=tracker_port, rate_hz=tracker_rate_hz)
+
         # plant state
         self._lock = threading.Condition()
         self._t0 = time.monotonic()
@@ -183,6 +200,8 @@ class SimRig:
         """Power the drives on, serve the cells (and the hub), start the rig's thread."""
         self.cells.update(self.history[-1].measured_N)  # a first sample before any read
         self.server.start()
+        if self.tracker_server is not None:
+            self.tracker_server.start()
         if self.hub is not None:
             self.hub.start()
         self.bank.start()
@@ -200,6 +219,8 @@ class SimRig:
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         self.server.stop()
+        if self.tracker_server is not None:
+            self.tracker_server.close()
         if self.hub is not None:
             self.hub.close()
         self.bank.close()
@@ -228,12 +249,23 @@ class SimRig:
         """The load cells in the HAL's ``--modbus`` form."""
         return self.server.endpoint
 
+    @property
+    def tracker_spec(self) -> str | None:
+        """The simulated tracker in the HAL's ``--tracker`` form (None: in process only)."""
+        return None if self.tracker_server is None else self.tracker_server.spec
+
+    def measure_pose(self) -> tuple[float, np.ndarray, bool]:
+        """A tracker measurement now: ``(t_s, pose (6,), valid)``, the plant's time and
+        pose plus the scenario's tracker noise (``hal.tracker.CallableTracker`` takes it)."""
+        return self.tracker.measure()
+
     def endpoints(self) -> dict:
-        """Where the rig serves, as plain data (``can``, ``modbus``, ids)."""
+        """Where the rig serves, as plain data (``can``, ``modbus``, ``tracker``, ids)."""
         return {
             "can": self.can_spec,
             "virtual": self._bus_spec,
             "modbus": self.modbus_spec,
+            "tracker": self.tracker_spec,
             "node_ids": [int(x) for x in self.winches.node_id],
             "unit_ids": list(self.cells.map.unit_ids),
             "cables": list(self.winches.cables),

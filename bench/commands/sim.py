@@ -8,6 +8,7 @@ prints where it listens, in the forms the HAL takes::
 
     --can socketcand:127.0.0.1:40123
     --modbus 127.0.0.1:40124
+    --tracker tcp:127.0.0.1:40125
 
 (one JSON object on one line with ``--json``) and runs until SIGINT or SIGTERM (exit 0).
 A scenario file that is not valid is reported with file and field (exit 2).
@@ -42,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="TCP port of the socketcand hub (0: any free one) [0]")
     p.add_argument("--modbus-port", type=int, default=0, metavar="Q",
                    help="TCP port of the load cells (0: any free one) [0]")
+    p.add_argument("--tracker-port", type=int, default=0, metavar="T",
+                   help="TCP port of the simulated laser tracker, cdpr-tracker/1 protocol "
+                        "(0: any free one) [0]")
     p.add_argument("--rtu", action="store_true",
                    help="load cells with RTU framing over TCP (--modbus rtu-tcp:HOST:PORT)")
     p.add_argument("--can", metavar="SPEC", default=None,
@@ -71,7 +75,7 @@ def _port(args: argparse.Namespace, name: str) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for name in ("can-port", "modbus-port"):
+    for name in ("can-port", "modbus-port", "tracker-port"):
         if (msg := _port(args, name)) is not None:
             return _fail(args, 2, msg)
     if not args.plant_rate > 0:
@@ -93,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
         rig = SimRig(scenario, clock=args.clock, bus=bus,
                      hub_port=None if bus is not None else args.can_port, hub_host=args.host,
                      modbus_host=args.host, modbus_port=args.modbus_port, rtu=args.rtu,
-                     plant_rate_hz=args.plant_rate)
+                     plant_rate_hz=args.plant_rate, tracker_port=args.tracker_port,
+                     tracker_host=args.host)
     except OSError as exc:
         if bus is not None:
             bus.shutdown()
@@ -118,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         info = {
             "can": can_spec,
             "modbus": rig.modbus_spec,
+            "tracker": rig.tracker_spec,
             "node_ids": [int(x) for x in rig.winches.node_id],
             "unit_ids": list(rig.cells.map.unit_ids),
             "cables": list(rig.winches.cables),
@@ -136,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
                   f"init pose {np.round(sc.init_pose, 4).tolist()}")
             print(f"  --can {can_spec}")
             print(f"  --modbus {rig.modbus_spec}")
+            print(f"  --tracker {rig.tracker_spec}")
             print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)
         if args.exit_on_stdin_eof:
             def _watch() -> None:
