@@ -5,6 +5,7 @@ recording readable, an infeasible path is refused before anything moves."""
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from pathlib import Path
 
@@ -26,7 +27,8 @@ from tests.robots import rocaspect
 
 P0 = np.array([10.0, 8.56, 1.2, 0, 0, 0])
 TARGET = np.array([11.0, 9.06, 1.4, 0, 0, 0])
-W = load_winches()
+# quick stop ends holding in Quick Stop Active (0x605A option 6), as the shipped file says
+W = dataclasses.replace(load_winches(), quick_stop_option=np.full(8, 6))
 TRUTH_EFFECTS = {"mast_compliance": {f"k{a}_{m}": k for m in "1234"
                                      for a, k in zip("xyz", (2e5, 5e5, 3e5), strict=True)},
                  "exit_point_offset": {"dx_11": 0.03, "dy_21": -0.03, "dx_32": -0.03}}
@@ -112,7 +114,7 @@ def test_any_model_starts_at_the_drives_positions():
 def test_infeasible_path_is_refused_before_anything_moves(tmp_path):
     model = rocaspect()
     w = World(model, model)
-    far = [Move([19.5, 16.5, 0.3, 0, 0, 0])]  # into a corner, outside the feasible workspace
+    far = [Move([20.5, 8.56, 0.5, 0, 0, 0])]  # to the side, out of the feasible workspace
     _, res = _run(w, model, far, tmp_path)
     assert res.ended == "refused" and "t=" in res.message
     assert not np.any(w.hw.read().states == DriveState.OPERATION_ENABLED)
@@ -233,7 +235,6 @@ def test_overload_quick_stops():
 
 
 def test_following_error_quick_stops():
-    import dataclasses
     model = rocaspect()
     slow = dataclasses.replace(W, max_speed_m_s=np.full(8, 0.01))  # winches cannot follow
     w = World(model, model, winches=slow)

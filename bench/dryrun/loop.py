@@ -71,7 +71,8 @@ class LoopOptions:
     measure it with the tracker, mean of ``init_samples`` fresh samples);
     ``init_dwell_s``/``end_dwell_s`` [s] standing still before and after the trajectory;
     ``stop_timeout_s`` [s]: a quick stop must reach stand-still within it;
-    ``hold_timeout_s`` [s]: a hold that does not clear within it ends the run;
+    ``hold_timeout_s`` [s]: a hold whose condition does not clear within this time after
+    the platform came to a stand-still ends the run (drives disabled, brakes hold);
     ``max_duration_s``: stop after this much trajectory time (None: the whole path).
     """
 
@@ -145,7 +146,7 @@ class CrossTrack:
         self._pts: deque[np.ndarray] = deque(maxlen=max(2, int(window_s / period_s) + 1))
 
     def command(self, pos: np.ndarray) -> None:
-        if not self._pts or np.any(self._pts[-1] != pos):
+        if not self._pts or np.any(self._pts[-1] != pos[:3]):
             self._pts.append(np.array(pos[:3], float))
 
     def error(self, pos: np.ndarray) -> float:
@@ -322,6 +323,14 @@ class ControlLoop:
         except Exception:  # the bus may be gone: the drives' own master-loss reaction acts
             pass
 
+    def _stood_too_long(self, feed: FeedRate, t: float) -> bool:
+        """Whether a held platform has stood still for longer than the hold timeout."""
+        if not feed.stopped:
+            return False
+        if self._stood_since is None:
+            self._stood_since = t
+        return t - self._stood_since > self.opt.hold_timeout_s
+
     def _cycle_loop(self, p0: np.ndarray, traj: Trajectory) -> None:
         hw, opt, res = self.hw, self.opt, self.result
         ctl = self.controller
@@ -342,7 +351,8 @@ class ControlLoop:
             end_at = min(end_at, opt.max_duration_s)
         t_traj = 0.0
         stopping = 0  # cycles since a quick stop was sent
-        held_since: float | None = None
+        held_since: float | None = None  # a hold began (the feed ramps down)
+        self._stood_since: float | None = None  # the held platform stands still
         last_track_t = -math.inf
         nan6 = np.full(6, np.nan)
         pose_des = p0.copy()
@@ -421,7 +431,7 @@ class ControlLoop:
                 else:
                     cmd = out.lengths
             else:
-                held_since = None
+                held_since = self._stood_since = None
                 cmd = out.lengths if out.feasible else last_sent
             if not stopping:
                 bad = ~np.isfinite(cmd) | (cmd - hw.reference_offset_m < w.min_length_m) | (
@@ -465,7 +475,7 @@ class ControlLoop:
                                             if e["reaction"] in ("quick_stop",)
                                             and e["active"]), "")
                     break
-            elif held_since is not None and t - held_since > opt.hold_timeout_s:
+            elif held_since is not None and self._stood_too_long(feed, t):
                 res.ended = "hold_timeout"
                 res.message = (f"held for {opt.hold_timeout_s} s: "
                                f"{', '.join(d.conditions) or 'condition'} did not clear")

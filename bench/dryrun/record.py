@@ -8,7 +8,7 @@
   the encoder reference of the initialisation);
 - ``tau_{ij}`` [N] the load cells' tensions as read (``nan`` when not valid);
 - ``x_meas`` .. ``yaw_meas`` the tracker's pose (``nan`` when it has none);
-- extra: ``tau_plan_{ij}`` [N] the tensions the controller planned, ``substituted`` the
+- extra: ``plan_tau_{ij}`` [N] the tensions the controller planned, ``substituted`` the
   number of load cells replaced by planned tensions in the mast update;
 - ``state``: ``init`` (initialisation dwell), ``move``/``dwell`` (the trajectory's labels:
   a dwell stands at a target; replicate visits have equal ``*_des``), ``hold`` (feed hold),
@@ -39,7 +39,7 @@ def columns(robot: Robot) -> list[str]:
     c = robot.cable_ids
     return (["t"] + [f"{a}_des" for a in POSE_AXES] + [f"l_cmd_{k}" for k in c]
             + [f"l_meas_{k}" for k in c] + [f"tau_{k}" for k in c]
-            + [f"{a}_meas" for a in POSE_AXES] + [f"tau_plan_{k}" for k in c]
+            + [f"{a}_meas" for a in POSE_AXES] + [f"plan_tau_{k}" for k in c]
             + ["substituted"])
 
 

@@ -92,7 +92,7 @@ def plot_run(recording: str | Path, out_dir: str | Path, max_points: int = 20000
     plt.close(fig)
 
     fig, ax = plt.subplots(2, 1, figsize=(12, 8), sharex=True)
-    plan = np.column_stack([rec.extra.get(f"tau_plan_{c}", np.full(rec.n_samples, np.nan))
+    plan = np.column_stack([rec.extra.get(f"plan_tau_{c}", np.full(rec.n_samples, np.nan))
                             for c in rec.robot.cable_ids])[::step]
     colours = plt.cm.tab10(np.arange(rec.robot.n_cables) % 10)
     for k, c in enumerate(rec.robot.cable_ids):
