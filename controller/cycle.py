@@ -42,7 +42,7 @@ from controller.tension import distribute
 _NONE = np.zeros(0, bool)
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class CycleOutput:
     """One cycle's result: ``lengths`` setpoints (n,) [m] in the encoder reference;
     ``tensions`` planned (n,) [N]; ``exits`` A# used (n,3) [m]; ``feasible``;
@@ -83,6 +83,12 @@ class LengthController:
         self.plausible_n = float(plausible_n)
         self._a_star = settled_exits(robot)
         self._r = lever_arms(self._a_star, robot.pivots, robot.mast_index)
+        # the model's constants, looked up once (the cycle runs hundreds of times a second)
+        self._compliance = robot.compliance
+        self._radius = robot.pulley_radius if robot.has_pulleys else None
+        self._gain, self._loff = robot.load_cell_gain, robot.load_cell_offset
+        self._plain_cells = bool(np.all(self._gain == 1) and np.all(self._loff == 0))
+        self._compliant = robot.compliant
         p0 = np.asarray(init_pose, dtype=float)
         tau0 = None
         if init_tensions is not None:
@@ -116,10 +122,12 @@ class LengthController:
         """Tensions for the mast update and the substituted mask: the readings corrected by
         the model's load-cell calibration, where valid; the last planned tensions where not
         (marked invalid, not finite, below ``-0.05·plausible_n`` or above ``plausible_n``)."""
-        tau = self.true_tensions(measured)
-        ok = np.isfinite(tau) & (tau <= self.plausible_n) & (tau >= -0.05 * self.plausible_n)
+        tau = np.asarray(measured, float) if self._plain_cells else \
+            (np.asarray(measured, float) - self._loff) / self._gain
+        # NaN fails both comparisons: not finite is not plausible
+        ok = (tau <= self.plausible_n) & (tau >= -0.05 * self.plausible_n)
         if valid is not None:
-            ok &= np.asarray(valid, bool)
+            ok &= valid
         if ok.all():
             return tau, ~ok
         return np.where(ok, tau, self._planned), ~ok
@@ -139,22 +147,24 @@ class LengthController:
             self._planned = ps.tensions
             self._last = self.setpoints(ps.unstretched)
             return CycleOutput(self._last.copy(), ps.tensions, ps.exits, True)
-        if rob.compliant and measured_tensions is not None:
+        compliant = self._compliant
+        if compliant and measured_tensions is not None:
             tau_m, substituted = self.mast_tensions(measured_tensions, valid)
-            theta = mast_rotations(rob.compliance, self._r, tau_m, self._u, rob.mast_index)
+            theta = mast_rotations(self._compliance, self._r, tau_m, self._u, rob.mast_index)
             exits = deflect(self._a_star, self._r, theta, rob.mast_index)
         else:
             exits = self._exits
-        st = cable_state(pose, rob.anchors, exits, rob.pulley_radius)
+        st = cable_state(pose, rob.anchors, exits, self._radius)
         W = wrench_matrix(st)
         res = distribute(W, gravity_wrench(rob.mass, rob.com, rob.gravity, st.R),
                          rob.tension_min, rob.tension_max, self.method)
         if not res.feasible:
             return CycleOutput(self._last.copy(), res.tensions, exits, False, res.reason,
                                substituted)
-        if rob.compliant and measured_tensions is None:
+        if compliant and measured_tensions is None:
             # no load cells: move the exit points with the planned tensions (next cycle)
-            theta = mast_rotations(rob.compliance, self._r, res.tensions, st.u, rob.mast_index)
+            theta = mast_rotations(self._compliance, self._r, res.tensions, st.u,
+                                   rob.mast_index)
             self._exits = deflect(self._a_star, self._r, theta, rob.mast_index)
         self._u = st.u
         self._planned = res.tensions

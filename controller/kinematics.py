@@ -28,7 +28,7 @@ EZ = np.array([0.0, 0.0, 1.0])
 _NO_PLANE = np.zeros((0, 3))  # e_h placeholder when no cable has a pulley
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class CableState:
     """Geometry of all cables at one pose (arrays over the n cables).
 
@@ -39,7 +39,8 @@ class CableState:
     ``beta`` (n,): wrap angle [rad]; ``length`` (n,): r*beta + free [m];
     ``e_h`` (n,3) and ``b_h`` (n,): pulley plane direction and horizontal
     distance from the swivel axis to B (used by derivatives; ``e_h`` is empty
-    when no cable has a pulley).
+    when no cable has a pulley). A plain record (not frozen: made every control cycle);
+    treat it as read-only.
     """
 
     R: np.ndarray
@@ -81,19 +82,30 @@ def cable_state(
         zeros = np.zeros(d.shape)
         return CableState(R, Rb, B, exits, exits, u, d, zeros, d, zeros, _NO_PLANE, zeros)
     r = np.asarray(radius, dtype=float)
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    b_h = np.hypot(bx, by)
-    safe = np.where(b_h > 0, b_h, 1.0)
-    e_h = np.stack([bx / safe, by / safe, np.zeros(b_h.shape)], axis=-1)
-    e_h[b_h == 0] = (1.0, 0.0, 0.0)
+    bz = b[..., 2]
+    e_h = b.copy()
+    e_h[..., 2] = 0.0
+    b_h = np.sqrt((e_h * e_h).sum(axis=-1))
+    on_axis = b_h == 0  # B on the swivel axis (degenerate): any plane, take +x
+    if on_axis.any():
+        e_h[on_axis] = (1.0, 0.0, 0.0)
+        e_h /= np.where(on_axis, 1.0, b_h)[..., None]
+    else:
+        e_h /= b_h[..., None]
     h = b_h - r  # horizontal distance from the pulley centre M to B
-    D = np.hypot(h, bz)  # bz: vertical distance from M (at A's height) to B
-    free = np.sqrt(np.maximum(D * D - r * r, 0.0))
-    phi_b = np.arctan2(bz, h)
-    phi_c = phi_b + np.arccos(np.clip(np.where(D > 0, r / np.where(D > 0, D, 1), 0), -1, 1))
-    beta = np.where(r > 0, np.pi - phi_c, 0.0)
-    M = exits + r[:, None] * e_h
-    C = M + r[:, None] * (np.cos(phi_c)[..., None] * e_h + np.sin(phi_c)[..., None] * EZ)
+    D2 = h * h + bz * bz  # bz: vertical distance from M (at A's height) to B
+    free = np.sqrt(np.maximum(D2 - r * r, 0.0))
+    # phi_c = atan2(bz, h) + acos(r / D): its cosine and sine by the angle-sum formulas
+    inv_d2 = 1.0 / np.where(D2 > 0, D2, 1.0)
+    cos_c = (h * r - bz * free) * inv_d2
+    sin_c = (bz * r + h * free) * inv_d2
+    beta = np.pi - np.arctan2(sin_c, cos_c)
+    no_pulley = r == 0
+    if no_pulley.any():
+        beta[..., no_pulley] = 0.0
+    # C = M + r (cos phi_c e_h + sin phi_c ez), M = A + r e_h
+    C = exits + (r * (1.0 + cos_c))[..., None] * e_h
+    C[..., 2] += r * sin_c
     u = (C - B) / free[..., None]
     length = r * beta + free
     return CableState(R, Rb, B, exits, C, u, free, beta, length, r, e_h, b_h)

@@ -145,7 +145,7 @@ class DeviceFault:
     text: str
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Observation:
     """What one cycle saw. Arrays (n,) in cable order.
 
@@ -237,6 +237,10 @@ class Supervisor:
     _conds: dict[str, _Cond] = field(default_factory=dict)
     _overruns: int = 0
     _blind_since: float | None = None
+    _none: Decision | None = None  #: the "nothing wrong" decision, reused
+
+    def __post_init__(self) -> None:
+        self._tau_hi = min(self.limits.overload_n, self.limits.plausible_n)
 
     def _cond_list(self, obs: Observation) -> list[_Cond]:
         """Every condition this observation shows (unconfirmed)."""
@@ -311,8 +315,32 @@ class Supervisor:
                              f"{self._overruns} consecutive cycles missed their deadline"))
         return out
 
+    def _healthy(self, obs: Observation) -> bool:
+        """Nothing to look at this cycle and nothing pending (the common case, vectorised)."""
+        if (self._conds or self.latched or obs.faults or obs.overrun or not obs.feasible):
+            return False
+        lim = self.limits
+        tau = obs.tensions
+        # NaN fails the comparisons: a missing value is not healthy
+        if not (obs.tension_ok.all() and ((tau >= lim.slack_n) & (tau <= self._tau_hi)).all()):
+            return False
+        if obs.expect_enabled and not obs.enabled.all():
+            return False
+        if obs.lengths_cmd is not None and not (
+                np.abs(obs.lengths_meas - obs.lengths_cmd) <= lim.following_error_m).all():
+            return False
+        return True
+
     def step(self, obs: Observation) -> Decision:
         """Decide for this cycle (see the module docstring)."""
+        if self._healthy(obs):
+            self._overruns = 0
+            self._blind_since = None
+            if self._none is None or len(self._none.substitute) != len(obs.tensions):
+                none = np.zeros(len(obs.tensions), bool)
+                none.setflags(write=False)
+                self._none = Decision(Reaction.NONE, none)
+            return self._none
         lim = self.limits
         seen = {f"{c.kind}:{c.device}:{c.address}": c for c in self._cond_list(obs)}
         events: list[SupervisorEvent] = []

@@ -17,6 +17,7 @@ checked) and stays within bounds.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +25,7 @@ from scipy.linalg.lapack import dposv
 from scipy.optimize import linprog
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class TensionResult:
     """Result of a tension distribution.
 
@@ -64,14 +65,24 @@ def closed_form(W: np.ndarray, f: np.ndarray, tmin: float, tmax: float,
     """Improved closed-form tension distribution (Pott 2014), ``W tau = f``: the tensions
     closest to the middle of the range, or to ``target`` (n,) when given."""
     m, n = W.shape
-    if not (np.isfinite(W).all() and np.isfinite(f).all()):
+    if not math.isfinite(float(W.sum()) + float(np.sum(f))):
         return _fail(n, "closed-form: non-finite wrench matrix or wrench")
+    f = np.asarray(f, dtype=float)
+    tol = _tolerance(f, tmax)
+    # the common case in a control cycle: one solve around the middle of the range (or the
+    # target), every tension within bounds
+    tm0 = 0.5 * (tmin + tmax) if target is None else np.asarray(target, float)
+    _, y, info = dposv(W @ W.T, f - W @ (np.full(n, tm0) if target is None else tm0))
+    if info == 0:
+        sol = y @ W
+        sol += tm0
+        if sol.min() >= tmin - tol and sol.max() <= tmax + tol:
+            return _check(W, f, sol, tmin, tmax, 1, "closed-form", tol)
     tau = np.empty(n)
     free = np.ones(n, dtype=bool)
     idx_free = np.arange(n)
-    rhs = np.asarray(f, dtype=float)
+    rhs = f
     tm = np.full(n, 0.5 * (tmin + tmax)) if target is None else np.asarray(target, float)
-    tol = _tolerance(f, tmax)
     Wf = W
     for it in range(1, n + 1):
         k = len(idx_free)

@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from bench.dryrun.scenarios import max_rate_hz, resolve_scenario
+    from bench.dryrun.scenarios import max_rate_hz, resolve_scenario, sync_period_us
     from controller.robot import RobotFileError, resolve_robot
     from controller.winch import load_winches
     from firmware_sim.scenario import ScenarioError, load_scenario
@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     from bench.dryrun.record import DryRunRecorder
     from bench.dryrun.world import start_world, with_rate
 
-    winches = with_rate(winches, 1.0 / rate)
+    winches = with_rate(winches, sync_period_us(rate) * 1e-6)
     period = winches.bus.sync_period_s
     rate = 1.0 / period
     decimate = args.decimate or max(1, int(round(rate / 50.0)))
@@ -243,9 +243,9 @@ def run(args: argparse.Namespace) -> int:
                 if tick is not None:
                     base_tick = tick
 
-                    def tick(t_s, _b=base_tick, _i=injector):
-                        _i.advance(t_s)
-                        _b(t_s)
+                    def tick(_b=base_tick, _i=injector, _rig=world.rig):
+                        _i.advance(_rig.time_s())
+                        _b()
                 else:
                     injector.start()
             opts = LoopOptions(realtime=args.realtime, decimate=decimate,

@@ -202,15 +202,15 @@ class ControlLoop:
 
     ``plan(p0) -> Trajectory`` builds and checks the trajectory from the measured init pose
     (raises :class:`PathRefused`); ``open_recorder(p0)`` the recording (or None);
-    ``tick(t_s)`` advances a simulated world in lock-step after each SYNC (None for real
-    hardware); ``on_event(line)`` logs; ``on_progress(result, t_traj)`` is called about
-    four times a second; ``stop`` (set by SIGINT) ends the run with a quick stop.
+    ``tick()`` advances a simulated world in lock-step after each SYNC's answers arrived
+    (None for real hardware); ``on_event(line)`` logs; ``on_progress(result, t_traj)`` is
+    called about four times a second; ``stop`` (set by SIGINT) ends the run with a quick stop.
     """
 
     def __init__(self, hw: WinchHardware, tracker: Tracker, model: Robot,
                  plan: Callable[[np.ndarray], Trajectory], options: LoopOptions,
                  open_recorder: Callable[[np.ndarray], DryRunRecorder | None] | None = None,
-                 tick: Callable[[float], None] | None = None,
+                 tick: Callable[[], None] | None = None,
                  on_event: Callable[[str], None] | None = None,
                  on_progress: Callable[[LoopResult, float], None] | None = None,
                  stop: threading.Event | None = None) -> None:
@@ -378,7 +378,7 @@ class ControlLoop:
             hw.write_lengths(None if stopping else cmd)
             if self.tick is not None:
                 hw.wait_feedback()
-                self.tick(hw.read().t_s)
+                self.tick()
             r = hw.read()
             k += 1
             res.cycles = k
@@ -444,21 +444,22 @@ class ControlLoop:
                     cmd = last_sent
                     held_since = held_since if held_since is not None else t
                 last_sent = cmd
-            # ---- measurements: tracker, pose error against the commanded path
+            # ---- measurements (at the recording's rate): tracker, error to the path
             xt.command(pose_des)
-            tr = self.tracker.read()
-            pose_meas = nan6
-            if tr.valid and np.all(np.isfinite(tr.pose)):
-                pose_meas = tr.pose
-                if tr.t_s > last_track_t and state not in (INIT, QUICK_STOP):
-                    err = xt.error(tr.pose)
-                    res.pose_errors += 1
-                    res.pose_error_sq += err * err
-                    res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
-                last_track_t = tr.t_s
-            if self.recorder is not None and (k % opt.decimate == 0):
-                self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N, pose_meas,
-                                  out_tensions, substituted, state)
+            if k % opt.decimate == 0:
+                tr = self.tracker.read()
+                pose_meas = nan6
+                if tr.valid and np.all(np.isfinite(tr.pose)):
+                    pose_meas = tr.pose
+                    if tr.t_s > last_track_t and state not in (INIT, QUICK_STOP):
+                        err = xt.error(tr.pose)
+                        res.pose_errors += 1
+                        res.pose_error_sq += err * err
+                        res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
+                    last_track_t = tr.t_s
+                if self.recorder is not None:
+                    self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N,
+                                      pose_meas, out_tensions, substituted, state)
             res.simulated_s = k * T
             res.trajectory_s = t_traj
             # ---- end conditions

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from controller.winch import WinchSet
 from hal.bus_load import CycleConfig
+from hal.drives_config import DriveConfigError, interpolation_period
 
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "data" / "scenarios"
 
@@ -48,9 +49,23 @@ def bus_config(winches: WinchSet) -> CycleConfig:
 
 
 def max_rate_hz(winches: WinchSet, load: float = DEFAULT_BUS_LOAD) -> float:
-    """Highest control rate [Hz] the CAN bus load allows, as a SYNC period in whole
-    microseconds (the drives' 0x1006 unit), rounded so the load stays within ``load``."""
+    """Highest control rate [Hz] the CAN bus load allows: the shortest SYNC period the
+    drives can be given (whole microseconds in 0x1006, and ``value * 10^index`` s with
+    value 1..255 in 0x60C2) that keeps the load within ``load``."""
     hz = bus_config(winches).max_sync_rate_hz(load)
     if hz <= 0:
         return 0.0
-    return 1e6 / math.ceil(1e6 / hz)
+    return 1e6 / sync_period_us(hz)
+
+
+def sync_period_us(rate_hz: float) -> int:
+    """The shortest SYNC period [us] at or above ``1/rate_hz`` that a CiA 402 drive can be
+    given (0x1006 in whole microseconds, 0x60C2 as ``value * 10^index`` s, value 1..255)."""
+    period_us = math.ceil(1e6 / rate_hz - 1e-6)
+    while True:
+        try:
+            interpolation_period(period_us)
+        except DriveConfigError:
+            period_us += 1
+            continue
+        return period_us

@@ -55,7 +55,7 @@ class SimWorld:
     rig: SimRig | None = None
     info: dict
 
-    def tick(self, t_s: float) -> None:  # replaced per kind
+    def tick(self) -> None:  # lock-step hook, per kind
         return None
 
     def close(self) -> None:
@@ -88,8 +88,9 @@ class InProcessWorld(SimWorld):
         self._next_plant = 0.0
         self.lockstep = not realtime
 
-    def tick(self, t_s: float) -> None:
+    def tick(self) -> None:
         """Lock-step: settle the plant and sweep the load cells when the plant is due."""
+        t_s = self.rig.time_s()
         if not self.lockstep or t_s + 1e-9 < self._next_plant:
             return
         self.rig.settle_now()
