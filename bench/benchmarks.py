@@ -21,6 +21,7 @@ MODULES: tuple[str, ...] = (
     "bench.bench_hil_modbus",
     "bench.bench_hil_can",
     "bench.bench_hil",
+    "bench.bench_trajectory",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}

@@ -149,7 +149,7 @@ class SCurve:
     """
 
     __slots__ = ("distance", "v_peak", "a_peak", "jerk", "tb", "s0", "v0", "a0", "jk",
-                 "duration", "_tb_list")
+                 "duration", "_tb_list", "_phases")
 
     def __init__(self, distance: float, v: float, a: float, j: float) -> None:
         D = float(distance)
@@ -191,6 +191,7 @@ class SCurve:
         self.v0 = np.array(v0[:7])
         self.a0 = np.array(a0[:7])
         self.jk = np.array(jerks)
+        self._phases = list(zip(tb[:7], s0[:7], v0[:7], a0[:7], jerks, strict=True))
 
     @staticmethod
     def _accel_phase(vp: float, a: float, j: float) -> tuple[float, float, float]:
@@ -207,11 +208,9 @@ class SCurve:
             return 0.0, 0.0, 0.0
         if t >= self.duration:
             return self.distance, 0.0, 0.0
-        k = bisect.bisect_right(self._tb_list, t) - 1
-        dt = t - self._tb_list[k]
-        jk = float(self.jk[k])
-        a0, v0 = float(self.a0[k]), float(self.v0[k])
-        s = float(self.s0[k]) + v0 * dt + a0 * dt * dt / 2.0 + jk * dt * dt * dt / 6.0
+        t0, s0, v0, a0, jk = self._phases[bisect.bisect_right(self._tb_list, t) - 1]
+        dt = t - t0
+        s = s0 + v0 * dt + a0 * dt * dt / 2.0 + jk * dt * dt * dt / 6.0
         return (min(s, self.distance), v0 + a0 * dt + jk * dt * dt / 2.0, a0 + jk * dt)
 
     def batch(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -346,7 +345,7 @@ class _Linear(_Motion):
         self._phi = [float(x) for x in self.phi]
 
     def _orientation1(self, s: float) -> list[float]:
-        rpy = euler_from_rotation(rotvec_matrix(np.multiply(self._phi, s)) @ self.R0)
+        rpy = euler_from_rotation(rotvec_matrix([p * s for p in self._phi]) @ self.R0)
         out = []
         for k in range(3):
             lin = self._rpy0[k] + s * self._drpy[k]
