@@ -22,9 +22,12 @@ the true tensions go to the drives (torque actual), the tensions the cells measu
 the scenario's load-cell noise at each sample (``cell_rate_hz``, always running: real
 cells sample on their own).
 
-Of the scenario's noise the rig uses ``load_cell_n``; lengths are quantised by the drives'
-encoder counts (not ``encoder_m``), and there is no per-visit process noise in a
-continuous run. Drift and slips act on the plant's time.
+Of the scenario's noise the rig uses ``load_cell_n``, the tracker's and ``process_m``: a
+new random change of the unstretched lengths is drawn each time the winches start to move
+after standing still (a new visit: winding repeatability); lengths are quantised by the
+drives' encoder counts (not ``encoder_m``). Drift and slips act on the plant's time. On
+the wall clock, a settle that takes longer than the plant period is counted
+(:attr:`SimRig.late_settles`) and logged: the plant falls behind.
 
 Clocks: ``clock="sync"`` (deterministic): the drives advance by the SYNC period on each
 SYNC, and the plant's time [s] is the drives' time; ``clock="wall"``: both follow
@@ -62,11 +65,17 @@ log = logging.getLogger(__name__)
 SETTLE_TOL_M = 1e-9
 #: plant states kept in :attr:`SimRig.history` (8 min at 20 settles per second)
 HISTORY = 10_000
+#: the plant checks its rest position against finite differences of the energy on every
+#: n-th settle (the first always): the check costs as much as the settle itself
+ENERGY_CHECK_EVERY = 20
 
 
 def default_scenario() -> Scenario:
-    """The shipped ``rocaspect`` model as model and truth, default init pose and noise."""
-    return parse_scenario({"format": FORMAT}, "<default scenario>")
+    """The shipped ``rocaspect`` model as model and truth, default init pose and noise, no
+    per-visit process noise (a rig that comes back to the same readings stands at the same
+    pose)."""
+    return parse_scenario({"format": FORMAT, "noise": {"process_m": 0.0}},
+                          "<default scenario>")
 
 
 @dataclass(frozen=True)
@@ -140,8 +149,11 @@ class SimRig:
         self.plant_period_s = 1.0 / plant_rate_hz
         self.cell_period_s = 1.0 / cell_rate_hz
         self.plant = Plant(sc.model, sc.truth, sc.init_pose,
-                           Nuisances(sc.hysteresis_m, sc.drift_m_per_s, 0.0),
-                           slip_times=sc.slip_times, rng=np.random.default_rng(sc.seed + 1))
+                           Nuisances(sc.hysteresis_m, sc.drift_m_per_s, sc.noise.process_m),
+                           slip_times=sc.slip_times, rng=np.random.default_rng(sc.seed + 1),
+                           check_every=ENERGY_CHECK_EVERY)
+        self._visit = np.zeros(sc.model.n_cables)  # this visit's change of the lengths [m]
+        self._moving = False
         self.reference_m = self.plant.reference.copy()
         bad = (self.reference_m < self.winches.min_length_m) | (
             self.reference_m > self.winches.max_length_m)
@@ -188,6 +200,8 @@ class SimRig:
         self._publish(0.0, self.reference_m.copy(), st)
         self.settles = 0  #: plant settles so far
         self.plant_errors: list[str] = []  #: why the plant found no rest position
+        self.late_settles = 0  #: wall clock: settles that took longer than the plant period
+        self.settle_s = 0.0  #: wall time spent settling [s]
         self._settle(force=True)  # for the readings as the drives quantise them
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -313,10 +327,14 @@ class SimRig:
         t = self.time_s()
         last = self.last
         moved = float(np.max(np.abs(readings - last.readings_m))) > SETTLE_TOL_M
+        if moved and not self._moving and self.plant.nuisances.process_noise_m > 0:
+            # a new visit: the winding repeats to within the process noise
+            self._visit = self.plant.visit_noise()
+        self._moving = moved
         if not (force or moved or self._time_dependent(last.t_s, t)):
             return last
         try:
-            st = self.plant.settle(readings, t=t)
+            st = self.plant.settle(readings, t=t, visit_noise=self._visit)
         except PlantError as exc:
             msg = f"t = {t:.3f} s, readings {np.round(readings, 6).tolist()}: {exc}"
             if not self.plant_errors or self.plant_errors[-1] != msg:
@@ -357,6 +375,15 @@ class SimRig:
                     self.settle_now()
                 except Exception:  # keep the rig serving; the error is logged
                     log.exception("sim rig: plant step failed")
+                took = time.monotonic() - now
+                self.settle_s += took
+                if took > self.plant_period_s:
+                    self.late_settles += 1
+                    if self.late_settles in (1, 10, 100) or self.late_settles % 1000 == 0:
+                        log.warning("sim rig: the plant falls behind: a settle took %.1f ms, "
+                                    "more than its %.1f ms period (%d times so far); lower "
+                                    "the plant rate", 1e3 * took, 1e3 * self.plant_period_s,
+                                    self.late_settles)
                 next_plant = max(next_plant + self.plant_period_s, now)
             if now >= next_cell:
                 self.cells.update(self.last.measured_N)

@@ -225,6 +225,7 @@ class ControlLoop:
         self.recorder: DryRunRecorder | None = None
         self.controller: LengthController | None = None
         self.trajectory: Trajectory | None = None
+        self._finished = False
 
     # ------------------------------------------------------------------ events
     def _event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
@@ -480,11 +481,11 @@ class ControlLoop:
                 res.ended = "hold_timeout"
                 res.message = (f"held for {opt.hold_timeout_s} s: "
                                f"{', '.join(d.conditions) or 'condition'} did not clear")
-                hw.shutdown()
+                self._finish()
                 break
             elif t_traj >= end_at:
                 res.ended = "completed"
-                hw.shutdown()
+                self._finish()
                 break
             # ---- timing
             if opt.realtime:
@@ -498,6 +499,13 @@ class ControlLoop:
             if self.on_progress is not None and time.perf_counter() >= next_progress:
                 self.on_progress(res, t_traj)
                 next_progress = time.perf_counter() + 0.25
-        self._hw_events()
+        if not self._finished:
+            self._hw_events()
         if self.on_progress is not None:
             self.on_progress(res, t_traj)
+
+    def _finish(self) -> None:
+        """Normal end: the last events, then the drives disabled (brakes hold)."""
+        self._hw_events()
+        self._finished = True
+        self.hw.shutdown()
