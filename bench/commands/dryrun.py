@@ -12,7 +12,7 @@ stop, drives held), closes everything and leaves the recording readable.
 "simulated_s", "wall_s", "overruns", "events": [{"t", "device", "address", "kind", "code",
 "reaction"}], "pose_error_rms_m", "pose_error_max_m", "recording"}`` plus ``ended``,
 ``message``, ``trajectory_s``, ``path_s``, ``init_pose``, ``reference_offset_m``,
-``plots`` and ``rig``.
+``drive_states`` (CiA 402 states when the run ended), ``plots`` and ``rig``.
 
 Exit status: 0 when the path was completed, 1 when the run ended otherwise (quick stop,
 hold timeout, interrupted, refused path), 2 for bad input.
@@ -278,7 +278,8 @@ def run(args: argparse.Namespace) -> int:
         "recording": str(args.record) if args.record and res.ended != "refused" else None,
         "ended": res.ended, "message": res.message, "trajectory_s": res.trajectory_s,
         "path_s": res.path_s, "init_pose": res.init_pose,
-        "reference_offset_m": res.reference_offset_m, "plots": plots, "rig": args.rig,
+        "reference_offset_m": res.reference_offset_m, "drive_states": res.drive_states,
+        "plots": plots, "rig": args.rig,
     }
     if args.json:
         print(json.dumps(out))

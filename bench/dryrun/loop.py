@@ -67,7 +67,8 @@ class LoopOptions:
     """How the loop runs.
 
     ``realtime``: on the wall clock with absolute deadlines (else lock-step, as fast as the
-    world allows); ``decimate``: record every n-th cycle; ``init_pose``: given p0 (None:
+    world allows); ``decimate``: record every n-th cycle (and every cycle whose state
+    differs from the last recorded one); ``init_pose``: given p0 (None:
     measure it with the tracker, mean of ``init_samples`` fresh samples);
     ``init_dwell_s``/``end_dwell_s`` [s] standing still before and after the trajectory;
     ``stop_timeout_s`` [s]: a quick stop must reach stand-still within it;
@@ -111,6 +112,7 @@ class LoopResult:
     init_tensions: list[float] | None = None
     reference_offset_m: list[float] | None = None
     substituted_cycles: int = 0
+    drive_states: list[str] | None = None  #: CiA 402 states when the run ended
     lateness_s: array.array = field(default_factory=lambda: array.array("f"))
 
     @property
@@ -134,7 +136,8 @@ class LoopResult:
                 "path_s": self.path_s, "overruns": self.overruns, "events": self.events,
                 "pose_error_rms_m": self.pose_error_rms_m,
                 "pose_error_max_m": self.pose_error_max_m, "init_pose": self.init_pose,
-                "reference_offset_m": self.reference_offset_m}
+                "reference_offset_m": self.reference_offset_m,
+                "drive_states": self.drive_states}
 
 
 class CrossTrack:
@@ -301,6 +304,10 @@ class ControlLoop:
             raise
         finally:
             res.wall_s = time.perf_counter() - wall0
+            try:
+                res.drive_states = self.hw.read().state_names()
+            except Exception:  # the bus may be gone
+                res.drive_states = None
             if self.recorder is not None:
                 try:
                     self.recorder.update_meta(notes=f"dry run: {res.ended}"
@@ -360,6 +367,7 @@ class ControlLoop:
         out_tensions = ctl.init_tensions
         substituted = 0
         state = INIT
+        last_state = ""
         k = 0
         next_progress = time.perf_counter()
         t_start = time.perf_counter()
@@ -447,7 +455,8 @@ class ControlLoop:
                 last_sent = cmd
             # ---- measurements (at the recording's rate): tracker, error to the path
             xt.command(pose_des)
-            if k % opt.decimate == 0:
+            if k % opt.decimate == 0 or state != last_state:  # every n-th, and state changes
+                last_state = state
                 tr = self.tracker.read()
                 pose_meas = nan6
                 if tr.valid and np.all(np.isfinite(tr.pose)):

@@ -23,6 +23,10 @@ def summary_text(out: dict) -> str:
         f"the commanded path): {_mm(out['pose_error_rms_m'])} RMS, "
         f"{_mm(out['pose_error_max_m'])} max",
     ]
+    if out.get("drive_states"):
+        names, counts = np.unique(out["drive_states"], return_counts=True)
+        lines.append("  drives at the end: " + ", ".join(
+            f"{c} x {n}" for n, c in zip(names, counts, strict=True)))
     sup = [e for e in out["events"] if e["reaction"] != "event"]
     if sup:
         lines.append(f"  supervisor events ({len(sup)}):")

@@ -1,0 +1,147 @@
+"""The dry run against the simulated robot: in this process (virtual CAN bus, Modbus/TCP on
+loopback, lock-step), through the ``cdpr dry-run`` command, and once against ``cdpr sim`` in
+another process. Short runs: seconds of the paper's centre path."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.cli import main
+from bench.dryrun.loop import ControlLoop, LoopOptions
+from bench.dryrun.record import DryRunRecorder
+from bench.dryrun.scenarios import max_rate_hz, resolve_scenario, sync_period_us
+from bench.dryrun.world import start_world, with_rate
+from bench.recording import read_recording
+from controller.paths import build_trajectory, load_path
+from controller.winch import load_winches
+from firmware_sim.scenario import load_scenario
+from hal.drives_cia402 import DriveState
+
+ROOT = Path(__file__).resolve().parents[1]
+SC = load_scenario(resolve_scenario("paper-centre"))
+RATE = max_rate_hz(load_winches())
+WINCHES = with_rate(load_winches(), sync_period_us(RATE) * 1e-6)
+
+
+def _run(model, seconds, tmp_path=None, stop_at=None):
+    spec = load_path("paper-centre")
+    stop = threading.Event()
+    with start_world(SC, WINCHES) as world:
+        def progress(res, t_traj):
+            if stop_at is not None and t_traj >= stop_at:
+                stop.set()
+
+        rec = None
+        if tmp_path is not None:
+            def rec(p0):
+                return DryRunRecorder(tmp_path / "rec", model, p0, {})
+        loop = ControlLoop(world.hw, world.tracker, model,
+                           lambda p0: build_trajectory(spec, p0),
+                           LoopOptions(max_duration_s=seconds, decimate=5), rec,
+                           tick=world.tick, on_progress=progress, stop=stop)
+        res = loop.run()
+        states = world.hw.read().states
+    return res, states
+
+
+def test_true_model_follows_within_the_noise_nominal_does_not():
+    res_true, _ = _run(SC.truth, 6.0)
+    res_nom, _ = _run(SC.model, 6.0)
+    assert res_true.ended == res_nom.ended == "completed"
+    # truth in the controller: process noise (0.5 mm per visit) and the tracker's 0.05 mm
+    assert res_true.pose_error_rms_m < 2e-3, res_true.pose_error_rms_m
+    # the nominal model misses by the settled ropes and the bending masts
+    assert res_nom.pose_error_rms_m > 2 * res_true.pose_error_rms_m
+    assert res_nom.pose_error_max_m > 5e-3
+
+
+def test_stop_mid_run_holds_the_drives_and_keeps_the_recording(tmp_path):
+    res, states = _run(SC.model, 6.0, tmp_path, stop_at=1.5)
+    assert res.ended == "interrupted"
+    assert np.all(states == DriveState.QUICK_STOP_ACTIVE) or np.all(
+        states == DriveState.SWITCH_ON_DISABLED)  # held (0x605A option of the winch file)
+    assert not np.any(states == DriveState.OPERATION_ENABLED)
+    rec = read_recording(tmp_path / "rec")
+    assert rec.n_samples > 50 and rec.state[-1] == "quick_stop"
+    assert rec.state[0] == "init" and "move" in rec.state
+    events = (tmp_path / "rec" / "events.csv").read_text()
+    assert "interrupted" in events
+
+
+def test_cli_json_recording_and_plots(tmp_path, capsys):
+    code = main(["dry-run", "paper-centre", "--duration", "2", "--json", "--quiet",
+                 "--record", str(tmp_path / "rec"), "--plots", str(tmp_path / "plots")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["ended"] == "completed"
+    for key in ("scenario", "robot", "cycles", "rate_hz", "simulated_s", "wall_s", "overruns",
+                "events", "pose_error_rms_m", "pose_error_max_m", "recording"):
+        assert key in out
+    assert out["rate_hz"] == pytest.approx(RATE)
+    assert out["cycles"] > 500 and out["overruns"] == 0
+    assert out["recording"] == str(tmp_path / "rec")
+    rec = read_recording(tmp_path / "rec")
+    assert rec.robot.name == "rocaspect" and np.isfinite(rec.pose_meas[-1]).all()
+    assert all(Path(p).stat().st_size > 10_000 for p in out["plots"])
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["dry-run", "paper-centre", "--rate", "1000"], "above the"),
+    (["dry-run", "no-such-scenario"], "shipped"),
+    (["dry-run", "paper-centre", "--path", "no-such-path"], "no-such-path"),
+    (["dry-run", "paper-centre", "--speed-pct", "150"], "speed-pct"),
+])
+def test_cli_refuses_bad_input_before_starting(argv, message, capsys):
+    assert main(argv + ["--json"]) == 2
+    out = json.loads(capsys.readouterr().out)
+    assert message in out["error"]
+
+
+def test_cli_refuses_a_non_empty_record_dir(tmp_path, capsys):
+    (tmp_path / "rec").mkdir()
+    (tmp_path / "rec" / "keep.txt").write_text("data")
+    assert main(["dry-run", "paper-centre", "--record", str(tmp_path / "rec"), "--json"]) == 2
+    assert "not empty" in json.loads(capsys.readouterr().out)["error"]
+    assert (tmp_path / "rec" / "keep.txt").read_text() == "data"
+
+
+def _cli(*args, **kw):
+    return subprocess.Popen([sys.executable, "-m", "bench.cli", "dry-run", *args], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+
+
+def test_against_cdpr_sim_in_another_process():
+    p = _cli("paper-centre", "--rig", "process", "--duration", "1.5", "--json", "--quiet")
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    res = json.loads(out)
+    assert res["ended"] == "completed" and res["rig"] == "process"
+    assert res["pose_error_rms_m"] is not None and res["pose_error_rms_m"] < 0.05
+
+
+def test_sigint_stops_the_platform_and_leaves_a_readable_recording(tmp_path):
+    rec = tmp_path / "rec"
+    p = _cli("paper-centre", "--json", "--record", str(rec))
+    # wait until the platform moves (the recording has move rows), then Ctrl-C
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        csv = rec / "recording.csv"
+        if csv.exists() and ",move" in csv.read_text():
+            break
+        time.sleep(0.2)
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 1, err
+    res = json.loads(out)
+    assert res["ended"] == "interrupted"
+    assert "OPERATION_ENABLED" not in res["drive_states"]
+    r = read_recording(rec)
+    assert r.state[-1] == "quick_stop" and r.n_samples > 10
