@@ -29,7 +29,10 @@ then skips the deadlines it missed instead of bursting).
 from __future__ import annotations
 
 import array
+import contextlib
+import gc
 import math
+import sys
 import threading
 import time
 from collections import deque
@@ -166,6 +169,24 @@ class CrossTrack:
         return float(np.sqrt((d * d).sum(1).min()))
 
 
+@contextlib.contextmanager
+def _realtime_interpreter():
+    """For a real-time loop: no automatic garbage collection (the loop collects the young
+    generation in its slack), and short GIL switch intervals so that the loop gets the
+    interpreter back quickly from the HAL's and the recorder's threads."""
+    was_enabled = gc.isenabled()
+    interval = sys.getswitchinterval()
+    gc.collect()
+    gc.disable()
+    sys.setswitchinterval(5e-4)
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(interval)
+        if was_enabled:
+            gc.enable()
+
+
 def _faults(r: Readings) -> tuple[DeviceFault, ...]:
     return tuple(DeviceFault(f.device, f.address, f.cable, f.kind, f.code, f.text)
                  for f in r.faults)
@@ -229,6 +250,7 @@ class ControlLoop:
         self.controller: LengthController | None = None
         self.trajectory: Trajectory | None = None
         self._finished = False
+        self._t0 = 0.0  #: hardware time at start-up [s]
 
     # ------------------------------------------------------------------ events
     def _event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
@@ -248,13 +270,14 @@ class ControlLoop:
 
     def _hw_events(self) -> None:
         for e in self.hw.events():
-            self._event(e.time_s, e.device, e.address, e.cable, e.kind, e.code, "event",
+            self._event(e.time_s - self._t0, e.device, e.address, e.cable, e.kind, e.code, "event",
                         True, e.text)
 
     # ------------------------------------------------------------------ initialisation
     def _initialise(self) -> tuple[np.ndarray, Trajectory]:
         hw, opt = self.hw, self.opt
         hw.start()
+        self._t0 = hw.read().t_s  # the recording's time starts here
         self.tracker.start()
         p0 = (np.asarray(opt.init_pose, float) if opt.init_pose is not None
               else measure_init_pose(self.tracker, opt.init_samples))
@@ -265,7 +288,7 @@ class ControlLoop:
         self.trajectory = traj
         if self.open_recorder is not None:
             self.recorder = self.open_recorder(p0)
-        t = hw.read().t_s
+        t = hw.read().t_s - self._t0
         if not ok.all():
             bad = [hw.cables[k] for k in np.flatnonzero(~ok)]
             self._event(t, "controller", 0, "", "init_tensions", 0, "substitute", True,
@@ -294,7 +317,11 @@ class ControlLoop:
             except PathRefused as exc:
                 res.ended, res.message = "refused", str(exc)
                 return res
-            self._cycle_loop(p0, traj)
+            if self.opt.realtime:
+                with _realtime_interpreter():
+                    self._cycle_loop(p0, traj)
+            else:
+                self._cycle_loop(p0, traj)
         except KeyboardInterrupt:
             res.ended, res.message = "interrupted", "KeyboardInterrupt"
             self._emergency_stop()
@@ -353,6 +380,7 @@ class ControlLoop:
         r = hw.read()
         cmd = r.lengths_m.copy()  # hold where they stand: the referenced lengths
         last_sent = cmd.copy()
+        prev_sent: np.ndarray | None = None
         init_cycles = int(round(opt.init_dwell_s / T))
         end_at = traj.duration_s + opt.end_dwell_s
         if opt.max_duration_s is not None:
@@ -391,7 +419,7 @@ class ControlLoop:
             r = hw.read()
             k += 1
             res.cycles = k
-            t = r.t_s
+            t = r.t_s - self._t0
             # ---- the trajectory advances (feed hold slows it down)
             if k > init_cycles and not stopping:
                 hold = held_since is not None
@@ -412,7 +440,12 @@ class ControlLoop:
             res.substituted_cycles += substituted > 0
             # ---- supervisor
             enabled = r.states == DriveState.OPERATION_ENABLED
-            ob = Observation(t, r.tensions_N, valid, r.lengths_m, last_sent, enabled,
+            # positions answer the SYNC just sent (lock-step) or the one before (real time):
+            # a following error exceeds the window against both
+            ref_cmd = last_sent if prev_sent is None else np.where(
+                np.abs(r.lengths_m - last_sent) < np.abs(r.lengths_m - prev_sent),
+                last_sent, prev_sent)
+            ob = Observation(t, r.tensions_N, valid, r.lengths_m, ref_cmd, enabled,
                              expect_enabled=not stopping, faults=_faults(r),
                              feasible=out.feasible, reason=out.reason, overrun=overrun,
                              cables=hw.cables, node_ids=hw.node_ids, unit_ids=hw.unit_ids)
@@ -452,6 +485,7 @@ class ControlLoop:
                                 f"length limits: not sent")
                     cmd = last_sent
                     held_since = held_since if held_since is not None else t
+                prev_sent = last_sent if opt.realtime else None
                 last_sent = cmd
             # ---- measurements (at the recording's rate): tracker, error to the path
             xt.command(pose_des)
@@ -505,6 +539,8 @@ class ControlLoop:
                     res.overruns += 1
                     missed = int((now - deadline) / T)
                     deadline += missed * T  # skip the missed deadlines, do not burst
+                elif k % 64 == 0 and deadline - now > 0.5 * T:
+                    gc.collect(0)  # the young generation, in the slack of a cycle
             if self.on_progress is not None and time.perf_counter() >= next_progress:
                 self.on_progress(res, t_traj)
                 next_progress = time.perf_counter() + 0.25
