@@ -22,6 +22,7 @@ MODULES: tuple[str, ...] = (
     "bench.bench_hil_can",
     "bench.bench_hil",
     "bench.bench_trajectory",
+    "bench.bench_dryrun",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}
