@@ -13,10 +13,13 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	@touch $(STAMP)
 
-# The main job on the simulated robot: the model, a campaign on the plant with the
-# paper's concealed effects, its blind diagnosis, then the paper's own data.
+# The main job on the simulated robot: the dry run (the controller in the loop with the
+# simulated ROCASPECT along the paper's centre path), then the model, a campaign on the
+# plant with the paper's concealed effects, its blind diagnosis, then the paper's own data.
 DEMO := out/demo
 demo: $(STAMP)
+	@echo "== dry run of the paper's centre path: recording in $(DEMO)/dryrun, plots in $(DEMO)/dryrun_plots"
+	$(VENV)/bin/cdpr dry-run paper-centre --record $(DEMO)/dryrun --force --plots $(DEMO)/dryrun_plots
 	$(VENV)/bin/cdpr model check rocaspect --plot $(DEMO)/workspace.png
 	$(VENV)/bin/cdpr campaign bench/data/paper_scenario.toml $(DEMO)/recording --force
 	$(VENV)/bin/cdpr diagnose $(DEMO)/recording --plots $(DEMO)/plots --write-model $(DEMO)/corrected.toml

@@ -23,11 +23,21 @@ COMMANDS: tuple[str, ...] = (
 )
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"{version('cdpr-bench')} (cdpr-bench)"
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        return "unknown (cdpr-bench, not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cdpr",
         description="Commission, run and check a large cable-driven parallel robot (ROCASPECT).",
     )
+    parser.add_argument("--version", action="version", version=f"cdpr {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for modname in COMMANDS:
