@@ -282,8 +282,3 @@ def path_run(fig: PathFigures, executed: np.ndarray | None = None) -> dict[str, 
     ``s_m``, ``at_xyz_m`` and ``executed_m`` (the barycentre unless given)."""
     return {"s_m": fig.s, "at_xyz_m": fig.dev_xyz,
             "executed_m": fig.barycentre[:, :3] if executed is None else executed}
-
-
-def resampled(points: np.ndarray, count: int = PATH_POINTS) -> np.ndarray:
-    """Positions of a polyline resampled at ``count`` points (for plots)."""
-    return resample_path(points, count)[1][:, :3]

@@ -216,9 +216,10 @@ def plot_pose_scatter(poses: Sequence[Mapping[str, Any]], out: str | Path,
         ax.set_ylabel("y deviation [mm]")
         ax.set_title(f"{p.get('label', '')}  ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m", fontsize=9)
         ax.grid(alpha=0.3)
-    axes.flat[0].legend(fontsize=7)
+    handles, labels = axes.flat[0].get_legend_handles_labels()
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8)
     return _save(fig, out, plt)
