@@ -259,6 +259,25 @@ def test_resample_path_even_spacing_and_angles():
         resample_path([[1, 1, 1], [1, 1, 1]], 5)
 
 
+def test_corner_takes_a_legs_normal_plane_not_the_bisector():
+    # an L: 4 m along +y, then 4 m along +z (rows every 5 cm); executed shifted by
+    # (0, -10, +10) mm. On the first leg (planes y = const) the deviation is +10 mm in z, on
+    # the second (planes z = const) -10 mm in y: AT = 10 mm. With the polyline's segment
+    # tangents the corner point (s = 4 m) takes the outgoing leg's plane z = 0, which the
+    # executed path (at z = +10 mm there) never crosses: left out. The central difference's
+    # bisector plane there would give sqrt 2 * 10 = 14.1 mm, a corner artefact.
+    leg1 = np.c_[np.zeros(81), np.linspace(0, 4, 81), np.zeros(81)]
+    leg2 = np.c_[np.zeros(80), np.full(80, 4.0), np.linspace(0, 4, 81)[1:]]
+    rows = np.vstack([leg1, leg2])
+    att = rows + [0, -0.010, 0.010]
+    s, cmd, tan = resample_path(rows, 9, with_tangents=True)
+    np.testing.assert_allclose(tan, [[0, 1, 0]] * 4 + [[0, 0, 1]] * 5)
+    f = path_figures(cmd, [att], s=s, tangents=tan)
+    np.testing.assert_array_equal(f.complete, [True] * 4 + [False] + [True] * 4)
+    assert f.at == pytest.approx(0.010)
+    assert path_figures(cmd, [att], s=s).at == pytest.approx(0.010 * math.sqrt(2))
+
+
 def test_tangents_are_unit_and_central():
     t = path_tangents(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0]]))
     np.testing.assert_allclose(t, [[1, 0, 0], [np.sqrt(.5), np.sqrt(.5), 0], [0, 1, 0]])

@@ -34,9 +34,10 @@ class Rows:
             self.meas.append(np.asarray(meas, float))
             self.state.append(state)
 
-    def write(self, path, states=True, drop=()):
+    def write(self, path, states=True, drop=(), extra=None):
         des, meas = np.array(self.des), np.array(self.meas)
         cols = {"t": np.arange(len(des)) / RATE}
+        cols.update(extra or {})
         for a, ax in enumerate(POSE_AXES):
             cols[f"{ax}_des"] = des[:, a]
         for a, ax in enumerate(POSE_AXES):
@@ -215,6 +216,63 @@ def test_path_at_follows_a_deviation_in_the_plane(tmp_path):
     np.testing.assert_allclose(f.dev_xyz[bottom, 2], 0.010 * np.sin(f.command[bottom, 1]),
                                atol=2e-5)
     assert math.isnan(f.rt)
+
+
+def looped_rows(approach=True):
+    """A dry run's path test: init (off the path, with an approach move to its start, or at
+    the start), then the closed rectangle three times with no dwell between the
+    repetitions, then 'end' rows. Each repetition starts and ends at rest at the start
+    pose; it runs PASS_DX off in x, and stands where the last ended until it moves. Returns
+    the rows and the cycle of each row (-1 init and approach)."""
+    r, cyc = Rows(), []
+    start = np.r_[CORNERS[0], 0, 0, 0]
+    init = start + ([0, -3.0, 0.2, 0, 0, 0] if approach else 0)
+    r.add(init, init, "init", 5)
+    cyc += [-1] * 5
+    if approach:
+        for u in np.linspace(0, 1, 40)[1:]:
+            p = init + u * (start - init)
+            r.add(p, p + [0, 0, 0.05 * (1 - u), 0, 0, 0], "move")
+            cyc.append(-1)
+    path = rectangle()
+    last = 0.0
+    for k, dx in enumerate(PASS_DX):
+        r.add(start, start + [last, 0, 0, 0, 0, 0], "move")
+        cyc.append(k)
+        for p in path[1:]:
+            des = np.r_[p, 0, 0, 0]
+            r.add(des, des + [dx, 0, 0, 0, 0, 0], "move")
+            cyc.append(k)
+        last = dx
+    r.add(start, start + [last, 0, 0, 0, 0, 0], "end", 4)
+    cyc += [len(PASS_DX) - 1] * 4
+    return r, np.array(cyc, dtype=float)
+
+
+@pytest.mark.parametrize("approach", [True, False])
+@pytest.mark.parametrize("with_cycle", [True, False])
+def test_repetitions_without_dwells_are_cut_into_passes(tmp_path, approach, with_cycle):
+    r, cyc = looped_rows(approach)
+    d = r.write(tmp_path / "r", extra={"cycle": cyc} if with_cycle else None)
+    an = analyse([read_recording(d)], path_points=150)
+    assert an.kind == "path"
+    main = an.main_path()
+    f = main.figures
+    assert f.n == 3 and f.length == pytest.approx(11.6)
+    # along the path (not at its start, where each pass stands where the last ended) the
+    # passes are 10, 20, 30 mm off in x: deviation 20 mm, l_mean + 3 S_l = 23.987 mm
+    inner = slice(2, -1)
+    np.testing.assert_allclose(f.dev[inner], 0.020, atol=1e-9)
+    np.testing.assert_allclose(f.rt_points[inner], (20 / 3 + 30 / math.sqrt(3)) * 1e-3,
+                               atol=1e-9)
+    assert f.complete[inner].all()
+    others = [p for p in an.paths if p is not main]
+    if approach and not with_cycle:  # the approach ends at the path's end pose: a pass
+        assert len(others) == 1 and others[0].figures.n == 1
+        assert others[0].figures.length == pytest.approx(math.hypot(3.0, 0.2))
+    else:  # no approach, or the cycle column leaves it out
+        assert others == []
+    assert ("'cycle' column" in an.rule) == with_cycle
 
 
 def test_passes_in_several_recordings_pool(tmp_path):

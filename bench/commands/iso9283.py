@@ -28,6 +28,7 @@ ends), pose otherwise.
         "worst": {"apx_m", ..., "rp_c_rad": largest absolute value over the poses,
                   "pose_of": {"apx_m": <pose number>, ...}},
         # kind "path":
+        "main_path": <number of the path with the most passes x length: the test's path>,
         "paths": [{"path": 1, "start": [...6], "end": [...6], "length_m", "passes",
                    "points", "points_complete", "at_max_m", "at_mean_m", "at_max_at_s_m",
                    "rt_m", "at_a_rad", "at_b_rad", "at_c_rad", "rt_a_rad", "rt_b_rad",
@@ -38,7 +39,8 @@ ends), pose otherwise.
 ``--plots DIR`` writes PNG files: per pose analysis ``NN_<label>_pose_bars.png`` (AP/RP per
 pose and the worst) and ``NN_<label>_pose_scatter.png``; per path ``NN_<label>_pathK.png``
 (desired vs executed path and AT along it); with several analyses ``pose_worst.png`` (the
-worst figures side by side, like the paper's Fig. 6) and ``paths.png`` (like Fig. 7).
+worst figures side by side, like the paper's Fig. 6) and ``paths.png`` (each analysis's
+main path, like Fig. 7).
 
 Exit status: 0 done, 2 bad arguments or a recording the figures cannot use (the message
 names the file, line and column).
@@ -115,7 +117,7 @@ def write_plots(analyses, out) -> list:
                                                f"{an.label}: ISO 9283 path accuracy, path {k}: "
                                                f"AT max {f.at * 1e3:.1f} mm, mean "
                                                f"{f.at_mean * 1e3:.1f} mm", plane))
-                if k == 1:
+                if r is an.main_path():
                     path_cases.append((case, plane))
     if len(worst_runs) > 1:
         written.append(plot_pose_bars(worst_runs, f"{out}/pose_worst.png",

@@ -67,6 +67,13 @@ class Analysis:
     poses: list[PoseResult] = field(default_factory=list)
     paths: list[PathResult] = field(default_factory=list)
 
+    def main_path(self) -> PathResult | None:
+        """The path with the most commanded length in all (passes × length): the path
+        test's own path rather than an approach to it (None for a pose analysis)."""
+        if not self.paths:
+            return None
+        return max(self.paths, key=lambda r: r.figures.n * r.figures.length)
+
     def worst(self) -> dict[str, Any]:
         """Worst case over the commanded poses (as ISO 9283 and the paper report a pose
         set): the largest absolute value of each figure, and the pose (1-based) it is at."""
@@ -133,9 +140,9 @@ def analyse(recs: Sequence[Recording], kind: str = "auto", settle: float = SETTL
     an.rule += (f"; attained points where each pass crosses the normal planes of the commanded "
                 f"path at {path_points} points evenly spaced along it")
     for g in group_passes(passes):
-        s, cmd = resample_path(g[0].command, path_points)
+        s, cmd, tan = resample_path(g[0].command, path_points, with_tangents=True)
         try:
-            fig = path_figures(cmd, [p.attained for p in g], s=s)
+            fig = path_figures(cmd, [p.attained for p in g], s=s, tangents=tan)
         except ValueError as e:
             a, b = g[0].lines
             raise Iso9283Error(f"{g[0].source}: lines {a}-{b}: path: {e}") from None
@@ -185,6 +192,8 @@ def analysis_json(an: Analysis, along: bool = True) -> dict[str, Any]:
             d["poses"].append(e)
         d["worst"] = an.worst()
     else:
+        main = an.main_path()
+        d["main_path"] = an.paths.index(main) + 1 if main is not None else None
         d["paths"] = []
         for i, r in enumerate(an.paths, start=1):
             f = r.figures
@@ -256,8 +265,9 @@ def format_text(analyses: Sequence[Analysis]) -> str:
             out.append(f"{an.label} ({src}): ISO 9283 path figures, {len(an.paths)} commanded "
                        f"path(s) [{an.kind_reason}]")
             out.append(f"  {an.rule}")
-            out.append("  mm and degrees; AT max/mean over the points every pass crosses")
-            head = [("path", 4), ("start x, y, z [m]", 20), ("end x, y, z [m]", 20),
+            out.append("  mm and degrees; AT max/mean over the points every pass crosses; "
+                       "* the main path (most passes x length)")
+            head = [("path", 5), ("start x, y, z [m]", 20), ("end x, y, z [m]", 20),
                     ("length [m]", 10), ("passes", 6), ("AT max", 7), ("AT mean", 7),
                     ("RT", 7)] + [(k, 6) for k in ("AT_a", "AT_b", "AT_c", "RT_a", "RT_b",
                                                     "RT_c")]
@@ -265,7 +275,8 @@ def format_text(analyses: Sequence[Analysis]) -> str:
             for i, r in enumerate(an.paths, start=1):
                 f = r.figures
                 a, b = f.command[0], f.command[-1]
-                rows.append([str(i), f"{a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f}",
+                mark = "*" if r is an.main_path() else ""
+                rows.append([f"{i}{mark}", f"{a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f}",
                              f"{b[0]:.2f}, {b[1]:.2f}, {b[2]:.2f}", f"{f.length:.3f}", str(f.n),
                              _fmt(f.at, _MM, 7, 2), _fmt(f.at_mean, _MM, 7, 2),
                              _fmt(f.rt, _MM, 7, 2)]

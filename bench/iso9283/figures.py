@@ -17,7 +17,9 @@ Path characteristics (a commanded path sampled at m points C_i, n attained passe
 
 - the normal plane at C_i is the plane through C_i normal to the commanded path's tangent
   there; the attained point x_ij is where pass j crosses that plane (see
-  :func:`normal_plane_points`);
+  :func:`normal_plane_points`). The standard leaves corners (cornering is a figure of its
+  own); here a point at a corner takes the normal plane of the leg that leaves it
+  (:func:`resample_path` with ``with_tangents``), never the bisector;
 - barycentre ``x̄_i = (1/n) Σ_j x_ij`` (and y, z, a, b, c);
 - path accuracy ``AT = AT_P = max_i sqrt((x̄_i − x_ci)² + (ȳ_i − y_ci)² + (z̄_i − z_ci)²)``
   and ``AT_a = max_i |ā_i − a_ci|`` (b, c alike);
@@ -154,12 +156,17 @@ def pose_figures(attained: np.ndarray | Sequence, command: np.ndarray | Sequence
 # paths
 
 
-def resample_path(points: np.ndarray | Sequence, count: int) -> tuple[np.ndarray, np.ndarray]:
+def resample_path(points: np.ndarray | Sequence, count: int, with_tangents: bool = False
+                  ) -> tuple[np.ndarray, ...]:
     """``(s, pts)``: ``count`` points evenly spaced by arc length along a polyline.
 
     ``points`` (N, 3|6) in order of travel; repeated positions are dropped; positions are
     interpolated linearly in arc length s [m] (of the positions), angles likewise after
-    unwrapping. Raises ValueError for a path of zero length or count < 2.
+    unwrapping. ``with_tangents``: also the unit tangents (count, 3), the direction of the
+    polyline's segment each point lies on (at a vertex, the segment that leaves it; at the
+    end, the last one): at a corner of the polyline the normal plane is then the incoming
+    or the outgoing leg's, never the bisector a central difference would give. Raises
+    ValueError for a path of zero length or count < 2.
     """
     p = _as_poses(points, "points", 2)
     if count < 2:
@@ -170,7 +177,8 @@ def resample_path(points: np.ndarray | Sequence, count: int) -> tuple[np.ndarray
         p = p[np.concatenate([[True], step > 0])]
     if len(p) < 2:
         raise ValueError("the path has zero length")
-    s_in = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p[:, :3], axis=0), axis=1))])
+    seg = np.diff(p[:, :3], axis=0)
+    s_in = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
     s = np.linspace(0.0, s_in[-1], count)
     out = np.empty((count, 6))
     for c in range(3):
@@ -181,7 +189,12 @@ def resample_path(points: np.ndarray | Sequence, count: int) -> tuple[np.ndarray
             out[:, c] = wrap_angle(np.interp(s, s_in, np.unwrap(col)))
         else:
             out[:, c] = np.nan
-    return s, out
+    if not with_tangents:
+        return s, out
+    # (within a rounding error of a vertex counts as at it)
+    k = np.clip(np.searchsorted(s_in, s + 1e-9 * s_in[-1], side="right") - 1, 0, len(seg) - 1)
+    t = seg[k] / np.linalg.norm(seg[k], axis=1)[:, None]
+    return s, out, t
 
 
 def path_tangents(points: np.ndarray) -> np.ndarray:
@@ -201,16 +214,17 @@ def path_tangents(points: np.ndarray) -> np.ndarray:
 
 
 def normal_plane_points(command: np.ndarray | Sequence, attained: np.ndarray | Sequence,
-                        max_distance: float | None = None, block: int = 2_000_000
-                        ) -> np.ndarray:
+                        max_distance: float | None = None, tangents: np.ndarray | None = None,
+                        block: int = 2_000_000) -> np.ndarray:
     """Where one attained pass crosses the normal planes of the commanded path.
 
     ``command`` (m, 3|6) commanded points in order of travel (distinct positions);
     ``attained`` (N, 3|6) the measured poses of one pass in time order (rows with a NaN
     position are skipped). Returns (m, 6): for each commanded point C_i, the attained pose
     interpolated linearly (angles on their wrapped difference) at the crossing of the pass's
-    polyline with the plane through C_i normal to the path's tangent t_i; NaN where the pass
-    does not cross.
+    polyline with the plane through C_i normal to the path's tangent t_i (``tangents`` (m, 3)
+    unit vectors, default :func:`path_tangents` of the points); NaN where the pass does not
+    cross.
 
     Rule for a plane crossed several times (a path that comes back near itself, a corner cut
     short, noise at rest):
@@ -232,7 +246,10 @@ def normal_plane_points(command: np.ndarray | Sequence, attained: np.ndarray | S
     out = np.full((m, 6), np.nan)
     if len(att) < 2:
         return out
-    C, T = cmd[:, :3], path_tangents(cmd)
+    C = cmd[:, :3]
+    T = path_tangents(cmd) if tangents is None else np.asarray(tangents, dtype=float)
+    if T.shape != C.shape:
+        raise ValueError(f"tangents: expected shape {C.shape}, got {T.shape}")
     P = att[:, :3]
     dP = np.diff(P, axis=0)
     dA = wrap_angle(np.diff(att[:, 3:], axis=0))
@@ -387,14 +404,16 @@ def _nanmax(v: np.ndarray) -> float:
 
 
 def path_figures(command: np.ndarray | Sequence, passes: Sequence[np.ndarray],
-                 s: np.ndarray | None = None, max_distance: float | None = None
-                 ) -> PathFigures:
+                 s: np.ndarray | None = None, max_distance: float | None = None,
+                 tangents: np.ndarray | None = None) -> PathFigures:
     """ISO 9283 path accuracy and repeatability of attained passes over a commanded path.
 
     ``command`` (m, 3|6) commanded points in order of travel (for a fair ``at_mean``, evenly
     spaced: :func:`resample_path`); ``passes`` a list of (N_j, 3|6) measured poses in time
-    order; ``s`` (m,) arc length of the commanded points (default: along the polyline).
-    Each pass is matched to the commanded points by :func:`normal_plane_points`. Raises
+    order; ``s`` (m,) arc length of the commanded points (default: along the polyline);
+    ``tangents`` (m, 3) the path's unit tangents there (default: central differences; give
+    those of :func:`resample_path` for a path with corners). Each pass is matched to the
+    commanded points by :func:`normal_plane_points`. Raises
     ValueError if there is no pass or no commanded point that every pass crosses.
     """
     cmd = _as_poses(command, "command", 2)
@@ -405,7 +424,8 @@ def path_figures(command: np.ndarray | Sequence, passes: Sequence[np.ndarray],
         s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(cmd[:, :3], axis=0),
                                                             axis=1))])
     s = np.asarray(s, dtype=float)
-    pts = np.stack([normal_plane_points(cmd, p, max_distance) for p in passes])  # (n, m, 6)
+    pts = np.stack([normal_plane_points(cmd, p, max_distance, tangents)
+                    for p in passes])  # (n, m, 6)
     crossed = np.isfinite(pts[:, :, :3]).all(axis=2)
     count = crossed.sum(axis=0)
     complete = count == n

@@ -13,12 +13,18 @@ quarter) the recording's median dwell is taken as k back-to-back visits of the s
 (a campaign that draws the same pose twice in a row) and split into k equal parts, with a
 warning. Visits are grouped by commanded pose (equal within :data:`POSE_TOL`).
 
-Passes (path figures), with ``state``: a pass is a run of rows in state ``move`` (rows in
-``hold`` between them belong to the pass: the platform paused on the path), extended by the
-rest row just before and after it when that row is in ``dwell`` or ``init`` (the path's end
+Passes (path figures), with ``state``: a run of rows in state ``move`` (rows in ``hold``
+between them belong to it: the platform paused on the path), extended by the rest row just
+before and after it when that row is in ``dwell``, ``init`` or ``end`` (the path's end
 points). Without ``state``: the runs of rows between dwells (rows whose commanded pose
-changes), extended the same way. Passes are grouped by commanded path (equal within
-:data:`PATH_TOL` at 64 points evenly spaced along them).
+changes), extended the same way. A run holds several passes when a path is repeated without
+a dwell between repetitions: with a ``cycle`` column (the trajectory's repetition: −1 for an
+approach, 0, 1, ... for the repetitions), the run is cut where ``cycle`` changes and rows
+with ``cycle`` < 0 are left out; without it, the run is cut where its commanded pose comes
+back to the pose the run ends at (each repetition ends there; an approach that ends there
+becomes a pass of its own). Passes are grouped by commanded path (equal within
+:data:`PATH_TOL` at 64 points evenly spaced along them); :meth:`Analysis.main_path` is the
+group with the most commanded length in all (passes × length).
 
 Rows in other states (``quick_stop``, ``fault``, or any other name) are no part of a visit
 or a pass. Errors (:class:`Iso9283Error`) name the file, line and column.
@@ -188,8 +194,8 @@ def segment(rec: Recording, settle: float = SETTLE) -> Segments:
             inner = np.flatnonzero(st[a:b] == "move")
             if len(inner):
                 move_runs.append((a + int(inner[0]), a + int(inner[-1]) + 1))
-        rest = (st == "dwell") | init
-        other = sorted(set(st.tolist()) - {"init", "move", "dwell", "hold"})
+        rest = (st == "dwell") | init | (st == "end")
+        other = sorted(set(st.tolist()) - {"init", "move", "dwell", "hold", "end"})
         if other:
             warnings.append(f"{f.path}: rows in state {', '.join(repr(s) for s in other)} are "
                             f"no part of a visit or a pass")
@@ -235,15 +241,51 @@ def segment(rec: Recording, settle: float = SETTLE) -> Segments:
         visits.append(Visit(rec.pose_des[a].copy(), att, (a, b), (ua, ub), (la, lb),
                             (float(t0), float(t1)), rec.path))
 
+    cycle = rec.extra.get("cycle")
+    pass_rule += ("; repetitions cut where the 'cycle' column changes (cycle < 0, an approach, "
+                  "left out)" if cycle is not None else
+                  "; repetitions cut where the commanded pose comes back to the pose the run "
+                  "ends at")
     passes = []
     for a, b in move_runs:
         a2 = a - 1 if a > 0 and rest[a - 1] and has_des[a - 1] else a
         b2 = b + 1 if b < N and rest[b] and has_des[b] else b
-        p = Pass(rec.pose_des[a2:b2].copy(), rec.pose_meas[a2:b2].copy(), (a2, b2),
-                 f.span(a2, b2), rec.path)
-        if b2 - a2 >= 2 and p.length > 0:
-            passes.append(p)
+        for pa, pb in (_cut_by_cycle(a2, b2, cycle) if cycle is not None
+                       else _cut_at_end_pose(a2, b2, key)):
+            p = Pass(rec.pose_des[pa:pb].copy(), rec.pose_meas[pa:pb].copy(), (pa, pb),
+                     f.span(pa, pb), rec.path)
+            if pb - pa >= 2 and p.length > PATH_TOL:
+                passes.append(p)
     return Segments(visits, passes, visit_rule, pass_rule, warnings, no_visit, no_pass)
+
+
+def _cut_by_cycle(a: int, b: int, cycle: np.ndarray) -> list[tuple[int, int]]:
+    """[a, b) cut where ``cycle`` changes; each part also takes the row before and after it
+    (its ends, between recorded rows); parts with cycle < 0 or NaN (approach) left out. The
+    rest rows at a and b - 1 count with their neighbours."""
+    c = cycle[a:b].copy()
+    if len(c) > 2:
+        c[0], c[-1] = c[1], c[-2]  # the rest rows belong to the first / last part
+    out = []
+    for pa, pb in _split_on_change(0, len(c), np.nan_to_num(c, nan=-1.0)[:, None]):
+        if c[pa] >= 0:
+            out.append((a + max(pa - 1, 0), a + min(pb + 1, len(c))))
+    return out
+
+
+def _cut_at_end_pose(a: int, b: int, key: np.ndarray) -> list[tuple[int, int]]:
+    """[a, b) cut at the last row of each earlier stay at the run's final commanded pose
+    (the rows on both sides of a cut share that row)."""
+    at_end = np.all(key[a:b] == key[b - 1], axis=1)
+    cuts = [a]
+    for ra, rb in _runs(at_end[:-1]):
+        if ra == 0 or a + rb - 1 <= cuts[-1] or a + rb >= b - 1:
+            continue  # the run starts or ends there: no pass before or after it
+        cuts.append(a + rb - 1)
+    if len(cuts) == 1:
+        return [(a, b)]
+    cuts.append(b - 1)
+    return [(x, y + 1) for x, y in zip(cuts[:-1], cuts[1:], strict=True) if y > x]
 
 
 def _split_repeats(runs: list[tuple[int, int]], f: _Csv, warnings: list[str]
