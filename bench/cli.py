@@ -20,6 +20,7 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.campaign",
     "bench.commands.evaluate",
     "bench.commands.dryrun",
+    "bench.commands.iso9283",
 )
 
 
