@@ -58,7 +58,7 @@ from hal.interface import Readings, WinchHardware
 from hal.tracker import Tracker
 
 #: states of the ``state`` column
-INIT, HOLD, QUICK_STOP, END = "init", "hold", "quick_stop", "end"
+INIT, APPROACH, HOLD, QUICK_STOP, END = "init", "approach", "hold", "quick_stop", "end"
 
 
 class PathRefused(ValueError):
@@ -396,6 +396,7 @@ class ControlLoop:
         substituted = 0
         state = INIT
         last_state = ""
+        path_cycle = -1
         k = 0
         next_progress = time.perf_counter()
         t_start = time.perf_counter()
@@ -427,6 +428,9 @@ class ControlLoop:
                 smp = traj.sample(t_traj)
                 pose_des = smp.pose
                 label = smp.label
+                path_cycle = traj.segments[smp.segment].cycle if smp.segment >= 0 else 0
+                if path_cycle < 0 and label == "move":
+                    label = APPROACH  # the move from p0 to the path's start
                 state = HOLD if (hold or feed.rate < 1.0) else (
                     END if t_traj >= traj.duration_s else label)
             elif stopping:
@@ -503,7 +507,7 @@ class ControlLoop:
                     last_track_t = tr.t_s
                 if self.recorder is not None:
                     self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N,
-                                      pose_meas, out_tensions, substituted, state)
+                                      pose_meas, out_tensions, substituted, path_cycle, state)
             res.simulated_s = k * T
             res.trajectory_s = t_traj
             # ---- end conditions

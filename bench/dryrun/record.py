@@ -9,10 +9,12 @@
 - ``tau_{ij}`` [N] the load cells' tensions as read (``nan`` when not valid);
 - ``x_meas`` .. ``yaw_meas`` the tracker's pose (``nan`` when it has none);
 - extra: ``plan_tau_{ij}`` [N] the tensions the controller planned, ``substituted`` the
-  number of load cells replaced by planned tensions in the mast update;
-- ``state``: ``init`` (initialisation dwell), ``move``/``dwell`` (the trajectory's labels:
-  a dwell stands at a target; replicate visits have equal ``*_des``), ``hold`` (feed hold),
-  ``quick_stop`` (drives stopped), ``end`` (final stand-still).
+  number of load cells replaced by planned tensions in the mast update, ``cycle`` the
+  repetition of the path (0, 1, ...; -1 before the path starts);
+- ``state``: ``init`` (initialisation dwell), ``approach`` (the move from the init pose to
+  the path's start), ``move``/``dwell`` (the trajectory's labels: a dwell stands at a
+  target; replicate visits have equal ``*_des``), ``hold`` (feed hold), ``quick_stop``
+  (drives stopped), ``end`` (final stand-still).
 
 ``events.csv``: ``t, device, address, cable, kind, code, reaction, active, text``: every
 supervisor condition when it starts (``active`` 1) and ends (0), the hardware's own events
@@ -40,7 +42,7 @@ def columns(robot: Robot) -> list[str]:
     return (["t"] + [f"{a}_des" for a in POSE_AXES] + [f"l_cmd_{k}" for k in c]
             + [f"l_meas_{k}" for k in c] + [f"tau_{k}" for k in c]
             + [f"{a}_meas" for a in POSE_AXES] + [f"plan_tau_{k}" for k in c]
-            + ["substituted"])
+            + ["substituted", "cycle"])
 
 
 class DryRunRecorder:
@@ -61,7 +63,7 @@ class DryRunRecorder:
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
-            state: str) -> None:
+            cycle: int, state: str) -> None:
         n, r = self.n, self._row
         r[0] = t
         r[1:7] = pose_des
@@ -71,6 +73,7 @@ class DryRunRecorder:
         r[7 + 3 * n:13 + 3 * n] = pose_meas
         r[13 + 3 * n:13 + 4 * n] = tau_plan
         r[13 + 4 * n] = substituted
+        r[14 + 4 * n] = cycle
         self.writer.append(r, state)
 
     def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
