@@ -26,8 +26,9 @@ The conditions and their reactions (:data:`REACTIONS`):
 ====================  ==================================================  ============
 condition             detected when                                       reaction
 ====================  ==================================================  ============
-``slack``             a valid tension < ``slack_n`` (cable going slack)    hold
-``overload``          a valid tension > ``overload_n``                     quick_stop
+``slack``             a valid tension < ``slack_n`` for ``persist_s``        hold
+                      (cable going slack)
+``overload``          a valid tension > ``overload_n`` for ``persist_s``     quick_stop
 ``workspace``         the setpoint is infeasible (tension distribution,    hold
                       winch length limits)
 ``following_error``   |commanded - measured| length > the winch window    quick_stop
@@ -43,10 +44,13 @@ condition             detected when                                       reacti
 ====================  ==================================================  ============
 
 A measured condition (slack, overload, workspace, following error, a drive that left
-Operation Enabled) is confirmed after ``debounce`` consecutive cycles; what a device
-reports itself (drive fault, lost drive, bus) and a load cell to substitute are
-confirmed on the first cycle. So a reaction is decided at most ``debounce - 1`` cycles
-after the first cycle that shows its condition, and the loop applies it in that cycle.
+Operation Enabled) is confirmed after ``debounce`` consecutive cycles, and a tension
+condition (slack, overload) only once it also lasted ``persist_s`` (load cells sample
+slower than the loop and are noisy: a single low sample of a cable held near its minimum
+tension is no slack cable); what a device reports itself (drive fault, lost drive, bus)
+and a load cell to substitute are confirmed on the first cycle. So a reaction is decided
+at most ``max(debounce - 1, ceil(persist_s / T))`` cycles after the first cycle that shows
+its condition (T the cycle period), and the loop applies it in that cycle.
 Latched reactions stay after their condition ends; ``hold`` and ``substitute`` end with
 their conditions.
 """
@@ -88,8 +92,14 @@ REACTIONS: dict[str, Reaction] = {
     "overruns": Reaction.HOLD,
 }
 
+#: slack: a valid tension below this fraction of the robot's minimum tension
+SLACK_FRACTION = 0.2
+
 #: reactions that stay after their condition ended
 LATCHED = (Reaction.QUICK_STOP, Reaction.DISABLE)
+
+#: tension conditions: confirmed only once they lasted ``persist_s``
+_PERSIST = ("slack", "overload")
 
 #: conditions confirmed on the first cycle that shows them
 _IMMEDIATE = ("drive_fault", "drive_lost", "bus", "loadcell")
@@ -106,7 +116,7 @@ class SupervisorLimits:
     ``overload``; ``plausible_n`` [N]: a reading beyond it (or negative beyond
     ``-plausible_n``) is a sensor error, never a tension (substituted, not an overload);
     ``following_error_m`` (n,) [m]: the winch's following-error window; ``debounce``
-    [cycles]; ``max_substituted`` cells at once before ``loadcells_blind`` after
+    [cycles]; ``persist_s`` [s] a tension condition must last; ``max_substituted`` cells at once before ``loadcells_blind`` after
     ``blind_s`` [s]; ``max_overruns`` consecutive overruns.
     """
 
@@ -115,6 +125,7 @@ class SupervisorLimits:
     plausible_n: float
     following_error_m: np.ndarray
     debounce: int = 2
+    persist_s: float = 0.1
     max_substituted: int = 2
     blind_s: float = 0.5
     max_overruns: int = 10
@@ -123,12 +134,13 @@ class SupervisorLimits:
     def for_robot(cls, tension_min: float, tension_max: float,
                   following_error_m: np.ndarray | float, **kw) -> SupervisorLimits:
         """Defaults from a robot's tension limits and the winches' following-error window:
-        slack below half the minimum tension, overload above the maximum, implausible
-        beyond ten times the maximum (or 1e5 N without one)."""
+        slack below a fifth of the minimum tension (a cable held at its minimum reads
+        around it, within the cells' noise), overload above the maximum, implausible beyond
+        ten times the maximum (or 1e5 N without one)."""
         tmax = float(tension_max)
         plausible = 10.0 * tmax if np.isfinite(tmax) else 1e5
         overload = tmax if np.isfinite(tmax) else plausible
-        return cls(slack_n=0.5 * float(tension_min), overload_n=overload,
+        return cls(slack_n=SLACK_FRACTION * float(tension_min), overload_n=overload,
                    plausible_n=plausible,
                    following_error_m=np.asarray(following_error_m, float), **kw)
 
@@ -225,6 +237,7 @@ class _Cond:
     code: int
     text: str
     count: int = 0  #: consecutive cycles seen
+    since: float = 0.0  #: time first seen [s]
     confirmed: bool = False
 
 
@@ -362,7 +375,10 @@ class Supervisor:
             # a device's own fault report is a fact, and a substitution acts at once:
             # no debounce for them
             need = 1 if c.kind in _IMMEDIATE else lim.debounce
-            if not cur.confirmed and cur.count >= need:
+            if cur.count == 1:
+                cur.since = obs.t_s
+            lasted = c.kind not in _PERSIST or obs.t_s - cur.since >= lim.persist_s - 1e-9
+            if not cur.confirmed and cur.count >= need and lasted:
                 cur.confirmed = True
                 events.append(SupervisorEvent(obs.t_s, cur.device, cur.address, cur.cable,
                                               cur.kind, cur.code, REACTIONS[cur.kind], True,
