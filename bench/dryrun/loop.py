@@ -91,6 +91,9 @@ class LoopOptions:
     max_duration_s: float | None = None
     method: str = "closed_form"
     supervisor: dict[str, Any] = field(default_factory=dict)  #: SupervisorLimits overrides
+    #: tensions of the mast update: "measured" (the load cells, the paper's future work) or
+    #: "planned" (the tension distribution's, as the paper's offline estimate did)
+    mast_tensions: str = "measured"
 
 
 @dataclass
@@ -382,6 +385,10 @@ class ControlLoop:
         last_sent = cmd.copy()
         prev_sent: np.ndarray | None = None
         init_cycles = int(round(opt.init_dwell_s / T))
+        if opt.mast_tensions not in ("measured", "planned"):
+            raise ValueError(f"mast_tensions must be 'measured' or 'planned', got "
+                             f"{opt.mast_tensions!r}")
+        measured_masts = opt.mast_tensions == "measured"
         end_at = traj.duration_s + opt.end_dwell_s
         if opt.max_duration_s is not None:
             end_at = min(end_at, opt.max_duration_s)
@@ -437,7 +444,7 @@ class ControlLoop:
                 state = QUICK_STOP
             # ---- controller
             valid = r.tensions_ok
-            out = ctl.step(pose_des, r.tensions_N, valid)
+            out = ctl.step(pose_des, r.tensions_N if measured_masts else None, valid)
             if out.feasible:
                 out_tensions = out.tensions
             substituted = int(out.substituted.sum()) if out.substituted.size else 0
