@@ -116,8 +116,9 @@ class SupervisorLimits:
     ``overload``; ``plausible_n`` [N]: a reading beyond it (or negative beyond
     ``-plausible_n``) is a sensor error, never a tension (substituted, not an overload);
     ``following_error_m`` (n,) [m]: the winch's following-error window; ``debounce``
-    [cycles]; ``persist_s`` [s] a tension condition must last; ``max_substituted`` cells at once before ``loadcells_blind`` after
-    ``blind_s`` [s]; ``max_overruns`` consecutive overruns.
+    [cycles]; ``persist_s`` [s] a tension condition must last; ``max_substituted`` cells
+    at once before ``loadcells_blind`` after ``blind_s`` [s]; ``max_overruns`` consecutive
+    overruns.
     """
 
     slack_n: float
