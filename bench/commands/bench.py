@@ -6,9 +6,8 @@ import argparse
 import json
 import platform
 import sys
+import threading
 import time
-
-from bench.benchmarks import registry
 
 NAME = "bench"
 HELP = "run the speed benchmarks and print their medians"
@@ -22,7 +21,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
 
 
+def _tick(name: str, t0: float, done: threading.Event, every_s: float = 5.0) -> None:
+    """Progress while a benchmark group runs: a line every few seconds on stderr."""
+    while not done.wait(every_s):
+        print(f"bench {name}: running for {time.perf_counter() - t0:.0f} s ...",
+              file=sys.stderr, flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
+    from bench.benchmarks import registry
+
     reg = registry()
     if args.list:
         for name in reg:
@@ -36,9 +44,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     out: dict[str, object] = {}
     failed = 0
-    for name in names:
-        print(f"bench {name} ...", file=sys.stderr, flush=True)
+    for i, name in enumerate(names, 1):
+        print(f"bench {name} ({i}/{len(names)}) ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
+        done = threading.Event()
+        ticker = threading.Thread(target=_tick, args=(name, t0, done), daemon=True)
+        ticker.start()
         try:
             res = reg[name](args.quick)
         except Exception as e:  # a failing group must not hide the others
@@ -46,8 +57,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"bench {name}: FAILED: {type(e).__name__}: {e}", file=sys.stderr)
             out[f"{name}_error"] = f"{type(e).__name__}: {e}"
             continue
+        finally:
+            done.set()
+            ticker.join()
         out.update(res)
-        print(f"bench {name}: done in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        keys = ", ".join(f"{k} {v:.4g}" for k, v in res.items() if isinstance(v, float))
+        print(f"bench {name}: done in {time.perf_counter() - t0:.1f} s: {keys}",
+              file=sys.stderr)
     out["machine"] = f"{platform.machine()} {platform.python_implementation()} " \
                      f"{platform.python_version()}"
     if args.json:
