@@ -10,6 +10,8 @@ Reactions, by severity (the most severe active condition wins):
 
 ==================  =====================================================================
 ``none``            carry on
+``log``             carry on; the condition is logged and recorded when it starts and
+                    ends (only by an explicit override of the table below)
 ``substitute``      carry on; the planned tension (tension distribution) replaces a
                     load cell's reading in the mast update
 ``hold``            feed hold: the trajectory slows down to a stand still (time scaling,
@@ -52,7 +54,9 @@ and a load cell to substitute are confirmed on the first cycle. So a reaction is
 at most ``max(debounce - 1, ceil(persist_s / T))`` cycles after the first cycle that shows
 its condition (T the cycle period), and the loop applies it in that cycle.
 Latched reactions stay after their condition ends; ``hold`` and ``substitute`` end with
-their conditions.
+their conditions. An operator may change a condition's reaction (``Supervisor(limits,
+reactions={"slack": Reaction.LOG})``, ``cdpr dry-run --react slack=log``), e.g. to record
+a campaign with a model so wrong that cables go slack; the change is logged at start.
 """
 
 from __future__ import annotations
@@ -67,10 +71,11 @@ class Reaction(enum.IntEnum):
     """What the loop does, by increasing severity."""
 
     NONE = 0
-    SUBSTITUTE = 1
-    HOLD = 2
-    QUICK_STOP = 3
-    DISABLE = 4
+    LOG = 1
+    SUBSTITUTE = 2
+    HOLD = 3
+    QUICK_STOP = 4
+    DISABLE = 5
 
     @property
     def label(self) -> str:
@@ -247,6 +252,8 @@ class Supervisor:
     """Stateful (counters, latches) but deterministic: ``step(observation) -> Decision``."""
 
     limits: SupervisorLimits
+    #: condition kind -> reaction, overriding :data:`REACTIONS` for these kinds
+    reactions: dict[str, Reaction] = field(default_factory=dict)
     latched: Reaction = Reaction.NONE
     _conds: dict[str, _Cond] = field(default_factory=dict)
     _overruns: int = 0
@@ -255,6 +262,11 @@ class Supervisor:
 
     def __post_init__(self) -> None:
         self._tau_hi = min(self.limits.overload_n, self.limits.plausible_n)
+        unknown = set(self.reactions) - set(REACTIONS)
+        if unknown:
+            raise ValueError(f"no supervisor condition {', '.join(sorted(unknown))} "
+                             f"(known: {', '.join(REACTIONS)})")
+        self._table = {**REACTIONS, **{k: Reaction(v) for k, v in self.reactions.items()}}
 
     def _cond_list(self, obs: Observation) -> list[_Cond]:
         """Every condition this observation shows (unconfirmed)."""
@@ -362,7 +374,7 @@ class Supervisor:
             if key not in seen:
                 if old.confirmed:
                     events.append(SupervisorEvent(obs.t_s, old.device, old.address, old.cable,
-                                                  old.kind, old.code, REACTIONS[old.kind],
+                                                  old.kind, old.code, self._table[old.kind],
                                                   False, "condition ended"))
                 del self._conds[key]
         for key, c in seen.items():
@@ -382,7 +394,7 @@ class Supervisor:
             if not cur.confirmed and cur.count >= need and lasted:
                 cur.confirmed = True
                 events.append(SupervisorEvent(obs.t_s, cur.device, cur.address, cur.cable,
-                                              cur.kind, cur.code, REACTIONS[cur.kind], True,
+                                              cur.kind, cur.code, self._table[cur.kind], True,
                                               cur.text))
         active = [c for c in self._conds.values() if c.confirmed]
         # load cells substitute at once (a bad value never reaches the statics)
@@ -390,7 +402,7 @@ class Supervisor:
         cables = obs.cables or tuple(str(k) for k in range(n))
         sub_cables = {c.cable for c in seen.values() if c.kind == "loadcell"}
         substitute = np.array([cab in sub_cables for cab in cables], bool)
-        reaction = max([REACTIONS[c.kind] for c in active], default=Reaction.NONE)
+        reaction = max([self._table[c.kind] for c in active], default=Reaction.NONE)
         if substitute.any():
             reaction = max(reaction, Reaction.SUBSTITUTE)
         if reaction in LATCHED:
@@ -407,5 +419,19 @@ class Supervisor:
         self._blind_since = None
 
 
+def parse_reactions(specs: list[str] | tuple[str, ...]) -> dict[str, Reaction]:
+    """``["slack=log", ...]`` -> overrides; ValueError naming the bad item."""
+    out: dict[str, Reaction] = {}
+    for item in specs:
+        kind, sep, name = item.partition("=")
+        kind, name = kind.strip(), name.strip().upper()
+        if not sep or kind not in REACTIONS or name not in Reaction.__members__:
+            raise ValueError(f"{item!r}: expected CONDITION=REACTION with a condition among "
+                             f"{', '.join(REACTIONS)} and a reaction among "
+                             f"{', '.join(r.label for r in Reaction)}")
+        out[kind] = Reaction[name]
+    return out
+
+
 __all__ = ["REACTIONS", "Decision", "DeviceFault", "Observation", "Reaction", "Supervisor",
-           "SupervisorEvent", "SupervisorLimits"]
+           "SupervisorEvent", "SupervisorLimits", "parse_reactions"]

@@ -220,6 +220,23 @@ def test_slack_cable_holds_the_platform(tmp_path):
     np.testing.assert_allclose(rec.pose_des[-1], rec.pose_des[-5], atol=1e-6)
 
 
+def test_slack_can_be_logged_instead(tmp_path):
+    from controller.supervisor import Reaction
+
+    model = rocaspect()
+
+    def slack(t, tau):
+        tau = tau.copy()
+        if t > 0.6:
+            tau[4] = 0.5
+        return tau
+
+    w = World(model, model, tension_hook=slack)
+    _, res = _run(w, model, SPECS, tmp_path, reactions={"slack": Reaction.LOG})
+    assert res.ended == "completed"
+    assert ("slack", "log") in _kinds(res) and ("reaction_override", "log") in _kinds(res)
+
+
 def test_overload_quick_stops():
     model = rocaspect()
 

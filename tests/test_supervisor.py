@@ -207,3 +207,20 @@ def test_feed_rate_ramps_down_and_up_within_limits():
     for _ in range(int(ramp / dt) + 5):
         f.advance(dt, hold=False)
     assert f.rate == 1.0
+
+
+def test_reaction_override_logs_instead_of_holding():
+    from controller.supervisor import parse_reactions
+
+    sup = Supervisor(LIM, parse_reactions(["slack=log"]))
+    tau = np.full(N, 200.0)
+    tau[2] = 0.2
+    ds = run(sup, [obs(0.004 * k, tau=tau) for k in range(60)] + [obs(1.0)])
+    assert all(d.reaction <= Reaction.LOG for d in ds)
+    ev = [(e.kind, e.reaction, e.active) for d in ds for e in d.events]
+    assert ev == [("slack", Reaction.LOG, True), ("slack", Reaction.LOG, False)]
+    with pytest.raises(ValueError, match="no supervisor condition"):
+        Supervisor(LIM, {"slak": Reaction.LOG})
+    for bad in (["slack"], ["slack=maybe"], ["nothing=log"]):
+        with pytest.raises(ValueError, match="CONDITION=REACTION"):
+            parse_reactions(bad)

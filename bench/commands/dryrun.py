@@ -65,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--faults", metavar="FILE", default=None,
                    help="fault schedule (TOML, [[fault]] tables) applied to the simulated "
                         "drives and load cells")
+    p.add_argument("--react", action="append", default=[], metavar="CONDITION=REACTION",
+                   help="change a supervisor reaction, e.g. slack=log (repeatable; "
+                        "conditions and defaults in the README's reaction table)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
 
@@ -151,6 +154,11 @@ def run(args: argparse.Namespace) -> int:
                               f"(bus load 50 %, hal/bus_load.py)")
     if args.speed_pct is not None and not 0 < args.speed_pct <= 100:
         return _fail(args, 2, f"--speed-pct {args.speed_pct}: must be in (0, 100]")
+    from controller.supervisor import parse_reactions
+    try:
+        reactions = parse_reactions(args.react)
+    except ValueError as exc:
+        return _fail(args, 2, f"--react {exc}")
     if args.decimate is not None and args.decimate < 1:
         return _fail(args, 2, f"--decimate {args.decimate}: must be >= 1")
     if not args.plant_rate > 0:
@@ -250,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
                     injector.start()
             opts = LoopOptions(realtime=args.realtime, decimate=decimate,
                                init_pose=sc.init_pose if args.init_pose == "given" else None,
-                               max_duration_s=args.duration)
+                               max_duration_s=args.duration, reactions=reactions)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
                                on_progress=_progress_printer(args.quiet), stop=stop)

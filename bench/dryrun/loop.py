@@ -47,8 +47,10 @@ from controller.cycle import LengthController
 from controller.feedrate import FeedRate, ramp_time
 from controller.robot import Robot
 from controller.supervisor import (
+    REACTIONS,
     DeviceFault,
     Observation,
+    Reaction,
     Supervisor,
     SupervisorLimits,
 )
@@ -91,6 +93,8 @@ class LoopOptions:
     max_duration_s: float | None = None
     method: str = "closed_form"
     supervisor: dict[str, Any] = field(default_factory=dict)  #: SupervisorLimits overrides
+    #: condition kind -> reaction, overriding the supervisor's table (e.g. slack: log)
+    reactions: dict[str, Reaction] = field(default_factory=dict)
     #: tensions of the mast update: "measured" (the load cells, the paper's future work) or
     #: "planned" (the tension distribution's, as the paper's offline estimate did)
     mast_tensions: str = "measured"
@@ -377,7 +381,11 @@ class ControlLoop:
         w = hw.winches
         lim = SupervisorLimits.for_robot(self.model.tension_min, self.model.tension_max,
                                          w.following_error_m, **opt.supervisor)
-        sup = Supervisor(lim)
+        sup = Supervisor(lim, dict(opt.reactions))
+        for kind, reaction in opt.reactions.items():
+            self._event(0.0, "controller", 0, "", "reaction_override", 0, reaction.label, True,
+                        f"supervisor: {kind} -> {reaction.label} (default "
+                        f"{REACTIONS[kind].label})")
         feed = FeedRate(ramp_time(traj.limits.speed_m_s, traj.limits.max_accel_m_s2))
         xt = CrossTrack(T)
         r = hw.read()
@@ -535,6 +543,9 @@ class ControlLoop:
                 res.ended = "hold_timeout"
                 res.message = (f"held for {opt.hold_timeout_s} s: "
                                f"{', '.join(d.conditions) or 'condition'} did not clear")
+                if any(c.startswith("slack:") for c in d.conditions):
+                    res.message += (" (a cable stays slack there with this model; "
+                                    "--react slack=log records it and goes on)")
                 self._finish()
                 break
             elif t_traj >= end_at:
