@@ -295,3 +295,49 @@ def test_init_pose_given_or_measured(given):
     w = World(model, model)
     _, res = _run(w, model, [Dwell(0.2)], init_pose=P0 if given else None)
     np.testing.assert_allclose(res.init_pose, P0, atol=1e-9)
+
+
+class FakeClock:
+    """A monotonic clock that only moves when slept on or told to (work)."""
+
+    def __init__(self):
+        self.t = 100.0
+
+    def now(self):
+        return self.t
+
+    def sleep(self, dt):
+        self.t += dt
+
+
+def test_cycle_clock_keeps_absolute_deadlines_without_drift():
+    from bench.dryrun.loop import CycleClock
+
+    c = FakeClock()
+    clock = CycleClock(0.004, now=c.now, sleep=lambda dt: c.sleep(dt + 1e-4), spin_s=0.0)
+    start = c.t
+    for _ in range(1000):
+        late = clock.wait()
+        assert late < 2e-4  # woke within the sleep's own error, never accumulating
+        c.t += 0.001  # the cycle's work
+        assert not clock.done()
+    # 1000 cycles of 4 ms: the deadlines stayed on the grid (no drift from the work or
+    # from sleeping too long)
+    assert clock.deadline == pytest.approx(start + 1000 * 0.004, abs=1e-9)
+    assert clock.overruns == 0
+
+
+def test_cycle_clock_counts_overruns_and_skips_missed_deadlines():
+    from bench.dryrun.loop import CycleClock
+
+    c = FakeClock()
+    clock = CycleClock(0.004, now=c.now, sleep=c.sleep, spin_s=0.0)
+    start = c.t
+    clock.wait()
+    c.t += 0.0105  # work of 10.5 ms: two deadlines missed
+    assert clock.done()
+    assert clock.overruns == 1 and clock.skipped == 2
+    assert clock.deadline == pytest.approx(start + 3 * 0.004)  # back on the grid
+    clock.wait()
+    c.t += 0.001
+    assert not clock.done()

@@ -150,6 +150,47 @@ class LoopResult:
                 "drive_states": self.drive_states}
 
 
+class CycleClock:
+    """Absolute deadlines ``t0 + k T`` on a monotonic clock (no drift): :meth:`wait` sleeps
+    until the next deadline (the last millisecond spinning) and returns how late it woke
+    [s]; :meth:`done` ends a cycle: an overrun when the work ran past the next deadline,
+    which is then skipped with any others already missed (no burst of catch-up cycles).
+    ``now``/``sleep`` are injectable for tests."""
+
+    def __init__(self, period_s: float, now=time.perf_counter, sleep=time.sleep,
+                 spin_s: float = 1e-3) -> None:
+        self.T = float(period_s)
+        self.now, self.sleep, self.spin_s = now, sleep, spin_s
+        self.deadline = now()
+        self.overruns = 0  #: cycles whose work ran past the next deadline
+        self.skipped = 0  #: deadlines skipped after overruns
+
+    def wait(self) -> float:
+        """Sleep until the current deadline; the lateness [s] (>= 0)."""
+        left = self.deadline - self.now()
+        if left > self.spin_s * 1.5:
+            self.sleep(left - self.spin_s)
+        while self.now() < self.deadline:
+            pass
+        return self.now() - self.deadline
+
+    def done(self) -> bool:
+        """End of a cycle's work: move to the next deadline; True for an overrun."""
+        self.deadline += self.T
+        now = self.now()
+        if now <= self.deadline:
+            return False
+        self.overruns += 1
+        missed = int((now - self.deadline) / self.T) + 1  # up to the first one ahead
+        self.skipped += missed
+        self.deadline += missed * self.T
+        return True
+
+    def slack(self) -> float:
+        """Time left before the next deadline [s]."""
+        return self.deadline - self.now()
+
+
 class CrossTrack:
     """Distance from measured positions to the commanded path (the positions commanded over
     the last ``window_s`` seconds, as a polyline): the pose error without the lag along the
@@ -414,20 +455,12 @@ class ControlLoop:
         path_cycle = -1
         k = 0
         next_progress = time.perf_counter()
-        t_start = time.perf_counter()
-        deadline = t_start
+        clock = CycleClock(T) if opt.realtime else None
         overrun = False
         while True:
             # ---- output: the setpoints of the last cycle go out with the SYNC
-            if opt.realtime:
-                now = time.perf_counter()
-                wait = deadline - now
-                if wait > 0:
-                    if wait > 1.5e-3:
-                        time.sleep(wait - 1e-3)
-                    while time.perf_counter() < deadline:
-                        pass
-                res.lateness_s.append(time.perf_counter() - deadline)
+            if clock is not None:
+                res.lateness_s.append(clock.wait())
             hw.write_lengths(None if stopping else cmd)
             if self.tick is not None:
                 hw.wait_feedback()
@@ -553,15 +586,10 @@ class ControlLoop:
                 self._finish()
                 break
             # ---- timing
-            if opt.realtime:
-                deadline += T
-                now = time.perf_counter()
-                overrun = now > deadline
-                if overrun:
-                    res.overruns += 1
-                    missed = int((now - deadline) / T)
-                    deadline += missed * T  # skip the missed deadlines, do not burst
-                elif k % 64 == 0 and deadline - now > 0.5 * T:
+            if clock is not None:
+                overrun = clock.done()
+                res.overruns = clock.overruns
+                if not overrun and k % 64 == 0 and clock.slack() > 0.5 * T:
                     gc.collect(0)  # the young generation, in the slack of a cycle
             if self.on_progress is not None and time.perf_counter() >= next_progress:
                 self.on_progress(res, t_traj)
