@@ -115,15 +115,7 @@ class _Reader:
 
     def where(self, table: str | None = None, index: int | None = None,
               key: str | None = None) -> str:
-        line = self.loc.line(table, index, key)
-        head = f"{self.path}:{line}" if line else self.path
-        if table is None:
-            fld = key or ""
-        elif index is None:
-            fld = f"[{table}]" + (f".{key}" if key else "")
-        else:
-            fld = f"[[{table}]] #{index + 1}" + (f".{key}" if key else "")
-        return f"{head}: {fld}" if fld else head
+        return self.loc.where(self.path, table, index, key)
 
     def fail(self, msg: str, table: str | None = None, index: int | None = None,
              key: str | None = None) -> PathFileError:

@@ -168,15 +168,7 @@ class _Reader:
 
     def fail(self, msg: str, table: str | None = None, index: int | None = None,
              key: str | None = None) -> RobotFileError:
-        line = self.loc.line(table, index, key)
-        where = f"{self.path}:{line}" if line else self.path
-        if table is None:
-            fld = key or ""
-        elif index is None:
-            fld = f"[{table}]" + (f".{key}" if key else "")
-        else:
-            fld = f"[[{table}]] #{index + 1}" + (f".{key}" if key else "")
-        return RobotFileError(f"{where}: {fld}: {msg}" if fld else f"{where}: {msg}")
+        return RobotFileError(f"{self.loc.where(self.path, table, index, key)}: {msg}")
 
     def number(self, d: dict, key: str, table: str | None, index: int | None,
                required: bool = True, default: float | None = None,

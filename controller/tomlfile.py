@@ -48,6 +48,20 @@ class Locator:
                     return i
         return -1
 
+    def where(self, path: str, table: str | None = None, index: int | None = None,
+              key: str | None = None) -> str:
+        """``path:line: field`` of an error message (the field as ``key``, ``[table].key``
+        or ``[[table]] #n.key``; the line left out when it is not found)."""
+        line = self.line(table, index, key)
+        head = f"{path}:{line}" if line else path
+        if table is None:
+            fld = key or ""
+        elif index is None:
+            fld = f"[{table}]" + (f".{key}" if key else "")
+        else:
+            fld = f"[[{table}]] #{index + 1}" + (f".{key}" if key else "")
+        return f"{head}: {fld}" if fld else head
+
     def line(self, table: str | None, index: int | None, key: str | None) -> int | None:
         start = self._table_start(table, index)
         if start < 0:

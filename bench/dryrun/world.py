@@ -61,6 +61,16 @@ class SimWorld:
     def close(self) -> None:
         raise NotImplementedError
 
+    def _close_all(self, stop_sim) -> None:
+        """Tracker, then the HAL, then the simulation, each even when the one before fails."""
+        try:
+            try:
+                self.tracker.close()
+            finally:
+                self.hw.close()
+        finally:
+            stop_sim()
+
     def __enter__(self) -> SimWorld:
         return self
 
@@ -99,13 +109,7 @@ class InProcessWorld(SimWorld):
                                                             / self._plant_period) + 1)
 
     def close(self) -> None:
-        try:
-            try:
-                self.tracker.close()
-            finally:
-                self.hw.close()
-        finally:
-            self.rig.close()
+        self._close_all(self.rig.close)
 
 
 class ProcessWorld(SimWorld):
@@ -188,13 +192,7 @@ class ProcessWorld(SimWorld):
         self._err.close()
 
     def close(self) -> None:
-        try:
-            try:
-                self.tracker.close()
-            finally:
-                self.hw.close()
-        finally:
-            self._stop()
+        self._close_all(self._stop)
 
 
 def start_world(scenario: Scenario, winches: WinchSet, kind: str = "inprocess",
