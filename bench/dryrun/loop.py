@@ -555,7 +555,8 @@ class ControlLoop:
                     last_track_t = tr.t_s
                 if self.recorder is not None:
                     self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N,
-                                      pose_meas, out_tensions, substituted, path_cycle, state)
+                                      pose_meas, out_tensions, substituted, path_cycle,
+                                      res.overruns, state)
             res.simulated_s = k * T
             res.trajectory_s = t_traj
             # ---- end conditions
