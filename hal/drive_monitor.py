@@ -86,7 +86,7 @@ class DriveMonitor:
         for k, nid in enumerate(int(x) for x in winches.node_id):
             node = canopen.RemoteNode(nid, canopen.import_od(str(eds), nid))
             node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
-            node.sdo.MAX_RETRIES = 0
+            node.sdo.MAX_RETRIES = 1  # canopen: the number of attempts
             network.add_node(node)
             node.emcy.add_callback(self._emcy_cb(k))
             self.nodes.append(node)

@@ -149,7 +149,9 @@ class AxisMaster:
         self._tpdo_cob = int(_od_var(od, 0x1800, 1).default) & 0x7FF
         self.period_s = winches.bus.sync_period_s
         self.pace = pace
-        self.feedback_timeout_s = feedback_timeout_s
+        # paced (a real bus): a TPDO comes within the cycle, do not stall the cycle waiting
+        self.feedback_timeout_s = (min(feedback_timeout_s, max(0.02, 3 * self.period_s))
+                                   if pace else feedback_timeout_s)
         if clock == "wall":
             self._clock: Callable[[], float] = time.monotonic
         elif clock == "sync":

@@ -125,7 +125,7 @@ def read_identity(network: canopen.Network, node_id: int, nmt_state: str | None 
     """
     node = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
     node.sdo.RESPONSE_TIMEOUT = timeout_s
-    node.sdo.MAX_RETRIES = 1
+    node.sdo.MAX_RETRIES = 1  # canopen: the number of attempts
     network.add_node(node)
     values: dict[str, int | None] = {}
     errors: list[str] = []

@@ -200,7 +200,7 @@ def dispatch(args: argparse.Namespace, func: Callable[[argparse.Namespace, Ui, S
 
     def fail(code: int, msg: str) -> int:
         print(f"{name}: {msg}", file=sys.stderr, flush=True)
-        ui.emit({"error": msg})
+        ui.emit({"error": msg, **section.json_extra})
         section.write(f"FAILED: {msg}")
         return code
 
@@ -209,7 +209,7 @@ def dispatch(args: argparse.Namespace, func: Callable[[argparse.Namespace, Ui, S
     except KeyboardInterrupt:
         section.write("interrupted (Ctrl-C)")
         print(f"{name}: interrupted", file=sys.stderr)
-        ui.emit({"error": "interrupted"})
+        ui.emit({"error": "interrupted", **section.json_extra})
         return 130
     except CommissionError as exc:
         return fail(exc.code, str(exc))

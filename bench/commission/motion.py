@@ -88,6 +88,7 @@ def _finish(master, ui: Ui, section: Section, status: _Status | None = None) -> 
         section.bullets([f"{time.strftime('%H:%M:%S', time.localtime(t))} {text}"])
     for p in problems:
         ui.progress(f"warning: {p}")
+    section.json_extra["state"] = state
     section.fact("drive left", state + ("; " + "; ".join(problems) if problems else ""))
     ui.say(f"{master.who()}: left {state}")
     return state

@@ -43,6 +43,8 @@ class Section:
     blocks: list[str] = field(default_factory=list)
     outcome: str = ""
     written: bool = False
+    #: fields added to the JSON error object when the command fails (e.g. the drive's state)
+    json_extra: dict = field(default_factory=dict)
 
     def fact(self, key: str, value: object) -> None:
         """A ``- key: value`` line under the heading."""
