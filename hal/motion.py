@@ -304,6 +304,7 @@ class AxisMaster:
             self._emcy.clear()
             self._hb_last_wall = time.monotonic()
         self._sw, self._pos, self._have = sw, pos, True
+        self._last_rx_wall = time.monotonic()
         self._target = pos
         self.state = DriveState(int(decode_states(np.array([sw]))[0]))
         if self._master_hb is not None:
@@ -385,11 +386,13 @@ class AxisMaster:
                               "reset")
         if count > self._seen:
             self._missed = 0
+            self._last_rx_wall = time.monotonic()
             self._sw, self._pos = sw, pos
         elif self.syncs:
             self._missed += 1
-            if self._missed * self.period_s >= max(0.1, 10 * self.period_s) and \
-                    self._missed >= 3:
+            silent_s = time.monotonic() - self._last_rx_wall
+            if self._missed >= 3 and (self._missed * self.period_s >= max(0.1, 10 * self.period_s)
+                                      or silent_s >= 1.0):
                 raise MotionError(f"{self.who()}: no TPDO for {self._missed} SYNCs: the drive "
                                   "stopped answering", "silent")
         self._seen = count
