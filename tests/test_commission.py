@@ -599,3 +599,18 @@ def test_disable_resets_a_fault_and_reports_the_state(rig, capsys):
     assert out["error_code"] == 0x2310
     code, out = cli(capsys, "disable", "32", "--can", rig.can, "--fault-reset", "--no-report")
     assert code == 0 and out["state"] == "SWITCH_ON_DISABLED" and out["error_code"] == 0
+
+
+def test_enable_holds_the_position_and_disables_at_the_end(rig, capsys, monkeypatch):
+    import io
+
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))  # no keys: --duration ends it
+    code, out = cli(capsys, "enable", "41", "--can", rig.can, "--yes", "--listen", "0",
+                    "--duration", "0.3", "--no-report")
+    assert code == 0 and out["ended_by"] == "--duration 0.3 s"
+    assert out["state"] == "SWITCH_ON_DISABLED" and rig.state(7) == "SWITCH_ON_DISABLED"
+    assert out["length_m"] == pytest.approx(L0[6], abs=1e-6) and out["moved_m"] == 0.0
+    monkeypatch.setattr("sys.stdin", io.StringIO("q"))
+    code, out = cli(capsys, "enable", "41", "--can", rig.can, "--yes", "--listen", "0",
+                    "--no-report")
+    assert code == 0 and out["ended_by"] == "operator" and rig.state(7) == "SWITCH_ON_DISABLED"

@@ -128,6 +128,8 @@ def run_enable(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                 def keep(fb) -> bool:
                     nonlocal reason
                     cmd = keys.poll()
+                    if cmd is not None and cmd.name == "EOF" and t_end is not None:
+                        cmd = None  # no more keys: --duration ends the hold
                     if cmd is not None and cmd.name in ("QUIT", "EOF", "STOP"):
                         reason = "operator" if cmd.name != "EOF" else "input ended"
                         return False
