@@ -297,6 +297,9 @@ class AxisMaster:
         sw = int(sdo_read(self.node, 0x6041, 0, who))
         pos = int(sdo_read(self.node, 0x6064, 0, who))
         self._master_hb = master_heartbeat(self._settings)
+        period = getattr(self.winches.bus, "master_heartbeat_period_s", 0.0)
+        if self._master_hb is not None and period > 0:  # the HAL's producer time
+            self._master_hb = (self._master_hb[0], min(period, self._master_hb[1]))
         with self._rx:
             self._rx_sw, self._rx_pos = sw, pos
             self._seen = self._expect = self._rx_count

@@ -141,7 +141,9 @@ def guard_other_master(net: canopen.Network, w: WinchSet, window_s: float, ui: U
     if window_s <= 0:
         section.fact("other master check", "skipped (--listen 0)")
         return
-    seen = other_master_activity(net, window_s, [int(x) for x in w.node_id], master_ids)
+    master = getattr(w.bus, "master_node_id", None)  # the HAL's heartbeat node id
+    ids = tuple(master_ids) + ((int(master),) if master else ())
+    seen = other_master_activity(net, window_s, [int(x) for x in w.node_id], ids)
     if seen:
         section.fact("other master", "; ".join(seen))
         raise CommissionError(
