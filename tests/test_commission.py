@@ -614,3 +614,54 @@ def test_enable_holds_the_position_and_disables_at_the_end(rig, capsys, monkeypa
     code, out = cli(capsys, "enable", "41", "--can", rig.can, "--yes", "--listen", "0",
                     "--no-report")
     assert code == 0 and out["ended_by"] == "operator" and rig.state(7) == "SWITCH_ON_DISABLED"
+
+
+def test_scan_rows_name_wrong_devices_and_nothing_when_all_match():
+    from bench.commission.scan import drive_rows, expected_identity
+    from hal.scan import NodeIdentity
+
+    ident = expected_identity(str(EDS_PATH))
+    good = dict(device_type=ident["device_type"], vendor_id=0xCDB, product_code=0x402,
+                revision=0x10000, answered_sdo=True)
+    found = [NodeIdentity(k + 1, serial=k, **good) for k in range(8)]
+    rows = drive_rows(found, W, ident)
+    assert [r["status"] for r in rows] == ["ok"] * 8 and all(not r["problems"] for r in rows)
+    found[1] = NodeIdentity(2, **{**good, "product_code": 0x999})
+    found[2] = NodeIdentity(3, **{**good, "revision": 0x20000})
+    found[3] = NodeIdentity(4, nmt_state="STOPPED", error="no SDO answer")
+    found[4] = NodeIdentity(5, **{**good, "vendor_id": 0x1})
+    rows = drive_rows(found, W, ident)
+    assert [r["status"] for r in rows] == ["ok", "wrong_product", "wrong_revision", "no_sdo",
+                                           "wrong_vendor", "ok", "ok", "ok"]
+    assert "0x00000999" in rows[1]["problems"][0] and rows[3]["nmt_state"] == "STOPPED"
+
+
+def test_monitor_table_refreshes_in_place_on_a_terminal_and_in_blocks_otherwise():
+    import io
+
+    from bench.commission.monitor import _Screen
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    t, p = Tty(), io.StringIO()
+    for out in (t, p):
+        s = _Screen(out)
+        s.show(["a", "b"])
+        s.show(["c", "d"])
+    assert t.getvalue() == "\x1b[J" + "a\nb\n" + "\x1b[2F\x1b[J" + "c\nd\n"
+    assert p.getvalue() == "a\nb\n\nc\nd\n\n" and "\x1b" not in p.getvalue()
+
+
+def test_bad_input_is_a_usage_error_naming_the_file(capsys, tmp_path):
+    code, out = cli(capsys, "scan", "--can", "virtual:nobody-x", "--eds", str(tmp_path / "no.eds"),
+                    "--no-report")
+    assert code == 2 and "no.eds" in out["error"]
+    bad = tmp_path / "w.toml"
+    bad.write_text("[bus]\nbitrate = 3\n")
+    code, out = cli(capsys, "check", "--can", "virtual:nobody-x", "--winches", str(bad),
+                    "--no-report")
+    assert code == 2 and "w.toml" in out["error"] and "bitrate" in out["error"]
+    code, out = cli(capsys, "tare", "21", "--no-report")
+    assert code == 2 and "--modbus" in out["error"]

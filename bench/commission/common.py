@@ -206,6 +206,9 @@ def dispatch(args: argparse.Namespace, func: Callable[[argparse.Namespace, Ui, S
         section.write(f"FAILED: {msg}")
         return code
 
+    eds = getattr(args, "eds", None)
+    if eds is not None and not Path(eds).is_file():
+        return fail(2, f"--eds {eds}: no such file")
     try:
         code = func(args, ui, section)
     except KeyboardInterrupt:
