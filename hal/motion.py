@@ -190,6 +190,7 @@ class AxisMaster:
         self._settings: list[Setting] = []
         self._master_hb: tuple[int, float] | None = None
         self._next_hb = 0.0
+        self._next_hb_clock = 0.0
         self._next_wall = 0.0
         self._last_code = 0
         self._subs = [(self._tpdo_cob, self._on_tpdo), (0x700 + self.node_id, self._on_hb)]
@@ -424,9 +425,13 @@ class AxisMaster:
         try:
             for cob, data in msgs:
                 self.network.send_message(cob, data)
-            if self._master_hb is not None and time.monotonic() >= self._next_hb:
-                self._send_master_heartbeat()
-                self._next_hb = time.monotonic() + self._master_hb[1]
+            if self._master_hb is not None:
+                # due on the master clock (a SYNC-driven drive's time) or on the wall clock
+                wall, now = time.monotonic(), self.now()
+                if wall >= self._next_hb or now >= self._next_hb_clock:
+                    self._send_master_heartbeat()
+                    self._next_hb = wall + self._master_hb[1]
+                    self._next_hb_clock = now + self._master_hb[1]
         except (can.CanError, OSError) as exc:
             raise MotionError(f"{self.who()}: sending RPDO/SYNC failed: {exc}", "bus") from exc
         self.syncs += 1

@@ -30,11 +30,16 @@ from firmware_sim.loadcell_bank import LoadCellBank
 from firmware_sim.loadcell_server import LoadCellServer
 from hal.drives import WinchDrives
 from hal.drives_cia402 import DriveState
-from hal.drives_config import Setting, drive_settings, sdo_write
+from hal.drives_config import Setting, _od_var, drive_settings, sdo_write
 from hal.loadcell_calibration import load_calibration
 from hal.loadcell_client import LoadCellClient
 from hal.motion import AxisMaster, JogInput, MotionError, run_jog
-from hal.sdo_config import compare_configuration, export_dcf, store_parameters
+from hal.sdo_config import (
+    compare_configuration,
+    expected_values,
+    export_dcf,
+    store_parameters,
+)
 
 W = load_winches()
 L0 = np.linspace(9.0, 12.5, 8)
@@ -175,7 +180,15 @@ def test_check_finds_a_wrong_parameter_and_apply_fixes_and_stores_it(rig, capsys
     rep = str(tmp_path / "report.md")
     code, out = cli(capsys, "check", "--can", rig.can, "--report", rep)
     assert code == 1  # drives out of the box: EDS defaults, not the HAL's table
-    assert all(len(d["differences"]) > 5 for d in out["drives"])
+    # exactly the objects of the HAL's table whose EDS default is not the table's value
+    od = canopen.import_od(str(EDS_PATH), 1)
+    for d in out["drives"]:
+        k = W.index_of_node(d["node_id"])
+        want = {(f"0x{st.index:04X}", st.subindex): st.value
+                for st in expected_values(drive_settings(W, k, od))
+                if _od_var(od, st.index, st.subindex).default != st.value}
+        got = {(x["index"], x["subindex"]): x["expected"] for x in d["differences"]}
+        assert got == want and len(got) > 5
     code, out = cli(capsys, "check", "--can", rig.can, "--apply", "--yes", "--listen", "0.1",
                     "--report", rep)
     assert code == 0 and out["applied"] == list(range(1, 9))
@@ -361,7 +374,9 @@ def test_an_error_mid_jog_leaves_the_drive_disabled(rig, error):
             run_jog(m, read, int(ax.m_to_counts(20.0)), int(ax.m_to_counts(5.0)), 0.5)
         finally:
             if error == "silent_drive":
-                assert rig.bank.drive(4).state.name == "OPERATION_ENABLED"
+                # still powered (enabled, or holding in quick stop on its RPDO deadline)
+                assert rig.bank.drive(4).state.name in ("OPERATION_ENABLED",
+                                                        "QUICK_STOP_ACTIVE")
                 rig.bank.drive(4).set_silent(False)  # back: finish() disables it by SDO
             state, problems = m.finish()
             m.close()
