@@ -185,6 +185,7 @@ class AxisMaster:
         self._bit4 = False
         self._bit4_sent_at = 0
         self._started = False
+        self._identity_ok = False  #: the node is the EDS's device: finish() may write to it
         self._boots_at_start = 0
         self._restore: dict[tuple[int, int], Setting] = {}
         self._settings: list[Setting] = []
@@ -282,6 +283,7 @@ class AxisMaster:
                                       "reset communication: is the node on the bus?")
                 self._rx.wait(left)
         verify_identity(self.node, who)
+        self._identity_ok = True
         self._settings = drive_settings(self.session_winches, self.k,
                                         self.node.object_dictionary)
         table = {(s.index, s.subindex): s for s in self._table_settings()}
@@ -535,6 +537,9 @@ class AxisMaster:
         except (can.CanError, OSError) as exc:
             problems.append(f"{who}: NMT pre-operational not sent: {exc}")
         state = "unknown"
+        if not self._identity_ok:
+            self.note(f"{who}: finished before its identity was confirmed: nothing written")
+            return state, problems
         try:
             sdo_write(self.node, Setting(0x6040, 0, CW_DISABLE_VOLTAGE, "controlword"), who)
             for st in self._restore.values():
