@@ -2,12 +2,15 @@
 
 :func:`drive_settings` turns the winch parameters (``controller/data/rocaspect_winches.toml``)
 into the list of object writes one drive needs for cyclic synchronous position (CSP):
-communication (SYNC 0x1005/0x1006, heartbeat 0x1017), the PDO mapping (RPDO1 =
+communication (SYNC 0x1005/0x1006, heartbeat 0x1017), master-loss monitoring (consumer
+heartbeat 0x1016, error behaviour 0x1029, abort connection option 0x6007), the PDO mapping (RPDO1 =
 controlword + target position, TPDO1 = statusword + position actual value, transmission
 type 1 = every SYNC, RPDO deadline 0x1400 sub 5) following the CiA 301 procedure
 (invalidate, clear, map, count, validate), and the drive parameters (mode 8, following
 error, software limits, velocity/acceleration limits, ramps, quick stop and fault
-reaction options). Every entry is checked against the EDS first (object exists, is
+reaction options). This table is the one place that says what a drive is configured with:
+the HAL writes and verifies it at start-up and ``cdpr commission check`` compares a drive
+against it. Every entry is checked against the EDS first (object exists, is
 writable, the value fits its type, mapped objects are mappable), then written by SDO and
 read back (:func:`configure_node`). Blocking: run it at start-up, never in the cycle.
 Errors name the node, the cable, the object and the value.
@@ -106,6 +109,42 @@ def pdo_settings(
     return out
 
 
+def consumer_heartbeat(node_id: int, time_ms: int) -> int:
+    """0x1016 sub-index value watching ``node_id``'s heartbeat for ``time_ms`` (CiA 301 7.5.2.
+    19: bits 16-23 node id, bits 0-15 consumer heartbeat time [ms]; 0 = not watched)."""
+    if time_ms <= 0:
+        return 0
+    return (int(node_id) & 0x7F) << 16 | (int(time_ms) & 0xFFFF)
+
+
+#: (object, option, what it does) of the stop options that leave a hanging load to the brake
+#: alone or let it coast (CiA 402 0x605A, 0x605E, 0x6007); see ``rocaspect_winches.toml``.
+NOT_HOLDING: tuple[tuple[str, int, str], ...] = (
+    ("quick_stop_option", 0, "0x605A = 0: a quick stop disables the drive function (coasts)"),
+    ("quick_stop_option", 1, "0x605A = 1: a quick stop ends in Switch On Disabled (no torque)"),
+    ("quick_stop_option", 2, "0x605A = 2: a quick stop ends in Switch On Disabled (no torque)"),
+    ("fault_reaction_option", 0, "0x605E = 0: a fault switches the power off at once (coasts)"),
+    ("abort_connection_option", 0, "0x6007 = 0: a drive keeps moving when the master is lost"),
+    ("abort_connection_option", 2,
+     "0x6007 = 2: master loss disables voltage at once (coasts)"),
+)
+
+
+def holding_problems(w: WinchSet) -> list[str]:
+    """Stop options of the winch parameters that do not end holding the load (empty: every
+    stop ends in Quick Stop Active or on the quick-stop ramp), naming winch and object."""
+    out = []
+    for key, value, what in NOT_HOLDING:
+        for k in range(len(w)):
+            if int(getattr(w, key)[k]) == value:
+                out.append(f"{w.source}: winch {w.cables[k]!r} (node {int(w.node_id[k])}) "
+                           f"{key}: {what}")
+    if w.bus.master_heartbeat_timeout_s <= 0:
+        out.append(f"{w.source}: [bus] master_heartbeat_timeout_s = 0: the drives do not watch "
+                   "the master's heartbeat")
+    return out
+
+
 def drive_settings(w: WinchSet, k: int, od: canopen.ObjectDictionary) -> list[Setting]:
     """The start-up writes of winch ``k`` (array index) for CSP, in order."""
     bus = w.bus
@@ -121,6 +160,9 @@ def drive_settings(w: WinchSet, k: int, od: canopen.ObjectDictionary) -> list[Se
         Setting(0x1005, 0, 0x80, "COB-ID SYNC"),
         Setting(0x1006, 0, period_us, "communication cycle period [us]"),
         Setting(0x1017, 0, bus.heartbeat_ms, "producer heartbeat time [ms]"),
+        Setting(0x1016, 1, consumer_heartbeat(bus.master_node_id, bus.master_heartbeat_timeout_ms),
+                "consumer heartbeat time (master)"),
+        Setting(0x1029, 1, int(w.comm_error_behaviour[k]), "error behaviour: communication error"),
     ]
     s += pdo_settings(od, "rpdo", RPDO_MAP, 1, bus.rpdo_timeout_ms)
     s += pdo_settings(od, "tpdo", TPDO_MAP, 1)
@@ -142,6 +184,7 @@ def drive_settings(w: WinchSet, k: int, od: canopen.ObjectDictionary) -> list[Se
         Setting(0x6085, 0, rate(w.quick_stop_decel_m_s2[k]), "quick stop deceleration"),
         Setting(0x605A, 0, int(w.quick_stop_option[k]), "quick stop option code"),
         Setting(0x605E, 0, int(w.fault_reaction_option[k]), "fault reaction option code"),
+        Setting(0x6007, 0, int(w.abort_connection_option[k]), "abort connection option code"),
         Setting(0x6076, 0, int(round(w.rated_torque_nm[k] * 1e3)), "motor rated torque [mN*m]"),
     ]
     return s
