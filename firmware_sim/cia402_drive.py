@@ -358,6 +358,7 @@ class SimulatedDrive:
             self._following_error = False
             self._internal_limit = False
             self._ramp: tuple[float, str] | None = None  # (decel, then) while stopping
+            self._stop_decel = 0.0  # deceleration of the last stop ramp [counts/s^2]
             self._brake_now = False
         else:
             self._load_area(0x1000, 0x1FFF)
@@ -1077,6 +1078,7 @@ class SimulatedDrive:
 
     def _start_ramp(self, decel: float, then: str) -> None:
         self._ramp = (max(decel, 1.0), then)
+        self._stop_decel = max(decel, 1.0)
         self.dem = self.axis.pos
         self.dem_v = self.axis.vel
 
@@ -1183,6 +1185,9 @@ class SimulatedDrive:
         v_max = float(self.param(0x607F)) or 1e12
         a_max = float(self.param(0x60C5)) or 1e12
         moving = True
+        if s in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE):
+            # the stop ramp sets how hard the motor brakes, even beyond 0x60C5
+            a_max = max(a_max, self._stop_decel)
         if s == State.OPERATION_ENABLED:
             self._mode_demand(h_us, v_max, a_max)
         elif s in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE) and self._ramp:

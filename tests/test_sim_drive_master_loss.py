@@ -11,9 +11,9 @@ import time
 
 import pytest
 from canopen.sdo import SdoAbortedError
+from test_sim_drive import AX, START_COUNTS, Harness
 
 from firmware_sim.cia402_drive import State
-from test_sim_drive import AX, START_COUNTS, Harness
 
 MASTER = 127
 QS_DECEL = 4_000_000  # counts/s^2
