@@ -235,8 +235,11 @@ class SimulatedDrive:
         self._wall_prev: float | None = None  # last wall_tick() [s]
         self._hb_wall_sent = -1e18  # wall time of the last heartbeat sent [s]
         self.free_running = False  #: SYNC-driven clock runs on wall time (master lost)
-        #: (drive time [us], what) of each lost connection, for tests
-        self.connection_losses: list[tuple[int, str]] = []
+        #: (drive time [us], what, lag [s]) of each lost connection: lag from the last
+        #: frame heard (master heartbeat, RPDO) to the reaction, for tests
+        self.connection_losses: list[tuple[int, str, float | None]] = []
+        #: the last loss: time from the last frame heard (master heartbeat, RPDO) [s]
+        self.last_loss_lag_s: float | None = None
         # fault injection
         self.encoder_broken = False
         self.brake_stuck = False
@@ -458,6 +461,7 @@ class SimulatedDrive:
             for nid, time_us in self._consumers.items():
                 heard = self._hb_heard_wall.get(nid)
                 if heard is not None and now_s - heard > time_us * 1e-6:
+                    self.last_loss_lag_s = now_s - heard
                     self._consumer_expired(nid, wall=True)
 
     def _advance_to(self, now_us: int) -> None:
@@ -867,6 +871,7 @@ class SimulatedDrive:
             return
         limit_us = int(self.param(0x1400, 5)) * 1000
         if limit_us > 0 and self.now_us - self._last_rpdo_us > limit_us:
+            self.last_loss_lag_s = (self.now_us - self._last_rpdo_us) * 1e-6
             self._rpdo_timeout_active = True
             self._emcy(EMCY_RPDO_TIMEOUT)
             if self.state == State.OPERATION_ENABLED:
@@ -921,6 +926,7 @@ class SimulatedDrive:
         for nid, time_us in list(self._consumers.items()):
             heard = self._hb_heard_us.get(nid)
             if heard is not None and self.now_us - heard > time_us:
+                self.last_loss_lag_s = (self.now_us - heard) * 1e-6
                 self._consumer_expired(nid, wall=False)
 
     def _consumer_expired(self, nid: int, wall: bool) -> None:
@@ -940,7 +946,7 @@ class SimulatedDrive:
         error in the sense of CiA 301, i.e. a heartbeat consumer timeout) 0x1029 sub 1 on the
         NMT state. A missed RPDO deadline or NMT leaving OPERATIONAL only act on the power
         state: the setpoints stopped, the node itself is not in question."""
-        self.connection_losses.append((self.now_us, why))
+        self.connection_losses.append((self.now_us, why, self.last_loss_lag_s))
         opt = int(self.param(0x6007))
         s = self.state
         if opt == ABORT_CONN_FAULT:

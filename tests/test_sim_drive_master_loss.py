@@ -66,7 +66,8 @@ def test_master_heartbeat_loss_quick_stops_and_holds_in_quick_stop_active(h):
     h.drive.advance(0.02)  # 260 ms of silence > 250 ms
     h.wait_for(lambda: h.emcy_codes() == [0x8130])
     assert h.drive.state == State.QUICK_STOP_ACTIVE
-    t_lost, why = h.drive.connection_losses[-1]
+    t_lost, why, lag = h.drive.connection_losses[-1]
+    assert lag == pytest.approx(0.250001)
     assert t_lost - t_heard == 250_001 and "node 127" in why  # 1 us after the consumer time
     assert h.drive.nmt_state == 0x7F  # 0x1029:1 = 0: pre-operational
     h.drive.advance(0.3)  # V / a = 0.25 s on the quick-stop ramp
