@@ -242,6 +242,7 @@ class SimulatedDrive:
         self.last_loss_lag_s: float | None = None
         # fault injection
         self.encoder_broken = False
+        self.over_current = False
         self.brake_stuck = False
         self.heartbeat_stopped = False
         self.silent = False
@@ -1106,7 +1107,7 @@ class SimulatedDrive:
         self._start_ramp(self._ramp_decel(index), "fault")
 
     def _fault_reset(self) -> None:
-        if self.encoder_broken:
+        if self.encoder_broken or (self.over_current and self.error_code == EMCY_OVER_CURRENT):
             return  # the cause persists
         self.state = State.SWITCH_ON_DISABLED  # 15
         self.error_code = 0
@@ -1349,11 +1350,17 @@ class SimulatedDrive:
         with self.lock:
             self.encoder_broken = False
 
-    def inject_over_current(self) -> None:
-        """Output over-current trip: EMCY 0x2310, fault reaction, Fault."""
+    def inject_over_current(self, persist: bool = False) -> None:
+        """Output over-current trip: EMCY 0x2310, fault reaction, Fault. ``persist``: the
+        cause stays (a fault reset fails) until :meth:`clear_over_current`."""
         with self.lock:
+            self.over_current = self.over_current or persist
             self._fault(EMCY_OVER_CURRENT)
             self._async_tpdos()
+
+    def clear_over_current(self) -> None:
+        with self.lock:
+            self.over_current = False
 
     def stick_brake(self, stuck: bool = True) -> None:
         """The holding brake does not release: the axis cannot move (following error)."""
@@ -1393,3 +1400,9 @@ class SimulatedDrive:
         """Lose the next ``n`` RPDOs addressed to this drive."""
         with self.lock:
             self._drop_rpdo += n
+
+    def stop_dropping(self) -> None:
+        """Send and receive PDOs again (cancels what drop_tpdos / drop_rpdos still owe)."""
+        with self.lock:
+            self._drop_tpdo = 0
+            self._drop_rpdo = 0
