@@ -281,6 +281,12 @@ class SimulatedDrive:
                 self._subscribed[kind] = None
         net.unsubscribe(self.node.sdo.rx_cobid, self._on_sdo)
         net.unsubscribe(0, self._on_nmt)
+        for nid in self._hb_subscribed:
+            net.unsubscribe(0x700 + nid, self._on_consumer_heartbeat)
+        self._hb_subscribed = set()
+        # canopen's own handlers back, so that it can remove them with the node
+        net.subscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        net.subscribe(0, self.node.nmt.on_command)
         del net[self.node_id]
         self.network = None
 
