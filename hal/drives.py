@@ -770,9 +770,11 @@ class WinchDrives:
         self._request[self._mask(nodes)] = Request.QUICK_STOP
 
     def fault_reset(self, nodes: Iterable[int] | None = None, hold_cycles: int = 20) -> None:
-        """Reset faulted drives with a rising edge of controlword bit 7 (over the next cycles)."""
+        """Reset faulted drives with a rising edge of controlword bit 7 (over the next cycles).
+        They come back disabled, never enabled: that takes :meth:`enable`."""
         m = self._mask(nodes) & faulted(self._states)
         self._reset_left[m] = hold_cycles
+        self._request[m] = Request.DISABLE
 
     def set_lengths(self, lengths_m: np.ndarray) -> None:
         """Cable length setpoints [m], shape (n,), sent with the next :meth:`exchange`.
@@ -1021,6 +1023,12 @@ class WinchDrives:
         if not ok:
             bad = [f"{self.who(k)}: {DriveState(s).name}" for k, s in enumerate(self._states)
                    if s != DriveState.OPERATION_ENABLED]
+            # the drives that did not come keep no pending enable: a later fault reset or
+            # recovery must not enable them behind the controller's back
+            late = self._states != DriveState.OPERATION_ENABLED
+            held = late & (self._states == DriveState.QUICK_STOP_ACTIVE)
+            self._request[late & ~held] = Request.DISABLE
+            self._request[held] = Request.QUICK_STOP
             if not self.link_up():
                 raise BusLinkError(f"enable: {self._link_why()}")
             raise DriveStartupError(
