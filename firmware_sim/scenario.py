@@ -55,7 +55,6 @@ shipped ``cdpr-path/1`` file by name, or a file relative to the scenario).
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -276,11 +275,8 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file."""
+    from controller.tomlfile import read_toml
+
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ScenarioError(f"{p}: cannot read: {e.strerror or e}") from e
-    except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(f"{p}: not valid TOML: {e}") from e
+    data, _ = read_toml(p, ScenarioError)  # errors name the file (line, column)
     return parse_scenario(data, p)

@@ -102,6 +102,7 @@ from hal.drives_config import (
     configure_node,
     drive_settings,
     holding_problems,
+    load_eds,
     pdo_struct,
     sdo_read,
     verify_identity,
@@ -193,8 +194,7 @@ class WinchDrives:
         self.node_ids = [int(x) for x in winches.node_id]
         self.nodes: list[canopen.RemoteNode] = []
         for nid in self.node_ids:
-            od = eds if isinstance(eds, canopen.ObjectDictionary) else canopen.import_od(
-                str(eds), nid)
+            od = eds if isinstance(eds, canopen.ObjectDictionary) else load_eds(eds, nid)
             node = canopen.RemoteNode(nid, od)
             network.add_node(node)
             self.nodes.append(node)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from pathlib import Path
 
 import canopen
 from canopen import objectdictionary
@@ -51,6 +52,33 @@ SDO_ABORT_TEXT = {
 
 class DriveConfigError(RuntimeError):
     """A drive could not be configured or does not match; the message names node and object."""
+
+
+def load_eds(path: str | Path, node_id: int) -> canopen.ObjectDictionary:
+    """The object dictionary of an EDS file for ``node_id``; DriveConfigError naming the file
+    (and the line of a byte that is not UTF-8) when it cannot be read or is not an EDS."""
+    import contextlib
+    import io
+
+    from controller.tomlfile import decode_utf8
+
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as e:
+        raise DriveConfigError(f"EDS {p}: cannot read: {e.strerror or e}") from None
+    decode_utf8(data, f"EDS {p}", DriveConfigError)
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said):  # canopen prints some complaints
+            od = canopen.import_od(str(p), node_id)
+    except Exception as e:  # configparser, KeyError, ValueError...: any way of not being one
+        extra = said.getvalue().strip()
+        raise DriveConfigError(f"EDS {p}: not a valid EDS: {type(e).__name__}: {e}"
+                               + (f" ({extra})" if extra else "")) from None
+    if not len(od) or 0x1000 not in od:
+        raise DriveConfigError(f"EDS {p}: no object 0x1000 (device type): not a device EDS")
+    return od
 
 
 @dataclass(frozen=True)

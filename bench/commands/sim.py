@@ -29,12 +29,6 @@ import signal
 import sys
 import threading
 
-import numpy as np
-
-from firmware_sim.rig import SimRig
-from firmware_sim.scenario import ScenarioError, load_scenario
-from hal.can_bus import CanSpecError, open_bus, parse_can_spec
-
 NAME = "sim"
 HELP = "run the simulated robot (drives on CAN, load cells on Modbus, plant) until interrupted"
 
@@ -91,12 +85,17 @@ def run(args: argparse.Namespace) -> int:
             return _fail(args, 2, msg)
     if not args.plant_rate > 0:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
+    import numpy as np
+
     from firmware_sim.faults import (
         FaultControlServer,
         FaultInjector,
         FaultSchedule,
         FaultScheduleError,
     )
+    from firmware_sim.rig import SimRig
+    from firmware_sim.scenario import ScenarioError, load_scenario
+    from hal.can_bus import CanSpecError, open_bus, parse_can_spec
 
     try:
         scenario = load_scenario(args.scenario) if args.scenario else None
