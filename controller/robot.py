@@ -220,6 +220,8 @@ class _Reader:
         return str(v)
 
     def unknown(self, d: dict, allowed: set[str], table: str | None, index: int | None) -> None:
+        if not isinstance(d, dict):
+            raise self.fail(f"must be a table, got {d!r}", table, index, None)
         for k in d:
             if k not in allowed:
                 raise self.fail(f"unknown key (allowed: {', '.join(sorted(allowed))})",
