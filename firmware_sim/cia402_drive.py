@@ -571,6 +571,14 @@ class SimulatedDrive:
                 return
             if self.nmt_state not in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL):
                 return
+            if len(data) != 8:
+                return  # not an SDO frame (CiA 301: always 8 bytes): ignored
+            ccs = data[0] & 0xE0
+            if ccs in (0x00, 0x60) and self.node.sdo._buffer is None:
+                # a segment with no transfer in progress: abort, as a drive would (canopen
+                # would abort too, but log the exception it trips over)
+                self.node.sdo.abort(0x05040001)
+                return
             self.node.sdo.on_request(can_id, data, timestamp)
             self._async_tpdos()
 

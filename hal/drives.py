@@ -271,6 +271,7 @@ class WinchDrives:
             # is reported naming the node (canopen's would log every EMCY for ever)
             network.unsubscribe(0x80 + node.id, node.emcy.on_emcy)
             network.unsubscribe(0x700 + node.id, node.nmt.on_heartbeat)
+            network.unsubscribe(0, node.nmt.on_command)  # the master sends NMT, not follows
             self._subs.append((0x180 + node.id, self._tpdo_cb(k)))
             self._subs.append((0x700 + node.id, self._heartbeat_cb(k)))
             self._subs.append((0x80 + node.id, self._emcy_cb(k)))
@@ -315,6 +316,7 @@ class WinchDrives:
                 # canopen's own handlers back, so that it can remove them with the node
                 self.network.subscribe(0x80 + node.id, node.emcy.on_emcy)
                 self.network.subscribe(0x700 + node.id, node.nmt.on_heartbeat)
+                self.network.subscribe(0, node.nmt.on_command)
                 del self.network[node.id]
         if self._own_network:
             self.network.disconnect()

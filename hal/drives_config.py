@@ -257,7 +257,15 @@ def sdo_read(node: canopen.RemoteNode, index: int, subindex: int, who: str) -> i
     except SdoCommunicationError as exc:
         raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
                                f"no SDO answer ({exc})") from exc
-    return var.decode_raw(data)
+    except (struct.error, ValueError, IndexError, TypeError) as exc:  # a malformed answer
+        raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
+                               f"malformed SDO answer ({type(exc).__name__}: {exc})") from exc
+    try:
+        return var.decode_raw(data)
+    except (struct.error, ValueError, objectdictionary.ObjectDictionaryError) as exc:
+        raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
+                               f"{len(data)} bytes ({bytes(data).hex()}) do not decode as "
+                               f"type 0x{var.data_type:04X}: {exc}") from exc
 
 
 def sdo_write(node: canopen.RemoteNode, st: Setting, who: str) -> None:
@@ -271,6 +279,9 @@ def sdo_write(node: canopen.RemoteNode, st: Setting, who: str) -> None:
     except SdoCommunicationError as exc:
         raise DriveConfigError(f"{who}: writing {st.where()} = {st.value}: no SDO answer ({exc})"
                                ) from exc
+    except (struct.error, ValueError, IndexError, TypeError) as exc:  # a malformed answer
+        raise DriveConfigError(f"{who}: writing {st.where()} = {st.value}: malformed SDO "
+                               f"answer ({type(exc).__name__}: {exc})") from exc
 
 
 def verify_identity(node: canopen.RemoteNode, who: str) -> None:

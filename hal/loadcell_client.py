@@ -275,9 +275,10 @@ class LoadCellClient:
             )
             return True
         try:
-            value, bits, counter = self.map.decode(np.asarray(regs, dtype=np.int64) & 0xFFFF)
+            value, bits, counter = self.map.decode(np.asarray(regs, dtype=np.int64))
         except (ValueError, OverflowError, TypeError) as exc:
-            self._fail(k, CableStatus.COMM_ERROR, f"registers {regs} do not decode: {exc}")
+            self._fail(k, CableStatus.COMM_ERROR, f"malformed answer: registers {regs[:8]} "
+                       f"do not decode: {exc}")
             return True
         with self._lock:
             if int(counter) != self._counter[k] or not np.isfinite(self._t_sample[k]):
