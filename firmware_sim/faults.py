@@ -64,7 +64,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import re
 import socket
 import threading
 import time
@@ -72,7 +71,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controller.tomlfile import read_toml
+from controller.tomlfile import Locator, read_toml
 
 log = logging.getLogger(__name__)
 
@@ -201,24 +200,6 @@ def parse_fault(entry: Any, where: str, node_ids: tuple[int, ...],
                  where=line_of(None) if line_of is not None else where)
 
 
-def _table_lines(text: str, name: str) -> list[tuple[int, dict[str, int]]]:
-    """For each ``[[name]]`` header in order: (its line, {key: line of the key})."""
-    out: list[tuple[int, dict[str, int]]] = []
-    header = re.compile(r"^\s*\[\[\s*" + re.escape(name) + r"\s*\]\]")
-    other = re.compile(r"^\s*\[")
-    key = re.compile(r"^\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
-    current: dict[str, int] | None = None
-    for i, line in enumerate(text.splitlines(), start=1):
-        if header.match(line):
-            current = {}
-            out.append((i, current))
-        elif other.match(line):
-            current = None
-        elif current is not None and (m := key.match(line)):
-            current.setdefault(m.group(1).strip('"'), i)
-    return out
-
-
 @dataclass(frozen=True)
 class FaultSchedule:
     """The faults of a schedule file, in file order."""
@@ -251,15 +232,13 @@ class FaultSchedule:
         entries = doc.get("fault", [])
         if not isinstance(entries, list):
             raise FaultScheduleError(f"{source}: fault must be [[fault]] tables")
-        lines = _table_lines(text, "fault")
+        loc = Locator(text)
         faults = []
         for i, entry in enumerate(entries):
-            head, keys = lines[i] if i < len(lines) else (None, {})
 
-            def line_of(key: str | None, head=head, keys=keys) -> str | None:
-                if head is None:
-                    return None
-                return f"{source}:{keys.get(key, head) if key else head}"
+            def line_of(key: str | None, i=i) -> str | None:
+                line = loc.line("fault", i, key)
+                return f"{source}:{line}" if line else None
 
             faults.append(parse_fault(entry, f"{source}: [[fault]] #{i + 1}", node_ids,
                                       unit_ids, line_of))
