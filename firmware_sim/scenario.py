@@ -55,7 +55,6 @@ shipped ``cdpr-path/1`` file by name, or a file relative to the scenario).
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -158,6 +157,12 @@ def _num(path: Path, where: str, v: Any, positive: bool = False, nonneg: bool = 
     return float(v)
 
 
+def _table(p: Path, name: str, value: Any) -> dict:
+    if not isinstance(value, dict):
+        raise ScenarioError(f"{p}: {name}: must be a table, got {value!r}")
+    return value
+
+
 def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scenario:
     """Validate a parsed scenario mapping."""
     p = Path(path)
@@ -210,7 +215,7 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     except (KeyError, ValueError) as e:
         raise ScenarioError(f"{p}: truth: {e.args[0] if e.args else e}") from e
 
-    noise_tab = data.get("noise", {})
+    noise_tab = _table(p, "noise", data.get("noise", {}))
     known = set(Noise.__dataclass_fields__)
     for k in noise_tab:
         if k not in known:
@@ -218,7 +223,7 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
                                 f"(allowed: {', '.join(sorted(known))})")
     noise = Noise(**{k: _num(p, f"noise.{k}", v, nonneg=True) for k, v in noise_tab.items()})
 
-    nz = data.get("nuisance", {})
+    nz = _table(p, "nuisance", data.get("nuisance", {}))
     for k in nz:
         if k not in ("hysteresis_m", "drift_m_per_h"):
             raise ScenarioError(f"{p}: nuisance.{k}: unknown key (allowed: drift_m_per_h, "
@@ -226,7 +231,7 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     hyst = _num(p, "nuisance.hysteresis_m", nz.get("hysteresis_m", 0.0), nonneg=True)
     drift = _num(p, "nuisance.drift_m_per_h", nz.get("drift_m_per_h", 0.0)) / 3600.0
 
-    ps = data.get("poses", {})
+    ps = _table(p, "poses", data.get("poses", {}))
     pknown = {"kind", "x", "y", "z", "n", "rpy_deg", "list", "visits", "dwell_s", "rate_hz",
               "init_s", "speed_m_s", "exit_points"}
     for k in ps:
@@ -259,6 +264,8 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     if "visits" in ps:
         kw["visits"] = int(_num(p, "poses.visits", ps["visits"], positive=True))
     if "exit_points" in ps:
+        if not isinstance(ps["exit_points"], list):
+            raise ScenarioError(f"{p}: poses.exit_points: must be a list of cable ids")
         ep = [str(c) for c in ps["exit_points"]]
         for c in ep:
             if c not in model.cable_ids:
@@ -270,17 +277,19 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     if run_path and p.name != "<memory>" and (p.parent / run_path).exists():
         run_path = str(p.parent / run_path)
     return Scenario(p, model, truth, effects, slips, init_pose,
-                    int(data.get("seed", 0)), noise, hyst, drift, PoseSet(**kw),
-                    str(data.get("notes", "")), run_path)
+                    int(_num(p, "seed", data.get("seed", 0), nonneg=True)), noise, hyst, drift,
+                    PoseSet(**kw), str(data.get("notes", "")), run_path)
 
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file."""
+    from controller.tomlfile import read_toml
+
     p = Path(path)
+    data, _ = read_toml(p, ScenarioError)  # errors name the file (line, column)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ScenarioError(f"{p}: cannot read: {e.strerror or e}") from e
-    except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(f"{p}: not valid TOML: {e}") from e
-    return parse_scenario(data, p)
+        return parse_scenario(data, p)
+    except (TypeError, ValueError, KeyError, AttributeError) as e:
+        if isinstance(e, ScenarioError):
+            raise
+        raise ScenarioError(f"{p}: not a valid scenario: {type(e).__name__}: {e}") from None

@@ -111,6 +111,10 @@ def run(args: argparse.Namespace) -> int:
         return _fail(args, 2, f"{out}: exists and is not a directory")
     if _occupied(out) and not args.force:
         return _fail(args, 2, f"{out}: not empty (use --force to replace the recording there)")
+    from bench.outputs import output_dir_problem
+
+    if (problem := output_dir_problem(out, "OUT_DIR")) is not None:
+        return _fail(args, 2, problem)
     try:
         sc, subset = _adjust(load_scenario(args.scenario), args)
     except ScenarioError as e:
