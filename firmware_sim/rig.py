@@ -197,7 +197,8 @@ class SimRig:
         st = self.plant.state
         self.history: deque[RigRecord] = deque(maxlen=HISTORY)
         self._settle_lock = threading.Lock()  # the plant is not thread-safe
-        self._publish(0.0, self.reference_m.copy(), st)
+        # the drives' quantised readings, so that the first settle is not a move (no visit)
+        self._publish(0.0, self.bank.positions_m(), st)
         self.settles = 0  #: plant settles so far
         self.plant_errors: list[str] = []  #: why the plant found no rest position
         self.late_settles = 0  #: wall clock: settles that took longer than the plant period
