@@ -111,8 +111,17 @@ def compose(pose: np.ndarray, dx: np.ndarray) -> np.ndarray:
 
 
 def euler_rate_matrix(rpy: np.ndarray) -> np.ndarray:
-    """Matrix E with ``w = E(rpy) d(rpy)``: angular velocity in F_b from Euler-angle rates."""
-    _, p, y = rpy
+    """Matrix E with ``w = E(rpy) d(rpy)``: angular velocity in F_b from Euler-angle rates;
+    (..., 3, 3) for stacked angles (..., 3)."""
+    rpy = np.asarray(rpy, dtype=float)
+    p, y = rpy[..., 1], rpy[..., 2]
     cp, sp = np.cos(p), np.sin(p)
     cy, sy = np.cos(y), np.sin(y)
-    return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+    E = np.zeros(rpy.shape[:-1] + (3, 3))
+    E[..., 0, 0] = cy * cp
+    E[..., 0, 1] = -sy
+    E[..., 1, 0] = sy * cp
+    E[..., 1, 1] = cy
+    E[..., 2, 0] = -sp
+    E[..., 2, 2] = 1.0
+    return E
