@@ -103,6 +103,8 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
     scale = np.maximum(d, 1e-9)
     ok = np.zeros(h.shape, dtype=bool)
     act = np.arange(h.size)  # elements still iterating (the converged ones stop)
+    best = np.full(h.size, np.inf)
+    stall = np.zeros(h.size, dtype=int)
     for _ in range(max_iter):
         Ha, Va, La, ia = H[act], VB[act], L0[act], inv_ea[act]
         Ta, sa = T[act], scale[act]
@@ -110,9 +112,14 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
         V_end = Va + w * La if end == "A" else Va
         r = np.stack([hh - h[act], vv - v[act],
                       (np.hypot(Ha, V_end) - Ta) / np.maximum(Ta, 1e-9) * sa])
-        done = np.abs(r).max(axis=0) < tol * sa
+        err = np.abs(r).max(axis=0)
+        done = err < tol * sa
         ok[act[done]] = True
-        keep = ~done
+        # an element whose error has not halved in 6 iterations will not converge: it stops
+        better = err < 0.5 * best[act]
+        best[act] = np.where(better, err, best[act])
+        stall[act] = np.where(better, 0, stall[act] + 1)
+        keep = ~done & (stall[act] < 6)
         if not keep.any():
             break
         act, r = act[keep], r[:, keep]
