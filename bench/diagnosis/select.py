@@ -24,7 +24,8 @@ import numpy as np
 
 from bench.diagnosis.fit import FitResult, fd_jacobian, fit_effects
 from bench.diagnosis.residuals import ResidualModel
-from bench.diagnosis.space import ParamSpace
+from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
+from controller.effects import EFFECT_NAMES
 
 #: BIC drop an effect must bring to enter (strong evidence)
 BIC_ENTER = 10.0
@@ -43,21 +44,45 @@ Progress = Callable[[str], None]
 
 
 def candidate_effects(rm: ResidualModel) -> list[str]:
-    """Effects this recording can see."""
+    """Effects this recording can see.
+
+    Without tracker poses (tensions and encoders only) the poses are estimated from the
+    lengths, which absorbs what moves exit points or scales lengths: only the load cells,
+    the mass and the cables' stretch are tested (:func:`untested_effects` says which are
+    not)."""
     out = []
     have_len = bool(rm.has_len.any())
     have_exit = bool(rm.has_exit.any())
-    if have_len or have_exit:
+    measured_pose = bool((rm.has_pose & (rm.has_len | rm.has_exit.any(axis=1))).any())
+    geometry = measured_pose and (have_len or have_exit)
+    if geometry:
         out += ["exit_point_offset", "mast_compliance"]
     if have_len:
-        out += ["cable_elasticity", "cable_length_offset", "drum_scale"]
+        out += ["cable_elasticity", PER_CABLE_EA]
+    if have_len and measured_pose:
+        out += ["cable_length_offset", "drum_scale"]
     if rm.any_tau:
         out += ["load_cell_calibration", "platform_mass"]
-    if have_len or have_exit:
+    if geometry:
         out += ["pulley_kinematics"]
-    if have_len:
+    if have_len and measured_pose:
         out += ["cable_sag"]
     return out
+
+
+def untested_effects(rm: ResidualModel) -> list[str]:
+    """Vocabulary effects this recording cannot test (see :func:`candidate_effects`)."""
+    seen = {report_name(c) for c in candidate_effects(rm)}
+    return [e for e in EFFECT_NAMES if e not in seen]
+
+
+#: candidates that are two forms of one effect: never both in a set
+EXCLUSIVE = {frozenset({"cable_elasticity", PER_CABLE_EA})}
+
+
+def compatible(effects: tuple[str, ...] | list[str], extra: str) -> bool:
+    """Whether ``extra`` may join ``effects`` (not a second form of one of them)."""
+    return all(frozenset({extra, e}) not in EXCLUSIVE for e in effects)
 
 
 @dataclass
@@ -213,7 +238,7 @@ class Selector:
         """Add the effect whose refit lowers the BIC most (screened by linearised signatures)."""
         if current.reduced_chi2 < EXPLAINED and chosen:
             return None
-        rest = [c for c in candidates if c not in chosen]
+        rest = [c for c in candidates if c not in chosen and compatible(chosen, c)]
         if not rest:
             return None
         self.progress(f"screening {len(rest)} candidate effects (reduced chi-square "
@@ -275,7 +300,7 @@ class Selector:
                 np.zeros((n_res, 0))
             p_keep = int(np.isfinite(current.stderr[keep]).sum())
             for a in candidates:
-                if a in chosen:
+                if a in chosen or not compatible([c for c in chosen if c != e], a):
                     continue
                 sub = ParamSpace(robot_wo, (a,))
                 J_a = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
@@ -320,7 +345,8 @@ class Selector:
         cur = sel.fit
         pred = self.swap_screen(cur, chosen, candidates) if chosen else {}
         for e in chosen:
-            others = [c for c in candidates if c not in chosen]
+            others = [c for c in candidates if c not in chosen
+                      and compatible([x for x in chosen if x != e], c)]
             near = [a for a in others if pred.get((e, a), np.inf) < BIC_TIE + SWAP_SCREEN_MARGIN]
             sets = [tuple(c for c in chosen if c != e) + (a,) for a in near]
             alt = []
