@@ -43,6 +43,25 @@ class ConvergenceError(RuntimeError):
     """A solver did not converge; the message says how far it got."""
 
 
+class SolverStats:
+    """Counts of :func:`solve_equilibrium` outcomes in this process: ``calls``, ``newton``
+    (converged by Newton from the guess), ``fallbacks`` (the energy descent was needed),
+    ``failures`` (no stable equilibrium found). For evaluations; not thread-safe."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.calls = self.newton = self.fallbacks = self.failures = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return {"calls": self.calls, "newton": self.newton, "fallbacks": self.fallbacks,
+                "failures": self.failures}
+
+
+STATS = SolverStats()
+
+
 @dataclass(frozen=True)
 class EquilibriumResult:
     """Result of :func:`solve_equilibrium`.
@@ -205,17 +224,22 @@ def solve_equilibrium(robot: Robot, l0: np.ndarray, guess: np.ndarray,
     # forces cannot be resolved finer than round-off in ea * (L - L0) / L0
     tol = max(tol, 20 * np.finfo(float).eps * float(np.max(robot.ea))
               * np.sqrt(robot.n_cables) / max(robot.weight, 1.0))
+    STATS.calls += 1
     res = _newton(robot, l0, guess, theta, tol, max_iter)
     if res.success and (_near(res.pose, guess) or is_stable(robot, res, l0)):
+        STATS.newton += 1
         return res
     if max_iter < 5:
+        STATS.failures += not res.success
         return res
+    STATS.fallbacks += 1
     descent = _energy_descent(robot, np.asarray(l0, float), np.array(guess, float), theta, tol)
     polished = _newton(robot, l0, descent.pose, descent.theta, tol, max_iter)
     if polished.success and is_stable(robot, polished, l0):
         return polished
     if descent.success:
         return descent
+    STATS.failures += 1
     if res.success:
         return EquilibriumResult(res.pose, res.theta, res.tensions, res.exits, False,
                                  "equilibrium: only an unstable equilibrium found", res.nit,
