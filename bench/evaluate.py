@@ -129,6 +129,24 @@ def feasible_poses(robot: Robot, rng: np.random.Generator, count: int, rpy_deg: 
     return np.array(out).reshape(-1, 6)
 
 
+def reachable(robot: Robot, start: np.ndarray, pts: np.ndarray, checks: int = 8) -> np.ndarray:
+    """The largest prefix-greedy subset of ``pts`` whose straight lines to each other and from
+    ``start`` stay feasible (a continuous recording moves between them in any order)."""
+    keep: list[np.ndarray] = []
+    for p in pts:
+        ok = True
+        for q in [start, *keep]:
+            for f in np.linspace(0.0, 1.0, checks + 2)[1:-1]:
+                if not feasible(robot, q + f * (p - q), margin=0.05):
+                    ok = False
+                    break
+            if not ok:
+                break
+        if ok:
+            keep.append(p)
+    return np.array(keep).reshape(-1, 6)
+
+
 def perturb_robot(robot: Robot, rng: np.random.Generator) -> Robot:
     """Another robot of the same class: masts moved (with their exit points), exit points,
     anchors, mass and cable stiffness changed at random."""
@@ -322,6 +340,7 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
             else None
         visits = int((poses or {}).get("visits", rng.integers(2, 4)))
         pts = feasible_poses(model, rng, int(rng.integers(4, 8)), rpy, grid=grid)
+        pts = reachable(model, init, pts)
     if len(pts) < 3:
         raise RuntimeError(f"seed {seed}: fewer than 3 feasible poses for {model.name}")
     truth = {e: draw_effect(e, rng, model, init) for e in effects}

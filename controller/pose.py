@@ -102,11 +102,9 @@ def compose(pose: np.ndarray, dx: np.ndarray) -> np.ndarray:
     R = rotvec_matrix(dx[3:6]) @ rotation(pose[3:6])
     out = np.empty(6)
     out[:3] = pose[:3] + dx[:3]
-    rpy = euler_from_rotation(R)
     # keep angles continuous with the previous pose (yaw/roll wrap at +-pi)
-    for k in range(3):
-        d = rpy[k] - pose[3 + k]
-        out[3 + k] = pose[3 + k] + (d + math.pi) % (2 * math.pi) - math.pi
+    d = euler_from_rotation(R) - pose[3:6]
+    out[3:] = pose[3:6] + (d + math.pi) % (2 * math.pi) - math.pi
     return out
 
 

@@ -408,10 +408,16 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
 
     key = tuple(sorted(sel.effects))
     start = selector.cache.get(key)
+    if start is None:
+        start = selector.fit(key)
+    if np.array_equal(np.sort(idx), np.sort(selector.train)):
+        return start  # nothing held out for validation: the selection's fit is the final one
     space = ParamSpace(selector.model, key)
     say(f"final fit of {' + '.join(report_name(e) for e in key) or 'the model as it is'} on "
         f"{len(idx)} samples")
-    res = fit_effects(space, selector.rm, idx, _warm(key, start) if start else None)
+    # what the selection's fit held (the data cannot fix it) stays held
+    held = ~np.isfinite(start.stderr) if len(space) else None
+    res = fit_effects(space, selector.rm, idx, _warm(key, start), hold=held)
     if not res.success:
         say(f"the final fit did not converge: {res.message}")
     return res

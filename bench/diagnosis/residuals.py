@@ -54,7 +54,7 @@ from controller.statics import (
 #: per-sample noise floors [m, N, N m, m]
 FLOORS = {"length": 2e-5, "force": 0.05, "moment": 0.05, "exit": 2e-5}
 #: repeatability assumed when the recording has no replicates (declared in the report)
-DEFAULTS = {"length": 3e-4, "force": 0.0, "moment": 0.0, "exit": 0.0}
+DEFAULTS = {"length": 3e-4, "force": 2.0, "moment": 2.0, "exit": 1e-3}
 #: white noise assumed when no raw rows tell it
 WHITE_DEFAULTS = {"length": 5e-5, "force": 0.5, "moment": 0.5, "exit": 1e-4}
 BLOCKS = ("length", "force", "moment", "exit")

@@ -346,6 +346,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     for i in path[alone]:
         dwell_runs.append(np.array([i]))
     path = path[~alone]
+    moving = path.copy()
     qs = _quasi_static(rec, path)
     n_accel = int((~qs).sum())
     seg_all = _segments(rec, path)
@@ -406,7 +407,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
         m = int(np.sum(seg_all == g))
         w[len(dwell_runs) + np.flatnonzero(seg_all == g)] = min(1.0, MOVE_INDEPENDENT / m)
     s.weight = w[order]
-    s.triples = _triples(rec, dwell_runs, np.array(path_rows, dtype=int))
+    s.triples = _triples(rec, dwell_runs, moving)
     s.stream = _stream(rec)
     s.info = {"rows": N, "dwell_samples": len(dwell_runs), "path_samples": len(path),
               "dwells_available": n_dwell, "path_rows_accelerating": n_accel,
