@@ -64,7 +64,7 @@ DETECTABLE = 150.0
 #: effects a recording without tensions / without tracker poses can see
 WITHOUT = {
     "no_tensions": ("exit_point_offset", "mast_compliance", "cable_elasticity",
-                    "cable_length_offset", "drum_scale", "pulley_kinematics", "cable_sag"),
+                    "cable_length_offset", "drum_scale", "pulley_kinematics"),
     "no_tracker": ("load_cell_calibration", "platform_mass", "cable_elasticity"),
 }
 

@@ -20,6 +20,9 @@ from bench.diagnosis.space import ParamSpace
 #: converge (a fit that still has not converged is reported as such)
 MAX_NFEV = 80
 RETRIES = 2
+#: relative tolerances on chi-square and parameters (chi-square differences that decide
+#: matter from about 1: far coarser than this)
+FIT_TOL = 1e-7
 
 @dataclass
 class FitResult:
@@ -139,7 +142,7 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
                                 jac=lambda z: fd_jacobian(fun_free, z, fun_free(z), steps[free],
                                                           space.lo[free], space.hi[free]),
                                 x_scale=space.scale[free], method="trf", max_nfev=max_nfev,
-                                xtol=1e-8, ftol=1e-8, gtol=1e-8)
+                                xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
             z = res.x
             nfev += int(res.nfev)
             # status 0: the evaluation budget ran out before a convergence test passed

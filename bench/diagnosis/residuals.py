@@ -235,38 +235,55 @@ class ResidualModel:
     def _unmeasured(self, H: Robot, poses: np.ndarray, read: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Length residuals (M,n), exits (M,n,3) and success (M,) at ``poses`` without measured
-        tensions: tensions balance gravity, their internal forces are fitted to the stretch."""
+        tensions: tensions balance gravity, their internal forces are fitted to the stretch.
+        A cable whose fitted tension comes out negative is slack: it carries nothing, the
+        others balance the platform, and its reading only says it is at least as long as the
+        straight line."""
         M, n = len(poses), H.n_cables
         straight = H.replace(rho=0.0) if H.rho > 0 else H
         bs0 = batch_statics(straight, poses, np.full((M, n), 1.0))  # geometry only
-        W = wrench_matrix(bs0.state)
+        W0 = wrench_matrix(bs0.state)
         wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
-        tau = _balance(W, -wg, tm)
-        ok = np.isfinite(tau).all(axis=1)
-        tau = np.where(ok[:, None], tau, tm)
+        taut = np.ones((M, n), dtype=bool)
         lres = np.full((M, n), np.nan)
+        r0 = np.full((M, n), np.nan)
         exits = bs0.exits
-        for _ in range(2):
-            bs = batch_statics(H, poses, tau)
-            exits = bs.exits
-            r0 = bs.unstretched - read
-            c = _stretch_sensitivity(H, bs, tau)  # dL0/dtau (M,n)
-            Wb = wrench_matrix(bs.state)
-            if not np.any(c != 0):
-                lres = r0
+        ok = np.ones(M, dtype=bool)
+        for _outer in range(max(n - 5, 1)):
+            tau = _balance(W0 * taut[:, None, :], -wg, tm * taut)
+            ok = np.isfinite(tau).all(axis=1)
+            tau = np.where(ok[:, None], tau, tm) * taut
+            for _ in range(3):
+                bs = batch_statics(H, poses, tau)
+                exits = bs.exits
+                r0 = bs.unstretched - read
+                c = _stretch_sensitivity(H, bs, tau) * taut  # dL0/dtau (M,n)
+                if not np.any(c != 0):
+                    lres = r0.copy()
+                    break
+                Wb = wrench_matrix(bs.state) * taut[:, None, :]
+                _, _, Vt = np.linalg.svd(Wb)
+                Nsp = np.swapaxes(Vt[:, 6:, :], -1, -2)  # (M, n, n-6) internal forces
+                A = c[..., None] * Nsp
+                AtA = np.swapaxes(A, -1, -2) @ A
+                k = AtA.shape[-1]
+                reg = 1e-12 * np.trace(AtA, axis1=-2, axis2=-1)[:, None, None] * np.eye(k) \
+                    + 1e-300 * np.eye(k)
+                lam = -np.linalg.solve(AtA + reg, np.einsum("nki,nk->ni", A, r0)[..., None])[
+                    ..., 0]
+                lam = np.nan_to_num(lam)
+                lres = r0 + np.einsum("nki,ni->nk", A, lam)
+                tau = (tau + np.einsum("nki,ni->nk", Nsp, lam)) * taut
+            # the most negative tension of each sample goes slack, one cable at a time
+            neg = np.where(taut, tau, np.inf)
+            worst = np.argmin(neg, axis=1)
+            slack = (neg[np.arange(M), worst] < 0.0) & (taut.sum(axis=1) > 6)
+            if not slack.any():
                 break
-            _, _, Vt = np.linalg.svd(Wb)
-            Nsp = np.swapaxes(Vt[:, 6:, :], -1, -2)  # (M, n, n-6) internal-force directions
-            A = c[..., None] * Nsp
-            AtA = np.swapaxes(A, -1, -2) @ A
-            k = AtA.shape[-1]
-            reg = 1e-12 * np.trace(AtA, axis1=-2, axis2=-1)[:, None, None] * np.eye(k) + \
-                1e-300 * np.eye(k)
-            lam = -np.linalg.solve(AtA + reg, np.einsum("nki,nk->ni", A, r0)[..., None])[..., 0]
-            lam = np.nan_to_num(lam)
-            lres = r0 + np.einsum("nki,ni->nk", A, lam)
-            tau = tau + np.einsum("nki,ni->nk", Nsp, lam)
+            taut[np.flatnonzero(slack), worst[slack]] = False
+        # a slack cable: its unstretched length read may exceed the straight line
+        lres = np.where(taut, lres, np.maximum(r0, 0.0))
         return lres, exits, ok & np.isfinite(lres).all(axis=1)
 
     # ----- noise ----------------------------------------------------------------------
@@ -466,7 +483,8 @@ def _replicated(target: np.ndarray) -> np.ndarray:
 def _balance(W: np.ndarray, f: np.ndarray, tm: np.ndarray) -> np.ndarray:
     """Tensions (M,n) closest to ``tm`` with ``W tau = f`` (batched minimal-norm correction)."""
     WWt = W @ np.swapaxes(W, -1, -2)
-    rhs = f - W @ tm
+    rhs = f - np.einsum("mik,...k->mi", W, tm) if tm.ndim == 1 else \
+        f - np.einsum("mik,mk->mi", W, tm)
     try:
         y = np.linalg.solve(WWt, rhs[..., None])[..., 0]
     except np.linalg.LinAlgError:

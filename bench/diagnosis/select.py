@@ -39,6 +39,8 @@ SWAP_SCREEN_MARGIN = 50.0
 IMITATES = 0.98
 #: the model explains the data within the noise below this reduced chi-square
 EXPLAINED = 1.3
+#: above this reduced chi-square the linearised screen is not trusted alone
+INADEQUATE = 3.0
 
 Progress = Callable[[str], None]
 
@@ -48,8 +50,8 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
 
     Without tracker poses (tensions and encoders only) the poses are estimated from the
     lengths, which absorbs what moves exit points or scales lengths: only the load cells,
-    the mass and the cables' stretch are tested (:func:`untested_effects` says which are
-    not)."""
+    the mass and the cables' stretch are tested. Without tensions, the cables' sag (it
+    hangs on the tensions) is not (:func:`untested_effects` says which are not)."""
     out = []
     have_len = bool(rm.has_len.any())
     have_exit = bool(rm.has_exit.any())
@@ -65,8 +67,8 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
         out += ["load_cell_calibration", "platform_mass"]
     if geometry:
         out += ["pulley_kinematics"]
-    if have_len and measured_pose:
-        out += ["cable_sag"]
+    if have_len and measured_pose and rm.any_tau:
+        out += ["cable_sag"]  # a sagging cable's length depends on its tension: measure it
     return out
 
 
@@ -133,16 +135,38 @@ class Selector:
         self.cache[key] = res
         return res
 
-    def fit_many(self, sets: list[tuple[str, ...]], start: FitResult | None = None
-                 ) -> list[FitResult]:
+    def fit_many(self, sets: list[tuple[str, ...]], start: FitResult | None = None,
+                 multistart: bool = False) -> list[FitResult]:
+        """Fits of several sets, warm-started from ``start``. With ``multistart``, each set is
+        also fitted from its new effect's own fit alone (the others at the model's values):
+        where effects overlap, the warm start can stay in the minimum where the effects
+        already chosen imitate the new one; the better of the two is kept."""
         todo = [tuple(sorted(s)) for s in sets if tuple(sorted(s)) not in self.cache]
-        if self.pool is not None and len(todo) > 1:
-            self.progress(f"fitting {len(todo)} candidate sets on the process pool")
-            futs = {s: self.pool.submit(_fit_job, self.rm, self.train, s, _warm(s, start))
-                    for s in todo}
-            for s, f in futs.items():
-                self.cache[s] = f.result()
-        return [self.fit(s, start) for s in sets]
+        jobs: list[tuple[tuple[str, ...], np.ndarray | None]] = []
+        for s_ in todo:
+            jobs.append((s_, _warm(s_, start)))
+            if multistart and start is not None:
+                new = [e for e in s_ if e not in start.space.effects]
+                solo = self.cache.get(tuple(new)) if len(new) == 1 else None
+                if solo is not None and len(start.space.effects):
+                    jobs.append((s_, _warm(s_, solo)))
+        results: dict[tuple[str, ...], FitResult] = {}
+        if self.pool is not None and len(jobs) > 1:
+            self.progress(f"fitting {len(jobs)} candidate sets on the process pool")
+            futs = [(s_, self.pool.submit(_fit_job, self.rm, self.train, s_, phi0))
+                    for s_, phi0 in jobs]
+            done = [(s_, f.result()) for s_, f in futs]
+        else:
+            done = []
+            for s_, phi0 in jobs:
+                self.progress(f"fitting {' + '.join(s_) or 'the model as it is'}")
+                done.append((s_, fit_effects(ParamSpace(self.model, s_), self.rm, self.train,
+                                             phi0)))
+        for s_, res in done:
+            if s_ not in results or res.bic < results[s_].bic:
+                results[s_] = res
+        self.cache.update(results)
+        return [self.fit(s_, start) for s_ in sets]
 
     # ----- screening ------------------------------------------------------------------
     def screen(self, current: FitResult, candidates: list[str]) -> dict[str, float]:
@@ -247,14 +271,27 @@ class Selector:
         if not chosen:
             sel.screening = dict(pred)
         promising = sorted((d, e) for e, d in pred.items() if d < -BIC_ENTER)[:3]
-        if not promising:
+        tried = [e for _, e in promising]
+        fits = self.fit_many([tuple(chosen + [e]) for e in tried], current,
+                             multistart=current.reduced_chi2 > INADEQUATE) if tried else []
+        best = min(zip(fits, tried, strict=True), key=lambda x: x[0].bic) if fits else None
+        # the linearised screen is myopic where effects overlap (offsets absorb most of a
+        # pulley's signature): while the best model leaves far more than the noise, every
+        # remaining candidate is refitted
+        left = (best[0] if best else current).reduced_chi2
+        if left > INADEQUATE:
+            more = [e for e in rest if e not in tried]
+            if more:
+                self.progress(f"the best model leaves {left:.3g} x the noise: refitting every "
+                              f"candidate")
+                extra = self.fit_many([tuple(chosen + [e]) for e in more], current,
+                                      multistart=True)
+                for f, e in zip(extra, more, strict=True):
+                    if best is None or f.bic < best[0].bic:
+                        best = (f, e)
+        if best is None or best[0].bic - current.bic > -BIC_ENTER:
             return None
-        fits = self.fit_many([tuple(chosen + [e]) for _, e in promising], current)
-        best_fit, best_eff = min(zip(fits, [e for _, e in promising], strict=True),
-                                 key=lambda x: x[0].bic)
-        if best_fit.bic - current.bic > -BIC_ENTER:
-            return None
-        return chosen + [best_eff], best_fit
+        return chosen + [best[1]], best[0]
 
     def _backward(self, chosen: list[str], current: FitResult
                   ) -> tuple[list[str], FitResult, bool]:
