@@ -283,7 +283,8 @@ def _strengthen(effect: str, params: dict[str, float], model: Robot) -> dict[str
 
 def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
               effects: tuple[str, ...] | None = None, poses: dict[str, Any] | None = None,
-              kind: str = "mix", sensors: str = "mix", oov: str | None = None) -> dict[str, Any]:
+              kind: str = "mix", sensors: str = "mix", oov: str | None = None,
+              attempt: int = 0) -> dict[str, Any]:
     """A scenario mapping (cdpr-scenario/1) with randomly drawn concealed effects, and under
     ``"case"`` what the scoring needs (robot class, kind, sensors, physics outside the
     vocabulary).
@@ -293,15 +294,21 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
     :data:`SENSORS` or ``mix``; ``oov`` one of :data:`OOV`, ``none``, or None (random,
     :data:`OOV_RATE`); ``poses`` overrides keys of the ``[poses]`` table of a dwell
     case (a grid: ``{"n": [3, 2, 1], "visits": 2}``; continuous cases take the grid's
-    points as their targets).
+    points as their targets). ``attempt`` > 0 draws another case for the same seed (when
+    a drawn case cannot be made: no workspace, the plant finds no rest position).
     """
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seed if attempt == 0 else [seed, attempt])
     if robot == "mix":
         base_name = str(ROBOTS[int(rng.integers(len(ROBOTS)))])
         model = resolve_robot(base_name)
         perturbed = bool(rng.random() < 0.5)
         if perturbed:
-            model = perturb_robot(model, rng)
+            # a variant whose workspace still holds a campaign (a few draws at most)
+            for _ in range(8):
+                variant = perturb_robot(model, rng)
+                if len(feasible_poses(variant, rng, 6, 0.0)) >= 6:
+                    break
+            model = variant
     else:
         model = resolve_robot(robot)
         base_name, perturbed = model.name, False
@@ -341,6 +348,10 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
         visits = int((poses or {}).get("visits", rng.integers(2, 4)))
         pts = feasible_poses(model, rng, int(rng.integers(4, 8)), rpy, grid=grid)
         pts = reachable(model, init, pts)
+        for _ in range(4):  # a non-convex workspace: more targets where lines stay inside
+            if len(pts) >= 3 or grid is not None:
+                break
+            pts = reachable(model, init, np.vstack([pts, feasible_poses(model, rng, 6, rpy)]))
     if len(pts) < 3:
         raise RuntimeError(f"seed {seed}: fewer than 3 feasible poses for {model.name}")
     truth = {e: draw_effect(e, rng, model, init) for e in effects}
@@ -529,9 +540,13 @@ def _neutral(model) -> dict[str, float]:
 
 def oracle(rec_dir: Path, sc) -> dict[str, float]:
     """Chi-square drop each concealed effect brings when the truth is known: the residuals of
-    the truth without that effect minus those of the truth (noise estimated on the truth)."""
+    the truth without that effect (the other concealed effects refitted, starting from their
+    true values: what they can imitate of it does not count) minus those of the truth
+    (noise estimated on the truth)."""
+    from bench.diagnosis.fit import fit_effects
     from bench.diagnosis.residuals import ResidualModel
     from bench.diagnosis.samples import check_values, prepare
+    from bench.diagnosis.space import PER_CABLE_EA, ParamSpace
     from bench.recording import read_recording
 
     rec = read_recording(rec_dir)
@@ -548,19 +563,80 @@ def oracle(rec_dir: Path, sc) -> dict[str, float]:
     for e in sc.effects:
         rest = {k: v for k, v in sc.effects.items() if k != e}
         r = rm.whitened(apply_effects(sc.model, rest))
-        out[e] = float(r @ r) - base
+        chi2 = float(r @ r)
+        if rest:
+            names = tuple(PER_CABLE_EA if k == "cable_elasticity" and not {"ea"} & set(v)
+                          else k for k, v in rest.items())
+            space = ParamSpace(sc.model, names)
+            start = apply_effects(sc.model, rest)
+            phi0 = np.array([p.from_value(_value_of(start, sc.model, p))
+                             for p in space.params])
+            fit = fit_effects(space, rm, np.arange(s.n), phi0, max_nfev=25, prune=False)
+            chi2 = min(chi2, fit.chi2)
+        out[e] = chi2 - base
     return out
+
+
+def _value_of(robot: Robot, model: Robot, p) -> float:
+    """The value of fit parameter ``p`` (a :class:`bench.diagnosis.space.Param`) in ``robot``
+    (exit offsets relative to ``model``)."""
+    k = p.key
+    c = lambda pre: robot.cable_ids.index(k[len(pre):])  # noqa: E731
+    if k.startswith(("dx_", "dy_", "dz_")):
+        i = c(k[:3])
+        return float(robot.exits[i, "xyz".index(k[1])] - model.exits[i, "xyz".index(k[1])])
+    if k.startswith("k") and k[2:3] == "_":
+        return float(robot.stiffness[robot.mast_ids.index(k[3:]), "xyz".index(k[1])])
+    if k == "ea":
+        return float(np.mean(robot.ea))
+    if k.startswith("ea_"):
+        return float(robot.ea[c("ea_")])
+    if k.startswith("dl_"):
+        return float(robot.length_offset[c("dl_")])
+    if k.startswith("s_"):
+        return float(robot.drum_scale[c("s_")])
+    if k.startswith("gain_"):
+        return float(robot.load_cell_gain[c("gain_")])
+    if k.startswith("offset_"):
+        return float(robot.load_cell_offset[c("offset_")])
+    if k == "mass":
+        return float(robot.mass)
+    if k.startswith("com_"):
+        return float(robot.com["xyz".index(k[-1])])
+    if k.startswith("r_"):
+        return float(robot.pulley_radius[c("r_")])
+    if k == "rho":
+        return float(robot.rho)
+    return float(p.neutral)
 
 
 def run_case(seed: int, workdir: str | None = None, **kw) -> dict:
     """Generate, record and diagnose one case (a plain function for process pools and Dask)."""
+    from firmware_sim.plant import PlantError
+
+    t_case = time.perf_counter()
+    for attempt in range(5):
+        try:
+            return _run_case(seed, attempt, workdir, t_case, **kw)
+        except (CaseError, PlantError) as e:  # draw another case for this seed
+            last = e
+    raise RuntimeError(f"seed {seed}: no case could be made in 5 draws: {last}")
+
+
+class CaseError(RuntimeError):
+    """A drawn case cannot be made (another draw of the seed is taken)."""
+
+
+def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float, **kw) -> dict:
     from bench.campaign import run_campaign
     from bench.diagnosis.report import diagnose
     from controller import equilibrium
 
-    t_case = time.perf_counter()
-    case = make_case(seed, **kw)
-    rng = np.random.default_rng([seed, 7])
+    try:
+        case = make_case(seed, attempt=attempt, **kw)
+    except RuntimeError as e:
+        raise CaseError(str(e)) from e
+    rng = np.random.default_rng([seed, 7, attempt])
     if any(k.startswith("slip_time_") and v < 0 for p in case["truth"].values()
            for k, v in p.items()):
         bare = copy.deepcopy(case)
@@ -571,19 +647,22 @@ def run_case(seed: int, workdir: str | None = None, **kw) -> dict:
     with tempfile.TemporaryDirectory(dir=workdir) as d:
         rec = Path(d) / "rec"
         strength: dict[str, float] = {}
-        for attempt in range(4):
+        for stronger in range(4):
             sc = scenario_of(case)
-            run_campaign(sc, rec)
+            try:
+                run_campaign(sc, rec)
+            except ValueError as e:  # a pose the model cannot reach
+                raise CaseError(str(e)) from e
             strength = oracle(rec, sc) if sc.effects else {}
             weak = [e for e, v in strength.items() if v < DETECTABLE]
             if not weak:
                 break
             for e in weak:
-                if attempt < 3:
+                if stronger < 3:
                     case["truth"][e] = _strengthen(e, case["truth"][e], sc.model)
                 else:
                     del case["truth"][e]
-            if attempt == 3:
+            if stronger == 3:
                 sc = scenario_of(case)
                 run_campaign(sc, rec)
                 strength = oracle(rec, sc) if sc.effects else {}
@@ -595,6 +674,7 @@ def run_case(seed: int, workdir: str | None = None, **kw) -> dict:
     truth = {e: dict(p) for e, p in case["truth"].items()}
     s = score(dg.report, truth, sc.model, seed, seconds)
     s.info = dict(case["case"]) | {
+        "attempt": attempt,
         "oracle": {e: round(v, 1) for e, v in strength.items()},
         "equilibrium": eq, "samples": dg.report["samples"],
         "rows": int(dg.recording.n_samples),

@@ -19,6 +19,7 @@ Pose increments are ``(dt, w)`` with w a small rotation in F_b (see
 from __future__ import annotations
 
 import math
+import threading
 import weakref
 from dataclasses import dataclass
 
@@ -43,10 +44,10 @@ class ConvergenceError(RuntimeError):
     """A solver did not converge; the message says how far it got."""
 
 
-class SolverStats:
-    """Counts of :func:`solve_equilibrium` outcomes in this process: ``calls``, ``newton``
+class SolverStats(threading.local):
+    """Counts of :func:`solve_equilibrium` outcomes in this thread: ``calls``, ``newton``
     (converged by Newton from the guess), ``fallbacks`` (the energy descent was needed),
-    ``failures`` (no stable equilibrium found). For evaluations; not thread-safe."""
+    ``failures`` (no stable equilibrium found). For evaluations."""
 
     def __init__(self) -> None:
         self.reset()

@@ -147,12 +147,18 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     rec = read_recording(out)
     visits = n_poses * sc.poses.visits
-    result = {"path": str(out), "samples": visits + 1, "rows": rec.n_samples,
-              "visits": visits, "poses": n_poses, "seconds": round(seconds, 3)}
+    kind = sc.recording.kind
+    dwells = kind == "dwell" or sc.recording.dwell_at_targets
+    result = {"path": str(out), "samples": visits + 1 if dwells else 1, "rows": rec.n_samples,
+              "visits": visits, "poses": n_poses, "kind": kind, "seconds": round(seconds, 3)}
     if args.json:
         print(json.dumps(result))
-    else:
+    elif kind == "dwell":
         print(f"recording {out}: {rec.n_samples} rows, {visits + 1} dwell samples "
               f"(initialisation + {n_poses} poses x {sc.poses.visits} visits) "
               f"in {seconds:.1f} s")
+    else:
+        print(f"recording {out}: {rec.n_samples} rows, continuous at "
+              f"{sc.recording.rate_hz or sc.poses.rate_hz:g} Hz along {visits} moves between "
+              f"{n_poses} poses{' with dwells' if dwells else ''} in {seconds:.1f} s")
     return 0

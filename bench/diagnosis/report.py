@@ -303,13 +303,17 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     fit_idx = np.union1d(train, valid)
     final = _final_fit(selector, sel, fit_idx, say)
     params, errs, undet = effect_entries(final, sel.effects)
-    # an effect whose parameters all vanish or cannot be fixed is not reported
-    empty = [e for e in sel.effects if not params[e]]
-    if empty:
-        for e in empty:
-            say(f"dropping {report_name(e)}: no parameter differs from the model")
-            sel.rejected[report_name(e)] = "no parameter differs measurably from the model"
-        sel.effects = [e for e in sel.effects if e not in empty]
+    # an effect whose parameters all vanish or cannot be fixed is not reported: the least
+    # important such effect goes, the others are refitted without it (what it shared with
+    # them may become measurable), and so on
+    while True:
+        empty = [e for e in sel.effects if not params[e]]
+        if not empty:
+            break
+        e = empty[-1]  # effects are sorted by importance
+        say(f"dropping {report_name(e)}: no parameter differs from the model")
+        sel.rejected[report_name(e)] = "no parameter differs measurably from the model"
+        sel.effects = [c for c in sel.effects if c != e]
         final = _final_fit(selector, sel, fit_idx, say)
         params, errs, undet = effect_entries(final, sel.effects)
     sel.fit = final

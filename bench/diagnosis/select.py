@@ -116,6 +116,8 @@ class Selector:
         self.cache_ho: dict[tuple[tuple[str, ...], int], FitResult] = {}
         self._swap_cache: dict[tuple, dict[tuple[str, str], float]] = {}
         self.model = rm.model
+        # with an assumed noise, "far more than the noise" says little: no wider search
+        self.measured_noise = rm.sigma_source == "replicate visits"
 
     # ----- fits -----------------------------------------------------------------------
     def fit(self, effects: tuple[str, ...], start: FitResult | None = None) -> FitResult:
@@ -273,13 +275,14 @@ class Selector:
         promising = sorted((d, e) for e, d in pred.items() if d < -BIC_ENTER)[:3]
         tried = [e for _, e in promising]
         fits = self.fit_many([tuple(chosen + [e]) for e in tried], current,
-                             multistart=current.reduced_chi2 > INADEQUATE) if tried else []
+                             multistart=current.reduced_chi2 > INADEQUATE
+                             and self.measured_noise) if tried else []
         best = min(zip(fits, tried, strict=True), key=lambda x: x[0].bic) if fits else None
         # the linearised screen is myopic where effects overlap (offsets absorb most of a
         # pulley's signature): while the best model leaves far more than the noise, every
         # remaining candidate is refitted
         left = (best[0] if best else current).reduced_chi2
-        if left > INADEQUATE:
+        if left > INADEQUATE and self.measured_noise:
             more = [e for e in rest if e not in tried]
             if more:
                 self.progress(f"the best model leaves {left:.3g} x the noise: refitting every "
