@@ -513,18 +513,13 @@ def _directions(rec: Recording, rows: np.ndarray) -> np.ndarray:
     out = np.zeros((len(rows), n))
     if not np.isfinite(src).any():
         return out
-    filled = src.copy()
     d = np.zeros((N, n))
-    d[1:] = np.diff(filled, axis=0)
-    d = np.where(np.abs(d) > STILL_M / 2, np.sign(d), 0.0)
-    d = np.nan_to_num(d)
-    # carry the last nonzero sign forward
-    last = np.zeros(n)
-    carried = np.zeros((N, n))
-    for i in range(N):
-        nz = d[i] != 0
-        last = np.where(nz, d[i], last)
-        carried[i] = last
+    d[1:] = np.diff(src, axis=0)
+    d = np.nan_to_num(np.where(np.abs(d) > STILL_M / 2, np.sign(d), 0.0))
+    # carry the last nonzero sign forward: index of the last row with a move, per cable
+    idx = np.where(d != 0, np.arange(N)[:, None], 0)
+    np.maximum.accumulate(idx, axis=0, out=idx)
+    carried = np.take_along_axis(d, idx, axis=0)
     return carried[np.asarray(rows, dtype=int)]
 
 
