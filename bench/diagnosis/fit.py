@@ -42,10 +42,12 @@ class FitResult:
     nfev: int = 0
     dof_lost: float = 0.0  # residual degrees of freedom taken by per-sample unknowns
     n_free: int = 0
+    n_eff: float | None = None  # effective number of residuals (weights summed)
 
     @property
     def dof(self) -> float:
-        return max(self.n_res - self.n_free - self.dof_lost, 1.0)
+        n = self.n_res if self.n_eff is None else self.n_eff
+        return max(n - self.n_free - self.dof_lost, 1.0)
 
     @property
     def reduced_chi2(self) -> float:
@@ -116,11 +118,12 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         return fd_jacobian(fun, phi, fun(phi), steps, space.lo, space.hi)
 
     lost = rm.dof_lost(idx)
+    n_eff = float(rm.entry_weights(idx).sum())
     if len(space) == 0:
         r = fun(x0)
         chi2 = float(r @ r)
-        return FitResult(space, x0, chi2, len(r), bic(chi2, 0, len(r)), np.zeros(0),
-                         np.zeros((0, 0)), True, "no parameters", 1, lost, 0)
+        return FitResult(space, x0, chi2, len(r), bic(chi2, 0, n_eff), np.zeros(0),
+                         np.zeros((0, 0)), True, "no parameters", 1, lost, 0, n_eff)
     # parameters the data cannot fix at all (seen at the start, before the fit can wander
     # along them) stay at the model's values; compliance-like ones are held first
     fixed = null_parameters(jac(x0), space) if hold is None else hold.copy()
@@ -159,14 +162,14 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     chi2 = float(r @ r)
     n_res = len(r)
     groups = rm.entry_blocks(idx) if free.any() else None
-    cov, se = standard_errors(Jf, chi2, n_res - lost, space.scale[free], r, groups) \
+    cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups) \
         if free.any() else (np.zeros((0, 0)), np.zeros(0))
     se_all = np.full(len(x), np.inf)
     se_all[free] = se
     cov_all = np.zeros((len(x), len(x)))
     cov_all[np.ix_(free, free)] = cov
-    return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_res), se_all,
-                     cov_all, ok, msg, nfev, lost, int(free.sum()))
+    return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_eff), se_all,
+                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff)
 
 
 #: a parameter whose Jacobian column is within this fraction of the span of the columns

@@ -383,11 +383,19 @@ class ResidualModel:
         parts = [p for p in parts if p.size]
         return np.concatenate(parts) if parts else np.zeros(0)
 
+    def entry_weights(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The sample weight (``Samples.weight``) of each entry of :meth:`whiten`'s vector: their
+        sum is the effective number of residuals (rows of a move count together)."""
+        return self._per_entry(self.s.weight.astype(float), idx)
+
     def entry_blocks(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The sample block (``Samples.block``) of each entry of :meth:`whiten`'s vector."""
+        return self._per_entry(self.s.block.astype(float), idx).astype(int)
+
+    def _per_entry(self, values: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
         n = self.model.n_cables
         sl = slice(None) if idx is None else idx
-        blk = self.s.block[sl].astype(float)
+        blk = values[sl]
         parts = [self._mask(np.zeros((len(blk), n)) + blk[:, None],
                             self.has_len[sl][:, None])]
         if self.any_tau:
@@ -397,7 +405,7 @@ class ResidualModel:
             parts.append(self._mask(np.zeros((len(blk), n, 3)) + blk[:, None, None],
                                     self.has_exit[sl][..., None]))
         parts = [p for p in parts if p.size]
-        return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     def whitened_by_sample(self, b: Blocks) -> np.ndarray:
         """Sum of squared whitened residuals of each sample (N,) (NaN where none)."""

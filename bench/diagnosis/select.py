@@ -27,8 +27,9 @@ from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
 from controller.effects import EFFECT_NAMES
 
-#: BIC drop an effect must bring to enter (strong evidence)
-BIC_ENTER = 10.0
+#: BIC drop an effect must bring to enter (very strong evidence: small systematic errors
+#: outside the vocabulary must not pull effects in)
+BIC_ENTER = 25.0
 #: BIC difference under which a swapped effect counts as an alternative
 BIC_TIE = 10.0
 #: swaps whose linearised BIC change is below this are refitted (linearisation is rough)

@@ -50,7 +50,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     if not ok.any():
         return None
     r = rm.whiten(b)
-    n_res = len(r)
+    n_res = float(rm.entry_weights().sum())  # rows of a move count together
     dof = max(n_res - n_params - rm.dof_lost(), 1.0)
     chi2 = float(r @ r)
     ratio = chi2 / dof
