@@ -119,6 +119,9 @@ class ResidualModel:
         self.any_tau = bool(self.has_tau.any())
         self.sigma = {k: DEFAULTS[k] for k in BLOCKS}
         self.white = dict(WHITE_DEFAULTS)
+        # by sample kind: 0 dwell samples, 1 rows of moves
+        self.sigma_k = {0: dict(self.sigma), 1: dict(self.sigma)}
+        self.white_k = {0: dict(self.white), 1: dict(self.white)}
         self.sigma_source = "defaults (no replicate visits)"
         self.replicate_dof = 0
         self._warm_exits: np.ndarray | None = None  # last deflected exits (warm start)
@@ -288,41 +291,71 @@ class ResidualModel:
 
     # ----- noise ----------------------------------------------------------------------
     def estimate_noise(self, H: Robot) -> dict[str, float]:
-        """Noise of each residual block: white noise from raw rows (second differences),
-        repeatability from the spread over replicate groups (model errors repeat at a pose,
-        noise does not); declared defaults without replicates."""
+        """Noise of each residual block, for dwell samples and rows of moves apart (a moving
+        platform adds what a dwell does not: channels read at slightly different instants,
+        dynamics): white noise from raw rows (second differences), repeatability from the
+        spread over replicate groups (model errors repeat at a pose, noise does not); a kind
+        without replicates takes the other kind's, declared defaults without any."""
         b = self.blocks(H)
         if self.rows is not None:
-            self.white.update(self.rows.white_noise(H))
+            rw = self.rows.white_noise_by_kind(H)
+            for kind in (0, 1):
+                own = rw.get(kind) or rw.get(1 - kind) or {}
+                self.white_k[kind].update(own)
+        self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
         tg = self.s.target
         count = np.maximum(self.s.count, 1)
-        found = False
-        for name, vals in self._block_values(b).items():
-            if not np.isfinite(vals).any():
+        found: dict[int, dict[str, float]] = {0: {}, 1: {}}
+        reps = _replicated(tg)
+        for kind in (0, 1):
+            sel = (self.s.kind == kind) & reps
+            if not sel.any():
                 continue
-            sd = pooled_std(vals, tg)
-            if sd is None or not np.isfinite(sd).any():
-                continue
-            groups = _replicated(tg)
-            white = self.white[name] ** 2 * float(np.mean(1.0 / count[groups])) \
-                if groups.any() else 0.0
-            var = float(np.nanmean(sd ** 2)) - white
-            self.sigma[name] = float(np.sqrt(max(var, 0.0)))
-            found = True
-        if found:
+            for name, vals in self._block_values(b).items():
+                v = vals[sel]
+                if not np.isfinite(v).any():
+                    continue
+                sd = pooled_std(v, tg[sel])
+                if sd is None or not np.isfinite(sd).any():
+                    continue
+                white = self.white_k[kind][name] ** 2 * float(np.mean(1.0 / count[sel]))
+                var = float(np.nanmean(sd ** 2)) - white
+                found[kind][name] = float(np.sqrt(max(var, 0.0)))
+        for kind in (0, 1):
+            if found[kind]:
+                self.sigma_k[kind].update(found[kind])
+            elif found[1 - kind]:
+                # no replicates of its own: the other kind's repeatability, at least the
+                # declared default (rows of moves may hide it under their row-to-row noise)
+                self.sigma_k[kind].update({k: max(v, DEFAULTS[k])
+                                           for k, v in found[1 - kind].items()})
+        if found[0] or found[1]:
             self.sigma_source = "replicate visits"
-            self.replicate_dof = int(np.sum(_replicated(tg))) - len(np.unique(tg[_replicated(
-                tg)]))
+            self.replicate_dof = int(np.sum(reps)) - len(np.unique(tg[reps]))
+        self.sigma = dict(self.sigma_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
         self._update_sd()
         return self.noise_summary()
+
+    def white_noise_by_kind(self, H: Robot) -> dict[int, dict[str, float]]:
+        """:meth:`white_noise` of the raw-row triples of dwells (kind 0) and of moves (1)."""
+        b = self.blocks(H)
+        out = {}
+        kinds = self.s.kind[::3] if len(self.s.kind) >= 3 else self.s.kind
+        for kind in (0, 1):
+            sel = np.repeat(kinds == kind, 3)[: self.s.n]
+            if sel.sum() >= 6:
+                out[kind] = self._white(b, sel)
+        return out
 
     def white_noise(self, H: Robot) -> dict[str, float]:
         """White noise of each block from raw rows in consecutive triples: the second difference
         ``r_a - 2 r_b + r_c`` cancels what is smooth (pose, slow errors); variance / 6."""
-        b = self.blocks(H)
+        return self._white(self.blocks(H), np.ones(self.s.n, dtype=bool))
+
+    def _white(self, b: Blocks, sel: np.ndarray) -> dict[str, float]:
         out = {}
         for name, vals in self._block_values(b).items():
-            v = vals.reshape(len(vals), -1)
+            v = vals[sel].reshape(int(sel.sum()), -1)
             T = len(v) // 3
             if T < 2:
                 continue
@@ -344,11 +377,14 @@ class ResidualModel:
                 "exit": b.exit.reshape(len(b.exit), -1)}
 
     def _update_sd(self) -> None:
-        """Per-sample noise of each block and the whitening weights."""
+        """Per-sample noise of each block (by the sample's kind) and the whitening weights."""
         count = np.maximum(self.s.count, 1)
+        kind = np.clip(self.s.kind, 0, 1)
         self.sd = {}
         for name in BLOCKS:
-            var = self.sigma[name] ** 2 + self.white[name] ** 2 / count
+            sig = np.array([self.sigma_k[0][name], self.sigma_k[1][name]])[kind]
+            wht = np.array([self.white_k[0][name], self.white_k[1][name]])[kind]
+            var = sig ** 2 + wht ** 2 / count
             self.sd[name] = np.maximum(np.sqrt(var), FLOORS[name])
         self.sqrt_w = np.sqrt(np.clip(self.s.weight, 1e-6, 1.0))
 

@@ -292,6 +292,22 @@ def _isolated(rec: Recording, rows: np.ndarray) -> np.ndarray:
     return (speed(rows, rows - 1) > JUMP_M_S) & (speed(rows, rows + 1) > JUMP_M_S)
 
 
+def _fresh(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """Which ``rows`` (of moves) carry a fresh tracker pose and fresh tensions: the value
+    differs from the previous row's (a sensor slower than the row rate repeats itself)."""
+    ok = np.ones(len(rows), dtype=bool)
+    if not len(rows):
+        return ok
+    prev = np.maximum(rows - 1, 0)
+    for arr in (rec.pose_meas, rec.tau):
+        if not np.isfinite(arr[rows]).any():
+            continue
+        a, b = arr[rows], arr[prev]
+        same = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1) & (rows > 0)
+        ok &= ~same
+    return ok
+
+
 def _segments(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Move ids of path ``rows``: a new move at a gap in rows or time, or where the commanded
     direction turns."""
@@ -346,11 +362,15 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     for i in path[alone]:
         dwell_runs.append(np.array([i]))
     path = path[~alone]
-    moving = path.copy()
     qs = _quasi_static(rec, path)
     n_accel = int((~qs).sum())
     seg_all = _segments(rec, path)
-    path, seg_all = path[qs], seg_all[qs]
+    # a sensor read slower than the rows holds its last value: while the platform moves,
+    # only rows where the tracker (and the load cells) report a fresh value are measurements
+    fresh = _fresh(rec, path)
+    n_stale = int((~fresh).sum())
+    moving = path[fresh]
+    path, seg_all = path[qs & fresh], seg_all[qs & fresh]
 
     # budget: dwell samples first (whole targets), path rows spread evenly in time
     dw = _dwell_samples(rec, dwell_runs, init)
@@ -411,7 +431,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     s.stream = _stream(rec)
     s.info = {"rows": N, "dwell_samples": len(dwell_runs), "path_samples": len(path),
               "dwells_available": n_dwell, "path_rows_accelerating": n_accel,
-              "rows_in_other_states": dropped_states}
+              "path_rows_stale": n_stale, "rows_in_other_states": dropped_states}
     return s
 
 
@@ -424,24 +444,34 @@ def _triples(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
              limit: int = 60) -> Samples | None:
     """Raw rows in consecutive triples, from dwells (three rows of one dwell) and moves (three
     consecutive rows), up to ``limit`` triples spread over the recording."""
-    cands: list[tuple[int, int, int]] = []
+    dwell: list[tuple[int, int, int]] = []
+    moving: list[tuple[int, int, int]] = []
     for idx in runs:
         if len(idx) >= 3:
-            cands.append((int(idx[0]), int(idx[len(idx) // 2]), int(idx[-1])))
+            dwell.append((int(idx[0]), int(idx[len(idx) // 2]), int(idx[-1])))
     if len(path) >= 3:
-        consecutive = (path[2:] - path[:-2]) == 2
-        for k in np.flatnonzero(consecutive):
-            cands.append((int(path[k]), int(path[k + 1]), int(path[k + 2])))
-    if not cands:
+        # three fresh rows evenly spaced (the second difference cancels a steady motion)
+        d1, d2 = path[1:-1] - path[:-2], path[2:] - path[1:-1]
+        even = (d1 == d2) & (d1 <= 4)
+        for k in np.flatnonzero(even):
+            moving.append((int(path[k]), int(path[k + 1]), int(path[k + 2])))
+    chosen: list[tuple[int, int, int]] = []
+    kinds: list[int] = []
+    for kind, cands in ((0, dwell), (1, moving)):
+        if not cands:
+            continue
+        pick = np.unique(np.round(np.linspace(0, len(cands) - 1, min(limit, len(cands))))
+                         .astype(int))
+        chosen += [cands[k] for k in pick]
+        kinds += [kind] * len(pick)
+    if not chosen:
         return None
-    pick = np.unique(np.round(np.linspace(0, len(cands) - 1, min(limit, len(cands))))
-                     .astype(int))
-    rows = np.array([cands[k] for k in pick]).ravel()
+    rows = np.array(chosen).ravel()
     n = rec.robot.n_cables
     return Samples(rec.t[rows], rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows],
                    rec.tau[rows], rec.exit_meas[rows], np.ones(len(rows), dtype=int),
                    np.arange(len(rows)), np.zeros(len(rows), dtype=bool),
-                   direction=np.zeros((len(rows), n)), row=rows + 2)
+                   kind=np.repeat(kinds, 3), direction=np.zeros((len(rows), n)), row=rows + 2)
 
 
 #: at most this many raw rows are scanned for jumps in time
