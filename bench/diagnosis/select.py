@@ -42,6 +42,10 @@ IMITATES = 0.98
 EXPLAINED = 1.3
 #: above this reduced chi-square the linearised screen is not trusted alone
 INADEQUATE = 3.0
+#: at most this many effects in a model (more is physics the vocabulary lacks)
+MAX_EFFECTS = 5
+#: every candidate is refitted (not only the screen's best) while fewer effects are chosen
+WIDE_SEARCH = 3
 #: validation blocks on which the fits with and without an effect differ by this much
 #: (whitened chi-square) decide alone whether the effect holds
 CONCLUSIVE = 25.0
@@ -122,6 +126,7 @@ class Selector:
         self.model = rm.model
         # with an assumed noise, "far more than the noise" says little: no wider search
         self.measured_noise = rm.sigma_source == "replicate visits"
+        self.stalled = False
 
     # ----- fits -----------------------------------------------------------------------
     def fit(self, effects: tuple[str, ...], start: FitResult | None = None) -> FitResult:
@@ -289,7 +294,9 @@ class Selector:
                  sel: Selection) -> tuple[list[str], FitResult] | None:
         """Add the effect whose refit lowers the BIC most (screened by linearised signatures)."""
         rest = [c for c in candidates if c not in chosen and compatible(chosen, c)]
-        if not rest:
+        if not rest or len(chosen) >= MAX_EFFECTS:
+            return None
+        if self.stalled:
             return None
         self.progress(f"screening {len(rest)} candidate effects (reduced chi-square "
                       f"{current.reduced_chi2:.3g})")
@@ -306,7 +313,7 @@ class Selector:
         # pulley's signature): while the best model leaves far more than the noise, every
         # remaining candidate is refitted
         left = (best[0] if best else current).reduced_chi2
-        if left > INADEQUATE and self.measured_noise:
+        if left > INADEQUATE and self.measured_noise and len(chosen) < WIDE_SEARCH:
             more = [e for e in rest if e not in tried]
             if more:
                 self.progress(f"the best model leaves {left:.3g} x the noise: refitting every "
@@ -318,6 +325,14 @@ class Selector:
                         best = (f, e)
         if best is None or best[0].bic - current.bic > -BIC_ENTER:
             return None
+        # the vocabulary is not converging on the data (physics it lacks): an effect that
+        # leaves far more than the noise and takes less than half of what was left is the
+        # last one added
+        before, after = current.reduced_chi2, best[0].reduced_chi2
+        if chosen and after > INADEQUATE and before - after < 0.5 * (before - 1.0):
+            self.progress(f"adding {best[1]} leaves {after:.3g} x the noise (was {before:.3g}): "
+                          f"no further effect is tried")
+            self.stalled = True
         return chosen + [best[1]], best[0]
 
     def _backward(self, chosen: list[str], current: FitResult

@@ -32,9 +32,9 @@ LEVEL = 1.5
 #: ... when it also stands this many standard deviations above 1
 LEVEL_Z = 4.0
 #: a structured residual (direction, time) is declared at this significance ...
-STRUCT_Z = 6.0
+STRUCT_Z = 8.0
 #: ... when it is also this large against the noise (half the difference, or the drift)
-STRUCT_SIZE = 0.5
+STRUCT_SIZE = 1.0
 #: a cable stands out when its residual RMS is this many times the others' median ...
 CABLE_RATIO = 2.0
 
@@ -77,7 +77,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
         if fin.size >= 3:
             med = float(np.median(fin))
             k = int(np.nanargmax(per))
-            if per[k] > CABLE_RATIO * max(med, 1.0) and per[k] > 2.0:
+            if per[k] > CABLE_RATIO * max(med, 1.0) and per[k] > 2.5:
                 findings.append(f"cable {model.cable_ids[k]}'s length residual is "
                                 f"{per[k]:.1f} times the noise (the others' median "
                                 f"{med:.1f})")
@@ -92,7 +92,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
             out["direction"] = {c: {"difference_over_noise": _r(diff), "z": _r(z)}
                                 for c, diff, z in dirs}
             strong = [(c, diff, z) for c, diff, z in dirs
-                      if abs(z) > STRUCT_Z and abs(diff) > 2 * STRUCT_SIZE]
+                      if abs(z) > STRUCT_Z and abs(diff) > STRUCT_SIZE]
             if strong:
                 c, diff, z = max(strong, key=lambda x: abs(x[2]))
                 findings.append(f"cable {c}'s length residual depends on the direction of its "
