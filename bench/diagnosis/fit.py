@@ -162,7 +162,8 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     chi2 = float(r @ r)
     n_res = len(r)
     groups = rm.entry_blocks(idx) if free.any() else None
-    cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups) \
+    columns = rm.entry_columns(idx) if free.any() else None
+    cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, columns) \
         if free.any() else (np.zeros((0, 0)), np.zeros(0))
     se_all = np.full(len(x), np.inf)
     se_all[free] = se
@@ -207,13 +208,16 @@ def null_parameters(J: np.ndarray, space: ParamSpace) -> np.ndarray:
 
 def standard_errors(J: np.ndarray, chi2: float, n_res: float,
                     scale: np.ndarray | None = None, r: np.ndarray | None = None,
-                    groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    groups: np.ndarray | None = None, columns: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Covariance and standard errors from the whitened Jacobian (computed in parameter
     units of ``scale``); inflated by the reduced chi-square when the fit leaves more than
-    the noise. With the residuals ``r`` and the sample ``groups`` of their entries (what
-    shares errors: a target's visits, a move's rows), each standard error is at least the
-    cluster-robust (sandwich) one: residuals that are correlated, or larger than the noise
-    estimate in places, do not make the fit look surer than it is."""
+    the noise. With the residuals ``r``, the sample ``groups`` of their entries (what
+    shares errors: a target's visits, a stretch of moves) and their ``columns`` (the same
+    quantity over samples), the covariance is inflated by the design effect of residuals
+    correlated within groups, and each standard error is at least the cluster-robust
+    (sandwich) one when there are groups enough: correlated residuals, or residuals larger
+    than the noise estimate in places, do not make the fit look surer than it is."""
     p = J.shape[1]
     if p == 0:
         return np.zeros((0, 0)), np.zeros(0)
@@ -227,6 +231,14 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     cov_s = (V * inv_w) @ V.T
     red = chi2 / max(n_res - p, 1)
     cov = cov_s * np.outer(D, D) * max(red, 1.0)
+    if r is not None and groups is not None and columns is not None and len(groups) == len(r):
+        # design effect: squared sums of each quantity's residuals within a group against
+        # the sum of squares (1 for independent residuals)
+        key = groups.astype(np.int64) * (int(columns.max()) + 1) + columns
+        _, inv_k = np.unique(key, return_inverse=True)
+        sums = np.bincount(inv_k, weights=r)
+        deff = float(np.sum(sums ** 2) / max(float(r @ r), 1e-300))
+        cov = cov * max(deff, 1.0)
     if r is not None and groups is not None and len(groups) == len(r):
         ug, inv = np.unique(groups, return_inverse=True)
         G = len(ug)

@@ -425,8 +425,28 @@ class ResidualModel:
         return self._per_entry(self.s.weight.astype(float), idx)
 
     def entry_blocks(self, idx: np.ndarray | None = None) -> np.ndarray:
-        """The sample block (``Samples.block``) of each entry of :meth:`whiten`'s vector."""
-        return self._per_entry(self.s.block.astype(float), idx).astype(int)
+        """The error cluster (``Samples.cluster``, else ``block``) of each entry of
+        :meth:`whiten`'s vector."""
+        groups = self.s.cluster if self.s.cluster is not None and \
+            len(self.s.cluster) == self.s.n else self.s.block
+        return self._per_entry(groups.astype(float), idx).astype(int)
+
+    def entry_columns(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The column of each entry of :meth:`whiten`'s vector (a cable's length, a force or
+        moment axis, an exit point's axis): the same quantity over the samples."""
+        n = self.model.n_cables
+        sl = slice(None) if idx is None else idx
+        m = len(self.s.t[sl])
+        parts = [self._mask(np.zeros((m, n)) + np.arange(n), self.has_len[sl][:, None])]
+        if self.any_tau:
+            mm = (self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl]))[:, None]
+            parts += [self._mask(np.zeros((m, 3)) + n + np.arange(3), mm),
+                      self._mask(np.zeros((m, 3)) + n + 3 + np.arange(3), mm)]
+        if self.has_exit.any():
+            parts.append(self._mask(np.zeros((m, n, 3)) + n + 6 + np.arange(3 * n).reshape(n, 3),
+                                    self.has_exit[sl][..., None]))
+        parts = [p for p in parts if p.size]
+        return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
 
     def _per_entry(self, values: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
         n = self.model.n_cables

@@ -89,6 +89,7 @@ class Samples:
     info: dict = field(default_factory=dict)
     weight: np.ndarray = field(default_factory=lambda: np.zeros(0))
     triples: Samples | None = None  # raw rows in consecutive triples (white noise)
+    cluster: np.ndarray | None = None  # samples that may share errors (standard errors)
     stream: Samples | None = None  # raw rows in time order, decimated (jumps in time)
 
     def __post_init__(self) -> None:
@@ -292,6 +293,33 @@ def _isolated(rec: Recording, rows: np.ndarray) -> np.ndarray:
     return (speed(rows, rows - 1) > JUMP_M_S) & (speed(rows, rows + 1) > JUMP_M_S)
 
 
+#: with rows of moves, samples within this many consecutive moves may share errors
+CLUSTER_MOVES = 3
+
+
+def _clusters(s: Samples) -> np.ndarray:
+    """Groups of samples whose errors may be correlated, for cluster-robust standard errors:
+    a target with its visits when the recording has no rows of moves; otherwise stretches
+    of time spanning CLUSTER_MOVES moves (the slow errors of a move carry into the next one
+    and into the dwell between them)."""
+    if not (s.kind == 1).any():
+        return s.block.copy()
+    order = np.argsort(s.t, kind="stable")
+    out = np.zeros(s.n, dtype=int)
+    moves_seen = 0
+    cid = 0
+    last_block = None
+    for i in order:
+        if s.kind[i] == 1 and s.block[i] != last_block:
+            last_block = s.block[i]
+            moves_seen += 1
+            if moves_seen > CLUSTER_MOVES:
+                cid += 1
+                moves_seen = 1
+        out[i] = cid
+    return out
+
+
 def _fresh(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which ``rows`` (of moves) carry a fresh tracker pose and fresh tensions: the value
     differs from the previous row's (a sensor slower than the row rate repeats itself)."""
@@ -428,6 +456,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
         w[len(dwell_runs) + np.flatnonzero(seg_all == g)] = min(1.0, MOVE_INDEPENDENT / m)
     s.weight = w[order]
     s.triples = _triples(rec, dwell_runs, moving)
+    s.cluster = _clusters(s)
     s.stream = _stream(rec)
     s.info = {"rows": N, "dwell_samples": len(dwell_runs), "path_samples": len(path),
               "dwells_available": n_dwell, "path_rows_accelerating": n_accel,
