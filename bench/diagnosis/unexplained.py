@@ -100,13 +100,17 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                                 f"out and reeling in (z = {abs(z):.0f}; backlash or friction?)")
         # time: a trend common to the cables, and per cable
         tt = s.t - np.nanmean(s.t)
+        # samples whose errors are independent: each dwell of a dwell campaign (the visits
+        # of a target are apart in time), stretches of moves otherwise
+        moves = bool((s.kind == 1).any()) and s.cluster is not None and len(s.cluster) == s.n
+        clusters = s.cluster if moves else np.arange(s.n)
         if np.ptp(s.t) > 0:
             trend = []
             for k, cid in enumerate(model.cable_ids):
-                tr = _slope(L[:, k], tt, w)
+                tr = _slope(*_by_cluster(L[:, k], tt, w, clusters))
                 if tr is not None:
                     trend.append((cid, *tr))
-            common = _slope(np.nanmean(L, axis=1), tt, w)
+            common = _slope(*_by_cluster(np.nanmean(L, axis=1), tt, w, clusters))
             out["time"] = {"span_s": float(np.ptp(s.t)),
                            "by_cable": {c: {"drift_over_noise": _r(d), "z": _r(z)}
                                         for c, d, z in trend}}
@@ -175,6 +179,20 @@ def _two_groups(x: np.ndarray, g: np.ndarray, w: np.ndarray) -> tuple[float, flo
     vc = float(np.sum(w[c] * (x[c] - mc) ** 2) / nc)
     se = math.sqrt(max(va, 1e-12) / na + max(vc, 1e-12) / nc)
     return 0.5 * (ma - mc), (ma - mc) / se
+
+
+def _by_cluster(x: np.ndarray, t: np.ndarray, w: np.ndarray, clusters: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted means of ``x`` and ``t`` per error cluster, and the clusters' weights: a trend
+    in time is judged on groups of samples whose errors are independent of each other."""
+    ok = np.isfinite(x)
+    if not ok.any():
+        return x[:0], t[:0], w[:0]
+    _, inv = np.unique(clusters[ok], return_inverse=True)
+    ww = np.bincount(inv, weights=w[ok])
+    xm = np.bincount(inv, weights=w[ok] * x[ok]) / np.maximum(ww, 1e-300)
+    tm = np.bincount(inv, weights=w[ok] * t[ok]) / np.maximum(ww, 1e-300)
+    return xm, tm, np.ones(len(ww))
 
 
 def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray) -> tuple[float, float] | None:
