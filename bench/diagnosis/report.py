@@ -134,7 +134,7 @@ def _undetermined(p: Param, phi: float, se: float) -> bool:
     if p.key.startswith("offset_"):
         return se > 5.0
     if p.key == "mass":
-        return se > 2.0
+        return se > max(2.0, 0.05 * p.neutral)  # 5 % of the platform (a 91 kg one: 4.5 kg)
     if p.key.startswith("com_"):
         return se > 0.05
     return se > 100 * SCALES.get(p.effect, 1.0)

@@ -156,6 +156,9 @@ class Selector:
         jobs: list[tuple[tuple[str, ...], np.ndarray | None]] = []
         for s_ in todo:
             jobs.append((s_, _warm(s_, start)))
+            gauge = _gauge_start(s_, start)
+            if gauge is not None:
+                jobs.append((s_, gauge))
             if multistart and start is not None:
                 new = [e for e in s_ if e not in start.space.effects]
                 solo = self.cache.get(tuple(new)) if len(new) == 1 else None
@@ -305,6 +308,10 @@ class Selector:
             sel.screening = dict(pred)
         promising = sorted((d, e) for e, d in pred.items() if d < -BIC_ENTER)[:3]
         tried = [e for _, e in promising]
+        if "load_cell_calibration" in chosen and "platform_mass" in rest \
+                and "platform_mass" not in tried:
+            # the gains' common mode hides a mass change from the linearised screen
+            tried.append("platform_mass")
         fits = self.fit_many([tuple(chosen + [e]) for e in tried], current,
                              multistart=current.reduced_chi2 > INADEQUATE
                              and self.measured_noise) if tried else []
@@ -476,6 +483,30 @@ def _warm(effects: tuple[str, ...], start: FitResult | None) -> np.ndarray | Non
         for j, q in enumerate(start.space.params):
             if p.key == q.key and p.effect == q.effect:
                 phi0[k] = start.phi[j]
+    return phi0
+
+
+def _gauge_start(effects: tuple[str, ...], start: FitResult | None) -> np.ndarray | None:
+    """A start for a set holding both the load cells and the mass, from a fit of the load
+    cells without the mass: the gains' common mode moved into the mass (in statics a gain
+    shared by every cell and the mass are the same; only the cables' stretch tells them
+    apart). Without it the fit stays where the gains carry the mass."""
+    if start is None or not {"load_cell_calibration", "platform_mass"} <= set(effects):
+        return None
+    if "platform_mass" in start.space.effects or \
+            "load_cell_calibration" not in start.space.effects:
+        return None
+    phi0 = _warm(effects, start)
+    space = ParamSpace(start.space.model, effects)
+    gains = [k for k, p in enumerate(space.params) if p.key.startswith("gain_")]
+    mass = [k for k, p in enumerate(space.params) if p.key == "mass"]
+    if not gains or not mass:
+        return None
+    common = float(np.median(phi0[gains] / space.neutral[gains]))
+    if not np.isfinite(common) or common <= 0:
+        return None
+    phi0[gains] = phi0[gains] / common
+    phi0[mass] = space.neutral[mass] * common
     return phi0
 
 
