@@ -72,13 +72,15 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from controller.effects import EFFECT_NAMES, apply_effects
 from controller.robot import Robot, RobotFileError, parse_robot, resolve_robot
-from firmware_sim.plant import Nuisances
+
+if TYPE_CHECKING:
+    from firmware_sim.plant import Nuisances
 
 FORMAT = "cdpr-scenario/1"
 
@@ -180,6 +182,8 @@ class Scenario:
     def nuisances(self, process: bool = True) -> Nuisances:
         """The plant's nuisances for this scenario (``process``: with the per-visit process
         noise of the cable lengths)."""
+        from firmware_sim.plant import Nuisances
+
         return Nuisances(self.hysteresis_m, self.drift_m_per_s,
                          self.noise.process_m if process else 0.0, self.backlash_m,
                          self.thermal_strain_per_s, self.friction_n)

@@ -24,10 +24,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from firmware_sim.scenario import Scenario, ScenarioError, load_scenario
+if TYPE_CHECKING:
+    from firmware_sim.scenario import Scenario
 
 NAME = "campaign"
 HELP = "record a campaign of a scenario on the simulated robot (cdpr-recording/1 directory)"
@@ -60,8 +60,12 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
     return code
 
 
-def _adjust(sc: Scenario, args: argparse.Namespace) -> tuple[Scenario, np.ndarray | None]:
+def _adjust(sc: Scenario, args: argparse.Namespace) -> tuple[Scenario, Any]:
     """The scenario with --seed/--visits applied, and the pose subset of --poses (or None)."""
+    import numpy as np
+
+    from firmware_sim.scenario import ScenarioError
+
     if args.seed is not None:
         sc = dataclasses.replace(sc, seed=args.seed)
     if args.visits is not None:
@@ -99,8 +103,11 @@ def _place(tmp: Path, out: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from bench.campaign import run_campaign
     from bench.recording import read_recording
+    from firmware_sim.scenario import ScenarioError, load_scenario
 
     for opt in ("poses", "visits"):
         v = getattr(args, opt)

@@ -19,8 +19,6 @@ import time
 import traceback
 from pathlib import Path
 
-from bench.recording import RecordingError
-
 NAME = "diagnose"
 HELP = "find which physics the model left out of a recording, fit it, show the fit improve"
 
@@ -99,6 +97,7 @@ def _write_json(path: Path, obj: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.diagnosis.report import diagnose, prepare_outputs
     from bench.parallel import ending_workers, interrupt_on_term, worker_pool
+    from bench.recording import RecordingError
 
     t0 = time.perf_counter()
 

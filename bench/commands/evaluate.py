@@ -29,8 +29,6 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-
 NAME = "evaluate"
 HELP = "blind evaluation of the diagnosis on N generated cases (process pool or Dask)"
 
@@ -129,6 +127,8 @@ def case_kwargs(config: dict[str, Any]) -> dict[str, Any]:
 
 def _plain(o: Any) -> Any:
     """JSON fallback for numpy scalars and arrays."""
+    import numpy as np
+
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):
