@@ -270,7 +270,12 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
              "  z-scores             " + ("none" if not z["n"] else
                                           f"n {z['n']}, mean {z['mean']:+.2f}, "
                                           f"std {z['std']:.2f} (robust {z['robust_std']:.2f}), "
-                                          f"|z| < 2: {_pct(z['within_2'])}"),
+                                          f"|z| < 2: {_pct(z['within_2'])} (cases named "
+                                          f"exactly)"),
+             "  z-scores, all cases  " + ("none" if not s["z_scores_all_cases"]["n"] else
+                                          f"n {s['z_scores_all_cases']['n']}, std "
+                                          f"{s['z_scores_all_cases']['std']:.2f} (robust "
+                                          f"{s['z_scores_all_cases']['robust_std']:.2f})"),
              "  held-out / noise     " + ("n/a" if s["heldout_over_noise_median"] is None
                                           else f"{s['heldout_over_noise_median']:.2f} (median)"),
              "  seconds per case     " + ("n/a" if med is None else
