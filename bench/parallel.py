@@ -42,6 +42,37 @@ from typing import Any
 WATCH_S = 0.5
 
 
+def single_blas_thread() -> bool:
+    """Limit the loaded OpenBLAS to one thread in this process (True if it could).
+
+    The physics works on small matrices (6 x 8, 18 x 18): several BLAS threads only add
+    overhead there, and beside worker processes (``--jobs``) they fight over the cores
+    (the diagnosis ran twice as long on two cores). Only the jobs that want it call
+    this (the diagnosis, the evaluation): a real-time rig keeps its own setting."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        with open("/proc/self/maps", encoding="ascii", errors="replace") as f:
+            libs = {line.split()[-1] for line in f
+                    if "openblas" in line.lower() and ".so" in line}
+    except OSError:
+        return False
+    done = False
+    for lib in libs:
+        try:
+            handle = ctypes.CDLL(lib)
+        except OSError:
+            continue
+        for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                     "openblas_set_num_threads64_", "openblas_set_num_threads"):
+            fn = getattr(handle, name, None)
+            if fn is not None:
+                fn(1)
+                done = True
+    return done
+
+
 def _die_with_parent(parent: int) -> None:
     """Worker initializer: end this process when the parent ``parent`` (pid) ends."""
     if sys.platform.startswith("linux"):
@@ -54,6 +85,7 @@ def _die_with_parent(parent: int) -> None:
             pass
     if os.getppid() != parent:  # the parent is already gone
         os._exit(1)
+    single_blas_thread()
     # Ctrl-C goes to the whole process group: the parent decides, the workers carry on
     # until it ends them (no traceback per worker)
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -96,9 +96,10 @@ def _write_json(path: Path, obj: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.diagnosis.report import diagnose, prepare_outputs
-    from bench.parallel import ending_workers, interrupt_on_term, worker_pool
+    from bench.parallel import ending_workers, interrupt_on_term, single_blas_thread, worker_pool
     from bench.recording import RecordingError
 
+    single_blas_thread()
     t0 = time.perf_counter()
 
     def progress(msg: str) -> None:

@@ -312,8 +312,9 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from bench import evaluate
-    from bench.parallel import SchedulerError, interrupt_on_term, run_each
+    from bench.parallel import SchedulerError, interrupt_on_term, run_each, single_blas_thread
 
+    single_blas_thread()
     if args.cases < 1:
         return _fail(args, 2, f"--cases {args.cases}: must be >= 1")
     if args.jobs < 1:
