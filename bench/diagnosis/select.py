@@ -42,6 +42,10 @@ IMITATES = 0.98
 EXPLAINED = 1.3
 #: above this reduced chi-square the linearised screen is not trusted alone
 INADEQUATE = 3.0
+#: the pairs of this many best single effects are fitted when one effect is far from enough
+PAIR_TOP = 4
+#: ... and the best this many of them by their linearised fit are refitted
+PAIR_FITS = 2
 #: at most this many effects in a model (more is physics the vocabulary lacks)
 MAX_EFFECTS = 5
 #: every candidate is refitted (not only the screen's best) while fewer effects are chosen
@@ -269,6 +273,10 @@ class Selector:
             if step is not None:
                 chosen, current = step
                 changed = True
+                if len(chosen) == 1:
+                    pair = self._pairs(current, candidates)
+                    if pair is not None:
+                        chosen, current = pair
             chosen, current, dropped = self._backward(chosen, current)
             swapped = self._swap(chosen, current, candidates)
             if swapped is not None:
@@ -341,6 +349,66 @@ class Selector:
                           f"no further effect is tried")
             self.stalled = True
         return chosen + [best[1]], best[0]
+
+    def _pairs(self, current: FitResult, candidates: list[str]
+               ) -> tuple[list[str], FitResult] | None:
+        """When the best single effect leaves far more than the noise, the best pair of the
+        best single effects (greedy selection can take first an effect that imitates two
+        others, sag for compliance, and never recover): each pair fitted from either
+        member's own fit. The pair replaces the single effect when it lowers the BIC."""
+        if current.reduced_chi2 <= INADEQUATE or not self.measured_noise:
+            return None
+        singles = sorted(((f.bic, k[0]) for k, f in self.cache.items()
+                          if len(k) == 1 and k[0] in candidates), key=lambda x: x[0])
+        top = [e for _, e in singles[:PAIR_TOP]]
+        pairs = [(a, b) for i, a in enumerate(top) for b in top[i + 1:] if compatible([a], b)]
+        # rank the pairs by their linearised fit at the model, refit the best few
+        base = self.cache.get(())
+        robot0 = self.model
+        r0 = self.rm.whitened(robot0, self.train)
+        cols = {}
+        for e in top:
+            sub = ParamSpace(robot0, (e,))
+            cols[e] = (sub, fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi),
+                                                                            self.train),
+                                        sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi))
+        ranked = []
+        for a, b in pairs:
+            (sa, ja), (sb, jb) = cols[a], cols[b]
+            J = np.hstack([ja, jb])
+            x0 = np.concatenate([sa.neutral, sb.neutral])
+            d = _bounded_lstsq(J, -r0, x0, np.concatenate([sa.lo, sb.lo]),
+                               np.concatenate([sa.hi, sb.hi]))
+            r1 = r0 + J @ d
+            ranked.append((float(r1 @ r1), (a, b)))
+        del base
+        ranked.sort(key=lambda x: x[0])
+        todo = [tuple(sorted(p)) for _, p in ranked[:PAIR_FITS]
+                if tuple(sorted(p)) not in self.cache]
+        if not todo:
+            return None
+        self.progress(f"the best single effect leaves {current.reduced_chi2:.3g} x the noise: "
+                      f"fitting the {len(todo)} pairs of the {len(top)} best")
+        jobs = []
+        for p in todo:
+            for member in p:
+                jobs.append((p, _warm(p, self.cache[(member,)])))
+        results: dict[tuple[str, ...], FitResult] = {}
+        if self.pool is not None:
+            futs = [(p, self.pool.submit(_fit_job, self.rm, self.train, p, phi0))
+                    for p, phi0 in jobs]
+            done = [(p, f.result()) for p, f in futs]
+        else:
+            done = [(p, fit_effects(ParamSpace(self.model, p), self.rm, self.train, phi0))
+                    for p, phi0 in jobs]
+        for p, res in done:
+            if p not in results or res.bic < results[p].bic:
+                results[p] = res
+        self.cache.update(results)
+        best = min(results.items(), key=lambda kv: kv[1].bic)
+        if best[1].bic - current.bic > -BIC_ENTER:
+            return None
+        return list(best[0]), best[1]
 
     def _backward(self, chosen: list[str], current: FitResult
                   ) -> tuple[list[str], FitResult, bool]:
