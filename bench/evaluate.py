@@ -253,29 +253,39 @@ def draw_effect(effect: str, rng: np.random.Generator, model: Robot,
 
 
 def _strengthen(effect: str, params: dict[str, float], model: Robot) -> dict[str, float]:
-    """The same effect twice as far from the model (within physical bounds)."""
+    """The same effect 1.5 times as far from the model, within what a real robot shows (an
+    effect still too weak at these limits is dropped from the case)."""
     neutral = _neutral(model)
     out = {}
     for k, v in params.items():
-        if effect == "mast_compliance" or k.startswith("ea"):
-            out[k] = max(v / 2.0, 1e3)
+        n0 = neutral.get(k, 0.0)
+        if effect == "mast_compliance":
+            out[k] = max(v / 1.5, 1e4)
+        elif k.startswith("ea"):
+            out[k] = float(np.clip(n0 + 1.5 * (v - n0) if v > n0 else v / 1.5,
+                                   0.4 * n0, 2.5 * n0))
         elif k.startswith("slip_time"):
             out[k] = v
         else:
-            n0 = neutral.get(k, 0.0)
-            out[k] = n0 + 2.0 * (v - n0)
+            out[k] = n0 + 1.5 * (v - n0)
         if k.startswith("s_"):
-            out[k] = float(np.clip(out[k], 0.9, 1.1))
+            out[k] = float(np.clip(out[k], 0.99, 1.01))
         if k.startswith("gain_"):
-            out[k] = float(np.clip(out[k], 0.7, 1.4))
+            out[k] = float(np.clip(out[k], 0.85, 1.15))
+        if k.startswith("offset_"):
+            out[k] = float(np.clip(out[k], -40.0, 40.0))
+        if k == "mass":
+            out[k] = float(np.clip(out[k], 0.7 * n0, 1.3 * n0))
+        if k.startswith("com_"):
+            out[k] = float(np.clip(out[k], n0 - 0.08, n0 + 0.08))
         if k == "rho":
-            out[k] = min(out[k], 1.0)
+            out[k] = min(out[k], 0.5)
         if k.startswith("r_"):
-            out[k] = float(np.clip(out[k], 0.0, 0.3))
+            out[k] = float(np.clip(out[k], 0.0, 0.2))
         if k.startswith(("dx_", "dy_", "dz_")):
-            out[k] = float(np.clip(out[k], -0.2, 0.2))
+            out[k] = float(np.clip(out[k], -0.1, 0.1))
         if k.startswith("dl_"):
-            out[k] = float(np.clip(out[k], -0.05, 0.05))
+            out[k] = float(np.clip(out[k], -0.02, 0.02))
     return out
 
 
