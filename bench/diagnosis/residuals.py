@@ -220,10 +220,14 @@ class ResidualModel:
             p = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx], self.init_pose)
         tau = true_tensions(H, s.tau[idx])
         ea = np.where(np.isfinite(H.ea), H.ea, np.inf)
+        # a slack cable only says it is at least as long as the straight line: it does not
+        # place the platform
+        taut = (s.tau[idx] >= self.slack_threshold).astype(float)
         for _ in range(iterations):
             bs = batch_statics(H, p, tau)
-            r = bs.unstretched - read[idx]
+            r = (bs.unstretched - read[idx]) * taut
             J = -np.swapaxes(wrench_matrix(bs.state), -1, -2) / (1.0 + tau / ea)[..., None]
+            J = J * taut[..., None]
             J[..., 3:] = J[..., 3:] @ euler_rate_matrix(p[:, 3:])
             JtJ = np.swapaxes(J, -1, -2) @ J + 1e-12 * np.eye(6)
             g = np.einsum("nki,nk->ni", J, r)
