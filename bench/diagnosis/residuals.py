@@ -209,30 +209,37 @@ class ResidualModel:
         length[~self.has_len] = np.nan
         return Blocks(length, wrench, exits_err, ok, extra, poses, slack_all)
 
-    def _estimate_poses(self, H: Robot, read: np.ndarray, iterations: int = 12) -> np.ndarray:
+    def _estimate_poses(self, H: Robot, read: np.ndarray, iterations: int = 15) -> np.ndarray:
         """Poses of the samples without a tracker pose: the needed unstretched lengths (measured
-        tensions) match the readings in the least-squares sense (Gauss-Newton, warm start)."""
+        tensions) match the readings in the least-squares sense (damped Gauss-Newton, steps
+        of at most 5 cm and 0.05 rad; from the last estimates when they are near the
+        commanded poses, else from the commanded poses)."""
         s = self.s
         idx = np.flatnonzero(self.est_pose)
+        start = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx], self.init_pose)
+        p = start.copy()
         if self._pose_est is not None and len(self._pose_est) == len(idx):
-            p = self._pose_est.copy()
-        else:
-            p = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx], self.init_pose)
+            near = np.abs(self._pose_est[:, :3] - start[:, :3]).max(axis=1) < 0.2
+            p[near] = self._pose_est[near]
         tau = true_tensions(H, s.tau[idx])
         ea = np.where(np.isfinite(H.ea), H.ea, np.inf)
         # a slack cable only says it is at least as long as the straight line: it does not
         # place the platform
         taut = (s.tau[idx] >= self.slack_threshold).astype(float)
+        limit = np.array([0.05, 0.05, 0.05, 0.05, 0.05, 0.05])
         for _ in range(iterations):
             bs = batch_statics(H, p, tau)
-            r = (bs.unstretched - read[idx]) * taut
+            r = np.nan_to_num((bs.unstretched - read[idx]) * taut)
             J = -np.swapaxes(wrench_matrix(bs.state), -1, -2) / (1.0 + tau / ea)[..., None]
-            J = J * taut[..., None]
+            J = np.nan_to_num(J * taut[..., None])
             J[..., 3:] = J[..., 3:] @ euler_rate_matrix(p[:, 3:])
-            JtJ = np.swapaxes(J, -1, -2) @ J + 1e-12 * np.eye(6)
+            JtJ = np.swapaxes(J, -1, -2) @ J
+            damp = 1e-9 * np.trace(JtJ, axis1=-2, axis2=-1)[:, None, None] + 1e-12
             g = np.einsum("nki,nk->ni", J, r)
-            dp = -np.linalg.solve(JtJ, g[..., None])[..., 0]
+            dp = -np.linalg.solve(JtJ + damp * np.eye(6), g[..., None])[..., 0]
             dp = np.nan_to_num(dp)
+            big = np.max(np.abs(dp) / limit, axis=1, keepdims=True)
+            dp = dp / np.maximum(big, 1.0)
             p = p + dp
             if np.abs(dp).max() < 1e-10:
                 break
