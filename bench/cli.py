@@ -22,6 +22,7 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.dryrun",
     "bench.commands.iso9283",
     "bench.commands.commission",
+    "bench.commands.compare",
 )
 
 

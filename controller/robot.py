@@ -332,11 +332,14 @@ def load_robot(path: str | Path) -> Robot:
 SHIPPED = {
     "rocaspect": "rocaspect.toml",
     "rocaspect-remeasured": "rocaspect_remeasured.toml",
+    "cogiro": "cogiro.toml",
+    "ipanema": "ipanema.toml",
 }
 
 
 def shipped_robot_path(name: str) -> Path:
-    """Path of a description shipped with the package (``rocaspect``, ``rocaspect-remeasured``)."""
+    """Path of a description shipped with the package (``rocaspect``, ``rocaspect-remeasured``,
+    ``cogiro``, ``ipanema``)."""
     fname = SHIPPED.get(name)
     if fname is None:
         raise RobotFileError(f"{name}: no such shipped robot (known: {', '.join(SHIPPED)})")
