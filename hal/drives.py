@@ -248,6 +248,10 @@ class WinchDrives:
         self._code = np.zeros(n, np.int64)  # last EMCY code (0 = none or reset)
         self._fault_code = np.zeros(n, np.int64)  # cause of the present Fault
         self._window: list[list[int]] = [[] for _ in range(n)]  # EMCYs since last not faulted
+        # length of each window before this cycle's EMCYs: a drive's TPDO (sampled at the
+        # last SYNC) may predate an EMCY of this cycle, so a statusword that still says "not
+        # faulted" clears only the EMCYs that came before it
+        self._window_mark = [0] * n
         self._self_stopped = np.zeros(n, bool)  # in Quick Stop Active, not by our request
         self._nmt_wait = np.full(n, -np.inf)  # ignore stale pre-op heartbeats until (clock)
         self._relink = np.zeros(n, bool)  # the link was lost since it was started
@@ -819,6 +823,7 @@ class WinchDrives:
         """First half of a cycle: process the TPDOs, heartbeats and EMCYs that arrived since
         the last call (positions, states, detection). Never blocks. Call once per cycle,
         before :meth:`transmit` (a TPDO is expected per SYNC sent)."""
+        self._window_mark = [len(w) for w in self._window]
         self._drain()
         self._check_link()
         with self._rx:
@@ -886,7 +891,7 @@ class WinchDrives:
             self._fault_code[k] = 0
         known_ok = ~now_fault & (new != DriveState.UNKNOWN)
         for k in np.flatnonzero(known_ok):
-            self._window[k].clear()
+            del self._window[k][:self._window_mark[k]]
         # a drive that quick-stopped on its own (master lost, 0x6007) holds there until the
         # controller enables it again: the master never re-enables it by itself
         qs = new == DriveState.QUICK_STOP_ACTIVE

@@ -168,10 +168,13 @@ def run(args: argparse.Namespace) -> int:
             return _fail(args, 2, msg)
     faults = None
     if args.faults:
-        from firmware_sim.faults import FaultScheduleError, load_fault_schedule
+        from controller.loadcell_map import DEFAULT_MAP
+        from firmware_sim.faults import FaultSchedule, FaultScheduleError
         try:
-            faults = load_fault_schedule(args.faults)
-        except (FileNotFoundError, FaultScheduleError) as exc:
+            faults = FaultSchedule.load(args.faults,
+                                        node_ids=tuple(int(x) for x in winches.node_id),
+                                        unit_ids=tuple(DEFAULT_MAP.unit_ids))
+        except (OSError, FaultScheduleError) as exc:
             return _fail(args, 2, str(exc))
 
     from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
