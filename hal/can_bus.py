@@ -23,7 +23,6 @@ drops exactly those records (:class:`QuietPartialReads`; ``dropped`` counts them
 
 from __future__ import annotations
 
-import argparse
 import logging
 import socket
 from dataclasses import dataclass, field
@@ -31,6 +30,9 @@ from typing import Any
 
 import can
 from can.interfaces import VALID_INTERFACES
+
+from hal.cli_args import CAN_FORMS as _FORMS  # one text of the forms
+from hal.cli_args import add_can_argument  # noqa: F401  (re-exported)
 
 DEFAULT_SOCKETCAND_CHANNEL = "can0"
 
@@ -88,7 +90,6 @@ class CanSpec:
         return f"{self.interface}:{self.channel}"
 
 
-_FORMS = "virtual:NAME, socketcan:CHANNEL, socketcand:HOST:PORT[:CHANNEL] or INTERFACE:CHANNEL"
 
 
 def _port(text: str, spec: str) -> int:
@@ -167,19 +168,3 @@ def open_bus(spec: str | CanSpec, **options: Any) -> can.BusABC:
         raise can.CanInitializationError(f"--can {s}: cannot open the bus: {exc}") from exc
 
 
-def add_can_argument(parser: argparse.ArgumentParser, default: str | None = None) -> None:
-    """Add the shared ``--can SPEC`` option (parsed into a :class:`CanSpec`)."""
-
-    def _type(text: str) -> CanSpec:
-        try:
-            return parse_can_spec(text)
-        except CanSpecError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    parser.add_argument(
-        "--can",
-        type=_type,
-        default=parse_can_spec(default) if default else None,
-        metavar="SPEC",
-        help=f"CAN bus: {_FORMS}" + (f" (default {default})" if default else ""),
-    )

@@ -48,12 +48,13 @@ import numpy as np
 
 from controller.loadcell_map import DEFAULT_MAP, RegisterMap, load_register_map
 from controller.winch import WinchSet, load_winches
-from hal.can_bus import CanSpec, add_can_argument
+from hal.can_bus import CanSpec
+from hal.cli_args import add_hardware_arguments
 from hal.drives import DriveEvent, DriveFault, DriveStartupError, WinchDrives
 from hal.drives_cia402 import DriveState
 from hal.loadcell_calibration import LoadCellCalibration, load_calibration
 from hal.loadcell_client import CableStatus, LoadCellClient, TensionReading
-from hal.modbus_config import ModbusEndpoint, add_modbus_arguments
+from hal.modbus_config import ModbusEndpoint
 
 DRIVE = "drive"
 LOADCELL = "loadcell"
@@ -534,20 +535,6 @@ def open_hardware(
                                stale_s=loadcell_stale_s, max_age_s=loadcell_max_age_s)
     drives = WinchDrives.open(can, w, eds, clock=clock)
     return CanModbusHardware(drives, cells, poll=poll)
-
-
-def add_hardware_arguments(parser: argparse.ArgumentParser, eds_default: str | None = None,
-                           can_default: str | None = None) -> None:
-    """Add ``--can``, ``--winches``, ``--eds`` and the load-cell options to a parser."""
-    add_can_argument(parser, default=can_default)
-    parser.add_argument("--winches", metavar="TOML", default=None,
-                        help="winch parameter file [controller/data/rocaspect_winches.toml]")
-    parser.add_argument("--eds", metavar="EDS", default=eds_default, required=eds_default is None,
-                        help="EDS file of the winch drives" +
-                        (f" [{eds_default}]" if eds_default else ""))
-    parser.add_argument("--hal-clock", choices=("wall", "sync"), default="wall",
-                        help="wall: real drives; sync: lock-step with a simulated rig [wall]")
-    add_modbus_arguments(parser)
 
 
 def hardware_from_args(args: argparse.Namespace, poll: str = "thread") -> CanModbusHardware:
