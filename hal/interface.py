@@ -51,7 +51,7 @@ from controller.winch import WinchSet, load_winches
 from hal.can_bus import CanSpec
 from hal.cli_args import add_hardware_arguments
 from hal.drives import DriveEvent, DriveFault, DriveStartupError, WinchDrives
-from hal.drives_cia402 import DriveState
+from hal.drives_cia402 import ST, DriveState
 from hal.loadcell_calibration import LoadCellCalibration, load_calibration
 from hal.loadcell_client import CableStatus, LoadCellClient, TensionReading
 from hal.modbus_config import ModbusEndpoint
@@ -129,7 +129,7 @@ class Readings:
     @property
     def enabled(self) -> np.ndarray:
         """(n,) bool: the drive is Operation Enabled."""
-        return self.states == DriveState.OPERATION_ENABLED
+        return self.states == ST.OPERATION_ENABLED
 
     @property
     def all_enabled(self) -> bool:
@@ -528,12 +528,20 @@ def open_hardware(
     if tuple(rmap.cables) != tuple(w.cables):
         raise HardwareConfigError(f"load-cell register map {rmap.source} lists cables "
                                   f"{rmap.cables}, winch parameters {w.source} {w.cables}")
+    drives = WinchDrives.open(can, w, eds, clock=clock)
     cells = None
     if modbus is not None:
-        cells = LoadCellClient(modbus, register_map=rmap, calibration=calibration,
-                               rate_hz=loadcell_rate_hz, timeout_s=loadcell_timeout_s,
-                               stale_s=loadcell_stale_s, max_age_s=loadcell_max_age_s)
-    drives = WinchDrives.open(can, w, eds, clock=clock)
+        # the readings' ages on the master clock: in lock-step (``sync``) a reading is as old
+        # as the simulated time since it came, however fast or slow the simulation runs
+        kw = {} if clock == "wall" else {"clock": drives.now}
+        try:
+            cells = LoadCellClient(modbus, register_map=rmap, calibration=calibration,
+                                   rate_hz=loadcell_rate_hz, timeout_s=loadcell_timeout_s,
+                                   stale_s=loadcell_stale_s, max_age_s=loadcell_max_age_s,
+                                   **kw)
+        except BaseException:
+            drives.close()
+            raise
     return CanModbusHardware(drives, cells, poll=poll)
 
 
