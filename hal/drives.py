@@ -109,6 +109,9 @@ from hal.drives_config import (
     verify_identity,
 )
 
+#: SDO answer timeout of the HAL's nodes [s] (start-up, recovery, fault-code reads)
+SDO_TIMEOUT_S = 1.0
+
 log = logging.getLogger(__name__)
 
 CODE_HEARTBEAT = 0x8130  # life guard / heartbeat error (CiA 301)
@@ -197,6 +200,9 @@ class WinchDrives:
         for nid in self.node_ids:
             od = eds if isinstance(eds, canopen.ObjectDictionary) else load_eds(eds, nid)
             node = canopen.RemoteNode(nid, od)
+            # SDOs run at start-up and in recovery only, never in the cycle: a patient
+            # answer timeout costs nothing there and survives a busy host (canopen: 0.3 s)
+            node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
             network.add_node(node)
             self.nodes.append(node)
         od0 = self.nodes[0].object_dictionary

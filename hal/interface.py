@@ -531,9 +531,10 @@ def open_hardware(
     drives = WinchDrives.open(can, w, eds, clock=clock)
     cells = None
     if modbus is not None:
-        # the readings' ages on the master clock: in lock-step (``sync``) a reading is as old
-        # as the simulated time since it came, however fast or slow the simulation runs
-        kw = {} if clock == "wall" else {"clock": drives.now}
+        # polled by the caller in lock-step (``sync``, ``manual``): a reading's age on the
+        # master clock, the simulated time since it came, however fast the simulation runs;
+        # a polling thread runs on the wall clock, and so do its ages
+        kw = {"clock": drives.now} if (clock == "sync" and poll == "manual") else {}
         try:
             cells = LoadCellClient(modbus, register_map=rmap, calibration=calibration,
                                    rate_hz=loadcell_rate_hz, timeout_s=loadcell_timeout_s,

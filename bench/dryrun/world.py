@@ -47,19 +47,23 @@ def with_rate(winches: WinchSet, period_s: float) -> WinchSet:
 
 
 #: the HAL's load-cell answer timeout [s, wall clock] in lock-step: the simulation waits
-#: for its answers, so a slow answer means a busy host, not a slow cell; a cell the fault
-#: schedule silences is still found by its age on the simulated clock (limit below)
+#: for its answers, so a slow answer means a busy host, not a slow cell
 LOCKSTEP_CELL_TIMEOUT_S = 0.5
+#: lock-step with ``cdpr sim`` in another process: the HAL polls the cells from a thread on
+#: the wall clock while the simulation runs at its own pace; a reading older than this
+#: [s, wall] is a timeout
+PROCESS_CELL_MAX_AGE_S = 1.0
 
 
-def _cell_timing(realtime: bool) -> dict:
-    """open_hardware's load-cell timing: the defaults on the wall clock; in lock-step a
-    patient answer timeout, the age limit of the defaults on the simulated clock."""
+def _cell_timing(realtime: bool, in_process: bool) -> dict:
+    """open_hardware's load-cell timing: the defaults in real time; in lock-step a patient
+    answer timeout and, in process (polled by the world, aged on the simulated clock), the
+    default age limit; across processes (aged on the wall clock) a patient one."""
     if realtime:
         return {}
     rate = 50.0
     return {"loadcell_rate_hz": rate, "loadcell_timeout_s": LOCKSTEP_CELL_TIMEOUT_S,
-            "loadcell_max_age_s": 0.1 + 3.0 / rate}
+            "loadcell_max_age_s": 0.1 + 3.0 / rate if in_process else PROCESS_CELL_MAX_AGE_S}
 
 
 class SimWorld:
@@ -105,7 +109,7 @@ class InProcessWorld(SimWorld):
             self.hw = open_hardware(self.rig.can_spec, self.rig.modbus_spec, eds=eds,
                                     winches=winches, clock=clock,
                                     poll="thread" if realtime else "manual",
-                                    **_cell_timing(realtime))
+                                    **_cell_timing(realtime, True))
             self.tracker = CallableTracker(self.rig.measure_pose)
         except BaseException:
             self.rig.close()
@@ -150,7 +154,7 @@ class ProcessWorld(SimWorld):
             clock = "wall" if realtime else "sync"
             self.hw = open_hardware(self.info["can"], self.info["modbus"], eds=eds,
                                     winches=winches, clock=clock, poll="thread",
-                                    **_cell_timing(realtime))
+                                    **_cell_timing(realtime, False))
             self.tracker = open_tracker(self.info["tracker"])
         except BaseException:
             self._stop()
