@@ -194,3 +194,19 @@ def test_fault_schedule_errors_name_the_file_line_and_field(tmp_path, capsys):
     assert main(["dry-run", "paper-centre", "--faults", str(faults), "--json"]) == 2
     err = json.loads(capsys.readouterr().out)["error"]
     assert str(faults) in err and ":3" in err and "drive" in err
+
+
+@pytest.mark.parametrize("opt", ["--record", "--plots"])
+def test_cli_refuses_an_output_it_cannot_write_before_starting(opt, tmp_path, capsys):
+    (tmp_path / "blk").write_text("a file")
+    assert main(["dry-run", "paper-centre", opt, str(tmp_path / "blk" / "out"), "--json"]) == 2
+    err = json.loads(capsys.readouterr().out)["error"]
+    assert opt in err and "not a directory" in err
+
+
+def test_cli_plots_without_a_recording(tmp_path, capsys):
+    code = main(["dry-run", "paper-centre", "--duration", "0.5", "--json", "--quiet",
+                 "--plots", str(tmp_path / "plots")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["recording"] is None
+    assert out["plots"] and all(Path(p).stat().st_size > 10_000 for p in out["plots"])

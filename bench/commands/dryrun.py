@@ -80,18 +80,14 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 
 def _check_dir(path: str, force: bool, what: str) -> str | None:
-    """Why ``path`` cannot take the output, or None (checked before anything runs)."""
+    """Why ``path`` cannot take the output, or None (checked before anything runs, by
+    creating the missing parents and writing a probe file)."""
+    from bench.outputs import output_dir_problem
+
     p = Path(path)
-    if p.exists() and not p.is_dir():
-        return f"{what} {p}: exists and is not a directory"
     if p.is_dir() and any(p.iterdir()) and not force:
         return f"{what} {p}: not empty (use --force to overwrite)"
-    probe = p if p.is_dir() else next((q for q in p.parents if q.exists()), Path("."))
-    import os
-
-    if not os.access(probe, os.W_OK):
-        return f"{what} {p}: cannot write in {probe}"
-    return None
+    return output_dir_problem(p, what)
 
 
 def _progress_printer(quiet: bool, duration_s: float | None = None):
@@ -168,6 +164,14 @@ def run(args: argparse.Namespace) -> int:
     for d, what in ((args.record, "--record"), (args.plots, "--plots")):
         if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what)):
             return _fail(args, 2, msg)
+    # --plots without --record: the plots are drawn from a recording in a scratch directory
+    scratch = None
+    record_dir = args.record
+    if args.plots and record_dir is None:
+        import tempfile
+
+        scratch = tempfile.TemporaryDirectory(prefix="cdpr-dryrun-")
+        record_dir = str(Path(scratch.name) / "rec")
     faults = None
     if args.faults:
         from controller.loadcell_map import DEFAULT_MAP
@@ -201,11 +205,11 @@ def run(args: argparse.Namespace) -> int:
         return traj
 
     def open_recorder(p0):
-        if args.record is None:
+        if record_dir is None:
             return None
         import shutil
 
-        rec = Path(args.record)
+        rec = Path(record_dir)
         if rec.exists() and args.force:
             shutil.rmtree(rec)
         meta = {"pose_source": "simulated laser tracker", "tension_source": "simulated load "
@@ -278,9 +282,11 @@ def run(args: argparse.Namespace) -> int:
     if tty and not args.quiet:
         print(file=sys.stderr)
     plots = None
-    if args.plots and args.record and res.ended != "refused":
+    if args.plots and record_dir and res.ended != "refused":
         from bench.dryrun.report import plot_run
-        plots = [str(p) for p in plot_run(args.record, args.plots)]
+        plots = [str(p) for p in plot_run(record_dir, args.plots)]
+    if scratch is not None:
+        scratch.cleanup()
     out = {
         "scenario": str(args.scenario), "robot": model.name, "cycles": res.cycles,
         "rate_hz": res.rate_hz, "simulated_s": res.simulated_s, "wall_s": res.wall_s,
