@@ -1,7 +1,7 @@
 """The master process is killed (SIGKILL) while the eight drives move: every drive stops on
 its own, reaches Quick Stop Active and holds (issue 9, defect 2; issue 7, quick stop).
 
-The drives run in this process (bench.bench_master_loss.master_loss_trial); the master is
+The drives run in this process (bench.benchmarks.master_loss.master_loss_trial); the master is
 the HAL in another process, paying every cable out at 0.2 m/s when it is killed. What each
 drive reacted to, and how long after the last frame it heard, is read from the drive; no
 assertion is on the wall clock.
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.bench_master_loss import SPEED_M_S, master_loss_trial
+from bench.benchmarks.master_loss import SPEED_M_S, master_loss_trial
 from controller.winch import load_winches
 
 W = load_winches()

@@ -2,7 +2,7 @@
 
 :func:`master_loss_trial` runs the eight simulated drives in this process behind a
 socketcand hub (:class:`firmware_sim.drive_rig.DriveRig`), a master in another process
-(``python -m bench.bench_master_loss master --can SPEC``: the HAL, started, enabled and
+(``python -m bench.benchmarks.master_loss master --can SPEC``: the HAL, started, enabled and
 paying every cable out at a constant speed), kills the master with SIGKILL, and watches
 the drives: when each enters Quick Stop Active, when it stands still, how far it went on
 the quick-stop ramp, and that it then holds. The drives stop on their own (consumer
@@ -89,7 +89,7 @@ def master_loss_trial(clock: str = "sync", timeout_s: float = 30.0,
     w = load_winches()
     rig = DriveRig(initial_lengths_m=10.0, clock=clock).start()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bench.bench_master_loss", "master", "--can",
+        [sys.executable, "-m", "bench.benchmarks.master_loss", "master", "--can",
          rig.endpoint()["can"], "--clock", clock,
          *(() if rpdo_timeout_s is None else ("--rpdo-timeout", str(rpdo_timeout_s)))],
         cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -168,7 +168,7 @@ def bench_master_loss(quick: bool) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.bench_master_loss")
+    p = argparse.ArgumentParser(prog="python -m bench.benchmarks.master_loss")
     sub = p.add_subparsers(dest="what", required=True)
     m = sub.add_parser("master", help="run the master (the process to kill)")
     m.add_argument("--can", required=True)
