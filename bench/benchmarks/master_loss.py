@@ -31,7 +31,7 @@ import numpy as np
 
 from bench.benchmarks import register
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: cable speed of the master's motion when it dies [m/s]
 SPEED_M_S = 0.2
 
