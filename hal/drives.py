@@ -477,9 +477,13 @@ class WinchDrives:
             self._nmt_wait[k] = -np.inf
         if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
             if state != NMT_OPERATIONAL:
+                # no PDO leaves a node outside OPERATIONAL: the statusword we hold is old,
+                # its power state unknown until a TPDO comes again (or recover())
+                self._have[k] = False
+                self._setpoint_ok[k] = False
                 self._event(k, "nmt_state", CODE_HEARTBEAT,
                             f"NMT state {NMT_NAMES.get(state, hex(state))}, "
-                            "expected OPERATIONAL")
+                            "expected OPERATIONAL: its power state is unknown")
         self._nmt[k] = state
 
     # ------------------------------------------------------------------ start-up (blocking)
@@ -844,7 +848,10 @@ class WinchDrives:
         self._check_pdos(fresh, n_new, expected)
         self._sw = np.where(fresh, sw, self._sw)
         self._pos = np.where(fresh, pos, self._pos)
-        self._have |= fresh & ~self._relink
+        # a node its heartbeat says is outside OPERATIONAL sends no PDO: a TPDO counted now
+        # was sent before it left (its statusword is old news)
+        out_of_op = (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
+        self._have |= fresh & ~self._relink & ~out_of_op
         self._nmt_wait[fresh] = -np.inf  # PDOs only flow in OPERATIONAL
         self._update_states(expected)
         self._check_heartbeats()

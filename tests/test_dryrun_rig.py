@@ -210,3 +210,33 @@ def test_cli_plots_without_a_recording(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert code == 0 and out["recording"] is None
     assert out["plots"] and all(Path(p).stat().st_size > 10_000 for p in out["plots"])
+
+
+@pytest.mark.parametrize("watch_wall", [False, True])
+def test_lockstep_in_process_survives_a_starved_heartbeat_thread(watch_wall):
+    """In lock-step in one process the master cannot die apart from the drives: a starved
+    master-heartbeat thread (a busy host) must not stop them. With the wall-clock watch on
+    (the setting for a master in another process) the same starvation does stop them."""
+    sc = load_scenario(resolve_scenario("paper-centre"))
+    world = start_world(sc, load_winches(), "inprocess", realtime=False)
+    try:
+        for d in world.rig.bank.drives:
+            d.watch_wall = watch_wall
+        hw = world.hw
+        hw.start()
+        hw.enable()
+        drives = hw.drives
+        drives._mhb_stop.set()  # the heartbeat thread starved for 0.6 s of wall time
+        drives._mhb_thread.join(timeout=5.0)
+        time.sleep(0.6)
+        for _ in range(20):
+            r = hw.step()
+        if watch_wall:  # stopped, pre-operational (0x1029 = 0): no longer said enabled
+            assert not np.any(r.states == DriveState.OPERATION_ENABLED), r.states
+            assert all(d.state.name == "QUICK_STOP_ACTIVE" for d in world.rig.bank.drives)
+            assert {f.kind for f in hw.faults()} & {"nmt_state", "quick_stop"}
+        else:
+            assert np.all(r.states == DriveState.OPERATION_ENABLED), r.states
+            assert hw.faults() == []
+    finally:
+        world.close()

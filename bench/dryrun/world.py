@@ -103,7 +103,7 @@ class InProcessWorld(SimWorld):
                  plant_rate_hz: float, eds: str | Path = EDS_PATH) -> None:
         clock = "wall" if realtime else "sync"
         self.rig = SimRig(scenario, winches=winches, clock=clock, plant_thread=realtime,
-                          plant_rate_hz=plant_rate_hz)
+                          plant_rate_hz=plant_rate_hz, watch_wall_heartbeats=realtime)
         try:
             self.rig.start()
             self.hw = open_hardware(self.rig.can_spec, self.rig.modbus_spec, eds=eds,
