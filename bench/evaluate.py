@@ -327,6 +327,9 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
         sensors = str(rng.choice(SENSORS, p=[0.7, 0.15, 0.15]))
     if oov is None:
         oov = str(rng.choice(OOV)) if rng.random() < OOV_RATE else "none"
+        if oov == "friction" and sensors == "no_tensions":
+            # friction acts on the load cells only: a recording without them cannot see it
+            oov = str(rng.choice([o for o in OOV if o != "friction"]))
     allowed = WITHOUT.get(sensors, DRAWN)
     if effects is None:
         k = int(rng.choice([0, 1, 1, 1, 2, 2, 3])) if n_effects is None else n_effects

@@ -180,6 +180,34 @@ def test_backlash_on_one_cable_is_declared_not_named(tmp_path):
     assert "21" in un["summary"]
     assert all(e.get("provisional") for e in dg.report["effects"])
     assert "does not explain" in dg.report["mismatch"]["summary"]
+    # the lengths depend on the direction, the load cells do not
+    assert "load_cell_direction_cables" not in un
+    assert max(abs(v["z"]) for v in un["load_cell_direction"].values()) < 8.0
+
+
+def test_friction_at_one_load_cell_is_declared_with_its_cable(tmp_path):
+    """The cell of cable 21 reads 8 N less while its cable pays out, 8 N more while it reels
+    in: the report says which load cell reads by the direction of motion, and how much."""
+    sc, _, dg = run(tmp_path, scenario(nuisance={"friction_n": 8.0, "friction_cables": ["21"]},
+                                       poses=GRID | {"n": [4, 3, 1], "visits": 3}))
+    un = dg.report["unexplained"]
+    assert un is not None, dg.report["mismatch"]["summary"]
+    assert un["load_cell_direction_cables"] == ["21"], un["summary"]
+    assert "load cell of cable 21" in un["summary"]
+    assert 12.0 < un["load_cell_direction"]["21"]["difference_n"] < 20.0  # truth 16 N
+    assert all(e.get("provisional") for e in dg.report["effects"])
+
+
+@pytest.mark.parametrize("truth", [
+    {"load_cell_calibration": {"gain_21": 1.04, "gain_32": 0.97, "offset_41": 8.0}},
+    {"platform_mass": {"mass": 38.0, "com_x": 0.02}},
+], ids=["load_cells", "mass"])
+def test_no_direction_dependent_load_cell_without_friction(tmp_path, truth):
+    """Miscalibrated load cells or another mass change the force balance by pose, never by
+    the direction of motion: named, and nothing declared unexplained."""
+    sc, _, dg = run(tmp_path, scenario(truth=truth))
+    assert named(dg) == set(truth), dg.report["mismatch"]["summary"]
+    assert dg.report["unexplained"] is None, dg.report["unexplained"]["summary"]
 
 
 def test_thermal_drift_is_declared_not_named(tmp_path):
