@@ -94,7 +94,7 @@ def _check_dir(path: str, force: bool, what: str) -> str | None:
     return None
 
 
-def _progress_printer(quiet: bool):
+def _progress_printer(quiet: bool, duration_s: float | None = None):
     t0 = time.perf_counter()
     tty = sys.stderr.isatty()
 
@@ -103,6 +103,8 @@ def _progress_printer(quiet: bool):
             return
         total = res.path_s or 1.0
         frac = min(1.0, t_traj / total)
+        if duration_s:  # --duration ends the run first when it is shorter than the path
+            frac = max(frac, min(1.0, res.simulated_s / duration_s))
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
         wall = time.perf_counter() - t0
         speed = res.simulated_s / wall if wall > 0 else 0.0
@@ -168,10 +170,13 @@ def run(args: argparse.Namespace) -> int:
             return _fail(args, 2, msg)
     faults = None
     if args.faults:
-        from firmware_sim.faults import FaultScheduleError, load_fault_schedule
+        from controller.loadcell_map import DEFAULT_MAP
+        from firmware_sim.faults import FaultSchedule, FaultScheduleError
         try:
-            faults = load_fault_schedule(args.faults)
-        except (FileNotFoundError, FaultScheduleError) as exc:
+            faults = FaultSchedule.load(args.faults,
+                                        node_ids=tuple(int(x) for x in winches.node_id),
+                                        unit_ids=tuple(DEFAULT_MAP.unit_ids))
+        except (OSError, FaultScheduleError) as exc:
             return _fail(args, 2, str(exc))
 
     from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
@@ -261,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
                                max_duration_s=args.duration, reactions=reactions)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
-                               on_progress=_progress_printer(args.quiet), stop=stop)
+                               on_progress=_progress_printer(args.quiet, args.duration), stop=stop)
             res = loop.run()
         finally:
             if injector is not None:

@@ -46,6 +46,22 @@ def with_rate(winches: WinchSet, period_s: float) -> WinchSet:
         bus, sync_period_s=period_s, rpdo_timeout_s=rpdo))
 
 
+#: the HAL's load-cell answer timeout [s, wall clock] in lock-step: the simulation waits
+#: for its answers, so a slow answer means a busy host, not a slow cell; a cell the fault
+#: schedule silences is still found by its age on the simulated clock (limit below)
+LOCKSTEP_CELL_TIMEOUT_S = 0.5
+
+
+def _cell_timing(realtime: bool) -> dict:
+    """open_hardware's load-cell timing: the defaults on the wall clock; in lock-step a
+    patient answer timeout, the age limit of the defaults on the simulated clock."""
+    if realtime:
+        return {}
+    rate = 50.0
+    return {"loadcell_rate_hz": rate, "loadcell_timeout_s": LOCKSTEP_CELL_TIMEOUT_S,
+            "loadcell_max_age_s": 0.1 + 3.0 / rate}
+
+
 class SimWorld:
     """The simulated robot: ``hw`` (the hardware interface), ``tracker``, ``tick`` (lock-step
     hook or None), ``rig`` (in-process only), ``close()``."""
@@ -88,7 +104,8 @@ class InProcessWorld(SimWorld):
             self.rig.start()
             self.hw = open_hardware(self.rig.can_spec, self.rig.modbus_spec, eds=eds,
                                     winches=winches, clock=clock,
-                                    poll="thread" if realtime else "manual")
+                                    poll="thread" if realtime else "manual",
+                                    **_cell_timing(realtime))
             self.tracker = CallableTracker(self.rig.measure_pose)
         except BaseException:
             self.rig.close()
@@ -132,7 +149,8 @@ class ProcessWorld(SimWorld):
             self.info = self._endpoints(startup_s)
             clock = "wall" if realtime else "sync"
             self.hw = open_hardware(self.info["can"], self.info["modbus"], eds=eds,
-                                    winches=winches, clock=clock, poll="thread")
+                                    winches=winches, clock=clock, poll="thread",
+                                    **_cell_timing(realtime))
             self.tracker = open_tracker(self.info["tracker"])
         except BaseException:
             self._stop()
