@@ -27,8 +27,15 @@ Noise: each sample's residual has the variance ``sigma_p^2 + sigma_w^2 / count``
 ``sigma_w`` the row-to-row (white) noise, from second differences of raw rows;
 ``sigma_p`` what changes between visits of one pose (repeatability), from
 replicate groups. Rows of a move count with their weight (they share slow
-errors). Forward figures (:meth:`ResidualModel.forward`) solve the equilibrium of
-each sample under the hypothesis and compare poses and tensions: the headline.
+errors). Where per-sample unknowns are solved for (an estimated pose, internal
+forces), a sample's length residual is the noise projected onto the ``r`` of ``n``
+directions the unknowns leave (``r = n - 6`` without a tracker pose, ``r = 6``
+without tensions): its spread measured on replicates is ``r / n`` of the readings'
+noise, which is what whitens it (each such residual counts ``r / n`` of a degree of
+freedom, :meth:`ResidualModel.dof_lost`), so that a parameter fitted to noise lowers
+the chi-square by one, not by ``n / r``. Forward figures
+(:meth:`ResidualModel.forward`) solve the equilibrium of each sample under the
+hypothesis and compare poses and tensions: the headline.
 """
 
 from __future__ import annotations
@@ -117,6 +124,11 @@ class ResidualModel:
         self.has_len = have_l & (self.has_pose | self.est_pose)
         self.has_exit = np.isfinite(s.exit_meas).all(axis=2) & self.has_pose[:, None]
         self.any_tau = bool(self.has_tau.any())
+        # directions of a sample's length residual left by its per-sample unknowns (of n)
+        rank = np.full(s.n, float(n))
+        rank[self.est_pose] = max(n - 6, 1)
+        rank[self.has_pose & ~self.has_tau] = min(6, n)
+        self.len_rank = np.where(self.has_len, rank, float(n))
         self.sigma = {k: DEFAULTS[k] for k in BLOCKS}
         self.white = dict(WHITE_DEFAULTS)
         # by sample kind: 0 dwell samples, 1 rows of moves
@@ -138,10 +150,18 @@ class ResidualModel:
 
     # ----- degrees of freedom -------------------------------------------------------
     def dof_lost(self, idx: np.ndarray | None = None) -> float:
-        """Residual degrees of freedom taken by per-sample unknowns (estimated poses, internal
-        forces). None: the noise of those residuals is measured on the residuals themselves
-        (their replicate spread), so each entry counts as one."""
-        return 0.0
+        """Residual degrees of freedom taken by per-sample unknowns (an estimated pose: 6 of
+        a sample's n length residuals; internal forces without tensions: n - 6), weighted
+        like the entries (:meth:`entry_weights`)."""
+        sl = slice(None) if idx is None else idx
+        n = self.model.n_cables
+        lost = (n - self.len_rank[sl]) * self.has_len[sl]
+        return float(np.sum(self.s.weight[sl] * lost))
+
+    def rank_factor(self) -> np.ndarray:
+        """sqrt(n / r) per sample (N,): a length residual projected onto r of n directions,
+        divided by this, has the variance of the readings' noise."""
+        return np.sqrt(self.model.n_cables / self.len_rank)
 
     # ----- inverse residuals --------------------------------------------------------
     def blocks(self, H: Robot) -> Blocks:
@@ -380,10 +400,12 @@ class ResidualModel:
             out[name] = max(float(np.sqrt(np.mean(d2[keep] ** 2) / 6.0)), FLOORS[name])
         return out
 
-    @staticmethod
-    def _block_values(b: Blocks) -> dict[str, np.ndarray]:
-        """Residual blocks for noise estimates (slack cables' one-sided residuals left out)."""
+    def _block_values(self, b: Blocks) -> dict[str, np.ndarray]:
+        """Residual blocks for noise estimates (slack cables' one-sided residuals left out;
+        length residuals projected by per-sample unknowns scaled back to the readings'
+        noise)."""
         length = b.length if b.slack is None else np.where(b.slack, np.nan, b.length)
+        length = length * self.rank_factor()[:, None]
         return {"length": length, "force": b.wrench[:, :3], "moment": b.wrench[:, 3:],
                 "exit": b.exit.reshape(len(b.exit), -1)}
 

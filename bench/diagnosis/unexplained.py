@@ -70,7 +70,8 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                  "noise_source": rm.sigma_source}
 
     # per cable, per mast: whitened length residual RMS
-    L = b.length / rm.sd["length"][:, None]
+    # in noise units (a residual projected by per-sample unknowns scaled back)
+    L = b.length / rm.sd["length"][:, None] * rm.rank_factor()[:, None]
     L = np.where(rm.has_len[:, None], L, np.nan)
     if np.isfinite(L).any():
         per = np.array([_wrms(L[:, k], w) for k in range(model.n_cables)])
