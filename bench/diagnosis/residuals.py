@@ -148,6 +148,11 @@ class ResidualModel:
             self.rows = ResidualModel(rows, model, init_pose, tau0, self.slip_times)
         self._update_sd()
 
+    def _slipped(self) -> np.ndarray:
+        """(N,n) where a cable's length offset applies: from its slip time on, never to a
+        sample or row of the initialisation (the encoders are referenced there)."""
+        return (self.s.t[:, None] >= self.slip_times) & ~self.s.is_init[:, None]
+
     # ----- degrees of freedom -------------------------------------------------------
     def dof_lost(self, idx: np.ndarray | None = None) -> float:
         """Residual degrees of freedom taken by per-sample unknowns (an estimated pose: 6 of
@@ -177,7 +182,7 @@ class ResidualModel:
             u0, _ = init_unstretched(H, self.init_pose, tau0)
         except ValueError:
             return Blocks(length, wrench, exits_err, ok, None, poses)
-        dl = np.where(s.t[:, None] >= self.slip_times, H.length_offset, 0.0)
+        dl = np.where(self._slipped(), H.length_offset, 0.0)
         read = unstretched_from_readings(H, s.l_meas, self.reference, u0, dl)
         if self.est_pose.any():
             poses[self.est_pose] = self._estimate_poses(H, read)
@@ -200,13 +205,23 @@ class ResidualModel:
                 dT = 0.5
                 l_up = cables.from_tensions(H, bs.state, tau + dT)[1]
                 extra[m] = np.abs(l_up - bs.unstretched) / dT * self.tau_noise[m][:, None]
-            # a slack cable only says it is at least as long as the straight line
+            # a slack cable only says it is at least as long as the straight line (its
+            # reading is noise about zero: a sagging model would hang it at that tension
+            # from its exit point, metres long)
             slack = tau < self.slack_threshold
             slack_all[m] = slack
-            lres = np.where(slack, np.maximum(lres, 0.0), lres)
+            if slack.any():
+                chord = bs.state.length / (1.0 + np.maximum(tau, 0.0) / H.ea)
+                lres = np.where(slack, np.maximum(chord - read[m], 0.0), lres)
+                if extra is not None:
+                    extra[m] = np.where(slack, 0.0, extra[m])
             length[m] = lres
             f = bs.platform_forces
             st = bs.state
+            if H.rho > 0 and slack.any():
+                # a slack cable's reading (noise about zero, negative too) pulls along the
+                # chord, as under a straight model: no catenary at a made-up tension
+                f = np.where(slack[..., None], tau[..., None] * st.u, f)
             wg = gravity_wrench(H.mass, H.com, H.gravity, st.R)
             wr = np.concatenate([f.sum(axis=-2), cross(st.Rb, f).sum(axis=-2)], axis=-1) + wg
             # in load-cell units: a hypothesis must not shrink the sensor noise by its gains
@@ -548,7 +563,7 @@ class ResidualModel:
                                                                          np.flatnonzero(have_l))
         theta = None
         for i in todo:
-            dl = np.where(s.t[i] >= self.slip_times, H.length_offset, 0.0)
+            dl = np.where(self._slipped()[i], H.length_offset, 0.0)
             l0 = unstretched_from_readings(H, s.l_meas[i], self.reference, u0, dl)
             guess = s.pose_meas[i] if self.has_pose[i] else s.pose_des[i]
             if not np.isfinite(guess).all():

@@ -11,7 +11,9 @@ that the effect vocabulary lacks:
 - **direction of motion**: a cable whose residual differs with the direction of
   its last length change (backlash, friction): a two-group comparison;
 - **time**: residuals that trend with time (thermal drift, creep): a regression on
-  time, per cable and common to all;
+  time within replicate groups (the model's error at a pose cancels there; on
+  independent clusters of samples when few are replicated), per cable and common to
+  all;
 - **load cells by direction of motion**: a load cell that reads differently while its
   cable pays out and while it reels in (friction between the cell and the platform,
   e.g. on a pulley): the force balance's residuals regressed on each cable's force
@@ -110,16 +112,19 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
         # of a target are apart in time), stretches of moves otherwise
         moves = bool((s.kind == 1).any()) and s.cluster is not None and len(s.cluster) == s.n
         clusters = s.cluster if moves else np.arange(s.n)
-        if np.ptp(s.t) > 0:
+        span = float(np.ptp(s.t))
+        if span > 0:
             trend = []
             for k, cid in enumerate(model.cable_ids):
-                tr = _slope(*_by_cluster(L[:, k], tt, w, clusters))
+                tr = _trend(L[:, k], tt, w, s.target, clusters, span)
                 if tr is not None:
                     trend.append((cid, *tr))
-            common = _slope(*_by_cluster(np.nanmean(L, axis=1), tt, w, clusters))
-            out["time"] = {"span_s": float(np.ptp(s.t)),
+            common = _trend(np.nanmean(L, axis=1), tt, w, s.target, clusters, span)
+            out["time"] = {"span_s": span,
                            "by_cable": {c: {"drift_over_noise": _r(d), "z": _r(z)}
                                         for c, d, z in trend}}
+            if common is not None:
+                out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
             strong = [(c, d, z) for c, d, z in trend
                       if abs(z) > STRUCT_Z and abs(d) > STRUCT_SIZE]
             if strong:
@@ -132,8 +137,11 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 else:
                     findings.append(f"cable {c}'s length residual drifts with time "
                                     f"({abs(d):.1f} times the noise over the recording)")
-            if common is not None:
-                out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
+            elif common is not None and abs(common[1]) > STRUCT_Z \
+                    and abs(common[0]) > STRUCT_SIZE:
+                findings.append(f"the length residuals of the cables drift together with time "
+                                f"({abs(common[0]):.1f} times the noise over the recording; "
+                                f"thermal expansion or creep?)")
     # load cells reading differently by the direction of motion (pulley friction)
     if fitted is not None and rm.any_tau:
         fr = _cell_direction(rm, b, fitted)
@@ -296,8 +304,43 @@ def _by_cluster(x: np.ndarray, t: np.ndarray, w: np.ndarray, clusters: np.ndarra
     return xm, tm, np.ones(len(ww))
 
 
-def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray) -> tuple[float, float] | None:
-    """Change of ``x`` over the span of ``t`` by weighted least squares, and its z-value."""
+def _within(x: np.ndarray, t: np.ndarray, w: np.ndarray, groups: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` and ``t`` less their weighted means over each replicate group of two or more
+    finite samples (NaN elsewhere): what repeats at a pose cancels, a drift in time does
+    not."""
+    ok = np.isfinite(x) & np.isfinite(t)
+    xo, to = np.full(len(x), np.nan), np.full(len(t), np.nan)
+    if not ok.any():
+        return xo, to
+    _, inv = np.unique(groups[ok], return_inverse=True)
+    ww = np.bincount(inv, weights=w[ok])
+    cnt = np.bincount(inv)
+    xm = np.bincount(inv, weights=w[ok] * x[ok]) / np.maximum(ww, 1e-300)
+    tm = np.bincount(inv, weights=w[ok] * t[ok]) / np.maximum(ww, 1e-300)
+    rep = cnt[inv] >= 2
+    idx = np.flatnonzero(ok)[rep]
+    xo[idx] = x[ok][rep] - xm[inv][rep]
+    to[idx] = t[ok][rep] - tm[inv][rep]
+    return xo, to
+
+
+def _trend(x: np.ndarray, t: np.ndarray, w: np.ndarray, groups: np.ndarray,
+           clusters: np.ndarray, span: float) -> tuple[float, float] | None:
+    """Change of ``x`` over ``span`` of time and its z-value: within replicate groups when
+    enough samples are replicated (the model's error at a pose cancels there), else on the
+    means of independent clusters of samples."""
+    xw, tw = _within(x, t, w, groups)
+    ok = np.isfinite(xw) & np.isfinite(tw)
+    if ok.sum() >= 8 and len(np.unique(groups[ok])) >= 3 and np.ptp(tw[ok]) > 0:
+        return _slope(xw, tw, w, span)
+    return _slope(*_by_cluster(x, t, w, clusters), span)
+
+
+def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray, span: float | None = None
+           ) -> tuple[float, float] | None:
+    """Change of ``x`` over ``span`` (default: the span of ``t``) by weighted least squares,
+    and its z-value."""
     ok = np.isfinite(x) & np.isfinite(t)
     if ok.sum() < 6:
         return None
@@ -312,4 +355,4 @@ def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray) -> tuple[float, float] |
     res = xx - xm - b * (tt - tm)
     var = np.sum(ww * res ** 2) / max(sw - 2, 1)
     se = math.sqrt(max(var, 1e-12) / stt)
-    return float(b * np.ptp(tt)), float(b / se)
+    return float(b * (np.ptp(tt) if span is None else span)), float(b / se)
