@@ -47,6 +47,7 @@ import numpy as np
 from bench.diagnosis.samples import Samples, pooled_std
 from controller import cables
 from controller.cycle import reference_lengths
+from controller.equilibrium import scaled_residual
 from controller.forward import forward_pose
 from controller.kinematics import gravity_wrench, wrench_matrix
 from controller.pose import cross, euler_rate_matrix
@@ -565,9 +566,16 @@ class ResidualModel:
         for i in todo:
             dl = np.where(self._slipped()[i], H.length_offset, 0.0)
             l0 = unstretched_from_readings(H, s.l_meas[i], self.reference, u0, dl)
-            guess = s.pose_meas[i] if self.has_pose[i] else s.pose_des[i]
-            if not np.isfinite(guess).all():
+            # start where the hypothesis is nearest to balancing: the measured pose (near
+            # the equilibrium of a good hypothesis) or the commanded one (the recording's
+            # model balances there: the controller computed the lengths for it)
+            cands = [g for g in (s.pose_meas[i], s.pose_des[i]) if np.isfinite(g).all()]
+            if not cands:
                 guess = self.init_pose
+            elif len(cands) == 1 or not H.elastic:
+                guess = cands[0]
+            else:
+                guess = min(cands, key=lambda g: scaled_residual(H, l0, g, theta))
             tau_meas = true_tensions(H, s.tau[i]) if self.has_tau[i] else None
             res = forward_pose(H, l0, guess, tensions=tau_meas, theta=theta)
             if not res.success:
