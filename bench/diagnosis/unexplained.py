@@ -327,13 +327,14 @@ def _within(x: np.ndarray, t: np.ndarray, w: np.ndarray, groups: np.ndarray
 
 def _trend(x: np.ndarray, t: np.ndarray, w: np.ndarray, groups: np.ndarray,
            clusters: np.ndarray, span: float) -> tuple[float, float] | None:
-    """Change of ``x`` over ``span`` of time and its z-value: within replicate groups when
-    enough samples are replicated (the model's error at a pose cancels there), else on the
-    means of independent clusters of samples."""
+    """Change of ``x`` over ``span`` of time and its z-value, on the means of independent
+    clusters of samples (rows of neighbouring moves share their errors): of the deviations
+    from their replicate group's mean when enough samples are replicated (the model's error
+    at a pose cancels there), else of ``x`` itself."""
     xw, tw = _within(x, t, w, groups)
     ok = np.isfinite(xw) & np.isfinite(tw)
     if ok.sum() >= 8 and len(np.unique(groups[ok])) >= 3 and np.ptp(tw[ok]) > 0:
-        return _slope(xw, tw, w, span)
+        return _slope(*_by_cluster(xw, tw, w, clusters), span)
     return _slope(*_by_cluster(x, t, w, clusters), span)
 
 
