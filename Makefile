@@ -22,7 +22,9 @@ demo: $(STAMP)
 	$(VENV)/bin/cdpr dry-run paper-centre --record $(DEMO)/dryrun --force --plots $(DEMO)/dryrun_plots
 	$(VENV)/bin/cdpr model check rocaspect --plot $(DEMO)/workspace.png
 	$(VENV)/bin/cdpr campaign bench/data/paper_scenario.toml $(DEMO)/recording --force
-	$(VENV)/bin/cdpr diagnose $(DEMO)/recording --plots $(DEMO)/plots --write-model $(DEMO)/corrected.toml
+	$(VENV)/bin/cdpr diagnose $(DEMO)/recording --plots $(DEMO)/plots --write-model $(DEMO)/corrected.toml --out $(DEMO)/report.json
+	@echo "== the scenario's concealed truth beside what the diagnosis found (it never read the scenario)"
+	$(VENV)/bin/cdpr compare bench/data/paper_scenario.toml $(DEMO)/report.json
 	$(VENV)/bin/cdpr diagnose examples/paper_tables --plots $(DEMO)/paper_plots
 
 test: $(STAMP)

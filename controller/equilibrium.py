@@ -280,6 +280,17 @@ def solve_equilibrium(robot: Robot, l0: np.ndarray, guess: np.ndarray,
     return min((res, descent, polished), key=lambda x: x.residual)
 
 
+def scaled_residual(robot: Robot, l0: np.ndarray, pose: np.ndarray,
+                    theta: np.ndarray | None = None) -> float:
+    """Norm of the equilibrium residual at ``pose`` (mast rotations ``theta``, default none),
+    scaled as :func:`solve_equilibrium` scales it: how far a candidate start is from
+    balancing (to choose among guesses)."""
+    a_star, r, S = _fixed(robot)
+    th = np.zeros((robot.n_masts, 3)) if theta is None else np.asarray(theta, dtype=float)
+    T = _terms(robot, np.asarray(pose, dtype=float), th, np.asarray(l0, dtype=float), a_star, r)
+    return float(np.linalg.norm(S * T.residual))
+
+
 def _energy_descent(robot: Robot, l0: np.ndarray, guess: np.ndarray,
                     theta: np.ndarray | None, tol: float = 1e-10,
                     max_iter: int = 300) -> EquilibriumResult:

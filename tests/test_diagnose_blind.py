@@ -128,3 +128,17 @@ def test_a_slip_in_the_middle_is_located_in_time(diagnosed):
 def test_no_step_is_found_without_a_slip(diagnosed):
     for name in ("none.toml", "mast_compliance.toml", "drum_scale.toml"):
         assert diagnosed(name)[2].report["mismatch"]["steps"] == []
+
+
+def test_forward_figures_converge_by_newton_under_a_model_far_from_the_truth(diagnosed):
+    """The baseline figures solve each sample's equilibrium under the recording's model,
+    centimetres from the truth: started where that model nearly balances (the commanded
+    pose), Newton converges without the energy-descent fallback."""
+    from controller import equilibrium
+
+    sc, rec, dg = diagnosed("paper.toml")
+    equilibrium.STATS.reset()
+    fw = dg.rm.forward(dg.recording.robot)
+    stats = equilibrium.STATS.as_dict()
+    assert fw.ok.all() and stats["calls"] == dg.samples.n
+    assert stats["fallbacks"] == 0 and stats["failures"] == 0, stats

@@ -64,17 +64,30 @@ def test_ipanema_with_pulleys_exit_offset(tmp_path):
     assert not s.failures and s.params_total > 0
 
 
-@pytest.mark.parametrize("state", [True, False])
-def test_continuous_recording(tmp_path, state):
+@pytest.fixture(scope="module")
+def continuous(tmp_path_factory):
+    """A continuous recording at 10 Hz along straight moves between four targets, no dwells,
+    with a state column: (scenario, recording directory)."""
     truth = {"exit_point_offset": {"dx_21": 0.03, "dy_32": -0.025}}
     poses = {"kind": "list", "visits": 2, "speed_m_s": 0.5, "init_s": 2.0,
              "list": [[5.0, 5.0, 1.0, 0, 0, 0], [15.0, 5.0, 1.2, 0, 0, 0],
                       [15.0, 12.0, 1.0, 0, 0, 0], [6.0, 12.0, 1.4, 0, 0, 0]]}
-    sc, rec, dg = run(tmp_path, scenario(truth=truth, poses=poses, recording={
+    sc = parse_scenario(scenario(truth=truth, poses=poses, recording={
         "kind": "continuous", "dwell_at_targets": False, "rate_hz": 10.0,
-        "state_column": state}))
+        "state_column": True}))
+    return sc, run_campaign(sc, tmp_path_factory.mktemp("continuous") / "rec")
+
+
+@pytest.mark.parametrize("state", [True, False])
+def test_continuous_recording(continuous, tmp_path, state):
+    """Diagnosed from its quiet rows of moves, with the state column or without it (the same
+    rows: the diagnosis must find the moves and dwells by itself)."""
+    sc, rec = continuous
+    if not state:
+        rec = _edit_csv(rec, tmp_path / "stateless", _drop_column("state"))
     r = read_recording(rec)
     assert (r.state is not None) == state and r.n_samples > 300
+    dg = diagnose(rec)
     info = dg.report["mismatch"]["samples"]
     assert info["path_samples"] > 20 and info["dwell_samples"] < 5
     assert named(dg) == {"exit_point_offset"}, dg.report["mismatch"]["summary"]
@@ -130,6 +143,14 @@ def _edit_csv(src: Path, dst: Path, fn) -> Path:
     return dst
 
 
+def _drop_column(name: str):
+    def drop(rows):
+        k = rows[0].index(name)
+        for r in rows:
+            del r[k]
+    return drop
+
+
 def test_an_impossible_tension_is_excluded_by_line_and_column(plain, tmp_path):
     def spoil(rows):
         col = rows[0].index("tau_31")
@@ -141,6 +162,23 @@ def test_an_impossible_tension_is_excluded_by_line_and_column(plain, tmp_path):
     assert [(e["row"], e["column"]) for e in ex] == [(41, "tau_31")]
     assert dg.report["effects"] == [] and dg.report["unexplained"] is None
     assert np.isfinite(dg.report["mismatch"]["noise"]["force"])
+
+
+def test_sagging_hypotheses_are_continuous_with_straight_cables_at_slack_ones(plain):
+    """A cable read as slack (its load cell about zero) says only that it is at least as long
+    as the straight line, sagging model or not: a hypothesis with nearly weightless cables
+    gives the residuals of straight ones (a sag fit starts there)."""
+    from bench.diagnosis.residuals import ResidualModel
+    from bench.diagnosis.samples import prepare
+
+    rec = read_recording(plain)
+    s = prepare(rec)
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
+    rm.estimate_noise(rec.robot)
+    assert (s.tau < rm.slack_threshold).any()  # the recording has slack cables
+    r0 = rm.whitened(rec.robot)
+    r1 = rm.whitened(rec.robot.replace(rho=1e-4))  # 0.1 g/m: 1.5 g for a 15 m cable
+    assert np.max(np.abs(r1 - r0)) < 0.5 and abs(r1 @ r1 - r0 @ r0) < 0.02 * (r0 @ r0)
 
 
 def test_tensions_in_the_wrong_unit_are_refused(plain, tmp_path, capsys):
@@ -180,6 +218,34 @@ def test_backlash_on_one_cable_is_declared_not_named(tmp_path):
     assert "21" in un["summary"]
     assert all(e.get("provisional") for e in dg.report["effects"])
     assert "does not explain" in dg.report["mismatch"]["summary"]
+    # the lengths depend on the direction, the load cells do not
+    assert "load_cell_direction_cables" not in un
+    assert max(abs(v["z"]) for v in un["load_cell_direction"].values()) < 8.0
+
+
+def test_friction_at_one_load_cell_is_declared_with_its_cable(tmp_path):
+    """The cell of cable 21 reads 8 N less while its cable pays out, 8 N more while it reels
+    in: the report says which load cell reads by the direction of motion, and how much."""
+    sc, _, dg = run(tmp_path, scenario(nuisance={"friction_n": 8.0, "friction_cables": ["21"]},
+                                       poses=GRID | {"n": [4, 3, 1], "visits": 3}))
+    un = dg.report["unexplained"]
+    assert un is not None, dg.report["mismatch"]["summary"]
+    assert un["load_cell_direction_cables"] == ["21"], un["summary"]
+    assert "load cell of cable 21" in un["summary"]
+    assert 12.0 < un["load_cell_direction"]["21"]["difference_n"] < 20.0  # truth 16 N
+    assert all(e.get("provisional") for e in dg.report["effects"])
+
+
+@pytest.mark.parametrize("truth", [
+    {"load_cell_calibration": {"gain_21": 1.04, "gain_32": 0.97, "offset_41": 8.0}},
+    {"platform_mass": {"mass": 38.0, "com_x": 0.02}},
+], ids=["load_cells", "mass"])
+def test_no_direction_dependent_load_cell_without_friction(tmp_path, truth):
+    """Miscalibrated load cells or another mass change the force balance by pose, never by
+    the direction of motion: named, and nothing declared unexplained."""
+    sc, _, dg = run(tmp_path, scenario(truth=truth))
+    assert named(dg) == set(truth), dg.report["mismatch"]["summary"]
+    assert dg.report["unexplained"] is None, dg.report["unexplained"]["summary"]
 
 
 def test_thermal_drift_is_declared_not_named(tmp_path):
@@ -197,6 +263,13 @@ def test_a_slip_never_applies_to_the_initialisation(tmp_path):
     assert np.all(rm.slip_times >= rm.init_end)
     assert named(dg) == {"cable_length_offset"}
     assert abs(dg.report["effects"][0]["params"]["dl_31"] - 0.004) < 5e-4
+    # the initialisation sample keeps the reading as referenced: the fitted model leaves it
+    # at the noise (with the offset applied there too it would stand 4 mm off)
+    k = sc.model.cable_ids.index("31")
+    init = np.flatnonzero(dg.samples.is_init)
+    left = rm.blocks(dg.fitted_robot).length[init, k]
+    assert np.all(np.abs(left) < 5 * rm.sd["length"][init]), left
+    assert dg.report["unexplained"] is None, dg.report["unexplained"]["summary"]
 
 
 def test_corrected_model_writes_only_what_the_report_names(tmp_path):

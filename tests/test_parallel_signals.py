@@ -53,6 +53,11 @@ if __name__ == "__main__":
 '''
 
 
+def _default_signals() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def _alive(pid: int) -> bool:
     try:
         with open(f"/proc/{pid}/status", encoding="ascii") as f:
@@ -80,8 +85,11 @@ def test_workers_end_with_their_parent(tmp_path, script, sig):
     src = tmp_path / "parent.py"
     src.write_text(textwrap.dedent(RUN_EACH if script == "run_each" else POOL))
     env = dict(os.environ, PYTHONPATH=str(ROOT))
+    # the parent starts with default signal dispositions (a shell that runs the tests in
+    # the background leaves SIGINT ignored, and Python then keeps ignoring it)
     proc = subprocess.Popen([sys.executable, str(src), str(tmp_path)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            preexec_fn=_default_signals)
     workers: list[int] = []
     try:
         assert _wait(lambda: len(list(tmp_path.glob("w*"))) == 2, 60), \

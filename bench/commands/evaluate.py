@@ -241,7 +241,9 @@ def _rate_line(label: str, r: dict) -> str:
             f"{r['in_vocabulary']}, false positives {_pct(fp)}, unexplained declared "
             f"{r['unexplained_declared_in_vocabulary']}, seconds median "
             + ("n/a" if r.get("median_case_s") is None else f"{r['median_case_s']:.1f}")
-            + ", max " + ("n/a" if r.get("max_case_s") is None else f"{r['max_case_s']:.1f}"))
+            + ", max " + ("n/a" if r.get("max_case_s") is None else f"{r['max_case_s']:.1f}")
+            + ("" if r.get("median_case_cpu_s") is None else
+               f" (processor {r['median_case_cpu_s']:.1f}, max {r['max_case_cpu_s']:.1f})"))
 
 
 def human(summary: dict, errors: list[dict], seeds: range) -> str:
@@ -279,7 +281,10 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
              "  held-out / noise     " + ("n/a" if s["heldout_over_noise_median"] is None
                                           else f"{s['heldout_over_noise_median']:.2f} (median)"),
              "  seconds per case     " + ("n/a" if med is None else
-                                          f"{med:.1f} (median), {s['max_case_s']:.1f} (max)"),
+                                          f"{med:.1f} (median), {s['max_case_s']:.1f} (max)")
+             + ("" if s.get("median_case_cpu_s") is None else
+                f"; processor seconds {s['median_case_cpu_s']:.1f} (median), "
+                f"{s['max_case_cpu_s']:.1f} (max), {s['cases_over_60_cpu_s']} over 60"),
              "  by robot:"]
     lines += [_rate_line(k, v) for k, v in s["by_robot"].items()]
     lines.append("  by recording kind:")

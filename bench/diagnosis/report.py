@@ -322,7 +322,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     fit_fw = rm.forward(fitted)
     fit_blocks = rm.blocks(fitted)
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
-                                   model.pivots, model.mast_ids)
+                                   model.pivots, model.mast_ids, fitted)
     if leftover is not None:
         say("unexplained: " + leftover["summary"])
 

@@ -27,8 +27,15 @@ Noise: each sample's residual has the variance ``sigma_p^2 + sigma_w^2 / count``
 ``sigma_w`` the row-to-row (white) noise, from second differences of raw rows;
 ``sigma_p`` what changes between visits of one pose (repeatability), from
 replicate groups. Rows of a move count with their weight (they share slow
-errors). Forward figures (:meth:`ResidualModel.forward`) solve the equilibrium of
-each sample under the hypothesis and compare poses and tensions: the headline.
+errors). Where per-sample unknowns are solved for (an estimated pose, internal
+forces), a sample's length residual is the noise projected onto the ``r`` of ``n``
+directions the unknowns leave (``r = n - 6`` without a tracker pose, ``r = 6``
+without tensions): its spread measured on replicates is ``r / n`` of the readings'
+noise, which is what whitens it (each such residual counts ``r / n`` of a degree of
+freedom, :meth:`ResidualModel.dof_lost`), so that a parameter fitted to noise lowers
+the chi-square by one, not by ``n / r``. Forward figures
+(:meth:`ResidualModel.forward`) solve the equilibrium of each sample under the
+hypothesis and compare poses and tensions: the headline.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ import numpy as np
 from bench.diagnosis.samples import Samples, pooled_std
 from controller import cables
 from controller.cycle import reference_lengths
+from controller.equilibrium import scaled_residual
 from controller.forward import forward_pose
 from controller.kinematics import gravity_wrench, wrench_matrix
 from controller.pose import cross, euler_rate_matrix
@@ -117,6 +125,11 @@ class ResidualModel:
         self.has_len = have_l & (self.has_pose | self.est_pose)
         self.has_exit = np.isfinite(s.exit_meas).all(axis=2) & self.has_pose[:, None]
         self.any_tau = bool(self.has_tau.any())
+        # directions of a sample's length residual left by its per-sample unknowns (of n)
+        rank = np.full(s.n, float(n))
+        rank[self.est_pose] = max(n - 6, 1)
+        rank[self.has_pose & ~self.has_tau] = min(6, n)
+        self.len_rank = np.where(self.has_len, rank, float(n))
         self.sigma = {k: DEFAULTS[k] for k in BLOCKS}
         self.white = dict(WHITE_DEFAULTS)
         # by sample kind: 0 dwell samples, 1 rows of moves
@@ -136,12 +149,25 @@ class ResidualModel:
             self.rows = ResidualModel(rows, model, init_pose, tau0, self.slip_times)
         self._update_sd()
 
+    def _slipped(self) -> np.ndarray:
+        """(N,n) where a cable's length offset applies: from its slip time on, never to a
+        sample or row of the initialisation (the encoders are referenced there)."""
+        return (self.s.t[:, None] >= self.slip_times) & ~self.s.is_init[:, None]
+
     # ----- degrees of freedom -------------------------------------------------------
     def dof_lost(self, idx: np.ndarray | None = None) -> float:
-        """Residual degrees of freedom taken by per-sample unknowns (estimated poses, internal
-        forces). None: the noise of those residuals is measured on the residuals themselves
-        (their replicate spread), so each entry counts as one."""
-        return 0.0
+        """Residual degrees of freedom taken by per-sample unknowns (an estimated pose: 6 of
+        a sample's n length residuals; internal forces without tensions: n - 6), weighted
+        like the entries (:meth:`entry_weights`)."""
+        sl = slice(None) if idx is None else idx
+        n = self.model.n_cables
+        lost = (n - self.len_rank[sl]) * self.has_len[sl]
+        return float(np.sum(self.s.weight[sl] * lost))
+
+    def rank_factor(self) -> np.ndarray:
+        """sqrt(n / r) per sample (N,): a length residual projected onto r of n directions,
+        divided by this, has the variance of the readings' noise."""
+        return np.sqrt(self.model.n_cables / self.len_rank)
 
     # ----- inverse residuals --------------------------------------------------------
     def blocks(self, H: Robot) -> Blocks:
@@ -157,7 +183,7 @@ class ResidualModel:
             u0, _ = init_unstretched(H, self.init_pose, tau0)
         except ValueError:
             return Blocks(length, wrench, exits_err, ok, None, poses)
-        dl = np.where(s.t[:, None] >= self.slip_times, H.length_offset, 0.0)
+        dl = np.where(self._slipped(), H.length_offset, 0.0)
         read = unstretched_from_readings(H, s.l_meas, self.reference, u0, dl)
         if self.est_pose.any():
             poses[self.est_pose] = self._estimate_poses(H, read)
@@ -180,13 +206,23 @@ class ResidualModel:
                 dT = 0.5
                 l_up = cables.from_tensions(H, bs.state, tau + dT)[1]
                 extra[m] = np.abs(l_up - bs.unstretched) / dT * self.tau_noise[m][:, None]
-            # a slack cable only says it is at least as long as the straight line
+            # a slack cable only says it is at least as long as the straight line (its
+            # reading is noise about zero: a sagging model would hang it at that tension
+            # from its exit point, metres long)
             slack = tau < self.slack_threshold
             slack_all[m] = slack
-            lres = np.where(slack, np.maximum(lres, 0.0), lres)
+            if slack.any():
+                chord = bs.state.length / (1.0 + np.maximum(tau, 0.0) / H.ea)
+                lres = np.where(slack, np.maximum(chord - read[m], 0.0), lres)
+                if extra is not None:
+                    extra[m] = np.where(slack, 0.0, extra[m])
             length[m] = lres
             f = bs.platform_forces
             st = bs.state
+            if H.rho > 0 and slack.any():
+                # a slack cable's reading (noise about zero, negative too) pulls along the
+                # chord, as under a straight model: no catenary at a made-up tension
+                f = np.where(slack[..., None], tau[..., None] * st.u, f)
             wg = gravity_wrench(H.mass, H.com, H.gravity, st.R)
             wr = np.concatenate([f.sum(axis=-2), cross(st.Rb, f).sum(axis=-2)], axis=-1) + wg
             # in load-cell units: a hypothesis must not shrink the sensor noise by its gains
@@ -380,10 +416,12 @@ class ResidualModel:
             out[name] = max(float(np.sqrt(np.mean(d2[keep] ** 2) / 6.0)), FLOORS[name])
         return out
 
-    @staticmethod
-    def _block_values(b: Blocks) -> dict[str, np.ndarray]:
-        """Residual blocks for noise estimates (slack cables' one-sided residuals left out)."""
+    def _block_values(self, b: Blocks) -> dict[str, np.ndarray]:
+        """Residual blocks for noise estimates (slack cables' one-sided residuals left out;
+        length residuals projected by per-sample unknowns scaled back to the readings'
+        noise)."""
         length = b.length if b.slack is None else np.where(b.slack, np.nan, b.length)
+        length = length * self.rank_factor()[:, None]
         return {"length": length, "force": b.wrench[:, :3], "moment": b.wrench[:, 3:],
                 "exit": b.exit.reshape(len(b.exit), -1)}
 
@@ -526,11 +564,18 @@ class ResidualModel:
                                                                          np.flatnonzero(have_l))
         theta = None
         for i in todo:
-            dl = np.where(s.t[i] >= self.slip_times, H.length_offset, 0.0)
+            dl = np.where(self._slipped()[i], H.length_offset, 0.0)
             l0 = unstretched_from_readings(H, s.l_meas[i], self.reference, u0, dl)
-            guess = s.pose_meas[i] if self.has_pose[i] else s.pose_des[i]
-            if not np.isfinite(guess).all():
+            # start where the hypothesis is nearest to balancing: the measured pose (near
+            # the equilibrium of a good hypothesis) or the commanded one (the recording's
+            # model balances there: the controller computed the lengths for it)
+            cands = [g for g in (s.pose_meas[i], s.pose_des[i]) if np.isfinite(g).all()]
+            if not cands:
                 guess = self.init_pose
+            elif len(cands) == 1 or not H.elastic:
+                guess = cands[0]
+            else:
+                guess = min(cands, key=lambda g: scaled_residual(H, l0, g, theta))
             tau_meas = true_tensions(H, s.tau[i]) if self.has_tau[i] else None
             res = forward_pose(H, l0, guess, tensions=tau_meas, theta=theta)
             if not res.success:

@@ -499,7 +499,7 @@ def _triples(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
     n = rec.robot.n_cables
     return Samples(rec.t[rows], rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows],
                    rec.tau[rows], rec.exit_meas[rows], np.ones(len(rows), dtype=int),
-                   np.arange(len(rows)), np.zeros(len(rows), dtype=bool),
+                   np.arange(len(rows)), np.isin(rows, rec.init_rows),
                    kind=np.repeat(kinds, 3), direction=np.zeros((len(rows), n)), row=rows + 2)
 
 

@@ -11,7 +11,13 @@ that the effect vocabulary lacks:
 - **direction of motion**: a cable whose residual differs with the direction of
   its last length change (backlash, friction): a two-group comparison;
 - **time**: residuals that trend with time (thermal drift, creep): a regression on
-  time, per cable and common to all;
+  time within replicate groups (the model's error at a pose cancels there; on
+  independent clusters of samples when few are replicated), per cable and common to
+  all;
+- **load cells by direction of motion**: a load cell that reads differently while its
+  cable pays out and while it reels in (friction between the cell and the platform,
+  e.g. on a pulley): the force balance's residuals regressed on each cable's force
+  direction signed by its last move (:func:`_cell_direction`);
 - **regions** of the workspace where the residual is largest.
 
 :func:`analyse` returns the report's ``unexplained`` object, or None when the
@@ -40,8 +46,9 @@ CABLE_RATIO = 2.0
 
 
 def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: np.ndarray,
-            pivots: np.ndarray, mast_ids: tuple[str, ...]) -> dict | None:
-    """The ``unexplained`` object for the fitted model's residual blocks ``b``."""
+            pivots: np.ndarray, mast_ids: tuple[str, ...], fitted=None) -> dict | None:
+    """The ``unexplained`` object for the fitted model's residual blocks ``b`` (``fitted``:
+    the corrected robot, for the load cells' direction test)."""
     model = rm.model
     s = rm.s
     w = rm.s.weight
@@ -65,7 +72,8 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                  "noise_source": rm.sigma_source}
 
     # per cable, per mast: whitened length residual RMS
-    L = b.length / rm.sd["length"][:, None]
+    # in noise units (a residual projected by per-sample unknowns scaled back)
+    L = b.length / rm.sd["length"][:, None] * rm.rank_factor()[:, None]
     L = np.where(rm.has_len[:, None], L, np.nan)
     if np.isfinite(L).any():
         per = np.array([_wrms(L[:, k], w) for k in range(model.n_cables)])
@@ -104,16 +112,19 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
         # of a target are apart in time), stretches of moves otherwise
         moves = bool((s.kind == 1).any()) and s.cluster is not None and len(s.cluster) == s.n
         clusters = s.cluster if moves else np.arange(s.n)
-        if np.ptp(s.t) > 0:
+        span = float(np.ptp(s.t))
+        if span > 0:
             trend = []
             for k, cid in enumerate(model.cable_ids):
-                tr = _slope(*_by_cluster(L[:, k], tt, w, clusters))
+                tr = _trend(L[:, k], tt, w, s.target, clusters, span)
                 if tr is not None:
                     trend.append((cid, *tr))
-            common = _slope(*_by_cluster(np.nanmean(L, axis=1), tt, w, clusters))
-            out["time"] = {"span_s": float(np.ptp(s.t)),
+            common = _trend(np.nanmean(L, axis=1), tt, w, s.target, clusters, span)
+            out["time"] = {"span_s": span,
                            "by_cable": {c: {"drift_over_noise": _r(d), "z": _r(z)}
                                         for c, d, z in trend}}
+            if common is not None:
+                out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
             strong = [(c, d, z) for c, d, z in trend
                       if abs(z) > STRUCT_Z and abs(d) > STRUCT_SIZE]
             if strong:
@@ -126,8 +137,28 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 else:
                     findings.append(f"cable {c}'s length residual drifts with time "
                                     f"({abs(d):.1f} times the noise over the recording)")
-            if common is not None:
-                out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
+            elif common is not None and abs(common[1]) > STRUCT_Z \
+                    and abs(common[0]) > STRUCT_SIZE:
+                findings.append(f"the length residuals of the cables drift together with time "
+                                f"({abs(common[0]):.1f} times the noise over the recording; "
+                                f"thermal expansion or creep?)")
+    # load cells reading differently by the direction of motion (pulley friction)
+    if fitted is not None and rm.any_tau:
+        fr = _cell_direction(rm, b, fitted)
+        if fr is not None:
+            out["load_cell_direction"] = {c: {"difference_n": _r(2 * f), "z": _r(z)}
+                                          for c, f, z in fr}
+            strong = [(c, f, z) for c, f, z in fr
+                      if abs(z) > STRUCT_Z and abs(f) > STRUCT_SIZE * _force_noise(rm)]
+            if strong:
+                top = max(abs(f) for _, f, _ in strong)
+                which = (f"the load cell of cable {strong[0][0]} reads" if len(strong) == 1
+                         else f"the load cells of cables {', '.join(c for c, _, _ in strong)} "
+                              f"read")
+                findings.append(f"{which} differently by the direction of the cable's last "
+                                f"move (up to {2 * top:.1f} N between paying out and reeling "
+                                f"in; friction between the cell and the platform?)")
+                out["load_cell_direction_cables"] = [c for c, _, _ in strong]
     # where in the workspace
     regions = locate.regions(s_regions, np.sqrt(np.where(ok, chi / np.maximum(
         _entries_per_sample(rm), 1), np.nan)), init_pose, pivots, mast_ids,
@@ -142,6 +173,84 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     out["findings"] = findings
     out["summary"] = "; ".join(findings)
     return out
+
+
+def _force_noise(rm: ResidualModel) -> float:
+    """The load cells' row-to-row noise in the force balance [N] (what a direction-dependent
+    reading stands against: the replicate spread already holds the friction itself)."""
+    return max(min(rm.white_k[0]["force"], rm.white_k[1]["force"]), 0.1)
+
+
+def _cell_direction(rm: ResidualModel, b: Blocks, robot) -> list | None:
+    """Per cable, half the difference of its load cell's reading between paying out and
+    reeling in [N] and its z-value: the force balance's residuals (N, 6) regressed on
+    ``d_k (u_k; R b_k x u_k)`` (d_k the sign of cable k's last move, u_k the direction of
+    its force on the platform).
+
+    Feasible generalised least squares: forces and moments are weighted by the spread of
+    their own residuals after the regression (the replicate spread of the noise model
+    holds the friction itself; a row-to-row spread starts it). Standard errors are
+    cluster-robust over the recording's error clusters (a target's visits, stretches of
+    moves), never below the classical ones. Only cables whose last move had both signs
+    over the samples are tested (one sign only: a load-cell offset, fitted already).
+    """
+    from controller.pose import cross
+    from controller.statics import batch_statics, true_tensions
+
+    s = rm.s
+    sel = np.flatnonzero(rm.has_tau & np.isfinite(b.wrench).all(axis=1)
+                         & np.isfinite(b.poses).all(axis=1))
+    if len(sel) < 12:
+        return None
+    d = s.direction[sel]
+    both = (d > 0).sum(axis=0) >= 3
+    both &= (d < 0).sum(axis=0) >= 3
+    if not both.any():
+        return None
+    bs = batch_statics(robot, b.poses[sel], true_tensions(robot, s.tau[sel]))
+    pf = bs.platform_forces
+    size = np.linalg.norm(pf, axis=-1, keepdims=True)
+    u = np.where(size > 1.0, pf / np.maximum(size, 1e-9), bs.state.u)
+    X = np.concatenate([u, cross(bs.state.Rb, u)], axis=-1) * d[..., None]  # (m, n, 6)
+    A0 = np.swapaxes(X, 1, 2)[:, :, both]  # (m, 6, k)
+    y0 = b.wrench[sel]
+    if not np.isfinite(A0).all():
+        return None
+    w = s.weight[sel]
+    sw = np.sqrt(w)
+    sig = np.array([_force_noise(rm)] * 3 + [max(min(rm.white_k[0]["moment"],
+                                                     rm.white_k[1]["moment"]), 0.05)] * 3)
+    k = int(both.sum())
+    for _ in range(3):
+        wt = sw[:, None] / sig[None, :]
+        A = (A0 * wt[:, :, None]).reshape(-1, k)
+        y = (y0 * wt).ravel()
+        coef, *_ = np.linalg.lstsq(A, -y, rcond=None)
+        res = y0 + A0 @ coef  # (m, 6) in N and N m
+        new = np.array([np.sqrt(np.sum(w[:, None] * res[:, :3] ** 2) / (3 * w.sum()))] * 3
+                       + [np.sqrt(np.sum(w[:, None] * res[:, 3:] ** 2) / (3 * w.sum()))] * 3)
+        sig = np.maximum(new, 0.05)
+    wt = sw[:, None] / sig[None, :]
+    A = (A0 * wt[:, :, None]).reshape(-1, k)
+    y = (y0 * wt).ravel()
+    coef, *_ = np.linalg.lstsq(A, -y, rcond=None)
+    r = y + A @ coef
+    AtA = A.T @ A
+    try:
+        bread = np.linalg.inv(AtA)
+    except np.linalg.LinAlgError:
+        return None
+    dof = max(len(y) - k, 1)
+    var = np.diag(bread) * max(float(r @ r) / dof, 1e-12)  # classical
+    groups = s.cluster if s.cluster is not None and len(s.cluster) == s.n else s.block
+    ug, inv = np.unique(np.repeat(groups[sel], 6), return_inverse=True)
+    if len(ug) > 2 * k:  # cluster-robust (sandwich), never below the classical
+        sc = np.zeros((len(ug), k))
+        np.add.at(sc, inv, A * r[:, None])
+        var = np.maximum(var, np.diag(bread @ (sc.T @ sc) @ bread) * len(ug) / (len(ug) - 1))
+    se = np.sqrt(np.clip(var, 1e-300, None))
+    ids = [c for c, kk in zip(rm.model.cable_ids, both, strict=True) if kk]
+    return [(c, float(f), float(f / e)) for c, f, e in zip(ids, coef, se, strict=True)]
 
 
 def _entries_per_sample(rm: ResidualModel) -> np.ndarray:
@@ -195,8 +304,44 @@ def _by_cluster(x: np.ndarray, t: np.ndarray, w: np.ndarray, clusters: np.ndarra
     return xm, tm, np.ones(len(ww))
 
 
-def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray) -> tuple[float, float] | None:
-    """Change of ``x`` over the span of ``t`` by weighted least squares, and its z-value."""
+def _within(x: np.ndarray, t: np.ndarray, w: np.ndarray, groups: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` and ``t`` less their weighted means over each replicate group of two or more
+    finite samples (NaN elsewhere): what repeats at a pose cancels, a drift in time does
+    not."""
+    ok = np.isfinite(x) & np.isfinite(t)
+    xo, to = np.full(len(x), np.nan), np.full(len(t), np.nan)
+    if not ok.any():
+        return xo, to
+    _, inv = np.unique(groups[ok], return_inverse=True)
+    ww = np.bincount(inv, weights=w[ok])
+    cnt = np.bincount(inv)
+    xm = np.bincount(inv, weights=w[ok] * x[ok]) / np.maximum(ww, 1e-300)
+    tm = np.bincount(inv, weights=w[ok] * t[ok]) / np.maximum(ww, 1e-300)
+    rep = cnt[inv] >= 2
+    idx = np.flatnonzero(ok)[rep]
+    xo[idx] = x[ok][rep] - xm[inv][rep]
+    to[idx] = t[ok][rep] - tm[inv][rep]
+    return xo, to
+
+
+def _trend(x: np.ndarray, t: np.ndarray, w: np.ndarray, groups: np.ndarray,
+           clusters: np.ndarray, span: float) -> tuple[float, float] | None:
+    """Change of ``x`` over ``span`` of time and its z-value, on the means of independent
+    clusters of samples (rows of neighbouring moves share their errors): of the deviations
+    from their replicate group's mean when enough samples are replicated (the model's error
+    at a pose cancels there), else of ``x`` itself."""
+    xw, tw = _within(x, t, w, groups)
+    ok = np.isfinite(xw) & np.isfinite(tw)
+    if ok.sum() >= 8 and len(np.unique(groups[ok])) >= 3 and np.ptp(tw[ok]) > 0:
+        return _slope(*_by_cluster(xw, tw, w, clusters), span)
+    return _slope(*_by_cluster(x, t, w, clusters), span)
+
+
+def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray, span: float | None = None
+           ) -> tuple[float, float] | None:
+    """Change of ``x`` over ``span`` (default: the span of ``t``) by weighted least squares,
+    and its z-value."""
     ok = np.isfinite(x) & np.isfinite(t)
     if ok.sum() < 6:
         return None
@@ -211,4 +356,4 @@ def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray) -> tuple[float, float] |
     res = xx - xm - b * (tt - tm)
     var = np.sum(ww * res ** 2) / max(sw - 2, 1)
     se = math.sqrt(max(var, 1e-12) / stt)
-    return float(b * np.ptp(tt)), float(b / se)
+    return float(b * (np.ptp(tt) if span is None else span)), float(b / se)
