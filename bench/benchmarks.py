@@ -23,6 +23,7 @@ MODULES: tuple[str, ...] = (
     "bench.bench_hil",
     "bench.bench_trajectory",
     "bench.bench_dryrun",
+    "bench.bench_paper",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}

@@ -76,10 +76,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--jobs", type=int, default=2, metavar="N",
                    help="runs in parallel processes [2]")
     g.add_argument("--models", metavar="LIST", default=None,
-                   help="controller models, of nominal, remeasured, compliant, diagnosed "
+                   help="controller models, of nominal, remeasured, compliant, diagnosed, and "
+                        "for paper-paths planned (the measured-vs-planned tensions comparison) "
                         "[paper-paths: all; paper-poses: nominal,remeasured]")
     g.add_argument("--diagnosed-model", metavar="ROBOT.toml", default=None,
                    help="the diagnosed model: this corrected robot.toml (no calibration run)")
+    g.add_argument("--cases", metavar="LIST", default=None,
+                   help="paper-paths: cases as PATH/INIT, e.g. side/centre [the four of "
+                        "Table 3]")
+    g.add_argument("--sets", metavar="LIST", default=None,
+                   help="paper-poses: pose sets, of violet, pink, gold [all three]")
     g.add_argument("--cycles", type=int, default=30, metavar="N",
                    help="paper-poses: visits of each pose [30]")
     g.add_argument("--speeds", metavar="LIST", default=None,

@@ -87,8 +87,8 @@ HEAVY_SCENARIO = "paper-heavy"
 #: control rate of the campaigns [Hz] (the figures do not depend on it: README, paper
 #: section; ``--rate`` changes it)
 PATHS_RATE_HZ = 64.0
-POSES_RATE_HZ = 16.0
-CALIBRATION_RATE_HZ = 16.0
+POSES_RATE_HZ = 32.0
+CALIBRATION_RATE_HZ = 32.0
 #: plant settles per simulated second: path runs 20 (the dry run's default); pose and
 #: calibration campaigns 5 (they measure at dwells of 3 s, long after the plant settled)
 PATHS_PLANT_HZ = 20.0
@@ -108,14 +108,15 @@ class RunSpec:
     ``scenario`` the truth (its ``init_pose`` is where the plant starts; the loop measures
     it with the tracker); ``robot`` the controller's model, or ``robot_file`` a robot.toml
     to read when the run starts (a model another item writes, e.g. the diagnosis);
-    ``path`` a path file (name or file); ``speed_pct`` the velocity as a percentage of the
-    path's maximum (None: the path's); ``rate_hz`` the control (SYNC) rate;
-    ``plant_rate_hz`` plant settles per simulated second; ``mast_tensions`` "measured" or
-    "planned"; ``record`` the recording directory (replaced); ``kind`` "path", "pose" (the
-    ISO figures computed) or "record" (none); ``max_duration_s`` stops the trajectory early
-    (tests); ``progress`` a file the run writes its fraction done to; ``stop_file`` a file
-    whose appearance stops the run (quick stop, recording kept); ``tags`` free data copied
-    into the result (case, model, ...).
+    ``path`` a path file (name or file) or a parsed :class:`controller.paths.PathSpec`;
+    ``speed_pct`` the velocity as a percentage of the path's maximum (None: the path's);
+    ``rate_hz`` the control (SYNC) rate; ``plant_rate_hz`` plant settles per simulated
+    second; ``mast_tensions`` "measured" or "planned"; ``record`` the recording directory
+    (replaced); ``kind`` "path", "pose" (the ISO figures computed) or "record" (none);
+    ``max_duration_s`` stops the trajectory this long after the approach to the path ended
+    (shortened campaigns, tests); ``progress`` a file the run writes its fraction done to;
+    ``stop_file`` a file whose appearance stops the run (quick stop, recording kept);
+    ``tags`` free data copied into the result (case, model, ...).
     """
 
     label: str
@@ -299,8 +300,12 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
     def progress(res, t_traj: float) -> None:
         _write_progress(spec.progress, min(1.0, t_traj / (res.path_s or 1.0)))
 
+    max_s = spec.max_duration_s
+    if max_s is not None:  # counted from the end of the approach to the path
+        approach = build_trajectory(path, spec.scenario.init_pose, limits).segments
+        max_s += max((s.t1 for s in approach if s.cycle < 0), default=0.0)
     opts = LoopOptions(decimate=decimate, mast_tensions=spec.mast_tensions,
-                       max_duration_s=spec.max_duration_s,
+                       max_duration_s=max_s,
                        reactions={"slack": Reaction.LOG})
     with start_world(spec.scenario, winches, "inprocess", False, spec.plant_rate_hz) as world:
         loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,

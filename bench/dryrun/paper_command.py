@@ -90,8 +90,11 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         return _fail(args, 2, f"--duration {args.duration}: must be > 0")
     try:
-        models = _list(args.models, "--models", tuple(paper.MODELS))
+        models = _list(args.models, "--models", tuple(paper.MODELS) + ("planned",))
         speeds = _list(args.speeds, "--speeds", number=True)
+        cases = [tuple(c.split("/")) for c in _list(
+            args.cases, "--cases", tuple(f"{p}/{i}" for p, i in paper.CASES))]
+        sets = _list(args.sets, "--sets", tuple(paper.POSE_SETS))
     except ValueError as exc:
         return _fail(args, 2, str(exc))
     if args.diagnosed_model is not None:
@@ -127,8 +130,12 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         if name == "paper-paths":
-            return _paths(args, paper, work, models, t0)
-        return _poses(args, paper, work, models, speeds, t0)
+            if sets:
+                return _fail(args, 2, "--sets applies to paper-poses")
+            return _paths(args, paper, work, models, cases, t0)
+        if cases:
+            return _fail(args, 2, "--cases applies to paper-paths")
+        return _poses(args, paper, work, models, speeds, sets, t0)
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
@@ -136,21 +143,25 @@ def run(args: argparse.Namespace) -> int:
             shutil.rmtree(work, ignore_errors=True)
 
 
-def _paths(args, paper, work: Path, models: list[str], t0: float) -> int:
+def _paths(args, paper, work: Path, models: list[str], cases: list, t0: float) -> int:
     from bench.dryrun import paper_report as rep
 
     opt = paper.PathsOptions(work=work, max_duration_s=args.duration,
                              diagnosed_model=args.diagnosed_model)
     if models:
         opt.models = tuple(m for m in paper.MODEL_ORDER if m in models)
+        opt.planned = "planned" in models
+    if cases:
+        opt.cases = tuple(c for c in paper.CASES if c in cases)
     if args.rate is not None:
         opt.rate_hz = float(args.rate)
     first, second = paper.paths_plan(opt)
     prog = paper.Progress("paper-paths", len(first) + len(second), args.quiet)
     if not args.quiet:
+        extra = (f", measured vs planned tensions in {opt.heavy_scenario}" if opt.planned
+                 else "")
         print(f"cdpr dry-run paper-paths: {len(first) + len(second)} runs ("
-              f"{', '.join(opt.models)}; 4 cases" + (", measured vs planned tensions in "
-              f"{opt.heavy_scenario}" if opt.planned else "") + f"), {opt.rate_hz:g} Hz, "
+              f"{', '.join(opt.models)}; {len(opt.cases)} cases{extra}), {opt.rate_hz:g} Hz, "
               f"{args.jobs} processes; recordings in {work}", file=sys.stderr)
     prog.start()
     try:
@@ -169,11 +180,15 @@ def _paths(args, paper, work: Path, models: list[str], t0: float) -> int:
     return 1 if failures else 0
 
 
-def _poses(args, paper, work: Path, models: list[str], speeds: list[float], t0: float) -> int:
+def _poses(args, paper, work: Path, models: list[str], speeds: list[float], sets: list[str],
+           t0: float) -> int:
     from bench.dryrun import paper_report as rep
 
     opt = paper.PosesOptions(work=work, cycles=args.cycles,
                              diagnosed_model=args.diagnosed_model)
+    if "planned" in models:
+        return _fail(args, 2, "--models planned: the measured-vs-planned comparison is part of "
+                              "paper-paths")
     if models:
         if "diagnosed" in models and args.diagnosed_model is None:
             return _fail(args, 2, "--models diagnosed needs --diagnosed-model ROBOT.toml (the "
@@ -182,6 +197,8 @@ def _poses(args, paper, work: Path, models: list[str], speeds: list[float], t0: 
         opt.models = tuple(m for m in paper.MODEL_ORDER if m in models)
     if speeds:
         opt.speeds = tuple(speeds)
+    if sets:
+        opt.sets = tuple(s for s in paper.POSE_SETS if s in sets)
     if args.rate is not None:
         opt.rate_hz = float(args.rate)
     items = paper.poses_plan(opt)
