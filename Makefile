@@ -5,7 +5,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-deep lint bench clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -27,6 +27,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# The property-based tests with many more examples (tests/conftest.py, profile "deep").
+test-deep: $(STAMP)
+	CDPR_HYPOTHESIS=deep $(PY) -m pytest -q tests/test_prop_cia402_drive.py \
+		tests/test_prop_hal_drives.py tests/test_input_files.py tests/test_fuzz_can_modbus.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

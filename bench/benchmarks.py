@@ -24,6 +24,8 @@ MODULES: tuple[str, ...] = (
     "bench.bench_trajectory",
     "bench.bench_dryrun",
     "bench.bench_paper",
+    "bench.bench_commission",
+    "bench.bench_master_loss",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}

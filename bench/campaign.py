@@ -2,11 +2,23 @@
 
 The controller (:class:`controller.cycle.LengthController`, with the scenario's
 model) is initialised at the scenario's init pose, then visits the pose set
-several times in shuffled order. At each visit the winches take the commanded
-lengths (encoder quantisation), the plant (the truth, with the concealed
+several times in shuffled order. The plant (the truth, with the concealed
 effects and nuisances, and a per-visit change of the cable lengths) comes to
-rest, and each sample of the dwell adds tracker, load-cell and encoder noise.
-The recording holds the model, never the truth.
+rest for every commanded set of lengths (quasi-static), and each recorded row
+adds tracker, load-cell and encoder noise. The recording holds the model, never
+the truth.
+
+Two kinds (the scenario's ``[recording] kind``):
+
+- ``dwell``: the platform is taken to each target and dwells there; rows are
+  recorded only while it stands (a campaign of replicate dwells).
+- ``continuous``: rows at ``rate_hz`` all the time, along straight lines between
+  the targets (position and angles interpolated at ``speed_m_s``), with or without
+  dwells at the targets, as a dry run or a real robot's log records them. The
+  per-visit change of the cable lengths is drawn at each target and blends in
+  along the move towards it.
+
+Column groups can be left out (``tracker``, ``load_cells``, ``state_column``).
 """
 
 from __future__ import annotations
@@ -18,63 +30,84 @@ import numpy as np
 
 from bench.recording import POSE_AXES, write_recording
 from controller.cycle import LengthController
-from firmware_sim.plant import Nuisances, Plant
+from firmware_sim.plant import Plant
 from firmware_sim.scenario import Scenario
+
+#: angular speed of continuous moves [rad/s] (orientation changes take at least this long)
+ANGULAR_SPEED = 0.1
+
+
+def campaign_targets(sc: Scenario, poses: np.ndarray | None = None) -> tuple[np.ndarray,
+                                                                           np.random.Generator]:
+    """The target poses (P, 6) of one round of visits and the campaign's random generator."""
+    rng = np.random.default_rng(sc.seed)
+    targets = sc.poses.generate(rng) if poses is None else np.asarray(poses, float)
+    return targets, rng
 
 
 def run_campaign(sc: Scenario, out: str | Path,
                  progress: Callable[[int, int], None] | None = None,
                  poses: np.ndarray | None = None) -> Path:
     """Simulate the scenario's campaign and write the recording directory ``out``."""
-    rng = np.random.default_rng(sc.seed)
     model, n = sc.model, sc.model.n_cables
     nz = sc.noise
     ps = sc.poses
+    spec = sc.recording
+    targets, rng = campaign_targets(sc, poses)
     # a length offset is a slip after initialisation: never before the init dwell ends
     slips = np.maximum(sc.slip_times, ps.init_s)
-    plant = Plant(model, sc.truth, sc.init_pose,
-                  Nuisances(sc.hysteresis_m, sc.drift_m_per_s, nz.process_m),
-                  slip_times=slips, rng=np.random.default_rng(sc.seed + 1))
+    plant = Plant(model, sc.truth, sc.init_pose, sc.nuisances(process=True),
+                  slip_times=slips, rng=np.random.default_rng(sc.seed + 1),
+                  check_every=10 if spec.kind == "continuous" else 1)
     tau0_meas = plant.measured_tensions(plant.init_tensions)
     ctl = LengthController(model, sc.init_pose, init_tensions=None)
-    targets = ps.generate(rng) if poses is None else np.asarray(poses, float)
-    exit_idx = [model.cable_ids.index(c) for c in ps.exit_points]
-    rows: dict[str, list[float]] = {"t": []}
+    exit_idx = [model.cable_ids.index(c) for c in ps.exit_points] if spec.tracker else []
     cols = ["t"] + [f"{a}_des" for a in POSE_AXES] + [f"l_cmd_{c}" for c in model.cable_ids] \
-        + [f"l_meas_{c}" for c in model.cable_ids] + [f"tau_{c}" for c in model.cable_ids] \
-        + [f"{a}_meas" for a in POSE_AXES] \
-        + [f"a{ax}_meas_{model.cable_ids[k]}" for k in exit_idx for ax in "xyz"]
-    rows = {c: [] for c in cols}
+        + [f"l_meas_{c}" for c in model.cable_ids]
+    if spec.load_cells:
+        cols += [f"tau_{c}" for c in model.cable_ids]
+    if spec.tracker:
+        cols += [f"{a}_meas" for a in POSE_AXES] \
+            + [f"a{ax}_meas_{model.cable_ids[k]}" for k in exit_idx for ax in "xyz"]
+    rows: dict[str, list[float]] = {c: [] for c in cols}
     states: list[str] = []
-    dt = 1.0 / ps.rate_hz if ps.rate_hz > 0 else 1.0
+    rate = spec.rate_hz or ps.rate_hz
+    dt = 1.0 / rate if rate > 0 else 1.0
 
     def quantise(lengths: np.ndarray) -> np.ndarray:
         q = nz.encoder_m
         return np.round(lengths / q) * q if q > 0 else lengths
 
-    def dwell(t0: float, duration: float, p_des: np.ndarray, l_cmd: np.ndarray,
-              state, label: str) -> float:
-        count = max(1, int(round(duration * ps.rate_hz)))
-        l_meas = quantise(l_cmd)
-        for k in range(count):
-            t = t0 + k * dt
-            rows["t"].append(t)
-            for a, ax in enumerate(POSE_AXES):
-                rows[f"{ax}_des"].append(p_des[a])
+    def row(t: float, p_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray, state,
+            label: str) -> None:
+        rows["t"].append(t)
+        for a, ax in enumerate(POSE_AXES):
+            rows[f"{ax}_des"].append(p_des[a])
+        for j, c in enumerate(model.cable_ids):
+            rows[f"l_cmd_{c}"].append(l_cmd[j])
+            rows[f"l_meas_{c}"].append(l_meas[j])
+        if spec.tracker:  # noise drawn in this order: pose, tensions, exit points
             meas_pose = state.pose + np.concatenate([rng.normal(0, nz.tracker_m, 3),
                                                      rng.normal(0, nz.tracker_rad, 3)])
-            tau = plant.measured_tensions(state.tensions) + rng.normal(0, nz.load_cell_n, n)
-            for j, c in enumerate(model.cable_ids):
-                rows[f"l_cmd_{c}"].append(l_cmd[j])
-                rows[f"l_meas_{c}"].append(l_meas[j])
-                rows[f"tau_{c}"].append(tau[j])
             for a, ax in enumerate(POSE_AXES):
                 rows[f"{ax}_meas"].append(meas_pose[a])
+        if spec.load_cells:
+            tau = plant.measured_tensions(state.tensions) + rng.normal(0, nz.load_cell_n, n)
+            for j, c in enumerate(model.cable_ids):
+                rows[f"tau_{c}"].append(tau[j])
+        if spec.tracker:
             for k_ in exit_idx:
                 a_meas = state.exits[k_] + rng.normal(0, nz.exit_m, 3)
                 for c_, ax in enumerate("xyz"):
                     rows[f"a{ax}_meas_{model.cable_ids[k_]}"].append(a_meas[c_])
-            states.append(label)
+        states.append(label)
+
+    def dwell(t0: float, duration: float, p_des: np.ndarray, l_cmd: np.ndarray,
+              state, label: str) -> float:
+        count = max(1, int(round(duration * rate)))
+        l_meas = quantise(l_cmd)
+        for k in range(count):
+            row(t0 + k * dt, p_des, l_cmd, l_meas, state, label)
         return t0 + count * dt
 
     # initialisation: the platform stands at p0, the encoders read the model's lengths
@@ -86,25 +119,65 @@ def run_campaign(sc: Scenario, out: str | Path,
     done = 0
     prev = p0
     measured = tau0_meas
+    noise_prev = np.zeros(n)
+    continuous = spec.kind == "continuous"
     for _ in range(ps.visits):
         order = rng.permutation(len(targets))
         for i in order:
             p_des = targets[i]
-            cyc = ctl.step(p_des, measured if model.compliant else None)
-            if not cyc.feasible:
-                raise ValueError(f"campaign pose {np.round(p_des, 3).tolist()} is not feasible "
-                                 f"for the model: {cyc.reason}")
-            t += float(np.linalg.norm(p_des[:3] - prev[:3])) / max(ps.speed_m_s, 1e-6)
-            state = plant.settle(quantise(cyc.lengths), t=t, visit_noise=plant.visit_noise(),
-                                 guess=p_des)
-            measured = plant.measured_tensions(state.tensions)
-            t = dwell(t, ps.dwell_s, p_des, cyc.lengths, state, "dwell")
+            noise_next = plant.visit_noise()
+            if continuous:
+                t, state, measured = _move(ctl, plant, prev, p_des, t, dt, ps.speed_m_s,
+                                           measured, noise_prev, noise_next, quantise, row,
+                                           model.compliant)
+                cyc = ctl.step(p_des, measured if model.compliant else None)
+            else:
+                cyc = ctl.step(p_des, measured if model.compliant else None)
+                if not cyc.feasible:
+                    raise ValueError(f"campaign pose {np.round(p_des, 3).tolist()} is not "
+                                     f"feasible for the model: {cyc.reason}")
+                t += float(np.linalg.norm(p_des[:3] - prev[:3])) / max(ps.speed_m_s, 1e-6)
+                state = plant.settle(quantise(cyc.lengths), t=t, visit_noise=noise_next,
+                                     guess=p_des)
+                measured = plant.measured_tensions(state.tensions)
+            if not continuous or spec.dwell_at_targets:
+                t = dwell(t, ps.dwell_s, p_des, cyc.lengths, state, "dwell")
+            noise_prev = noise_next
             prev = p_des
             done += 1
             if progress:
                 progress(done, total)
     arrays = {c: np.array(v) for c, v in rows.items()}
-    meta = {"notes": f"simulated campaign ({total} visits of {len(targets)} poses)",
-            "pose_source": "simulated laser tracker", "tension_source": "simulated load cells"}
-    return write_recording(out, model, sc.init_pose, arrays, meta, states=states,
+    what = "continuous recording" if continuous else "simulated campaign"
+    meta = {"notes": f"{what} ({total} visits of {len(targets)} poses)",
+            "pose_source": "simulated laser tracker" if spec.tracker else "none",
+            "tension_source": "simulated load cells" if spec.load_cells else "none"}
+    return write_recording(out, model, sc.init_pose, arrays, meta,
+                           states=states if spec.state_column else None,
                            robot_header=f"model the controller ran with ({model.name})")
+
+
+def _move(ctl: LengthController, plant: Plant, start: np.ndarray, end: np.ndarray, t: float,
+          dt: float, speed: float, measured: np.ndarray, noise_a: np.ndarray,
+          noise_b: np.ndarray, quantise, row, compliant: bool):
+    """Rows along the straight line from ``start`` to ``end`` (6,) at ``speed`` [m/s]; the
+    per-visit length change blends from ``noise_a`` to ``noise_b``. Returns the time, the
+    plant state and the tensions the load cells read at the end."""
+    d = float(np.linalg.norm(end[:3] - start[:3]))
+    a = float(np.abs(end[3:] - start[3:]).max())
+    duration = max(d / max(speed, 1e-6), a / ANGULAR_SPEED, dt)
+    steps = max(1, int(np.ceil(duration / dt)))
+    state = plant.state
+    for k in range(1, steps + 1):
+        f = k / steps
+        p = start + f * (end - start)
+        cyc = ctl.step(p, measured if compliant else None)
+        if not cyc.feasible:
+            raise ValueError(f"campaign path pose {np.round(p, 3).tolist()} is not feasible "
+                             f"for the model: {cyc.reason}")
+        l_meas = quantise(cyc.lengths)
+        t = t + dt
+        state = plant.settle(l_meas, t=t, visit_noise=noise_a + f * (noise_b - noise_a))
+        measured = plant.measured_tensions(state.tensions)
+        row(t, p, cyc.lengths, l_meas, state, "move")
+    return t + dt, state, measured

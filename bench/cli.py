@@ -21,6 +21,8 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.evaluate",
     "bench.commands.dryrun",
     "bench.commands.iso9283",
+    "bench.commands.commission",
+    "bench.commands.compare",
 )
 
 

@@ -11,10 +11,23 @@ is pickled by reference), and on a Dask cluster every worker must be able to imp
 Backends: ``scheduler`` (a Dask distributed address such as ``tcp://127.0.0.1:8786``)
 takes precedence; otherwise ``jobs`` > 1 is a :class:`~concurrent.futures.ProcessPoolExecutor`
 of ``jobs`` processes and ``jobs`` == 1 runs in this process, one item after the other.
+
+Local worker processes end with their parent, whatever ends it: :func:`worker_pool`
+makes pools whose workers ask the kernel for SIGKILL when their parent dies (Linux
+``PR_SET_PDEATHSIG``) and also watch their parent's pid (elsewhere, or if the parent
+went before they asked); :func:`ending_workers` terminates them when the parent leaves
+a ``with`` block by an exception (Ctrl-C), and :func:`interrupt_on_term` turns SIGTERM
+(and SIGHUP) into that exception, so that ``timeout``, CI and schedulers end the
+workers too.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
+import sys
+import threading
 import time
 import traceback
 from collections import deque
@@ -24,6 +37,125 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
+
+#: how often a worker checks that its parent is alive [s]
+WATCH_S = 0.5
+
+
+def single_blas_thread() -> bool:
+    """Limit the loaded OpenBLAS to one thread in this process (True if it could).
+
+    The physics works on small matrices (6 x 8, 18 x 18): several BLAS threads only add
+    overhead there, and beside worker processes (``--jobs``) they fight over the cores
+    (the diagnosis ran twice as long on two cores). Only the jobs that want it call
+    this (the diagnosis, the evaluation): a real-time rig keeps its own setting."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        with open("/proc/self/maps", encoding="ascii", errors="replace") as f:
+            libs = {line.split()[-1] for line in f
+                    if "openblas" in line.lower() and ".so" in line}
+    except OSError:
+        return False
+    done = False
+    for lib in libs:
+        try:
+            handle = ctypes.CDLL(lib)
+        except OSError:
+            continue
+        for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                     "openblas_set_num_threads64_", "openblas_set_num_threads"):
+            fn = getattr(handle, name, None)
+            if fn is not None:
+                fn(1)
+                done = True
+    return done
+
+
+def _die_with_parent(parent: int) -> None:
+    """Worker initializer: end this process when the parent ``parent`` (pid) ends."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):  # pragma: no cover - platform dependent
+            pass
+    if os.getppid() != parent:  # the parent is already gone
+        os._exit(1)
+    single_blas_thread()
+    # Ctrl-C goes to the whole process group: the parent decides, the workers carry on
+    # until it ends them (no traceback per worker)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while True:
+            time.sleep(WATCH_S)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def worker_pool(jobs: int) -> ProcessPoolExecutor:
+    """A process pool whose workers end with this process (see the module docstring)."""
+    return ProcessPoolExecutor(max_workers=jobs, initializer=_die_with_parent,
+                               initargs=(os.getpid(),))
+
+
+def terminate_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop a pool now: cancel what has not started and terminate its worker processes."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.terminate()
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(timeout=5)
+
+
+@contextlib.contextmanager
+def ending_workers(pool: ProcessPoolExecutor | None):
+    """``with ending_workers(pool):`` shuts the pool down normally at the end of the block, and
+    terminates its workers at once when the block ends by an exception (Ctrl-C, SIGTERM)."""
+    try:
+        yield pool
+    except BaseException:
+        if pool is not None:
+            terminate_workers(pool)
+        raise
+    else:
+        if pool is not None:
+            pool.shutdown(wait=True)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP arrived (raised in the main thread by :func:`interrupt_on_term`)."""
+
+
+@contextlib.contextmanager
+def interrupt_on_term():
+    """Within the block, SIGTERM and SIGHUP raise :class:`Terminated` (a KeyboardInterrupt) in
+    the main thread, so that ``finally`` blocks run and worker processes are ended."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise Terminated(f"signal {signum}")
+
+    old = {}
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is not None:
+            old[sig] = signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
 
 class SchedulerError(RuntimeError):
@@ -100,8 +232,9 @@ def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
     workers = min(jobs, max(len(items), 1))
     queue, suspects = deque(items), deque()
     inflight: dict = {}  # future -> (item, runs alone)
-    pool = ProcessPoolExecutor(max_workers=workers)
+    pool = worker_pool(workers)
     t0 = time.perf_counter()
+    finished = False
     try:
         while queue or suspects or inflight:
             if suspects and not inflight:
@@ -130,10 +263,14 @@ def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
                     fut.cancel()
                     suspects.append(item)
                 inflight.clear()
-                pool.shutdown(wait=False, cancel_futures=True)
-                pool = ProcessPoolExecutor(max_workers=workers)
+                terminate_workers(pool)
+                pool = worker_pool(workers)
+        finished = True
     finally:
-        pool.shutdown(wait=False, cancel_futures=True)
+        if finished:
+            pool.shutdown(wait=False, cancel_futures=True)
+        else:  # closed early, an exception, Ctrl-C or SIGTERM: no worker goes on alone
+            terminate_workers(pool)
 
 
 def _run_dask(fn, items, address, connect_timeout_s, kw) -> Iterator[Outcome]:

@@ -23,7 +23,7 @@ import numpy as np
 import tomli_w
 
 from controller.robot import Robot, RobotFileError, dumps_robot, load_robot
-from controller.tomlfile import read_toml
+from controller.tomlfile import decode_utf8, read_toml
 
 FORMAT = "cdpr-recording/1"
 POSE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -127,6 +127,17 @@ def read_recording(path: str | Path) -> Recording:
 
 
 def _read_csv(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndarray) -> Recording:
+    try:
+        return _read_csv_rows(d, p, robot, meta, init_pose)
+    except UnicodeDecodeError:
+        decode_utf8(p.read_bytes(), p, RecordingError)  # raises, naming line and column
+        raise
+    except csv.Error as e:
+        raise RecordingError(f"{p}: not readable as CSV: {e}") from None
+
+
+def _read_csv_rows(d: Path, p: Path, robot: Robot, meta: dict,
+                   init_pose: np.ndarray) -> Recording:
     try:
         f = p.open(newline="", encoding="utf-8")
     except OSError as e:

@@ -93,34 +93,51 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
     tension T [N] at end ``A`` (upper) or ``B`` (lower); the fourth array says where it
     converged."""
     h, v, T = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (h, v, T)))
-    inv_ea = np.broadcast_to(np.asarray(inv_ea, dtype=float), h.shape)
+    shape = h.shape
+    inv_ea = np.broadcast_to(np.asarray(inv_ea, dtype=float), shape).ravel()
+    h, v, T = h.ravel(), v.ravel(), T.ravel()
     d = np.hypot(h, v)
     L0 = d / (1.0 + T * inv_ea)
     H = np.maximum(T * h / d, 1e-6)
     VB = T * v / d - 0.5 * w * L0
     scale = np.maximum(d, 1e-9)
     ok = np.zeros(h.shape, dtype=bool)
+    act = np.arange(h.size)  # elements still iterating (the converged ones stop)
+    best = np.full(h.size, np.inf)
+    stall = np.zeros(h.size, dtype=int)
     for _ in range(max_iter):
-        hh, vv = spans(H, VB, L0, inv_ea, w)
-        V_end = VB + w * L0 if end == "A" else VB
-        r = np.stack([hh - h, vv - v, (np.hypot(H, V_end) - T) / np.maximum(T, 1e-9) * scale])
-        ok = np.abs(r).max(axis=0) < tol * scale
-        if ok.all():
+        Ha, Va, La, ia = H[act], VB[act], L0[act], inv_ea[act]
+        Ta, sa = T[act], scale[act]
+        hh, vv = spans(Ha, Va, La, ia, w)
+        V_end = Va + w * La if end == "A" else Va
+        r = np.stack([hh - h[act], vv - v[act],
+                      (np.hypot(Ha, V_end) - Ta) / np.maximum(Ta, 1e-9) * sa])
+        err = np.abs(r).max(axis=0)
+        done = err < tol * sa
+        ok[act[done]] = True
+        # an element whose error has not halved in 6 iterations will not converge: it stops
+        better = err < 0.5 * best[act]
+        best[act] = np.where(better, err, best[act])
+        stall[act] = np.where(better, 0, stall[act] + 1)
+        keep = ~done & (stall[act] < 6)
+        if not keep.any():
             break
-        f11, f12, f21, f22, f1L, f2L = flexibility(H, VB, L0, inv_ea, w)
-        Tn = np.maximum(np.hypot(H, V_end), 1e-12)
-        g = scale / np.maximum(T, 1e-9)
-        dT_dH, dT_dV = H / Tn * g, V_end / Tn * g
-        dT_dL = (w * V_end / Tn * g) if end == "A" else np.zeros_like(H)
-        J = np.stack([np.stack([f11, f12, f1L]), np.stack([f21, f22, f2L]),
-                      np.stack([dT_dH, dT_dV, dT_dL])])  # (3, 3, ...)
-        Jm = np.moveaxis(J, (0, 1), (-2, -1))
-        rm = np.moveaxis(r, 0, -1)[..., None]
-        dx = np.linalg.solve(Jm, rm)[..., 0]
-        dH, dV, dL = dx[..., 0], dx[..., 1], dx[..., 2]
-        step = np.where(dH > 0.5 * H, 0.5 * H / np.where(dH != 0, dH, 1.0), 1.0)
-        H, VB, L0 = H - step * dH, VB - step * dV, L0 - step * dL
-    return L0, H, VB, ok
+        act, r = act[keep], r[:, keep]
+        Ha, Va, La, ia, Ta, sa, V_end = (x[keep] for x in (Ha, Va, La, ia, Ta, sa, V_end))
+        f11, f12, f21, f22, f1L, f2L = flexibility(Ha, Va, La, ia, w)
+        Tn = np.maximum(np.hypot(Ha, V_end), 1e-12)
+        g = sa / np.maximum(Ta, 1e-9)
+        dT_dH, dT_dV = Ha / Tn * g, V_end / Tn * g
+        dT_dL = (w * V_end / Tn * g) if end == "A" else np.zeros_like(Ha)
+        Jm = np.empty((len(act), 3, 3))
+        Jm[:, 0] = np.stack([f11, f12, f1L], axis=-1)
+        Jm[:, 1] = np.stack([f21, f22, f2L], axis=-1)
+        Jm[:, 2] = np.stack([dT_dH, dT_dV, dT_dL], axis=-1)
+        dx = np.linalg.solve(Jm, r.T[..., None])[..., 0]
+        dH, dV, dL = dx[:, 0], dx[:, 1], dx[:, 2]
+        step = np.where(dH > 0.5 * Ha, 0.5 * Ha / np.where(dH != 0, dH, 1.0), 1.0)
+        H[act], VB[act], L0[act] = Ha - step * dH, Va - step * dV, La - step * dL
+    return L0.reshape(shape), H.reshape(shape), VB.reshape(shape), ok.reshape(shape)
 
 
 def energy(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray, w: float,

@@ -18,11 +18,12 @@ Pose increments are ``(dt, w)`` with w a small rotation in F_b (see
 
 from __future__ import annotations
 
-import warnings
+import math
+import threading
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 
 from controller import cables
 from controller.cables import CableForces
@@ -41,6 +42,25 @@ from controller.statics import elastic_tensions, settled_exits
 
 class ConvergenceError(RuntimeError):
     """A solver did not converge; the message says how far it got."""
+
+
+class SolverStats(threading.local):
+    """Counts of :func:`solve_equilibrium` outcomes in this thread: ``calls``, ``newton``
+    (converged by Newton from the guess), ``fallbacks`` (the energy descent was needed),
+    ``failures`` (no stable equilibrium found). For evaluations."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.calls = self.newton = self.fallbacks = self.failures = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return {"calls": self.calls, "newton": self.newton, "fallbacks": self.fallbacks,
+                "failures": self.failures}
+
+
+STATS = SolverStats()
 
 
 @dataclass(frozen=True)
@@ -181,6 +201,38 @@ def _jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray) 
     return J
 
 
+_FIXED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: per robot: (pose, theta, l0, inverse Jacobian) of the last converged solution, to start
+#: the next solve near it with that inverse (a warm start of the quasi-Newton iteration)
+_LAST: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _reuse(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray
+           ) -> np.ndarray | None:
+    """The last solution's inverse Jacobian when this solve starts near that solution (within
+    5 mm, 5 mrad, 5 mm of length and 0.5 mrad of mast rotation), else None."""
+    last = _LAST.get(robot)
+    if last is None:
+        return None
+    p, th, lengths, inv = last
+    if (len(lengths) == len(l0) and np.abs(pose[:3] - p[:3]).max() < 5e-3
+            and np.abs(pose[3:] - p[3:]).max() < 5e-3 and np.abs(l0 - lengths).max() < 5e-3
+            and np.abs(theta - th).max() < 5e-4):
+        return inv.copy()
+    return None
+
+
+def _fixed(robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Settled exit points, lever arms and residual scale of a robot (computed once per robot
+    object: a description is immutable)."""
+    got = _FIXED.get(robot)
+    if got is None:
+        a_star = settled_exits(robot)
+        got = (a_star, lever_arms(a_star, robot.pivots, robot.mast_index), _scale(robot))
+        _FIXED[robot] = got
+    return got
+
+
 def _scale(robot: Robot) -> np.ndarray:
     w = max(robot.weight, 1.0)
     return np.concatenate([np.full(3, 1.0 / w), np.full(3, 1.0 / w), np.full(3 * robot.n_masts,
@@ -188,7 +240,7 @@ def _scale(robot: Robot) -> np.ndarray:
 
 
 def solve_equilibrium(robot: Robot, l0: np.ndarray, guess: np.ndarray,
-                      theta: np.ndarray | None = None, tol: float = 1e-10,
+                      theta: np.ndarray | None = None, tol: float = 1e-9,
                       max_iter: int = 60) -> EquilibriumResult:
     """Pose and mast rotations where elastic cables of unstretched lengths ``l0`` balance gravity.
 
@@ -205,17 +257,22 @@ def solve_equilibrium(robot: Robot, l0: np.ndarray, guess: np.ndarray,
     # forces cannot be resolved finer than round-off in ea * (L - L0) / L0
     tol = max(tol, 20 * np.finfo(float).eps * float(np.max(robot.ea))
               * np.sqrt(robot.n_cables) / max(robot.weight, 1.0))
+    STATS.calls += 1
     res = _newton(robot, l0, guess, theta, tol, max_iter)
     if res.success and (_near(res.pose, guess) or is_stable(robot, res, l0)):
+        STATS.newton += 1
         return res
     if max_iter < 5:
+        STATS.failures += not res.success
         return res
+    STATS.fallbacks += 1
     descent = _energy_descent(robot, np.asarray(l0, float), np.array(guess, float), theta, tol)
     polished = _newton(robot, l0, descent.pose, descent.theta, tol, max_iter)
     if polished.success and is_stable(robot, polished, l0):
         return polished
     if descent.success:
         return descent
+    STATS.failures += 1
     if res.success:
         return EquilibriumResult(res.pose, res.theta, res.tensions, res.exits, False,
                                  "equilibrium: only an unstable equilibrium found", res.nit,
@@ -330,24 +387,25 @@ def is_stable(robot: Robot, res: EquilibriumResult, l0: np.ndarray) -> bool:
 
 def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray | None,
             tol: float, max_iter: int) -> EquilibriumResult:
-    """Newton's method for :func:`solve_equilibrium`. Steps keep their factorised
-    Jacobian while it still contracts the residual tenfold per step (chord steps)
-    and refresh it otherwise."""
+    """Newton's method for :func:`solve_equilibrium`. Steps keep their inverse Jacobian while
+    it still contracts the residual tenfold per step (chord steps) and refresh it
+    otherwise; a solve that starts near the last solution of the same robot starts with
+    that solution's inverse Jacobian."""
     if not np.all(np.isfinite(robot.ea)):
         raise ValueError("solve_equilibrium needs elastic cables (ea); use forward_rigid for "
                          "inextensible ones")
     l0 = np.asarray(l0, dtype=float)
     pose = np.array(guess, dtype=float)
     th = np.zeros((robot.n_masts, 3)) if theta is None else np.array(theta, dtype=float)
-    a_star = settled_exits(robot)
-    r = lever_arms(a_star, robot.pivots, robot.mast_index)
-    S = _scale(robot)
+    a_star, r, S = _fixed(robot)
     T = _terms(robot, pose, th, l0, a_star, r)
     phi = float(np.linalg.norm(S * T.residual))
-    lu = None
+    lu = _reuse(robot, pose, th, l0)  # inverse Jacobian (chord steps reuse it)
     fresh = False
     for it in range(1, max_iter + 1):
         if phi < tol:
+            if lu is not None:
+                _LAST[robot] = (pose, th, l0, lu)
             return EquilibriumResult(pose, th, T.tensions, T.exits, True, "converged", it - 1,
                                      phi)
         if lu is None:
@@ -355,12 +413,13 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
                 return EquilibriumResult(pose, th, T.tensions, T.exits, False,
                                          f"equilibrium: every cable slack at iteration {it}",
                                          it, phi)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", LinAlgWarning)
-                lu = lu_factor(_jacobian(robot, T, l0, r), check_finite=False)
+            try:
+                lu = np.linalg.inv(_jacobian(robot, T, l0, r))
+            except np.linalg.LinAlgError:
+                lu = np.full((len(T.residual), len(T.residual)), np.nan)
             fresh = True
-        dx = lu_solve(lu, -T.residual, check_finite=False)
-        if not np.all(np.isfinite(dx)):
+        dx = lu @ -T.residual
+        if not math.isfinite(float(dx @ dx)):
             if not fresh:
                 lu = None
                 continue
@@ -372,7 +431,8 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
             p_new = compose(pose, step * dx[:6])
             th_new = th + step * dx[6:].reshape(-1, 3)
             T_new = _terms(robot, p_new, th_new, l0, a_star, r)
-            phi_new = float(np.linalg.norm(S * T_new.residual))
+            sr = S * T_new.residual
+            phi_new = math.sqrt(float(sr @ sr))
             if phi_new < (1.0 - 1e-4 * step) * phi or phi_new < tol:
                 break
             step *= 0.5

@@ -102,17 +102,24 @@ def compose(pose: np.ndarray, dx: np.ndarray) -> np.ndarray:
     R = rotvec_matrix(dx[3:6]) @ rotation(pose[3:6])
     out = np.empty(6)
     out[:3] = pose[:3] + dx[:3]
-    rpy = euler_from_rotation(R)
     # keep angles continuous with the previous pose (yaw/roll wrap at +-pi)
-    for k in range(3):
-        d = rpy[k] - pose[3 + k]
-        out[3 + k] = pose[3 + k] + (d + math.pi) % (2 * math.pi) - math.pi
+    d = euler_from_rotation(R) - pose[3:6]
+    out[3:] = pose[3:6] + (d + math.pi) % (2 * math.pi) - math.pi
     return out
 
 
 def euler_rate_matrix(rpy: np.ndarray) -> np.ndarray:
-    """Matrix E with ``w = E(rpy) d(rpy)``: angular velocity in F_b from Euler-angle rates."""
-    _, p, y = rpy
+    """Matrix E with ``w = E(rpy) d(rpy)``: angular velocity in F_b from Euler-angle rates;
+    (..., 3, 3) for stacked angles (..., 3)."""
+    rpy = np.asarray(rpy, dtype=float)
+    p, y = rpy[..., 1], rpy[..., 2]
     cp, sp = np.cos(p), np.sin(p)
     cy, sy = np.cos(y), np.sin(y)
-    return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+    E = np.zeros(rpy.shape[:-1] + (3, 3))
+    E[..., 0, 0] = cy * cp
+    E[..., 0, 1] = -sy
+    E[..., 1, 0] = sy * cp
+    E[..., 1, 1] = cy
+    E[..., 2, 0] = -sp
+    E[..., 2, 2] = 1.0
+    return E

@@ -220,6 +220,8 @@ class _Reader:
         return str(v)
 
     def unknown(self, d: dict, allowed: set[str], table: str | None, index: int | None) -> None:
+        if not isinstance(d, dict):
+            raise self.fail(f"must be a table, got {d!r}", table, index, None)
         for k in d:
             if k not in allowed:
                 raise self.fail(f"unknown key (allowed: {', '.join(sorted(allowed))})",
@@ -302,6 +304,11 @@ def parse_robot(data: dict[str, Any], path: str = "<memory>", text: str = "") ->
     if len(ids) < 6:
         raise r.fail(f"a robot needs at least 6 cables for a 6-DoF platform, got {len(ids)}",
                      "cable", None, None)
+    for k, mid in enumerate(mast_ids):
+        if k not in cols["mast"]:
+            raise r.fail(f"no cable uses mast {mid!r} (each [[mast]] carries at least one "
+                         "cable's exit point; remove it or name it in a cable's mast)",
+                         "mast", k, "id")
     return Robot(
         name=name, cable_ids=tuple(ids), mast_ids=tuple(mast_ids),
         exits=np.array(cols["exit"]), anchors=np.array(cols["anchor"]),
@@ -325,11 +332,14 @@ def load_robot(path: str | Path) -> Robot:
 SHIPPED = {
     "rocaspect": "rocaspect.toml",
     "rocaspect-remeasured": "rocaspect_remeasured.toml",
+    "cogiro": "cogiro.toml",
+    "ipanema": "ipanema.toml",
 }
 
 
 def shipped_robot_path(name: str) -> Path:
-    """Path of a description shipped with the package (``rocaspect``, ``rocaspect-remeasured``)."""
+    """Path of a description shipped with the package (``rocaspect``, ``rocaspect-remeasured``,
+    ``cogiro``, ``ipanema``)."""
     fname = SHIPPED.get(name)
     if fname is None:
         raise RobotFileError(f"{name}: no such shipped robot (known: {', '.join(SHIPPED)})")

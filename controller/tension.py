@@ -52,11 +52,12 @@ def _fail(n: int, reason: str, it: int = 0) -> TensionResult:
 def _check(W: np.ndarray, f: np.ndarray, tau: np.ndarray, tmin: float, tmax: float,
            it: int, method: str, tol: float) -> TensionResult:
     e = W @ tau - f
-    res = float(np.sqrt(e @ e))
+    res = math.sqrt(float(e @ e))
     if res > 3e3 * tol:
         return _fail(len(tau), f"{method}: the wrench cannot be balanced at this pose "
                      f"(residual {res:.3g}; wrench matrix rank-deficient)", it)
-    np.clip(tau, tmin, tmax, out=tau)  # round-off only; violations were handled above
+    if tau.min() < tmin or tau.max() > tmax:
+        np.clip(tau, tmin, tmax, out=tau)  # round-off only; violations were handled above
     return TensionResult(tau, True, "", res, it)
 
 
@@ -72,12 +73,18 @@ def closed_form(W: np.ndarray, f: np.ndarray, tmin: float, tmax: float,
     # the common case in a control cycle: one solve around the middle of the range (or the
     # target), every tension within bounds
     tm0 = 0.5 * (tmin + tmax) if target is None else np.asarray(target, float)
-    _, y, info = dposv(W @ W.T, f - W @ (np.full(n, tm0) if target is None else tm0))
+    _, y, info = dposv(W @ W.T, f - (tm0 * W.sum(axis=1) if target is None else W @ tm0))
     if info == 0:
         sol = y @ W
         sol += tm0
-        if sol.min() >= tmin - tol and sol.max() <= tmax + tol:
-            return _check(W, f, sol, tmin, tmax, 1, "closed-form", tol)
+        lo, hi = sol.min(), sol.max()
+        if lo >= tmin - tol and hi <= tmax + tol:
+            e = W @ sol - f
+            res = math.sqrt(float(e @ e))
+            if res <= 3e3 * tol:
+                if lo < tmin or hi > tmax:
+                    np.clip(sol, tmin, tmax, out=sol)  # round-off only
+                return TensionResult(sol, True, "", res, 1)
     tau = np.empty(n)
     free = np.ones(n, dtype=bool)
     idx_free = np.arange(n)

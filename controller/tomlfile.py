@@ -8,14 +8,27 @@ from pathlib import Path
 from typing import Any
 
 
+def decode_utf8(data: bytes, path: str | Path, error: type[Exception]) -> str:
+    """``data`` as UTF-8 text; ``error`` naming the file, line and column of the first byte
+    that is not UTF-8 (e.g. a file saved as Latin-1)."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        col = e.start - (data.rfind(b"\n", 0, e.start) + 1) + 1
+        raise error(f"{path}: line {line}, column {col}: not UTF-8 text (byte "
+                    f"0x{data[e.start]:02X}); save the file as UTF-8") from None
+
+
 def read_toml(path: str | Path, error: type[Exception]) -> tuple[dict[str, Any], str]:
     """``(data, text)`` of a TOML file; raises ``error`` naming the file when it cannot be
     read or is not valid TOML (the message then carries the line and column)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        data = p.read_bytes()
     except OSError as e:
         raise error(f"{p}: cannot read: {e.strerror or e}") from e
+    text = decode_utf8(data, p, error)
     try:
         return tomllib.loads(text), text
     except tomllib.TOMLDecodeError as e:

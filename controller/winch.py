@@ -66,10 +66,17 @@ _FIELDS: dict[str, tuple[type, tuple[Any, str]]] = {
     "position_window_m": (float, _NONNEG),
     "quick_stop_option": (int, (lambda v: 0 <= v <= 8, "must be a 0x605A option 0..8")),
     "fault_reaction_option": (int, (lambda v: 0 <= v <= 4, "must be a 0x605E option 0..4")),
+    "abort_connection_option": (int, (lambda v: 0 <= v <= 3, "must be a 0x6007 option 0..3")),
+    "comm_error_behaviour": (int, (lambda v: 0 <= v <= 2, "must be a 0x1029:01 value 0..2")),
     "lag_time_constant_s": (float, _NONNEG),
     "rated_torque_nm": (float, _POS),
 }
 _INT_FIELDS = tuple(k for k, (t, _) in _FIELDS.items() if t is int)
+#: Fields a file may leave out (added after the first files were written): the safe value.
+_OPTIONAL: dict[str, Any] = {
+    "abort_connection_option": 3,  # 0x6007: quick stop command when the master is lost
+    "comm_error_behaviour": 0,  # 0x1029:01: NMT pre-operational on a communication error
+}
 
 
 @dataclass(frozen=True)
@@ -80,7 +87,11 @@ class BusParams:
     sync_period_s: float = 0.004  #: SYNC period = control cycle [s]
     heartbeat_period_s: float = 0.1  #: drive heartbeat producer time [s], 0 = off
     heartbeat_misses: int = 3  #: a drive is lost after this many silent heartbeat periods
-    rpdo_timeout_s: float = 0.006  #: drive-side RPDO deadline [s], 0 = not monitored
+    rpdo_timeout_s: float = 0.02  #: drive-side RPDO deadline [s], 0 = not monitored
+    master_node_id: int = 127  #: CANopen node id of the master's heartbeat (0x700 + id)
+    master_heartbeat_period_s: float = 0.05  #: master heartbeat producer time [s], 0 = off
+    #: consumer heartbeat time the drives watch the master with (0x1016) [s], 0 = not watched
+    master_heartbeat_timeout_s: float = 0.25
 
     @property
     def sync_period_us(self) -> int:
@@ -93,6 +104,14 @@ class BusParams:
     @property
     def rpdo_timeout_ms(self) -> int:
         return int(round(self.rpdo_timeout_s * 1e3))
+
+    @property
+    def master_heartbeat_ms(self) -> int:
+        return int(round(self.master_heartbeat_period_s * 1e3))
+
+    @property
+    def master_heartbeat_timeout_ms(self) -> int:
+        return int(round(self.master_heartbeat_timeout_s * 1e3))
 
 
 @dataclass(frozen=True)
@@ -120,6 +139,8 @@ class WinchAxis:
     fault_reaction_option: int
     lag_time_constant_s: float
     rated_torque_nm: float
+    abort_connection_option: int = 3
+    comm_error_behaviour: int = 0
 
     @property
     def metres_per_count(self) -> float:
@@ -162,6 +183,8 @@ class WinchSet:
     fault_reaction_option: np.ndarray
     lag_time_constant_s: np.ndarray
     rated_torque_nm: np.ndarray
+    abort_connection_option: np.ndarray
+    comm_error_behaviour: np.ndarray
     bus: BusParams = BusParams()
     source: str = "<memory>"
 
@@ -291,6 +314,23 @@ def _validate_bus(bus: BusParams, source: str) -> None:
         raise _fail(source, "[bus] heartbeat_misses", "must be >= 1")
     if not (0 <= bus.rpdo_timeout_ms <= UINT16_MAX):
         raise _fail(source, "[bus] rpdo_timeout_s", f"{bus.rpdo_timeout_s} out of 0..65.535 s")
+    if 0 < bus.rpdo_timeout_s <= bus.sync_period_s:
+        raise _fail(source, "[bus] rpdo_timeout_s", f"{bus.rpdo_timeout_s} s must be longer than "
+                    f"the SYNC period {bus.sync_period_s} s (one RPDO per SYNC)")
+    if not 1 <= bus.master_node_id <= 127:
+        raise _fail(source, "[bus] master_node_id", f"{bus.master_node_id} is not a node id 1..127")
+    for key in ("master_heartbeat_period_s", "master_heartbeat_timeout_s"):
+        ms = int(round(getattr(bus, key) * 1e3))
+        if not (0 <= ms <= UINT16_MAX) or not math.isfinite(getattr(bus, key)):
+            raise _fail(source, f"[bus] {key}", f"{getattr(bus, key)} out of 0..65.535 s")
+    if bus.master_heartbeat_timeout_s > 0:
+        if bus.master_heartbeat_period_s <= 0:
+            raise _fail(source, "[bus] master_heartbeat_timeout_s", "the drives watch a master "
+                        "heartbeat (timeout > 0) but master_heartbeat_period_s is 0")
+        if bus.master_heartbeat_timeout_s < 2 * bus.master_heartbeat_period_s:
+            raise _fail(source, "[bus] master_heartbeat_timeout_s",
+                        f"{bus.master_heartbeat_timeout_s} s must be at least two master "
+                        f"heartbeat periods ({2 * bus.master_heartbeat_period_s:g} s)")
 
 
 def _check_value(source: str, where: str, key: str, val: Any) -> Any:
@@ -350,6 +390,8 @@ def parse_winches(doc: dict[str, Any], source: str = "<memory>") -> WinchSet:
                 row[key] = _check_value(source, where, key, entry[key])
             elif key in defaults:
                 row[key] = _check_value(source, "[defaults]", key, defaults[key])
+            elif key in _OPTIONAL:
+                row[key] = _OPTIONAL[key]
             else:
                 raise _fail(source, f"{where} {key}", "missing (and no [defaults] value)")
         rows.append(row)
@@ -384,6 +426,9 @@ def validate(w: WinchSet) -> None:
     if len(set(ids)) != len(ids):
         dup = sorted({x for x in ids if ids.count(x) > 1})
         raise _fail(src, "node_id", f"CAN node id(s) {dup} used by more than one winch")
+    if w.bus.master_node_id in ids:
+        raise _fail(src, "[bus] master_node_id", f"{w.bus.master_node_id} is also the node id of "
+                    f"winch {w.cables[ids.index(w.bus.master_node_id)]!r}")
     for key in _FIELDS:
         arr = getattr(w, key)
         if np.shape(arr) != (n,):

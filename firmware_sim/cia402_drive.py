@@ -13,6 +13,13 @@ this class adds:
   (inhibit time 0x1800 sub 3) and on the event timer. Mapping follows CiA 301 (only while
   the PDO is invalid and sub 0 is 0; objects must exist and be mappable, at most 64 bits).
   RPDO deadline monitoring (0x1400 sub 5) sends EMCY 0x8250.
+- Master loss (CiA 301, CiA 402): consumer heartbeat (0x1016, monitoring starts with the
+  first heartbeat of the watched node), the RPDO deadline while Operation Enabled, and NMT
+  leaving OPERATIONAL are a lost connection: EMCY (0x8130 / 0x8250) and the abort
+  connection option 0x6007 (0 no action, 1 fault signal, 2 disable voltage, 3 quick stop
+  command); a heartbeat consumer timeout (a communication error) then also takes the
+  error behaviour 0x1029 sub 1 (0 pre-operational, 1 no change, 2 stopped). See
+  :meth:`SimulatedDrive._connection_lost`.
 - The CiA 402 power state machine (controlword 0x6040, statusword 0x6041 with the masks
   of the standard), modes profile position (1), homing (6, methods 35/37), cyclic
   synchronous position (8) and velocity (9); quick stop by 0x605A, fault reaction by 0x605E,
@@ -31,6 +38,13 @@ deterministic: every SYNC advances it by the communication cycle period (0x1006,
 SYNCs. With a clock function (e.g. ``time.monotonic``) it follows that clock; then call
 :meth:`SimulatedDrive.tick` periodically for heartbeats (the bank does).
 
+A SYNC-driven drive still lives in real time where a real one must
+(:meth:`SimulatedDrive.wall_tick`, called by the bank's ticker): it sends its heartbeat at
+least once per heartbeat period of wall time (a tool waiting for it does not wait for
+SYNC), it watches its consumer heartbeats on wall time as well, and once it has lost its
+master on wall time (no SYNC will come from a dead master) its clock runs on wall time
+until the next SYNC, so that the stop it makes is carried out.
+
 Units: positions counts, velocities counts/s, accelerations counts/s^2, torque per mille
 of the rated torque 0x6076 [mN*m].
 """
@@ -40,6 +54,7 @@ from __future__ import annotations
 import math
 import struct
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
@@ -67,6 +82,7 @@ EMCY_OVER_CURRENT = 0x2310  # continuous over current (device output side)
 EMCY_ENCODER = 0x7305  # incremental sensor 1 fault
 EMCY_PDO_LENGTH = 0x8210  # PDO not processed due to length error
 EMCY_RPDO_TIMEOUT = 0x8250  # RPDO timeout
+EMCY_HEARTBEAT = 0x8130  # life guard / heartbeat error (consumer heartbeat timeout)
 EMCY_FOLLOWING_ERROR = 0x8611  # following error
 
 # SDO abort codes (CiA 301)
@@ -76,6 +92,17 @@ ABORT_PDO_LENGTH = 0x06040042
 ABORT_DEVICE_STATE = 0x08000022
 ABORT_NOT_STORED = 0x08000020
 ABORT_NO_DATA = 0x08000024
+ABORT_PARAM_INCOMPATIBLE = 0x06040043  # e.g. two 0x1016 entries for one node id
+
+# 0x6007 abort connection option codes (CiA 402)
+ABORT_CONN_NONE = 0
+ABORT_CONN_FAULT = 1
+ABORT_CONN_DISABLE_VOLTAGE = 2
+ABORT_CONN_QUICK_STOP = 3
+# 0x1029 sub 1 error behaviour after a communication error (CiA 301)
+ERR_BEHAVIOUR_PRE_OPERATIONAL = 0
+ERR_BEHAVIOUR_NO_CHANGE = 1
+ERR_BEHAVIOUR_STOPPED = 2
 
 SAVE_SIGNATURE = 0x65766173  # "save"
 
@@ -204,8 +231,18 @@ class SimulatedDrive:
         self._saved: dict[tuple[int, int], bytes] = {}
         self._params: dict[tuple[int, int], object] = {}
         self._subscribed: dict[str, int | None] = {"sync": None, "rpdo": None}
+        self._hb_subscribed: set[int] = set()  # producers watched (0x1016)
+        self._wall_prev: float | None = None  # last wall_tick() [s]
+        self._hb_wall_sent = -1e18  # wall time of the last heartbeat sent [s]
+        self.free_running = False  #: SYNC-driven clock runs on wall time (master lost)
+        #: (drive time [us], what, lag [s]) of each lost connection: lag from the last
+        #: frame heard (master heartbeat, RPDO) to the reaction, for tests
+        self.connection_losses: list[tuple[int, str, float | None]] = []
+        #: the last loss: time from the last frame heard (master heartbeat, RPDO) [s]
+        self.last_loss_lag_s: float | None = None
         # fault injection
         self.encoder_broken = False
+        self.over_current = False
         self.brake_stuck = False
         self.heartbeat_stopped = False
         self.silent = False
@@ -244,6 +281,12 @@ class SimulatedDrive:
                 self._subscribed[kind] = None
         net.unsubscribe(self.node.sdo.rx_cobid, self._on_sdo)
         net.unsubscribe(0, self._on_nmt)
+        for nid in self._hb_subscribed:
+            net.unsubscribe(0x700 + nid, self._on_consumer_heartbeat)
+        self._hb_subscribed = set()
+        # canopen's own handlers back, so that it can remove them with the node
+        net.subscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        net.subscribe(0, self.node.nmt.on_command)
         del net[self.node_id]
         self.network = None
 
@@ -325,6 +368,7 @@ class SimulatedDrive:
             self._following_error = False
             self._internal_limit = False
             self._ramp: tuple[float, str] | None = None  # (decel, then) while stopping
+            self._stop_decel = 0.0  # deceleration of the last stop ramp [counts/s^2]
             self._brake_now = False
         else:
             self._load_area(0x1000, 0x1FFF)
@@ -336,6 +380,10 @@ class SimulatedDrive:
         self._rpdo_seen = False
         self._last_rpdo_us = 0
         self._rpdo_timeout_active = False
+        self._hb_timeout_active = False
+        self._consumers: dict[int, int] = {}  # producer node id -> consumer time [us]
+        self._hb_heard_us: dict[int, int] = {}  # producer -> last heartbeat (drive time)
+        self._hb_heard_wall: dict[int, float] = {}  # producer -> last heartbeat (wall) [s]
         self._tpdo_last: bytes | None = None
         self._tpdo_last_us = -(10**12)
         self._delayed = []
@@ -375,7 +423,53 @@ class SimulatedDrive:
         if self._clock is None:
             return
         with self.lock:
-            self._advance_to(int(round(self._clock() * 1e6)))
+            now_s = self._clock()
+            self._forgive_starvation(now_s)
+            self._advance_to(int(round(now_s * 1e6)))
+
+    #: a tick this much later than the previous one means this process was starved [s]
+    STARVED_S = 0.05
+
+    def _forgive_starvation(self, now_s: float) -> None:
+        """After a gap in our own ticks (the simulator's process did not run), do not count
+        the gap against the master: its frames may be waiting in our socket. A real drive
+        is never starved; a simulated one must not stop the robot because it was."""
+        prev, self._wall_prev = self._wall_prev, now_s
+        if prev is None or now_s - prev <= self.STARVED_S:
+            return
+        gap_s = now_s - prev
+        gap_us = int(gap_s * 1e6)
+        if self._clock is not None:
+            self._last_rpdo_us += gap_us
+            for nid in self._hb_heard_us:
+                self._hb_heard_us[nid] += gap_us
+        for nid in self._hb_heard_wall:
+            self._hb_heard_wall[nid] += gap_s
+
+    def wall_tick(self, now_s: float) -> None:
+        """Real-time duties of a SYNC-driven drive (``clock=None``), called periodically with
+        the wall time [s]: a heartbeat at least once per heartbeat period of wall time, the
+        consumer heartbeats watched on wall time, and the clock running on wall time while
+        the master is lost (see the module docstring)."""
+        if self._clock is not None:
+            return
+        with self.lock:
+            prev = self._wall_prev
+            self._forgive_starvation(now_s)
+            if not self.powered:
+                return
+            if self.free_running and prev is not None and now_s > prev:
+                self._advance_to(self.now_us + int(round((now_s - prev) * 1e6)))
+            period_s = int(self.param(0x1017)) * 1e-3
+            if period_s > 0 and now_s - self._hb_wall_sent >= period_s:
+                if not self.heartbeat_stopped:
+                    self._send(0x700 + self.node_id, bytes([self.nmt_state]), "heartbeat")
+                self._hb_wall_sent = now_s
+            for nid, time_us in self._consumers.items():
+                heard = self._hb_heard_wall.get(nid)
+                if heard is not None and now_s - heard > time_us * 1e-6:
+                    self.last_loss_lag_s = now_s - heard
+                    self._consumer_expired(nid, wall=True)
 
     def _advance_to(self, now_us: int) -> None:
         if now_us <= self.now_us:
@@ -393,14 +487,31 @@ class SimulatedDrive:
             hb_due = self._next_hb_us is not None and self._next_hb_us <= now_us
             if hb_due:
                 stop = max(self._next_hb_us, self.now_us)
+            deadline = self._next_deadline_us()
+            if deadline is not None and self.now_us <= deadline < stop:
+                stop, hb_due = deadline, False
             self._integrate(stop - self.now_us)
             self.now_us = stop
             if hb_due:
                 self._heartbeat()
             self._rpdo_deadline()
+            self._consumer_deadlines()
             if stop >= now_us:
                 break
         self._async_tpdos()
+
+    def _next_deadline_us(self) -> int | None:
+        """The earliest RPDO or consumer heartbeat deadline [us of drive time] still armed."""
+        out = []
+        limit_us = int(self.param(0x1400, 5)) * 1000
+        if (limit_us > 0 and self.nmt_state == NMT_OPERATIONAL and self._rpdo_seen
+                and not self._rpdo_timeout_active):
+            out.append(self._last_rpdo_us + limit_us + 1)
+        for nid, time_us in self._consumers.items():
+            heard = self._hb_heard_us.get(nid)
+            if heard is not None:
+                out.append(heard + time_us + 1)
+        return min(out) if out else None
 
     def _integrate(self, dt_us: int) -> None:
         """Motion over ``dt_us`` in sub-steps of at most 2 ms."""
@@ -423,6 +534,7 @@ class SimulatedDrive:
         period_us = int(self.param(0x1017)) * 1000
         if not self.heartbeat_stopped:
             self._send(0x700 + self.node_id, bytes([self.nmt_state]), "heartbeat")
+            self._hb_wall_sent = time.monotonic()
         self._next_hb_us += period_us
         if self._next_hb_us <= self.now_us - period_us:
             self._next_hb_us = self.now_us + period_us
@@ -434,6 +546,11 @@ class SimulatedDrive:
         with self.lock:
             if not self.powered or self.silent or target not in (0, self.node_id):
                 return
+            if (cmd in (0x02, 0x80, 0x82) and self.nmt_state == NMT_OPERATIONAL
+                    and self.state == State.OPERATION_ENABLED):
+                # leaving OPERATIONAL: no more setpoints (CiA 402 abort connection)
+                self._connection_lost(f"NMT command 0x{cmd:02X} while Operation Enabled",
+                                      nmt=False)
             if cmd == 0x01:
                 if self.nmt_state != NMT_OPERATIONAL:
                     self._rpdo_seen = False
@@ -453,6 +570,14 @@ class SimulatedDrive:
             if not self.powered or self.silent:
                 return
             if self.nmt_state not in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL):
+                return
+            if len(data) != 8:
+                return  # not an SDO frame (CiA 301: always 8 bytes): ignored
+            ccs = data[0] & 0xE0
+            if ccs in (0x00, 0x60) and self.node.sdo._buffer is None:
+                # a segment with no transfer in progress: abort, as a drive would (canopen
+                # would abort too, but log the exception it trips over)
+                self.node.sdo.abort(0x05040001)
                 return
             self.node.sdo.on_request(can_id, data, timestamp)
             self._async_tpdos()
@@ -514,6 +639,21 @@ class SimulatedDrive:
         elif index == 0x605E:
             if not 0 <= value <= 4:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif index == 0x6007:
+            if not 0 <= value <= 3:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif index == 0x1029:
+            if not 0 <= value <= 2:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif index == 0x1016:
+            nid = (value >> 16) & 0xFF
+            if value & 0xFF000000 or nid > 127:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+            if nid and value & 0xFFFF:
+                for sub in range(1, 5):
+                    other = int(self.param(0x1016, sub))
+                    if sub != subindex and (other >> 16) & 0xFF == nid and other & 0xFFFF:
+                        raise SdoAbortedError(ABORT_PARAM_INCOMPATIBLE)  # CiA 301
         self._params[(index, subindex)] = value
         if 0x1400 <= index <= 0x1BFF:
             self._pdo_cache = {}
@@ -522,6 +662,8 @@ class SimulatedDrive:
             self._update_subscriptions()
         elif index == 0x1017:
             self._restart_heartbeat()
+        elif index == 0x1016:
+            self._load_consumers()
         elif index == 0x6040:
             if self._in_pdo:
                 self._cw_pending = value
@@ -610,6 +752,7 @@ class SimulatedDrive:
         return cfg
 
     def _update_subscriptions(self) -> None:
+        self._load_consumers()
         if self.network is None:
             return
         sync_cob = int(self.param(0x1005)) & 0x7FF
@@ -640,6 +783,8 @@ class SimulatedDrive:
             if len(data) < cfg.length:
                 self._emcy(EMCY_PDO_LENGTH)
                 return
+            if self._clock is not None:  # stamp with the time it arrived, not the last tick
+                self._advance_to(int(round(self._clock() * 1e6)))
             self._rpdo_seen = True
             self._last_rpdo_us = self.now_us
             if self._rpdo_timeout_active:
@@ -671,6 +816,7 @@ class SimulatedDrive:
         with self.lock:
             if not self.powered or self.silent:
                 return
+            self.free_running = False  # a master is there again: time is the SYNCs' again
             if self._clock is None:
                 now = self.now_us + self._cycle_us()
             else:
@@ -740,8 +886,103 @@ class SimulatedDrive:
             return
         limit_us = int(self.param(0x1400, 5)) * 1000
         if limit_us > 0 and self.now_us - self._last_rpdo_us > limit_us:
+            self.last_loss_lag_s = (self.now_us - self._last_rpdo_us) * 1e-6
             self._rpdo_timeout_active = True
             self._emcy(EMCY_RPDO_TIMEOUT)
+            if self.state == State.OPERATION_ENABLED:
+                # the setpoints stopped: the drive cannot follow a master it no longer hears
+                self._connection_lost("RPDO deadline (0x1400 sub 5) passed", nmt=False)
+
+    # ------------------------------------------------------------------ master loss
+
+    def _load_consumers(self) -> None:
+        """0x1016 sub 1..n -> watched producers; (re)subscribe to their heartbeats."""
+        consumers: dict[int, int] = {}
+        for sub in range(1, 5):
+            try:
+                value = int(self.param(0x1016, sub))
+            except (KeyError, SdoAbortedError):
+                break
+            nid, time_ms = (value >> 16) & 0xFF, value & 0xFFFF
+            if 1 <= nid <= 127 and time_ms > 0:
+                consumers[nid] = time_ms * 1000
+        self._consumers = consumers
+        for nid in list(self._hb_heard_us):
+            if nid not in consumers:
+                del self._hb_heard_us[nid]
+        for nid in list(self._hb_heard_wall):
+            if nid not in consumers:
+                del self._hb_heard_wall[nid]
+        if self.network is None:
+            return
+        want = set(consumers)
+        for nid in self._hb_subscribed - want:
+            self.network.unsubscribe(0x700 + nid, self._on_consumer_heartbeat)
+        for nid in want - self._hb_subscribed:
+            self.network.subscribe(0x700 + nid, self._on_consumer_heartbeat)
+        self._hb_subscribed = want
+
+    def _on_consumer_heartbeat(self, can_id: int, data: bytes, timestamp: float) -> None:
+        nid = can_id - 0x700
+        with self.lock:
+            if not self.powered or self.silent or nid not in self._consumers or not data:
+                return
+            if self._clock is not None:  # stamp with the time it arrived, not the last tick
+                self._advance_to(int(round(self._clock() * 1e6)))
+            self._hb_heard_us[nid] = self.now_us
+            if self._clock is None:  # for wall_tick(), which the bank calls with this clock
+                self._hb_heard_wall[nid] = time.monotonic()
+            if self._hb_timeout_active:
+                self._hb_timeout_active = False
+                if self.error_code == 0 and not self._rpdo_timeout_active:
+                    self._emcy(EMCY_NO_ERROR)
+
+    def _consumer_deadlines(self) -> None:
+        for nid, time_us in list(self._consumers.items()):
+            heard = self._hb_heard_us.get(nid)
+            if heard is not None and self.now_us - heard > time_us:
+                self.last_loss_lag_s = (self.now_us - heard) * 1e-6
+                self._consumer_expired(nid, wall=False)
+
+    def _consumer_expired(self, nid: int, wall: bool) -> None:
+        """No heartbeat of ``nid`` within its consumer time: monitoring stops until the next
+        heartbeat (CiA 301), EMCY 0x8130, then the connection counts as lost."""
+        self._hb_heard_us.pop(nid, None)
+        self._hb_heard_wall.pop(nid, None)
+        self._hb_timeout_active = True
+        self._emcy(EMCY_HEARTBEAT)
+        if wall and self._clock is None:
+            self.free_running = True  # no SYNC will come: carry the stop out on wall time
+        self._connection_lost(f"no heartbeat of node {nid} for "
+                              f"{self._consumers.get(nid, 0) / 1000:g} ms (0x1016)")
+
+    def _connection_lost(self, why: str, nmt: bool = True) -> None:
+        """The master is lost: 0x6007 on the power state, then (``nmt``: a communication
+        error in the sense of CiA 301, i.e. a heartbeat consumer timeout) 0x1029 sub 1 on the
+        NMT state. A missed RPDO deadline or NMT leaving OPERATIONAL only act on the power
+        state: the setpoints stopped, the node itself is not in question."""
+        self.connection_losses.append((self.now_us, why, self.last_loss_lag_s))
+        opt = int(self.param(0x6007))
+        s = self.state
+        if opt == ABORT_CONN_FAULT:
+            self._fault(EMCY_HEARTBEAT if "heartbeat" in why else EMCY_RPDO_TIMEOUT)
+        elif opt == ABORT_CONN_DISABLE_VOLTAGE:
+            if s in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+                self._power_off(State.SWITCH_ON_DISABLED)  # 9 / 12
+            elif s in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON):
+                self.state = State.SWITCH_ON_DISABLED  # 7 / 10
+        elif opt == ABORT_CONN_QUICK_STOP:
+            if s == State.OPERATION_ENABLED:
+                self._quick_stop()  # 11
+            elif s in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON):
+                self.state = State.SWITCH_ON_DISABLED  # 7 / 10
+        if not nmt:
+            return
+        behaviour = int(self.param(0x1029, 1))
+        if behaviour == ERR_BEHAVIOUR_PRE_OPERATIONAL and self.nmt_state == NMT_OPERATIONAL:
+            self.nmt_state = NMT_PRE_OPERATIONAL
+        elif behaviour == ERR_BEHAVIOUR_STOPPED:
+            self.nmt_state = NMT_STOPPED
 
     # ------------------------------------------------------------------ sending
 
@@ -764,7 +1005,7 @@ class SimulatedDrive:
 
     def error_register(self) -> int:
         reg = error_register_bits(self.error_code)
-        if self._rpdo_timeout_active:
+        if self._rpdo_timeout_active or self._hb_timeout_active:
             reg |= error_register_bits(EMCY_RPDO_TIMEOUT)
         return reg
 
@@ -858,6 +1099,7 @@ class SimulatedDrive:
 
     def _start_ramp(self, decel: float, then: str) -> None:
         self._ramp = (max(decel, 1.0), then)
+        self._stop_decel = max(decel, 1.0)
         self.dem = self.axis.pos
         self.dem_v = self.axis.vel
 
@@ -879,7 +1121,7 @@ class SimulatedDrive:
         self._start_ramp(self._ramp_decel(index), "fault")
 
     def _fault_reset(self) -> None:
-        if self.encoder_broken:
+        if self.encoder_broken or (self.over_current and self.error_code == EMCY_OVER_CURRENT):
             return  # the cause persists
         self.state = State.SWITCH_ON_DISABLED  # 15
         self.error_code = 0
@@ -964,6 +1206,9 @@ class SimulatedDrive:
         v_max = float(self.param(0x607F)) or 1e12
         a_max = float(self.param(0x60C5)) or 1e12
         moving = True
+        if s in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE):
+            # the stop ramp sets how hard the motor brakes, even beyond 0x60C5
+            a_max = max(a_max, self._stop_decel)
         if s == State.OPERATION_ENABLED:
             self._mode_demand(h_us, v_max, a_max)
         elif s in (State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE) and self._ramp:
@@ -1053,7 +1298,7 @@ class SimulatedDrive:
     def statusword(self) -> int:
         s = self.state
         sw = STATE_BITS[s] | SW_REMOTE
-        if self._rpdo_timeout_active:
+        if self._rpdo_timeout_active or self._hb_timeout_active:
             sw |= SW_WARNING
         if self._internal_limit and s == State.OPERATION_ENABLED:
             sw |= SW_INTERNAL_LIMIT
@@ -1119,11 +1364,17 @@ class SimulatedDrive:
         with self.lock:
             self.encoder_broken = False
 
-    def inject_over_current(self) -> None:
-        """Output over-current trip: EMCY 0x2310, fault reaction, Fault."""
+    def inject_over_current(self, persist: bool = False) -> None:
+        """Output over-current trip: EMCY 0x2310, fault reaction, Fault. ``persist``: the
+        cause stays (a fault reset fails) until :meth:`clear_over_current`."""
         with self.lock:
+            self.over_current = self.over_current or persist
             self._fault(EMCY_OVER_CURRENT)
             self._async_tpdos()
+
+    def clear_over_current(self) -> None:
+        with self.lock:
+            self.over_current = False
 
     def stick_brake(self, stuck: bool = True) -> None:
         """The holding brake does not release: the axis cannot move (following error)."""
@@ -1163,3 +1414,9 @@ class SimulatedDrive:
         """Lose the next ``n`` RPDOs addressed to this drive."""
         with self.lock:
             self._drop_rpdo += n
+
+    def stop_dropping(self) -> None:
+        """Send and receive PDOs again (cancels what drop_tpdos / drop_rpdos still owe)."""
+        with self.lock:
+            self._drop_tpdo = 0
+            self._drop_rpdo = 0

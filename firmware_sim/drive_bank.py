@@ -8,12 +8,16 @@ in metres (through :mod:`controller.winch`), and the cable tensions the motors f
 Clock: ``clock=None`` (default) is deterministic: the drives advance on every SYNC by the
 SYNC period they were configured with (0x1006), and :meth:`SimulatedWinchBank.advance`
 lets time pass without SYNC. With ``clock=time.monotonic`` the drives follow wall time and
-a ticker thread keeps heartbeats and motion going between SYNCs.
+a ticker thread keeps heartbeats and motion going between SYNCs. On the SYNC clock the
+ticker does the drives' real-time duties (:meth:`SimulatedDrive.wall_tick`): heartbeats at
+least once per period of wall time, consumer heartbeats watched on wall time, and the stop
+after a master loss carried out on wall time.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -35,6 +39,7 @@ class SimulatedWinchBank:
         eds: str | Path = EDS_PATH,
         clock: Callable[[], float] | None = None,
         tick_period_s: float = 0.002,
+        wall_tick_period_s: float = 0.01,
     ) -> None:
         self.winches = winches if winches is not None else load_winches()
         self.lock = threading.RLock()
@@ -58,7 +63,7 @@ class SimulatedWinchBank:
         self.network.connect()
         self._stop = threading.Event()
         self._ticker: threading.Thread | None = None
-        self._tick_period = tick_period_s
+        self._tick_period = tick_period_s if clock is not None else wall_tick_period_s
 
     # ------------------------------------------------------------------ life cycle
 
@@ -66,7 +71,7 @@ class SimulatedWinchBank:
         """Power all drives on (each sends its boot-up message)."""
         for d in self.drives:
             d.power_on()
-        if self.clock is not None and self._ticker is None:
+        if self._ticker is None:
             self._ticker = threading.Thread(target=self._tick_loop, name="drive-bank-tick",
                                             daemon=True)
             self._ticker.start()
@@ -87,8 +92,13 @@ class SimulatedWinchBank:
 
     def _tick_loop(self) -> None:
         while not self._stop.wait(self._tick_period):
-            for d in self.drives:
-                d.tick()
+            if self.clock is not None:
+                for d in self.drives:
+                    d.tick()
+            else:
+                now = time.monotonic()
+                for d in self.drives:
+                    d.wall_tick(now)
 
     def _after_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
         for fn in list(self._sync_callbacks):

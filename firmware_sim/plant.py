@@ -1,10 +1,13 @@
 """The physical plant: the real robot as the simulation knows it.
 
 The truth is a robot description (the model the controller runs with, plus the
-effects a scenario conceals: :func:`controller.effects.apply_effects`) and a few
-nuisances outside the effect vocabulary (hysteresis by approach direction, slow
-drift, per-visit process noise of the cable lengths). For the encoder readings
-of the winches the plant finds where the platform comes to rest.
+effects a scenario conceals: :func:`controller.effects.apply_effects`) and
+nuisances outside the effect vocabulary (:class:`Nuisances`: hysteresis by
+approach direction, slow drift, per-visit process noise of the cable lengths,
+and physics a real robot has that the vocabulary lacks: backlash of one winch,
+thermal expansion of the cables, pulley friction seen by the load cells). For
+the encoder readings of the winches the plant finds where the platform comes to
+rest.
 
 It solves the statics its own way, not with the controller's and the
 diagnosis's Newton solver: it minimises the potential energy
@@ -48,17 +51,31 @@ class PlantError(RuntimeError):
 
 @dataclass(frozen=True)
 class Nuisances:
-    """Effects outside the vocabulary, small by design.
+    """Effects outside the vocabulary.
 
-    ``hysteresis_m``: each cable is longer by this much after paying out than after
-    reeling in [m]; ``drift_m_per_s`` (scalar or (n,)): slow creep of the
-    unstretched lengths [m/s]; ``process_noise_m``: standard deviation of a random
-    change of each unstretched length per visit (repeatability) [m].
+    Small by design (always present in generated campaigns): ``hysteresis_m``: each
+    cable is longer by this much after paying out than after reeling in [m];
+    ``drift_m_per_s`` (scalar or (n,)): slow creep of the unstretched lengths [m/s];
+    ``process_noise_m``: standard deviation of a random change of each unstretched
+    length per visit (repeatability) [m].
+
+    Physics the vocabulary lacks (zero unless a scenario sets them, for testing the
+    diagnosis on what it cannot name): ``backlash_m`` (n,): direction-dependent length
+    error of a winch, the cable is longer by this much after paying out than after
+    reeling in [m] (e.g. one cable's gearbox); ``thermal_strain_per_s``: thermal
+    expansion of every cable, its unstretched length grows by this strain per second
+    [1/s] (a slow temperature change: lengths drift in proportion to each cable's
+    length); ``friction_n`` (n,): pulley friction between a load cell and the platform,
+    the cell reads this much less while its cable pays out and more while it reels in
+    [N].
     """
 
     hysteresis_m: float = 0.0
     drift_m_per_s: float | np.ndarray = 0.0
     process_noise_m: float = 0.0
+    backlash_m: float | np.ndarray = 0.0
+    thermal_strain_per_s: float = 0.0
+    friction_n: float | np.ndarray = 0.0
 
 
 @dataclass(frozen=True)
@@ -82,7 +99,9 @@ class Plant:
     encoders; the tensions then are the truth's tension distribution at that pose
     (the operator pretensioned the cables). ``slip_times`` (n,) [s]: a truth
     ``length_offset`` of a cable takes effect at this time (a slip), 0 = from the
-    start. ``rng`` draws the per-visit process noise.
+    start. ``rng`` draws the per-visit process noise. ``check_every``: every k-th rest
+    position is checked against finite differences of the energy (1: all of them; rows
+    of a continuous recording, close to each other, are checked one in ``k``).
     """
 
     model: Robot
@@ -130,10 +149,14 @@ class Plant:
         dl = np.where(t >= self._slip, self.truth.length_offset, 0.0)
         l0 = unstretched_from_readings(self.truth, readings, self.reference, self.u0, dl)
         nz = self.nuisances
+        move = np.sign(readings - self._last_readings)
+        self._direction = np.where(move != 0, move, self._direction)
         if nz.hysteresis_m:
-            move = np.sign(readings - self._last_readings)
-            self._direction = np.where(move != 0, move, self._direction)
             l0 = l0 + nz.hysteresis_m * 0.5 * self._direction
+        if np.any(np.asarray(nz.backlash_m) != 0):
+            l0 = l0 + np.asarray(nz.backlash_m) * 0.5 * self._direction
+        if nz.thermal_strain_per_s:
+            l0 = l0 * (1.0 + nz.thermal_strain_per_s * t)
         l0 = l0 + np.asarray(nz.drift_m_per_s) * t
         if visit_noise is not None:
             l0 = l0 + visit_noise
@@ -145,8 +168,12 @@ class Plant:
         return self.rng.normal(0.0, self.nuisances.process_noise_m, self.truth.n_cables)
 
     def measured_tensions(self, tensions: np.ndarray) -> np.ndarray:
-        """What the load cells read for true tensions [N] (gain and offset of the truth)."""
-        return self.truth.load_cell_gain * tensions + self.truth.load_cell_offset
+        """What the load cells read for true tensions [N] (gain and offset of the truth; pulley
+        friction by the direction in which each cable last moved)."""
+        out = self.truth.load_cell_gain * tensions + self.truth.load_cell_offset
+        if np.any(np.asarray(self.nuisances.friction_n) != 0):
+            out = out - np.asarray(self.nuisances.friction_n) * self._direction
+        return out
 
     # ----- statics by energy minimisation -------------------------------------------
     def _exits(self, theta: np.ndarray) -> np.ndarray:

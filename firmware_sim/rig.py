@@ -55,7 +55,7 @@ from firmware_sim.can_hub import CanHub
 from firmware_sim.drive_bank import SimulatedWinchBank
 from firmware_sim.loadcell_bank import LoadCellBank
 from firmware_sim.loadcell_server import LoadCellServer
-from firmware_sim.plant import Nuisances, Plant, PlantError, PlantState
+from firmware_sim.plant import Plant, PlantError, PlantState
 from firmware_sim.scenario import FORMAT, Scenario, parse_scenario
 from firmware_sim.tracker_sim import DEFAULT_RATE_HZ, SimTracker, TrackerServer
 
@@ -149,7 +149,7 @@ class SimRig:
         self.plant_period_s = 1.0 / plant_rate_hz
         self.cell_period_s = 1.0 / cell_rate_hz
         self.plant = Plant(sc.model, sc.truth, sc.init_pose,
-                           Nuisances(sc.hysteresis_m, sc.drift_m_per_s, sc.noise.process_m),
+                           sc.nuisances(),
                            slip_times=sc.slip_times, rng=np.random.default_rng(sc.seed + 1),
                            check_every=ENERGY_CHECK_EVERY)
         self._visit = np.zeros(sc.model.n_cables)  # this visit's change of the lengths [m]
@@ -197,7 +197,8 @@ class SimRig:
         st = self.plant.state
         self.history: deque[RigRecord] = deque(maxlen=HISTORY)
         self._settle_lock = threading.Lock()  # the plant is not thread-safe
-        self._publish(0.0, self.reference_m.copy(), st)
+        # the drives' quantised readings, so that the first settle is not a move (no visit)
+        self._publish(0.0, self.bank.positions_m(), st)
         self.settles = 0  #: plant settles so far
         self.plant_errors: list[str] = []  #: why the plant found no rest position
         self.late_settles = 0  #: wall clock: settles that took longer than the plant period

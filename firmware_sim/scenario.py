@@ -8,7 +8,8 @@ never the truth.
 
 ```toml
 format = "cdpr-scenario/1"
-robot = "rocaspect"              # the model the controller runs with: shipped name or path
+robot = "rocaspect"              # the model the controller runs with: shipped name or path,
+                                 # or an inline table holding a robot.toml ([robot] ...)
 seed = 1
 init_pose = [10.0, 8.56, 1.0, 0.0, 0.0, 0.0]
 
@@ -29,9 +30,22 @@ encoder_m = 1.0e-6
 process_m = 2.0e-4               # per visit, on each unstretched length (repeatability)
 exit_m = 5.0e-5                  # tracker on exit points
 
-[nuisance]
-hysteresis_m = 1.0e-4
-drift_m_per_h = 5.0e-5
+[nuisance]                       # physics outside the effect vocabulary
+hysteresis_m = 1.0e-4            # every cable, by the direction of its last move
+drift_m_per_h = 5.0e-5           # every cable, uniform creep
+backlash_m = 0.0                 # backlash_cables' winches: direction-dependent length error
+backlash_cables = []             # cable ids (default: none)
+thermal_strain_per_h = 0.0       # thermal expansion of every cable [1/h]
+friction_n = 0.0                 # pulley friction seen by friction_cables' load cells [N]
+friction_cables = []             # cable ids (default: every cable when friction_n > 0)
+
+[recording]                      # what is recorded and how
+kind = "dwell"                   # dwell: visits with dwells | continuous: rows along the path
+dwell_at_targets = true          # continuous: stop for poses.dwell_s at each target
+rate_hz = 2.0                    # rows per second (default: poses.rate_hz)
+state_column = true              # write the controller state (init, move, dwell)
+tracker = true                   # record the measured pose (x_meas ...)
+load_cells = true                # record the tensions (tau_ij)
 
 [poses]
 kind = "grid"                    # grid | random | list
@@ -55,15 +69,17 @@ shipped ``cdpr-path/1`` file by name, or a file relative to the scenario).
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from controller.effects import EFFECT_NAMES, apply_effects
-from controller.robot import Robot, RobotFileError, resolve_robot
+from controller.robot import Robot, RobotFileError, parse_robot, resolve_robot
+
+if TYPE_CHECKING:
+    from firmware_sim.plant import Nuisances
 
 FORMAT = "cdpr-scenario/1"
 
@@ -124,6 +140,21 @@ class PoseSet:
         return np.hstack([pts, ang])
 
 
+@dataclass(frozen=True)
+class RecordingSpec:
+    """What a campaign records: ``kind`` ``dwell`` (dwells at the targets, one row per
+    ``1/rate_hz`` while standing) or ``continuous`` (rows at ``rate_hz`` along straight
+    lines between targets, with dwells at the targets if ``dwell_at_targets``); which
+    column groups (``tracker``, ``load_cells``, ``state_column``)."""
+
+    kind: str = "dwell"
+    dwell_at_targets: bool = True
+    rate_hz: float | None = None
+    state_column: bool = True
+    tracker: bool = True
+    load_cells: bool = True
+
+
 @dataclass
 class Scenario:
     """A parsed scenario: ``model`` as the controller knows it, ``truth`` the real robot."""
@@ -142,10 +173,26 @@ class Scenario:
     notes: str = ""
     #: the path a dry run follows (a ``cdpr-path/1`` file, by name or relative path), or ""
     run_path: str = ""
+    backlash_m: np.ndarray | float = 0.0
+    thermal_strain_per_s: float = 0.0
+    friction_n: np.ndarray | float = 0.0
+    recording: RecordingSpec = field(default_factory=RecordingSpec)
+
+    def nuisances(self, process: bool = True) -> Nuisances:
+        """The plant's nuisances for this scenario (``process``: with the per-visit process
+        noise of the cable lengths)."""
+        from firmware_sim.plant import Nuisances
+
+        return Nuisances(self.hysteresis_m, self.drift_m_per_s,
+                         self.noise.process_m if process else 0.0, self.backlash_m,
+                         self.thermal_strain_per_s, self.friction_n)
 
 
 _TOP = {"format", "robot", "seed", "init_pose", "truth", "noise", "nuisance", "poses", "notes",
-        "path"}
+        "path", "recording"}
+_NUISANCE = ("hysteresis_m", "drift_m_per_h", "backlash_m", "backlash_cables",
+             "thermal_strain_per_h", "friction_n", "friction_cables")
+_RECORDING = {"kind", "dwell_at_targets", "rate_hz", "state_column", "tracker", "load_cells"}
 
 
 def _num(path: Path, where: str, v: Any, positive: bool = False, nonneg: bool = False) -> float:
@@ -158,6 +205,12 @@ def _num(path: Path, where: str, v: Any, positive: bool = False, nonneg: bool = 
     return float(v)
 
 
+def _table(p: Path, name: str, value: Any) -> dict:
+    if not isinstance(value, dict):
+        raise ScenarioError(f"{p}: {name}: must be a table, got {value!r}")
+    return value
+
+
 def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scenario:
     """Validate a parsed scenario mapping."""
     p = Path(path)
@@ -166,10 +219,14 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
             raise ScenarioError(f"{p}: {k}: unknown key (allowed: {', '.join(sorted(_TOP))})")
     if data.get("format") != FORMAT:
         raise ScenarioError(f"{p}: format: expected {FORMAT!r}, got {data.get('format')!r}")
-    robot_ref = str(data.get("robot", "rocaspect"))
-    candidate = (p.parent / robot_ref) if p.name != "<memory>" else Path(robot_ref)
+    robot_ref = data.get("robot", "rocaspect")
     try:
-        model = resolve_robot(candidate if candidate.exists() else robot_ref)
+        if isinstance(robot_ref, dict):  # an inline robot.toml
+            model = parse_robot(robot_ref, f"{p} [robot]")
+        else:
+            robot_ref = str(robot_ref)
+            candidate = (p.parent / robot_ref) if p.name != "<memory>" else Path(robot_ref)
+            model = resolve_robot(candidate if candidate.exists() else robot_ref)
     except RobotFileError as e:
         raise ScenarioError(f"{p}: robot: {e}") from e
     ip = data.get("init_pose", [10.0, 8.56, 1.0, 0.0, 0.0, 0.0])
@@ -210,7 +267,7 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     except (KeyError, ValueError) as e:
         raise ScenarioError(f"{p}: truth: {e.args[0] if e.args else e}") from e
 
-    noise_tab = data.get("noise", {})
+    noise_tab = _table(p, "noise", data.get("noise", {}))
     known = set(Noise.__dataclass_fields__)
     for k in noise_tab:
         if k not in known:
@@ -218,15 +275,56 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
                                 f"(allowed: {', '.join(sorted(known))})")
     noise = Noise(**{k: _num(p, f"noise.{k}", v, nonneg=True) for k, v in noise_tab.items()})
 
-    nz = data.get("nuisance", {})
+    nz = _table(p, "nuisance", data.get("nuisance", {}))
     for k in nz:
-        if k not in ("hysteresis_m", "drift_m_per_h"):
-            raise ScenarioError(f"{p}: nuisance.{k}: unknown key (allowed: drift_m_per_h, "
-                                f"hysteresis_m)")
+        if k not in _NUISANCE:
+            raise ScenarioError(f"{p}: nuisance.{k}: unknown key (allowed: "
+                                f"{', '.join(sorted(_NUISANCE))})")
     hyst = _num(p, "nuisance.hysteresis_m", nz.get("hysteresis_m", 0.0), nonneg=True)
     drift = _num(p, "nuisance.drift_m_per_h", nz.get("drift_m_per_h", 0.0)) / 3600.0
+    thermal = _num(p, "nuisance.thermal_strain_per_h", nz.get("thermal_strain_per_h", 0.0)) \
+        / 3600.0
 
-    ps = data.get("poses", {})
+    def per_cable(key: str, cables_key: str, default_all: bool) -> np.ndarray:
+        v = _num(p, f"nuisance.{key}", nz.get(key, 0.0), nonneg=True)
+        ids = nz.get(cables_key)
+        if ids is None:
+            ids = list(model.cable_ids) if default_all else []
+        if not isinstance(ids, list):
+            raise ScenarioError(f"{p}: nuisance.{cables_key}: must be a list of cable ids")
+        out = np.zeros(model.n_cables)
+        for c in ids:
+            if str(c) not in model.cable_ids:
+                raise ScenarioError(f"{p}: nuisance.{cables_key}: no cable {c!r}")
+            out[model.cable_ids.index(str(c))] = v
+        return out
+
+    backlash = per_cable("backlash_m", "backlash_cables", False)
+    friction = per_cable("friction_n", "friction_cables", True)
+
+    rt = data.get("recording", {})
+    if not isinstance(rt, dict):
+        raise ScenarioError(f"{p}: recording: must be a table")
+    for k in rt:
+        if k not in _RECORDING:
+            raise ScenarioError(f"{p}: recording.{k}: unknown key (allowed: "
+                                f"{', '.join(sorted(_RECORDING))})")
+    rkw: dict[str, Any] = {}
+    if "kind" in rt:
+        if rt["kind"] not in ("dwell", "continuous"):
+            raise ScenarioError(f"{p}: recording.kind: must be dwell or continuous")
+        rkw["kind"] = rt["kind"]
+    for k in ("dwell_at_targets", "state_column", "tracker", "load_cells"):
+        if k in rt:
+            if not isinstance(rt[k], bool):
+                raise ScenarioError(f"{p}: recording.{k}: must be true or false")
+            rkw[k] = rt[k]
+    if "rate_hz" in rt:
+        rkw["rate_hz"] = _num(p, "recording.rate_hz", rt["rate_hz"], positive=True)
+    if not rkw.get("tracker", True) and not rkw.get("load_cells", True):
+        raise ScenarioError(f"{p}: recording: a recording needs the tracker or the load cells")
+
+    ps = _table(p, "poses", data.get("poses", {}))
     pknown = {"kind", "x", "y", "z", "n", "rpy_deg", "list", "visits", "dwell_s", "rate_hz",
               "init_s", "speed_m_s", "exit_points"}
     for k in ps:
@@ -259,6 +357,8 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     if "visits" in ps:
         kw["visits"] = int(_num(p, "poses.visits", ps["visits"], positive=True))
     if "exit_points" in ps:
+        if not isinstance(ps["exit_points"], list):
+            raise ScenarioError(f"{p}: poses.exit_points: must be a list of cable ids")
         ep = [str(c) for c in ps["exit_points"]]
         for c in ep:
             if c not in model.cable_ids:
@@ -270,17 +370,20 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     if run_path and p.name != "<memory>" and (p.parent / run_path).exists():
         run_path = str(p.parent / run_path)
     return Scenario(p, model, truth, effects, slips, init_pose,
-                    int(data.get("seed", 0)), noise, hyst, drift, PoseSet(**kw),
-                    str(data.get("notes", "")), run_path)
+                    int(_num(p, "seed", data.get("seed", 0), nonneg=True)), noise, hyst, drift,
+                    PoseSet(**kw), str(data.get("notes", "")), run_path, backlash, thermal,
+                    friction, RecordingSpec(**rkw))
 
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file."""
+    from controller.tomlfile import read_toml
+
     p = Path(path)
+    data, _ = read_toml(p, ScenarioError)  # errors name the file (line, column)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ScenarioError(f"{p}: cannot read: {e.strerror or e}") from e
-    except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(f"{p}: not valid TOML: {e}") from e
-    return parse_scenario(data, p)
+        return parse_scenario(data, p)
+    except (TypeError, ValueError, KeyError, AttributeError) as e:
+        if isinstance(e, ScenarioError):
+            raise
+        raise ScenarioError(f"{p}: not a valid scenario: {type(e).__name__}: {e}") from None

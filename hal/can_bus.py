@@ -11,12 +11,20 @@
   ``kvaser:0``, ...), passed to :func:`can.Bus` as is
 
 :func:`parse_can_spec` checks the form and raises :class:`CanSpecError` naming what is
-wrong; :func:`open_bus` opens it.
+wrong; :func:`open_bus` opens it. A socketcand link is a
+:class:`hal.socketcand_link.SocketcandLink`: it reconnects on its own when the server comes
+back and tells its users (``link_up``, ``link_epoch``).
+
+Logging: python-can's own socketcand client (used by third-party tools in this process)
+logs a WARNING for every TCP read that ends in the middle of a frame, over a thousand lines
+a minute under load, for something that is normal on a stream; importing this module
+drops exactly those records (:class:`QuietPartialReads`; ``dropped`` counts them).
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import socket
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,6 +33,29 @@ import can
 from can.interfaces import VALID_INTERFACES
 
 DEFAULT_SOCKETCAND_CHANNEL = "can0"
+
+
+class QuietPartialReads(logging.Filter):
+    """Drops python-can's socketcand "incomplete message" warnings (see the module docstring);
+    every other record passes."""
+
+    NOISE = ("Got incomplete message", "Incomplete message exceeds")
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.dropped = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg = record.msg if isinstance(record.msg, str) else ""
+        if msg.startswith(self.NOISE):
+            self.dropped += 1
+            return False
+        return True
+
+
+_PYCAN_SOCKETCAND = logging.getLogger("can.interfaces.socketcand.socketcand")
+if not any(isinstance(f, QuietPartialReads) for f in _PYCAN_SOCKETCAND.filters):
+    _PYCAN_SOCKETCAND.addFilter(QuietPartialReads())
 
 
 class CanSpecError(ValueError):
@@ -126,6 +157,11 @@ def open_bus(spec: str | CanSpec, **options: Any) -> can.BusABC:
     kw = s.bus_kwargs()
     kw.update(options)
     try:
+        if s.interface == "socketcand":
+            from hal.socketcand_link import SocketcandLink
+
+            kw.pop("interface")
+            return SocketcandLink(**kw)
         return can.Bus(**kw)
     except (can.CanError, OSError, TimeoutError, ValueError) as exc:
         raise can.CanInitializationError(f"--can {s}: cannot open the bus: {exc}") from exc

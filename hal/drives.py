@@ -33,13 +33,34 @@ Detection (reported by :meth:`faults` while active and as :class:`DriveEvent` hi
 :meth:`events`; ``source`` "drive" for EMCY, "hal" for what the master detects):
 
 - EMCY from a drive (code, text): faults, warnings (e.g. 0x8250 RPDO timeout), reset 0x0000;
-- drive in Fault / Fault Reaction Active (statusword), with the code of its last EMCY
-  (or of 0x603F after :meth:`read_fault_codes`);
-- heartbeat lost: no heartbeat for ``heartbeat_misses`` periods (code 0x8130);
+  a malformed one (wrong length) as ``emcy_malformed`` naming the node;
+- drive in Fault / Fault Reaction Active (statusword), with the code of the EMCY that came
+  with the transition to Fault (warnings after it are events, never the fault's code),
+  then confirmed by reading 0x603F outside the cycle (a background SDO read; an event
+  ``fault_code`` when 0x603F says something else, which then becomes the code);
+- drive in Quick Stop Active without the master asking (``quick_stop``: it lost its master,
+  0x6007): the master holds it there (never re-enables it by itself) until :meth:`enable`;
+- heartbeat lost: no heartbeat for ``heartbeat_misses`` periods (code 0x8130): the drive's
+  state is unknown, the master asks it to quick stop (in case it still listens);
 - unexpected boot-up (node reset; code 0x8130) or NMT state other than OPERATIONAL;
 - TPDO missing for a SYNC or arriving late (code 0x8250 from the master's side);
 - internal limit active (software position limit reached, statusword bit 11);
-- the bus refusing frames (node id 0, code 0x8100), without raising out of the cycle.
+- the bus refusing frames (node id 0, code 0x8100), without raising out of the cycle;
+- the link lost (node id 0, ``link_lost``; a :class:`~hal.socketcand_link.SocketcandLink`
+  whose server went away): every drive's state is unknown and each has a ``link_lost``
+  fault; when the link is back (``link_back``) the drives are recovered like reset nodes
+  (:meth:`recover`). Blocking calls on a dead link raise :class:`BusLinkError` naming the
+  bus.
+
+Master heartbeat: from :meth:`start` on, the master produces its heartbeat (COB-ID
+0x700 + ``[bus] master_node_id``, state OPERATIONAL) every ``master_heartbeat_period_s``
+from its own thread (on the wall clock, whatever the cycle does), and on a non-wall clock
+also from the cycle, once per period of that clock. The drives watch it (0x1016, written at
+:meth:`start` with the rest of :func:`~hal.drives_config.drive_settings`) and stop on their
+own, per 0x6007, when it is gone.
+
+Memory stays bounded whatever the drives send: EMCYs are not logged by canopen
+(``node.emcy.log`` stays empty), the event history keeps the last ``EVENTS_KEPT`` events.
 
 Clock: ``clock="wall"`` (time.monotonic) for real drives, ``clock="sync"`` (number of SYNCs
 sent x SYNC period) with a rig on the deterministic simulated clock, or any callable.
@@ -47,6 +68,9 @@ sent x SYNC period) with a rig on the deterministic simulated clock, or any call
 
 from __future__ import annotations
 
+import logging
+import queue
+import struct
 import threading
 import time
 from collections import deque
@@ -77,10 +101,14 @@ from hal.drives_config import (
     DriveConfigError,
     configure_node,
     drive_settings,
+    holding_problems,
+    load_eds,
     pdo_struct,
     sdo_read,
     verify_identity,
 )
+
+log = logging.getLogger(__name__)
 
 CODE_HEARTBEAT = 0x8130  # life guard / heartbeat error (CiA 301)
 CODE_PDO_TIMEOUT = 0x8250  # RPDO timeout, here: the master's receive PDO = drive's TPDO
@@ -88,10 +116,20 @@ CODE_BUS = 0x8100  # communication, generic: the bus refused our frames
 
 NMT_NAMES = {0x00: "BOOT-UP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 NMT_OPERATIONAL = 0x05
+EMCY_STRUCT = struct.Struct("<HB5s")
+#: events kept by :meth:`WinchDrives.events` when nobody takes them (oldest dropped)
+EVENTS_KEPT = 10_000
+#: EMCYs waiting for the next cycle at most (a flood beyond is counted, not kept)
+QUEUE_KEPT = 10_000
 
 
 class DriveStartupError(RuntimeError):
     """Drives did not come up (missing boot-up, no answer); the message names the nodes."""
+
+
+class BusLinkError(DriveStartupError):
+    """The CAN link is down (the socketcand server or the adapter went away, the bus refuses
+    frames): raised by the blocking calls, the message names the bus."""
 
 
 @dataclass(frozen=True)
@@ -100,9 +138,10 @@ class DriveEvent:
 
     node_id: int
     cable: str
-    kind: str  #: emcy, fault, fault_cleared, heartbeat_lost, heartbeat_resumed, boot_up,
-    #: nmt_state, tpdo_missing, tpdo_late, tpdo_short, internal_limit, fault_reset_failed,
-    #: recovered, bus_error (node_id 0)
+    kind: str  #: emcy, emcy_malformed, emcy_overflow, fault, fault_code, fault_cleared,
+    #: quick_stop, heartbeat_lost, heartbeat_resumed, heartbeat_malformed, boot_up, nmt_state,
+    #: tpdo_missing, tpdo_late, tpdo_short, internal_limit, fault_reset_failed, recovered,
+    #: sdo_error; node_id 0 (the bus): bus_error, link_lost, link_back
     code: int  #: EMCY / error code (0 when none applies)
     text: str
     source: str  #: "drive" (EMCY it sent) or "hal" (detected by the master)
@@ -120,7 +159,7 @@ class DriveFault:
 
     node_id: int
     cable: str
-    kind: str  #: drive_fault, heartbeat_lost, boot_up, nmt_state
+    kind: str  #: drive_fault, quick_stop, heartbeat_lost, boot_up, nmt_state, link_lost
     code: int
     text: str
 
@@ -133,7 +172,8 @@ class WinchDrives:
     """All winch drives of one CAN bus, vectorised over winches (see the module docstring).
 
     ``network`` is a connected :class:`canopen.Network`; ``winches`` the winch parameters
-    (node ids, units, limits, bus timing); ``eds`` the drives' EDS file or object dictionary.
+    (node ids, units, limits, bus timing); ``eds`` the drives' EDS file or object dictionary;
+    ``bus_name`` how messages name the bus (default: the bus's channel info).
     """
 
     def __init__(
@@ -143,16 +183,18 @@ class WinchDrives:
         eds: str | Path | canopen.ObjectDictionary,
         clock: str | Callable[[], float] = "wall",
         own_network: bool = False,
+        bus_name: str | None = None,
     ) -> None:
         self.network = network
         self.winches = winches
         self.n = len(winches)
         self._own_network = own_network
+        self.bus_name = bus_name or str(getattr(network.bus, "channel_info", None)
+                                        or getattr(network.bus, "channel", "CAN bus"))
         self.node_ids = [int(x) for x in winches.node_id]
         self.nodes: list[canopen.RemoteNode] = []
         for nid in self.node_ids:
-            od = eds if isinstance(eds, canopen.ObjectDictionary) else canopen.import_od(
-                str(eds), nid)
+            od = eds if isinstance(eds, canopen.ObjectDictionary) else load_eds(eds, nid)
             node = canopen.RemoteNode(nid, od)
             network.add_node(node)
             self.nodes.append(node)
@@ -161,6 +203,7 @@ class WinchDrives:
         self._tpdo = pdo_struct(od0, TPDO_MAP)
         self.period_s = winches.bus.sync_period_s
         self.hb_timeout_s = winches.bus.heartbeat_period_s * winches.bus.heartbeat_misses
+        self._wall_clock = clock == "wall"
         if clock == "wall":
             self._clock: Callable[[], float] = time.monotonic
         elif clock == "sync":
@@ -176,7 +219,10 @@ class WinchDrives:
         self._rx_pos = np.zeros(n, np.int64)
         self._rx_count = np.zeros(n, np.int64)
         self._boot_count = np.zeros(n, np.int64)
+        self._rx_hb_t = np.full(n, -np.inf)  # master clock of each drive's last heartbeat
+        self._rx_hb_state = np.full(n, -1, np.int64)  # NMT state of the last one
         self._queue: deque[tuple] = deque()
+        self._queue_overflow = np.zeros(n, np.int64)  # EMCYs not queued (flood)
         # cycle side
         self.cycle = 0
         self._syncs = 0
@@ -199,15 +245,36 @@ class WinchDrives:
         self._nmt = np.full(n, -1, np.int64)
         self._miss_streak = np.zeros(n, np.int64)
         self._limit = np.zeros(n, bool)
-        self._code = np.zeros(n, np.int64)  # last active EMCY code (0 = none)
-        self._events: list[DriveEvent] = []
+        self._code = np.zeros(n, np.int64)  # last EMCY code (0 = none or reset)
+        self._fault_code = np.zeros(n, np.int64)  # cause of the present Fault
+        self._window: list[list[int]] = [[] for _ in range(n)]  # EMCYs since last not faulted
+        self._self_stopped = np.zeros(n, bool)  # in Quick Stop Active, not by our request
+        self._nmt_wait = np.full(n, -np.inf)  # ignore stale pre-op heartbeats until (clock)
+        self._relink = np.zeros(n, bool)  # the link was lost since it was started
+        self._events: deque[DriveEvent] = deque(maxlen=EVENTS_KEPT)
+        self.events_dropped = 0  #: events that fell out of the history untaken
         self._bus_failing = False
+        self._link_down = False
+        self._link_epoch = getattr(network.bus, "link_epoch", 1)
         self._send_lock = network.send_lock
+        self._sdo_lock = threading.Lock()  # one SDO transfer at a time (cycle never waits)
+        self._jobs: queue.Queue[int | None] = queue.Queue()
+        self._worker: threading.Thread | None = None
+        self._mhb_stop = threading.Event()
+        self._mhb_thread: threading.Thread | None = None
+        self._mhb_wall = -np.inf  # wall time of the last master heartbeat sent
+        self._mhb_clock = -np.inf  # master clock of the last one sent by the cycle
+        self._closed = False
         self._subs: list[tuple[int, Callable]] = []
         for k, node in enumerate(self.nodes):
+            # the master's own EMCY and heartbeat handling: bounded, and a malformed frame
+            # is reported naming the node (canopen's would log every EMCY for ever)
+            network.unsubscribe(0x80 + node.id, node.emcy.on_emcy)
+            network.unsubscribe(0x700 + node.id, node.nmt.on_heartbeat)
+            network.unsubscribe(0, node.nmt.on_command)  # the master sends NMT, not follows
             self._subs.append((0x180 + node.id, self._tpdo_cb(k)))
             self._subs.append((0x700 + node.id, self._heartbeat_cb(k)))
-            node.emcy.add_callback(self._emcy_cb(k))
+            self._subs.append((0x80 + node.id, self._emcy_cb(k)))
         for cob, cb in self._subs:
             network.subscribe(cob, cb)
 
@@ -226,16 +293,30 @@ class WinchDrives:
         network = canopen.Network(bus)
         network.NOTIFIER_CYCLE = 0.05  # quick shutdown
         network.connect()
-        return cls(network, winches, eds, clock=clock, own_network=True)
+        return cls(network, winches, eds, clock=clock, own_network=True, bus_name=f"--can {can}")
 
     def close(self) -> None:
-        """Unsubscribe; disconnect the network if :meth:`open` created it."""
+        """Stop the master heartbeat and the SDO worker; unsubscribe; disconnect the network
+        if :meth:`open` created it."""
+        self._closed = True
+        self._mhb_stop.set()
+        if self._mhb_thread is not None:
+            self._mhb_thread.join(timeout=2.0)
+            self._mhb_thread = None
+        if self._worker is not None:
+            self._jobs.put(None)
+            self._worker.join(timeout=2.0)
+            self._worker = None
         for cob, cb in self._subs:
             if cb in self.network.subscribers.get(cob, []):
                 self.network.unsubscribe(cob, cb)
         self._subs = []
         for node in self.nodes:
             if node.id in self.network:
+                # canopen's own handlers back, so that it can remove them with the node
+                self.network.subscribe(0x80 + node.id, node.emcy.on_emcy)
+                self.network.subscribe(0x700 + node.id, node.nmt.on_heartbeat)
+                self.network.subscribe(0, node.nmt.on_command)
                 del self.network[node.id]
         if self._own_network:
             self.network.disconnect()
@@ -277,32 +358,56 @@ class WinchDrives:
 
     def _heartbeat_cb(self, k: int):
         def cb(can_id: int, data: bytearray, timestamp: float) -> None:
-            if not data:
-                return
+            if len(data) != 1:
+                self._post(("hb_bad", k, len(data)))
+                if not data:
+                    return
             state = data[0] & 0x7F
+            t = self._clock()
+            self._rx_hb_t[k] = t
             if state == 0:
                 with self._rx:
                     self._boot_count[k] += 1
                     self._rx.notify_all()
-            self._queue.append(("hb", k, state, self._clock()))
+            changed = state != self._rx_hb_state[k]
+            self._rx_hb_state[k] = state
+            if changed or state == 0:  # changes only: a bounded queue
+                self._queue.append(("hb", k, state, t))
 
         return cb
 
     def _emcy_cb(self, k: int):
-        def cb(err: canopen.emcy.EmcyError) -> None:
-            self._queue.append(("emcy", k, err.code, err.register, bytes(err.data)))
+        def cb(can_id: int, data: bytearray, timestamp: float) -> None:
+            if len(data) != EMCY_STRUCT.size:
+                self._post(("emcy_bad", k, bytes(data)))
+                return
+            code, register, extra = EMCY_STRUCT.unpack(data)
+            self._post(("emcy", k, code, register, extra))
 
         return cb
 
+    def _post(self, item: tuple) -> None:
+        """Queue an item for the next cycle; beyond QUEUE_KEPT (nobody cycles, a flood) it is
+        counted instead (reported as ``emcy_overflow`` by the next cycle)."""
+        if len(self._queue) >= QUEUE_KEPT:
+            self._queue_overflow[item[1]] += 1
+            return
+        self._queue.append(item)
+
     # ------------------------------------------------------------------ events
 
-    def _event(self, k: int, kind: str, code: int, text: str, source: str = "hal") -> None:
-        self._events.append(DriveEvent(self.node_ids[k], self.winches.cables[k], kind, code,
-                                       text, source, self.cycle, self._clock()))
+    def _keep(self, e: DriveEvent) -> None:
+        if len(self._events) == self._events.maxlen:
+            self.events_dropped += 1
+        self._events.append(e)
 
-    def _bus_event(self, text: str) -> None:
-        self._events.append(DriveEvent(0, "-", "bus_error", CODE_BUS, text, "hal", self.cycle,
-                                       self._clock()))
+    def _event(self, k: int, kind: str, code: int, text: str, source: str = "hal") -> None:
+        self._keep(DriveEvent(self.node_ids[k], self.winches.cables[k], kind, code, text,
+                              source, self.cycle, self._clock()))
+
+    def _bus_event(self, text: str, kind: str = "bus_error", code: int = CODE_BUS) -> None:
+        self._keep(DriveEvent(0, "-", kind, code, f"{self.bus_name}: {text}", "hal", self.cycle,
+                              self._clock()))
 
     def events(self, clear: bool = True) -> list[DriveEvent]:
         """Events since the last call (all of them with ``clear=False``: kept)."""
@@ -312,43 +417,59 @@ class WinchDrives:
         return out
 
     def _drain(self) -> None:
+        for k in np.flatnonzero(self._queue_overflow):
+            self._event(int(k), "emcy_overflow", 0, f"{self._queue_overflow[k]} EMCYs not kept "
+                        "(more than the master could take between two cycles)")
+            self._queue_overflow[k] = 0
         while self._queue:
             item = self._queue.popleft()
             kind, k = item[0], item[1]
             if kind == "hb":
-                state, t = item[2], item[3]
-                self._hb_last[k] = t
-                if state == 0:
-                    if self._started[k] and not self._rebooted[k]:
-                        self._rebooted[k] = True
-                        self._request[k] = Request.DISABLE
-                        self._setpoint_ok[k] = False
-                        self._have[k] = False  # state UNKNOWN until recover() reads it
-                        self._event(k, "boot_up", CODE_HEARTBEAT,
-                                    "unexpected boot-up: the node was reset; recover() it")
-                    self._nmt[k] = 0x7F
-                    continue
-                if self._hb_lost[k]:
-                    self._hb_lost[k] = False
-                    self._event(k, "heartbeat_resumed", CODE_HEARTBEAT, "heartbeat back")
-                if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
-                    if state != NMT_OPERATIONAL:
-                        self._event(k, "nmt_state", CODE_HEARTBEAT,
-                                    f"NMT state {NMT_NAMES.get(state, hex(state))}, "
-                                    "expected OPERATIONAL")
-                self._nmt[k] = state
+                self._heartbeat_in(k, item[2])
             elif kind == "emcy":
                 code, register = item[2], item[3]
+                self._code[k] = code
                 if code == 0:
-                    self._code[k] = 0
                     self._event(k, "emcy", 0, "error reset (no error)", "drive")
                 else:
-                    self._code[k] = code
+                    if len(self._window[k]) < 16:
+                        self._window[k].append(code)
                     self._event(k, "emcy", code, f"{emcy_text(code)} (error register "
                                 f"0x{register:02X})", "drive")
+            elif kind == "emcy_bad":
+                self._event(k, "emcy_malformed", 0, f"EMCY of {len(item[2])} bytes "
+                            f"({item[2].hex() or 'empty'}), expected {EMCY_STRUCT.size}: ignored")
+            elif kind == "hb_bad":
+                self._event(k, "heartbeat_malformed", CODE_HEARTBEAT,
+                            f"heartbeat of {item[2]} bytes, expected 1")
             elif kind == "short":
                 self._event(k, "tpdo_short", CODE_PDO_TIMEOUT,
                             f"TPDO of {item[2]} bytes, expected {self._tpdo.size}")
+            elif kind == "603f":
+                self._fault_code_read(k, item[2], item[3])
+
+    def _heartbeat_in(self, k: int, state: int) -> None:
+        if state == 0:
+            if self._started[k] and not self._rebooted[k]:
+                self._rebooted[k] = True
+                self._request[k] = Request.DISABLE
+                self._setpoint_ok[k] = False
+                self._have[k] = False  # state UNKNOWN until recover() reads it
+                self._event(k, "boot_up", CODE_HEARTBEAT,
+                            "unexpected boot-up: the node was reset; recover() it")
+            self._nmt[k] = 0x7F
+            return
+        if state != NMT_OPERATIONAL and self._clock() <= self._nmt_wait[k]:
+            self._rx_hb_state[k] = -1  # the next one counts again
+            return  # sent before our NMT start reached it: not news
+        if state == NMT_OPERATIONAL:
+            self._nmt_wait[k] = -np.inf
+        if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
+            if state != NMT_OPERATIONAL:
+                self._event(k, "nmt_state", CODE_HEARTBEAT,
+                            f"NMT state {NMT_NAMES.get(state, hex(state))}, "
+                            "expected OPERATIONAL")
+        self._nmt[k] = state
 
     # ------------------------------------------------------------------ start-up (blocking)
 
@@ -369,54 +490,213 @@ class WinchDrives:
     def _send_nmt(self, k: int, command: int) -> None:
         self.network.send_message(0, bytes([command, self.node_ids[k]]))
 
+    # ------------------------------------------------------------------ the link
+
+    def link_up(self) -> bool:
+        """The bus is usable (a socketcand link that is connected; other buses: always)."""
+        return bool(getattr(self.network.bus, "link_up", True))
+
+    def _link_why(self) -> str:
+        why = getattr(self.network.bus, "link_error", "") or "link down"
+        return f"{self.bus_name}: CAN link down ({why})"
+
+    def _require_link(self, what: str) -> None:
+        if not self.link_up():
+            raise BusLinkError(f"{what}: {self._link_why()}")
+
+    def _blocking(self, what: str, fn: Callable[[], object]) -> object:
+        """Run a blocking operation; a bus that fails under it raises BusLinkError naming the
+        bus (never a raw OSError / CanError)."""
+        self._require_link(what)
+        try:
+            return fn()
+        except (can.CanError, OSError) as exc:
+            raise BusLinkError(f"{what}: {self.bus_name}: {type(exc).__name__}: {exc}") from exc
+        except DriveConfigError as exc:
+            if not self.link_up():
+                raise BusLinkError(f"{what}: {self._link_why()}: {exc}") from exc
+            raise
+
+    def _check_link(self) -> None:
+        """Per cycle: notice a lost or restored link (a reconnect counts as both)."""
+        up = self.link_up()
+        epoch = getattr(self.network.bus, "link_epoch", self._link_epoch)
+        if (not up or epoch != self._link_epoch) and not self._link_down:
+            self._link_down = True
+            why = getattr(self.network.bus, "link_error", "") or "reconnected"
+            self._bus_event(f"CAN link lost ({why}): drive states unknown", "link_lost")
+            lost = self._started.copy()
+            self._relink |= lost
+            self._have[:] = False
+            self._setpoint_ok[:] = False
+            self._request[lost] = Request.QUICK_STOP  # hold, should anything still listen
+        if up and self._link_down:
+            self._link_down = False
+            self._bus_event("CAN link back: the drives stopped on their own (master lost); "
+                            "recover() them, then enable()", "link_back", 0)
+        self._link_epoch = epoch
+
+    # ------------------------------------------------------------------ master heartbeat
+
+    def _master_heartbeat(self) -> None:
+        mid = self.winches.bus.master_node_id
+        try:
+            with self._send_lock:
+                self.network.bus.send(can.Message(arbitration_id=0x700 + mid,
+                                                  data=bytes([NMT_OPERATIONAL]),
+                                                  is_extended_id=False))
+        except (can.CanError, OSError):
+            pass  # a dead link: the cycle reports it
+        self._mhb_wall = time.monotonic()
+
+    def _mhb_loop(self) -> None:
+        period = self.winches.bus.master_heartbeat_period_s
+        while not self._mhb_stop.wait(max(0.001, period - (time.monotonic() - self._mhb_wall))):
+            if time.monotonic() - self._mhb_wall >= period - 1e-4:
+                self._master_heartbeat()
+
+    def _start_master_heartbeat(self) -> None:
+        if self.winches.bus.master_heartbeat_period_s <= 0 or self._mhb_thread is not None:
+            return
+        self._mhb_stop.clear()
+        self._master_heartbeat()
+        self._mhb_thread = threading.Thread(target=self._mhb_loop, name="master-heartbeat",
+                                            daemon=True)
+        self._mhb_thread.start()
+
+    def _cycle_heartbeat(self) -> None:
+        """On a non-wall clock, also one heartbeat per period of that clock (the drives on
+        the same clock then hear it at the period, however fast the cycles run)."""
+        period = self.winches.bus.master_heartbeat_period_s
+        if self._wall_clock or period <= 0 or self._mhb_thread is None:
+            return
+        now = self._clock()
+        if now - self._mhb_clock >= period - 1e-9:
+            self._mhb_clock = now
+            self._master_heartbeat()
+
+    # ------------------------------------------------------------------ fault codes (SDO)
+
+    def _confirm_fault_code(self, k: int) -> None:
+        """Read 0x603F of drive ``k`` in the background (the cycle never waits for SDO)."""
+        if self._worker is None:
+            self._worker = threading.Thread(target=self._work, name="drive-sdo", daemon=True)
+            self._worker.start()
+        self._jobs.put(k)
+
+    def _work(self) -> None:
+        while True:
+            k = self._jobs.get()
+            if k is None or self._closed:
+                return
+            try:
+                with self._sdo_lock:
+                    code = int(sdo_read(self.nodes[k], 0x603F, 0, self.who(k)))
+                self._queue.append(("603f", k, code, ""))
+            except (DriveConfigError, can.CanError, OSError) as exc:
+                self._queue.append(("603f", k, None, str(exc)))
+
+    def _fault_code_read(self, k: int, code: int | None, err: str) -> None:
+        if not faulted(self._states[k:k + 1])[0]:
+            return  # reset meanwhile
+        if code is None:
+            self._event(k, "sdo_error", 0, f"reading 0x603F error code: {err}")
+            return
+        if code != self._fault_code[k]:
+            old = int(self._fault_code[k])
+            self._fault_code[k] = code
+            said = f"0x{old:04X}" if old else "no EMCY"
+            self._event(k, "fault_code", code, f"0x603F error code 0x{code:04X} "
+                        f"({emcy_text(code)}); the fault came with {said}")
+
+    # ------------------------------------------------------------------ start-up (blocking)
+
     def start(self, timeout: float = 3.0, nodes: Iterable[int] | None = None) -> None:
         """Bring drives to NMT OPERATIONAL with the CSP configuration (blocking; SDO).
 
         NMT reset communication, wait for each boot-up, check identity against the EDS,
-        write and verify the configuration, read statusword and position, NMT start.
+        write and verify the configuration (master-loss monitoring included), read
+        statusword and position, NMT start; the master heartbeat runs from here on.
         ``nodes`` are array indices (default: all). Raises DriveStartupError or
-        DriveConfigError naming the node.
+        DriveConfigError naming the node, BusLinkError naming the bus.
         """
+        if nodes is None:
+            for problem in holding_problems(self.winches):
+                log.warning("%s", problem)
+        self._blocking("start", lambda: self._start(timeout, nodes))
+
+    def _start(self, timeout: float, nodes: Iterable[int] | None) -> None:
         ks = list(range(self.n)) if nodes is None else list(nodes)
+        self._start_master_heartbeat()
         before = self._boot_count.copy()
         for k in ks:
             self._send_nmt(k, 0x82)  # reset communication
         self._wait_bootups(ks, before, timeout)
-        for k in ks:
-            node = self.nodes[k]
-            who = self.who(k)
-            verify_identity(node, who)
-            configure_node(node, drive_settings(self.winches, k, node.object_dictionary), who)
-            sw = int(sdo_read(node, 0x6041, 0, who))
-            pos = int(sdo_read(node, 0x6064, 0, who))
-            with self._rx:
-                self._rx_sw[k] = sw
-                self._rx_pos[k] = pos
-                self._seen[k] = self._rx_count[k]
-            self._sw[k], self._pos[k], self._have[k] = sw, pos, True
-            self._target[k] = pos
+        with self._sdo_lock:
+            for k in ks:
+                node = self.nodes[k]
+                who = self.who(k)
+                verify_identity(node, who)
+                configure_node(node, drive_settings(self.winches, k, node.object_dictionary),
+                               who)
+                sw = int(sdo_read(node, 0x6041, 0, who))
+                pos = int(sdo_read(node, 0x6064, 0, who))
+                with self._rx:
+                    self._rx_sw[k] = sw
+                    self._rx_pos[k] = pos
+                    self._seen[k] = self._rx_count[k]
+                self._sw[k], self._pos[k], self._have[k] = sw, pos, True
+                self._target[k] = pos
         self._drain_startup(ks)
         now = self._clock()
+        self._link_down = False
+        self._link_epoch = getattr(self.network.bus, "link_epoch", self._link_epoch)
+        states = decode_states(self._sw, self._have)
         for k in ks:
             self._send_nmt(k, 0x01)  # start remote node
             self._started[k] = True
             self._armed[k] = False
             self._rebooted[k] = False
+            self._relink[k] = False
             self._hb_lost[k] = False
             self._hb_last[k] = now
+            self._rx_hb_t[k] = max(self._rx_hb_t[k], now)
+            self._rx_hb_state[k] = -1  # the next heartbeat tells the state
             self._nmt[k] = NMT_OPERATIONAL
+            self._nmt_wait[k] = now + max(self.hb_timeout_s, self.period_s)
             self._miss_streak[k] = 0
-            self._request[k] = Request.DISABLE
+            # a drive holding in Quick Stop Active (it lost its master) keeps holding
+            held = states[k] == DriveState.QUICK_STOP_ACTIVE
+            self._request[k] = Request.QUICK_STOP if held else Request.DISABLE
+            self._self_stopped[k] = held
             self._setpoint_ok[k] = False
-        self._states = decode_states(self._sw, self._have)
+        self._states = states
         for k in ks:
             if faulted(self._states[k:k + 1])[0]:
-                if not self._code[k]:  # its EMCY may have gone out before we listened
-                    self._code[k] = int(sdo_read(self.nodes[k], 0x603F, 0, self.who(k)))
-                code = int(self._code[k])
+                if not self._window[k]:  # its EMCY may have gone out before we listened
+                    with self._sdo_lock:
+                        self._fault_code[k] = int(sdo_read(self.nodes[k], 0x603F, 0,
+                                                           self.who(k)))
+                else:
+                    self._fault_code[k] = self._cause(k)
+                code = int(self._fault_code[k])
                 text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
                 self._event(k, "fault", code, f"in {DriveState(self._states[k]).name} at "
                             f"start-up: {text}")
+
+    def _wait_bootups(self, ks: list[int], before: np.ndarray, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        with self._rx:
+            while True:
+                missing = [k for k in ks if self._boot_count[k] <= before[k]]
+                left = deadline - time.monotonic()
+                if not missing:
+                    return
+                if left <= 0:
+                    who = ", ".join(self.who(k) for k in missing)
+                    raise DriveStartupError(
+                        f"no boot-up within {timeout:.1f} s after NMT reset from {who}")
+                self._rx.wait(left)
 
     def _drain_startup(self, ks: list[int]) -> None:
         """Consume events of the start-up (boot-ups we caused); keep EMCYs."""
@@ -429,29 +709,40 @@ class WinchDrives:
         self._queue.extend(keep)
         self._drain()
 
-    def recover(self, timeout: float = 3.0) -> list[int]:
-        """Restart drives that rebooted or went silent and are back (blocking; SDO).
+    def _needs_recovery(self) -> np.ndarray:
+        return self._rebooted | self._relink | self._hb_lost | (
+            self._started & ~np.isin(self._nmt, (NMT_OPERATIONAL, -1)))
 
-        Returns the node ids restarted. They come back disabled: call :meth:`enable`.
+    def recover(self, timeout: float = 3.0) -> list[int]:
+        """Restart drives that rebooted, went silent and are back, or were behind a lost
+        link (blocking; SDO). Returns the node ids restarted. They come back disabled, or
+        holding in Quick Stop Active if they stopped on their own: call :meth:`enable`.
+        BusLinkError while the link is down.
         """
+        self._require_link("recover")
+        self._check_link()
         self._drain()
-        ks = [k for k in range(self.n) if self._rebooted[k] or self._hb_lost[k]
-              or (self._started[k] and self._nmt[k] not in (NMT_OPERATIONAL, -1))]
+        ks = [int(k) for k in np.flatnonzero(self._needs_recovery())]
         if not ks:
             return []
-        self.start(timeout=timeout, nodes=ks)
+        self._blocking("recover", lambda: self._start(timeout, ks))
         for k in ks:
             self._event(k, "recovered", 0, "reconfigured and started")
         return [self.node_ids[k] for k in ks]
 
     def read_fault_codes(self) -> dict[int, int]:
         """Read 0x603F error code of drives in Fault by SDO (blocking). {node id: code}."""
-        out = {}
-        for k in np.flatnonzero(faulted(self._states)):
-            code = int(sdo_read(self.nodes[k], 0x603F, 0, self.who(k)))
-            self._code[k] = code
-            out[self.node_ids[k]] = code
-        return out
+
+        def read() -> dict[int, int]:
+            out = {}
+            for k in np.flatnonzero(faulted(self._states)):
+                with self._sdo_lock:
+                    code = int(sdo_read(self.nodes[k], 0x603F, 0, self.who(k)))
+                self._fault_code[k] = code
+                out[self.node_ids[k]] = code
+            return out
+
+        return self._blocking("read_fault_codes", read)
 
     # ------------------------------------------------------------------ requests
 
@@ -481,9 +772,11 @@ class WinchDrives:
         self._request[self._mask(nodes)] = Request.QUICK_STOP
 
     def fault_reset(self, nodes: Iterable[int] | None = None, hold_cycles: int = 20) -> None:
-        """Reset faulted drives with a rising edge of controlword bit 7 (over the next cycles)."""
+        """Reset faulted drives with a rising edge of controlword bit 7 (over the next cycles).
+        They come back disabled, never enabled: that takes :meth:`enable`."""
         m = self._mask(nodes) & faulted(self._states)
         self._reset_left[m] = hold_cycles
+        self._request[m] = Request.DISABLE
 
     def set_lengths(self, lengths_m: np.ndarray) -> None:
         """Cable length setpoints [m], shape (n,), sent with the next :meth:`exchange`.
@@ -512,7 +805,7 @@ class WinchDrives:
     # ------------------------------------------------------------------ the cycle
 
     def _expected(self) -> np.ndarray:
-        return self._started & self._armed & ~self._rebooted & ~self._hb_lost
+        return self._started & self._armed & ~self._rebooted & ~self._hb_lost & ~self._relink
 
     def exchange(self) -> None:
         """One control cycle: process what arrived, run the state machine, send RPDOs + SYNC.
@@ -527,6 +820,7 @@ class WinchDrives:
         the last call (positions, states, detection). Never blocks. Call once per cycle,
         before :meth:`transmit` (a TPDO is expected per SYNC sent)."""
         self._drain()
+        self._check_link()
         with self._rx:
             counts = self._rx_count.copy()
             sw = self._rx_sw.copy()
@@ -538,7 +832,8 @@ class WinchDrives:
         self._check_pdos(fresh, n_new, expected)
         self._sw = np.where(fresh, sw, self._sw)
         self._pos = np.where(fresh, pos, self._pos)
-        self._have |= fresh
+        self._have |= fresh & ~self._relink
+        self._nmt_wait[fresh] = -np.inf  # PDOs only flow in OPERATIONAL
         self._update_states(expected)
         self._check_heartbeats()
 
@@ -546,6 +841,7 @@ class WinchDrives:
         """Second half of a cycle: state machine requests, RPDOs (setpoints) + SYNC out.
         Never blocks."""
         self._send_outputs()
+        self._cycle_heartbeat()
         self.cycle += 1
 
     def _check_pdos(self, fresh: np.ndarray, n_new: np.ndarray, expected: np.ndarray) -> None:
@@ -563,19 +859,46 @@ class WinchDrives:
             self._event(k, "tpdo_late", CODE_PDO_TIMEOUT,
                         f"{n_new[k]} TPDOs in one cycle: one arrived late")
 
+    def _cause(self, k: int) -> int:
+        """The EMCY that came with drive ``k``'s transition to Fault: of the EMCYs since it
+        was last seen not faulted, the first that is not a communication warning (0x81xx,
+        0x82xx), else the first; 0 if none came."""
+        codes = self._window[k]
+        for code in codes:
+            if code >> 8 not in (0x81, 0x82):
+                return code
+        return codes[0] if codes else 0
+
     def _update_states(self, expected: np.ndarray) -> None:
         old = self._states
         new = decode_states(self._sw, self._have)
         was_fault = faulted(old)
         now_fault = faulted(new)
         for k in np.flatnonzero(now_fault & ~was_fault):
-            code = int(self._code[k])
+            code = self._cause(k)
+            self._fault_code[k] = code
             text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
             self._event(k, "fault", code, f"{DriveState(new[k]).name}: {text}")
             self._request[k] = Request.DISABLE
+            self._confirm_fault_code(int(k))
         for k in np.flatnonzero(~now_fault & was_fault & (new != DriveState.UNKNOWN)):
             self._event(k, "fault_cleared", 0, f"now {DriveState(new[k]).name}")
-            self._code[k] = 0
+            self._fault_code[k] = 0
+        known_ok = ~now_fault & (new != DriveState.UNKNOWN)
+        for k in np.flatnonzero(known_ok):
+            self._window[k].clear()
+        # a drive that quick-stopped on its own (master lost, 0x6007) holds there until the
+        # controller enables it again: the master never re-enables it by itself
+        qs = new == DriveState.QUICK_STOP_ACTIVE
+        for k in np.flatnonzero(qs & (old != DriveState.QUICK_STOP_ACTIVE)
+                                & (self._request != Request.QUICK_STOP)):
+            self._self_stopped[k] = True
+            self._request[k] = Request.QUICK_STOP
+            code = next((c for c in reversed(self._window[k]) if c), int(self._code[k]))
+            why = emcy_text(code) if code else "no EMCY"
+            self._event(k, "quick_stop", code, f"the drive stopped on its own ({why}): held in "
+                        "Quick Stop Active until enable()")
+        self._self_stopped &= qs | (new == DriveState.UNKNOWN)
         oe = new == DriveState.OPERATION_ENABLED
         entering = oe & ~self._setpoint_ok
         self._target[entering] = self._pos[entering]  # hold where it stands
@@ -587,14 +910,21 @@ class WinchDrives:
         self._states = new
 
     def _check_heartbeats(self) -> None:
-        if self.hb_timeout_s <= 0:
+        if self.hb_timeout_s <= 0 or self._link_down:
             return
         now = self._clock()
-        lost = self._started & ~self._rebooted & ~self._hb_lost & (
-            now - self._hb_last > self.hb_timeout_s + 1e-9)
+        self._hb_last = np.maximum(self._hb_last, self._rx_hb_t)
+        back = self._hb_lost & (now - self._hb_last <= self.hb_timeout_s + 1e-9)
+        for k in np.flatnonzero(back):
+            self._hb_lost[k] = False
+            self._event(k, "heartbeat_resumed", CODE_HEARTBEAT, "heartbeat back")
+        watched = self._started & ~self._rebooted & ~self._relink
+        lost = watched & ~self._hb_lost & (now - self._hb_last > self.hb_timeout_s + 1e-9)
         for k in np.flatnonzero(lost):
             self._hb_lost[k] = True
-            self._request[k] = Request.DISABLE
+            self._have[k] = False  # its state is unknown now
+            self._setpoint_ok[k] = False
+            self._request[k] = Request.QUICK_STOP  # hold, if it still hears us
             self._event(k, "heartbeat_lost", CODE_HEARTBEAT,
                         f"no heartbeat for {now - self._hb_last[k]:.3f} s "
                         f"(> {self.winches.bus.heartbeat_misses} periods)")
@@ -612,14 +942,17 @@ class WinchDrives:
         self._reset_left[done] = 0
         self._reset_left[resetting & ~done] -= 1
         for k in np.flatnonzero(resetting & ~done & (self._reset_left == 0)):
-            self._event(k, "fault_reset_failed", int(self._code[k]),
+            self._event(k, "fault_reset_failed", int(self._fault_code[k]),
                         "still in Fault after the reset edge (cause persists?)")
         # a drive not enabled, or being enabled now, gets its actual position as target
         going = enabling(states, cw)
         target = np.where(self._setpoint_ok & ~going, self._target, self._pos)
         self._target = target
         self._last_cw = cw
-        send = self._started & ~self._rebooted
+        send = self._started & ~self._rebooted & ~self._relink
+        if self._link_down or not self.link_up():
+            self._syncs += 1  # the cycle happened; nothing can go out (see _check_link)
+            return
         bus_send = self.network.bus.send
         pack = self._rpdo.pack
         try:
@@ -672,25 +1005,67 @@ class WinchDrives:
         return False
 
     def enable_and_wait(self, max_cycles: int = 50) -> None:
-        """Enable all drives and cycle until they are Operation Enabled (blocks)."""
+        """Enable all drives and cycle until they are Operation Enabled (blocks).
+
+        Fails at once (nothing is sent) with BusLinkError when the link is down, and with
+        DriveStartupError naming the drives that need :meth:`recover` first (reset, silent,
+        behind a lost link) or whose state is unknown."""
+        self._require_link("enable")
+        self._drain()
+        self._check_link()
+        if self._link_down:
+            raise BusLinkError(f"enable: {self._link_why()}")
+        bad = [f"{self.who(k)}: {self._why_not_ready(k)}" for k in range(self.n)
+               if self._why_not_ready(k)]
+        if bad:
+            raise DriveStartupError(f"enable refused: {'; '.join(bad)}")
         self.enable()
-        ok = self.run_until(lambda d: bool(np.all(d.states() == DriveState.OPERATION_ENABLED)),
-                            max_cycles)
+        ok = self._blocking("enable", lambda: self.run_until(
+            lambda d: bool(np.all(d.states() == DriveState.OPERATION_ENABLED)), max_cycles))
         if not ok:
             bad = [f"{self.who(k)}: {DriveState(s).name}" for k, s in enumerate(self._states)
                    if s != DriveState.OPERATION_ENABLED]
+            # the drives that did not come keep no pending enable: a later fault reset or
+            # recovery must not enable them behind the controller's back
+            late = self._states != DriveState.OPERATION_ENABLED
+            held = late & (self._states == DriveState.QUICK_STOP_ACTIVE)
+            self._request[late & ~held] = Request.DISABLE
+            self._request[held] = Request.QUICK_STOP
+            if not self.link_up():
+                raise BusLinkError(f"enable: {self._link_why()}")
             raise DriveStartupError(
                 f"not Operation Enabled after {max_cycles} cycles: {'; '.join(bad)}")
 
+    def _why_not_ready(self, k: int) -> str:
+        if not self._started[k]:
+            return "not started (start() first)"
+        if self._relink[k]:
+            return "behind a lost CAN link: recover() it first"
+        if self._rebooted[k]:
+            return "was reset (boot-up): recover() it first"
+        if self._hb_lost[k]:
+            return "heartbeat lost: recover() it once it is back"
+        if self._nmt[k] not in (NMT_OPERATIONAL, -1):
+            return f"NMT {NMT_NAMES.get(int(self._nmt[k]), '?')}: recover() it first"
+        return ""
+
     def shutdown(self, max_cycles: int = 20) -> None:
-        """Disable voltage on all drives (cycling until Switch On Disabled), then NMT pre-op."""
-        self.off()
-        self.run_until(lambda d: bool(np.all(d.states() != DriveState.OPERATION_ENABLED)),
-                       max_cycles)
-        for k in range(self.n):
-            if self._started[k]:
-                self._send_nmt(k, 0x80)
-        self._started[:] = False
+        """Disable voltage on all drives (cycling until Switch On Disabled), then NMT pre-op.
+        BusLinkError (after marking the drives stopped) when the link is down."""
+        try:
+            self._require_link("shutdown")
+
+            def off() -> None:
+                self.off()
+                self.run_until(lambda d: bool(np.all(d.states() != DriveState.OPERATION_ENABLED)),
+                               max_cycles)
+                for k in range(self.n):
+                    if self._started[k]:
+                        self._send_nmt(k, 0x80)
+
+            self._blocking("shutdown", off)
+        finally:
+            self._started[:] = False
 
     # ------------------------------------------------------------------ readings
 
@@ -721,14 +1096,24 @@ class WinchDrives:
         return self._limit.copy()
 
     def faults(self) -> list[DriveFault]:
-        """Active faults (drive Fault, heartbeat lost, node reset, wrong NMT state)."""
+        """Active faults (drive Fault, quick stop of its own, heartbeat lost, node reset,
+        wrong NMT state, link lost)."""
         out = []
         for k in range(self.n):
             nid, cable = self.node_ids[k], self.winches.cables[k]
+            if self._relink[k]:
+                out.append(DriveFault(nid, cable, "link_lost", CODE_BUS,
+                                      f"{self._link_why() if self._link_down else self.bus_name}"
+                                      ": state unknown; recover() it when the link is back"))
+                continue
             if faulted(self._states[k:k + 1])[0]:
-                code = int(self._code[k])
+                code = int(self._fault_code[k])
                 text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
                 out.append(DriveFault(nid, cable, "drive_fault", code, text))
+            if self._self_stopped[k]:
+                code = int(self._code[k]) if self._code[k] else 0
+                out.append(DriveFault(nid, cable, "quick_stop", code, "stopped on its own "
+                                      "(master lost?), holding in Quick Stop Active"))
             if self._hb_lost[k]:
                 out.append(DriveFault(nid, cable, "heartbeat_lost", CODE_HEARTBEAT,
                                       "heartbeat lost"))
@@ -743,6 +1128,7 @@ class WinchDrives:
 
 
 __all__ = [
+    "BusLinkError",
     "DriveConfigError",
     "DriveEvent",
     "DriveFault",

@@ -2,12 +2,15 @@
 
 :func:`drive_settings` turns the winch parameters (``controller/data/rocaspect_winches.toml``)
 into the list of object writes one drive needs for cyclic synchronous position (CSP):
-communication (SYNC 0x1005/0x1006, heartbeat 0x1017), the PDO mapping (RPDO1 =
+communication (SYNC 0x1005/0x1006, heartbeat 0x1017), master-loss monitoring (consumer
+heartbeat 0x1016, error behaviour 0x1029, abort connection option 0x6007), the PDO mapping (RPDO1 =
 controlword + target position, TPDO1 = statusword + position actual value, transmission
 type 1 = every SYNC, RPDO deadline 0x1400 sub 5) following the CiA 301 procedure
 (invalidate, clear, map, count, validate), and the drive parameters (mode 8, following
 error, software limits, velocity/acceleration limits, ramps, quick stop and fault
-reaction options). Every entry is checked against the EDS first (object exists, is
+reaction options). This table is the one place that says what a drive is configured with:
+the HAL writes and verifies it at start-up and ``cdpr commission check`` compares a drive
+against it. Every entry is checked against the EDS first (object exists, is
 writable, the value fits its type, mapped objects are mappable), then written by SDO and
 read back (:func:`configure_node`). Blocking: run it at start-up, never in the cycle.
 Errors name the node, the cable, the object and the value.
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from pathlib import Path
 
 import canopen
 from canopen import objectdictionary
@@ -48,6 +52,33 @@ SDO_ABORT_TEXT = {
 
 class DriveConfigError(RuntimeError):
     """A drive could not be configured or does not match; the message names node and object."""
+
+
+def load_eds(path: str | Path, node_id: int) -> canopen.ObjectDictionary:
+    """The object dictionary of an EDS file for ``node_id``; DriveConfigError naming the file
+    (and the line of a byte that is not UTF-8) when it cannot be read or is not an EDS."""
+    import contextlib
+    import io
+
+    from controller.tomlfile import decode_utf8
+
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as e:
+        raise DriveConfigError(f"EDS {p}: cannot read: {e.strerror or e}") from None
+    decode_utf8(data, f"EDS {p}", DriveConfigError)
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said):  # canopen prints some complaints
+            od = canopen.import_od(str(p), node_id)
+    except Exception as e:  # configparser, KeyError, ValueError...: any way of not being one
+        extra = said.getvalue().strip()
+        raise DriveConfigError(f"EDS {p}: not a valid EDS: {type(e).__name__}: {e}"
+                               + (f" ({extra})" if extra else "")) from None
+    if not len(od) or 0x1000 not in od:
+        raise DriveConfigError(f"EDS {p}: no object 0x1000 (device type): not a device EDS")
+    return od
 
 
 @dataclass(frozen=True)
@@ -106,6 +137,42 @@ def pdo_settings(
     return out
 
 
+def consumer_heartbeat(node_id: int, time_ms: int) -> int:
+    """0x1016 sub-index value watching ``node_id``'s heartbeat for ``time_ms`` (CiA 301 7.5.2.
+    19: bits 16-23 node id, bits 0-15 consumer heartbeat time [ms]; 0 = not watched)."""
+    if time_ms <= 0:
+        return 0
+    return (int(node_id) & 0x7F) << 16 | (int(time_ms) & 0xFFFF)
+
+
+#: (object, option, what it does) of the stop options that leave a hanging load to the brake
+#: alone or let it coast (CiA 402 0x605A, 0x605E, 0x6007); see ``rocaspect_winches.toml``.
+NOT_HOLDING: tuple[tuple[str, int, str], ...] = (
+    ("quick_stop_option", 0, "0x605A = 0: a quick stop disables the drive function (coasts)"),
+    ("quick_stop_option", 1, "0x605A = 1: a quick stop ends in Switch On Disabled (no torque)"),
+    ("quick_stop_option", 2, "0x605A = 2: a quick stop ends in Switch On Disabled (no torque)"),
+    ("fault_reaction_option", 0, "0x605E = 0: a fault switches the power off at once (coasts)"),
+    ("abort_connection_option", 0, "0x6007 = 0: a drive keeps moving when the master is lost"),
+    ("abort_connection_option", 2,
+     "0x6007 = 2: master loss disables voltage at once (coasts)"),
+)
+
+
+def holding_problems(w: WinchSet) -> list[str]:
+    """Stop options of the winch parameters that do not end holding the load (empty: every
+    stop ends in Quick Stop Active or on the quick-stop ramp), naming winch and object."""
+    out = []
+    for key, value, what in NOT_HOLDING:
+        for k in range(len(w)):
+            if int(getattr(w, key)[k]) == value:
+                out.append(f"{w.source}: winch {w.cables[k]!r} (node {int(w.node_id[k])}) "
+                           f"{key}: {what}")
+    if w.bus.master_heartbeat_timeout_s <= 0:
+        out.append(f"{w.source}: [bus] master_heartbeat_timeout_s = 0: the drives do not watch "
+                   "the master's heartbeat")
+    return out
+
+
 def drive_settings(w: WinchSet, k: int, od: canopen.ObjectDictionary) -> list[Setting]:
     """The start-up writes of winch ``k`` (array index) for CSP, in order."""
     bus = w.bus
@@ -121,6 +188,9 @@ def drive_settings(w: WinchSet, k: int, od: canopen.ObjectDictionary) -> list[Se
         Setting(0x1005, 0, 0x80, "COB-ID SYNC"),
         Setting(0x1006, 0, period_us, "communication cycle period [us]"),
         Setting(0x1017, 0, bus.heartbeat_ms, "producer heartbeat time [ms]"),
+        Setting(0x1016, 1, consumer_heartbeat(bus.master_node_id, bus.master_heartbeat_timeout_ms),
+                "consumer heartbeat time (master)"),
+        Setting(0x1029, 1, int(w.comm_error_behaviour[k]), "error behaviour: communication error"),
     ]
     s += pdo_settings(od, "rpdo", RPDO_MAP, 1, bus.rpdo_timeout_ms)
     s += pdo_settings(od, "tpdo", TPDO_MAP, 1)
@@ -142,6 +212,7 @@ def drive_settings(w: WinchSet, k: int, od: canopen.ObjectDictionary) -> list[Se
         Setting(0x6085, 0, rate(w.quick_stop_decel_m_s2[k]), "quick stop deceleration"),
         Setting(0x605A, 0, int(w.quick_stop_option[k]), "quick stop option code"),
         Setting(0x605E, 0, int(w.fault_reaction_option[k]), "fault reaction option code"),
+        Setting(0x6007, 0, int(w.abort_connection_option[k]), "abort connection option code"),
         Setting(0x6076, 0, int(round(w.rated_torque_nm[k] * 1e3)), "motor rated torque [mN*m]"),
     ]
     return s
@@ -186,7 +257,15 @@ def sdo_read(node: canopen.RemoteNode, index: int, subindex: int, who: str) -> i
     except SdoCommunicationError as exc:
         raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
                                f"no SDO answer ({exc})") from exc
-    return var.decode_raw(data)
+    except (struct.error, ValueError, IndexError, TypeError) as exc:  # a malformed answer
+        raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
+                               f"malformed SDO answer ({type(exc).__name__}: {exc})") from exc
+    try:
+        return var.decode_raw(data)
+    except (struct.error, ValueError, objectdictionary.ObjectDictionaryError) as exc:
+        raise DriveConfigError(f"{who}: reading 0x{index:04X}:{subindex:02X} {var.name}: "
+                               f"{len(data)} bytes ({bytes(data).hex()}) do not decode as "
+                               f"type 0x{var.data_type:04X}: {exc}") from exc
 
 
 def sdo_write(node: canopen.RemoteNode, st: Setting, who: str) -> None:
@@ -200,6 +279,9 @@ def sdo_write(node: canopen.RemoteNode, st: Setting, who: str) -> None:
     except SdoCommunicationError as exc:
         raise DriveConfigError(f"{who}: writing {st.where()} = {st.value}: no SDO answer ({exc})"
                                ) from exc
+    except (struct.error, ValueError, IndexError, TypeError) as exc:  # a malformed answer
+        raise DriveConfigError(f"{who}: writing {st.where()} = {st.value}: malformed SDO "
+                               f"answer ({type(exc).__name__}: {exc})") from exc
 
 
 def verify_identity(node: canopen.RemoteNode, who: str) -> None:

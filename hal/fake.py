@@ -7,8 +7,9 @@ tests. Each :meth:`~FakeHardware.write_lengths` is one control cycle of ``period
 - winches: a first-order lag (time constant ``lag_time_constant_s``) toward the setpoint,
   saturated at ``max_speed_m_s``, only while Operation Enabled; a CiA 402 state per drive
   (start-up -> Switch On Disabled, enable -> Operation Enabled, quick stop -> Quick Stop
-  Active, holding (0x605A options 5-8) or then Switch On Disabled (0-4), fault -> Fault,
-  fault reset -> Ready To Switch On);
+  Active, where it holds with 0x605A options 5..8 and from which enable() resumes, or ->
+  Switch On Disabled with options 0..4; fault -> Fault, fault reset -> Ready To Switch On;
+  a lost heartbeat -> the master quick-stops it);
 - load cells: every ``tension_period_s`` a new sample of ``plant(lengths_m, t_s)`` (the
   tensions the cells measure [N]; e.g. a simulated plant settling for the cable lengths;
   called again only when the lengths changed) or of the constant ``tensions_N``; the
@@ -18,8 +19,11 @@ Fault injection mirrors the simulated drives and cells: :meth:`~FakeHardware.inj
 (EMCY code), :meth:`~FakeHardware.stop_heartbeat` (lost after ``heartbeat_misses``
 periods, code 0x8130), :meth:`~FakeHardware.reset_node`,
 :meth:`~FakeHardware.inject_loadcell_fault` (a :class:`~hal.loadcell_client.CableStatus`
-and, for ``exception``, the Modbus exception code). Faults, events and messages take the
-forms of the real interface.
+and, for ``exception``, the Modbus exception code), :meth:`~FakeHardware.lose_link` /
+:meth:`~FakeHardware.restore_link` (states unknown, ``link_lost`` faults, blocking calls
+raise :class:`~hal.drives.BusLinkError`; back, the drives hold in Quick Stop Active, having
+lost their master, until recovered). Faults, events and messages take the forms of the
+real interface.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import numpy as np
 
 from controller.loadcell_map import DEFAULT_MAP, RegisterMap
 from controller.winch import WinchSet, load_winches
-from hal.drives import CODE_HEARTBEAT, DriveStartupError
+from hal.drives import CODE_BUS, CODE_HEARTBEAT, BusLinkError, DriveStartupError
 from hal.drives_cia402 import DriveState, emcy_text
 from hal.interface import (
     DRIVE,
@@ -110,6 +114,8 @@ class FakeHardware(WinchHardware):
         self.hb_last = np.zeros(n)
         self.hb_lost = np.zeros(n, bool)
         self.rebooted = np.zeros(n, bool)
+        self.link_down = False
+        self.relink = np.zeros(n, bool)
         self._events: list[HardwareEvent] = []
         self._const = np.broadcast_to(np.asarray(tensions_N, float), (n,)).copy()
         self._measured = np.full(n, np.nan)
@@ -175,6 +181,25 @@ class FakeHardware(WinchHardware):
         self._event(k, "boot_up", CODE_HEARTBEAT,
                     "unexpected boot-up: the node was reset; recover() it")
 
+    def lose_link(self) -> None:
+        """The CAN link dies: drive states unknown; the drives lose their master and hold
+        in Quick Stop Active (0x6007, 0x605A) behind it."""
+        self.link_down = True
+        self.relink[:] = self.started
+        self._events.append(HardwareEvent("bus", 0, "-", "link_lost", CODE_BUS,
+                                          "fake: CAN link lost: drive states unknown",
+                                          self.t, self.cycle))
+        held = self.started & (self.states == S.OPERATION_ENABLED)
+        self._behind = np.where(held, S.QUICK_STOP_ACTIVE, self.states).astype(np.int8)
+        self.target = self.pos.copy()
+        self.states[:] = S.UNKNOWN
+
+    def restore_link(self) -> None:
+        """The link is back: the drives wait for recover()."""
+        self.link_down = False
+        self._events.append(HardwareEvent("bus", 0, "-", "link_back", 0, "fake: CAN link back",
+                                          self.t, self.cycle))
+
     def inject_loadcell_fault(self, cable: int | str, status: CableStatus | str,
                               exception_code: int = 0x04) -> None:
         """The load cell of ``cable`` (cable id, or Modbus unit id as int) reports
@@ -204,8 +229,14 @@ class FakeHardware(WinchHardware):
         self._sample(force=True)
 
     def enable(self, max_cycles: int = 50) -> None:
+        if self.link_down:
+            raise BusLinkError("enable: fake: CAN link down")
         if not self.started:
             raise DriveStartupError("enable() before start()")
+        stale = [f"{self.who(k)}: behind a lost CAN link: recover() it first"
+                 for k in np.flatnonzero(self.relink)]
+        if stale:
+            raise DriveStartupError(f"enable refused: {'; '.join(stale)}")
         bad = [f"{self.who(k)}: {S(int(self.states[k])).name}" for k in range(self.n)
                if self.states[k] in _FAULTED or self.hb_lost[k] or self.rebooted[k]]
         ok = ~(self._faulted() | self.hb_lost | self.rebooted)
@@ -218,7 +249,12 @@ class FakeHardware(WinchHardware):
                 f"not Operation Enabled after {max_cycles} cycles: {'; '.join(bad)}")
 
     def recover(self, timeout_s: float = 3.0) -> list[int]:
-        ks = np.flatnonzero(self.rebooted | (self.hb_lost & ~self.hb_stopped))
+        if self.link_down:
+            raise BusLinkError("recover: fake: CAN link down")
+        for k in np.flatnonzero(self.relink):
+            self.states[k] = self._behind[k]
+        ks = np.flatnonzero(self.rebooted | (self.hb_lost & ~self.hb_stopped) | self.relink)
+        self.relink[:] = False
         for k in ks:
             self.rebooted[k] = False
             self.hb_lost[k] = False
@@ -229,6 +265,9 @@ class FakeHardware(WinchHardware):
         return [self.node_ids[k] for k in ks]
 
     def shutdown(self) -> None:
+        if self.link_down:
+            self.started = False
+            raise BusLinkError("shutdown: fake: CAN link down")
         ok = ~self._faulted()
         self.states[ok] = S.SWITCH_ON_DISABLED
         self.target = self.pos.copy()
@@ -261,8 +300,7 @@ class FakeHardware(WinchHardware):
         if not self.started:
             return
         w = self.winches
-        # quick stop: stop now, then hold in Quick Stop Active (0x605A options 5-8) or
-        # drop to Switch On Disabled (options 0-4), as the winch file configures
+        # quick stop: stopped at once; options 5..8 hold there, 0..4 switch the drive off
         qs = (self.states == S.QUICK_STOP_ACTIVE) & (w.quick_stop_option < 5)
         self.states[qs] = S.SWITCH_ON_DISABLED
         moving = self.states == S.OPERATION_ENABLED
@@ -285,7 +323,7 @@ class FakeHardware(WinchHardware):
                         f"no heartbeat for {self.t - self.hb_last[k]:.3f} s "
                         f"(> {w.bus.heartbeat_misses} periods)")
             if self.states[k] == S.OPERATION_ENABLED:
-                self.states[k] = S.READY_TO_SWITCH_ON  # the master disables it
+                self.states[k] = S.QUICK_STOP_ACTIVE  # the master quick-stops it
         self._sample()
 
     def _sample(self, force: bool = False) -> None:
@@ -335,6 +373,11 @@ class FakeHardware(WinchHardware):
         out = []
         for k in range(self.n):
             nid, cable = self.node_ids[k], self.cables[k]
+            if self.relink[k]:
+                out.append(HardwareFault(DRIVE, nid, cable, "link_lost", CODE_BUS,
+                                         "fake: state unknown; recover() it when the link "
+                                         "is back"))
+                continue
             if self.states[k] in _FAULTED:
                 code = int(self.code[k])
                 out.append(HardwareFault(DRIVE, nid, cable, "drive_fault", code,
@@ -372,6 +415,8 @@ class FakeHardware(WinchHardware):
         m = self._mask(nodes) & (self.states == S.OPERATION_ENABLED)
         self.states[m] = S.QUICK_STOP_ACTIVE
         self.target[m] = self.pos[m]
+        off = self._mask(nodes) & np.isin(self.states, (S.READY_TO_SWITCH_ON, S.SWITCHED_ON))
+        self.states[off] = S.SWITCH_ON_DISABLED  # transitions 7, 10
 
     def fault_reset(self, nodes: list[int] | None = None) -> None:
         m = self._mask(nodes) & self._faulted()

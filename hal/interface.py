@@ -68,7 +68,8 @@ class HardwareConfigError(ValueError):
 class HardwareFault:
     """An active fault: ``device`` is "drive" (``address`` = CAN node id), "loadcell"
     (``address`` = Modbus unit id) or "bus" (address 0); ``kind`` what is wrong
-    (drive: drive_fault, heartbeat_lost, boot_up, nmt_state; load cell: the
+    (drive: drive_fault, quick_stop (stopped on its own), heartbeat_lost, boot_up,
+    nmt_state, link_lost; load cell: the
     :class:`~hal.loadcell_client.CableStatus` name in lower case); ``code`` see the module
     docstring."""
 
@@ -193,7 +194,7 @@ def drive_fault(f: DriveFault) -> HardwareFault:
 
 
 def drive_event(e: DriveEvent) -> HardwareEvent:
-    device = BUS if e.kind == "bus_error" else DRIVE
+    device = BUS if e.node_id == 0 else DRIVE  # bus_error, link_lost, link_back
     return HardwareEvent(device, e.node_id, e.cable, e.kind, e.code, e.text, e.time_s, e.cycle)
 
 
@@ -397,8 +398,10 @@ class CanModbusHardware(WinchHardware):
         if self._owes_receive:
             self.drives.receive()
             self._owes_receive = False
-        self.drives.shutdown()
-        self._stop_cells()
+        try:
+            self.drives.shutdown()  # BusLinkError on a dead link: the cells stop anyway
+        finally:
+            self._stop_cells()
 
     def _stop_cells(self) -> None:
         if self.cells is not None:

@@ -15,7 +15,6 @@ The top-level table may be omitted (keys at the top level are accepted too).
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from controller.loadcell_map import CABLE_IDS
+from controller.tomlfile import read_toml
 
 TABLE = "load_cell_calibration"
 
@@ -108,10 +108,5 @@ def parse_calibration(
 def load_calibration(path: str | Path, cables: tuple[str, ...] = CABLE_IDS) -> LoadCellCalibration:
     """Read a calibration TOML file (errors name the file and the key or line)."""
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise CalibrationError(f"{p}: cannot read: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"{p}: {exc}") from exc
+    data, _ = read_toml(p, CalibrationError)  # errors name the file (line, column)
     return parse_calibration(data, str(p), cables)

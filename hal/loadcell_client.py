@@ -1,9 +1,9 @@
 """Cable tensions from the Modbus load cells, for a control loop.
 
-A background thread polls the eight cells at the sensors' own rate (tens of
-hertz on an RS-485 line, one read of the register block per unit id); the
-control cycle calls :meth:`LoadCellClient.read`, which does no I/O and returns
-at once the latest tensions with their age and a status per cable::
+Background threads poll the eight cells at the sensors' own rate (tens of
+hertz, one read of the register block per unit id); the control cycle calls
+:meth:`LoadCellClient.read`, which does no I/O and returns at once the latest
+tensions with their age and a status per cable::
 
     with LoadCellClient("127.0.0.1:5020", calibration=cal) as cells:
         r = cells.read()            # TensionReading
@@ -16,16 +16,29 @@ A value is only ever a number when its status is ``OK``; every problem
 NaN, sensor fault) is reported as such, with a message naming the Modbus
 unit id and the cable. Calibration: ``measured = gain*true + offset``, so
 ``values_N = (measured - offset) / gain``.
+
+One silent cell must not hold up the others:
+
+- Modbus/TCP: one connection and one poller ("lane") per unit id, so a unit that does
+  not answer only ever delays itself (``connections="per_unit"``, the default for TCP);
+- a shared line (serial RTU, RTU over a TCP gateway: one request at a time): one lane;
+  a unit that timed out is asked again only every ``retry_s`` and last in its sweep, so
+  it costs the others at most one timeout per ``retry_s``.
+
+A value's status follows its age, whether or not its turn to be polled came: no valid
+answer for ``max_age_s`` (default: one timeout plus three poll periods) is TIMEOUT at the
+next :meth:`LoadCellClient.read`, so a hung server cannot pass old values as OK.
 """
 
 from __future__ import annotations
 
 import enum
 import logging
+import struct
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from pymodbus.constants import ExcCodes
@@ -110,6 +123,16 @@ if not any(isinstance(f, _QuietDuringPolls) for f in _PYMODBUS_LOGGER.filters):
     _PYMODBUS_LOGGER.addFilter(_QuietDuringPolls())
 
 
+@dataclass
+class _Lane:
+    """Units polled one after the other on one connection, by one thread."""
+
+    units: list[int]
+    client: object
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    passes: int = 0
+
+
 class LoadCellClient:
     """Polls the load cells in the background; :meth:`read` hands out the latest values.
 
@@ -119,9 +142,13 @@ class LoadCellClient:
     :param rate_hz: sweeps (reads of all cells) per second
     :param timeout_s: answer timeout per request (also the connect timeout)
     :param stale_s: a counter not advancing for longer (between answers) makes the value STALE
-    :param max_age_s: no valid answer for longer makes the value TIMEOUT (poller stopped, or
-        sweeps slowed down by units that time out); default ``max(0.5, 2 * stale_s)``
+    :param max_age_s: no valid answer for longer makes the value TIMEOUT (poller stopped,
+        server hung, unit silent), judged at each read; default ``timeout_s + 3 / rate_hz``
     :param clock: monotonic time source [s]
+    :param connections: "per_unit" (one connection and poller per unit id; default for
+        Modbus/TCP) or "shared" (one line for all; default for serial and RTU over TCP)
+    :param retry_s: on a shared line, a unit that timed out is asked again after this long
+        [s] (default ``max(0.5, 5 * timeout_s)``)
     """
 
     def __init__(
@@ -135,6 +162,8 @@ class LoadCellClient:
         stale_s: float = 0.25,
         max_age_s: float | None = None,
         clock: Callable[[], float] = time.monotonic,
+        connections: str | None = None,
+        retry_s: float | None = None,
     ) -> None:
         self.endpoint = (
             endpoint if isinstance(endpoint, ModbusEndpoint) else parse_modbus_spec(endpoint)
@@ -148,19 +177,37 @@ class LoadCellClient:
                 f"calibration {calibration.source} is for cables {calibration.cables}, "
                 f"register map {register_map.source} for {register_map.cables}"
             )
+        if not (rate_hz > 0 and timeout_s > 0 and stale_s > 0):
+            raise ValueError("rate_hz, timeout_s and stale_s must be > 0")
         if max_age_s is None:
-            max_age_s = max(0.5, 2.0 * stale_s)
-        if not (rate_hz > 0 and timeout_s > 0 and stale_s > 0 and max_age_s > 0):
-            raise ValueError("rate_hz, timeout_s, stale_s and max_age_s must be > 0")
+            max_age_s = timeout_s + 3.0 / rate_hz
+        if retry_s is None:
+            retry_s = max(0.5, 5.0 * timeout_s)
+        if not (max_age_s > 0 and retry_s > 0):
+            raise ValueError("max_age_s and retry_s must be > 0")
+        if connections is None:
+            connections = "per_unit" if self.endpoint.kind == "tcp" else "shared"
+        if connections not in ("per_unit", "shared"):
+            raise ValueError(f"connections must be 'per_unit' or 'shared', got {connections!r}")
+        if connections == "per_unit" and self.endpoint.kind != "tcp":
+            raise ValueError(f"{self.endpoint}: a shared line cannot have one connection per "
+                             "unit (connections='shared')")
         self.calibration = calibration
         self.rate_hz = float(rate_hz)
         self.timeout_s = float(timeout_s)
         self.stale_s = float(stale_s)
         self.max_age_s = float(max_age_s)
+        self.retry_s = float(retry_s)
+        self.connections = connections
         self.clock = clock
 
-        self._client = self.endpoint.make_client(self.timeout_s)
-        self._io_lock = threading.Lock()  # one request at a time on the line
+        if connections == "per_unit":
+            groups = [[k] for k in range(n)]
+        else:
+            groups = [list(range(n))]
+        self._lanes = [_Lane(units, self.endpoint.make_client(self.timeout_s)) for units in groups]
+        self._io_lock = threading.Lock()  # one synchronous sweep (poll_once) at a time
+        self._next_try = np.full(n, -np.inf)  # shared line: when a silent unit is due again
         self._lock = threading.Lock()  # guards the state arrays below
         self._swept = threading.Condition(self._lock)
         self._raw = np.full(n, np.nan)  # measured tension as read [N]
@@ -171,11 +218,13 @@ class LoadCellClient:
         self._comm = np.full(n, int(CableStatus.NO_DATA), dtype=np.int8)
         self._exc = np.zeros(n, dtype=np.int64)  # Modbus exception code of the last answer
         self._comm_msg = [f"{register_map.describe(k)}: no data yet" for k in range(n)]
-        self.sweeps = 0  #: completed sweeps
+        self.sweeps = 0  #: completed sweeps (every unit asked once, or skipped while due later)
+        self._lane_sweeps = 0
         self.errors = np.zeros(n, dtype=np.int64)  #: failed requests per cable
-        self.last_sweep_s = float("nan")  #: duration of the last sweep [s]
+        self.answers = np.zeros(n, dtype=np.int64)  #: valid answers per cable
+        self.last_sweep_s = float("nan")  #: duration of the last sweep (or lane pass) [s]
 
-        self._thread: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
 
     def __repr__(self) -> str:
@@ -189,14 +238,14 @@ class LoadCellClient:
             self._comm_msg[k] = f"{self.map.describe(k)} at {self.endpoint}: {why}"
             self.errors[k] += 1
 
-    def _poll_unit(self, k: int) -> bool:
-        """Read one cell; False when the connection is unusable (skip the rest of the sweep)."""
+    def _poll_unit(self, k: int, client) -> bool:
+        """Read one cell; False when the connection is unusable (skip the rest of the lane)."""
         uid = self.map.unit_ids[k]
         start, count = self.map.block_start, self.map.block_count
         try:
-            rr = self._client.read_input_registers(start, count=count, device_id=uid)
+            rr = client.read_input_registers(start, count=count, device_id=uid)
         except ConnectionException as exc:
-            self._client.close()
+            client.close()
             reason = _last_pymodbus_error() or str(exc)
             self._fail(k, CableStatus.COMM_ERROR, f"connection failed: {reason}")
             return False
@@ -206,26 +255,31 @@ class LoadCellClient:
                 why += f" ({exc})"
             self._fail(k, CableStatus.TIMEOUT, why)
             return True
-        except (ModbusException, OSError, ValueError) as exc:
-            self._client.close()
+        except (ModbusException, OSError, ValueError, struct.error, IndexError) as exc:
+            client.close()
             self._fail(k, CableStatus.COMM_ERROR, f"{type(exc).__name__}: {exc}")
             return True
         t = self.clock()
         if rr.isError():
-            code = int(getattr(rr, "exception_code", 0))
+            code = int(getattr(rr, "exception_code", 0) or 0)
             try:
                 name = ExcCodes(code).name
             except ValueError:
                 name = "unknown"
             self._fail(k, CableStatus.EXCEPTION, f"Modbus exception {code:#04x} ({name})", code)
             return True
-        regs = list(getattr(rr, "registers", []))
+        regs = list(getattr(rr, "registers", None) or [])
         if len(regs) != count:
             self._fail(
                 k, CableStatus.COMM_ERROR, f"answered {len(regs)} registers, expected {count}"
             )
             return True
-        value, bits, counter = self.map.decode(np.asarray(regs))
+        try:
+            value, bits, counter = self.map.decode(np.asarray(regs, dtype=np.int64))
+        except (ValueError, OverflowError, TypeError) as exc:
+            self._fail(k, CableStatus.COMM_ERROR, f"malformed answer: registers {regs[:8]} "
+                       f"do not decode: {exc}")
+            return True
         with self._lock:
             if int(counter) != self._counter[k] or not np.isfinite(self._t_sample[k]):
                 self._t_sample[k] = t
@@ -233,26 +287,45 @@ class LoadCellClient:
             self._raw[k] = float(value)
             self._bits[k] = int(bits)
             self._t_answer[k] = t
+            self.answers[k] += 1
             self._comm[k] = CableStatus.OK
             self._exc[k] = 0
             self._comm_msg[k] = ""
         return True
 
+    def _poll_lane(self, lane: _Lane, backoff: bool) -> None:
+        """Ask each unit of a lane once (``backoff``: units that timed out only when due)."""
+        now = self.clock()
+        units = lane.units
+        if backoff:
+            due = [k for k in units if now >= self._next_try[k]]
+            units = [k for k in due if np.isinf(self._next_try[k])] + [
+                k for k in due if not np.isinf(self._next_try[k])]  # silent ones last
+        with lane.lock:
+            _quiet.active = True
+            _quiet.last = ""
+            try:
+                for i, k in enumerate(units):
+                    if not self._poll_unit(k, lane.client):
+                        for j in units[i + 1:]:
+                            self._fail(j, CableStatus.COMM_ERROR, "connection failed (see unit "
+                                       f"{self.map.unit_ids[k]}), not polled")
+                        break
+                    if backoff and self._comm[k] == CableStatus.TIMEOUT:
+                        self._next_try[k] = self.clock() + self.retry_s
+                        with self._lock:
+                            self._comm_msg[k] += f"; asked again every {self.retry_s:g} s"
+                    elif backoff:
+                        self._next_try[k] = -np.inf
+            finally:
+                _quiet.active = False
+
     def poll_once(self) -> None:
         """One synchronous sweep: read every cell once (blocking I/O, up to n x timeout)."""
         t0 = self.clock()
         with self._io_lock:
-            _quiet.active = True
-            _quiet.last = ""
-            try:
-                for k in range(self.map.n):
-                    if not self._poll_unit(k):
-                        for j in range(k + 1, self.map.n):
-                            self._fail(j, CableStatus.COMM_ERROR, "connection failed (see unit "
-                                       f"{self.map.unit_ids[k]}), not polled")
-                        break
-            finally:
-                _quiet.active = False
+            for lane in self._lanes:
+                self._poll_lane(lane, backoff=False)
         with self._swept:
             self.sweeps += 1
             self.last_sweep_s = self.clock() - t0
@@ -272,11 +345,21 @@ class LoadCellClient:
                     return self.sweeps >= target
         return True
 
-    def _run(self) -> None:
+    def _run(self, lane: _Lane) -> None:
         period = 1.0 / self.rate_hz
         next_t = time.monotonic()
+        backoff = len(lane.units) > 1
         while not self._stop.is_set():
-            self.poll_once()
+            t0 = self.clock()
+            self._poll_lane(lane, backoff)
+            with self._swept:
+                lane.passes += 1
+                self.last_sweep_s = self.clock() - t0
+                done = min(ln.passes for ln in self._lanes)
+                if done > self._lane_sweeps:
+                    self.sweeps += done - self._lane_sweeps
+                    self._lane_sweeps = done
+                    self._swept.notify_all()
             next_t += period
             delay = next_t - time.monotonic()
             if delay < 0:  # fell behind (slow line, timeouts): do not try to catch up
@@ -285,22 +368,30 @@ class LoadCellClient:
             self._stop.wait(delay)
 
     def start(self) -> LoadCellClient:
-        """Start the background poller (returns at once)."""
-        if self._thread is not None:
+        """Start the background pollers, one per lane (returns at once)."""
+        if self._threads:
             raise RuntimeError("load cell poller already running")
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="loadcell-poller", daemon=True)
-        self._thread.start()
+        with self._swept:
+            for lane in self._lanes:
+                lane.passes = 0
+            self._lane_sweeps = 0
+        for i, lane in enumerate(self._lanes):
+            th = threading.Thread(target=self._run, args=(lane,), daemon=True,
+                                  name=f"loadcell-poller-{i}")
+            th.start()
+            self._threads.append(th)
         return self
 
     def stop(self) -> None:
-        """Stop the poller and close the connection."""
+        """Stop the pollers and close the connections."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(self.timeout_s * self.map.n + 2.0)
-            self._thread = None
-        with self._io_lock:
-            self._client.close()
+        for th in self._threads:
+            th.join(self.timeout_s * self.map.n + 2.0)
+        self._threads = []
+        for lane in self._lanes:
+            with lane.lock:
+                lane.client.close()
 
     def __enter__(self) -> LoadCellClient:
         return self.start()
@@ -373,7 +464,7 @@ class LoadCellClient:
         if st is CableStatus.TIMEOUT:
             return (
                 f"{who}: no fresh answer for {since_answer:.3f} s (limit {self.max_age_s:g} s; "
-                f"poller stopped or sweeps slowed by timeouts), last counter {counter} "
+                f"server hung, unit silent or poller stopped), last counter {counter} "
                 f"[{st.name}]"
             )
         if st is CableStatus.SENSOR_FAULT:

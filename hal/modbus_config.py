@@ -176,4 +176,4 @@ def add_modbus_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--loadcell-stale", type=float, default=0.25, metavar="S",
                    help="a counter not advancing for longer is stale [0.25 s]")
     g.add_argument("--loadcell-max-age", type=float, default=None, metavar="S",
-                   help="no fresh answer for longer is a timeout [max(0.5, 2 x stale)]")
+                   help="no fresh answer for longer is a timeout [timeout + 3 poll periods]")

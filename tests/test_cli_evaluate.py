@@ -21,8 +21,10 @@ from bench.cli import main
 from bench.commands.evaluate import OUT_FORMAT, read_results
 from bench.parallel import run_each
 
-SMALL = ["--grid", "3,2,1", "--visits", "2"]
-SMALL_KW = {"poses": {"n": [3, 2, 1], "visits": 2}}
+SMALL = ["--grid", "3,2,1", "--visits", "2", "--robot", "rocaspect", "--kind", "dwell",
+         "--sensors", "all", "--oov", "none"]
+SMALL_KW = {"poses": {"n": [3, 2, 1], "visits": 2}, "robot": "rocaspect", "kind": "dwell",
+            "sensors": "all", "oov": "none"}
 REAL_RUN_CASE = evaluate.run_case
 FAILING_SEED = 6
 
@@ -46,7 +48,10 @@ def run_json(capsys, *argv: str) -> tuple[int, dict, str]:
 
 
 def without_seconds(case: dict) -> dict:
-    return {k: v for k, v in case.items() if k not in ("seconds", "pid")}
+    out = {k: v for k, v in case.items() if k not in ("seconds", "pid")}
+    if "info" in out:
+        out["info"] = {k: v for k, v in out["info"].items() if k != "case_seconds"}
+    return out
 
 
 def plain(case: dict) -> dict:
@@ -69,7 +74,8 @@ def test_two_cases_on_the_local_process_pool(capsys, monkeypatch):
                                       | {"errors": 0, "requested": 2}))
     assert s["cases"] == 2 and s["median_case_s"] > 0
     assert out["config"] == {"robot": "rocaspect", "effects": None,
-                             "poses": {"n": [3, 2, 1], "visits": 2}}
+                             "poses": {"n": [3, 2, 1], "visits": 2}, "kind": "dwell",
+                             "sensors": "all", "oov": "none"}
     # progress: cases done, running exact-detection rate, ETA
     assert "case 1/2" in err and "case 2/2" in err and "exact detection" in err and "ETA" in err
 
@@ -93,10 +99,34 @@ def test_human_report(capsys):
                   "parameters in tol.", "z-scores", "seconds per case", "concealed \\ named"):
         assert words in text, words
     # one row of the detection matrix per effect the two cases conceal
-    rows = {e for seed in (5, 6) for e in evaluate.make_case(seed)["truth"]} or {"none"}
+    rows = {e for seed in (5, 6) for e in evaluate.make_case(seed, **SMALL_KW)["truth"]} \
+        or {"none"}
     for row in rows:
         assert any(line.strip().startswith(row) for line in text.splitlines()), row
     assert "columns: EPO exit_point_offset" in text
+
+
+def test_generated_cases_span_robots_kinds_sensors_and_physics_outside_the_vocabulary():
+    """The case generator alone (no campaign): over many seeds every robot, perturbed or
+    not, every recording kind and sensor set, and physics outside the vocabulary occur;
+    every case's scenario parses and its poses are feasible for its model."""
+    seen: dict[str, set] = {k: set() for k in ("robot", "kind", "sensors", "oov", "perturbed")}
+    effects: set[str] = set()
+    for seed in range(60):
+        case = evaluate.make_case(seed)
+        for k in seen:
+            seen[k].add(case["case"][k])
+        effects |= set(case["truth"])
+        sc = evaluate.scenario_of({**case, "truth": {
+            e: {k: v for k, v in p.items() if not k.startswith("slip_time_")}
+            for e, p in case["truth"].items()}})
+        assert all(evaluate.feasible(sc.model, p) for p in sc.poses.generate(None)[:3])
+        if case["case"]["sensors"] != "all":
+            assert set(case["truth"]) <= set(evaluate.WITHOUT[case["case"]["sensors"]])
+    assert seen["robot"] == set(evaluate.ROBOTS) and seen["perturbed"] == {True, False}
+    assert seen["kind"] == set(evaluate.KINDS) and seen["sensors"] == set(evaluate.SENSORS)
+    assert seen["oov"] > {"none"}
+    assert effects == set(evaluate.DRAWN)
 
 
 def test_a_case_that_raises_is_an_error_and_hides_nothing(tmp_path, capsys, monkeypatch):
@@ -175,7 +205,8 @@ def test_out_file_resumes_after_an_interruption(tmp_path, capsys, monkeypatch):
 def test_out_file_of_another_configuration_is_refused(tmp_path, capsys):
     out_file = tmp_path / "cases.jsonl"
     out_file.write_text(json.dumps({"format": OUT_FORMAT, "config": {
-        "robot": "rocaspect", "effects": ["drum_scale"], "poses": {}}}) + "\n", encoding="utf-8")
+        "robot": "rocaspect", "effects": ["drum_scale"], "poses": {}, "kind": "dwell",
+        "sensors": "all", "oov": "none"}}) + "\n", encoding="utf-8")
     rc, out, _ = run_json(capsys, "--cases", "1", "--out", str(out_file), *SMALL)
     assert rc == 2 and str(out_file) in out["error"]
     assert "another case configuration" in out["error"]

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from controller.winch import limits_counts, load_winches, m_to_counts, metres_per_count
-from firmware_sim.cia402_drive import EDS_PATH
+from firmware_sim.cia402_drive import EDS_PATH, State
 from firmware_sim.drive_bank import SimulatedWinchBank
 from hal.drives import (
     DriveConfigError,
@@ -279,9 +279,21 @@ def test_node_off_the_bus_then_back():
         assert kinds[0] == (2, "tpdo_missing", 0x8250)
         assert (2, "heartbeat_lost", 0x8130) in kinds
         assert {k[0] for k in kinds} == {2}
-        r.bank.drives[1].set_silent(False)
+        d = r.bank.drives[1]
+        deadline = time.monotonic() + 10.0
+        while not d.connection_losses:  # off the bus for longer than its consumer time
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        d.set_silent(False)
         r.steps(8)
-        assert r.hal.faults() == []
+        # off the bus for longer than its consumer heartbeat time: it lost its master, went
+        # pre-operational (0x1029) and holds in Quick Stop Active (0x6007, 0x605A)
+        assert _codes(r.hal.faults()) == [(2, "nmt_state", 0x8130)]
+        assert r.bank.drives[1].state == State.QUICK_STOP_ACTIVE
+        with pytest.raises(DriveStartupError, match=r"node 2 \(cable 12\): NMT PRE-OP"):
+            r.hal.enable_and_wait()
+        assert r.hal.recover() == [2]
+        assert r.hal.state_names()[1] == "QUICK_STOP_ACTIVE"
         r.hal.enable_and_wait()
     finally:
         r.close()
@@ -304,42 +316,52 @@ def test_node_reset_is_detected_and_recovered(rig):
     assert rig.hal.faults() == []
 
 
-def test_quick_stop_stops_on_the_ramp_then_switch_on_disabled(rig):
-    l0 = rig.hal.lengths_m()
-    v = 0.3  # m/s, reached smoothly
+def _quick_stop_at_speed(r: Rig, v: float = 0.3, cycles: int = 40):
+    """Pay out at ``v`` [m/s] (reached smoothly), quick stop, cycle; states and lengths."""
+    l0 = r.hal.lengths_m()
     for i in range(1, 101):
         t = i * 0.004
         ramp = min(t, 0.2)
         x = v * (ramp**2 / 0.4 + max(t - 0.2, 0.0))
-        rig.hal.set_lengths(l0 + x)
-        rig.hal.step()
-    rig.hal.quick_stop()
+        r.hal.set_lengths(l0 + x)
+        r.hal.step()
+    r.hal.quick_stop()
     seen, p = [], []
-    for _ in range(40):
-        rig.hal.step()
-        seen.append(rig.hal.states()[0])
-        p.append(rig.hal.lengths_m())
-    assert DriveState.QUICK_STOP_ACTIVE in seen
-    assert np.all(rig.hal.states() == DriveState.SWITCH_ON_DISABLED)  # option 2
-    np.testing.assert_array_equal(p[-1], p[-10])  # stopped, brakes hold
+    for _ in range(cycles):
+        r.hal.step()
+        seen.append(r.hal.states()[0])
+        p.append(r.hal.lengths_m())
+    return seen, p
+
+
+def test_quick_stop_stops_on_the_ramp_and_holds_in_quick_stop_active(rig):
+    """0x605A = 6 (the winch file): stop on the quick-stop ramp, stay powered and hold."""
+    assert int(rig.bank.drives[0].param(0x605A)) == 6
+    seen, p = _quick_stop_at_speed(rig)
+    assert seen[1] == DriveState.QUICK_STOP_ACTIVE  # states are one cycle old
+    assert np.all(rig.hal.states() == DriveState.QUICK_STOP_ACTIVE)  # and stays there
+    np.testing.assert_array_equal(p[-1], p[-10])  # stopped, held by the position loop
     stop = p[-1] - p[0]
-    assert np.all(stop > 0) and np.all(stop < 0.3**2 / (2 * 6.0) + 0.01)
-    assert rig.hal.faults() == []
-    rig.hal.enable_and_wait()
-    rig.steps(10)
+    assert np.all(stop > 0) and np.all(stop < 0.3**2 / (2 * 6.0) + 0.01)  # quick-stop ramp
+    assert all(d.state == State.QUICK_STOP_ACTIVE and d.powered for d in rig.bank.drives)
+    assert rig.hal.faults() == []  # asked for by the master: not a fault
+    rig.steps(50)  # holds as long as it takes
     np.testing.assert_allclose(rig.hal.lengths_m(), p[-1], atol=metres_per_count(W)[0])
+    rig.hal.enable_and_wait(max_cycles=3)  # transition 16: one cycle
+    rig.move(np.full(8, 0.02), 50)  # and it follows setpoints again
+    assert rig.hal.faults() == [] and np.all(rig.hal.states() == OE)
 
 
-def test_quick_stop_option_6_stays_and_resumes():
-    r = Rig(winches=W.replace(quick_stop_option=6))
+def test_quick_stop_option_2_ends_in_switch_on_disabled():
+    r = Rig(winches=W.replace(quick_stop_option=2))
     try:
-        r.move(np.full(8, 0.02), 60)
-        r.hal.quick_stop()
-        r.steps(30)
-        assert np.all(r.hal.states() == DriveState.QUICK_STOP_ACTIVE)
-        r.hal.enable()
-        r.steps(2)
-        assert np.all(r.hal.states() == OE)
+        seen, p = _quick_stop_at_speed(r)
+        assert DriveState.QUICK_STOP_ACTIVE in seen
+        assert np.all(r.hal.states() == DriveState.SWITCH_ON_DISABLED)  # torque off: brake
+        np.testing.assert_array_equal(p[-1], p[-10])
+        r.hal.enable_and_wait()
+        r.steps(10)
+        np.testing.assert_allclose(r.hal.lengths_m(), p[-1], atol=metres_per_count(W)[0])
     finally:
         r.close()
 
@@ -378,10 +400,28 @@ def test_dropped_and_delayed_frames(rig):
     rig.steps(2)
     assert [(e.node_id, e.kind) for e in rig.hal.events()] == [(3, "tpdo_missing"),
                                                                (3, "tpdo_late")]
-    rig.bank.drives[3].drop_rpdos(1)  # the drive sees its RPDO deadline (0x1400 sub 5) pass
+    rig.bank.drives[3].drop_rpdos(1)  # within the RPDO deadline (0x1400 sub 5, 20 ms)
     rig.steps(3)
-    ev = [(e.node_id, e.kind, e.code, e.source) for e in rig.hal.events()]
-    assert ev == [(4, "emcy", 0x8250, "drive"), (4, "emcy", 0x0000, "drive")]
+    assert rig.hal.events() == []
+    assert rig.hal.faults() == [] and np.all(rig.hal.states() == OE)
+
+
+def test_rpdo_deadline_stops_the_drive_and_the_master_holds_it(rig):
+    """Setpoints lost for longer than the RPDO deadline: the drive stops on its own (0x6007 =
+    quick stop, 0x605A = 6) and the master keeps it there until the controller enables it."""
+    rig.bank.drives[3].drop_rpdos(6)  # 24 ms without a setpoint
+    rig.steps(12)
+    ev = [(e.node_id, e.kind, e.code) for e in rig.hal.events()]
+    assert ev[:2] == [(4, "emcy", 0x8250), (4, "quick_stop", 0x8250)]
+    assert _codes(rig.hal.faults()) == [(4, "quick_stop", 0x0000)]  # EMCY reset since
+    states = rig.hal.states()
+    assert states[3] == DriveState.QUICK_STOP_ACTIVE and np.all(np.delete(states, 3) == OE)
+    target = rig.hal.targets_counts()[3]
+    rig.hal.set_lengths(rig.hal.lengths_m() + 0.01)  # not for node 4: it is not enabled
+    rig.steps(20)
+    assert rig.hal.states()[3] == DriveState.QUICK_STOP_ACTIVE  # never re-enabled by itself
+    assert rig.hal.targets_counts()[3] == target
+    rig.hal.enable_and_wait(max_cycles=3)
     assert rig.hal.faults() == [] and np.all(rig.hal.states() == OE)
 
 

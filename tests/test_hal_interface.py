@@ -381,19 +381,38 @@ def test_node_reset_is_reported_and_recovered(enabled):
     assert (2, "boot_up") in kinds and (2, "recovered") in kinds
 
 
-def test_quick_stop_holds_and_disables(enabled):
+def test_quick_stop_holds_in_quick_stop_active(enabled):
+    """0x605A = 6 (the winch file): stopped and held with torque, not dropped to the brake;
+    enable() resumes from there."""
     hw = enabled.hw
     l0 = hw.read().lengths_m
     hw.quick_stop()
-    # 0x605A options 5-8 end holding in Quick Stop Active, 0-4 in Switch On Disabled
-    end = (DriveState.QUICK_STOP_ACTIVE if hw.winches.quick_stop_option[0] >= 5
-           else DriveState.SWITCH_ON_DISABLED)
-    r = _until(hw, lambda r: np.all(r.states == end), 40)
-    assert np.all(r.states == end)
+    r = _until(hw, lambda r: np.all(r.states == DriveState.QUICK_STOP_ACTIVE), 40)
+    for _ in range(30):
+        r = hw.step()
+    assert np.all(r.states == DriveState.QUICK_STOP_ACTIVE)
     np.testing.assert_allclose(r.lengths_m, l0, atol=COUNT_M)
     assert r.faults == ()
     hw.enable()
     assert hw.read().all_enabled
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_quick_stop_option_2_disables(kind):
+    h = KINDS[kind](winches=W.replace(quick_stop_option=2))
+    try:
+        h.hw.start()
+        h.hw.enable()
+        l0 = h.hw.read().lengths_m
+        h.hw.quick_stop()
+        r = _until(h.hw, lambda r: np.all(r.states == DriveState.SWITCH_ON_DISABLED), 40)
+        assert np.all(r.states == DriveState.SWITCH_ON_DISABLED)
+        np.testing.assert_allclose(r.lengths_m, l0, atol=COUNT_M)
+        assert r.faults == ()
+        h.hw.enable()
+        assert h.hw.read().all_enabled
+    finally:
+        h.close()
 
 
 def test_shutdown_disables_every_drive(enabled):

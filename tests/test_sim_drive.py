@@ -441,6 +441,7 @@ def test_stuck_brake_is_a_following_error_only_when_motion_is_demanded(h):
 
 
 def test_rpdo_deadline_warning_and_pdo_length_error(h):
+    h.w(0x6007, 0, 0)  # abort connection: no action (the deadline alone is a warning)
     h.enable_csp()
     h.w(0x1400, 1, 0x201 | 1 << 31)
     h.w(0x1400, 5, 6)  # 6 ms deadline, SYNC every 4 ms

@@ -24,10 +24,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from firmware_sim.scenario import Scenario, ScenarioError, load_scenario
+if TYPE_CHECKING:
+    from firmware_sim.scenario import Scenario
 
 NAME = "campaign"
 HELP = "record a campaign of a scenario on the simulated robot (cdpr-recording/1 directory)"
@@ -60,8 +60,12 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
     return code
 
 
-def _adjust(sc: Scenario, args: argparse.Namespace) -> tuple[Scenario, np.ndarray | None]:
+def _adjust(sc: Scenario, args: argparse.Namespace) -> tuple[Scenario, Any]:
     """The scenario with --seed/--visits applied, and the pose subset of --poses (or None)."""
+    import numpy as np
+
+    from firmware_sim.scenario import ScenarioError
+
     if args.seed is not None:
         sc = dataclasses.replace(sc, seed=args.seed)
     if args.visits is not None:
@@ -99,8 +103,11 @@ def _place(tmp: Path, out: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from bench.campaign import run_campaign
     from bench.recording import read_recording
+    from firmware_sim.scenario import ScenarioError, load_scenario
 
     for opt in ("poses", "visits"):
         v = getattr(args, opt)
@@ -111,6 +118,10 @@ def run(args: argparse.Namespace) -> int:
         return _fail(args, 2, f"{out}: exists and is not a directory")
     if _occupied(out) and not args.force:
         return _fail(args, 2, f"{out}: not empty (use --force to replace the recording there)")
+    from bench.outputs import output_dir_problem
+
+    if (problem := output_dir_problem(out, "OUT_DIR")) is not None:
+        return _fail(args, 2, problem)
     try:
         sc, subset = _adjust(load_scenario(args.scenario), args)
     except ScenarioError as e:
@@ -147,12 +158,18 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     rec = read_recording(out)
     visits = n_poses * sc.poses.visits
-    result = {"path": str(out), "samples": visits + 1, "rows": rec.n_samples,
-              "visits": visits, "poses": n_poses, "seconds": round(seconds, 3)}
+    kind = sc.recording.kind
+    dwells = kind == "dwell" or sc.recording.dwell_at_targets
+    result = {"path": str(out), "samples": visits + 1 if dwells else 1, "rows": rec.n_samples,
+              "visits": visits, "poses": n_poses, "kind": kind, "seconds": round(seconds, 3)}
     if args.json:
         print(json.dumps(result))
-    else:
+    elif kind == "dwell":
         print(f"recording {out}: {rec.n_samples} rows, {visits + 1} dwell samples "
               f"(initialisation + {n_poses} poses x {sc.poses.visits} visits) "
               f"in {seconds:.1f} s")
+    else:
+        print(f"recording {out}: {rec.n_samples} rows, continuous at "
+              f"{sc.recording.rate_hz or sc.poses.rate_hz:g} Hz along {visits} moves between "
+              f"{n_poses} poses{' with dwells' if dwells else ''} in {seconds:.1f} s")
     return 0

@@ -1,4 +1,13 @@
-"""``cdpr diagnose RECORDING_DIR``: locate the mismatch, name the physics left out, fit it."""
+"""``cdpr diagnose RECORDING_DIR``: locate the mismatch, name the physics left out, fit it.
+
+Outputs (``--plots DIR``, ``--write-model PATH``, ``--out FILE``) are checked before the
+fit starts. Under ``--json`` stdout carries one JSON object: the report, or
+``{"error": ...}`` when the diagnosis fails. Worker processes (``--jobs``) end with the
+command, whatever ends it (Ctrl-C, SIGTERM, SIGKILL).
+
+Exit status: 0 diagnosed, 1 the diagnosis failed, 2 bad recording or arguments,
+130 interrupted.
+"""
 
 from __future__ import annotations
 
@@ -7,9 +16,8 @@ import json
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-
-from bench.recording import RecordingError
+import traceback
+from pathlib import Path
 
 NAME = "diagnose"
 HELP = "find which physics the model left out of a recording, fit it, show the fit improve"
@@ -19,6 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", help="recording directory (cdpr-recording/1)")
     p.add_argument("--json", action="store_true",
                    help="print the cdpr-diagnosis/1 report object on stdout")
+    p.add_argument("--out", metavar="FILE", help="also write the report (JSON) to FILE")
     p.add_argument("--plots", metavar="DIR", help="write plots (PNG) into DIR")
     p.add_argument("--write-model", metavar="PATH", help="write the corrected robot.toml")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
@@ -39,11 +48,15 @@ def _human(rep: dict) -> str:
              + ", force balance "
              + ("n/a" if b["wrench_rms"] is None else f"{b['wrench_rms']:.2f} N"),
              "  mismatch: " + rep["mismatch"]["summary"]]
-    if not rep["effects"]:
+    un = rep.get("unexplained")
+    if un:
+        lines.append("  UNEXPLAINED: " + un["summary"])
+    if not rep["effects"] and not un:
         lines.append("  effects: none: the model explains the recording within the noise")
     for e in rep["effects"]:
         ev = e["evidence"]
-        lines.append(f"  effect {e['name']}: {e['explains']}")
+        lines.append(f"  effect {e['name']}" + (" (provisional)" if e.get("provisional") else "")
+                     + f": {e['explains']}")
         lines.append(f"    held-out pose {mm(ev['heldout_pose_rms_before_m'])} -> "
                      f"{mm(ev['heldout_pose_rms_after_m'])}, delta BIC "
                      + ("n/a" if ev["delta_bic"] is None else f"{ev['delta_bic']:.1f}"))
@@ -55,35 +68,84 @@ def _human(rep: dict) -> str:
             lines.append(f"    alternative: {a['name']} (delta BIC {a['delta_bic']:+.1f})")
     lines.append(f"  fitted: pose {mm(f['pose_rms_m'])} RMS, held-out {mm(f['heldout_pose_rms_m'])}"
                  f", exit points {mm(f['exit_point_rms_m'])}, tensions "
-                 + ("n/a" if f["tension_rms_n"] is None else f"{f['tension_rms_n']:.2f} N"))
+                 + ("n/a" if f["tension_rms_n"] is None else f"{f['tension_rms_n']:.2f} N")
+                 + ("" if f.get("converged", True) else " (the fit did not converge)"))
+    for x in rep["mismatch"].get("excluded", []):
+        if "row" in x:
+            lines.append(f"  excluded: recording.csv line {x['row']}, {x['column']} = "
+                         f"{x['value']:g} ({x['why']})")
+        else:
+            lines.append(f"  excluded: {x['more']} more values")
     if rep["model"]:
         lines.append(f"  corrected model: {rep['model']}")
     return "\n".join(lines)
 
 
-def run(args: argparse.Namespace) -> int:
-    from bench.diagnosis.report import diagnose
+def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
+    print(f"cdpr diagnose: {msg}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"error": msg, "recording": args.recording}))
+    return code
 
+
+def _write_json(path: Path, obj: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench.diagnosis.report import diagnose, prepare_outputs
+    from bench.parallel import ending_workers, interrupt_on_term, single_blas_thread, worker_pool
+    from bench.recording import RecordingError
+
+    single_blas_thread()
     t0 = time.perf_counter()
 
     def progress(msg: str) -> None:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    pool = ProcessPoolExecutor(args.jobs) if args.jobs > 1 else None
+    if args.jobs < 1:
+        return _fail(args, 2, f"--jobs {args.jobs}: must be >= 1")
     try:
-        dg = diagnose(args.recording, progress, pool, args.write_model)
+        prepare_outputs(args.write_model, args.plots)
+        if args.out:
+            out = Path(args.out)
+            if out.is_dir() or not (out.parent if str(out.parent) else Path(".")).is_dir() \
+                    or not os.access(out.parent if str(out.parent) else Path("."), os.W_OK):
+                raise OSError(f"--out {out}: cannot write there")
+    except OSError as e:
+        return _fail(args, 2, str(e))
+    try:
+        with interrupt_on_term():
+            pool = worker_pool(args.jobs) if args.jobs > 1 else None
+            with ending_workers(pool):
+                dg = diagnose(args.recording, progress, pool, args.write_model)
     except RecordingError as e:
-        print(f"cdpr diagnose: {e}", file=sys.stderr)
-        return 2
-    finally:
-        if pool is not None:
-            pool.shutdown()
+        return _fail(args, 2, str(e))
+    except KeyboardInterrupt:
+        print("cdpr diagnose: interrupted", file=sys.stderr)
+        if args.json:
+            print(json.dumps({"error": "interrupted", "recording": args.recording}))
+        return 130
+    except Exception as e:  # noqa: BLE001 - reported, with the trace on stderr
+        traceback.print_exc(file=sys.stderr)
+        return _fail(args, 1, f"the diagnosis failed: {type(e).__name__}: {e}")
     if args.plots:
-        from bench.diagnosis.plots import write_plots
+        try:
+            from bench.diagnosis.plots import write_plots
 
-        for p in write_plots(dg, args.plots):
-            progress(f"plot {p}")
+            for p in write_plots(dg, args.plots):
+                progress(f"plot {p}")
+        except Exception as e:  # noqa: BLE001 - the report is not lost for a plot
+            print(f"cdpr diagnose: --plots {args.plots}: {type(e).__name__}: {e}",
+                  file=sys.stderr)
+    if args.out:
+        try:
+            _write_json(Path(args.out), dg.report)
+        except OSError as e:
+            print(f"cdpr diagnose: --out {args.out}: {e}", file=sys.stderr)
     if args.json:
         print(json.dumps(dg.report))
     else:

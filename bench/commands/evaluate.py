@@ -29,8 +29,6 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-
 NAME = "evaluate"
 HELP = "blind evaluation of the diagnosis on N generated cases (process pool or Dask)"
 
@@ -51,11 +49,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--effects", metavar="A,B",
                    help="conceal exactly these effects in every case ('none': no effect); "
                         "default: a random mix of 0 to 2 per case")
-    p.add_argument("--robot", default="rocaspect",
-                   help="model of every case: shipped name or robot.toml path [rocaspect]")
+    p.add_argument("--robot", default="mix",
+                   help="model of every case: shipped name or robot.toml path; 'mix': "
+                        "ROCASPECT, CoGiRo- and IPAnema-class robots, half of them with a "
+                        "perturbed geometry [mix]")
+    p.add_argument("--kind", default="mix", choices=("mix", "dwell", "continuous",
+                                                     "continuous_dwell"),
+                   help="recording kind: dwells with replicate visits, continuous rows along "
+                        "moves (without or with dwells at the targets) [mix]")
+    p.add_argument("--sensors", default="mix", choices=("mix", "all", "no_tensions",
+                                                        "no_tracker"),
+                   help="column groups the recordings hold [mix]")
+    p.add_argument("--oov", choices=("backlash", "thermal", "friction", "none"),
+                   help="physics outside the vocabulary in every case (default: in some)")
     p.add_argument("--grid", metavar="NX,NY,NZ",
-                   help="pose grid of each case's campaign [5,4,2]")
-    p.add_argument("--visits", type=int, metavar="V", help="visits of each pose [3]")
+                   help="pose grid of each case's campaign (default: random grids and counts)")
+    p.add_argument("--visits", type=int, metavar="V",
+                   help="visits of each pose (default: 2 to 4)")
     p.add_argument("--out", metavar="FILE",
                    help="append per-case results as JSON lines; a re-run skips seeds in FILE")
     p.add_argument("--retry-errors", action="store_true",
@@ -98,7 +108,8 @@ def case_config(args: argparse.Namespace) -> dict[str, Any]:
         if args.visits < 1:
             raise UsageError(f"--visits {args.visits}: must be >= 1")
         poses["visits"] = args.visits
-    return {"robot": args.robot, "effects": effects, "poses": poses}
+    return {"robot": args.robot, "effects": effects, "poses": poses, "kind": args.kind,
+            "sensors": args.sensors, "oov": args.oov}
 
 
 def case_kwargs(config: dict[str, Any]) -> dict[str, Any]:
@@ -108,11 +119,16 @@ def case_kwargs(config: dict[str, Any]) -> dict[str, Any]:
         kw["effects"] = tuple(config["effects"])
     if config["poses"]:
         kw["poses"] = dict(config["poses"])
+    for k in ("kind", "sensors", "oov"):
+        if config.get(k) not in (None, "mix"):
+            kw[k] = config[k]
     return kw
 
 
 def _plain(o: Any) -> Any:
     """JSON fallback for numpy scalars and arrays."""
+    import numpy as np
+
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):
@@ -219,6 +235,15 @@ def matrix_lines(matrix: dict[str, dict[str, int]]) -> list[str]:
     return out
 
 
+def _rate_line(label: str, r: dict) -> str:
+    fp = r["false_positive_rate"]
+    return (f"  {label:<22} {r['cases']:>4} cases: exact {_pct(r['exact_detection'])} of "
+            f"{r['in_vocabulary']}, false positives {_pct(fp)}, unexplained declared "
+            f"{r['unexplained_declared_in_vocabulary']}, seconds median "
+            + ("n/a" if r.get("median_case_s") is None else f"{r['median_case_s']:.1f}")
+            + ", max " + ("n/a" if r.get("max_case_s") is None else f"{r['max_case_s']:.1f}"))
+
+
 def human(summary: dict, errors: list[dict], seeds: range) -> str:
     """The evaluation in words."""
     s = summary
@@ -226,21 +251,49 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
     lo, hi = s["false_positive_ci95"]
     elo, ehi = s["exact_detection_ci95"]
     med = s["median_case_s"]
+    oov = s["out_of_vocabulary"]
     lines = [f"evaluation: {len(seeds)} cases (seeds {seeds.start}..{seeds.stop - 1}): "
              f"{s['cases']} scored, {len(errors)} raised",
-             f"  exact detection      {_pct(s['exact_detection'])} "
+             f"  exact detection      {_pct(s['exact_detection'])} of {s['in_vocabulary']} "
+             f"cases without physics outside the vocabulary "
              f"(95 % CI {_pct(elo)} .. {_pct(ehi)})",
              f"  false positives      {_pct(s['false_positive_rate'])} of effects not concealed "
-             f"(95 % CI {_pct(lo)} .. {_pct(hi)})",
+             f"(95 % CI {_pct(lo)} .. {_pct(hi)}); null cases naming something: "
+             f"{s['null_cases_named_something']} of {s['null_cases']}",
+             f"  unexplained declared {s['unexplained_declared_in_vocabulary']} of "
+             f"{s['in_vocabulary']} cases without physics outside the vocabulary",
+             f"  outside the vocab.   {oov['cases']} cases: unexplained declared "
+             f"{oov['declared_unexplained']}, confident wrong answers {oov['confident_wrong']}, "
+             f"exact without declaring {oov['silent_exact']}",
              f"  parameters in tol.   {_pct(s['params_within_tolerance'])} "
              f"of {s['params_total']}",
              "  z-scores             " + ("none" if not z["n"] else
                                           f"n {z['n']}, mean {z['mean']:+.2f}, "
-                                          f"std {z['std']:.2f}, |z| < 2: {_pct(z['within_2'])}"),
+                                          f"std {z['std']:.2f} (robust {z['robust_std']:.2f}), "
+                                          f"|z| < 2: {_pct(z['within_2'])} (cases named "
+                                          f"exactly)"),
+             "  z-scores, all cases  " + ("none" if not s["z_scores_all_cases"]["n"] else
+                                          f"n {s['z_scores_all_cases']['n']}, std "
+                                          f"{s['z_scores_all_cases']['std']:.2f} (robust "
+                                          f"{s['z_scores_all_cases']['robust_std']:.2f})"),
              "  held-out / noise     " + ("n/a" if s["heldout_over_noise_median"] is None
                                           else f"{s['heldout_over_noise_median']:.2f} (median)"),
-             "  seconds per case     " + ("n/a" if med is None else f"{med:.1f} (median)"),
-             "  detection matrix (counts of cases):"]
+             "  seconds per case     " + ("n/a" if med is None else
+                                          f"{med:.1f} (median), {s['max_case_s']:.1f} (max)"),
+             "  by robot:"]
+    lines += [_rate_line(k, v) for k, v in s["by_robot"].items()]
+    lines.append("  by recording kind:")
+    lines += [_rate_line(k, v) for k, v in s["by_kind"].items()]
+    lines.append("  by sensors:")
+    lines += [_rate_line(k, v) for k, v in s["by_sensors"].items()]
+    lines.append("  by concealed effect (cases, named, exact):")
+    lines += [f"    {e:<22} {v['cases']:>4} {v['named']:>4} {v['exact']:>4}"
+              for e, v in s["by_effect"].items()]
+    lines.append("  equilibrium solver per robot (calls, by Newton, energy-descent fallbacks, "
+                 "failures):")
+    lines += [f"    {r:<12} {v['calls']:>7} {v['newton']:>7} {v['fallbacks']:>5} "
+              f"{v['failures']:>5}" for r, v in s["equilibrium"].items()]
+    lines.append("  detection matrix (counts of cases without physics outside the vocabulary):")
     lines += ["  " + ln for ln in matrix_lines(s["matrix"])]
     lines.append("    (a case concealing two effects counts in both rows)")
     for e in errors:
@@ -259,8 +312,9 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from bench import evaluate
-    from bench.parallel import SchedulerError, run_each
+    from bench.parallel import SchedulerError, interrupt_on_term, run_each, single_blas_thread
 
+    single_blas_thread()
     if args.cases < 1:
         return _fail(args, 2, f"--cases {args.cases}: must be >= 1")
     if args.jobs < 1:
@@ -274,7 +328,8 @@ def run(args: argparse.Namespace) -> int:
         from controller.robot import RobotFileError, resolve_robot
 
         try:
-            resolve_robot(args.robot)
+            if args.robot != "mix":
+                resolve_robot(args.robot)
         except RobotFileError as e:
             raise UsageError(f"--robot: {e}") from e
         out_path = Path(args.out) if args.out else None
@@ -310,7 +365,7 @@ def run(args: argparse.Namespace) -> int:
             outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
                                 scheduler=args.scheduler,
                                 connect_timeout_s=args.connect_timeout, **case_kwargs(config))
-            with closing(outcomes):
+            with interrupt_on_term(), closing(outcomes):
                 for done, o in enumerate(outcomes, 1):
                     rec = (o.value if o.ok else
                            {"seed": o.item, "error": o.error, "trace": o.trace})

@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # heavy imports happen in the functions (cdpr --help stays fast)
+    import numpy as np
 
-from controller.equilibrium import residual_and_jacobian
-from controller.robot import Robot, RobotFileError, resolve_robot
-from controller.statics import pose_statics, settled_exits, unstretched_lengths
-from controller.workspace import wrench_feasible_grid
+    from controller.robot import Robot
 
 NAME = "model"
 HELP = "check or show a robot description (shipped name such as 'rocaspect', or a robot.toml path)"
@@ -19,6 +18,8 @@ HELP = "check or show a robot description (shipped name such as 'rocaspect', or 
 #: The paper's hand-tuned mast stiffness [N m/rad] (section 3.4), used to show deflections
 #: when a description has rigid masts.
 PAPER_STIFFNESS = (2.0e5, 5.0e5, 3.0e5)
+#: Workspace grid points at most (a 2 cm step over a 20 x 20 m footprint)
+MAX_GRID_POINTS = 1e6
 #: Platform positions of the paper's Table 2 and its remeasurement pose [m].
 CHECK_POSITIONS = ((10.0, 8.56, 1.0), (4.5, 4.5, 1.0), (4.5, 12.5, 1.0), (15.5, 12.5, 1.0),
                    (15.5, 4.5, 1.0))
@@ -39,6 +40,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def describe(robot: Robot) -> dict:
     """The description as plain data (ids, geometry, limits)."""
+    import numpy as np
+
     return {
         "name": robot.name,
         "source": robot.source,
@@ -63,6 +66,11 @@ def platform_stiffness_min(robot: Robot, pose: np.ndarray, tensions: np.ndarray,
                            lengths: np.ndarray) -> float | None:
     """Smallest eigenvalue of the symmetric part of the platform stiffness (translational
     block, N/m), or None for inextensible cables."""
+    import numpy as np
+
+    from controller.equilibrium import residual_and_jacobian
+    from controller.statics import unstretched_lengths
+
     if not robot.elastic:
         return None
     l0 = unstretched_lengths(lengths, tensions, robot.ea)
@@ -76,6 +84,11 @@ def platform_stiffness_min(robot: Robot, pose: np.ndarray, tensions: np.ndarray,
 
 def check(robot: Robot, height: float, step: float, method: str) -> dict:
     """Workspace feasibility, tension range and mast deflections at the check positions."""
+    import numpy as np
+
+    from controller.statics import pose_statics, settled_exits
+    from controller.workspace import wrench_feasible_grid
+
     grid = wrench_feasible_grid(robot, z=height, step=step, method=method)
     shown = robot
     stiffness_source = "description"
@@ -119,6 +132,7 @@ def check(robot: Robot, height: float, step: float, method: str) -> dict:
 
 def _plot(report: dict, robot: Robot, path: str) -> None:
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -148,6 +162,8 @@ def _plot(report: dict, robot: Robot, path: str) -> None:
 
 
 def _print_show(robot: Robot) -> None:
+    import numpy as np
+
     print(f"robot {robot.name} ({robot.source})")
     print(f"  platform {robot.mass} kg, com {robot.com.tolist()} m, g = {robot.gravity}")
     ea = "inextensible" if not robot.elastic else f"EA {robot.ea.min():.4g}..{robot.ea.max():.4g} N"
@@ -164,20 +180,49 @@ def _print_show(robot: Robot) -> None:
               f"{robot.pulley_radius[k]:.3f}")
 
 
+def _usage_error(args: argparse.Namespace, msg: str) -> int:
+    if args.json:
+        print(json.dumps({"robot": args.robot, "valid": False, "error": msg}))
+    print(f"cdpr model: {msg}", file=sys.stderr)
+    return 2
+
+
+def _option_problem(args: argparse.Namespace) -> str | None:
+    import math
+
+    if not (math.isfinite(args.step) and args.step > 0):
+        return f"--step {args.step}: the grid step must be a positive number of metres"
+    if not math.isfinite(args.height):
+        return f"--height {args.height}: must be a finite height [m]"
+    if args.plot:
+        from bench.outputs import output_file_problem
+
+        return output_file_problem(args.plot, "--plot")
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
+    from controller.robot import RobotFileError, resolve_robot
+    from controller.workspace import footprint_bounds
+
     try:
         robot = resolve_robot(args.robot)
     except RobotFileError as e:
-        if args.json:
-            print(json.dumps({"robot": args.robot, "valid": False, "error": str(e)}))
-        print(f"cdpr model: {e}", file=sys.stderr)
-        return 2
+        return _usage_error(args, str(e))
     if args.action == "show":
         if args.json:
             print(json.dumps(describe(robot)))
         else:
             _print_show(robot)
         return 0
+    if (problem := _option_problem(args)) is not None:
+        return _usage_error(args, problem)
+    x0, x1, y0, y1 = footprint_bounds(robot)
+    points = ((x1 - x0) / args.step) * ((y1 - y0) / args.step)
+    if points > MAX_GRID_POINTS:
+        return _usage_error(args, f"--step {args.step}: {points:.3g} grid points over the "
+                            f"{x1 - x0:.1f} x {y1 - y0:.1f} m footprint (at most "
+                            f"{MAX_GRID_POINTS:.0e}); take a coarser step")
     report = check(robot, args.height, args.step, args.method)
     if args.plot:
         _plot(report, robot, args.plot)

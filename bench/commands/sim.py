@@ -12,6 +12,12 @@ prints where it listens, in the forms the HAL takes::
 
 (one JSON object on one line with ``--json``) and runs until SIGINT or SIGTERM (exit 0).
 A scenario file that is not valid is reported with file and field (exit 2).
+
+Faults: ``--faults FILE`` applies a fault schedule on the sim's clock, and a control
+channel on loopback (``--control-port``, 0 = any free port; printed as
+``--control 127.0.0.1:R``) takes faults from tests and tools, one line per request
+(:mod:`firmware_sim.faults` documents both). A schedule that is not valid is reported
+with file, line and field (exit 2).
 """
 
 from __future__ import annotations
@@ -22,12 +28,6 @@ import os
 import signal
 import sys
 import threading
-
-import numpy as np
-
-from firmware_sim.rig import SimRig
-from firmware_sim.scenario import ScenarioError, load_scenario
-from hal.can_bus import CanSpecError, open_bus, parse_can_spec
 
 NAME = "sim"
 HELP = "run the simulated robot (drives on CAN, load cells on Modbus, plant) until interrupted"
@@ -55,6 +55,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(deterministic; the HAL's --hal-clock sync); wall: real time [sync]")
     p.add_argument("--plant-rate", type=float, default=20.0, metavar="HZ",
                    help="plant settles per second at most [20]")
+    p.add_argument("--faults", metavar="FILE", default=None,
+                   help="fault schedule (TOML [[fault]] tables, see firmware_sim/faults.py)")
+    p.add_argument("--control-port", type=int, default=0, metavar="R",
+                   help="TCP port of the fault control channel on the host (0: any free one) "
+                        "[0]")
     p.add_argument("--exit-on-stdin-eof", action="store_true",
                    help="also stop when stdin closes (the parent process went away)")
     p.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
@@ -75,11 +80,23 @@ def _port(args: argparse.Namespace, name: str) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for name in ("can-port", "modbus-port", "tracker-port"):
+    for name in ("can-port", "modbus-port", "tracker-port", "control-port"):
         if (msg := _port(args, name)) is not None:
             return _fail(args, 2, msg)
     if not args.plant_rate > 0:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
+    import numpy as np
+
+    from firmware_sim.faults import (
+        FaultControlServer,
+        FaultInjector,
+        FaultSchedule,
+        FaultScheduleError,
+    )
+    from firmware_sim.rig import SimRig
+    from firmware_sim.scenario import ScenarioError, load_scenario
+    from hal.can_bus import CanSpecError, open_bus, parse_can_spec
+
     try:
         scenario = load_scenario(args.scenario) if args.scenario else None
     except ScenarioError as exc:
@@ -107,6 +124,19 @@ def run(args: argparse.Namespace) -> int:
         if bus is not None:
             bus.shutdown()
         return _fail(args, 2, str(exc))
+    try:
+        schedule = FaultSchedule.load(
+            args.faults, node_ids=tuple(int(x) for x in rig.winches.node_id),
+            unit_ids=tuple(rig.cells.map.unit_ids)) if args.faults else None
+    except FaultScheduleError as exc:
+        rig.close()
+        return _fail(args, 2, str(exc))
+    injector = FaultInjector(rig, schedule)
+    try:
+        control = FaultControlServer(injector, host=args.host, port=args.control_port)
+    except OSError as exc:
+        rig.close()
+        return _fail(args, 1, f"cannot listen on {args.host}:{args.control_port}: {exc}")
 
     stop = threading.Event()
     previous = {}
@@ -118,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
             rig.start()
         except (RuntimeError, TimeoutError, OSError) as exc:
             return _fail(args, 1, str(exc))
+        injector.start()
+        control.start()
         can_spec = rig.can_spec if bus is None else str(parse_can_spec(args.can))
         sc = rig.scenario
         info = {
@@ -133,6 +165,8 @@ def run(args: argparse.Namespace) -> int:
             "init_pose": [float(v) for v in sc.init_pose],
             "reference_m": [float(v) for v in rig.reference_m],
             "pid": os.getpid(),
+            "control": control.endpoint,
+            "faults": str(args.faults) if args.faults else None,
         }
         if args.json:
             print(json.dumps(info), flush=True)
@@ -143,6 +177,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  --can {can_spec}")
             print(f"  --modbus {rig.modbus_spec}")
             print(f"  --tracker {rig.tracker_spec}")
+            print(f"  --control {control.endpoint}   (faults: one request per line; 'help')")
+            if schedule is not None:
+                print(f"  {len(schedule.faults)} scheduled fault(s) from {args.faults}")
             print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)
         if args.exit_on_stdin_eof:
             def _watch() -> None:
@@ -155,9 +192,12 @@ def run(args: argparse.Namespace) -> int:
         while not stop.wait(0.5):
             pass
     finally:
+        control.close()
+        injector.stop()
         rig.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     print(f"cdpr sim: stopped ({rig.settles} plant settles, {len(rig.plant_errors)} without "
-          f"a rest position)", file=sys.stderr)
+          f"a rest position, {sum(r.action == 'apply' for r in injector.log)} fault(s) "
+          "injected)", file=sys.stderr)
     return 0

@@ -16,6 +16,13 @@ from scipy.optimize import least_squares
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import ParamSpace
 
+#: evaluations of one least-squares run, and runs more from where it stopped if it did not
+#: converge (a fit that still has not converged is reported as such)
+MAX_NFEV = 80
+RETRIES = 2
+#: relative tolerances on chi-square and parameters (chi-square differences that decide
+#: matter from about 1: far coarser than this)
+FIT_TOL = 1e-7
 
 @dataclass
 class FitResult:
@@ -33,10 +40,14 @@ class FitResult:
     success: bool
     message: str
     nfev: int = 0
+    dof_lost: float = 0.0  # residual degrees of freedom taken by per-sample unknowns
+    n_free: int = 0
+    n_eff: float | None = None  # effective number of residuals (weights summed)
 
     @property
-    def dof(self) -> int:
-        return max(self.n_res - len(self.phi), 1)
+    def dof(self) -> float:
+        n = self.n_res if self.n_eff is None else self.n_eff
+        return max(n - self.n_free - self.dof_lost, 1.0)
 
     @property
     def reduced_chi2(self) -> float:
@@ -63,7 +74,7 @@ def fd_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.n
 
 
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
-                phi0: np.ndarray | None = None, max_nfev: int = 60,
+                phi0: np.ndarray | None = None, max_nfev: int = MAX_NFEV,
                 hold: np.ndarray | None = None, prune: bool = True) -> FitResult:
     """Fit the parameters of ``space`` to the samples ``idx`` (whitened inverse residuals).
 
@@ -73,10 +84,7 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     parameters the data need (three offset cables, not twenty-four).
     """
     full = _fit(space, rm, idx, phi0, max_nfev, hold)
-    if len(space) == 0:
-        return full
-    full.phi = space.canonical(full.phi)  # same robot, gauge removed
-    if not prune:
+    if len(space) == 0 or not prune:
         return full
     weak = np.isfinite(full.stderr) & (np.abs(full.phi - space.neutral) < 2.0 * full.stderr)
     if hold is not None:
@@ -87,9 +95,12 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     if hold is not None:
         held |= hold
     pruned = _fit(space, rm, idx, full.phi, max_nfev, held)
-    if pruned.bic < full.bic:
-        pruned.phi = space.canonical(pruned.phi)
-        pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
+    if pruned.bic < full.bic and pruned.success:
+        # the held parameters keep the uncertainty the full fit gave them, and the others
+        # keep at least theirs: pruning chose among models, it did not add information
+        pruned.stderr = np.where(weak, full.stderr,
+                                 np.maximum(pruned.stderr, np.where(np.isfinite(full.stderr),
+                                                                    full.stderr, 0.0)))
         return pruned
     return full
 
@@ -106,11 +117,13 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     def jac(phi: np.ndarray) -> np.ndarray:
         return fd_jacobian(fun, phi, fun(phi), steps, space.lo, space.hi)
 
+    lost = rm.dof_lost(idx)
+    n_eff = float(rm.entry_weights(idx).sum())
     if len(space) == 0:
         r = fun(x0)
         chi2 = float(r @ r)
-        return FitResult(space, x0, chi2, len(r), bic(chi2, 0, len(r)), np.zeros(0),
-                         np.zeros((0, 0)), True, "no parameters")
+        return FitResult(space, x0, chi2, len(r), bic(chi2, 0, n_eff), np.zeros(0),
+                         np.zeros((0, 0)), True, "no parameters", 1, lost, 0, n_eff)
     # parameters the data cannot fix at all (seen at the start, before the fit can wander
     # along them) stay at the model's values; compliance-like ones are held first
     fixed = null_parameters(jac(x0), space) if hold is None else hold.copy()
@@ -125,26 +138,39 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         return fun(full)
 
     if free.any():
-        res = least_squares(fun_free, x[free], bounds=(space.lo[free], space.hi[free]),
-                            jac=lambda z: fd_jacobian(fun_free, z, fun_free(z), steps[free],
-                                                      space.lo[free], space.hi[free]),
-                            x_scale=space.scale[free], method="trf", max_nfev=max_nfev,
-                            xtol=1e-8, ftol=1e-8, gtol=1e-8)
-        x[free] = res.x
-        r, Jf, nfev, ok, msg = res.fun, res.jac, int(res.nfev), bool(res.success), str(
-            res.message)
+        z = x[free]
+        nfev, ok, msg = 0, False, ""
+        for _attempt in range(RETRIES + 1):
+            res = least_squares(fun_free, z, bounds=(space.lo[free], space.hi[free]),
+                                jac=lambda z: fd_jacobian(fun_free, z, fun_free(z), steps[free],
+                                                          space.lo[free], space.hi[free]),
+                                x_scale=space.scale[free], method="trf", max_nfev=max_nfev,
+                                xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
+            z = res.x
+            nfev += int(res.nfev)
+            # status 0: the evaluation budget ran out before a convergence test passed
+            ok = bool(res.status > 0)
+            msg = str(res.message)
+            if ok:
+                break
+        x[free] = z
+        r, Jf = res.fun, res.jac
+        if not ok:
+            msg = f"did not converge in {nfev} evaluations: {msg}"
     else:
         r, Jf, nfev, ok, msg = fun(x), np.zeros((0, 0)), 1, True, "nothing to fit"
     chi2 = float(r @ r)
     n_res = len(r)
-    cov, se = standard_errors(Jf, chi2, n_res, space.scale[free]) if free.any() else \
-        (np.zeros((0, 0)), np.zeros(0))
+    groups = rm.entry_blocks(idx) if free.any() else None
+    columns = rm.entry_columns(idx) if free.any() else None
+    cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, columns) \
+        if free.any() else (np.zeros((0, 0)), np.zeros(0))
     se_all = np.full(len(x), np.inf)
     se_all[free] = se
     cov_all = np.zeros((len(x), len(x)))
     cov_all[np.ix_(free, free)] = cov
-    return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_res), se_all,
-                     cov_all, ok, msg, nfev)
+    return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_eff), se_all,
+                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff)
 
 
 #: a parameter whose Jacobian column is within this fraction of the span of the columns
@@ -180,11 +206,18 @@ def null_parameters(J: np.ndarray, space: ParamSpace) -> np.ndarray:
     return fixed
 
 
-def standard_errors(J: np.ndarray, chi2: float, n_res: int,
-                    scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def standard_errors(J: np.ndarray, chi2: float, n_res: float,
+                    scale: np.ndarray | None = None, r: np.ndarray | None = None,
+                    groups: np.ndarray | None = None, columns: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Covariance and standard errors from the whitened Jacobian (computed in parameter
     units of ``scale``); inflated by the reduced chi-square when the fit leaves more than
-    the noise."""
+    the noise. With the residuals ``r``, the sample ``groups`` of their entries (what
+    shares errors: a target's visits, a stretch of moves) and their ``columns`` (the same
+    quantity over samples), the covariance is inflated by the design effect of residuals
+    correlated within groups, and each standard error is at least the cluster-robust
+    (sandwich) one when there are groups enough: correlated residuals, or residuals larger
+    than the noise estimate in places, do not make the fit look surer than it is."""
     p = J.shape[1]
     if p == 0:
         return np.zeros((0, 0)), np.zeros(0)
@@ -198,6 +231,24 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: int,
     cov_s = (V * inv_w) @ V.T
     red = chi2 / max(n_res - p, 1)
     cov = cov_s * np.outer(D, D) * max(red, 1.0)
+    if r is not None and groups is not None and columns is not None and len(groups) == len(r):
+        # design effect: squared sums of each quantity's residuals within a group against
+        # the sum of squares (1 for independent residuals)
+        key = groups.astype(np.int64) * (int(columns.max()) + 1) + columns
+        _, inv_k = np.unique(key, return_inverse=True)
+        sums = np.bincount(inv_k, weights=r)
+        deff = float(np.sum(sums ** 2) / max(float(r @ r), 1e-300))
+        cov = cov * max(deff, 1.0)
+    if r is not None and groups is not None and len(groups) == len(r):
+        ug, inv = np.unique(groups, return_inverse=True)
+        G = len(ug)
+        if G > 2 * p:
+            sc = np.zeros((G, p))
+            np.add.at(sc, inv, Js * r[:, None])
+            meat = sc.T @ sc * G / (G - 1)
+            cov_r = cov_s @ meat @ cov_s * np.outer(D, D)
+            d = np.sqrt(np.clip(np.diag(cov_r) / np.maximum(np.diag(cov), 1e-300), 1.0, None))
+            cov = cov * np.outer(d, d)
     # directions without information (a gauge such as the load cells' common mode, which
     # the reported values divide out) are left out of the covariance: parameters the data
     # cannot fix at all were held at the model's values before the fit

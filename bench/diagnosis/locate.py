@@ -79,29 +79,33 @@ def growth_from_init(s: Samples, err: np.ndarray, init_pose: np.ndarray) -> dict
 
 
 def steps_in_time(s: Samples, length: np.ndarray, sigma: float,
-                  cable_ids: tuple[str, ...]) -> list[dict]:
-    """Steps in a cable's length residual over time (a slip on the drum, an encoder jump).
+                  cable_ids: tuple[str, ...], t_after: float = -np.inf) -> list[dict]:
+    """Steps in a cable's length residual over time (a slip on the drum, an encoder jump),
+    later than ``t_after`` (the end of the initialisation: a slip cannot happen before).
 
     Pose-dependent model errors repeat at each visit of a target, so each sample's
     residual is taken relative to the mean of its target; what is left steps when
-    the reading jumps.
+    the reading jumps. Recordings with few replicates (rows of moves) use the residual
+    itself, against its own row-to-row spread.
     """
     order = np.argsort(s.t)
     found = []
     for k, cid in enumerate(cable_ids):
         r = length[order, k]
         tg = s.target[order]
-        ok = np.isfinite(r)
+        ok = np.isfinite(r) & ~s.is_init[order]
         if ok.sum() < 8:
             continue
         r, tg, t = r[ok], tg[ok], s.t[order][ok]
-        if len(np.unique(tg)) < len(tg):
-            means = {g: r[tg == g].mean() for g in np.unique(tg)}
-            d = r - np.array([means[g] for g in tg])
-            counts = np.array([(tg == g).sum() for g in tg])
+        _, inv, cnt = np.unique(tg, return_inverse=True, return_counts=True)
+        counts = cnt[inv]
+        sig = sigma
+        if np.mean(counts > 1) >= 0.5:
+            sums = np.bincount(inv, weights=r)
+            d = r - sums[inv] / counts
             d = np.where(counts > 1, d, np.nan)
         else:
-            d = r - r.mean()
+            continue  # no replicates: see row_jumps
         good = np.isfinite(d)
         d, tt = d[good], t[good]
         n = len(d)
@@ -110,9 +114,11 @@ def steps_in_time(s: Samples, length: np.ndarray, sigma: float,
         cs = np.cumsum(d)
         best, at = 0.0, -1
         for i in range(3, n - 3):
+            if tt[i - 1] < t_after:
+                continue
             m1 = cs[i - 1] / i
             m2 = (cs[-1] - cs[i - 1]) / (n - i)
-            z = abs(m2 - m1) / (sigma * np.sqrt(1.0 / i + 1.0 / (n - i)))
+            z = abs(m2 - m1) / (sig * np.sqrt(1.0 / i + 1.0 / (n - i)))
             if z > best:
                 best, at = z, i
         if best > STEP_Z and at > 0:
@@ -122,4 +128,37 @@ def steps_in_time(s: Samples, length: np.ndarray, sigma: float,
             size = float(np.mean(d[after]) - np.mean(d[before]))
             found.append({"cable": cid, "t_s": float(0.5 * (tt[at - 1] + tt[at])),
                           "step_m": size, "z": float(best)})
+    return found
+
+
+#: a jump between consecutive rows stands this many robust standard deviations out ...
+JUMP_Z = 12.0
+#: ... and is at least this large [m]
+JUMP_MIN_M = 5e-4
+
+
+def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
+              t_after: float = -np.inf) -> list[dict]:
+    """Slips during moves: a cable's length residual jumping between two consecutive raw rows
+    (``stream``, residuals ``length`` (R,n)) far beyond its row-to-row spread, alone (a jump
+    of most cables at once is the pose, not a cable). One step per cable, the largest."""
+    same = np.concatenate([[False], stream.block[1:] == stream.block[:-1]])
+    d = np.full(length.shape, np.nan)
+    d[1:] = length[1:] - length[:-1]
+    d[~same] = np.nan
+    d[stream.t <= t_after] = np.nan
+    found = []
+    with np.errstate(invalid="ignore"):
+        mad = 1.4826 * np.nanmedian(np.abs(d), axis=0)
+        z = np.abs(d) / np.maximum(mad, 1e-9)
+        big = (z > JUMP_Z) & (np.abs(d) > JUMP_MIN_M)
+    many = big.sum(axis=1) > max(1, len(cable_ids) // 2)
+    big[many] = False
+    for k, cid in enumerate(cable_ids):
+        rows = np.flatnonzero(big[:, k])
+        if not len(rows):
+            continue
+        i = rows[np.argmax(np.abs(d[rows, k]))]
+        found.append({"cable": cid, "t_s": float(0.5 * (stream.t[i - 1] + stream.t[i])),
+                      "step_m": float(d[i, k]), "z": float(z[i, k]), "row": int(stream.row[i])})
     return found

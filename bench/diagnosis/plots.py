@@ -1,4 +1,11 @@
-"""Plots of a diagnosis: residual maps before/after, per-cable bars, error vs distance, time."""
+"""Plots of a diagnosis: residual maps before/after, per-cable bars, error vs distance, time.
+
+Read at a glance: the two panels of the residual map share one arrow scale (a key
+arrow says how long 1 mm is) and one colour scale; exit points whose fit rests on
+a single measurement (their residual is zero by construction) are marked apart
+from those checked at several poses; the residuals over time are the length
+residuals per cable, before and after the correction, with steps marked.
+"""
 
 from __future__ import annotations
 
@@ -22,25 +29,34 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
     written = []
     pos = np.where(np.isfinite(s.pose_meas[:, :3]), s.pose_meas[:, :3], s.pose_des[:, :3])
 
-    # 1. residual map before / after
+    # 1. residual map before / after, one arrow scale and one colour scale
     if np.isfinite(dg.baseline_forward.pose_err).any():
+        errs = [dg.baseline_forward.pose_err, dg.fitted_forward.pose_err]
+        mags = [np.linalg.norm(e[:, :3], axis=1) * 1e3 for e in errs]
+        top = max(float(np.nanmax(m)) if np.isfinite(m).any() else 0.0 for m in mags) or 1.0
+        span = float(np.nanmax(np.ptp(pos[:, :2], axis=0))) or 1.0
+        # arrows: the largest error over both panels is drawn as a tenth of the workspace
+        scale = top / (0.1 * span)  # mm per metre of plot
+        key = 10 ** np.floor(np.log10(top)) if top > 0 else 1.0
         fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharex=True, sharey=True)
-        for ax, fw, title in ((axes[0], dg.baseline_forward, "recording's model"),
-                              (axes[1], dg.fitted_forward, "corrected model")):
-            e = fw.pose_err
+        for ax, e, mag, title in zip(axes, errs, mags, ("recording's model", "corrected model"),
+                                     strict=True):
             ok = np.isfinite(e[:, :3]).all(axis=1)
-            mag = np.linalg.norm(e[ok, :3], axis=1) * 1e3
-            q = ax.quiver(pos[ok, 0], pos[ok, 1], e[ok, 0], e[ok, 1], mag, cmap="viridis",
-                          angles="xy")
-            fig.colorbar(q, ax=ax, label="3-D pose error [mm]")
+            q = ax.quiver(pos[ok, 0], pos[ok, 1], e[ok, 0] * 1e3, e[ok, 1] * 1e3, mag[ok],
+                          cmap="viridis", angles="xy", scale_units="xy", scale=scale,
+                          clim=(0.0, top))
+            ax.quiverkey(q, 0.82, 1.03, key, f"{key:g} mm", labelpos="E", coordinates="axes")
             ax.plot(model.exits[:, 0], model.exits[:, 1], "r^")
             ax.plot(*dg.recording.init_pose[:2], "k*", ms=14, label="initialisation pose")
-            ax.set_title(f"{title}: RMS {np.sqrt(np.mean(mag ** 2)):.2f} mm")
+            rms = np.sqrt(np.nanmean(mag[ok] ** 2)) if ok.any() else float("nan")
+            ax.set_title(f"{title}: RMS {rms:.2f} mm")
             ax.set_xlabel("x [m]")
             ax.set_aspect("equal")
+        fig.colorbar(q, ax=list(axes), label="3-D pose error [mm] (same scale on both)")
         axes[0].set_ylabel("y [m]")
-        axes[0].legend(loc="upper right")
-        fig.suptitle("measured minus predicted platform position (arrows: xy, colour: 3-D)")
+        axes[0].legend(loc="lower left")
+        fig.suptitle("measured minus predicted platform position (arrows: xy, one scale for "
+                     "both panels; colour: 3-D)")
         written.append(_save(fig, d / "residual_map.png", plt))
 
     # 2. per-cable bars
@@ -53,7 +69,8 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
         ra = np.sqrt(np.nanmean(after ** 2, axis=0)) * 1e3
         ax.bar(x - 0.2, rb, 0.4, label="recording's model")
         ax.bar(x + 0.2, ra, 0.4, label="corrected model")
-        ax.axhline(dg.rm.sigma["length"] * 1e3, color="k", ls="--", lw=1, label="noise level")
+        ax.axhline(dg.rm.noise_summary()["length"] * 1e3, color="k", ls="--", lw=1,
+                   label="noise level")
         ax.set_xticks(x, model.cable_ids)
         ax.set_yscale("log")
         ax.set_xlabel("cable")
@@ -62,21 +79,32 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
         ax.set_title("per-cable length residuals")
         written.append(_save(fig, d / "cables.png", plt))
 
-    # 2b. exit points measured by the tracker
+    # 2b. exit points measured by the tracker: those seen at a single pose are fitted to
+    # their one measurement (zero by construction), not validated
     if dg.rm.has_exit.any():
         e0 = np.linalg.norm(dg.rm.blocks(model).exit, axis=2) * 1e3
         e1 = np.linalg.norm(dg.rm.blocks(dg.fitted_robot).exit, axis=2) * 1e3
+        seen = dg.rm.has_exit.sum(axis=0)
         fig, ax = plt.subplots(figsize=(9, 4.5))
         x = np.arange(model.n_cables)
         with np.errstate(invalid="ignore"):
             rb = np.sqrt(np.nanmean(e0 ** 2, axis=0))
             ra = np.sqrt(np.nanmean(e1 ** 2, axis=0))
         ax.bar(x - 0.2, rb, 0.4, label="recording's model")
-        ax.bar(x + 0.2, ra, 0.4, label="corrected model")
-        ax.set_xticks(x, model.cable_ids)
-        ax.set_xlabel("cable")
+        single = seen == 1
+        ax.bar((x + 0.2)[~single], ra[~single], 0.4, label="corrected model (measured at "
+                                                           "several poses)")
+        ax.bar((x + 0.2)[single], np.nan_to_num(ra[single]), 0.4, color="none",
+               edgecolor="grey", hatch="//",
+               label="corrected model, one measurement only (zero by construction)")
+        for k in np.flatnonzero(single):
+            ax.text(x[k] + 0.2, max(float(np.nan_to_num(rb[k])) * 0.05, 0.1), "1 pose",
+                    ha="center", va="bottom", fontsize=7, rotation=90, color="grey")
+        ax.set_xticks(x, [f"{c}\n({n} poses)" for c, n in zip(model.cable_ids, seen,
+                                                                strict=True)])
+        ax.set_xlabel("cable (poses where its exit point was measured)")
         ax.set_ylabel("exit point error RMS [mm]")
-        ax.legend()
+        ax.legend(fontsize=8)
         ax.set_title("measured minus predicted exit points")
         written.append(_save(fig, d / "exit_points.png", plt))
 
@@ -90,25 +118,44 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
         ax.semilogy(dist, e1 * 1e3, "s", alpha=0.6, label="corrected model")
         ho = dg.heldout
         if len(ho):
-            ax.semilogy(dist[ho], e1[ho] * 1e3, "kx", label="held out (corrected)")
+            ax.semilogy(dist[ho], e1[ho] * 1e3, "kx", label="test samples (corrected)")
+        noise = dg.report["mismatch"].get("noise", {}).get("pose_m")
+        if noise:
+            ax.axhline(noise * 1e3, color="k", ls="--", lw=1, label="repeatability")
         ax.set_xlabel("distance from the initialisation pose [m]")
         ax.set_ylabel("3-D pose error [mm]")
         ax.legend()
-        ax.set_title("pose error grows away from the initialisation pose")
+        ax.set_title("pose error against the distance from the initialisation pose")
         written.append(_save(fig, d / "error_vs_distance.png", plt))
 
-    # 4. length residuals over time
+    # 4. length residuals per cable over time, before and after, steps marked
     if np.isfinite(before).any():
-        fig, ax = plt.subplots(figsize=(10, 4.5))
+        n = model.n_cables
+        cols = 2 if n > 4 else 1
+        rows_ = int(np.ceil(n / cols))
+        fig, axes = plt.subplots(rows_, cols, figsize=(12, 1.8 * rows_ + 1), sharex=True,
+                                 squeeze=False)
         order = np.argsort(s.t)
+        steps = dg.report["mismatch"].get("steps", [])
+        noise = dg.rm.noise_summary()["length"] * 1e3
         for k, cid in enumerate(model.cable_ids):
-            ax.plot(s.t[order], before[order, k] * 1e3, ".-", lw=0.5, label=cid)
-        for st in dg.report["mismatch"].get("steps", []):
-            ax.axvline(st["t_s"], color="r", ls=":")
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("length residual, recording's model [mm]")
-        ax.legend(ncol=4, fontsize=8)
-        ax.set_title("per-cable length residuals over time (a step is a slip)")
+            ax = axes[k % rows_][k // rows_]
+            ax.plot(s.t[order], before[order, k] * 1e3, ".", ms=3, color="0.6",
+                    label="recording's model")
+            ax.plot(s.t[order], after[order, k] * 1e3, ".", ms=3, color="C1",
+                    label="corrected model")
+            ax.axhspan(-noise, noise, color="C2", alpha=0.15, lw=0)
+            for st in steps:
+                if st["cable"] == cid:
+                    ax.axvline(st["t_s"], color="r", ls=":")
+                    ax.text(st["t_s"], ax.get_ylim()[1], f" step {st['step_m'] * 1e3:+.1f} mm",
+                            color="r", fontsize=7, va="top")
+            ax.set_ylabel(f"{cid} [mm]", fontsize=8)
+        axes[0][0].legend(fontsize=7, loc="upper left")
+        for ax in axes[-1]:
+            ax.set_xlabel("t [s]")
+        fig.suptitle("length residual per cable over time (band: noise; dotted red: a step, "
+                     "a slip or an encoder jump)")
         written.append(_save(fig, d / "lengths_over_time.png", plt))
     return written
 

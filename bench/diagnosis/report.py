@@ -16,13 +16,19 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.diagnosis import locate
+from bench.diagnosis import locate, unexplained
 from bench.diagnosis.fit import FitResult
 from bench.diagnosis.residuals import Forward, ResidualModel
-from bench.diagnosis.samples import Samples, average_dwells
-from bench.diagnosis.select import BIC_TIE, Selection, Selector, candidate_effects
-from bench.diagnosis.space import EXPLAINS, SCALES, Param, ParamSpace
-from bench.recording import Recording, read_recording
+from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
+from bench.diagnosis.select import (
+    BIC_TIE,
+    Selection,
+    Selector,
+    candidate_effects,
+    untested_effects,
+)
+from bench.diagnosis.space import EXPLAINS, SCALES, Param, ParamSpace, report_name
+from bench.recording import Recording, RecordingError, read_recording
 from controller.kinematics import gravity_wrench
 from controller.robot import Robot, save_robot
 from controller.statics import batch_statics
@@ -128,35 +134,38 @@ def _undetermined(p: Param, phi: float, se: float) -> bool:
     if p.key.startswith("offset_"):
         return se > 5.0
     if p.key == "mass":
-        return se > 2.0
+        return se > max(2.0, 0.05 * p.neutral)  # 5 % of the platform (a 91 kg one: 4.5 kg)
     if p.key.startswith("com_"):
         return se > 0.05
     return se > 100 * SCALES.get(p.effect, 1.0)
 
 
 def effect_entries(fit: FitResult, effects: list[str]) -> tuple[dict, dict, dict]:
-    """Per effect: report params and stderr (only those that differ from the model), and
-    the undetermined keys."""
+    """Per chosen candidate: report params and stderr (only those that differ from the
+    model), and the undetermined keys."""
     params: dict[str, dict] = {e: {} for e in effects}
     errs: dict[str, dict] = {e: {} for e in effects}
     undet: dict[str, list] = {e: [] for e in effects}
     values = fit.space.values(fit.phi)
-    for k, p in enumerate(fit.space.params):
-        if p.effect not in params:
-            continue
-        se = float(fit.stderr[k])
-        phi = p.from_value(values[p.effect][p.key])
-        if _undetermined(p, phi, se):
-            undet[p.effect].append(p.key)
-            continue
-        if p.kind != "inverse" and abs(phi - p.neutral) <= max(
-                3.0 * se, PRACTICAL.get(p.effect, 0.0) if not p.key.startswith("offset_")
-                else 0.3):
-            continue  # the model's value within the uncertainty, or a negligible change
-        value = values[p.effect][p.key]
-        err = se / phi**2 if p.kind == "inverse" else se
-        params[p.effect][p.key] = float(value)
-        errs[p.effect][p.key] = float(err)
+    for e in effects:
+        for k in fit.space.indices(e):
+            p = fit.space.params[k]
+            se = float(fit.stderr[k])
+            phi = p.from_value(values[p.effect][p.key])
+            if _undetermined(p, phi, se):
+                undet[e].append(p.key)
+                continue
+            if p.kind != "inverse" and abs(phi - p.neutral) <= max(
+                    3.0 * se, PRACTICAL.get(p.effect, 0.0) if not p.key.startswith("offset_")
+                    else 0.3):
+                continue  # the model's value within the uncertainty, or a negligible change
+            if p.kind == "inverse" and abs(phi - p.neutral) <= max(3.0 * se,
+                                                                    0.02 * abs(p.neutral)):
+                continue  # the model's own stiffness within the uncertainty
+            value = values[p.effect][p.key]
+            err = se / phi**2 if p.kind == "inverse" else se
+            params[e][p.key] = float(value)
+            errs[e][p.key] = float(err)
     return params, errs, undet
 
 
@@ -166,17 +175,39 @@ def cleaned_robot(fit: FitResult) -> Robot:
     return fit.space.robot(fit.phi)
 
 
-def split_heldout(s: Samples, init_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Train / held-out (every k-th target) / held-out region (the quarter of targets farthest
-    from the initialisation pose along the workspace's long axis)."""
-    targets = np.unique(s.target[~s.is_init])
-    ho_t = targets[HOLDOUT_EVERY // 2::HOLDOUT_EVERY] if len(targets) >= 2 * HOLDOUT_EVERY \
-        else targets[:0]
-    heldout = np.flatnonzero(np.isin(s.target, ho_t) & ~s.is_init)
-    train = np.setdiff1d(np.arange(s.n), heldout)
+def named_robot(model: Robot, effects: list[dict]) -> Robot:
+    """The model with exactly the parameters the report names (what --write-model writes)."""
+    from controller.effects import apply_effects
+
+    params: dict[str, dict[str, float]] = {}
+    for e in effects:
+        params.setdefault(e["name"], {}).update(e["params"])
+    return apply_effects(model, params)
+
+
+def split_samples(s: Samples, init_pose: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Train / validation / test / validation region.
+
+    Samples are split by block (a target with all its visits, or one move), never
+    inside one: every k-th block is the **test** set (the figures the report prints
+    come from it; selection and fits never see it), another every k-th the
+    **validation** set (an effect must improve it to be chosen). The validation
+    region (the quarter of the training samples farthest from the initialisation pose
+    along the workspace's long axis) is refitted without, as a second check. Small
+    recordings (fewer than 2k blocks) have no test set; fewer than 3k, no validation.
+    """
+    k = HOLDOUT_EVERY
+    blocks = np.unique(s.block[~s.is_init])
+    test_b = blocks[k // 2::k] if len(blocks) >= 2 * k else blocks[:0]
+    rest = np.setdiff1d(blocks, test_b)
+    valid_b = rest[k - 1::k] if len(blocks) >= 3 * k else rest[:0]
+    test = np.flatnonzero(np.isin(s.block, test_b) & ~s.is_init)
+    valid = np.flatnonzero(np.isin(s.block, valid_b) & ~s.is_init)
+    train = np.setdiff1d(np.arange(s.n), np.concatenate([test, valid]))
     pos = np.where(np.isfinite(s.pose_meas[:, :3]), s.pose_meas[:, :3], s.pose_des[:, :3])
     region = np.zeros(0, dtype=int)
-    if np.isfinite(pos).all(axis=1).sum() >= 12:
+    if np.isfinite(pos).all(axis=1).sum() >= 12 and len(valid):
         spread = np.nanmax(pos, axis=0) - np.nanmin(pos, axis=0)
         ax = int(np.argmax(spread[:2]))
         side = 1.0 if init_pose[ax] < np.nanmedian(pos[:, ax]) else -1.0
@@ -185,7 +216,39 @@ def split_heldout(s: Samples, init_pose: np.ndarray) -> tuple[np.ndarray, np.nda
         region = np.intersect1d(train, np.flatnonzero(key > cut))
         if len(region) > 0.4 * len(train):
             region = np.zeros(0, dtype=int)
-    return train, heldout, region
+    return train, valid, test, region
+
+
+def split_heldout(s: Samples, init_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Train (with validation) / test / validation region (kept for callers)."""
+    train, valid, test, region = split_samples(s, init_pose)
+    return np.union1d(train, valid), test, region
+
+
+def prepare_outputs(write_model: str | Path | None, plots: str | Path | None = None) -> None:
+    """Check before the fit that the outputs can be written (raises OSError naming them)."""
+    import os
+    import tempfile
+
+    if write_model is not None:
+        p = Path(write_model)
+        if p.exists() and p.is_dir():
+            raise OSError(f"--write-model {p}: is a directory")
+        parent = p.parent if str(p.parent) else Path(".")
+        if not parent.is_dir():
+            raise OSError(f"--write-model {p}: directory {parent} does not exist")
+        if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
+            raise OSError(f"--write-model {p}: cannot write there")
+    if plots is not None:
+        d = Path(plots)
+        if d.exists() and not d.is_dir():
+            raise OSError(f"--plots {d}: exists and is not a directory")
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=d):
+                pass
+        except OSError as e:
+            raise OSError(f"--plots {d}: cannot write there ({e.strerror or e})") from e
 
 
 def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor | None = None,
@@ -194,61 +257,111 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     say = progress or (lambda m: None)
     rec = read_recording(path)
     model = rec.robot
-    s = average_dwells(rec)
-    say(f"{rec.n_samples} rows -> {s.n} dwell samples of {s.n_targets} target poses")
-    rm = ResidualModel(s, model, rec.init_pose, rec.init_tensions)
+    excluded = check_values(rec)
+    for e in excluded[:5]:
+        if "row" in e:
+            say(f"excluded: recording.csv line {e['row']}, column {e['column']}: "
+                f"{e['value']:g} ({e['why']})")
+    s = prepare(rec)
+    if s.n == 0:
+        raise RecordingError(f"{rec.path / 'recording.csv'}: no static samples (every row "
+                             f"accelerates or is in a state where the platform moves)")
+    inf = s.info
+    say(f"{rec.n_samples} rows -> {s.n} samples ({inf['dwell_samples']} dwells, "
+        f"{inf['path_samples']} rows of moves) in {s.n_targets} replicate groups")
+    rm = ResidualModel(s, model, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.estimate_noise(model)
-    say(f"noise ({rm.sigma_source}): lengths {rm.sigma['length'] * 1e3:.3f} mm, forces "
-        f"{rm.sigma['force']:.2f} N, exit points {rm.sigma['exit'] * 1e3:.2f} mm")
+    nz = rm.noise_summary()
+    say(f"noise ({rm.sigma_source}): lengths {nz['length'] * 1e3:.3f} mm, forces "
+        f"{nz['force']:.2f} N, exit points {nz['exit'] * 1e3:.2f} mm")
 
     # where: baseline residuals, steps in time
     base_blocks = rm.blocks(model)
-    steps = locate.steps_in_time(s, base_blocks.length, rm.sigma["length"], model.cable_ids) \
-        if rm.has_len.any() else []
+    steps = locate.steps_in_time(s, base_blocks.length, nz["length"], model.cable_ids,
+                                 t_after=rm.init_end) if rm.has_len.any() else []
+    if s.stream is not None and rm.has_len.any():
+        stream_rm = ResidualModel(s.stream, model, rec.init_pose, rec.init_tensions)
+        sb = stream_rm.blocks(model)
+        jumps = locate.row_jumps(s.stream, np.where(sb.slack, np.nan, sb.length),
+                                 model.cable_ids, t_after=rm.init_end)
+        seen = {st["cable"] for st in steps}
+        steps += [j for j in jumps if j["cable"] not in seen]
     if steps:
-        slips = np.zeros(model.n_cables)
+        slips = np.full(model.n_cables, rm.init_end)
         for st in steps:
-            slips[model.cable_ids.index(st["cable"])] = st["t_s"]
+            slips[model.cable_ids.index(st["cable"])] = max(st["t_s"], rm.init_end)
             say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s")
         rm.slip_times = slips
     say("baseline: equilibrium of every sample under the recording's model")
     base_fw = rm.forward(model)
+    pose_noise = _pose_noise(s, base_fw)
 
-    train, heldout, region = split_heldout(s, rec.init_pose)
-    selector = Selector(rm, train, [heldout, region], progress=say, pool=pool)
-    sel = selector.run(candidate_effects(rm))
-    fitted = cleaned_robot(sel.fit)
+    train, valid, test, region = split_samples(s, rec.init_pose)
+    candidates = candidate_effects(rm)
+    selector = Selector(rm, train, [valid, region], progress=say, pool=pool)
+    sel = selector.run(candidates)
+    fit_idx = np.union1d(train, valid)
+    final = _final_fit(selector, sel, fit_idx, say)
+    params, errs, undet = effect_entries(final, sel.effects)
+    # an effect whose parameters all vanish or cannot be fixed is not reported: the least
+    # important such effect goes, the others are refitted without it (what it shared with
+    # them may become measurable), and so on
+    while True:
+        empty = [e for e in sel.effects if not params[e]]
+        if not empty:
+            break
+        e = empty[-1]  # effects are sorted by importance
+        say(f"dropping {report_name(e)}: no parameter differs from the model")
+        sel.rejected[report_name(e)] = "no parameter differs measurably from the model"
+        sel.effects = [c for c in sel.effects if c != e]
+        final = _final_fit(selector, sel, fit_idx, say)
+        params, errs, undet = effect_entries(final, sel.effects)
+    sel.fit = final
+    fitted = cleaned_robot(final)
     say("fitted: equilibrium of every sample under the corrected model")
     fit_fw = rm.forward(fitted)
+    fit_blocks = rm.blocks(fitted)
+    leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
+                                   model.pivots, model.mast_ids)
+    if leftover is not None:
+        say("unexplained: " + leftover["summary"])
 
-    params, errs, undet = effect_entries(sel.fit, sel.effects)
     effects = []
     for e in sel.effects:
+        name = report_name(e)
         rest = tuple(c for c in sel.effects if c != e)
         without = cleaned_robot(selector.fit(rest, sel.fit))
-        before = pose_figures(rm.forward(without, heldout), heldout)["pose_rms_m"] \
-            if len(heldout) else None
-        after = pose_figures(fit_fw, heldout)["pose_rms_m"] if len(heldout) else None
+        before = pose_figures(rm.forward(without, test), test)["pose_rms_m"] \
+            if len(test) else None
+        after = pose_figures(fit_fw, test)["pose_rms_m"] if len(test) else None
         ho = sel.heldout.get(e, {})
         entry = {
-            "name": e,
+            "name": name,
             "params": params[e],
             "stderr": errs[e],
-            "explains": EXPLAINS[e],
+            "explains": EXPLAINS[name],
             "evidence": {"heldout_pose_rms_before_m": before,
                          "heldout_pose_rms_after_m": after,
                          "delta_bic": _f(ho.get("delta_bic"))},
             "undetermined": undet[e],
-            "alternatives": [{"name": a, "delta_bic": d} for a, d in sel.alternatives.get(e, [])],
+            "alternatives": [{"name": report_name(a), "delta_bic": d}
+                             for a, d in sel.alternatives.get(e, [])
+                             if report_name(a) != name],
         }
-        if e == "platform_mass" and "mass" in params[e] and rm.any_tau:
-            alt = _common_gain_alternative(rm, sel.fit, train)
+        if name == "platform_mass" and "mass" in params[e] and rm.any_tau:
+            alt = _common_gain_alternative(rm, final, fit_idx)
             if alt is not None and alt["delta_bic"] < BIC_TIE:
                 entry["alternatives"].append(alt)
-        if rm.slip_times.any() and e == "cable_length_offset":
-            entry["explains"] += "; from " + ", ".join(
-                f"t = {t:.1f} s on cable {c}" for c, t in zip(model.cable_ids, rm.slip_times,
-                                                             strict=True) if t > 0)
+        if name == "cable_length_offset":
+            late = [(c, t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
+                    if t > rm.init_end and f"dl_{c}" in params[e]]
+            if late:
+                entry["explains"] += "; from " + ", ".join(f"t = {t:.1f} s on cable {c}"
+                                                         for c, t in late)
+        if not final.success:
+            entry["converged"] = False
+        if leftover is not None:
+            entry["provisional"] = True
         effects.append(entry)
 
     baseline = pose_figures(base_fw)
@@ -260,19 +373,24 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         "angle_rms_rad": fitted_fig["angle_rms_rad"],
         "tension_rms_n": fitted_fig["tension_rms_n"],
         "exit_point_rms_m": exit_rms(rm, fitted),
-        "heldout_pose_rms_m": pose_figures(fit_fw, heldout)["pose_rms_m"] if len(heldout)
+        "heldout_pose_rms_m": pose_figures(fit_fw, test)["pose_rms_m"] if len(test)
         else None,
+        "converged": bool(final.success),
+        "samples": {"fit": int(len(fit_idx)), "test": int(len(test))},
     }
     if fitted_out["pose_rms_m"] is None and baseline["pose_rms_m"] is None:
         fitted_out["heldout_pose_rms_m"] = None
 
-    mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel)
+    mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
+                         pose_noise, excluded)
     model_path = None
     if write_model is not None:
+        named = ", ".join(f"{e['name']} ({', '.join(e['params'])})" for e in effects) or "none"
         header = (f"corrected model written by cdpr diagnose from {path}\n"
-                  f"effects: {', '.join(sel.effects) or 'none'}")
-        model_path = str(save_robot(fitted.replace(name=f"{model.name}-corrected"),
-                                    write_model, header))
+                  f"effects and parameters named by the report: {named}\n"
+                  "parameters the report did not name keep the recording's model values")
+        model_path = str(save_robot(named_robot(model, effects).replace(
+            name=f"{model.name}-corrected"), write_model, header))
     report = {
         "format": FORMAT,
         "recording": str(path),
@@ -280,10 +398,42 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         "baseline": baseline,
         "mismatch": mismatch,
         "effects": effects,
+        "unexplained": leftover,
         "fitted": fitted_out,
         "model": model_path,
     }
-    return Diagnosis(report, rec, s, rm, sel, fitted, base_fw, fit_fw, heldout)
+    return Diagnosis(report, rec, s, rm, sel, fitted, base_fw, fit_fw, test)
+
+
+def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progress) -> FitResult:
+    """The chosen effects refitted on the training and validation samples (warm start)."""
+    from bench.diagnosis.fit import fit_effects
+    from bench.diagnosis.select import _warm
+
+    key = tuple(sorted(sel.effects))
+    start = selector.cache.get(key)
+    if start is None:
+        start = selector.fit(key)
+    if np.array_equal(np.sort(idx), np.sort(selector.train)):
+        return start  # nothing held out for validation: the selection's fit is the final one
+    space = ParamSpace(selector.model, key)
+    say(f"final fit of {' + '.join(report_name(e) for e in key) or 'the model as it is'} on "
+        f"{len(idx)} samples")
+    # what the selection's fit held (the data cannot fix it) stays held
+    held = ~np.isfinite(start.stderr) if len(space) else None
+    res = fit_effects(space, selector.rm, idx, _warm(key, start), hold=held)
+    if not res.success:
+        say(f"the final fit did not converge: {res.message}")
+    return res
+
+
+def _pose_noise(s: Samples, fw: Forward) -> float | None:
+    """3-D repeatability of the platform position [m]: spread of the forward pose error
+    (measured minus predicted, smooth in the pose) within replicate groups."""
+    sd = pooled_std(fw.pose_err[:, :3], s.target)
+    if sd is None or not np.isfinite(sd).all():
+        return None
+    return float(np.sqrt(np.sum(sd ** 2)))
 
 
 def _common_gain_alternative(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> dict | None:
@@ -302,7 +452,8 @@ def _common_gain_alternative(rm: ResidualModel, fit: FitResult, idx: np.ndarray)
 
 
 def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Forward,
-              steps: list[dict], sel: Selection) -> dict:
+              steps: list[dict], sel: Selection, leftover: dict | None, noise: dict,
+              pose_noise: float | None, excluded: list[dict]) -> dict:
     model = rec.robot
     tension = base_fw.tension_err if np.isfinite(base_fw.tension_err).any() else None
     dist = np.linalg.norm(base_fw.pose_err[:, :3], axis=1)
@@ -313,16 +464,24 @@ def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Fo
         label = "pose_rms_m"
     regions = locate.regions(s, dist, rec.init_pose, model.pivots, model.mast_ids, label)
     growth = locate.growth_from_init(s, dist, rec.init_pose)
+    untested = untested_effects(rm)
+    noise_out = {k: float(v) for k, v in noise.items()} | {"source": rm.sigma_source}
+    if pose_noise is not None:
+        noise_out["pose_m"] = pose_noise
     out = {
-        "summary": _summary(rec, s, rm, blocks, dist, label, growth, steps, sel),
+        "summary": _summary(rec, s, rm, blocks, dist, label, growth, steps, sel, leftover,
+                            noise, untested),
         "by_cable": locate.by_cable(model.cable_ids, blocks.length, tension),
         "by_mast": locate.by_mast(model.mast_ids, model.mast_index, blocks.length),
         "regions": regions[:6],
-        "noise": {k: float(v) for k, v in rm.sigma.items()} | {"source": rm.sigma_source},
+        "noise": noise_out,
         "steps": steps,
-        "signatures": {e: float(v) for e, v in _explained(sel).items()},
-        "imitation": {e: {a: round(v, 3) for a, v in d.items()}
+        "signatures": {report_name(e): float(v) for e, v in _explained(sel).items()},
+        "imitation": {report_name(e): {report_name(a): round(v, 3) for a, v in d.items()}
                       for e, d in sel.imitation.items()},
+        "samples": dict(s.info),
+        "untested": untested,
+        "excluded": excluded,
     }
     if growth:
         out["growth_from_init"] = growth
@@ -342,20 +501,27 @@ def _explained(sel: Selection) -> dict[str, float]:
 
 
 def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.ndarray,
-             label: str, growth: dict | None, steps: list[dict], sel: Selection) -> str:
+             label: str, growth: dict | None, steps: list[dict], sel: Selection,
+             leftover: dict | None, noise: dict, untested: list[str]) -> str:
     model = rec.robot
     parts = []
     what = "pose error" if label == "pose_rms_m" else "exit-point error"
     r = locate.rms(dist)
     red = sel.baseline.reduced_chi2
-    if not sel.effects:
+    names = [report_name(e) for e in sel.effects]
+    if leftover is not None:
+        parts.append("the effect vocabulary does not explain the data: "
+                     + leftover["summary"]
+                     + (f"; the effects named ({', '.join(names)}) take what they can and are "
+                        f"provisional" if names else ""))
+    elif not sel.effects:
         parts.append(f"the model explains the data within the noise (reduced chi-square "
                      f"{red:.2f}" + (f", {what} {r * 1e3:.2f} mm RMS" if r else "") + ")")
-    elif r is not None:
+    if sel.effects and r is not None:
         assumed = "" if rm.sigma_source == "replicate visits" else \
             ", assumed: no replicate visits to measure it"
         parts.append(f"{what} {r * 1e3:.1f} mm RMS against a noise level of "
-                     f"{rm.sigma['length' if label == 'pose_rms_m' else 'exit'] * 1e3:.2f} mm"
+                     f"{noise['length' if label == 'pose_rms_m' else 'exit'] * 1e3:.2f} mm"
                      f"{assumed} (reduced chi-square {red:.3g})")
     if growth and sel.effects and growth["near_rms"] and growth["far_rms"]:
         if growth["far_rms"] > 1.5 * growth["near_rms"]:
@@ -376,22 +542,33 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                      f"encoder jump)")
     sig = _explained(sel)
     if sel.effects and sig:
-        top = [f"{e} ({v:.0%})" for e, v in list(sig.items())[:3] if v > 0.05]
+        top = [f"{report_name(e)} ({v:.0%})" for e, v in list(sig.items())[:3] if v > 0.05]
         if top:
             parts.append("the residuals match the signatures of " + ", ".join(top)
                          + " (share explained alone, linearised)")
     if sel.effects:
-        parts.append("left out: " + ", ".join(sel.effects))
+        parts.append("left out: " + ", ".join(names))
     for e, alts in sel.alternatives.items():
         for a, d in alts:
-            how = SEPARATE.get(frozenset({e, a}), "more poses spread over the workspace")
-            parts.append(f"{a} fits about as well as {e} (delta BIC {d:+.1f}); {how} would "
-                         f"separate them")
+            if report_name(a) == report_name(e):
+                continue
+            how = SEPARATE.get(frozenset({report_name(e), report_name(a)}),
+                               "more poses spread over the workspace")
+            parts.append(f"{report_name(a)} fits about as well as {report_name(e)} (delta BIC "
+                         f"{d:+.1f}); {how} would separate them")
     for e, imit in sel.imitation.items():
         close = [a for a, v in imit.items() if v > 0.8 and a not in
-                 [x for x, _ in sel.alternatives.get(e, [])]]
+                 [x for x, _ in sel.alternatives.get(e, [])] and report_name(a) != report_name(e)]
         for a in close:
-            parts.append(f"on these poses {a} can imitate {imit[a]:.0%} of {e}'s signature")
+            parts.append(f"on these poses {report_name(a)} can imitate {imit[a]:.0%} of "
+                         f"{report_name(e)}'s signature")
     for e, why in sel.rejected.items():
-        parts.append(f"{e} improved the fit but {why}: not reported")
+        parts.append(f"{report_name(e)} improved the fit but {why}: not reported")
+    if not rm.has_pose.any() and rm.est_pose.any():
+        parts.append("without tracker poses the poses were estimated from the encoder lengths "
+                     "and measured tensions: the load cells, the mass and the cables' stretch "
+                     "are tested; " + ", ".join(untested) + " cannot be told from such data")
+    elif not rm.any_tau:
+        parts.append("without tensions the internal forces were fitted to the cables' stretch; "
+                     + ", ".join(untested) + " cannot be told from such data")
     return "; ".join(parts) + "."

@@ -1,21 +1,34 @@
-"""Residuals of a hypothesis about the real robot against dwell-averaged samples.
+"""Residuals of a hypothesis about the real robot against the samples of a recording.
 
-Inverse residuals, evaluated at the measured poses (cheap, vectorised over
+Inverse residuals, evaluated at the samples' poses (cheap, vectorised over
 samples, no equilibrium solve), are what the fits minimise:
 
 - ``length`` (n per sample) [m]: unstretched length the hypothesis needs to hold
-  the platform at the measured pose with the measured tensions, minus the
-  unstretched length it reads behind the encoders by the initialisation
-  convention. Attributes the error to cables.
-- ``wrench`` (6) [N, N m]: ``W tau + w_g`` at the measured pose, tensions
-  through the hypothesis' load-cell calibration. Independent of lengths:
-  isolates load cells, mass and exit-point directions.
+  the platform at the pose with the tensions, minus the unstretched length it
+  reads behind the encoders by the initialisation convention.
+- ``wrench`` (6) [N, N m]: ``W tau + w_g`` at the pose, measured tensions through
+  the hypothesis' load-cell calibration. Independent of lengths: isolates load
+  cells, mass and exit-point directions.
 - ``exit`` (3 per measured exit point) [m]: predicted minus measured exit point.
 
-Forward figures (:meth:`ResidualModel.forward`) solve the equilibrium of each
-sample under the hypothesis and compare poses and tensions: the headline.
-Without measured tensions, tensions come from the tension distribution at the
-measured pose (as the paper did).
+What a recording lacks is solved for, per sample and per hypothesis:
+
+- **no tracker pose** (tensions and encoders): the pose is the one whose needed
+  unstretched lengths best match the readings (Gauss-Newton over the cables, the
+  paper's forward kinematics with the measured tensions); the length residual
+  keeps n - 6 degrees of freedom per sample, the wrench balance all six.
+- **no tensions** (tracker and encoders): tensions balance gravity at the pose and
+  their internal forces (the null space of the wrench matrix) are whatever makes
+  the cables' stretch match the readings (as the real cables settle them); the
+  length residual keeps 6 degrees of freedom per sample (the forward pose error,
+  linearised). Without tensions nothing fixes the load cells or the mass.
+
+Noise: each sample's residual has the variance ``sigma_p^2 + sigma_w^2 / count``:
+``sigma_w`` the row-to-row (white) noise, from second differences of raw rows;
+``sigma_p`` what changes between visits of one pose (repeatability), from
+replicate groups. Rows of a move count with their weight (they share slow
+errors). Forward figures (:meth:`ResidualModel.forward`) solve the equilibrium of
+each sample under the hypothesis and compare poses and tensions: the headline.
 """
 
 from __future__ import annotations
@@ -28,8 +41,8 @@ from bench.diagnosis.samples import Samples, pooled_std
 from controller import cables
 from controller.cycle import reference_lengths
 from controller.forward import forward_pose
-from controller.kinematics import gravity_wrench
-from controller.pose import cross
+from controller.kinematics import gravity_wrench, wrench_matrix
+from controller.pose import cross, euler_rate_matrix
 from controller.robot import Robot
 from controller.statics import (
     batch_statics,
@@ -38,22 +51,28 @@ from controller.statics import (
     unstretched_from_readings,
 )
 
-#: noise floors [m, N, N m, m] when replicates are missing or suspiciously quiet
+#: per-sample noise floors [m, N, N m, m]
 FLOORS = {"length": 2e-5, "force": 0.05, "moment": 0.05, "exit": 2e-5}
-#: defaults when the recording has no replicate visits
+#: repeatability assumed when the recording has no replicates (declared in the report)
 DEFAULTS = {"length": 3e-4, "force": 2.0, "moment": 2.0, "exit": 1e-3}
+#: white noise assumed when no raw rows tell it
+WHITE_DEFAULTS = {"length": 5e-5, "force": 0.5, "moment": 0.5, "exit": 1e-4}
+BLOCKS = ("length", "force", "moment", "exit")
 
 
 @dataclass
 class Blocks:
     """Raw inverse residuals of all samples: ``length`` (N,n), ``wrench`` (N,6), ``exit``
-    (N,n,3); NaN where the data do not allow them. ``ok`` (N,) samples evaluated."""
+    (N,n,3); NaN where the data do not allow them. ``ok`` (N,) samples evaluated;
+    ``poses`` (N,6) the poses used (measured, or estimated from the lengths)."""
 
     length: np.ndarray
     wrench: np.ndarray
     exit: np.ndarray
     ok: np.ndarray
     length_extra_sd: np.ndarray | None = None  # (N,n) load-cell noise carried into lengths
+    poses: np.ndarray | None = None
+    slack: np.ndarray | None = None  # (N,n) cables read as slack (one-sided length residual)
 
 
 @dataclass
@@ -73,32 +92,56 @@ class ResidualModel:
     ``model`` is the robot the controller ran with (defines the encoder reference
     ``d_model(p0)``); ``tau0`` the load-cell readings at initialisation (None if
     the recording has no tensions); ``slip_times`` (n,) the times from which a
-    cable length offset applies (0 = throughout).
+    cable length offset applies (default: the end of the initialisation: a slip
+    happens after it); ``rows`` raw rows in triples (white noise).
     """
 
     def __init__(self, samples: Samples, model: Robot, init_pose: np.ndarray,
-                 tau0: np.ndarray | None, slip_times: np.ndarray | None = None) -> None:
+                 tau0: np.ndarray | None, slip_times: np.ndarray | None = None,
+                 rows: Samples | None = None) -> None:
         self.s = samples
         self.model = model
         self.init_pose = np.asarray(init_pose, dtype=float)
         self.tau0 = tau0
         self.reference = reference_lengths(model, self.init_pose)
         n = model.n_cables
-        self.slip_times = np.zeros(n) if slip_times is None else np.asarray(slip_times, float)
         s = samples
+        init_t = s.t[s.is_init] if s.is_init.any() else s.t[:0]
+        self.init_end = float(init_t.max()) if len(init_t) else -np.inf
+        self.slip_times = np.full(n, self.init_end) if slip_times is None \
+            else np.maximum(np.asarray(slip_times, float), self.init_end)
         self.has_pose = np.isfinite(s.pose_meas).all(axis=1)
         self.has_tau = np.isfinite(s.tau).all(axis=1)
-        self.has_len = np.isfinite(s.l_meas).all(axis=1) & self.has_pose
+        have_l = np.isfinite(s.l_meas).all(axis=1)
+        self.est_pose = have_l & self.has_tau & ~self.has_pose  # pose from the lengths
+        self.has_len = have_l & (self.has_pose | self.est_pose)
         self.has_exit = np.isfinite(s.exit_meas).all(axis=2) & self.has_pose[:, None]
         self.any_tau = bool(self.has_tau.any())
-        self.sigma = dict(DEFAULTS)
+        self.sigma = {k: DEFAULTS[k] for k in BLOCKS}
+        self.white = dict(WHITE_DEFAULTS)
+        # by sample kind: 0 dwell samples, 1 rows of moves
+        self.sigma_k = {0: dict(self.sigma), 1: dict(self.sigma)}
+        self.white_k = {0: dict(self.white), 1: dict(self.white)}
         self.sigma_source = "defaults (no replicate visits)"
+        self.replicate_dof = 0
         self._warm_exits: np.ndarray | None = None  # last deflected exits (warm start)
+        self._pose_est: np.ndarray | None = None  # last estimated poses (warm start)
         # slack cables: measured tension within the load-cell noise of zero (the noise of
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
         tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
         self.slack_threshold = max(1.0, 4.0 * tau_noise)
-        self.tau_noise = tau_noise / np.sqrt(np.maximum(s.count, 1))  # per dwell sample [N]
+        self.tau_noise = tau_noise / np.sqrt(np.maximum(s.count, 1))  # per sample [N]
+        self.rows = None
+        if rows is not None and rows.n >= 3:
+            self.rows = ResidualModel(rows, model, init_pose, tau0, self.slip_times)
+        self._update_sd()
+
+    # ----- degrees of freedom -------------------------------------------------------
+    def dof_lost(self, idx: np.ndarray | None = None) -> float:
+        """Residual degrees of freedom taken by per-sample unknowns (estimated poses, internal
+        forces). None: the noise of those residuals is measured on the residuals themselves
+        (their replicate spread), so each entry counts as one."""
+        return 0.0
 
     # ----- inverse residuals --------------------------------------------------------
     def blocks(self, H: Robot) -> Blocks:
@@ -108,110 +151,351 @@ class ResidualModel:
         wrench = np.full((N, 6), np.nan)
         exits_err = np.full((N, n, 3), np.nan)
         ok = np.zeros(N, dtype=bool)
-        sel = np.flatnonzero(self.has_pose)
-        if not len(sel):
-            return Blocks(length, wrench, exits_err, ok)
-        poses = s.pose_meas[sel]
-        if self.any_tau:
-            tau = true_tensions(H, s.tau[sel])
-            measured = self.has_tau[sel]
-            if not measured.all():
-                tau[~measured] = batch_statics(H, poses[~measured]).tensions
-            warm = self._warm_exits if self._warm_exits is not None and \
-                len(self._warm_exits) == len(sel) else None
-            bs = batch_statics(H, poses, tau, exits0=warm)
-            if H.compliant:
-                self._warm_exits = bs.exits
-        else:
-            bs = batch_statics(H, poses)
-        tau, exits, st, good = bs.tensions, bs.exits, bs.state, bs.feasible
-        ok[sel] = good
-        # length residual
+        poses = np.where(self.has_pose[:, None], s.pose_meas, np.nan)
         try:
             tau0 = true_tensions(H, self.tau0) if self.tau0 is not None else None
             u0, _ = init_unstretched(H, self.init_pose, tau0)
         except ValueError:
-            return Blocks(length, wrench, exits_err, ok)
-        dl = np.where(s.t[sel, None] >= self.slip_times, H.length_offset, 0.0)
-        read = unstretched_from_readings(H, s.l_meas[sel], self.reference, u0, dl)
-        lres = bs.unstretched - read
-        extra = None
-        if H.rho > 0 and self.any_tau:
-            # a sagging cable's length hangs on its tension (more so the slacker it is): the
-            # load cells' noise carries into its length residual
-            dT = 0.5
-            l_up = cables.from_tensions(H, st, tau + dT)[1]
-            sens = np.abs(l_up - bs.unstretched) / dT  # m/N
-            extra = np.full((N, n), 0.0)
-            extra[sel] = sens * self.tau_noise[sel][:, None]
-        # a slack cable only says it is at least as long as the straight line
-        slack = (tau < self.slack_threshold) & self.has_tau[sel][:, None]
-        lres = np.where(slack, np.maximum(lres, 0.0), lres)
-        lres[~self.has_len[sel]] = np.nan
-        length[sel] = lres
-        # wrench residual (measured tensions only)
-        if self.any_tau:
+            return Blocks(length, wrench, exits_err, ok, None, poses)
+        dl = np.where(s.t[:, None] >= self.slip_times, H.length_offset, 0.0)
+        read = unstretched_from_readings(H, s.l_meas, self.reference, u0, dl)
+        if self.est_pose.any():
+            poses[self.est_pose] = self._estimate_poses(H, read)
+        extra = np.zeros((N, n)) if H.rho > 0 else None
+        slack_all = np.zeros((N, n), dtype=bool)
+        # samples with measured tensions
+        m = np.flatnonzero(np.isfinite(poses).all(axis=1) & self.has_tau)
+        if len(m):
+            tau = true_tensions(H, s.tau[m])
+            warm = self._warm_exits if self._warm_exits is not None and \
+                len(self._warm_exits) == len(m) else None
+            bs = batch_statics(H, poses[m], tau, exits0=warm)
+            if H.compliant:
+                self._warm_exits = bs.exits
+            ok[m] = bs.feasible
+            lres = bs.unstretched - read[m]
+            if H.rho > 0:
+                # a sagging cable's length hangs on its tension (more so the slacker it is):
+                # the load cells' noise carries into its length residual
+                dT = 0.5
+                l_up = cables.from_tensions(H, bs.state, tau + dT)[1]
+                extra[m] = np.abs(l_up - bs.unstretched) / dT * self.tau_noise[m][:, None]
+            # a slack cable only says it is at least as long as the straight line
+            slack = tau < self.slack_threshold
+            slack_all[m] = slack
+            lres = np.where(slack, np.maximum(lres, 0.0), lres)
+            length[m] = lres
             f = bs.platform_forces
+            st = bs.state
             wg = gravity_wrench(H.mass, H.com, H.gravity, st.R)
             wr = np.concatenate([f.sum(axis=-2), cross(st.Rb, f).sum(axis=-2)], axis=-1) + wg
             # in load-cell units: a hypothesis must not shrink the sensor noise by its gains
             wr *= float(np.exp(np.mean(np.log(H.load_cell_gain))))
-            wr[~self.has_tau[sel]] = np.nan
-            wrench[sel] = wr
-        # exit points
-        if self.has_exit.any():
-            e = exits - s.exit_meas[sel]
-            e[~self.has_exit[sel]] = np.nan
-            exits_err[sel] = e
-        return Blocks(length, wrench, exits_err, ok, extra)
+            wrench[m] = wr
+            if self.has_exit[m].any():
+                e = bs.exits - s.exit_meas[m]
+                e[~self.has_exit[m]] = np.nan
+                exits_err[m] = e
+        # samples without tensions: internal forces from the stretch
+        u = np.flatnonzero(self.has_pose & ~self.has_tau)
+        if len(u):
+            lres, ex, good = self._unmeasured(H, poses[u], read[u])
+            ok[u] = good
+            length[u] = lres
+            if self.has_exit[u].any():
+                e = ex - s.exit_meas[u]
+                e[~self.has_exit[u]] = np.nan
+                exits_err[u] = e
+        length[~self.has_len] = np.nan
+        return Blocks(length, wrench, exits_err, ok, extra, poses, slack_all)
+
+    def _estimate_poses(self, H: Robot, read: np.ndarray, iterations: int = 15) -> np.ndarray:
+        """Poses of the samples without a tracker pose: the needed unstretched lengths (measured
+        tensions) match the readings in the least-squares sense (damped Gauss-Newton, steps
+        of at most 5 cm and 0.05 rad; from the last estimates when they are near the
+        commanded poses, else from the commanded poses)."""
+        s = self.s
+        idx = np.flatnonzero(self.est_pose)
+        start = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx], self.init_pose)
+        p = start.copy()
+        if self._pose_est is not None and len(self._pose_est) == len(idx):
+            near = np.abs(self._pose_est[:, :3] - start[:, :3]).max(axis=1) < 0.2
+            p[near] = self._pose_est[near]
+        tau = true_tensions(H, s.tau[idx])
+        ea = np.where(np.isfinite(H.ea), H.ea, np.inf)
+        # a slack cable only says it is at least as long as the straight line: it does not
+        # place the platform
+        taut = (s.tau[idx] >= self.slack_threshold).astype(float)
+        limit = np.array([0.05, 0.05, 0.05, 0.05, 0.05, 0.05])
+        for _ in range(iterations):
+            bs = batch_statics(H, p, tau)
+            r = np.nan_to_num((bs.unstretched - read[idx]) * taut)
+            J = -np.swapaxes(wrench_matrix(bs.state), -1, -2) / (1.0 + tau / ea)[..., None]
+            J = np.nan_to_num(J * taut[..., None])
+            J[..., 3:] = J[..., 3:] @ euler_rate_matrix(p[:, 3:])
+            JtJ = np.swapaxes(J, -1, -2) @ J
+            damp = 1e-9 * np.trace(JtJ, axis1=-2, axis2=-1)[:, None, None] + 1e-12
+            g = np.einsum("nki,nk->ni", J, r)
+            dp = -np.linalg.solve(JtJ + damp * np.eye(6), g[..., None])[..., 0]
+            dp = np.nan_to_num(dp)
+            big = np.max(np.abs(dp) / limit, axis=1, keepdims=True)
+            dp = dp / np.maximum(big, 1.0)
+            p = p + dp
+            if np.abs(dp).max() < 1e-10:
+                break
+        self._pose_est = p
+        return p
+
+    def _unmeasured(self, H: Robot, poses: np.ndarray, read: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Length residuals (M,n), exits (M,n,3) and success (M,) at ``poses`` without measured
+        tensions: tensions balance gravity, their internal forces are fitted to the stretch.
+        A cable whose fitted tension comes out negative is slack: it carries nothing, the
+        others balance the platform, and its reading only says it is at least as long as the
+        straight line."""
+        M, n = len(poses), H.n_cables
+        straight = H.replace(rho=0.0) if H.rho > 0 else H
+        bs0 = batch_statics(straight, poses, np.full((M, n), 1.0))  # geometry only
+        W0 = wrench_matrix(bs0.state)
+        wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
+        tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
+        taut = np.ones((M, n), dtype=bool)
+        lres = np.full((M, n), np.nan)
+        r0 = np.full((M, n), np.nan)
+        exits = bs0.exits
+        ok = np.ones(M, dtype=bool)
+        for _outer in range(max(n - 5, 1)):
+            tau = _balance(W0 * taut[:, None, :], -wg, tm * taut)
+            ok = np.isfinite(tau).all(axis=1)
+            tau = np.where(ok[:, None], tau, tm) * taut
+            for _ in range(3):
+                bs = batch_statics(H, poses, tau)
+                exits = bs.exits
+                r0 = bs.unstretched - read
+                c = _stretch_sensitivity(H, bs, tau) * taut  # dL0/dtau (M,n)
+                if not np.any(c != 0):
+                    lres = r0.copy()
+                    break
+                Wb = wrench_matrix(bs.state) * taut[:, None, :]
+                _, _, Vt = np.linalg.svd(Wb)
+                Nsp = np.swapaxes(Vt[:, 6:, :], -1, -2)  # (M, n, n-6) internal forces
+                A = c[..., None] * Nsp
+                AtA = np.swapaxes(A, -1, -2) @ A
+                k = AtA.shape[-1]
+                reg = 1e-12 * np.trace(AtA, axis1=-2, axis2=-1)[:, None, None] * np.eye(k) \
+                    + 1e-300 * np.eye(k)
+                lam = -np.linalg.solve(AtA + reg, np.einsum("nki,nk->ni", A, r0)[..., None])[
+                    ..., 0]
+                lam = np.nan_to_num(lam)
+                lres = r0 + np.einsum("nki,ni->nk", A, lam)
+                tau = (tau + np.einsum("nki,ni->nk", Nsp, lam)) * taut
+            # the most negative tension of each sample goes slack, one cable at a time
+            neg = np.where(taut, tau, np.inf)
+            worst = np.argmin(neg, axis=1)
+            slack = (neg[np.arange(M), worst] < 0.0) & (taut.sum(axis=1) > 6)
+            if not slack.any():
+                break
+            taut[np.flatnonzero(slack), worst[slack]] = False
+        # a slack cable: its unstretched length read may exceed the straight line
+        lres = np.where(taut, lres, np.maximum(r0, 0.0))
+        return lres, exits, ok & np.isfinite(lres).all(axis=1)
 
     # ----- noise ----------------------------------------------------------------------
     def estimate_noise(self, H: Robot) -> dict[str, float]:
-        """Noise of each residual block from the spread over replicate visits (model errors
-        repeat at a target pose, noise does not); defaults without replicates."""
+        """Noise of each residual block, for dwell samples and rows of moves apart (a moving
+        platform adds what a dwell does not: channels read at slightly different instants,
+        dynamics): white noise from raw rows (second differences), repeatability from the
+        spread over replicate groups (model errors repeat at a pose, noise does not); a kind
+        without replicates takes the other kind's, declared defaults without any."""
         b = self.blocks(H)
-        est = {}
+        if self.rows is not None:
+            rw = self.rows.white_noise_by_kind(H)
+            for kind in (0, 1):
+                own = rw.get(kind) or rw.get(1 - kind) or {}
+                self.white_k[kind].update(own)
+        self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
         tg = self.s.target
-        for name, vals in (("length", b.length), ("force", b.wrench[:, :3]),
-                           ("moment", b.wrench[:, 3:]), ("exit", b.exit.reshape(self.s.n, -1))):
-            if not np.isfinite(vals).any():
+        count = np.maximum(self.s.count, 1)
+        found: dict[int, dict[str, float]] = {0: {}, 1: {}}
+        reps = _replicated(tg)
+        for kind in (0, 1):
+            sel = (self.s.kind == kind) & reps
+            if not sel.any():
                 continue
-            sd = pooled_std(vals, tg)
-            if sd is None or not np.isfinite(sd).any():
-                continue
-            est[name] = max(float(np.sqrt(np.nanmean(sd ** 2))), FLOORS[name])
-        if self.has_pose.any():
-            sd = pooled_std(self.s.pose_meas[:, :3], tg)
-            if sd is not None and np.isfinite(sd).all():
-                est["pose_m"] = float(np.sqrt(np.sum(sd ** 2)))  # 3-D repeatability
-        if est:
-            self.sigma.update(est)
+            for name, vals in self._block_values(b).items():
+                v = vals[sel]
+                if not np.isfinite(v).any():
+                    continue
+                sd = pooled_std(v, tg[sel])
+                if sd is None or not np.isfinite(sd).any():
+                    continue
+                white = self.white_k[kind][name] ** 2 * float(np.mean(1.0 / count[sel]))
+                var = float(np.nanmean(sd ** 2)) - white
+                found[kind][name] = float(np.sqrt(max(var, 0.0)))
+        for kind in (0, 1):
+            if found[kind]:
+                self.sigma_k[kind].update(found[kind])
+            elif found[1 - kind]:
+                # no replicates of its own: the other kind's repeatability, at least the
+                # declared default (rows of moves may hide it under their row-to-row noise)
+                self.sigma_k[kind].update({k: max(v, DEFAULTS[k])
+                                           for k, v in found[1 - kind].items()})
+        if found[0] or found[1]:
             self.sigma_source = "replicate visits"
-        return dict(self.sigma)
+            self.replicate_dof = int(np.sum(reps)) - len(np.unique(tg[reps]))
+        self.sigma = dict(self.sigma_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
+        self._update_sd()
+        return self.noise_summary()
+
+    def white_noise_by_kind(self, H: Robot) -> dict[int, dict[str, float]]:
+        """:meth:`white_noise` of the raw-row triples of dwells (kind 0) and of moves (1)."""
+        b = self.blocks(H)
+        out = {}
+        kinds = self.s.kind[::3] if len(self.s.kind) >= 3 else self.s.kind
+        for kind in (0, 1):
+            sel = np.repeat(kinds == kind, 3)[: self.s.n]
+            if sel.sum() >= 6:
+                out[kind] = self._white(b, sel)
+        return out
+
+    def white_noise(self, H: Robot) -> dict[str, float]:
+        """White noise of each block from raw rows in consecutive triples: the second difference
+        ``r_a - 2 r_b + r_c`` cancels what is smooth (pose, slow errors); variance / 6."""
+        return self._white(self.blocks(H), np.ones(self.s.n, dtype=bool))
+
+    def _white(self, b: Blocks, sel: np.ndarray) -> dict[str, float]:
+        out = {}
+        for name, vals in self._block_values(b).items():
+            v = vals[sel].reshape(int(sel.sum()), -1)
+            T = len(v) // 3
+            if T < 2:
+                continue
+            v = v[: 3 * T].reshape(T, 3, -1)
+            d2 = v[:, 0] - 2 * v[:, 1] + v[:, 2]
+            d2 = d2[np.isfinite(d2)]
+            if d2.size < 6:
+                continue
+            mad = 1.4826 * float(np.median(np.abs(d2)))
+            keep = np.abs(d2) <= max(5 * mad, 1e-15)
+            out[name] = max(float(np.sqrt(np.mean(d2[keep] ** 2) / 6.0)), FLOORS[name])
+        return out
+
+    @staticmethod
+    def _block_values(b: Blocks) -> dict[str, np.ndarray]:
+        """Residual blocks for noise estimates (slack cables' one-sided residuals left out)."""
+        length = b.length if b.slack is None else np.where(b.slack, np.nan, b.length)
+        return {"length": length, "force": b.wrench[:, :3], "moment": b.wrench[:, 3:],
+                "exit": b.exit.reshape(len(b.exit), -1)}
+
+    def _update_sd(self) -> None:
+        """Per-sample noise of each block (by the sample's kind) and the whitening weights."""
+        count = np.maximum(self.s.count, 1)
+        kind = np.clip(self.s.kind, 0, 1)
+        self.sd = {}
+        for name in BLOCKS:
+            sig = np.array([self.sigma_k[0][name], self.sigma_k[1][name]])[kind]
+            wht = np.array([self.white_k[0][name], self.white_k[1][name]])[kind]
+            var = sig ** 2 + wht ** 2 / count
+            self.sd[name] = np.maximum(np.sqrt(var), FLOORS[name])
+        self.sqrt_w = np.sqrt(np.clip(self.s.weight, 1e-6, 1.0))
+
+    def noise_summary(self) -> dict[str, float]:
+        """Typical noise of one sample per block (median over samples)."""
+        return {k: float(np.median(self.sd[k])) if len(self.sd[k]) else float(FLOORS[k])
+                for k in BLOCKS}
 
     # ----- whitened vector --------------------------------------------------------------
     def whitened(self, H: Robot, idx: np.ndarray | None = None) -> np.ndarray:
         """Residuals of ``idx`` samples (all by default), divided by their noise, as one vector
         (NaN entries dropped; their positions depend only on the data)."""
-        b = self.blocks(H)
-        return self.whiten(b, idx)
+        return self.whiten(self.blocks(H), idx)
 
     def whiten(self, b: Blocks, idx: np.ndarray | None = None) -> np.ndarray:
         sl = slice(None) if idx is None else idx
-        sg = self.sigma
+        w = self.sqrt_w[sl]
         present = self.has_len[sl][:, None]
-        if b.length_extra_sd is None:
-            parts = [self._mask(b.length[sl], present) / sg["length"]]
-        else:
-            sd = np.sqrt(sg["length"] ** 2 + b.length_extra_sd[sl] ** 2)
-            parts = [self._mask(b.length[sl] / sd, present)]
+        sd = self.sd["length"][sl][:, None]
+        if b.length_extra_sd is not None:
+            sd = np.sqrt(sd ** 2 + b.length_extra_sd[sl] ** 2)
+        parts = [self._mask(b.length[sl] / sd * w[:, None], present)]
         if self.any_tau:
-            m = self.has_tau[sl] & self.has_pose[sl]
-            parts.append(self._mask(b.wrench[sl][:, :3], m[:, None]) / sg["force"])
-            parts.append(self._mask(b.wrench[sl][:, 3:], m[:, None]) / sg["moment"])
+            m = (self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl]))[:, None]
+            parts.append(self._mask(b.wrench[sl][:, :3] / self.sd["force"][sl][:, None]
+                                    * w[:, None], m))
+            parts.append(self._mask(b.wrench[sl][:, 3:] / self.sd["moment"][sl][:, None]
+                                    * w[:, None], m))
         if self.has_exit.any():
-            parts.append(self._mask(b.exit[sl], self.has_exit[sl][..., None]) / sg["exit"])
-        return np.concatenate([p for p in parts if p.size])
+            parts.append(self._mask(b.exit[sl] / self.sd["exit"][sl][:, None, None]
+                                    * w[:, None, None], self.has_exit[sl][..., None]))
+        parts = [p for p in parts if p.size]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def entry_weights(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The sample weight (``Samples.weight``) of each entry of :meth:`whiten`'s vector: their
+        sum is the effective number of residuals (rows of a move count together)."""
+        return self._per_entry(self.s.weight.astype(float), idx)
+
+    def entry_blocks(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The error cluster (``Samples.cluster``, else ``block``) of each entry of
+        :meth:`whiten`'s vector."""
+        groups = self.s.cluster if self.s.cluster is not None and \
+            len(self.s.cluster) == self.s.n else self.s.block
+        return self._per_entry(groups.astype(float), idx).astype(int)
+
+    def entry_columns(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The column of each entry of :meth:`whiten`'s vector (a cable's length, a force or
+        moment axis, an exit point's axis): the same quantity over the samples."""
+        n = self.model.n_cables
+        sl = slice(None) if idx is None else idx
+        m = len(self.s.t[sl])
+        parts = [self._mask(np.zeros((m, n)) + np.arange(n), self.has_len[sl][:, None])]
+        if self.any_tau:
+            mm = (self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl]))[:, None]
+            parts += [self._mask(np.zeros((m, 3)) + n + np.arange(3), mm),
+                      self._mask(np.zeros((m, 3)) + n + 3 + np.arange(3), mm)]
+        if self.has_exit.any():
+            parts.append(self._mask(np.zeros((m, n, 3)) + n + 6 + np.arange(3 * n).reshape(n, 3),
+                                    self.has_exit[sl][..., None]))
+        parts = [p for p in parts if p.size]
+        return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+
+    def _per_entry(self, values: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
+        n = self.model.n_cables
+        sl = slice(None) if idx is None else idx
+        blk = values[sl]
+        parts = [self._mask(np.zeros((len(blk), n)) + blk[:, None],
+                            self.has_len[sl][:, None])]
+        if self.any_tau:
+            m = (self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl]))[:, None]
+            parts += [self._mask(np.zeros((len(blk), 3)) + blk[:, None], m)] * 2
+        if self.has_exit.any():
+            parts.append(self._mask(np.zeros((len(blk), n, 3)) + blk[:, None, None],
+                                    self.has_exit[sl][..., None]))
+        parts = [p for p in parts if p.size]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def whitened_by_sample(self, b: Blocks) -> np.ndarray:
+        """Sum of squared whitened residuals of each sample (N,) (NaN where none)."""
+        N = self.s.n
+        out = np.zeros(N)
+        cnt = np.zeros(N)
+        w2 = self.sqrt_w ** 2
+        sd = self.sd["length"][:, None]
+        if b.length_extra_sd is not None:
+            sd = np.sqrt(sd ** 2 + b.length_extra_sd ** 2)
+        parts = [(b.length / sd, self.has_len[:, None])]
+        if self.any_tau:
+            m = (self.has_tau & (self.has_pose | self.est_pose))[:, None]
+            parts += [(b.wrench[:, :3] / self.sd["force"][:, None], m),
+                      (b.wrench[:, 3:] / self.sd["moment"][:, None], m)]
+        if self.has_exit.any():
+            parts.append((b.exit.reshape(N, -1) / self.sd["exit"][:, None],
+                          np.repeat(self.has_exit, 3, axis=1)))
+        for v, m in parts:
+            v = np.where(np.broadcast_to(m, v.shape) & np.isfinite(v), v, np.nan)
+            out += np.nansum(v ** 2, axis=1) * w2
+            cnt += np.isfinite(v).sum(axis=1)
+        return np.where(cnt > 0, out, np.nan)
 
     @staticmethod
     def _mask(values: np.ndarray, present: np.ndarray) -> np.ndarray:
@@ -240,6 +524,7 @@ class ResidualModel:
             return Forward(pose_err, tension_err, exit_err, ok)
         todo = np.flatnonzero(have_l) if idx is None else np.intersect1d(idx,
                                                                          np.flatnonzero(have_l))
+        theta = None
         for i in todo:
             dl = np.where(s.t[i] >= self.slip_times, H.length_offset, 0.0)
             l0 = unstretched_from_readings(H, s.l_meas[i], self.reference, u0, dl)
@@ -247,9 +532,10 @@ class ResidualModel:
             if not np.isfinite(guess).all():
                 guess = self.init_pose
             tau_meas = true_tensions(H, s.tau[i]) if self.has_tau[i] else None
-            res = forward_pose(H, l0, guess, tensions=tau_meas)
+            res = forward_pose(H, l0, guess, tensions=tau_meas, theta=theta)
             if not res.success:
                 continue
+            theta = res.theta if H.elastic else None
             ok[i] = True
             if self.has_pose[i]:
                 pose_err[i] = s.pose_meas[i] - res.pose
@@ -261,3 +547,35 @@ class ResidualModel:
                 e[~self.has_exit[i]] = np.nan
                 exit_err[i] = e
         return Forward(pose_err, tension_err, exit_err, ok)
+
+
+def _replicated(target: np.ndarray) -> np.ndarray:
+    """Samples that belong to a replicate group of two or more."""
+    _, inv, cnt = np.unique(target, return_inverse=True, return_counts=True)
+    return cnt[inv] >= 2
+
+
+def _balance(W: np.ndarray, f: np.ndarray, tm: np.ndarray) -> np.ndarray:
+    """Tensions (M,n) closest to ``tm`` with ``W tau = f`` (batched minimal-norm correction)."""
+    WWt = W @ np.swapaxes(W, -1, -2)
+    rhs = f - np.einsum("mik,...k->mi", W, tm) if tm.ndim == 1 else \
+        f - np.einsum("mik,mk->mi", W, tm)
+    try:
+        y = np.linalg.solve(WWt, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        y = np.stack([np.linalg.lstsq(a, b, rcond=None)[0] for a, b in zip(WWt, rhs,
+                                                                            strict=True)])
+    return tm + np.einsum("nik,ni->nk", W, y)
+
+
+def _stretch_sensitivity(H: Robot, bs, tau: np.ndarray) -> np.ndarray:
+    """d(needed unstretched length)/d(tension) (M,n) [m/N] at the statics ``bs``."""
+    if H.rho > 0:
+        dT = 0.5
+        l_up = cables.from_tensions(H, bs.state, tau + dT)[1]
+        return (l_up - bs.unstretched) / dT
+    ea = H.ea
+    L = bs.state.length
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(np.isfinite(ea), -L / ea / (1.0 + tau / ea) ** 2, 0.0)
+    return np.nan_to_num(c)

@@ -1,20 +1,75 @@
-"""Dwell averaging: one static sample per dwell, replicate visits grouped by target pose."""
+"""Samples of a recording: dwells averaged, quasi-static rows of moves, replicate groups.
+
+A recording (``cdpr-recording/1``) may hold dwells (rows at one commanded pose,
+replicate visits of a target), continuous moves (rows at 10-50 Hz along a path),
+or both, with or without a ``state`` column. :func:`prepare` turns it into
+the static samples the diagnosis fits:
+
+- **dwell samples**: consecutive rows with one commanded pose (``state`` ``init``
+  or ``dwell``, or, without a state column, runs of at least two rows whose
+  encoder readings stand still) are averaged; rows of a dwell where the
+  measured pose still moves (a transient) are left out.
+- **path samples**: rows of moves (``state`` ``move``, or single rows between
+  dwells) are quasi-static where the commanded motion does not accelerate
+  (inertial forces below a few percent of the weight); they are kept as single
+  rows, spread evenly in time, up to a budget.
+- rows in other states (``hold``, ``quick_stop``, ``fault``, ...) count only while
+  the platform stands still (encoders and pose do not move).
+
+Replicate groups (``target``) gather visits of one commanded pose, and path
+rows that pass within a few millimetres of each other on different moves:
+model errors repeat there, noise does not. ``block`` numbers what held-out
+splits keep together (a target with all its visits, or one move).
+
+:func:`check_values` finds impossible values (tensions far beyond the robot's
+limits, poses or lengths kilometres away) and excludes them by row and column,
+or refuses a column group that is wholly implausible (wrong units).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.recording import Recording
+from bench.recording import Recording, RecordingError
+
+#: states in which the platform stands by design
+STILL_STATES = {"init", "dwell"}
+#: states of the commanded motion
+MOVE_STATES = {"move"}
+#: commanded acceleration [m/s^2] above which a moving row is not quasi-static
+ACCEL_MAX = 0.2
+#: angular acceleration [rad/s^2] above which a moving row is not quasi-static
+ANG_ACCEL_MAX = 0.05
+#: at most this many samples are fitted (dwell samples first, then path rows)
+MAX_SAMPLES = 400
+#: path rows closer than this [m, rad] on different moves are replicates of each other
+NEAR_M = 1e-2
+NEAR_RAD = 5e-3
+#: a row whose commanded pose jumps from both neighbours faster than this [m/s] is a
+#: standing measurement of its own (a table of poses), not a row of a motion
+JUMP_M_S = 2.0
+#: at most this many path rows are kept per move, evenly spread over it
+PER_MOVE = 12
+#: rows of one move share its slowly varying errors (the sign of hysteresis and friction,
+#: drift): a move counts as this many independent samples, its rows weighted accordingly
+MOVE_INDEPENDENT = 4
+#: encoder change [m] below which a cable counts as standing still between two rows
+STILL_M = 2e-5
 
 
 @dataclass
 class Samples:
-    """N dwell-averaged samples of a recording (NaN = not measured).
+    """N static samples of a recording (NaN = not measured).
 
-    ``target`` (N,) numbers the distinct target poses (replicate visits share
-    one); ``is_init`` marks the initialisation dwell; ``count`` rows averaged.
+    ``count`` rows averaged; ``target`` replicate groups (visits of one pose);
+    ``block`` what held-out splits keep together; ``is_init`` the initialisation
+    dwell; ``kind`` 0 dwell / 1 path row; ``direction`` (N,n) sign of each cable's
+    last length change before the sample (+1 paid out, -1 reeled in, 0 unknown);
+    ``row`` the recording.csv line of the sample's first row; ``tau_row_sd`` the
+    load-cell noise of one row [N]; ``weight`` (N,) the share of an independent sample
+    each counts for (1 for dwells; rows of a move share its slow errors).
     """
 
     t: np.ndarray
@@ -26,7 +81,30 @@ class Samples:
     count: np.ndarray
     target: np.ndarray
     is_init: np.ndarray
-    tau_row_sd: float | None = None  # load-cell noise of one row [N] (within dwells)
+    tau_row_sd: float | None = None
+    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    block: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    direction: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    row: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    info: dict = field(default_factory=dict)
+    weight: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    triples: Samples | None = None  # raw rows in consecutive triples (white noise)
+    cluster: np.ndarray | None = None  # samples that may share errors (standard errors)
+    stream: Samples | None = None  # raw rows in time order, decimated (jumps in time)
+
+    def __post_init__(self) -> None:
+        N = len(self.t)
+        n = self.l_meas.shape[1] if self.l_meas.ndim == 2 else 0
+        if len(self.kind) != N:
+            self.kind = np.zeros(N, dtype=int)
+        if len(self.block) != N:
+            self.block = np.asarray(self.target, dtype=int).copy()
+        if self.direction.shape != (N, n):
+            self.direction = np.zeros((N, n))
+        if len(self.row) != N:
+            self.row = np.arange(N) + 2
+        if len(self.weight) != N:
+            self.weight = np.ones(N)
 
     @property
     def n(self) -> int:
@@ -34,18 +112,88 @@ class Samples:
 
     @property
     def n_targets(self) -> int:
-        return int(self.target.max()) + 1 if self.n else 0
+        return int(np.unique(self.target).size) if self.n else 0
 
     @property
     def replicated(self) -> bool:
-        """Whether some target pose was visited more than once."""
+        """Whether some replicate group holds more than one sample."""
         return bool(self.n > self.n_targets)
 
     def take(self, idx: np.ndarray) -> Samples:
         return Samples(self.t[idx], self.pose_des[idx], self.pose_meas[idx], self.l_meas[idx],
                        self.tau[idx], self.exit_meas[idx], self.count[idx], self.target[idx],
-                       self.is_init[idx], self.tau_row_sd)
+                       self.is_init[idx], self.tau_row_sd, self.kind[idx], self.block[idx],
+                       self.direction[idx], self.row[idx], dict(self.info), self.weight[idx])
 
+
+# ----- impossible values --------------------------------------------------------------
+
+def check_values(rec: Recording, limit: int = 20) -> list[dict]:
+    """Exclude impossible values of ``rec`` in place (set to NaN) and list them.
+
+    Tensions beyond 10 times the robot's ``tension_max`` (or below minus that),
+    positions farther than 10 times the robot's size from its exit points, angles
+    beyond 2 pi, lengths negative or beyond 10 times the robot's size. Returns
+    ``[{"row", "column", "value", "why"}]`` (the first ``limit``; ``row`` is the
+    recording.csv line) plus a last entry ``{"more": k}`` when more were excluded.
+    Raises :class:`RecordingError` when most values of a column group are impossible
+    (e.g. tensions in the wrong unit): the recording cannot be trusted.
+    """
+    robot = rec.robot
+    size = float(np.ptp(robot.exits, axis=0).max() + np.linalg.norm(robot.anchors, axis=1).max())
+    size = max(size, 1.0)
+    centre = robot.exits.mean(axis=0)
+    out: list[dict] = []
+    count = 0
+
+    def flag(bad: np.ndarray, arr: np.ndarray, names: list[str], why: str, group: str) -> None:
+        nonlocal count
+        finite = np.isfinite(arr)
+        if not bad.any():
+            return
+        share = bad.sum() / max(finite.sum(), 1)
+        if share > 0.5:
+            k = int(np.argwhere(bad)[0][0])
+            raise RecordingError(
+                f"{rec.path / 'recording.csv'}: {group}: {bad.sum()} of {finite.sum()} values "
+                f"are impossible ({why}; e.g. line {k + 2}): wrong units or columns?")
+        for idx in np.argwhere(bad):
+            i = int(idx[0])
+            col = names[int(idx[1])] if len(idx) > 1 else names[0]
+            if count < limit:
+                out.append({"row": i + 2, "column": col, "value": float(arr[tuple(idx)]),
+                            "why": why})
+            count += 1
+        arr[bad] = np.nan
+
+    cids = robot.cable_ids
+    with np.errstate(invalid="ignore"):
+        tmax = 10.0 * robot.tension_max
+        flag(np.abs(rec.tau) > tmax, rec.tau, [f"tau_{c}" for c in cids],
+             f"tension beyond 10 x tension_max = {tmax:g} N", "tensions")
+        flag((rec.l_meas < 0) | (rec.l_meas > 10 * size), rec.l_meas,
+             [f"l_meas_{c}" for c in cids], f"length outside 0 .. {10 * size:.0f} m", "lengths")
+        for name, arr in (("meas", rec.pose_meas), ("des", rec.pose_des)):
+            far = np.linalg.norm(arr[:, :3] - centre, axis=1) > 10 * size
+            bad = np.zeros(arr.shape, dtype=bool)
+            bad[:, :3] = far[:, None] & np.isfinite(arr[:, :3])
+            bad[:, 3:] = np.abs(arr[:, 3:]) > 2 * np.pi
+            axes = ["x", "y", "z", "roll", "pitch", "yaw"]
+            flag(bad, arr, [f"{a}_{name}" for a in axes],
+                 f"pose more than {10 * size:.0f} m from the robot or angle beyond 2 pi",
+                 f"{name} poses")
+        e = rec.exit_meas.reshape(rec.n_samples, -1)
+        far = np.abs(rec.exit_meas - robot.exits[None]).max(axis=2) > size
+        bad = np.repeat(far, 3, axis=1) & np.isfinite(e)
+        flag(bad, e, [f"a{ax}_meas_{c}" for c in cids for ax in "xyz"],
+             f"exit point more than {size:.0f} m from the model's", "exit points")
+        rec.exit_meas[:] = e.reshape(rec.exit_meas.shape)
+    if count > limit:
+        out.append({"more": count - limit})
+    return out
+
+
+# ----- rows -> samples ------------------------------------------------------------------
 
 def _keys(rec: Recording) -> np.ndarray:
     """A per-row key that stays constant during a dwell (what the controller aimed at)."""
@@ -61,71 +209,472 @@ def _keys(rec: Recording) -> np.ndarray:
     return np.arange(rec.n_samples)[:, None].astype(float)
 
 
-def average_dwells(rec: Recording) -> Samples:
-    """Average each dwell (consecutive rows with one target) into one sample."""
-    keys = _keys(rec)
-    N = rec.n_samples
+def _runs(keys: np.ndarray, states: list[str] | None) -> list[tuple[int, int]]:
+    N = len(keys)
     change = np.ones(N, dtype=bool)
     change[1:] = np.any(keys[1:] != keys[:-1], axis=1)
+    if states is not None:
+        st = np.array(states)
+        change[1:] |= st[1:] != st[:-1]
     starts = np.flatnonzero(change)
-    bounds = list(zip(starts, list(starts[1:]) + [N], strict=True))
-    counts = np.array([b - a for a, b in bounds])
-    # recordings with dwells: drop the single rows of moves in between
-    if counts.size and (counts[counts >= 3].sum() >= 0.5 * N):
-        bounds = [(a, b) for a, b in bounds if b - a >= 2]
+    return list(zip(starts.tolist(), list(starts[1:].tolist()) + [N], strict=True))
+
+
+def _standing(rec: Recording, a: int, b: int) -> bool:
+    """Whether the encoders (or, without them, the measured pose) stand still in rows a..b."""
+    for arr, tol in ((rec.l_meas, STILL_M), (rec.pose_meas, 1e-3)):
+        chunk = arr[a:b]
+        ok = np.isfinite(chunk).all(axis=0)
+        if ok.any() and b - a >= 2:
+            return bool(np.ptp(chunk[:, ok], axis=0).max() <= tol)
+    return True
+
+
+def _settled(rec: Recording, a: int, b: int) -> np.ndarray:
+    """Rows a..b of a dwell where the measured pose has settled (a transient at the start of a
+    dwell is left out): within 5 robust standard deviations (at least 0.5 mm) of the median."""
+    idx = np.arange(a, b)
+    pos = rec.pose_meas[a:b, :3]
+    ok = np.isfinite(pos).all(axis=1)
+    if b - a < 5 or ok.sum() < 5:
+        return idx
+    med = np.median(pos[ok], axis=0)
+    d = np.linalg.norm(pos - med, axis=1)
+    mad = float(np.median(d[ok]))
+    keep = ~ok | (d <= max(5.0 * 1.4826 * mad, 5e-4))
+    return idx[keep]
+
+
+def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """Which path ``rows`` are quasi-static: the commanded (or measured) motion does not
+    accelerate around them."""
+    if len(rows) < 3:
+        return np.ones(len(rows), dtype=bool)
+    src = rec.pose_des if np.isfinite(rec.pose_des[rows, :3]).all() else rec.pose_meas
+    p = src[rows]
+    t = rec.t[rows]
+    if not np.isfinite(p[:, :3]).all():
+        return np.ones(len(rows), dtype=bool)
+    p = np.nan_to_num(p)
+    dt = np.diff(t)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.diff(p, axis=0) / dt[:, None]
+        a = np.diff(v, axis=0) / (0.5 * (dt[1:] + dt[:-1]))[:, None]
+    a = np.nan_to_num(a, nan=np.inf, posinf=np.inf, neginf=np.inf)
+    lin = np.linalg.norm(a[:, :3], axis=1) <= ACCEL_MAX
+    ang = np.abs(a[:, 3:]).max(axis=1) <= ANG_ACCEL_MAX
+    ok_mid = lin & ang
+    ok = np.zeros(len(rows), dtype=bool)
+    # a row is quasi-static if the accelerations on both sides of it are small
+    ok[1:-1] = ok_mid
+    ok[0] = ok_mid[0]
+    ok[-1] = ok_mid[-1]
+    return ok
+
+
+def _isolated(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """Which path ``rows`` are standing measurements of their own: the commanded (or
+    measured) pose jumps to them and away from them faster than any motion."""
+    out = np.zeros(len(rows), dtype=bool)
+    src = rec.pose_des if np.isfinite(rec.pose_des[:, :3]).any() else rec.pose_meas
+    if not len(rows) or not np.isfinite(src[:, :3]).any():
+        return out
+    N = rec.n_samples
+    p = src[:, :3]
+    t = rec.t
+
+    def speed(i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        ok = (j >= 0) & (j < N)
+        jj = np.clip(j, 0, N - 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = np.linalg.norm(p[i] - p[jj], axis=1) / np.abs(t[i] - t[jj])
+        return np.where(ok, np.nan_to_num(v, nan=np.inf, posinf=np.inf), np.inf)
+
+    return (speed(rows, rows - 1) > JUMP_M_S) & (speed(rows, rows + 1) > JUMP_M_S)
+
+
+#: with rows of moves, samples within this many consecutive moves may share errors
+CLUSTER_MOVES = 3
+
+
+def _clusters(s: Samples) -> np.ndarray:
+    """Groups of samples whose errors may be correlated, for cluster-robust standard errors:
+    a target with its visits when the recording has no rows of moves; otherwise stretches
+    of time spanning CLUSTER_MOVES moves (the slow errors of a move carry into the next one
+    and into the dwell between them)."""
+    if not (s.kind == 1).any():
+        return s.block.copy()
+    order = np.argsort(s.t, kind="stable")
+    out = np.zeros(s.n, dtype=int)
+    moves_seen = 0
+    cid = 0
+    last_block = None
+    for i in order:
+        if s.kind[i] == 1 and s.block[i] != last_block:
+            last_block = s.block[i]
+            moves_seen += 1
+            if moves_seen > CLUSTER_MOVES:
+                cid += 1
+                moves_seen = 1
+        out[i] = cid
+    return out
+
+
+def _fresh(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """Which ``rows`` (of moves) carry a fresh tracker pose and fresh tensions: the value
+    differs from the previous row's (a sensor slower than the row rate repeats itself)."""
+    ok = np.ones(len(rows), dtype=bool)
+    if not len(rows):
+        return ok
+    prev = np.maximum(rows - 1, 0)
+    for arr in (rec.pose_meas, rec.tau):
+        if not np.isfinite(arr[rows]).any():
+            continue
+        a, b = arr[rows], arr[prev]
+        same = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1) & (rows > 0)
+        ok &= ~same
+    return ok
+
+
+def _segments(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """Move ids of path ``rows``: a new move at a gap in rows or time, or where the commanded
+    direction turns."""
+    if not len(rows):
+        return np.zeros(0, dtype=int)
+    seg = np.zeros(len(rows), dtype=int)
+    t = rec.t[rows]
+    dt = np.diff(t)
+    med = float(np.median(dt)) if len(dt) else 1.0
+    new = np.zeros(len(rows), dtype=bool)
+    new[1:] = (np.diff(rows) > 1) | (dt > 2.5 * med)
+    p = rec.pose_des[rows, :3]
+    if np.isfinite(p).all() and len(rows) > 2:
+        d = np.diff(p, axis=0)
+        nd = np.linalg.norm(d, axis=1)
+        u = d / np.where(nd > 0, nd, 1.0)[:, None]
+        turn = np.zeros(len(rows), dtype=bool)
+        cosang = np.sum(u[1:] * u[:-1], axis=1)
+        turn[2:] = (cosang < np.cos(np.radians(20))) & (nd[1:] > 0) & (nd[:-1] > 0)
+        new |= turn
+    seg = np.cumsum(new)
+    return seg
+
+
+def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
+    """The static samples of a recording (see the module docstring)."""
+    N = rec.n_samples
+    keys = _keys(rec)
+    states = rec.state
+    runs = _runs(keys, states)
     init = np.zeros(N, dtype=bool)
     init[rec.init_rows] = True
+    dwell_runs: list[np.ndarray] = []
+    path_rows: list[int] = []
+    dropped_states = 0
+    for a, b in runs:
+        st = states[a] if states is not None else None
+        if st is not None and st not in STILL_STATES | MOVE_STATES:
+            # supervisor reactions: only where the platform stands still
+            if b - a >= 2 and _standing(rec, a, b):
+                dwell_runs.append(_settled(rec, a, b))
+            else:
+                dropped_states += b - a
+            continue
+        still = (st in STILL_STATES) if st is not None else (b - a >= 2 and _standing(rec, a, b))
+        if still or (st is None and init[a]):
+            dwell_runs.append(_settled(rec, a, b))
+        else:
+            path_rows.extend(range(a, b))
+    path = np.array(path_rows, dtype=int)
+    alone = _isolated(rec, path)
+    for i in path[alone]:
+        dwell_runs.append(np.array([i]))
+    path = path[~alone]
+    qs = _quasi_static(rec, path)
+    n_accel = int((~qs).sum())
+    seg_all = _segments(rec, path)
+    # a sensor read slower than the rows holds its last value: while the platform moves,
+    # only rows where the tracker (and the load cells) report a fresh value are measurements
+    fresh = _fresh(rec, path)
+    n_stale = int((~fresh).sum())
+    moving = path[fresh]
+    path, seg_all = path[qs & fresh], seg_all[qs & fresh]
 
-    def mean(arr: np.ndarray, a: int, b: int) -> np.ndarray:
-        chunk = arr[a:b]
-        ok = np.isfinite(chunk)
-        with np.errstate(invalid="ignore"):
-            return np.where(ok.any(axis=0), np.nansum(chunk, axis=0) / np.maximum(ok.sum(0), 1),
-                            np.nan)
+    # budget: dwell samples first (whole targets), path rows spread evenly in time
+    dw = _dwell_samples(rec, dwell_runs, init)
+    n_dwell = len(dwell_runs)
+    keep_dwell = np.arange(n_dwell)
+    if n_dwell > max_samples - min(100, len(path)):
+        keep_dwell = _thin_targets(dw["target"], dw["is_init"], max(max_samples - min(100,
+                                                                                 len(path)), 1))
+    room = max(max_samples - len(keep_dwell), 0)
+    if len(path):  # a few rows per move, evenly spread over it
+        keep = np.zeros(len(path), dtype=bool)
+        for g in np.unique(seg_all):
+            idx = np.flatnonzero(seg_all == g)
+            k = min(PER_MOVE, len(idx))
+            keep[idx[np.unique(np.round(np.linspace(0, len(idx) - 1, k + 2)[1:-1]
+                                        ).astype(int))]] = True
+        path, seg_all = path[keep], seg_all[keep]
+    if len(path) > room:
+        pick = np.unique(np.round(np.linspace(0, len(path) - 1, room)).astype(int)) \
+            if room else np.zeros(0, dtype=int)
+        path, seg_all = path[pick], seg_all[pick]
+    dwell_runs = [dwell_runs[k] for k in keep_dwell]
+    dw = {k: v[keep_dwell] for k, v in dw.items()}
 
-    fields = {k: [] for k in ("t", "pose_des", "pose_meas", "l_meas", "tau", "exit_meas")}
-    is_init = []
-    for a, b in bounds:
-        for k in fields:
-            fields[k].append(mean(getattr(rec, k), a, b))
-        is_init.append(bool(init[a:b].any()))
-    arr = {k: np.array(v) for k, v in fields.items()}
-    count = np.array([b - a for a, b in bounds])
-    # load-cell noise: spread of the rows of a dwell around their mean (the state is static)
+    # assemble
+    def rows_of(field_: str) -> np.ndarray:
+        return getattr(rec, field_)[path]
+
+    t = np.concatenate([dw["t"], rec.t[path]])
+    pose_des = np.concatenate([dw["pose_des"], rows_of("pose_des")])
+    pose_meas = np.concatenate([dw["pose_meas"], rows_of("pose_meas")])
+    l_meas = np.concatenate([dw["l_meas"], rows_of("l_meas")])
+    tau = np.concatenate([dw["tau"], rows_of("tau")])
+    exit_meas = np.concatenate([dw["exit_meas"], rows_of("exit_meas")])
+    count = np.concatenate([dw["count"], np.ones(len(path), dtype=int)])
+    is_init = np.concatenate([dw["is_init"], init[path]])
+    kind = np.concatenate([np.zeros(len(dwell_runs), dtype=int), np.ones(len(path), dtype=int)])
+    first = np.array([r[0] for r in dwell_runs] + path.tolist(), dtype=int)
+    direction = _directions(rec, first)
+    # replicate groups: dwells by commanded pose; path rows by proximity on different moves
+    tg_d = _targets(pose_des[: len(dwell_runs)], pose_meas[: len(dwell_runs)])
+    tg_p = _near_groups(pose_meas[len(dwell_runs):], pose_des[len(dwell_runs):], seg_all)
+    base = int(tg_d.max()) + 1 if len(tg_d) else 0
+    target = np.concatenate([tg_d, tg_p + base])
+    block = np.concatenate([tg_d, seg_all + base + (int(tg_p.max()) + 1 if len(tg_p) else 0)])
+    order = np.argsort(t, kind="stable")
+    s = Samples(t[order], pose_des[order], pose_meas[order], l_meas[order], tau[order],
+                exit_meas[order], count[order], target[order], is_init[order],
+                _tau_row_sd(rec, dwell_runs, path, seg_all), kind[order], block[order],
+                direction[order], first[order] + 2)
+    # rows of one move: together they count as MOVE_INDEPENDENT independent samples
+    w = np.ones(len(t))
+    for g in np.unique(seg_all):
+        m = int(np.sum(seg_all == g))
+        w[len(dwell_runs) + np.flatnonzero(seg_all == g)] = min(1.0, MOVE_INDEPENDENT / m)
+    s.weight = w[order]
+    s.triples = _triples(rec, dwell_runs, moving)
+    s.cluster = _clusters(s)
+    s.stream = _stream(rec)
+    s.info = {"rows": N, "dwell_samples": len(dwell_runs), "path_samples": len(path),
+              "dwells_available": n_dwell, "path_rows_accelerating": n_accel,
+              "path_rows_stale": n_stale, "rows_in_other_states": dropped_states}
+    return s
+
+
+def average_dwells(rec: Recording) -> Samples:
+    """:func:`prepare` (kept for its callers)."""
+    return prepare(rec)
+
+
+def _triples(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
+             limit: int = 60) -> Samples | None:
+    """Raw rows in consecutive triples, from dwells (three rows of one dwell) and moves (three
+    consecutive rows), up to ``limit`` triples spread over the recording."""
+    dwell: list[tuple[int, int, int]] = []
+    moving: list[tuple[int, int, int]] = []
+    for idx in runs:
+        if len(idx) >= 3:
+            dwell.append((int(idx[0]), int(idx[len(idx) // 2]), int(idx[-1])))
+    if len(path) >= 3:
+        # three fresh rows evenly spaced (the second difference cancels a steady motion)
+        d1, d2 = path[1:-1] - path[:-2], path[2:] - path[1:-1]
+        even = (d1 == d2) & (d1 <= 4)
+        for k in np.flatnonzero(even):
+            moving.append((int(path[k]), int(path[k + 1]), int(path[k + 2])))
+    chosen: list[tuple[int, int, int]] = []
+    kinds: list[int] = []
+    for kind, cands in ((0, dwell), (1, moving)):
+        if not cands:
+            continue
+        pick = np.unique(np.round(np.linspace(0, len(cands) - 1, min(limit, len(cands))))
+                         .astype(int))
+        chosen += [cands[k] for k in pick]
+        kinds += [kind] * len(pick)
+    if not chosen:
+        return None
+    rows = np.array(chosen).ravel()
+    n = rec.robot.n_cables
+    return Samples(rec.t[rows], rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows],
+                   rec.tau[rows], rec.exit_meas[rows], np.ones(len(rows), dtype=int),
+                   np.arange(len(rows)), np.zeros(len(rows), dtype=bool),
+                   kind=np.repeat(kinds, 3), direction=np.zeros((len(rows), n)), row=rows + 2)
+
+
+#: at most this many raw rows are scanned for jumps in time
+STREAM_ROWS = 4000
+
+
+def _stream(rec: Recording) -> Samples | None:
+    """Raw rows in time order (every k-th, at most STREAM_ROWS), for jumps between
+    consecutive rows (a slip during a move). ``block`` numbers runs of rows close in time."""
+    N = rec.n_samples
+    if N < 20 or not np.isfinite(rec.l_meas).any():
+        return None
+    k = max(1, int(np.ceil(N / STREAM_ROWS)))
+    rows = np.arange(0, N, k)
+    t = rec.t[rows]
+    dt = np.diff(t)
+    med = float(np.median(dt)) if len(dt) else 1.0
+    new = np.concatenate([[True], dt > 3.0 * max(med, 1e-9)])
+    n = rec.robot.n_cables
+    out = Samples(t, rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows], rec.tau[rows],
+                  rec.exit_meas[rows], np.ones(len(rows), dtype=int), np.arange(len(rows)),
+                  np.isin(rows, rec.init_rows), direction=np.zeros((len(rows), n)),
+                  row=rows + 2)
+    out.block = np.cumsum(new)
+    return out
+
+
+def _mean(arr: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    chunk = arr[idx]
+    ok = np.isfinite(chunk)
+    with np.errstate(invalid="ignore"):
+        return np.where(ok.any(axis=0), np.nansum(chunk, axis=0) / np.maximum(ok.sum(0), 1),
+                        np.nan)
+
+
+def _dwell_samples(rec: Recording, runs: list[np.ndarray], init: np.ndarray) -> dict:
+    n = rec.robot.n_cables
+    out = {k: [] for k in ("t", "pose_des", "pose_meas", "l_meas", "tau", "exit_meas")}
+    for idx in runs:
+        for k in out:
+            out[k].append(_mean(getattr(rec, k), idx))
+    shapes = {"t": (0,), "pose_des": (0, 6), "pose_meas": (0, 6), "l_meas": (0, n),
+              "tau": (0, n), "exit_meas": (0, n, 3)}
+    res = {k: (np.array(v) if v else np.zeros(shapes[k])) for k, v in out.items()}
+    res["count"] = np.array([len(r) for r in runs], dtype=int)
+    res["is_init"] = np.array([bool(init[r].any()) for r in runs], dtype=bool)
+    res["target"] = _targets(res["pose_des"], res["pose_meas"])
+    return res
+
+
+def _thin_targets(target: np.ndarray, is_init: np.ndarray, room: int) -> np.ndarray:
+    """Indices of dwell samples to keep within ``room``: the initialisation and whole targets
+    (every visit of a kept target), spread over the target numbers."""
+    keep = list(np.flatnonzero(is_init))
+    tg = [g for g in np.unique(target) if not is_init[target == g].any()]
+    per = max(np.mean([np.sum(target == g) for g in tg]) if tg else 1, 1)
+    k = max(int((room - len(keep)) // per), 1)
+    chosen = np.array(tg)[np.unique(np.round(np.linspace(0, len(tg) - 1, k)).astype(int))] \
+        if tg else []
+    keep += list(np.flatnonzero(np.isin(target, chosen)))
+    return np.array(sorted(set(keep))[:room], dtype=int)
+
+
+def _directions(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """Sign of each cable's last length change before each of ``rows`` (encoder readings, or
+    commanded lengths)."""
+    src = rec.l_meas if np.isfinite(rec.l_meas).any() else rec.l_cmd
+    N, n = src.shape
+    out = np.zeros((len(rows), n))
+    if not np.isfinite(src).any():
+        return out
+    d = np.zeros((N, n))
+    d[1:] = np.diff(src, axis=0)
+    d = np.nan_to_num(np.where(np.abs(d) > STILL_M / 2, np.sign(d), 0.0))
+    # carry the last nonzero sign forward: index of the last row with a move, per cable
+    idx = np.where(d != 0, np.arange(N)[:, None], 0)
+    np.maximum.accumulate(idx, axis=0, out=idx)
+    carried = np.take_along_axis(d, idx, axis=0)
+    return carried[np.asarray(rows, dtype=int)]
+
+
+def _tau_row_sd(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
+                seg: np.ndarray) -> float | None:
+    """Load-cell noise of one row [N]: spread within dwells, or second differences of
+    consecutive path rows."""
     ss, dof = 0.0, 0
-    for a, b in bounds:
-        chunk = rec.tau[a:b]
-        if b - a >= 2 and np.isfinite(chunk).all():
+    for idx in runs:
+        chunk = rec.tau[idx]
+        if len(idx) >= 2 and np.isfinite(chunk).all():
             ss += float(((chunk - chunk.mean(axis=0)) ** 2).sum())
-            dof += (b - a - 1) * chunk.shape[1]
-    tau_sd = float(np.sqrt(ss / dof)) if dof else None
-    return Samples(arr["t"], arr["pose_des"], arr["pose_meas"], arr["l_meas"], arr["tau"],
-                   arr["exit_meas"], count, _targets(arr["pose_des"], arr["pose_meas"]),
-                   np.array(is_init), tau_sd)
+            dof += (len(idx) - 1) * chunk.shape[1]
+    if dof:
+        return float(np.sqrt(ss / dof))
+    if len(path) >= 3 and np.isfinite(rec.tau).any():
+        tau = rec.tau
+        i = np.arange(1, rec.n_samples - 1)
+        d2 = tau[i + 1] - 2 * tau[i] + tau[i - 1]
+        d2 = d2[np.isfinite(d2)]
+        if d2.size >= 10:
+            return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
+    return None
 
 
 def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
     """Number target poses: equal desired poses (0.1 mm) or, without them, measured poses
     within 5 mm / 5 mrad of each other."""
     N = len(pose_des)
+    if N == 0:
+        return np.zeros(0, dtype=int)
     cols = np.isfinite(pose_des).any(axis=0)
     have_des = np.isfinite(pose_des[:, cols]).all(axis=1) & cols.any()
     pose_des = np.where(cols, pose_des, 0.0)
     key = np.where(have_des[:, None], np.round(pose_des / 1e-4), np.nan)
     ids = np.full(N, -1)
     reps: list[tuple[np.ndarray, bool]] = []
+    lookup: dict[bytes, int] = {}
     for i in range(N):
-        for j, (rep, is_des) in enumerate(reps):
-            if have_des[i] and is_des and np.array_equal(key[i], rep):
-                ids[i] = j
-                break
-            if (not have_des[i] and not is_des and np.isfinite(pose_meas[i, :3]).all()
-                    and np.all(np.nan_to_num(np.abs(pose_meas[i] - rep)) < 5e-3)):
-                ids[i] = j
-                break
+        if have_des[i]:
+            kb = key[i].tobytes()
+            if kb in lookup:
+                ids[i] = lookup[kb]
+                continue
+        else:
+            for j, (rep, is_des) in enumerate(reps):
+                if (not is_des and np.isfinite(pose_meas[i, :3]).all()
+                        and np.all(np.nan_to_num(np.abs(pose_meas[i] - rep)) < 5e-3)):
+                    ids[i] = j
+                    break
         if ids[i] < 0:
             ids[i] = len(reps)
             reps.append((key[i] if have_des[i] else pose_meas[i], bool(have_des[i])))
+            if have_des[i]:
+                lookup[key[i].tobytes()] = ids[i]
+    return ids
+
+
+def _near_groups(pose_meas: np.ndarray, pose_des: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Group path rows that lie within NEAR_M / NEAR_RAD of a group's first row, on different
+    moves (no chains: every member is near the first); every other row is its own group."""
+    N = len(seg)
+    ids = np.full(N, -1)
+    if N == 0:
+        return ids
+    pos = np.where(np.isfinite(pose_meas), pose_meas, pose_des)
+    ok = np.isfinite(pos).all(axis=1)
+    cell = np.floor(np.nan_to_num(pos[:, :3]) / NEAR_M).astype(np.int64)
+    seeds: dict[tuple, list[int]] = {}  # grid cell -> group seeds (row indices)
+    members: dict[int, set] = {}
+    n_groups = 0
+    for i in range(N):
+        if not ok[i]:
+            ids[i] = n_groups
+            n_groups += 1
+            continue
+        c = cell[i]
+        best = -1
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    for j in seeds.get((c[0] + dx, c[1] + dy, c[2] + dz), ()):
+                        if seg[i] in members[j]:
+                            continue
+                        if (np.linalg.norm(pos[i, :3] - pos[j, :3]) <= NEAR_M
+                                and np.abs(pos[i, 3:] - pos[j, 3:]).max() <= NEAR_RAD):
+                            best = j
+                            break
+        if best >= 0:
+            ids[i] = ids[best]
+            members[best].add(seg[i])
+        else:
+            ids[i] = n_groups
+            n_groups += 1
+            seeds.setdefault(tuple(c), []).append(i)
+            members[i] = {seg[i]}
     return ids
 
 

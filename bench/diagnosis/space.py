@@ -24,6 +24,16 @@ SCALES = {
     "cable_sag": 1e-3,
 }
 
+#: a candidate of the selection that the report names ``cable_elasticity``: each cable's
+#: own E*A (``ea_{ij}``) instead of one for all
+PER_CABLE_EA = "cable_elasticity_each"
+
+
+def report_name(candidate: str) -> str:
+    """The vocabulary's name of a selection candidate."""
+    return "cable_elasticity" if candidate == PER_CABLE_EA else candidate
+
+
 #: what each effect explains, for the report
 EXPLAINS = {
     "exit_point_offset": "exit points sit elsewhere than the model says (supporting ropes "
@@ -87,6 +97,11 @@ def effect_fit_params(effect: str, model: Robot) -> list[Param]:
         ea = model.ea[np.isfinite(model.ea)]
         e0 = 0.0 if not len(ea) else 1.0 / float(np.mean(ea))
         out.append(Param("ea", effect, "inverse", e0, SCALES[effect], 0.0, 1e-3))
+    elif effect == PER_CABLE_EA:  # cable_elasticity with a stiffness per cable
+        for k, cid in enumerate(cids):
+            e0 = 0.0 if not np.isfinite(model.ea[k]) else 1.0 / float(model.ea[k])
+            out.append(Param(f"ea_{cid}", "cable_elasticity", "inverse", e0,
+                             SCALES["cable_elasticity"], 0.0, 1e-3))
     elif effect == "cable_length_offset":
         out = [Param(f"dl_{c}", effect, "offset", 0.0, SCALES[effect], -1.0, 1.0) for c in cids]
     elif effect == "drum_scale":
@@ -124,8 +139,6 @@ class ParamSpace:
         for e in self.effects:
             self.params += effect_fit_params(e, model)
         self.neutral = np.array([p.neutral for p in self.params])
-        self._gains = np.array([k for k, p in enumerate(self.params)
-                                if p.key.startswith("gain_")], dtype=int)
         self.scale = np.array([p.scale for p in self.params])
         self.lo = np.array([p.lo for p in self.params])
         self.hi = np.array([p.hi for p in self.params])
@@ -134,32 +147,32 @@ class ParamSpace:
         return len(self.params)
 
     def values(self, phi: np.ndarray) -> dict[str, dict[str, float]]:
-        """{effect: {key: value in the conventions' units}}.
+        """{effect: {key: value in the conventions' units}} (the vocabulary's effect names).
 
-        Load-cell gains keep the model's common mode: a gain shared by every cell is, in
-        statics, the platform mass (exactly confounded), so the fit's common mode (the
-        median ratio to the model, robust to the few cells that are really off) is divided
-        out here and a common error shows as the mass (with the common gain named as its
-        alternative)."""
-        out: dict[str, dict[str, float]] = {e: {} for e in self.effects}
-        phi = self.canonical(phi)
+        Load-cell gains are not normalised: with the model's mass the force balance fixes
+        their common mode (any number of cells may be off). Only when the mass is fitted
+        too are a common gain and the mass confounded in the statics; then the cables'
+        stretch alone separates them, and the fit holds what it cannot fix."""
+        out: dict[str, dict[str, float]] = {}
         vals = np.array([p.to_value(float(v)) for p, v in zip(self.params, phi, strict=True)])
         for p, v in zip(self.params, vals, strict=True):
-            out[p.effect][p.key] = float(v)
+            out.setdefault(p.effect, {})[p.key] = float(v)
         return out
 
     def canonical(self, phi: np.ndarray) -> np.ndarray:
-        """Fit-space values with the gauge removed (load-cell gains' common mode divided out,
-        as :meth:`values` reports them); the hypothesis is the same robot."""
-        out = np.array(phi, dtype=float, copy=True)
-        if len(self._gains):
-            g = np.maximum(out[self._gains], 1e-9)
-            out[self._gains] = g / float(np.median(g / self.neutral[self._gains]))
-        return out
+        """Fit-space values as reported (no gauge: the identity)."""
+        return np.array(phi, dtype=float, copy=True)
 
     def robot(self, phi: np.ndarray) -> Robot:
         """The hypothesis robot for fit-space values ``phi``."""
         return apply_effects(self.model, self.values(phi))
 
     def indices(self, effect: str) -> np.ndarray:
-        return np.array([k for k, p in enumerate(self.params) if p.effect == effect], dtype=int)
+        """Parameters of a candidate (``effect`` as in :attr:`effects`)."""
+        name = report_name(effect)
+        own = [k for k, p in enumerate(self.params) if p.effect == name]
+        if name != effect or effect == "cable_elasticity":
+            # the two elasticity candidates share the report name: tell them by their keys
+            each = effect == PER_CABLE_EA
+            own = [k for k in own if self.params[k].key.startswith("ea_") == each]
+        return np.array(own, dtype=int)

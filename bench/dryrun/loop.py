@@ -462,9 +462,10 @@ class ControlLoop:
             if clock is not None:
                 res.lateness_s.append(clock.wait())
             hw.write_lengths(None if stopping else cmd)
-            if self.tick is not None:
+            if not opt.realtime:  # lock-step: the drives' answers to this SYNC, then the world
                 hw.wait_feedback()
-                self.tick()
+                if self.tick is not None:
+                    self.tick()
             r = hw.read()
             k += 1
             res.cycles = k

@@ -1,0 +1,346 @@
+"""``cdpr commission monitor``: a live table of the drives, the load cells and the bus.
+
+Read-only (:class:`hal.drive_monitor.DriveMonitor`: SDO reads, heartbeats, EMCYs; the load
+cells polled by :class:`hal.loadcell_client.LoadCellClient`), so it runs beside the
+controller as well as on an idle bus. Every ``1/--rate`` seconds: per winch the NMT state,
+CiA 402 state, cable length, speed, torque (and current when the EDS has 0x6078) and
+tension with its status and age; the bus load over the last second (frames heard plus ours,
+worst-case bit stuffing, at the winch file's bit rate) and the last errors (EMCY, drives or
+cells that stop answering). On a terminal the table refreshes in place (ANSI); otherwise a
+block of plain lines per refresh.
+
+``--record DIR`` writes a ``cdpr-recording/1`` as it goes (``t``, ``l_meas_*``, ``tau_*``,
+``vel_*`` [m/s], ``torque_*`` [N m], ``drive_state_*`` (CiA 402 state number), and
+``current_*`` [per mille] when read); its ``init_pose`` is ``--init-pose`` or the forward
+kinematics of the first sample (said in its notes). ``--candump FILE`` logs every CAN frame,
+heard and sent, with python-can's Logger (.asc, .blf, .log, .csv by the suffix).
+``--duration S`` ends it; else Ctrl-C or ``q`` (exit status 0, files closed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.commission.common import (
+    CommissionError,
+    Ui,
+    network_of,
+    register_map_of,
+    winches_of,
+)
+from bench.commission.report import Section
+
+STATE_SHORT = {"NOT_READY_TO_SWITCH_ON": "not ready", "SWITCH_ON_DISABLED": "disabled",
+               "READY_TO_SWITCH_ON": "ready", "SWITCHED_ON": "switched on",
+               "OPERATION_ENABLED": "ENABLED", "QUICK_STOP_ACTIVE": "QUICK STOP",
+               "FAULT_REACTION_ACTIVE": "FAULT REACT", "FAULT": "FAULT", "UNKNOWN": "?"}
+
+
+class _LockedLogger:
+    """python-can's Logger fed from two threads: the notifier (frames heard) and ours
+    (frames sent, which the bus does not hand back)."""
+
+    def __init__(self, logger) -> None:
+        self.logger = logger
+        self.lock = threading.Lock()
+
+    def on_message_received(self, msg) -> None:
+        with self.lock:
+            self.logger.on_message_received(msg)
+
+    __call__ = on_message_received
+
+    def on_error(self, exc: Exception) -> None:
+        pass
+
+    def stop(self) -> None:
+        with self.lock:
+            self.logger.stop()
+
+
+def _fmt(v, spec: str, none: str = "-") -> str:
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return none
+    return format(v, spec)
+
+
+def render(samples, reading, rmap, load: float, frames: int, events, header: str,
+           has_current: bool) -> list[str]:
+    """The table's lines."""
+    lines = [header + f"  bus load {load * 100:5.1f} %  frames {frames}"]
+    cur = f" {'current‰':>8}" if has_current else ""
+    lines.append(f"{'cable':>5} {'node':>4} {'NMT':<8} {'state':<11} {'length [m]':>10} "
+                 f"{'v [m/s]':>8} {'torque‰':>8}{cur} {'tension [N]':>11} {'status':<12} "
+                 f"{'age [s]':>7}")
+    for s in samples:
+        nmt = (s.nmt_state or "-")[:8]
+        state = STATE_SHORT.get(s.state, s.state)
+        if s.error_code:
+            state += f" {s.error_code:04X}"
+        tension, status, age = "-", "-", "-"
+        if reading is not None:
+            j = rmap.index_of(s.cable) if s.cable in rmap.cables else None
+            if j is not None:
+                tension = _fmt(float(reading.values_N[j]), "11.1f")
+                status = reading.status_of(s.cable).name.lower()
+                age = _fmt(float(reading.age_s[j]), "7.2f")
+        cur = f" {_fmt(s.current_permille, '8d')}" if has_current else ""
+        lines.append(f"{s.cable:>5} {s.node_id:>4} {nmt:<8} {state:<11} "
+                     f"{_fmt(s.length_m, '10.4f'):>10} {_fmt(s.velocity_m_s, '8.4f'):>8} "
+                     f"{_fmt(s.torque_permille, '8d'):>8}{cur} {tension:>11} {status:<12} "
+                     f"{age:>7}")
+    notes = [str(e) for e in events]
+    if reading is not None:
+        notes += reading.faults()[:3]
+    lines.append("last errors: " + ("none" if not notes else ""))
+    lines += [f"  {n}" for n in notes[-6:]]
+    return lines
+
+
+class _Screen:
+    """Redraws in place on a terminal, else prints each block."""
+
+    def __init__(self, out) -> None:
+        self.out = out
+        self.tty = hasattr(out, "isatty") and out.isatty()
+        self.n = 0
+
+    def show(self, lines: list[str]) -> None:
+        if self.tty:
+            up = f"\x1b[{self.n}F" if self.n else ""
+            self.out.write(up + "\x1b[J" + "\n".join(lines) + "\n")
+        else:
+            self.out.write("\n".join(lines) + "\n\n")
+        self.out.flush()
+        self.n = len(lines)
+
+
+def _init_pose(args, robot, lengths: np.ndarray) -> tuple[np.ndarray, str]:
+    if args.init_pose:
+        try:
+            v = [float(x) for x in args.init_pose.split(",")]
+        except ValueError:
+            v = []
+        if len(v) == 3:
+            v += [0.0, 0.0, 0.0]
+        if len(v) != 6 or not np.all(np.isfinite(v)):
+            raise CommissionError(f"--init-pose {args.init_pose!r}: expected x,y,z[,roll,pitch,"
+                                  "yaw]", 2)
+        return np.array(v), "init_pose given with --init-pose"
+    from controller.forward import forward_rigid
+
+    exits = np.asarray(robot.exits, float)
+    guess = np.array([*exits[:, :2].mean(axis=0), exits[:, 2].mean() / 3, 0, 0, 0])
+    if np.all(np.isfinite(lengths)):
+        res = forward_rigid(robot, lengths, guess)
+        if res.success and np.all(np.isfinite(res.pose)):
+            return res.pose, (f"init_pose not measured: forward kinematics of the first "
+                              f"sample (length residual {res.residual:.2e} m)")
+    return guess, "init_pose not measured and forward kinematics failed: a guess"
+
+
+def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
+    import can
+
+    from bench.recording import RecordingWriter
+    from controller.robot import resolve_robot
+    from controller.winch import WinchConfigError
+    from hal.drive_monitor import DriveMonitor
+    from hal.loadcell_calibration import load_calibration
+    from hal.loadcell_client import LoadCellClient
+    from hal.scan import FrameCounter
+
+    if not 0 < args.rate <= 50:
+        raise CommissionError(f"--rate {args.rate}: must be in (0, 50] Hz", 2)
+    if args.duration is not None and not args.duration > 0:
+        raise CommissionError(f"--duration {args.duration}: must be > 0", 2)
+    w = winches_of(args)
+    rmap = register_map_of(args)
+    robot = None
+    if args.record:
+        robot = resolve_robot(args.robot)
+        if tuple(robot.cable_ids) != tuple(w.cables):
+            raise WinchConfigError(f"robot {robot.name} has cables {robot.cable_ids}, the "
+                                   f"winches {w.source} {w.cables}")
+        rec_dir = Path(args.record)
+        if rec_dir.exists() and any(rec_dir.iterdir()):
+            raise CommissionError(f"--record {rec_dir}: not empty; choose a new directory", 2)
+    section.fact("winch file", w.source)
+    period = 1.0 / args.rate
+    counter = FrameCounter(window_s=1.0)
+    writer = None
+    logger = None
+    cells = None
+    polls = 0
+    why = ""
+    last_lines: list[str] = []
+    samples = []
+    reading = None
+    with network_of(args) as net:
+        bus = net.bus
+        send = bus.send
+        if args.candump:
+            try:
+                logger = _LockedLogger(can.Logger(args.candump))
+            except (ValueError, OSError) as exc:
+                raise CommissionError(f"--candump {args.candump}: {exc}", 2) from None
+
+        def send_and_count(msg, timeout=None):
+            send(msg, timeout)
+            msg.timestamp = time.time()
+            counter.count(msg)
+            if logger is not None:
+                logger(msg)
+
+        bus.send = send_and_count
+        net.notifier.add_listener(counter)
+        if logger is not None:
+            net.notifier.add_listener(logger)
+        mon = DriveMonitor(net, w, args.eds)
+        try:
+            if args.modbus is not None:
+                cal = load_calibration(args.loadcell_calibration, rmap.cables) \
+                    if args.loadcell_calibration else None
+                cells = LoadCellClient(args.modbus, register_map=rmap, calibration=cal,
+                                       rate_hz=args.loadcell_rate,
+                                       timeout_s=args.loadcell_timeout,
+                                       stale_s=args.loadcell_stale,
+                                       max_age_s=args.loadcell_max_age).start()
+            screen = _Screen(ui.out)
+            t0 = time.monotonic()
+            t_end = None if args.duration is None else t0 + args.duration
+            keys = None
+            if sys.stdin.isatty() and not args.json:
+                from bench.commission.keys import KeyReader, cbreak
+                keys = KeyReader(enter_quits=True)
+            cols = None
+            try:
+                ctx = cbreak() if keys is not None else _Null()
+                with ctx:
+                    if keys is not None:
+                        keys.start()
+                    next_t = t0
+                    while True:
+                        samples = mon.poll()
+                        reading = cells.read() if cells is not None else None
+                        now = time.monotonic()
+                        polls += 1
+                        if args.record and writer is None:
+                            lengths = np.array([np.nan if s.length_m is None else s.length_m
+                                                for s in samples])
+                            pose, note = _init_pose(args, robot, lengths)
+                            cols = _columns(w.cables, mon.has_current)
+                            writer = RecordingWriter(
+                                args.record, robot, pose, cols,
+                                {"pose_source": "none (cdpr commission monitor)",
+                                 "tension_source": "load cells" if cells else "none",
+                                 "notes": f"cdpr commission monitor on {args.can}; {note}; "
+                                          f"winches {w.source}"},
+                                states=False)
+                            section.fact("init pose", f"{np.round(pose, 4).tolist()} ({note})")
+                        if writer is not None:
+                            writer.append(_row(now - t0, samples, reading, w, rmap,
+                                               mon.has_current))
+                        header = (f"cdpr commission monitor {time.strftime('%H:%M:%S')} "
+                                  f"{args.can}")
+                        last_lines = render(samples, reading, rmap,
+                                            counter.load(w.bus.bitrate, now), counter.frames,
+                                            mon.last_events(4), header, mon.has_current)
+                        screen.show(last_lines)
+                        if t_end is not None and now >= t_end:
+                            why = f"--duration {args.duration:g} s"
+                            break
+                        if keys is not None and keys.poll() is not None:
+                            why = "operator"
+                            break
+                        next_t += period
+                        delay = next_t - time.monotonic()
+                        if delay > 0:
+                            time.sleep(delay if t_end is None else min(delay,
+                                       max(0.0, t_end - time.monotonic())))
+                        else:
+                            next_t = time.monotonic()
+            except KeyboardInterrupt:
+                why = "Ctrl-C"
+        finally:
+            bus.send = send
+            if cells is not None:
+                cells.stop()
+            mon.close()
+            if writer is not None:
+                writer.close()
+            net.notifier.remove_listener(counter)
+            if logger is not None:
+                net.notifier.remove_listener(logger)
+                logger.stop()
+    events = [str(e) for e in mon.events]
+    section.fact("result", f"{polls} refreshes, ended by {why}, {counter.frames} frames, "
+                 f"{len(events)} event(s)")
+    if args.record:
+        section.fact("recording", f"{args.record} ({writer.rows if writer else 0} rows)")
+    if args.candump:
+        section.fact("CAN log", args.candump)
+    section.bullets(events)
+    if last_lines:
+        section.text("Last table:\n\n```\n" + "\n".join(last_lines) + "\n```")
+    ui.say(f"monitor: {polls} refreshes, ended by {why}"
+           + (f"; recording {args.record} ({writer.rows} rows)" if writer else "")
+           + (f"; CAN log {args.candump}" if args.candump else ""))
+    ui.emit({"refreshes": polls, "ended_by": why, "frames": counter.frames,
+             "drives": [s.as_dict() for s in samples],
+             "load_cells": [] if reading is None else [
+                 {"device_id": int(reading.unit_ids[j]), "cable": c,
+                  "tension_n": None if not np.isfinite(reading.values_N[j])
+                  else float(reading.values_N[j]),
+                  "status": reading.status_of(c).name.lower(), "age_s": float(reading.age_s[j])
+                  if np.isfinite(reading.age_s[j]) else None}
+                 for j, c in enumerate(reading.cables)],
+             "events": events, "record": args.record, "rows": writer.rows if writer else 0,
+             "candump": args.candump})
+    return 0
+
+
+class _Null:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def _columns(cables, has_current: bool) -> list[str]:
+    cols = ["t"] + [f"l_meas_{c}" for c in cables] + [f"tau_{c}" for c in cables]
+    cols += [f"vel_{c}" for c in cables] + [f"torque_{c}" for c in cables]
+    cols += [f"drive_state_{c}" for c in cables]
+    if has_current:
+        cols += [f"current_{c}" for c in cables]
+    return cols
+
+
+def _row(t: float, samples, reading, w, rmap, has_current: bool) -> list[float]:
+    nan = float("nan")
+
+    def v(x):
+        return nan if x is None else float(x)
+
+    row = [t] + [v(s.length_m) for s in samples]
+    if reading is not None:
+        row += [float(reading.values_N[rmap.index_of(c)]) if c in rmap.cables else nan
+                for c in w.cables]
+    else:
+        row += [nan] * len(samples)
+    row += [v(s.velocity_m_s) for s in samples]
+    row += [nan if s.torque_permille is None else s.torque_permille * 1e-3 * w.rated_torque_nm[k]
+            for k, s in enumerate(samples)]
+    from hal.drives_cia402 import DriveState
+
+    row += [float(DriveState[s.state]) for s in samples]
+    if has_current:
+        row += [v(s.current_permille) for s in samples]
+    return row

@@ -1,0 +1,218 @@
+"""The diagnosis on other robots and other recordings, blind: small fast cases.
+
+CoGiRo- and IPAnema-class robots, continuous recordings (with and without a state
+column), recordings without tensions or without tracker poses, impossible values,
+physics outside the vocabulary (it must be declared, not named as the nearest
+effect), per-cable EA, and the corrected model writing only what the report names.
+The big evaluation is ``cdpr evaluate``; these are its smallest witnesses.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.campaign import run_campaign
+from bench.cli import main
+from bench.diagnosis.report import diagnose
+from bench.evaluate import score
+from bench.recording import RecordingError, read_recording
+from firmware_sim.scenario import parse_scenario
+
+GRID = {"kind": "grid", "n": [3, 3, 1], "rpy_deg": 1.0, "visits": 2}
+
+
+def scenario(robot: str = "rocaspect", truth: dict | None = None, poses: dict | None = None,
+             recording: dict | None = None, nuisance: dict | None = None, seed: int = 3,
+             init=(10.0, 8.56, 1.0)) -> dict:
+    return {"format": "cdpr-scenario/1", "robot": robot, "seed": seed,
+            "init_pose": [*init, 0.0, 0.0, 0.0], "truth": truth or {},
+            "nuisance": {"hysteresis_m": 5e-5, "drift_m_per_h": 2e-5} | (nuisance or {}),
+            "poses": copy.deepcopy(poses or GRID), "recording": recording or {}}
+
+
+def run(tmp_path: Path, sc_map: dict, name: str = "rec"):
+    sc = parse_scenario(sc_map)
+    rec = run_campaign(sc, tmp_path / name)
+    return sc, rec, diagnose(rec)
+
+
+def named(dg) -> set[str]:
+    return {e["name"] for e in dg.report["effects"]}
+
+
+def test_cogiro_recording_the_model_explains(tmp_path):
+    sc, _, dg = run(tmp_path, scenario("cogiro", poses=GRID | {"x": [-4.0, 4.0], "y": [-3.0, 3.0],
+                                                                "z": [1.5, 2.5]},
+                                       init=(0.0, 0.0, 2.0)))
+    rep = dg.report
+    assert rep["effects"] == [] and rep["unexplained"] is None, rep["mismatch"]["summary"]
+    assert rep["fitted"]["pose_rms_m"] is not None and rep["fitted"]["tension_rms_n"] is not None
+
+
+def test_ipanema_with_pulleys_exit_offset(tmp_path):
+    truth = {"exit_point_offset": {"dx_21": 0.03, "dz_32": -0.02}}
+    sc, _, dg = run(tmp_path, scenario("ipanema", truth, GRID | {
+        "x": [-2.2, 2.2], "y": [-1.5, 1.5], "z": [2.3, 3.2]}, init=(0.0, 0.0, 2.7)))
+    assert named(dg) == {"exit_point_offset"}, dg.report["mismatch"]["summary"]
+    s = score(dg.report, sc.effects, sc.model)
+    assert not s.failures and s.params_total > 0
+
+
+@pytest.mark.parametrize("state", [True, False])
+def test_continuous_recording(tmp_path, state):
+    truth = {"exit_point_offset": {"dx_21": 0.03, "dy_32": -0.025}}
+    poses = {"kind": "list", "visits": 2, "speed_m_s": 0.5, "init_s": 2.0,
+             "list": [[5.0, 5.0, 1.0, 0, 0, 0], [15.0, 5.0, 1.2, 0, 0, 0],
+                      [15.0, 12.0, 1.0, 0, 0, 0], [6.0, 12.0, 1.4, 0, 0, 0]]}
+    sc, rec, dg = run(tmp_path, scenario(truth=truth, poses=poses, recording={
+        "kind": "continuous", "dwell_at_targets": False, "rate_hz": 10.0,
+        "state_column": state}))
+    r = read_recording(rec)
+    assert (r.state is not None) == state and r.n_samples > 300
+    info = dg.report["mismatch"]["samples"]
+    assert info["path_samples"] > 20 and info["dwell_samples"] < 5
+    assert named(dg) == {"exit_point_offset"}, dg.report["mismatch"]["summary"]
+    assert not score(dg.report, sc.effects, sc.model).failures
+
+
+def test_without_tensions(tmp_path):
+    truth = {"exit_point_offset": {"dx_21": 0.03, "dy_32": -0.025}}
+    sc, rec, dg = run(tmp_path, scenario(truth=truth, recording={"load_cells": False}))
+    rep = dg.report
+    assert not read_recording(rec).has("tau")
+    assert named(dg) == {"exit_point_offset"}, rep["mismatch"]["summary"]
+    assert "load_cell_calibration" in rep["mismatch"]["untested"]
+    assert rep["baseline"]["tension_rms_n"] is None and rep["fitted"]["tension_rms_n"] is None
+
+
+def test_without_tracker_four_load_cells_high(tmp_path):
+    truth = {"load_cell_calibration": {f"gain_{c}": 1.04 for c in ("11", "21", "31", "42")}}
+    sc, rec, dg = run(tmp_path, scenario(truth=truth, recording={"tracker": False}))
+    rep = dg.report
+    assert not read_recording(rec).has("pose_meas")
+    assert named(dg) == {"load_cell_calibration"}, rep["mismatch"]["summary"]
+    s = score(rep, sc.effects, sc.model)
+    assert not s.failures and s.params_total >= 4
+    assert rep["baseline"]["pose_rms_m"] is None and "exit_point_offset" in \
+        rep["mismatch"]["untested"]
+
+
+def test_one_softer_cable(tmp_path):
+    truth = {"cable_elasticity": {"ea_21": 3.0e5}}
+    sc, _, dg = run(tmp_path, scenario(truth=truth, poses=GRID | {"n": [4, 3, 1]}))
+    assert named(dg) == {"cable_elasticity"}, dg.report["mismatch"]["summary"]
+    e = dg.report["effects"][0]
+    assert set(e["params"]) == {"ea_21"}
+    assert abs(e["params"]["ea_21"] - 3.0e5) < 0.1 * 3.0e5
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory):
+    """A recording the model explains (ROCASPECT, a small grid)."""
+    d = tmp_path_factory.mktemp("plain")
+    return run_campaign(parse_scenario(scenario()), d / "rec")
+
+
+def _edit_csv(src: Path, dst: Path, fn) -> Path:
+    import shutil
+
+    shutil.copytree(src, dst)
+    rows = list(csv.reader((src / "recording.csv").open()))
+    fn(rows)
+    with (dst / "recording.csv").open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    return dst
+
+
+def test_an_impossible_tension_is_excluded_by_line_and_column(plain, tmp_path):
+    def spoil(rows):
+        col = rows[0].index("tau_31")
+        rows[40][col] = "1e300"
+
+    rec = _edit_csv(plain, tmp_path / "spoilt", spoil)
+    dg = diagnose(rec)
+    ex = dg.report["mismatch"]["excluded"]
+    assert [(e["row"], e["column"]) for e in ex] == [(41, "tau_31")]
+    assert dg.report["effects"] == [] and dg.report["unexplained"] is None
+    assert np.isfinite(dg.report["mismatch"]["noise"]["force"])
+
+
+def test_tensions_in_the_wrong_unit_are_refused(plain, tmp_path, capsys):
+    def scale(rows):
+        cols = [k for k, c in enumerate(rows[0]) if c.startswith("tau_")]
+        for r in rows[1:]:
+            for k in cols:
+                r[k] = repr(float(r[k]) * 1e6)
+
+    rec = _edit_csv(plain, tmp_path / "micro", scale)
+    with pytest.raises(RecordingError, match="tensions"):
+        diagnose(rec)
+    assert main(["diagnose", str(rec), "--json", "--quiet", "--jobs", "1"]) == 2
+    out = json.loads(capsys.readouterr().out)
+    assert "tensions" in out["error"] and "recording.csv" in out["error"]
+
+
+def test_outputs_are_checked_before_the_fit(plain, tmp_path, capsys):
+    for opt, path in (("--write-model", tmp_path / "missing" / "x.toml"),
+                      ("--write-model", tmp_path),
+                      ("--out", tmp_path / "missing" / "r.json")):
+        rc = main(["diagnose", str(plain), "--json", "--jobs", "1", opt, str(path)])
+        out, err = capsys.readouterr()
+        assert rc == 2 and opt in json.loads(out)["error"]
+        assert "samples" not in err  # refused before the recording was even read
+    (tmp_path / "file.png").write_text("not a directory")
+    rc = main(["diagnose", str(plain), "--json", "--quiet", "--plots", str(tmp_path / "file.png")])
+    assert rc == 2 and "--plots" in json.loads(capsys.readouterr().out)["error"]
+
+
+def test_backlash_on_one_cable_is_declared_not_named(tmp_path):
+    sc, _, dg = run(tmp_path, scenario(nuisance={"backlash_m": 0.003,
+                                                 "backlash_cables": ["21"]},
+                                       poses=GRID | {"n": [4, 3, 1], "visits": 3}))
+    un = dg.report["unexplained"]
+    assert un is not None, dg.report["mismatch"]["summary"]
+    assert "21" in un["summary"]
+    assert all(e.get("provisional") for e in dg.report["effects"])
+    assert "does not explain" in dg.report["mismatch"]["summary"]
+
+
+def test_thermal_drift_is_declared_not_named(tmp_path):
+    sc, _, dg = run(tmp_path, scenario(nuisance={"thermal_strain_per_h": 1.5e-3},
+                                       poses=GRID | {"n": [4, 3, 1], "visits": 3}))
+    un = dg.report["unexplained"]
+    assert un is not None, dg.report["mismatch"]["summary"]
+    assert all(e.get("provisional") for e in dg.report["effects"])
+
+
+def test_a_slip_never_applies_to_the_initialisation(tmp_path):
+    truth = {"cable_length_offset": {"dl_31": 0.004}}
+    sc, _, dg = run(tmp_path, scenario(truth=truth))
+    rm = dg.rm
+    assert np.all(rm.slip_times >= rm.init_end)
+    assert named(dg) == {"cable_length_offset"}
+    assert abs(dg.report["effects"][0]["params"]["dl_31"] - 0.004) < 5e-4
+
+
+def test_corrected_model_writes_only_what_the_report_names(tmp_path):
+    truth = {"mast_compliance": {f"k{a}_{m}": 3e5 for m in "1234" for a in "xy"}}
+    sc = parse_scenario(scenario(truth=truth, poses=GRID | {"n": [4, 3, 1]}))
+    rec = run_campaign(sc, tmp_path / "rec")
+    out = tmp_path / "corrected.toml"
+    dg = diagnose(rec, write_model=out)
+    text = out.read_text()
+    assert "1e+15" not in text and "1e15" not in text and "inf" not in text
+    from controller.robot import load_robot
+
+    robot = load_robot(out)
+    comp = next(e for e in dg.report["effects"] if e["name"] == "mast_compliance")
+    for i, m in enumerate(robot.mast_ids):
+        for a, ax in enumerate("xyz"):
+            key = f"k{ax}_{m}"
+            if key in comp["params"]:
+                assert robot.stiffness[i, a] == pytest.approx(comp["params"][key])

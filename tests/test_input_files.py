@@ -1,0 +1,293 @@
+"""Input from outside (issue 9): files that are not UTF-8, options out of range, output paths
+that cannot be written, a mast no cable uses; then fuzzing from valid examples. Each gives a
+clear error naming the file (line, field), never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+import tomli_w
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from bench.cli import main
+from bench.recording import RecordingError, read_recording
+from controller.loadcell_map import RegisterMapError, load_register_map
+from controller.robot import RobotFileError, load_robot
+from controller.winch import DEFAULT_WINCHES, WinchConfigError, load_winches
+from firmware_sim.cia402_drive import EDS_PATH
+from firmware_sim.faults import FaultSchedule, FaultScheduleError
+from firmware_sim.loadcell_bank import REGISTER_MAP_FILE
+from firmware_sim.scenario import ScenarioError, load_scenario
+from hal.drives_config import DriveConfigError, load_eds
+from hal.loadcell_calibration import CalibrationError, load_calibration
+
+ROOT = Path(__file__).resolve().parents[1]
+ROBOT = ROOT / "controller" / "data" / "rocaspect.toml"
+SCENARIO = ROOT / "tests" / "data" / "scenarios" / "paper.toml"
+RECORDING = ROOT / "examples" / "paper_tables"
+CALIBRATION = b"[load_cell_calibration]\ngain_11 = 1.02\noffset_11 = -4.0\n"
+SCHEDULE = b'[[fault]]\nat_s = 1.0\ndrive = 3\nkind = "encoder"\n'
+
+LOADERS = {
+    "robot.toml": (ROBOT.read_bytes(), load_robot, RobotFileError),
+    "scenario.toml": (SCENARIO.read_bytes(), load_scenario, ScenarioError),
+    "registers.toml": (REGISTER_MAP_FILE.read_bytes(), load_register_map, RegisterMapError),
+    "calibration.toml": (CALIBRATION, load_calibration, CalibrationError),
+    "winches.toml": (DEFAULT_WINCHES.read_bytes(), load_winches, WinchConfigError),
+    "faults.toml": (SCHEDULE, FaultSchedule.load, FaultScheduleError),
+    "drive.eds": (EDS_PATH.read_bytes(), lambda p: load_eds(p, 1), DriveConfigError),
+}
+
+
+def latin1(data: bytes) -> tuple[bytes, int]:
+    """``data`` with a Latin-1 'é' in a comment on its third line; (bytes, that line)."""
+    lines = data.split(b"\n")
+    comment = b";" if lines[0].startswith(b";") or b"[FileInfo]" in data else b"#"
+    lines.insert(2, comment + b" r\xe9glage")
+    return b"\n".join(lines), 3
+
+
+@pytest.mark.parametrize("name", sorted(LOADERS))
+def test_loaders_read_their_example(tmp_path, name):
+    data, load, _ = LOADERS[name]
+    p = tmp_path / name
+    p.write_bytes(data)
+    load(p)  # the valid example loads: the cases below differ only by what they break
+
+
+@pytest.mark.parametrize("name", sorted(LOADERS))
+def test_a_file_that_is_not_utf8_is_named_with_its_line(tmp_path, name):
+    data, load, error = LOADERS[name]
+    bad, line = latin1(data)
+    p = tmp_path / name
+    p.write_bytes(bad)
+    with pytest.raises(error) as exc:
+        load(p)
+    msg = str(exc.value)
+    assert str(p) in msg and f"line {line}, column 4: not UTF-8" in msg, msg
+
+
+def test_a_recording_that_is_not_utf8(tmp_path):
+    for name, line in (("meta.toml", 3), ("recording.csv", 3), ("robot.toml", 3)):
+        d = tmp_path / name.replace(".", "_")
+        shutil.copytree(RECORDING, d)
+        data = (d / name).read_bytes().split(b"\n")
+        data[2] = data[2] + b"\xe9" if name == "recording.csv" else b"# \xe9t\xe9"
+        (d / name).write_bytes(b"\n".join(data))
+        with pytest.raises(RecordingError) as exc:
+            read_recording(d)
+        assert f"{name}: line {line}" in str(exc.value), str(exc.value)
+
+
+def _cli(*args: str) -> tuple[int, str, str]:
+    out = subprocess.run([sys.executable, "-m", "bench.cli", *args], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    return out.returncode, out.stdout, out.stderr
+
+
+def test_commands_name_a_non_utf8_file_without_traceback(tmp_path):
+    robot, _ = latin1(ROBOT.read_bytes())
+    (tmp_path / "robot.toml").write_bytes(robot)
+    rc, _, err = _cli("model", "check", str(tmp_path / "robot.toml"))
+    assert rc == 2 and "robot.toml: line 3, column 4: not UTF-8" in err
+    assert "Traceback" not in err
+    scenario, _ = latin1(SCENARIO.read_bytes())
+    (tmp_path / "sc.toml").write_bytes(scenario)
+    rc, _, err = _cli("sim", str(tmp_path / "sc.toml"))
+    assert rc == 2 and "sc.toml: line 3, column 4: not UTF-8" in err and "Traceback" not in err
+
+
+def test_a_mast_no_cable_uses_is_named(tmp_path, capsys):
+    text = ROBOT.read_text().replace("[[cable]]", '[[mast]]\nid = "5"\npivot = [12.0, 9.0, 0.0]'
+                                     "\n\n[[cable]]", 1)
+    p = tmp_path / "five.toml"
+    p.write_text(text)
+    line = text.split("\n").index('id = "5"') + 1
+    assert main(["model", "check", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert f"five.toml:{line}" in err and "no cable uses mast '5'" in err
+
+
+@pytest.mark.parametrize(("option", "needle"), [
+    (["--step", "0"], "--step 0.0: the grid step must be a positive number"),
+    (["--step", "-1"], "--step -1.0: the grid step must be a positive number"),
+    (["--step", "nan"], "--step nan"),
+    (["--height", "nan"], "--height nan: must be a finite height"),
+    (["--height", "inf"], "--height inf: must be a finite height"),
+    (["--step", "1e-5"], "take a coarser step"),
+])
+def test_model_check_refuses_options_out_of_range(capsys, option, needle):
+    assert main(["model", "check", "rocaspect", *option]) == 2
+    err = capsys.readouterr().err
+    assert needle in err
+    assert main(["model", "check", "rocaspect", "--json", *option]) == 2
+    assert json.loads(capsys.readouterr().out)["valid"] is False
+
+
+def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    assert main(["model", "check", "rocaspect", "--plot", str(blocker / "ws.png")]) == 2
+    assert "--plot" in capsys.readouterr().err
+    assert main(["model", "check", "rocaspect", "--plot", str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
+    rc, _, err = _cli("campaign", str(SCENARIO), str(blocker / "rec"))
+    assert rc == 2 and "OUT_DIR" in err and "a_file" in err and "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------- fuzzing
+
+FUZZ = settings(settings.default, max_examples=max(20, settings.default.max_examples),
+                suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                       HealthCheck.too_slow], deadline=None)
+
+_values = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
+                    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
+                    st.lists(st.floats(allow_nan=True), max_size=4),
+                    st.dictionaries(st.text(max_size=4), st.integers(), max_size=2))
+
+
+def _paths(doc, prefix=()):
+    """Every (path) to a value of a parsed TOML document."""
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            yield (*prefix, k)
+            yield from _paths(v, (*prefix, k))
+    elif isinstance(doc, list):
+        for i, v in enumerate(doc):
+            yield (*prefix, i)
+            yield from _paths(v, (*prefix, i))
+
+
+def _mutate(doc, path, how, value):
+    parent = doc
+    for key in path[:-1]:
+        parent = parent[key]
+    key = path[-1]
+    if how == "delete":
+        del parent[key]
+    elif how == "replace":
+        parent[key] = value
+    else:  # "add": a sibling key nobody knows
+        if isinstance(parent, dict):
+            parent[f"zz_{key}"] = value
+        else:
+            parent.append(value)
+
+
+def _toml_safe(v):
+    if v is None:
+        return "null"
+    if isinstance(v, list):
+        return [_toml_safe(x) for x in v if x is not None]
+    if isinstance(v, dict):
+        return {k: _toml_safe(x) for k, x in v.items() if x is not None}
+    return v
+
+
+TOML_EXAMPLES = {k: LOADERS[k] for k in ("robot.toml", "scenario.toml", "registers.toml",
+                                         "calibration.toml", "winches.toml", "faults.toml")}
+
+
+@pytest.mark.parametrize("name", sorted(TOML_EXAMPLES))
+@FUZZ
+@given(data=st.data())
+def test_fuzzed_toml_files_give_clear_errors(tmp_path, name, data):
+    """Structure-aware mutations of the valid example: a key deleted, a value replaced by
+    anything TOML can hold, an unknown key added. It loads, or raises its error class
+    naming the file; never anything else."""
+    raw, load, error = TOML_EXAMPLES[name]
+    doc = tomllib.loads(raw.decode())
+    paths = list(_paths(doc))
+    for _ in range(data.draw(st.integers(1, 3), label="mutations")):
+        if not paths:
+            break
+        path = data.draw(st.sampled_from(paths), label="path")
+        how = data.draw(st.sampled_from(["delete", "replace", "add"]), label="how")
+        _mutate(doc, path, how, _toml_safe(data.draw(_values, label="value")))
+        paths = list(_paths(doc))
+    p = tmp_path / name
+    p.write_text(tomli_w.dumps(doc))
+    try:
+        load(p)
+    except error as exc:
+        assert str(p) in str(exc), str(exc)
+
+
+@pytest.mark.parametrize("name", sorted(LOADERS))
+@FUZZ
+@given(data=st.data())
+def test_fuzzed_bytes_give_clear_errors(tmp_path, name, data):
+    """Byte-level damage (a byte changed, a slice cut out or repeated): loads or raises the
+    loader's error naming the file."""
+    raw, load, error = LOADERS[name]
+    buf = bytearray(raw)
+    for _ in range(data.draw(st.integers(1, 4), label="damages")):
+        i = data.draw(st.integers(0, len(buf) - 1), label="at")
+        how = data.draw(st.sampled_from(["byte", "cut", "repeat"]), label="how")
+        if how == "byte":
+            buf[i] = data.draw(st.integers(0, 255), label="byte")
+        elif how == "cut":
+            del buf[i:i + data.draw(st.integers(1, 40), label="n")]
+        else:
+            buf[i:i] = buf[i:i + data.draw(st.integers(1, 40), label="n")]
+        if not buf:
+            buf = bytearray(b"x")
+    p = tmp_path / name
+    p.write_bytes(bytes(buf))
+    try:
+        load(p)
+    except error as exc:
+        assert str(p) in str(exc), str(exc)
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzzed_recordings_give_clear_errors(tmp_path_factory, data):
+    """A recording's CSV damaged cell by cell, row by row: it reads, or RecordingError
+    names the file (and the line); nothing else."""
+    d = tmp_path_factory.mktemp("rec")
+    shutil.copytree(RECORDING, d, dirs_exist_ok=True)
+    csv_path = d / "recording.csv"
+    lines = csv_path.read_text().split("\n")
+    for _ in range(data.draw(st.integers(1, 4), label="damages")):
+        i = data.draw(st.integers(0, len(lines) - 1), label="line")
+        cells = lines[i].split(",")
+        how = data.draw(st.sampled_from(["cell", "drop", "extra", "line", "header"]),
+                        label="how")
+        if how == "cell":
+            j = data.draw(st.integers(0, len(cells) - 1), label="cell")
+            cells[j] = data.draw(st.sampled_from(["", "nan", "inf", "-inf", "x", "1e999",
+                                                  "0x10", '"1,2"', "1.5.2", " 3 "]),
+                                 label="value")
+        elif how == "drop":
+            cells = cells[:-1]
+        elif how == "extra":
+            cells.append("1")
+        elif how == "line":
+            lines.insert(i, data.draw(st.text(max_size=20), label="text"))
+        else:
+            lines[0] = lines[0].replace(",", ",tau_99,", 1)
+        if how != "line":
+            lines[i] = ",".join(cells)
+    csv_path.write_text("\n".join(lines))
+    try:
+        read_recording(d)
+    except RecordingError as exc:
+        assert "recording.csv" in str(exc) or "meta.toml" in str(exc), str(exc)
+
+
+def test_fuzz_helpers_mutate():
+    doc = {"a": [1, {"b": 2}]}
+    _mutate(doc, ("a", 1, "b"), "delete", None)
+    assert doc == {"a": [1, {}]}
+    assert math.isnan(_toml_safe(float("nan")))

@@ -1,0 +1,101 @@
+"""Worker processes end with their parent, whatever the signal (bench.parallel).
+
+A separate Python process runs two long worker tasks (through ``run_each``, as
+``cdpr evaluate`` does, or through ``worker_pool`` + ``ending_workers``, as ``cdpr
+diagnose`` does); each worker writes its pid to a file when it starts. The parent
+alone is then sent SIGTERM, SIGINT or SIGKILL, and no worker may be left after a
+generous wait.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+WORK = '''
+import os, sys, time
+
+def work(i, d):
+    open(os.path.join(d, f"w{os.getpid()}"), "w").close()
+    time.sleep(600)
+    return i
+'''
+
+RUN_EACH = WORK + '''
+from contextlib import closing
+from bench.parallel import interrupt_on_term, run_each
+
+if __name__ == "__main__":
+    with interrupt_on_term(), closing(run_each(work, [0, 1], jobs=2, d=sys.argv[1])) as it:
+        for o in it:
+            pass
+'''
+
+POOL = WORK + '''
+from bench.parallel import ending_workers, interrupt_on_term, worker_pool
+
+if __name__ == "__main__":
+    with interrupt_on_term():
+        pool = worker_pool(2)
+        with ending_workers(pool):
+            futs = [pool.submit(work, i, sys.argv[1]) for i in range(2)]
+            for f in futs:
+                f.result()
+'''
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("State:"):
+                    return "Z" not in line.split()[1]
+    except FileNotFoundError:
+        return False
+    return True
+
+
+def _wait(cond, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.1)
+    return cond()
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to watch processes")
+@pytest.mark.parametrize("script", ["run_each", "pool"])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
+def test_workers_end_with_their_parent(tmp_path, script, sig):
+    src = tmp_path / "parent.py"
+    src.write_text(textwrap.dedent(RUN_EACH if script == "run_each" else POOL))
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, str(src), str(tmp_path)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    workers: list[int] = []
+    try:
+        assert _wait(lambda: len(list(tmp_path.glob("w*"))) == 2, 60), \
+            proc.stderr.read().decode() if proc.poll() is not None else "workers did not start"
+        workers = [int(p.name[1:]) for p in tmp_path.glob("w*")]
+        assert all(_alive(w) for w in workers)
+        os.kill(proc.pid, sig)  # the parent alone, not its process group
+        proc.wait(timeout=60)
+        assert _wait(lambda: not any(_alive(w) for w in workers), 30), \
+            f"workers {[w for w in workers if _alive(w)]} outlived their parent"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for w in workers:
+            if _alive(w):
+                os.kill(w, signal.SIGKILL)
