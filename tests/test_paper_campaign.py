@@ -111,6 +111,7 @@ def test_paper_paths_shortened(tmp_path, capsys):
     assert p["at_max_measured_m"] < 0.5 * p["at_max_planned_m"]
     assert pv["measured_better_everywhere"] is True
     assert res["failures"] == []
+    assert res["reactions"] == {"slack": "log"}  # the campaigns' default (README)
     assert {r["label"] for r in res["runs"]} == {
         "nominal_centre-path_centre-init", "compliant_centre-path_centre-init",
         "diagnosed_centre-path_centre-init", "heavy-measured_centre-path_centre-init",
@@ -123,9 +124,11 @@ def test_paper_paths_shortened(tmp_path, capsys):
 def test_paper_poses_shortened(tmp_path, capsys):
     code, res = _json(capsys, [
         "dry-run", "paper-poses", "--json", "--quiet", "--cycles", "2", "--sets", "violet",
-        "--speeds", "100", "--models", "nominal,compliant", "--plots", str(tmp_path)])
+        "--speeds", "100", "--models", "nominal,compliant", "--plots", str(tmp_path),
+        "--react", "overload=hold"])
     assert code == 0, res.get("failures")
     assert res["scenario"] == "paper-poses" and res["cycles"] == 2
+    assert res["reactions"] == {"slack": "log", "overload": "hold"}
     runs = {r["model"]: r for r in res["runs"]}
     assert set(runs) == {"nominal", "compliant"}
     for r in runs.values():
@@ -143,6 +146,7 @@ def test_paper_poses_shortened(tmp_path, capsys):
     (["--rate", "1000"], "--rate"),
     (["--robot", "rocaspect"], "--robot does not apply"),
     (["--sets", "gold"], "--sets applies to paper-poses"),
+    (["--react", "slack=ignore"], "--react"),
 ])
 def test_paper_paths_refuses_bad_options(argv, msg, capsys):
     assert main(["dry-run", "paper-paths", *argv]) == 2

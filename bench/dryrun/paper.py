@@ -25,8 +25,8 @@ nothing here moves the robot otherwise.
   :func:`paths_table` / :func:`poses_table` into text, :func:`paths_plots` /
   :func:`poses_plots` into the Fig. 7- and Fig. 6-like PNGs (:mod:`bench.iso9283.plots`).
 
-Slack cables are logged, not held (``reactions = {"slack": LOG}``): the paper's runs went
-through, and on the side of the workspace the far cables run at the model's minimum
+Slack cables are logged, not held (:data:`REACTIONS`; ``--react`` changes it): the paper's
+runs went through, and on the side of the workspace the far cables run at the model's minimum
 tension, where the plant's per-visit length noise (0.5 mm, +-15 N on a 20 m cable) lets
 a nominal model's cable go slack; each run's slack events are counted in the results.
 """
@@ -89,10 +89,18 @@ HEAVY_SCENARIO = "paper-heavy"
 PATHS_RATE_HZ = 64.0
 POSES_RATE_HZ = 32.0
 CALIBRATION_RATE_HZ = 32.0
-#: plant settles per simulated second: path runs 20 (the dry run's default); pose and
+#: plant settles per simulated second, at least: path runs 20 (the dry run's default); pose and
 #: calibration campaigns 5 (they measure at dwells of 3 s, long after the plant settled)
 PATHS_PLANT_HZ = 20.0
 DWELL_PLANT_HZ = 5.0
+#: and at most this far between two plant settles at the path's top speed [m] (0.5 m/s at
+#: 20 Hz): the plant's rest search starts from the last rest, and a long jump lets it land on
+#: another local minimum of the energy than the one the platform moves along (seen: a
+#: platform turned over after a 10 cm jump as a cable went slack, gold set at 100 %, 5 Hz)
+PLANT_STEP_M = 0.025
+#: the supervisor's reactions the campaigns change (``--react`` adds to them): slack cables
+#: logged, not held (see the module docstring)
+REACTIONS: dict[str, str] = {"slack": "log"}
 #: the goal of the compliant and diagnosed controllers: AT max cut by at least this
 GOAL_CUT = 0.8
 
@@ -111,11 +119,15 @@ class RunSpec:
     ``path`` a path file (name or file) or a parsed :class:`controller.paths.PathSpec`;
     ``speed_pct`` the velocity as a percentage of the path's maximum (None: the path's);
     ``rate_hz`` the control (SYNC) rate; ``plant_rate_hz`` plant settles per simulated
-    second; ``mast_tensions`` "measured" or "planned"; ``record`` the recording directory
-    (replaced); ``kind`` "path", "pose" (the ISO figures computed) or "record" (none);
+    second, at least (more when the path's top speed would move the platform more than
+    :data:`PLANT_STEP_M` between two); ``mast_tensions`` "measured" or "planned";
+    ``record`` the recording directory (replaced); ``kind`` "path", "pose" (the ISO figures
+    computed) or "record" (none);
     ``max_duration_s`` stops the trajectory this long after the approach to the path ended
     (shortened campaigns, tests); ``progress`` a file the run writes its fraction done to;
     ``stop_file`` a file whose appearance stops the run (quick stop, recording kept);
+    ``reactions`` the supervisor's reactions changed for the run, condition -> reaction
+    name (default :data:`REACTIONS`: slack logged);
     ``tags`` free data copied into the result (case, model, ...).
     """
 
@@ -133,6 +145,7 @@ class RunSpec:
     max_duration_s: float | None = None
     progress: str | None = None
     stop_file: str | None = None
+    reactions: Mapping[str, str] = field(default_factory=lambda: dict(REACTIONS))
     tags: Mapping[str, Any] = field(default_factory=dict)
 
 
@@ -274,6 +287,8 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
     limits = None
     if spec.speed_pct is not None:
         limits = path.limits.replace(speed_pct=float(spec.speed_pct))
+    lim = limits or path.limits
+    plant_hz = max(spec.plant_rate_hz, lim.max_speed_m_s * lim.speed_pct / 100.0 / PLANT_STEP_M)
 
     def plan(p0):
         traj = build_trajectory(path, p0, limits)
@@ -306,8 +321,8 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
         max_s += max((s.t1 for s in approach if s.cycle < 0), default=0.0)
     opts = LoopOptions(decimate=decimate, mast_tensions=spec.mast_tensions,
                        max_duration_s=max_s,
-                       reactions={"slack": Reaction.LOG})
-    with start_world(spec.scenario, winches, "inprocess", False, spec.plant_rate_hz) as world:
+                       reactions={k: Reaction[v.upper()] for k, v in spec.reactions.items()})
+    with start_world(spec.scenario, winches, "inprocess", False, plant_hz) as world:
         loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                            tick=world.tick, on_progress=progress, stop=_STOP)
         res = loop.run()
@@ -400,6 +415,7 @@ class PathsOptions:
     calibration_duration_s: float | None = None
     diagnosed_model: str | None = None  #: a corrected robot.toml instead of calibrating
     heavy_scenario: str = HEAVY_SCENARIO
+    reactions: dict[str, str] = field(default_factory=lambda: dict(REACTIONS))
 
 
 def _case_name(case: tuple[str, str]) -> str:
@@ -423,7 +439,8 @@ def paths_plan(opt: PathsOptions) -> tuple[list[DiagnoseSpec | RunSpec], list[Ru
                        robot_file=robot_file, rate_hz=opt.rate_hz,
                        plant_rate_hz=opt.plant_rate_hz, mast_tensions=mast,
                        max_duration_s=opt.max_duration_s,
-                       progress=str(work / f".{label}.progress"), stop_file=stop, tags=tags)
+                       progress=str(work / f".{label}.progress"), stop_file=stop,
+                       reactions=opt.reactions, tags=tags)
 
     first: list[DiagnoseSpec | RunSpec] = []
     second: list[RunSpec] = []
@@ -436,7 +453,7 @@ def paths_plan(opt: PathsOptions) -> tuple[list[DiagnoseSpec | RunSpec], list[Ru
                       plant_rate_hz=opt.calibration_plant_hz,
                       max_duration_s=opt.calibration_duration_s,
                       progress=str(work / ".calibration.progress"), stop_file=stop,
-                      tags={"role": "calibration"})
+                      reactions=opt.reactions, tags={"role": "calibration"})
         first.append(DiagnoseSpec("calibration", run, model_file))
     for case in opt.cases:
         scen = at_init(sc, case[1])
@@ -476,6 +493,7 @@ class PosesOptions:
     plant_rate_hz: float = DWELL_PLANT_HZ
     scenario: str = SCENARIO
     diagnosed_model: str | None = None
+    reactions: dict[str, str] = field(default_factory=lambda: dict(REACTIONS))
 
 
 def pose_path(set_name: str, cycles: int):
@@ -511,7 +529,7 @@ def poses_plan(opt: PosesOptions) -> list[RunSpec]:
                     robot_file=opt.diagnosed_model if m == "diagnosed" else None,
                     speed_pct=v, rate_hz=opt.rate_hz, plant_rate_hz=opt.plant_rate_hz,
                     progress=str(opt.work / f".{label}.progress"), stop_file=stop,
-                    tags={"set": set_name, "speed_pct": v, "model": m}))
+                    reactions=opt.reactions, tags={"set": set_name, "speed_pct": v, "model": m}))
     return items
 
 

@@ -11,8 +11,34 @@ scenario, ``calibration-quick`` path) recorded by a dry run and diagnosed by ``c
 diagnose`` for the ``diagnosed`` model (``--diagnosed-model`` runs a corrected robot.toml
 you have instead), and the measured-vs-planned comparison in ``paper-heavy``.
 
-``paper-poses [--cycles N] [--speeds 10,40,100] [--models nominal,remeasured] [--json]
-[--plots DIR] [--record DIR] [--jobs N] [--rate HZ]``: the three pose sets of Fig. 6.
+``paper-poses [--cycles N] [--speeds 10,40,100] [--models nominal,remeasured] [--sets
+violet,pink,gold] [--json] [--plots DIR] [--record DIR] [--jobs N] [--rate HZ]``: the three
+pose sets of Fig. 6.
+
+Both log slack cables instead of holding (``--react`` changes that or any other reaction,
+e.g. ``--react slack=hold``; the README says why).
+
+``paper-paths --json``: ``{"scenario": "paper-paths", "cases": [{"path": "centre"|"side",
+"init": "centre"|"side", "at_max_<model>_m", "at_mean_<model>_m" (every model run; nominal,
+compliant and diagnosed always present, null when not run), "at_max_cut_<model>" (1 - AT
+max / nominal AT max), "paper_at_max_nominal_m", "paper_at_mean_nominal_m",
+"paper_at_max_compliant_estimate_m", "paper_at_mean_compliant_estimate_m" (Table 3),
+"slack_events": {model: count}}], "models": {name: what it is}, "goals": {"nominal_order",
+"paper_order", "worst_is_side_path_centre_init", "best_is_centre_path_centre_init",
+"min_at_max_cut_<model>", "<model>_cuts_at_max_by_80pct_everywhere"},
+"planned_vs_measured": {"scenario", "platform_mass_kg": {"truth", "model"}, "cases": [{"path",
+"init", "at_max_measured_m", "at_mean_measured_m", "at_max_planned_m", "at_mean_planned_m"}],
+"measured_better_everywhere"}, "diagnosis": {"effects", "samples", "baseline", "fitted",
+"model_file", "diagnose_s", "calibration", "vs_truth": {"exit_rms_m", "exit_max_m",
+"stiffness_fitted", "stiffness_truth", "stiffness_rel_error"}}, "runs": [{"label", "model",
+"mast_tensions", "simulated_s", "wall_s", "slack_events", "events", "recording"}],
+"failures": [{"label", "error"}], "rate_hz", "reactions", "wall_s", "plots"}`` (m, s).
+
+``paper-poses --json``: ``{"scenario": "paper-poses", "cycles", "speeds_pct", "models",
+"rate_hz", "reactions", "runs": [{"set", "speed_pct", "model", "apx_m", "apy_m", "apz_m",
+"ap_m", "rp_m", "ap_a_rad", ..., "rp_c_rad" (the worst pose of the set, ISO 9283), "poses":
+[{"command", "n", "ap_m", "rp_m"}], "simulated_s", "wall_s", "recording"}],
+"ap_grows_away_from_centre": {"<model>_<v>pct": bool}, "wall_s", "failures", "plots"}``.
 
 Exit status: 0 every run completed, 1 a run failed (the others are reported), 2 bad input.
 """
@@ -64,6 +90,11 @@ def _list(text: str | None, what: str, allowed: tuple[str, ...] | None = None,
     return items
 
 
+def _react_text(reactions: dict[str, str]) -> str:
+    return "supervisor reactions changed: " + ", ".join(f"{k}={v}" for k, v in
+                                                        reactions.items())
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the campaign ``args.scenario`` names (see the module docstring)."""
     from bench.dryrun import paper
@@ -71,9 +102,13 @@ def run(args: argparse.Namespace) -> int:
     from controller.winch import load_winches
 
     name = args.scenario
-    if getattr(args, "react", None):
-        return _fail(args, 2, "--react does not apply to a campaign (slack is logged, every "
-                              "other condition as the supervisor's table says)")
+    from controller.supervisor import parse_reactions
+
+    try:  # the campaigns log slack cables (paper.REACTIONS); --react changes any reaction
+        reactions = dict(paper.REACTIONS)
+        reactions.update({k: r.label for k, r in parse_reactions(args.react or []).items()})
+    except ValueError as exc:
+        return _fail(args, 2, f"--react {exc}")
     for opt in ("robot", "path", "speed_pct", "faults", "decimate"):
         if getattr(args, opt, None) is not None:
             return _fail(args, 2, f"--{opt.replace('_', '-')} does not apply to the {name} "
@@ -132,10 +167,10 @@ def run(args: argparse.Namespace) -> int:
         if name == "paper-paths":
             if sets:
                 return _fail(args, 2, "--sets applies to paper-poses")
-            return _paths(args, paper, work, models, cases, t0)
+            return _paths(args, paper, work, models, cases, t0, reactions)
         if cases:
             return _fail(args, 2, "--cases applies to paper-paths")
-        return _poses(args, paper, work, models, speeds, sets, t0)
+        return _poses(args, paper, work, models, speeds, sets, t0, reactions)
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
@@ -143,11 +178,12 @@ def run(args: argparse.Namespace) -> int:
             shutil.rmtree(work, ignore_errors=True)
 
 
-def _paths(args, paper, work: Path, models: list[str], cases: list, t0: float) -> int:
+def _paths(args, paper, work: Path, models: list[str], cases: list, t0: float,
+           reactions: dict[str, str]) -> int:
     from bench.dryrun import paper_report as rep
 
     opt = paper.PathsOptions(work=work, max_duration_s=args.duration,
-                             diagnosed_model=args.diagnosed_model)
+                             diagnosed_model=args.diagnosed_model, reactions=reactions)
     if models:
         opt.models = tuple(m for m in paper.MODEL_ORDER if m in models)
         opt.planned = "planned" in models
@@ -162,7 +198,8 @@ def _paths(args, paper, work: Path, models: list[str], cases: list, t0: float) -
                  else "")
         print(f"cdpr dry-run paper-paths: {len(first) + len(second)} runs ("
               f"{', '.join(opt.models)}; {len(opt.cases)} cases{extra}), {opt.rate_hz:g} Hz, "
-              f"{args.jobs} processes; recordings in {work}", file=sys.stderr)
+              f"{args.jobs} processes; {_react_text(reactions)}; recordings in {work}",
+              file=sys.stderr)
     prog.start()
     try:
         results, failures = paper.run_campaign([first, second], args.jobs, prog)
@@ -181,11 +218,11 @@ def _paths(args, paper, work: Path, models: list[str], cases: list, t0: float) -
 
 
 def _poses(args, paper, work: Path, models: list[str], speeds: list[float], sets: list[str],
-           t0: float) -> int:
+           t0: float, reactions: dict[str, str]) -> int:
     from bench.dryrun import paper_report as rep
 
     opt = paper.PosesOptions(work=work, cycles=args.cycles,
-                             diagnosed_model=args.diagnosed_model)
+                             diagnosed_model=args.diagnosed_model, reactions=reactions)
     if "planned" in models:
         return _fail(args, 2, "--models planned: the measured-vs-planned comparison is part of "
                               "paper-paths")
@@ -207,7 +244,8 @@ def _poses(args, paper, work: Path, models: list[str], speeds: list[float], sets
         print(f"cdpr dry-run paper-poses: {len(items)} runs (sets {', '.join(opt.sets)}; "
               f"speeds {', '.join(f'{v:g}' for v in opt.speeds)} %; models "
               f"{', '.join(opt.models)}; {opt.cycles} cycles), {opt.rate_hz:g} Hz, "
-              f"{args.jobs} processes; recordings in {work}", file=sys.stderr)
+              f"{args.jobs} processes; {_react_text(reactions)}; recordings in {work}",
+              file=sys.stderr)
     prog.start()
     try:
         results, failures = paper.run_campaign([items], args.jobs, prog)

@@ -5,7 +5,7 @@ the text tables (Table 3, Fig. 6's figures) and the plots (Fig. 7- and Fig. 6-li
 - :func:`paths_result` the ``paper-paths --json`` object: ``{"scenario": "paper-paths",
   "cases": [{"path", "init", "at_max_<model>_m", "at_mean_<model>_m", "at_max_cut_<model>",
   "paper_at_max_nominal_m", ...}], "goals", "planned_vs_measured", "diagnosis", "runs",
-  "failures", ...}`` (documented in :mod:`bench.commands.dryrun`);
+  "failures", ...}`` (documented in :mod:`bench.dryrun.paper_command`);
 - :func:`poses_result` the ``paper-poses --json`` object;
 - :func:`paths_table`, :func:`poses_table` the text; :func:`paths_plots`,
   :func:`poses_plots` the PNGs.
@@ -52,9 +52,11 @@ def _f(x: Any) -> Any:
     return x
 
 
-def diagnosis_vs_truth(model_file: str, truth: Robot) -> dict[str, Any]:
+def diagnosis_vs_truth(model_file: str, truth: Robot,
+                       undetermined: Sequence[str] = ()) -> dict[str, Any]:
     """How far the diagnosed robot.toml is from the plant's truth: exit points A* (RMS and
-    max [m]), mast stiffness (per mast, relative error of kx, ky, kz)."""
+    max [m]), mast stiffness (per mast, relative error of kx, ky, kz; None for a stiffness
+    the diagnosis left ``undetermined``, e.g. ``kz_1``: the calibration did not load it)."""
     from controller.robot import load_robot
     from controller.statics import settled_exits
 
@@ -62,6 +64,10 @@ def diagnosis_vs_truth(model_file: str, truth: Robot) -> dict[str, Any]:
     d = np.linalg.norm(settled_exits(m) - settled_exits(truth), axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = m.stiffness / truth.stiffness - 1.0
+    for i, mid in enumerate(m.mast_ids):
+        for a, ax in enumerate("xyz"):
+            if f"k{ax}_{mid}" in undetermined:
+                rel[i, a] = np.nan
     return {"exit_rms_m": float(np.sqrt(np.mean(d ** 2))), "exit_max_m": float(d.max()),
             "stiffness_fitted": [[_f(v) for v in row] for row in m.stiffness],
             "stiffness_truth": [[_f(v) for v in row] for row in truth.stiffness],
@@ -70,7 +76,7 @@ def diagnosis_vs_truth(model_file: str, truth: Robot) -> dict[str, Any]:
 
 def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOptions,
                  wall_s: float) -> dict[str, Any]:
-    """The ``paper-paths --json`` object (see :mod:`bench.commands.dryrun`)."""
+    """The ``paper-paths --json`` object (see :mod:`bench.dryrun.paper_command`)."""
     cases = []
     for case in opt.cases:
         c: dict[str, Any] = {"path": case[0], "init": case[1]}
@@ -98,7 +104,8 @@ def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOp
         cases.append(c)
     out: dict[str, Any] = {"scenario": "paper-paths", "cases": cases,
                            "models": {m: MODELS[m] for m in opt.models},
-                           "rate_hz": opt.rate_hz, "wall_s": wall_s}
+                           "rate_hz": opt.rate_hz, "reactions": dict(opt.reactions),
+                           "wall_s": wall_s}
     # goals: the paper's ordering of the nominal cases, and the cut of the AT max
     nom = {(c["path"], c["init"]): c["at_max_nominal_m"] for c in cases}
     goals: dict[str, Any] = {}
@@ -147,7 +154,9 @@ def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOp
                                              "wall_s": cal["wall_s"],
                                              "rate_hz": cal["rate_hz"],
                                              "recording": cal["recording"]},
-                                vs_truth=diagnosis_vs_truth(cal["model_file"], sc.truth))
+                                vs_truth=diagnosis_vs_truth(cal["model_file"], sc.truth, [
+                                    k for e in cal["diagnosis"]["effects"]
+                                    for k in e["undetermined"]]))
     elif opt.diagnosed_model is not None:
         out["diagnosis"] = {"model_file": opt.diagnosed_model}
     out["runs"] = [{"label": r["label"], "model": r["model"],
@@ -232,18 +241,35 @@ def paths_table(res: dict[str, Any]) -> str:
                      f"{', '.join(e['name'] for e in dg['effects']) or 'no effect'}; exit "
                      f"points {1e3 * vt['exit_rms_m']:.1f} mm RMS from the truth (max "
                      f"{1e3 * vt['exit_max_m']:.1f} mm); corrected model {dg['model_file']}")
+        rel = [abs(v) for row in vt["stiffness_rel_error"] for v in row if v is not None]
+        nund = sum(v is None for row in vt["stiffness_rel_error"] for v in row)
+        if rel:
+            lines.append(f"  mast stiffness within {100 * max(rel):.1f} % of the truth"
+                         + (f" ({nund} stiffness undetermined by the calibration: not "
+                            f"loaded by it, kept rigid)" if nund else ""))
     for f in res.get("failures", []):
         lines.append(f"  FAILED {f['label']}: {f['error']}")
     return "\n".join(lines)
 
 
+def _plot_rank(label: str) -> tuple[int, str]:
+    order = MODEL_ORDER + ("measured tensions", "planned tensions")
+    return (order.index(label) if label in order else len(order), label)
+
+
+#: the Fig. 7-like path plots magnify the executed path's deviation from the desired one
+PATH_EXAGGERATION = 10.0
+
+
 def paths_plots(results: Sequence[dict], opt: PathsOptions, out_dir: str | Path) -> list[Path]:
-    """Fig. 7-like PNGs: ``paths.png`` (per case, desired vs executed path in the YZ plane
-    and AT along the path, one line per model) and ``planned_vs_measured.png``."""
+    """Fig. 7-like PNGs: ``paths.png`` (per case, desired vs executed path in the YZ plane,
+    the deviation magnified :data:`PATH_EXAGGERATION` times, and AT, AT_x, AT_y, AT_z along
+    the path, one line per model) and ``planned_vs_measured.png``."""
     from bench.iso9283.plots import plot_path_cases
 
     out = Path(out_dir)
     written = []
+    k = PATH_EXAGGERATION
 
     def case_plot(filter_tags: Callable[[dict], str | None], name: str, title: str) -> None:
         cases = []
@@ -258,11 +284,17 @@ def paths_plots(results: Sequence[dict], opt: PathsOptions, out_dir: str | Path)
                 if lab is None:
                     continue
                 a = r["along"]
-                runs[lab] = {"s_m": a["s_m"], "at_xyz_m": a["at_xyz_m"],
-                             "executed_m": a["executed_m"]}
-                desired = a["desired_m"]
+                desired = np.asarray(a["desired_m"], float)
+                # the executed path shown with its deviation magnified k times: centimetres
+                # on a 10 m path are invisible at scale
+                shown = desired + k * (np.asarray(a["executed_m"], float) - desired)
+                runs[lab] = {"s_m": a["s_m"], "at_xyz_m": a["at_xyz_m"], "executed_m": shown}
+            # the same colour for a model in every case and every campaign (the order of
+            # MODEL_ORDER, measured before planned), whatever order the runs ended in
+            runs = dict(sorted(runs.items(), key=lambda kv: _plot_rank(kv[0])))
             if runs:
-                cases.append({"title": f"{case[0]} path, {case[1]} initialisation",
+                cases.append({"title": f"{case[0]} path, {case[1]} initialisation "
+                                       f"(deviation x{k:g})",
                               "desired_m": desired, "runs": runs})
         if cases:
             written.append(plot_path_cases(cases, out / name, title=title))
@@ -303,7 +335,8 @@ def poses_result(results: Sequence[dict], failures: Sequence[dict], opt: PosesOp
                 runs.append(e)
     out = {"scenario": "paper-poses", "cycles": opt.cycles, "speeds_pct": list(opt.speeds),
            "models": {m: MODELS[m] for m in opt.models}, "rate_hz": opt.rate_hz,
-           "runs": runs, "wall_s": wall_s, "failures": list(failures)}
+           "reactions": dict(opt.reactions), "runs": runs, "wall_s": wall_s,
+           "failures": list(failures)}
     # the paper's finding: accuracy worse away from the centre (violet < pink < gold)
     trend = {}
     for m in opt.models:
