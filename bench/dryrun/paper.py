@@ -109,6 +109,16 @@ class CampaignError(RuntimeError):
     """A run of a campaign did not complete, or its recording gave no figures."""
 
 
+class DriveLostError(CampaignError):
+    """A run stopped because the simulated drives lost their master (heartbeat, NMT): on a
+    machine loaded beyond what the lock-step rig tolerates, not something the robot did.
+    :func:`run_item` runs such a run again, :data:`RETRIES` times at most, and says so."""
+
+
+#: how many times :func:`run_item` runs a run again after a :class:`DriveLostError`
+RETRIES = 1
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One dry run of a campaign.
@@ -330,7 +340,12 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
     if res.ended == "interrupted" and in_process and not _STOP.is_set():
         raise KeyboardInterrupt  # Ctrl-C in this process: end the campaign, not this run
     if res.ended != "completed":
-        raise CampaignError(f"{spec.label}: the dry run ended {res.ended}: {res.message}")
+        msg = f"{spec.label}: the dry run ended {res.ended}: {res.message}"
+        lost = [e for e in res.events if e["kind"] == "drive_lost" and e["active"]]
+        if lost:
+            raise DriveLostError(f"{msg} ({lost[0]['device']} {lost[0]['address']}: "
+                                 f"{lost[0]['text']})")
+        raise CampaignError(msg)
     slack = [e for e in res.events if e["kind"] == "slack" and e["active"]]
     out: dict[str, Any] = {
         "label": spec.label, "tags": dict(spec.tags), "ended": res.ended,
@@ -387,10 +402,21 @@ def diagnose_one(spec: DiagnoseSpec, parent_pid: int | None = None) -> dict[str,
 
 
 def run_item(item: RunSpec | DiagnoseSpec, parent_pid: int | None = None) -> dict[str, Any]:
-    """A campaign item in a worker process (see :func:`run_campaign`)."""
-    if isinstance(item, DiagnoseSpec):
-        return diagnose_one(item, parent_pid)
-    return run_one(item, parent_pid)
+    """A campaign item in a worker process (see :func:`run_campaign`); a run the drives
+    stopped on a lost master (:class:`DriveLostError`) runs again, :data:`RETRIES` times at
+    most; the result's ``retried`` lists why (empty: first time through)."""
+    why: list[str] = []
+    while True:
+        try:
+            out = (diagnose_one(item, parent_pid) if isinstance(item, DiagnoseSpec)
+                   else run_one(item, parent_pid))
+        except DriveLostError as exc:
+            if len(why) >= RETRIES:
+                raise
+            why.append(str(exc))
+            continue
+        out["retried"] = why
+        return out
 
 
 # --------------------------------------------------------------------------- plans
@@ -653,4 +679,6 @@ def _done_text(v: dict) -> str:
         txt += f"; diagnosed in {v['diagnose_s']:.0f} s: {', '.join(names) or 'no effect'}"
     if v.get("slack_events"):
         txt += f" ({v['slack_events']} slack events logged)"
+    if v.get("retried"):
+        txt += f"; run again after: {v['retried'][0]}"
     return txt

@@ -162,7 +162,7 @@ def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOp
     out["runs"] = [{"label": r["label"], "model": r["model"],
                     "mast_tensions": r["mast_tensions"], "simulated_s": r["simulated_s"],
                     "wall_s": r["wall_s"], "slack_events": r["slack_events"],
-                    "events": len(r["events"]),
+                    "events": len(r["events"]), "retried": r.get("retried", []),
                     "recording": r["recording"]} for r in results]
     out["failures"] = list(failures)
     return _clean(out)
@@ -247,6 +247,10 @@ def paths_table(res: dict[str, Any]) -> str:
             lines.append(f"  mast stiffness within {100 * max(rel):.1f} % of the truth"
                          + (f" ({nund} stiffness undetermined by the calibration: not "
                             f"loaded by it, kept rigid)" if nund else ""))
+    for r in res.get("runs", []):
+        if r.get("retried"):
+            label = r.get("label") or f"{r['set']} {r['model']} {r['speed_pct']:g} %"
+            lines.append(f"  {label} ran again after: {r['retried'][0]}")
     for f in res.get("failures", []):
         lines.append(f"  FAILED {f['label']}: {f['error']}")
     return "\n".join(lines)
@@ -329,7 +333,7 @@ def poses_result(results: Sequence[dict], failures: Sequence[dict], opt: PosesOp
                     e["poses"] = [{k: p[k] for k in ("command", "n", "ap_m", "rp_m")}
                                   for p in r["poses"]]
                     e.update(simulated_s=r["simulated_s"], wall_s=r["wall_s"],
-                             recording=r["recording"])
+                             recording=r["recording"], retried=r.get("retried", []))
                 else:
                     e.update({k: None for k in _POSE_KEYS})
                 runs.append(e)
@@ -365,6 +369,10 @@ def poses_table(res: dict[str, Any]) -> str:
     if tr:
         lines.append("  AP grows from violet to pink to gold: " + ", ".join(
             f"{k} {'yes' if v else 'no'}" for k, v in tr.items()))
+    for r in res.get("runs", []):
+        if r.get("retried"):
+            label = r.get("label") or f"{r['set']} {r['model']} {r['speed_pct']:g} %"
+            lines.append(f"  {label} ran again after: {r['retried'][0]}")
     for f in res.get("failures", []):
         lines.append(f"  FAILED {f['label']}: {f['error']}")
     return "\n".join(lines)
