@@ -158,3 +158,54 @@ def test_paper_poses_refuses_bad_options(capsys):
     assert "(0, 100]" in capsys.readouterr().err
     assert main(["dry-run", "paper-poses", "--models", "diagnosed"]) == 2
     assert "--diagnosed-model" in capsys.readouterr().err
+
+
+def test_the_plant_settles_at_least_every_25_mm_of_motion():
+    limits = load_path("paper-poses-gold").limits  # 0.5 m/s
+    assert paper.plant_rate(5.0, limits.replace(speed_pct=100.0)) == pytest.approx(20.0)
+    assert paper.plant_rate(5.0, limits.replace(speed_pct=40.0)) == pytest.approx(8.0)
+    assert paper.plant_rate(5.0, limits.replace(speed_pct=10.0)) == 5.0  # 1 cm at 5 Hz
+    assert paper.plant_rate(64.0, limits) == 64.0
+
+
+def _spec(tmp_path):
+    sc = paper.load_named_scenario("paper-centre")
+    return paper.RunSpec("r", sc, "paper-centre", str(tmp_path / "r"), robot=sc.model)
+
+
+def test_a_run_stopped_by_a_lost_master_runs_again_once(tmp_path, monkeypatch):
+    calls = []
+
+    def lost_once(spec, parent_pid=None):
+        calls.append(spec.label)
+        if len(calls) == 1:
+            raise paper.DriveLostError("r: the dry run ended quick_stop (drive 1: NMT)")
+        return {"label": spec.label}
+
+    monkeypatch.setattr(paper, "run_one", lost_once)
+    out = paper.run_item(_spec(tmp_path))
+    assert calls == ["r", "r"] and out["retried"] == [
+        "r: the dry run ended quick_stop (drive 1: NMT)"]
+
+
+def test_a_run_that_fails_otherwise_or_twice_is_not_run_again(tmp_path, monkeypatch):
+    calls = []
+
+    def fails(exc):
+        def run(spec, parent_pid=None):
+            calls.append(spec.label)
+            raise exc
+        return run
+
+    monkeypatch.setattr(paper, "run_one", fails(paper.CampaignError("r: following error")))
+    with pytest.raises(paper.CampaignError, match="following error"):
+        paper.run_item(_spec(tmp_path))
+    assert calls == ["r"]
+    calls.clear()
+    monkeypatch.setattr(paper, "run_one", fails(paper.DriveLostError("r: NMT")))
+    with pytest.raises(paper.DriveLostError):
+        paper.run_item(_spec(tmp_path))
+    assert calls == ["r", "r"]  # once again, not more
+    out = {"label": "r"}
+    monkeypatch.setattr(paper, "run_one", lambda spec, parent_pid=None: dict(out))
+    assert paper.run_item(_spec(tmp_path))["retried"] == []

@@ -262,6 +262,13 @@ def _write_progress(path: str | None, frac: float) -> None:
         pass
 
 
+def plant_rate(minimum_hz: float, limits: Any) -> float:
+    """Plant settles per simulated second [Hz]: ``minimum_hz``, or more so that the platform
+    moves at most :data:`PLANT_STEP_M` between two at the top speed of ``limits``
+    (:class:`controller.trajectory.MotionLimits`)."""
+    return max(float(minimum_hz), limits.max_speed_m_s * limits.speed_pct / 100.0 / PLANT_STEP_M)
+
+
 def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
     """Run ``spec`` (lock-step, in-process rig) and return its figures (plain data).
 
@@ -297,8 +304,7 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
     limits = None
     if spec.speed_pct is not None:
         limits = path.limits.replace(speed_pct=float(spec.speed_pct))
-    lim = limits or path.limits
-    plant_hz = max(spec.plant_rate_hz, lim.max_speed_m_s * lim.speed_pct / 100.0 / PLANT_STEP_M)
+    plant_hz = plant_rate(spec.plant_rate_hz, limits or path.limits)
 
     def plan(p0):
         traj = build_trajectory(path, p0, limits)
@@ -629,16 +635,25 @@ def run_campaign(phases: Sequence[Sequence[RunSpec | DiagnoseSpec]], jobs: int,
     """Run the phases one after the other, each phase's items on ``jobs`` processes
     (:func:`bench.parallel.run_each`); returns (results, failures). A failure is
     ``{"label", "error"}``; a phase's items all run even when some fail. Ctrl-C or SIGTERM
-    stops the runs in flight (quick stop, recordings kept; the stop file) and re-raises."""
+    stops the runs in flight (quick stop, recordings kept; the stop file) and re-raises.
+    When a calibration (:class:`DiagnoseSpec`) fails, the later phases (the diagnosed runs)
+    are reported as failures without running."""
     from bench.parallel import run_each
 
     results: list[dict] = []
     failures: list[dict] = []
+    failed_diagnosis = False
     stop_files = {it.run.stop_file if isinstance(it, DiagnoseSpec) else it.stop_file
                   for ph in phases for it in ph}
     try:
         for items in phases:
             if not items:
+                continue
+            if failed_diagnosis:  # later phases run the diagnosed model: nothing to run
+                for it in items:
+                    failures.append({"label": it.label, "error": "not run: the calibration "
+                                     "run or its diagnosis failed (see calibration)"})
+                    progress.done += 1
                 continue
             for it in items:
                 spec = it.run if isinstance(it, DiagnoseSpec) else it
@@ -655,6 +670,7 @@ def run_campaign(phases: Sequence[Sequence[RunSpec | DiagnoseSpec]], jobs: int,
                 else:
                     failures.append({"label": o.item.label, "error": o.error})
                     progress.say(f"  {o.item.label}: FAILED: {o.error}")
+                    failed_diagnosis |= isinstance(o.item, DiagnoseSpec)
     except BaseException:
         for sf in stop_files:
             if sf:
