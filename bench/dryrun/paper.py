@@ -25,6 +25,10 @@ nothing here moves the robot otherwise.
   :func:`paths_table` / :func:`poses_table` into text, :func:`paths_plots` /
   :func:`poses_plots` into the Fig. 7- and Fig. 6-like PNGs (:mod:`bench.iso9283.plots`).
 
+The plant settles at least every :data:`PLANT_STEP_M` of motion (:func:`plant_rate`); a run
+the simulated drives stopped on a lost master heartbeat (a machine loaded beyond what the
+lock-step rig tolerates) runs again once (:func:`run_item`, reported as ``retried``).
+
 Slack cables are logged, not held (:data:`REACTIONS`; ``--react`` changes it): the paper's
 runs went through, and on the side of the workspace the far cables run at the model's minimum
 tension, where the plant's per-visit length noise (0.5 mm, +-15 N on a 20 m cable) lets
