@@ -31,7 +31,8 @@ test: $(STAMP)
 # The property-based tests with many more examples (tests/conftest.py, profile "deep").
 test-deep: $(STAMP)
 	CDPR_HYPOTHESIS=deep $(PY) -m pytest -q tests/test_prop_cia402_drive.py \
-		tests/test_prop_hal_drives.py tests/test_input_files.py tests/test_fuzz_can_modbus.py
+		tests/test_prop_hal_drives.py tests/test_input_files.py tests/test_fuzz_can_modbus.py \
+		tests/test_dryrun_properties.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -35,7 +35,10 @@ def _version() -> str:
         return "unknown (cdpr-bench, not installed)"
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = "") -> argparse.ArgumentParser:
+    """The ``cdpr`` parser. ``only``: build the options of that command alone (the others
+    are listed with their help; a command's options may import heavy modules); ``""`` all of
+    them; ``None`` none (``cdpr --help``)."""
     parser = argparse.ArgumentParser(
         prog="cdpr",
         description="Commission, run and check a large cable-driven parallel robot (ROCASPECT).",
@@ -46,13 +49,20 @@ def build_parser() -> argparse.ArgumentParser:
     for modname in COMMANDS:
         mod = importlib.import_module(modname)
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
-        mod.add_arguments(p)
+        if only == "" or only == mod.NAME:
+            mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
 
 
+def _command(argv: list[str]) -> str | None:
+    """The command named on the command line (the first word that is not an option)."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(_command(argv))
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)

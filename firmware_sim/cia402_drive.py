@@ -235,6 +235,10 @@ class SimulatedDrive:
         self._wall_prev: float | None = None  # last wall_tick() [s]
         self._hb_wall_sent = -1e18  # wall time of the last heartbeat sent [s]
         self.free_running = False  #: SYNC-driven clock runs on wall time (master lost)
+        #: a SYNC-driven drive also watches its consumer heartbeats on wall time (a dead
+        #: master sends no SYNC); off where the master cannot die apart from the drive
+        #: (lock-step in one process), so that a starved heartbeat thread stops nothing
+        self.watch_wall = True
         #: (drive time [us], what, lag [s]) of each lost connection: lag from the last
         #: frame heard (master heartbeat, RPDO) to the reaction, for tests
         self.connection_losses: list[tuple[int, str, float | None]] = []
@@ -467,6 +471,8 @@ class SimulatedDrive:
                 self._hb_wall_sent = now_s
             for nid, time_us in self._consumers.items():
                 heard = self._hb_heard_wall.get(nid)
+                if not self.watch_wall:
+                    continue
                 if heard is not None and now_s - heard > time_us * 1e-6:
                     self.last_loss_lag_s = now_s - heard
                     self._consumer_expired(nid, wall=True)

@@ -277,22 +277,27 @@ class Plant:
     def _chord(self, y: np.ndarray, args: tuple, gtol: float,
                max_iter: int = 30) -> tuple[np.ndarray, bool]:
         """Preconditioned descent ``y -= H0^-1 g`` with the stored inverse Hessian, steps
-        halved until the energy decreases; True when the gradient is below ``gtol``."""
+        halved until the energy decreases; True when the gradient is below ``gtol``.
+
+        Near the minimum the energy changes less than its round-off, so a step is also
+        taken when it halves the gradient (the energy cannot tell, the forces can)."""
         e = self._energy(y, *args)
+        g = self._gradient(y, *args)
         for _ in range(max_iter):
-            g = self._gradient(y, *args)
-            if np.linalg.norm(g, np.inf) < gtol:
+            gn = np.linalg.norm(g, np.inf)
+            if gn < gtol:
                 return y, True
             step = -self._hess_inv @ g
             for _ in range(8):
                 e_new = self._energy(y + step, *args)
-                if e_new <= e:
+                g_new = self._gradient(y + step, *args)
+                if e_new <= e or np.linalg.norm(g_new, np.inf) < 0.5 * gn:
                     break
                 step *= 0.5
             else:
                 return y, False
-            y, e = y + step, e_new
-        return y, False
+            y, e, g = y + step, e_new, g_new
+        return y, bool(np.linalg.norm(g, np.inf) < gtol)
 
     def settle(self, readings: np.ndarray, t: float = 0.0,
                visit_noise: np.ndarray | None = None,

@@ -108,7 +108,9 @@ class SimRig:
     :param cell_rate_hz: load-cell samples per second
     :param tracker_port: serve the simulated tracker over TCP on this port (0: any free
         one; None: in process only); ``tracker_host`` the address it binds,
-        ``tracker_rate_hz`` measurements per second
+        ``tracker_rate_hz`` measurements per second; ``watch_wall_heartbeats``: with the
+        SYNC clock, the drives also watch the master's heartbeat on wall time (False where
+        the master runs in lock-step in this process and cannot die apart from the rig)
     """
 
     def __init__(
@@ -130,6 +132,7 @@ class SimRig:
         tracker_port: int | None = None,
         tracker_host: str = "127.0.0.1",
         tracker_rate_hz: float = DEFAULT_RATE_HZ,
+        watch_wall_heartbeats: bool = True,
     ) -> None:
         if clock not in ("sync", "wall"):
             raise ValueError(f"clock must be 'sync' or 'wall', got {clock!r}")
@@ -177,6 +180,9 @@ class SimRig:
         self.bank = SimulatedWinchBank(bus, self.winches,
                                        clock=time.monotonic if clock == "wall" else None)
         self.bank.set_positions_m(self.reference_m)
+        if not watch_wall_heartbeats:
+            for d in self.bank.drives:
+                d.watch_wall = False
 
         # load cells
         self.cells = LoadCellBank(noise_N=sc.noise.load_cell_n, seed=sc.seed + 2)

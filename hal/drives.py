@@ -86,9 +86,10 @@ from controller.winch import WinchSet, counts_to_m, m_to_counts
 from hal.can_bus import CanSpec, open_bus
 from hal.drives_cia402 import (
     CW_FAULT_RESET,
+    RQ,
+    ST,
     SW_INTERNAL_LIMIT,
     DriveState,
-    Request,
     controlwords,
     decode_states,
     emcy_text,
@@ -107,6 +108,9 @@ from hal.drives_config import (
     sdo_read,
     verify_identity,
 )
+
+#: SDO answer timeout of the HAL's nodes [s] (start-up, recovery, fault-code reads)
+SDO_TIMEOUT_S = 1.0
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +200,9 @@ class WinchDrives:
         for nid in self.node_ids:
             od = eds if isinstance(eds, canopen.ObjectDictionary) else load_eds(eds, nid)
             node = canopen.RemoteNode(nid, od)
+            # SDOs run at start-up and in recovery only, never in the cycle: a patient
+            # answer timeout costs nothing there and survives a busy host (canopen: 0.3 s)
+            node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
             network.add_node(node)
             self.nodes.append(node)
         od0 = self.nodes[0].object_dictionary
@@ -231,8 +238,8 @@ class WinchDrives:
         self._sw = np.zeros(n, np.int64)
         self._pos = np.zeros(n, np.int64)
         self._have = np.zeros(n, bool)
-        self._states = np.full(n, DriveState.UNKNOWN, np.int8)
-        self._request = np.full(n, Request.DISABLE, np.int8)
+        self._states = np.full(n, ST.UNKNOWN, np.int8)
+        self._request = np.full(n, RQ.DISABLE, np.int8)
         self._target = np.zeros(n, np.int64)
         self._setpoint_ok = np.zeros(n, bool)  # user setpoints apply (drive enabled)
         self._last_cw = np.zeros(n, np.int64)
@@ -248,6 +255,10 @@ class WinchDrives:
         self._code = np.zeros(n, np.int64)  # last EMCY code (0 = none or reset)
         self._fault_code = np.zeros(n, np.int64)  # cause of the present Fault
         self._window: list[list[int]] = [[] for _ in range(n)]  # EMCYs since last not faulted
+        # length of each window before this cycle's EMCYs: a drive's TPDO (sampled at the
+        # last SYNC) may predate an EMCY of this cycle, so a statusword that still says "not
+        # faulted" clears only the EMCYs that came before it
+        self._window_mark = [0] * n
         self._self_stopped = np.zeros(n, bool)  # in Quick Stop Active, not by our request
         self._nmt_wait = np.full(n, -np.inf)  # ignore stale pre-op heartbeats until (clock)
         self._relink = np.zeros(n, bool)  # the link was lost since it was started
@@ -452,7 +463,7 @@ class WinchDrives:
         if state == 0:
             if self._started[k] and not self._rebooted[k]:
                 self._rebooted[k] = True
-                self._request[k] = Request.DISABLE
+                self._request[k] = RQ.DISABLE
                 self._setpoint_ok[k] = False
                 self._have[k] = False  # state UNKNOWN until recover() reads it
                 self._event(k, "boot_up", CODE_HEARTBEAT,
@@ -466,9 +477,13 @@ class WinchDrives:
             self._nmt_wait[k] = -np.inf
         if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
             if state != NMT_OPERATIONAL:
+                # no PDO leaves a node outside OPERATIONAL: the statusword we hold is old,
+                # its power state unknown until a TPDO comes again (or recover())
+                self._have[k] = False
+                self._setpoint_ok[k] = False
                 self._event(k, "nmt_state", CODE_HEARTBEAT,
                             f"NMT state {NMT_NAMES.get(state, hex(state))}, "
-                            "expected OPERATIONAL")
+                            "expected OPERATIONAL: its power state is unknown")
         self._nmt[k] = state
 
     # ------------------------------------------------------------------ start-up (blocking)
@@ -529,7 +544,7 @@ class WinchDrives:
             self._relink |= lost
             self._have[:] = False
             self._setpoint_ok[:] = False
-            self._request[lost] = Request.QUICK_STOP  # hold, should anything still listen
+            self._request[lost] = RQ.QUICK_STOP  # hold, should anything still listen
         if up and self._link_down:
             self._link_down = False
             self._bus_event("CAN link back: the drives stopped on their own (master lost); "
@@ -666,8 +681,8 @@ class WinchDrives:
             self._nmt_wait[k] = now + max(self.hb_timeout_s, self.period_s)
             self._miss_streak[k] = 0
             # a drive holding in Quick Stop Active (it lost its master) keeps holding
-            held = states[k] == DriveState.QUICK_STOP_ACTIVE
-            self._request[k] = Request.QUICK_STOP if held else Request.DISABLE
+            held = states[k] == ST.QUICK_STOP_ACTIVE
+            self._request[k] = RQ.QUICK_STOP if held else RQ.DISABLE
             self._self_stopped[k] = held
             self._setpoint_ok[k] = False
         self._states = states
@@ -757,26 +772,26 @@ class WinchDrives:
 
     def enable(self, nodes: Iterable[int] | None = None) -> None:
         """Request Operation Enabled (CSP) for drives (node ids; default all)."""
-        self._request[self._mask(nodes)] = Request.ENABLE
+        self._request[self._mask(nodes)] = RQ.ENABLE
 
     def disable(self, nodes: Iterable[int] | None = None) -> None:
         """Request Ready To Switch On: power stage off, brakes hold."""
-        self._request[self._mask(nodes)] = Request.DISABLE
+        self._request[self._mask(nodes)] = RQ.DISABLE
 
     def off(self, nodes: Iterable[int] | None = None) -> None:
         """Request Switch On Disabled (disable voltage)."""
-        self._request[self._mask(nodes)] = Request.OFF
+        self._request[self._mask(nodes)] = RQ.OFF
 
     def quick_stop(self, nodes: Iterable[int] | None = None) -> None:
         """Request a quick stop (each drive stops on its 0x605A ramp)."""
-        self._request[self._mask(nodes)] = Request.QUICK_STOP
+        self._request[self._mask(nodes)] = RQ.QUICK_STOP
 
     def fault_reset(self, nodes: Iterable[int] | None = None, hold_cycles: int = 20) -> None:
         """Reset faulted drives with a rising edge of controlword bit 7 (over the next cycles).
         They come back disabled, never enabled: that takes :meth:`enable`."""
         m = self._mask(nodes) & faulted(self._states)
         self._reset_left[m] = hold_cycles
-        self._request[m] = Request.DISABLE
+        self._request[m] = RQ.DISABLE
 
     def set_lengths(self, lengths_m: np.ndarray) -> None:
         """Cable length setpoints [m], shape (n,), sent with the next :meth:`exchange`.
@@ -819,6 +834,7 @@ class WinchDrives:
         """First half of a cycle: process the TPDOs, heartbeats and EMCYs that arrived since
         the last call (positions, states, detection). Never blocks. Call once per cycle,
         before :meth:`transmit` (a TPDO is expected per SYNC sent)."""
+        self._window_mark = [len(w) for w in self._window]
         self._drain()
         self._check_link()
         with self._rx:
@@ -832,7 +848,10 @@ class WinchDrives:
         self._check_pdos(fresh, n_new, expected)
         self._sw = np.where(fresh, sw, self._sw)
         self._pos = np.where(fresh, pos, self._pos)
-        self._have |= fresh & ~self._relink
+        # a node its heartbeat says is outside OPERATIONAL sends no PDO: a TPDO counted now
+        # was sent before it left (its statusword is old news)
+        out_of_op = (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
+        self._have |= fresh & ~self._relink & ~out_of_op
         self._nmt_wait[fresh] = -np.inf  # PDOs only flow in OPERATIONAL
         self._update_states(expected)
         self._check_heartbeats()
@@ -879,27 +898,27 @@ class WinchDrives:
             self._fault_code[k] = code
             text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
             self._event(k, "fault", code, f"{DriveState(new[k]).name}: {text}")
-            self._request[k] = Request.DISABLE
+            self._request[k] = RQ.DISABLE
             self._confirm_fault_code(int(k))
-        for k in np.flatnonzero(~now_fault & was_fault & (new != DriveState.UNKNOWN)):
+        for k in np.flatnonzero(~now_fault & was_fault & (new != ST.UNKNOWN)):
             self._event(k, "fault_cleared", 0, f"now {DriveState(new[k]).name}")
             self._fault_code[k] = 0
-        known_ok = ~now_fault & (new != DriveState.UNKNOWN)
+        known_ok = ~now_fault & (new != ST.UNKNOWN)
         for k in np.flatnonzero(known_ok):
-            self._window[k].clear()
+            del self._window[k][:self._window_mark[k]]
         # a drive that quick-stopped on its own (master lost, 0x6007) holds there until the
         # controller enables it again: the master never re-enables it by itself
-        qs = new == DriveState.QUICK_STOP_ACTIVE
-        for k in np.flatnonzero(qs & (old != DriveState.QUICK_STOP_ACTIVE)
-                                & (self._request != Request.QUICK_STOP)):
+        qs = new == ST.QUICK_STOP_ACTIVE
+        for k in np.flatnonzero(qs & (old != ST.QUICK_STOP_ACTIVE)
+                                & (self._request != RQ.QUICK_STOP)):
             self._self_stopped[k] = True
-            self._request[k] = Request.QUICK_STOP
+            self._request[k] = RQ.QUICK_STOP
             code = next((c for c in reversed(self._window[k]) if c), int(self._code[k]))
             why = emcy_text(code) if code else "no EMCY"
             self._event(k, "quick_stop", code, f"the drive stopped on its own ({why}): held in "
                         "Quick Stop Active until enable()")
-        self._self_stopped &= qs | (new == DriveState.UNKNOWN)
-        oe = new == DriveState.OPERATION_ENABLED
+        self._self_stopped &= qs | (new == ST.UNKNOWN)
+        oe = new == ST.OPERATION_ENABLED
         entering = oe & ~self._setpoint_ok
         self._target[entering] = self._pos[entering]  # hold where it stands
         self._setpoint_ok = oe
@@ -924,7 +943,7 @@ class WinchDrives:
             self._hb_lost[k] = True
             self._have[k] = False  # its state is unknown now
             self._setpoint_ok[k] = False
-            self._request[k] = Request.QUICK_STOP  # hold, if it still hears us
+            self._request[k] = RQ.QUICK_STOP  # hold, if it still hears us
             self._event(k, "heartbeat_lost", CODE_HEARTBEAT,
                         f"no heartbeat for {now - self._hb_last[k]:.3f} s "
                         f"(> {self.winches.bus.heartbeat_misses} periods)")
@@ -1021,16 +1040,16 @@ class WinchDrives:
             raise DriveStartupError(f"enable refused: {'; '.join(bad)}")
         self.enable()
         ok = self._blocking("enable", lambda: self.run_until(
-            lambda d: bool(np.all(d.states() == DriveState.OPERATION_ENABLED)), max_cycles))
+            lambda d: bool(np.all(d.states() == ST.OPERATION_ENABLED)), max_cycles))
         if not ok:
             bad = [f"{self.who(k)}: {DriveState(s).name}" for k, s in enumerate(self._states)
-                   if s != DriveState.OPERATION_ENABLED]
+                   if s != ST.OPERATION_ENABLED]
             # the drives that did not come keep no pending enable: a later fault reset or
             # recovery must not enable them behind the controller's back
-            late = self._states != DriveState.OPERATION_ENABLED
-            held = late & (self._states == DriveState.QUICK_STOP_ACTIVE)
-            self._request[late & ~held] = Request.DISABLE
-            self._request[held] = Request.QUICK_STOP
+            late = self._states != ST.OPERATION_ENABLED
+            held = late & (self._states == ST.QUICK_STOP_ACTIVE)
+            self._request[late & ~held] = RQ.DISABLE
+            self._request[held] = RQ.QUICK_STOP
             if not self.link_up():
                 raise BusLinkError(f"enable: {self._link_why()}")
             raise DriveStartupError(
@@ -1057,7 +1076,7 @@ class WinchDrives:
 
             def off() -> None:
                 self.off()
-                self.run_until(lambda d: bool(np.all(d.states() != DriveState.OPERATION_ENABLED)),
+                self.run_until(lambda d: bool(np.all(d.states() != ST.OPERATION_ENABLED)),
                                max_cycles)
                 for k in range(self.n):
                     if self._started[k]:

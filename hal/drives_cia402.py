@@ -23,6 +23,7 @@ enable operation 0x0F, disable voltage 0x00, quick stop 0x02, fault reset 0x80.
 from __future__ import annotations
 
 from enum import IntEnum
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -79,6 +80,10 @@ class Request(IntEnum):
 
 
 _S = DriveState
+#: the states and requests as plain ints, for array work: numpy compares with an IntEnum
+#: member about seven times slower than with an int (it inspects the object first)
+ST = SimpleNamespace(**{m.name: int(m) for m in DriveState})
+RQ = SimpleNamespace(**{m.name: int(m) for m in Request})
 # Controlword per request (row) and state (column, DriveState order incl. UNKNOWN).
 _CW_TABLE = np.zeros((len(Request), len(DriveState)), dtype=np.uint16)
 _CW_TABLE[Request.OFF, :] = CW_DISABLE_VOLTAGE
@@ -96,11 +101,11 @@ _CW_TABLE[Request.QUICK_STOP, [_S.FAULT, _S.FAULT_REACTION_ACTIVE]] = CW_DISABLE
 def decode_states(statuswords: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
     """CiA 402 states (:class:`DriveState` values, int8) of statuswords, shape (n,)."""
     sw = np.asarray(statuswords, dtype=np.int64)
-    out = np.full(sw.shape, DriveState.UNKNOWN, dtype=np.int8)
+    out = np.full(sw.shape, ST.UNKNOWN, dtype=np.int8)
     for mask, value, state in SW_MASKS:
         out[(sw & mask) == value] = state
     if valid is not None:
-        out[~np.asarray(valid, dtype=bool)] = DriveState.UNKNOWN
+        out[~np.asarray(valid, dtype=bool)] = ST.UNKNOWN
     return out
 
 
@@ -114,13 +119,13 @@ def enabling(states: np.ndarray, controlwords_: np.ndarray) -> np.ndarray:
     s = np.asarray(states)
     cw = np.asarray(controlwords_)
     going = (cw & 0x8F) == CW_ENABLE_OPERATION
-    return going & np.isin(s, (_S.READY_TO_SWITCH_ON, _S.SWITCHED_ON, _S.QUICK_STOP_ACTIVE))
+    return going & np.isin(s, (ST.READY_TO_SWITCH_ON, ST.SWITCHED_ON, ST.QUICK_STOP_ACTIVE))
 
 
 def faulted(states: np.ndarray) -> np.ndarray:
     """Drives in Fault or Fault Reaction Active."""
     s = np.asarray(states)
-    return (s == _S.FAULT) | (s == _S.FAULT_REACTION_ACTIVE)
+    return (s == ST.FAULT) | (s == ST.FAULT_REACTION_ACTIVE)
 
 
 # ---------------------------------------------------------------------------- EMCY codes

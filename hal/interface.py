@@ -48,12 +48,13 @@ import numpy as np
 
 from controller.loadcell_map import DEFAULT_MAP, RegisterMap, load_register_map
 from controller.winch import WinchSet, load_winches
-from hal.can_bus import CanSpec, add_can_argument
+from hal.can_bus import CanSpec
+from hal.cli_args import add_hardware_arguments
 from hal.drives import DriveEvent, DriveFault, DriveStartupError, WinchDrives
-from hal.drives_cia402 import DriveState
+from hal.drives_cia402 import ST, DriveState
 from hal.loadcell_calibration import LoadCellCalibration, load_calibration
 from hal.loadcell_client import CableStatus, LoadCellClient, TensionReading
-from hal.modbus_config import ModbusEndpoint, add_modbus_arguments
+from hal.modbus_config import ModbusEndpoint
 
 DRIVE = "drive"
 LOADCELL = "loadcell"
@@ -128,7 +129,7 @@ class Readings:
     @property
     def enabled(self) -> np.ndarray:
         """(n,) bool: the drive is Operation Enabled."""
-        return self.states == DriveState.OPERATION_ENABLED
+        return self.states == ST.OPERATION_ENABLED
 
     @property
     def all_enabled(self) -> bool:
@@ -527,27 +528,22 @@ def open_hardware(
     if tuple(rmap.cables) != tuple(w.cables):
         raise HardwareConfigError(f"load-cell register map {rmap.source} lists cables "
                                   f"{rmap.cables}, winch parameters {w.source} {w.cables}")
+    drives = WinchDrives.open(can, w, eds, clock=clock)
     cells = None
     if modbus is not None:
-        cells = LoadCellClient(modbus, register_map=rmap, calibration=calibration,
-                               rate_hz=loadcell_rate_hz, timeout_s=loadcell_timeout_s,
-                               stale_s=loadcell_stale_s, max_age_s=loadcell_max_age_s)
-    drives = WinchDrives.open(can, w, eds, clock=clock)
+        # polled by the caller in lock-step (``sync``, ``manual``): a reading's age on the
+        # master clock, the simulated time since it came, however fast the simulation runs;
+        # a polling thread runs on the wall clock, and so do its ages
+        kw = {"clock": drives.now} if (clock == "sync" and poll == "manual") else {}
+        try:
+            cells = LoadCellClient(modbus, register_map=rmap, calibration=calibration,
+                                   rate_hz=loadcell_rate_hz, timeout_s=loadcell_timeout_s,
+                                   stale_s=loadcell_stale_s, max_age_s=loadcell_max_age_s,
+                                   **kw)
+        except BaseException:
+            drives.close()
+            raise
     return CanModbusHardware(drives, cells, poll=poll)
-
-
-def add_hardware_arguments(parser: argparse.ArgumentParser, eds_default: str | None = None,
-                           can_default: str | None = None) -> None:
-    """Add ``--can``, ``--winches``, ``--eds`` and the load-cell options to a parser."""
-    add_can_argument(parser, default=can_default)
-    parser.add_argument("--winches", metavar="TOML", default=None,
-                        help="winch parameter file [controller/data/rocaspect_winches.toml]")
-    parser.add_argument("--eds", metavar="EDS", default=eds_default, required=eds_default is None,
-                        help="EDS file of the winch drives" +
-                        (f" [{eds_default}]" if eds_default else ""))
-    parser.add_argument("--hal-clock", choices=("wall", "sync"), default="wall",
-                        help="wall: real drives; sync: lock-step with a simulated rig [wall]")
-    add_modbus_arguments(parser)
 
 
 def hardware_from_args(args: argparse.Namespace, poll: str = "thread") -> CanModbusHardware:

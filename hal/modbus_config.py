@@ -21,6 +21,9 @@ from dataclasses import dataclass
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.framer import FramerType
 
+from hal.cli_args import MODBUS_FORMS as FORMS  # one text of the forms
+from hal.cli_args import add_modbus_arguments  # noqa: F401  (re-exported)
+
 DEFAULT_TCP_PORT = 502
 _FRAMING = re.compile(r"^([78])([NEO])([12])$")
 _BAUD_RANGE = (300, 4_000_000)
@@ -30,7 +33,6 @@ class ModbusSpecError(ValueError):
     """A malformed ``--modbus`` spec; the message says which part and the accepted forms."""
 
 
-FORMS = "HOST:PORT, rtu:DEVICE:BAUD[:8N1] or rtu-tcp:HOST:PORT"
 
 
 @dataclass(frozen=True)
@@ -157,23 +159,3 @@ def modbus_spec_arg(text: str) -> ModbusEndpoint:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def add_modbus_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add the load-cell Modbus options to a command's parser."""
-    g = parser.add_argument_group("load cells (Modbus)")
-    g.add_argument(
-        "--modbus", type=modbus_spec_arg, metavar="SPEC",
-        help=f"load cell endpoint: {FORMS}",
-    )
-    g.add_argument("--loadcell-map", metavar="TOML", help="register map [built-in default map]")
-    g.add_argument(
-        "--loadcell-calibration", metavar="TOML",
-        help="per-cable gain_ij/offset_ij [N] (measured = gain*true + offset)",
-    )
-    g.add_argument("--loadcell-rate", type=float, default=50.0, metavar="HZ",
-                   help="polls of all eight cells per second [50]")
-    g.add_argument("--loadcell-timeout", type=float, default=0.1, metavar="S",
-                   help="answer timeout per request [0.1 s]")
-    g.add_argument("--loadcell-stale", type=float, default=0.25, metavar="S",
-                   help="a counter not advancing for longer is stale [0.25 s]")
-    g.add_argument("--loadcell-max-age", type=float, default=None, metavar="S",
-                   help="no fresh answer for longer is a timeout [timeout + 3 poll periods]")

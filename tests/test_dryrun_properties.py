@@ -26,6 +26,7 @@ from bench.dryrun.record import DryRunRecorder
 from bench.recording import read_recording
 from controller.effects import apply_effects
 from controller.paths import check_trajectory
+from controller.statics import pose_statics
 from controller.trajectory import Dwell, MotionLimits, Move, Trajectory
 from controller.winch import load_winches
 from firmware_sim.plant import Plant
@@ -39,6 +40,7 @@ MODEL = rocaspect(compliant=True)
 P0 = np.array([10.0, 8.56, 1.2, 0, 0, 0])
 #: the profile's example count, scaled down (5 in the ci profile): each example is a dry run
 EXAMPLES = max(3, settings().max_examples // 8)
+CELL_PERIOD_S = 0.05  #: the fake load cells' sample period [s]
 SENSOR_KINDS = ("stale", "nan", "spike", "stuck", "out_of_range", "timeout")
 
 
@@ -69,7 +71,7 @@ class Faulty:
         self.cell_fired: dict[int, float] = {}
         self._stuck: dict[int, float] = {}
         self.hw = FakeHardware(W, initial_lengths_m=self.plant.reference, plant=self._measure,
-                               tension_period_s=0.05)
+                               tension_period_s=CELL_PERIOD_S)
         self.tracker = CallableTracker(lambda: (self.hw.t, self.plant.state.pose.copy(), True))
 
     def _measure(self, lengths, t):
@@ -147,6 +149,11 @@ def test_dry_run_safety_properties(tmp_path_factory, sc):
     held = np.array([s == "hold" for s in rec.state[1:n_cmd - 1]])
     assert acc[~held].max(initial=0) <= limits.max_accel_m_s2 * 1.05 + 1e-6
     assert acc.max(initial=0) <= 2 * limits.max_accel_m_s2 * 1.05 + 1e-6
+    # every commanded pose is in the wrench-feasible workspace of the controller's model
+    # (tensions within limits with the masts deflected by them), a subset of the rows
+    for row in range(0, n_cmd, 16):
+        st_ = pose_statics(MODEL, rec.pose_des[row])
+        assert st_.feasible, f"row {row}: commanded pose {rec.pose_des[row]} infeasible"
     events = res.events
     if world.drive_fired is not None and world.drive_fired < res.simulated_s - 2 * T:
         ev = [e for e in events if e["kind"] == "drive_fault" and e["active"]]
@@ -164,6 +171,13 @@ def test_dry_run_safety_properties(tmp_path_factory, sc):
         ev = [e for e in events if e["kind"] in ("loadcell", "overload", "slack")
               and e["cable"] == MODEL.cable_ids[k] and e["active"]]
         assert ev, f"cell {MODEL.cable_ids[k]} failed at {t_fired} s: no event"
+        # substituted at once: within the cells' sample period (a failure shows at the next
+        # sample) and the supervisor's bound (a cell: immediate; a tension: 0.1 s + 2 cycles)
+        late = ev[0]["t"] - t_fired
+        bound = CELL_PERIOD_S + (0.1 if ev[0]["kind"] != "loadcell" else 0.0) + 3 * T
+        assert late <= bound + 1e-9, (
+            f"cell {MODEL.cable_ids[k]} failed at {t_fired:.4f} s, reaction at "
+            f"{ev[0]['t']:.4f} s (bound {bound:.3f} s)")
     text = (tmp / "rec" / "events.csv").read_text()
     for e in events:
         if e["reaction"] in ("quick_stop", "hold", "substitute"):

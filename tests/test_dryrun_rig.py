@@ -145,3 +145,98 @@ def test_sigint_stops_the_platform_and_leaves_a_readable_recording(tmp_path):
     assert "OPERATION_ENABLED" not in res["drive_states"]
     r = read_recording(rec)
     assert r.state[-1] == "quick_stop" and r.n_samples > 10
+
+
+FAULTS = """
+[[fault]]
+at_s = {cell_at}
+cell = 5
+kind = "nan"
+clear_s = {cell_clear}
+
+[[fault]]
+at_s = {drive_at}
+drive = 3
+kind = "over_current"
+"""
+
+
+@pytest.mark.parametrize("rig", ["inprocess", "process"])
+def test_fault_schedule_gets_its_reactions_and_is_recorded(rig, tmp_path):
+    """A load cell that reads NaN for a while is substituted (start and end logged), then an
+    over-current on node 3 quick-stops every drive; the recording says so."""
+    faults = tmp_path / "faults.toml"
+    faults.write_text(FAULTS.format(cell_at=0.4, cell_clear=0.8, drive_at=1.2))
+    rec = tmp_path / "rec"
+    p = _cli("paper-centre", "--rig", rig, "--faults", str(faults), "--duration", "3",
+             "--record", str(rec), "--json", "--quiet")
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 1, err
+    res = json.loads(out)
+    ev = res["events"]
+    # unit 5's NaN from 0.4 s to 0.8 s (a loaded machine may add stale readings of others)
+    subs = [(e["t"], e["active"]) for e in ev
+            if e["reaction"] == "substitute" and e["address"] == 5]
+    assert subs and subs[0][1] and 0.39 <= subs[0][0] <= 0.45, ev
+    assert any(not a and 0.79 <= t <= 0.9 for t, a in subs), ev
+    faults_ev = [e for e in ev if e["reaction"] in ("quick_stop", "disable")]
+    assert faults_ev and faults_ev[0]["address"] == 3 and faults_ev[0]["code"] == 0x2310, ev
+    assert "OPERATION_ENABLED" not in res["drive_states"]
+    r = read_recording(rec)
+    assert r.state[-1] == "quick_stop"
+    events_csv = (rec / "events.csv").read_text()
+    assert "0x2310" in events_csv.lower() or "9008" in events_csv  # code as hex or decimal
+
+
+def test_fault_schedule_errors_name_the_file_line_and_field(tmp_path, capsys):
+    faults = tmp_path / "faults.toml"
+    faults.write_text('[[fault]]\nat_s = 1.0\ndrive = 42\nkind = "over_current"\n')
+    assert main(["dry-run", "paper-centre", "--faults", str(faults), "--json"]) == 2
+    err = json.loads(capsys.readouterr().out)["error"]
+    assert str(faults) in err and ":3" in err and "drive" in err
+
+
+@pytest.mark.parametrize("opt", ["--record", "--plots"])
+def test_cli_refuses_an_output_it_cannot_write_before_starting(opt, tmp_path, capsys):
+    (tmp_path / "blk").write_text("a file")
+    assert main(["dry-run", "paper-centre", opt, str(tmp_path / "blk" / "out"), "--json"]) == 2
+    err = json.loads(capsys.readouterr().out)["error"]
+    assert opt in err and "not a directory" in err
+
+
+def test_cli_plots_without_a_recording(tmp_path, capsys):
+    code = main(["dry-run", "paper-centre", "--duration", "0.5", "--json", "--quiet",
+                 "--plots", str(tmp_path / "plots")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["recording"] is None
+    assert out["plots"] and all(Path(p).stat().st_size > 10_000 for p in out["plots"])
+
+
+@pytest.mark.parametrize("watch_wall", [False, True])
+def test_lockstep_in_process_survives_a_starved_heartbeat_thread(watch_wall):
+    """In lock-step in one process the master cannot die apart from the drives: a starved
+    master-heartbeat thread (a busy host) must not stop them. With the wall-clock watch on
+    (the setting for a master in another process) the same starvation does stop them."""
+    sc = load_scenario(resolve_scenario("paper-centre"))
+    world = start_world(sc, load_winches(), "inprocess", realtime=False)
+    try:
+        for d in world.rig.bank.drives:
+            d.watch_wall = watch_wall
+        hw = world.hw
+        hw.start()
+        hw.enable()
+        drives = hw.drives
+        drives._mhb_stop.set()  # the heartbeat thread starved for 0.6 s of wall time
+        drives._mhb_thread.join(timeout=5.0)
+        time.sleep(0.6)
+        for _ in range(20):
+            r = hw.step()
+        if watch_wall:  # stopped, pre-operational (0x1029 = 0): no longer said enabled
+            assert not np.any(r.states == DriveState.OPERATION_ENABLED), r.states
+            assert all(d.state.name == "QUICK_STOP_ACTIVE" for d in world.rig.bank.drives)
+            assert {f.kind for f in hw.faults()} & {"nmt_state", "quick_stop"}
+        else:
+            assert np.all(r.states == DriveState.OPERATION_ENABLED), r.states
+            assert hw.faults() == []
+    finally:
+        world.close()

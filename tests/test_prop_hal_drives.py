@@ -264,6 +264,14 @@ class HalMachine(RuleBasedStateMachine):
             if f.kind == "drive_fault" and f.code:
                 assert f.code == self.injected.get(f.node_id, f.code), (f, self.injected)
                 assert f.code not in (0x8250, 0x8130)  # never a warning's code
+                # a fault nobody injected (e.g. a following error) carries the drive's own
+                # cause: what 0x603F holds while the drive is still in that fault
+                d = self.rig.bank.drive(f.node_id)
+                with self.rig.bank.lock:
+                    in_fault = d.state in (d.state.FAULT, d.state.FAULT_REACTION_ACTIVE)
+                    cause = d.error_code
+                if f.node_id not in self.injected and in_fault and cause:
+                    assert f.code == cause, (f, hex(cause))
 
     @invariant()
     def no_drive_runs_on_unknown_state(self):

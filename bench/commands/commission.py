@@ -34,7 +34,7 @@ def _default_eds() -> str:
 
 
 def _common(json_help: str) -> argparse.ArgumentParser:
-    from hal.interface import add_hardware_arguments
+    from hal.cli_args import add_hardware_arguments
 
     p = argparse.ArgumentParser(add_help=False)
     add_hardware_arguments(p, eds_default=_default_eds())

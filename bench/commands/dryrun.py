@@ -100,21 +100,17 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 
 def _check_dir(path: str, force: bool, what: str) -> str | None:
-    """Why ``path`` cannot take the output, or None (checked before anything runs)."""
+    """Why ``path`` cannot take the output, or None (checked before anything runs, by
+    creating the missing parents and writing a probe file)."""
+    from bench.outputs import output_dir_problem
+
     p = Path(path)
-    if p.exists() and not p.is_dir():
-        return f"{what} {p}: exists and is not a directory"
     if p.is_dir() and any(p.iterdir()) and not force:
         return f"{what} {p}: not empty (use --force to overwrite)"
-    probe = p if p.is_dir() else next((q for q in p.parents if q.exists()), Path("."))
-    import os
-
-    if not os.access(probe, os.W_OK):
-        return f"{what} {p}: cannot write in {probe}"
-    return None
+    return output_dir_problem(p, what)
 
 
-def _progress_printer(quiet: bool):
+def _progress_printer(quiet: bool, duration_s: float | None = None):
     t0 = time.perf_counter()
     tty = sys.stderr.isatty()
 
@@ -123,6 +119,8 @@ def _progress_printer(quiet: bool):
             return
         total = res.path_s or 1.0
         frac = min(1.0, t_traj / total)
+        if duration_s:  # --duration ends the run first when it is shorter than the path
+            frac = max(frac, min(1.0, res.simulated_s / duration_s))
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
         wall = time.perf_counter() - t0
         speed = res.simulated_s / wall if wall > 0 else 0.0
@@ -190,12 +188,23 @@ def run(args: argparse.Namespace) -> int:
     for d, what in ((args.record, "--record"), (args.plots, "--plots")):
         if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what)):
             return _fail(args, 2, msg)
+    # --plots without --record: the plots are drawn from a recording in a scratch directory
+    scratch = None
+    record_dir = args.record
+    if args.plots and record_dir is None:
+        import tempfile
+
+        scratch = tempfile.TemporaryDirectory(prefix="cdpr-dryrun-")
+        record_dir = str(Path(scratch.name) / "rec")
     faults = None
     if args.faults:
-        from firmware_sim.faults import FaultScheduleError, load_fault_schedule
+        from controller.loadcell_map import DEFAULT_MAP
+        from firmware_sim.faults import FaultSchedule, FaultScheduleError
         try:
-            faults = load_fault_schedule(args.faults)
-        except (FileNotFoundError, FaultScheduleError) as exc:
+            faults = FaultSchedule.load(args.faults,
+                                        node_ids=tuple(int(x) for x in winches.node_id),
+                                        unit_ids=tuple(DEFAULT_MAP.unit_ids))
+        except (OSError, FaultScheduleError) as exc:
             return _fail(args, 2, str(exc))
 
     from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
@@ -220,11 +229,11 @@ def run(args: argparse.Namespace) -> int:
         return traj
 
     def open_recorder(p0):
-        if args.record is None:
+        if record_dir is None:
             return None
         import shutil
 
-        rec = Path(args.record)
+        rec = Path(record_dir)
         if rec.exists() and args.force:
             shutil.rmtree(rec)
         meta = {"pose_source": "simulated laser tracker", "tension_source": "simulated load "
@@ -285,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
                                max_duration_s=args.duration, reactions=reactions)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
-                               on_progress=_progress_printer(args.quiet), stop=stop)
+                               on_progress=_progress_printer(args.quiet, args.duration), stop=stop)
             res = loop.run()
         finally:
             if injector is not None:
@@ -297,9 +306,11 @@ def run(args: argparse.Namespace) -> int:
     if tty and not args.quiet:
         print(file=sys.stderr)
     plots = None
-    if args.plots and args.record and res.ended != "refused":
+    if args.plots and record_dir and res.ended != "refused":
         from bench.dryrun.report import plot_run
-        plots = [str(p) for p in plot_run(args.record, args.plots)]
+        plots = [str(p) for p in plot_run(record_dir, args.plots)]
+    if scratch is not None:
+        scratch.cleanup()
     out = {
         "scenario": str(args.scenario), "robot": model.name, "cycles": res.cycles,
         "rate_hz": res.rate_hz, "simulated_s": res.simulated_s, "wall_s": res.wall_s,

@@ -55,7 +55,7 @@ from controller.supervisor import (
     SupervisorLimits,
 )
 from controller.trajectory import Trajectory
-from hal.drives_cia402 import DriveState
+from hal.drives_cia402 import ST
 from hal.interface import Readings, WinchHardware
 from hal.tracker import Tracker
 
@@ -401,7 +401,7 @@ class ControlLoop:
                     self.hw.wait_feedback()
                 else:
                     time.sleep(self.hw.period_s)
-                if not np.any(self.hw.read().states == DriveState.OPERATION_ENABLED):
+                if not np.any(self.hw.read().states == ST.OPERATION_ENABLED):
                     break
         except Exception:  # the bus may be gone: the drives' own master-loss reaction acts
             pass
@@ -492,7 +492,7 @@ class ControlLoop:
             substituted = int(out.substituted.sum()) if out.substituted.size else 0
             res.substituted_cycles += substituted > 0
             # ---- supervisor
-            enabled = r.states == DriveState.OPERATION_ENABLED
+            enabled = r.states == ST.OPERATION_ENABLED
             # positions answer the SYNC just sent (lock-step) or the one before (real time):
             # a following error exceeds the window against both
             ref_cmd = last_sent if prev_sent is None else np.where(
@@ -562,7 +562,7 @@ class ControlLoop:
             res.trajectory_s = t_traj
             # ---- end conditions
             if stopping:
-                standing = not np.any(r.states == DriveState.OPERATION_ENABLED)
+                standing = not np.any(r.states == ST.OPERATION_ENABLED)
                 if standing or stopping * T > opt.stop_timeout_s:
                     res.ended = "interrupted" if self.stop.is_set() and not d.stop \
                         else "quick_stop"

@@ -80,9 +80,9 @@ class DryRunRecorder:
 
     def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
               reaction: str, active: bool, text: str) -> None:
-        self.events.append((float(t), device, str(int(address)), cable, kind,
-                            f"0x{int(code):04X}", reaction, "1" if active else "0",
-                            '"' + text.replace('"', "'") + '"'))
+        t_txt = f"{float(t):.6f}".rstrip("0").rstrip(".")  # microseconds, no float noise
+        self.events.append((t_txt, device, str(int(address)), cable, kind, f"0x{int(code):04X}",
+                            reaction, "1" if active else "0", '"' + text.replace('"', "'") + '"'))
 
     def update_meta(self, **fields) -> None:
         self.writer.update_meta(**fields)

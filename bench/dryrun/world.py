@@ -46,6 +46,26 @@ def with_rate(winches: WinchSet, period_s: float) -> WinchSet:
         bus, sync_period_s=period_s, rpdo_timeout_s=rpdo))
 
 
+#: the HAL's load-cell answer timeout [s, wall clock] in lock-step: the simulation waits
+#: for its answers, so a slow answer means a busy host, not a slow cell
+LOCKSTEP_CELL_TIMEOUT_S = 0.5
+#: lock-step with ``cdpr sim`` in another process: the HAL polls the cells from a thread on
+#: the wall clock while the simulation runs at its own pace; a reading older than this
+#: [s, wall] is a timeout
+PROCESS_CELL_MAX_AGE_S = 1.0
+
+
+def _cell_timing(realtime: bool, in_process: bool) -> dict:
+    """open_hardware's load-cell timing: the defaults in real time; in lock-step a patient
+    answer timeout and, in process (polled by the world, aged on the simulated clock), the
+    default age limit; across processes (aged on the wall clock) a patient one."""
+    if realtime:
+        return {}
+    rate = 50.0
+    return {"loadcell_rate_hz": rate, "loadcell_timeout_s": LOCKSTEP_CELL_TIMEOUT_S,
+            "loadcell_max_age_s": 0.1 + 3.0 / rate if in_process else PROCESS_CELL_MAX_AGE_S}
+
+
 class SimWorld:
     """The simulated robot: ``hw`` (the hardware interface), ``tracker``, ``tick`` (lock-step
     hook or None), ``rig`` (in-process only), ``close()``."""
@@ -83,12 +103,13 @@ class InProcessWorld(SimWorld):
                  plant_rate_hz: float, eds: str | Path = EDS_PATH) -> None:
         clock = "wall" if realtime else "sync"
         self.rig = SimRig(scenario, winches=winches, clock=clock, plant_thread=realtime,
-                          plant_rate_hz=plant_rate_hz)
+                          plant_rate_hz=plant_rate_hz, watch_wall_heartbeats=realtime)
         try:
             self.rig.start()
             self.hw = open_hardware(self.rig.can_spec, self.rig.modbus_spec, eds=eds,
                                     winches=winches, clock=clock,
-                                    poll="thread" if realtime else "manual")
+                                    poll="thread" if realtime else "manual",
+                                    **_cell_timing(realtime, True))
             self.tracker = CallableTracker(self.rig.measure_pose)
         except BaseException:
             self.rig.close()
@@ -132,7 +153,8 @@ class ProcessWorld(SimWorld):
             self.info = self._endpoints(startup_s)
             clock = "wall" if realtime else "sync"
             self.hw = open_hardware(self.info["can"], self.info["modbus"], eds=eds,
-                                    winches=winches, clock=clock, poll="thread")
+                                    winches=winches, clock=clock, poll="thread",
+                                    **_cell_timing(realtime, False))
             self.tracker = open_tracker(self.info["tracker"])
         except BaseException:
             self._stop()

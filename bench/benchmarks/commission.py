@@ -30,7 +30,7 @@ from hal.drives_config import drive_settings
 from hal.scan import scan_nodes
 from hal.sdo_config import apply_configuration, compare_configuration
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @register("commission")

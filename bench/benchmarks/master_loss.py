@@ -2,7 +2,7 @@
 
 :func:`master_loss_trial` runs the eight simulated drives in this process behind a
 socketcand hub (:class:`firmware_sim.drive_rig.DriveRig`), a master in another process
-(``python -m bench.bench_master_loss master --can SPEC``: the HAL, started, enabled and
+(``python -m bench.benchmarks.master_loss master --can SPEC``: the HAL, started, enabled and
 paying every cable out at a constant speed), kills the master with SIGKILL, and watches
 the drives: when each enters Quick Stop Active, when it stands still, how far it went on
 the quick-stop ramp, and that it then holds. The drives stop on their own (consumer
@@ -31,18 +31,23 @@ import numpy as np
 
 from bench.benchmarks import register
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: cable speed of the master's motion when it dies [m/s]
 SPEED_M_S = 0.2
 
 
-def _master(can_spec: str, clock: str) -> int:
-    """The master process: start, enable, pay out at SPEED_M_S until killed (10 s at most)."""
+def _master(can_spec: str, clock: str, rpdo_timeout_s: float | None = None) -> int:
+    """The master process: start, enable, pay out at SPEED_M_S until killed (10 s at most).
+    ``rpdo_timeout_s``: the drives' RPDO deadline it configures (default the winch file's)."""
+    import dataclasses
+
     from controller.winch import load_winches
     from firmware_sim.cia402_drive import EDS_PATH
     from hal.drives import WinchDrives
 
     w = load_winches()
+    if rpdo_timeout_s is not None:
+        w = dataclasses.replace(w, bus=dataclasses.replace(w.bus, rpdo_timeout_s=rpdo_timeout_s))
     hal = WinchDrives.open(can_spec, w, EDS_PATH, clock=clock)
     hal.start()
     hal.enable_and_wait()
@@ -63,8 +68,13 @@ def _master(can_spec: str, clock: str) -> int:
     return 0
 
 
-def master_loss_trial(clock: str = "sync", timeout_s: float = 30.0) -> dict:
-    """One trial (see the module docstring); drives on ``clock`` ("sync" or "wall").
+def master_loss_trial(clock: str = "sync", timeout_s: float = 30.0,
+                      rpdo_timeout_s: float | None = None) -> dict:
+    """One trial (see the module docstring); drives on ``clock`` ("sync" or "wall");
+    ``rpdo_timeout_s`` the RPDO deadline the master configures (default the winch file's).
+
+    ``starved`` is True when a drive stopped before the kill: a live wall-clock master on a
+    busy host missed the RPDO deadline (the drive did right; the trial measured nothing).
 
     Returns ``qsa_s`` (SIGKILL to all eight in Quick Stop Active), ``stopped_s`` (to all
     standing still), per drive ``qsa_each_s``, ``stop_m`` (distance after the kill),
@@ -79,8 +89,9 @@ def master_loss_trial(clock: str = "sync", timeout_s: float = 30.0) -> dict:
     w = load_winches()
     rig = DriveRig(initial_lengths_m=10.0, clock=clock).start()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bench.bench_master_loss", "master", "--can",
-         rig.endpoint()["can"], "--clock", clock],
+        [sys.executable, "-m", "bench.benchmarks.master_loss", "master", "--can",
+         rig.endpoint()["can"], "--clock", clock,
+         *(() if rpdo_timeout_s is None else ("--rpdo-timeout", str(rpdo_timeout_s)))],
         cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True)
     try:
@@ -97,7 +108,7 @@ def master_loss_trial(clock: str = "sync", timeout_s: float = 30.0) -> dict:
         time.sleep(0.1)
         with rig.bank.lock:
             v = counts_to_m_rate(np.array([d.axis.vel for d in drives]), w)
-            assert all(d.state == State.OPERATION_ENABLED for d in drives)
+            starved = not all(d.state == State.OPERATION_ENABLED for d in drives)
             p_kill = rig.bank.positions_m()
         t_kill = time.monotonic()
         os.kill(proc.pid, signal.SIGKILL)
@@ -125,6 +136,7 @@ def master_loss_trial(clock: str = "sync", timeout_s: float = 30.0) -> dict:
         lags = [ls[0][2] if ls else None for ls in losses]
         return {
             "clock": clock,
+            "starved": starved,
             "speed_m_s": v.tolist(),
             "qsa_s": float(np.max(qsa)),
             "stopped_s": float(np.max(stopped)),
@@ -156,17 +168,18 @@ def bench_master_loss(quick: bool) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.bench_master_loss")
+    p = argparse.ArgumentParser(prog="python -m bench.benchmarks.master_loss")
     sub = p.add_subparsers(dest="what", required=True)
     m = sub.add_parser("master", help="run the master (the process to kill)")
     m.add_argument("--can", required=True)
     m.add_argument("--clock", choices=("sync", "wall"), default="sync")
+    m.add_argument("--rpdo-timeout", type=float, default=None, metavar="S")
     t = sub.add_parser("trial", help="run trials and print them")
     t.add_argument("--clock", choices=("sync", "wall"), default="sync")
     t.add_argument("-n", type=int, default=1)
     args = p.parse_args(argv)
     if args.what == "master":
-        return _master(args.can, args.clock)
+        return _master(args.can, args.clock, args.rpdo_timeout)
     for _ in range(args.n):
         r = master_loss_trial(args.clock)
         print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()})

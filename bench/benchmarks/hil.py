@@ -26,7 +26,7 @@ from firmware_sim.cia402_drive import EDS_PATH
 from firmware_sim.rig import SimRig
 from hal.interface import WinchHardware, open_hardware
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _cycle_s(hw: WinchHardware, repeat: int) -> float:

@@ -1,4 +1,4 @@
-"""Benchmark registry for ``cdpr bench``.
+"""The benchmarks of ``cdpr bench``: this registry, and one module per subject beside it.
 
 A benchmark is a plain function ``fn(quick: bool) -> dict[str, float]`` that
 returns one or more keys (medians, in the unit its key names: ``_us``, ``_ms``,
@@ -16,16 +16,16 @@ BenchFn = Callable[[bool], dict[str, float]]
 
 #: Modules whose import registers benchmarks. Add one line per module.
 MODULES: tuple[str, ...] = (
-    "bench.bench_physics",
-    "bench.bench_diagnose",
-    "bench.bench_hil_modbus",
-    "bench.bench_hil_can",
-    "bench.bench_hil",
-    "bench.bench_trajectory",
-    "bench.bench_dryrun",
-    "bench.bench_paper",
-    "bench.bench_commission",
-    "bench.bench_master_loss",
+    "bench.benchmarks.physics",
+    "bench.benchmarks.diagnose",
+    "bench.benchmarks.hil_modbus",
+    "bench.benchmarks.hil_can",
+    "bench.benchmarks.hil",
+    "bench.benchmarks.trajectory",
+    "bench.benchmarks.dryrun",
+    "bench.benchmarks.paper",
+    "bench.benchmarks.commission",
+    "bench.benchmarks.master_loss",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}

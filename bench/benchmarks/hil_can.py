@@ -24,7 +24,7 @@ from firmware_sim.cia402_drive import EDS_PATH
 from firmware_sim.drive_bank import SimulatedWinchBank
 from hal.drives import WinchDrives
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _cycle_s(hal: WinchDrives, repeat: int) -> float:
