@@ -1,6 +1,6 @@
 """The paper's campaigns (cdpr dry-run paper-paths / paper-poses), shortened.
 
-The full campaigns take minutes (bench/bench_paper.py times paper-paths); here every run is
+The full campaigns take minutes (bench/benchmarks/paper.py times paper-paths); here every run is
 cut a few seconds after the platform reached the path, on one case or one pose set.
 """
 
