@@ -23,6 +23,7 @@ MODULES: tuple[str, ...] = (
     "bench.benchmarks.hil",
     "bench.benchmarks.trajectory",
     "bench.benchmarks.dryrun",
+    "bench.benchmarks.paper",
     "bench.benchmarks.commission",
     "bench.benchmarks.master_loss",
 )

@@ -34,7 +34,9 @@ HELP = "run the controller in the loop with the simulated robot along a path"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="scenario file (cdpr-scenario/1) or shipped name "
-                                    "(paper-centre, paper-calibration)")
+                                    "(paper-centre, paper-calibration, paper-heavy); or a "
+                                    "campaign of the paper: paper-paths (Table 3, Fig. 7), "
+                                    "paper-poses (Fig. 6)")
     p.add_argument("--robot", metavar="PATH", default=None,
                    help="robot.toml the controller runs with (name or file) [the scenario's "
                         "robot]")
@@ -70,6 +72,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "conditions and defaults in the README's reaction table)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    g = p.add_argument_group("the paper's campaigns (paper-paths, paper-poses)")
+    g.add_argument("--jobs", type=int, default=2, metavar="N",
+                   help="runs in parallel processes [2]")
+    g.add_argument("--models", metavar="LIST", default=None,
+                   help="controller models, of nominal, remeasured, compliant, diagnosed, and "
+                        "for paper-paths planned (the measured-vs-planned tensions comparison) "
+                        "[paper-paths: all; paper-poses: nominal,remeasured]")
+    g.add_argument("--diagnosed-model", metavar="ROBOT.toml", default=None,
+                   help="the diagnosed model: this corrected robot.toml (no calibration run)")
+    g.add_argument("--cases", metavar="LIST", default=None,
+                   help="paper-paths: cases as PATH/INIT, e.g. side/centre [the four of "
+                        "Table 3]")
+    g.add_argument("--sets", metavar="LIST", default=None,
+                   help="paper-poses: pose sets, of violet, pink, gold [all three]")
+    g.add_argument("--cycles", type=int, default=30, metavar="N",
+                   help="paper-poses: visits of each pose [30]")
+    g.add_argument("--speeds", metavar="LIST", default=None,
+                   help="paper-poses: velocities in %% of 0.5 m/s [10,40,100]")
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -117,6 +137,10 @@ def _progress_printer(quiet: bool, duration_s: float | None = None):
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.scenario in ("paper-paths", "paper-poses"):
+        from bench.dryrun import paper_command
+
+        return paper_command.run(args)
     import dataclasses
 
     import numpy as np
