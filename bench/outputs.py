@@ -39,6 +39,8 @@ def output_file_problem(path: str | Path, what: str = "output") -> str | None:
         return f"{what}: {p} is a directory, expected a file name"
     if p.exists() and not os.access(p, os.W_OK):
         return f"{what}: {p} exists and is not writable"
+    if p.exists() and not p.is_file():  # /dev/stdout, a pipe: written in place
+        return None
     return _parent_problem(p.parent if str(p.parent) else Path("."), f"{what} {p}")
 
 
@@ -52,4 +54,25 @@ def output_dir_problem(path: str | Path, what: str = "output") -> str | None:
     return _parent_problem(p.parent if str(p.parent) else Path("."), f"{what} {p}")
 
 
-__all__ = ["output_dir_problem", "output_file_problem"]
+def write_text_file(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` so that a reader never sees half a file: a regular
+    file (or a new one) is written beside and renamed over it; a path that exists and is
+    not a regular file (``/dev/stdout``, a named pipe) is written in place, never replaced.
+    Raises OSError naming the path."""
+    p = Path(path)
+    try:
+        if p.exists() and not p.is_file():
+            with open(p, "w", encoding="utf-8") as f:
+                f.write(text)
+            return
+        tmp = p.with_name(f".{p.name}.tmp")
+        try:
+            tmp.write_text(text, encoding="utf-8")
+            os.replace(tmp, p)
+        finally:
+            tmp.unlink(missing_ok=True)
+    except OSError as e:
+        raise OSError(f"{p}: cannot write: {e.strerror or e}") from e
+
+
+__all__ = ["output_dir_problem", "output_file_problem", "write_text_file"]

@@ -144,6 +144,44 @@ def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
     assert rc == 2 and "OUT_DIR" in err and "a_file" in err and "Traceback" not in err
 
 
+def test_diagnose_outputs_are_probed_by_a_real_write(tmp_path, capsys):
+    """Permission bits lie (/proc, read-only mounts, root): the outputs are probed by a real
+    write before the fit, and the refusal names the option and the path."""
+    from bench.diagnosis.report import prepare_outputs
+
+    with pytest.raises(OSError, match="--write-model /proc/m.toml"):
+        prepare_outputs("/proc/m.toml")
+    with pytest.raises(OSError, match="--plots"):
+        prepare_outputs(None, "/proc/plots")
+    prepare_outputs(tmp_path / "new" / "m.toml", tmp_path / "plots")  # creatable: fine
+    rc = main(["diagnose", str(tmp_path), "--json", "--out", "/proc/r.json"])
+    assert rc == 2 and "--out" in json.loads(capsys.readouterr().out)["error"]
+
+
+def test_report_files_are_written_whole_and_special_files_kept(tmp_path):
+    from bench.outputs import write_text_file
+
+    f = tmp_path / "r.json"
+    write_text_file(f, "one")
+    write_text_file(f, "two")
+    assert f.read_text() == "two" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+    # a special file is written in place, never renamed over; a failed write says so
+    with pytest.raises(OSError, match="/dev/full: cannot write"):
+        write_text_file("/dev/full", "x" * 100_000)
+    assert Path("/dev/full").is_char_device()
+    write_text_file("/dev/null", "fine")
+    assert Path("/dev/null").is_char_device()
+
+
+def test_compare_names_a_report_that_is_not_utf8(tmp_path, capsys):
+    bad = tmp_path / "report.json"
+    bad.write_bytes(b'{"format": "cdpr-diagnosis/1", "x": "\xff\xfe"}'.replace(b"\\x", b"\\x")
+                    + b"\xff")
+    rc = main(["compare", str(SCENARIO), str(bad), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 2 and "not UTF-8" in out["error"] and "report.json" in out["error"]
+
+
 # ---------------------------------------------------------------------------- fuzzing
 
 FUZZ = settings(settings.default, max_examples=max(20, settings.default.max_examples),

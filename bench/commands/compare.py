@@ -155,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
         report = json.loads(p.read_text(encoding="utf-8"))
     except OSError as e:
         return _fail(args, f"{p}: cannot read: {e.strerror or e}")
+    except UnicodeDecodeError as e:
+        return _fail(args, f"{p}: not UTF-8 text (byte {e.start}: {e.reason})")
     except json.JSONDecodeError as e:
         return _fail(args, f"{p}:{e.lineno}: not JSON ({e.msg})")
     if not isinstance(report, dict) or report.get("format") != "cdpr-diagnosis/1":

@@ -89,9 +89,9 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 
 def _write_json(path: Path, obj: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1), encoding="utf-8")
-    os.replace(tmp, path)
+    from bench.outputs import write_text_file
+
+    write_text_file(path, json.dumps(obj, indent=1))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -111,10 +111,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         prepare_outputs(args.write_model, args.plots)
         if args.out:
-            out = Path(args.out)
-            if out.is_dir() or not (out.parent if str(out.parent) else Path(".")).is_dir() \
-                    or not os.access(out.parent if str(out.parent) else Path("."), os.W_OK):
-                raise OSError(f"--out {out}: cannot write there")
+            from bench.outputs import output_file_problem
+
+            problem = output_file_problem(args.out, "--out")
+            if problem:
+                raise OSError(problem)
     except OSError as e:
         return _fail(args, 2, str(e))
     try:
@@ -141,13 +142,18 @@ def run(args: argparse.Namespace) -> int:
         except Exception as e:  # noqa: BLE001 - the report is not lost for a plot
             print(f"cdpr diagnose: --plots {args.plots}: {type(e).__name__}: {e}",
                   file=sys.stderr)
+    code = 0
+    if dg.write_error:
+        print(f"cdpr diagnose: {dg.write_error}", file=sys.stderr)
+        code = 1
     if args.out:
         try:
             _write_json(Path(args.out), dg.report)
-        except OSError as e:
-            print(f"cdpr diagnose: --out {args.out}: {e}", file=sys.stderr)
+        except OSError as e:  # the report still goes to stdout below: nothing lost
+            print(f"cdpr diagnose: --out {e}", file=sys.stderr)
+            code = 1
     if args.json:
         print(json.dumps(dg.report))
     else:
         print(_human(dg.report))
-    return 0
+    return code

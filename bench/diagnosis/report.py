@@ -80,6 +80,8 @@ class Diagnosis:
     baseline_forward: Forward
     fitted_forward: Forward
     heldout: np.ndarray
+    #: why ``--write-model`` could not be written after the fit (None: written or not asked)
+    write_error: str | None = None
 
 
 def _f(x: float | None) -> float | None:
@@ -226,29 +228,17 @@ def split_heldout(s: Samples, init_pose: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def prepare_outputs(write_model: str | Path | None, plots: str | Path | None = None) -> None:
-    """Check before the fit that the outputs can be written (raises OSError naming them)."""
-    import os
-    import tempfile
+    """Check before the fit that the outputs can be written (raises OSError naming them):
+    a real write in their directory (:mod:`bench.outputs`), not the permission bits."""
+    from bench.outputs import output_dir_problem, output_file_problem
 
+    problem = None
     if write_model is not None:
-        p = Path(write_model)
-        if p.exists() and p.is_dir():
-            raise OSError(f"--write-model {p}: is a directory")
-        parent = p.parent if str(p.parent) else Path(".")
-        if not parent.is_dir():
-            raise OSError(f"--write-model {p}: directory {parent} does not exist")
-        if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
-            raise OSError(f"--write-model {p}: cannot write there")
-    if plots is not None:
-        d = Path(plots)
-        if d.exists() and not d.is_dir():
-            raise OSError(f"--plots {d}: exists and is not a directory")
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryFile(dir=d):
-                pass
-        except OSError as e:
-            raise OSError(f"--plots {d}: cannot write there ({e.strerror or e})") from e
+        problem = output_file_problem(write_model, "--write-model")
+    if problem is None and plots is not None:
+        problem = output_dir_problem(plots, "--plots")
+    if problem is not None:
+        raise OSError(problem)
 
 
 def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor | None = None,
@@ -383,14 +373,18 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
 
     mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
                          pose_noise, excluded)
-    model_path = None
+    model_path = write_error = None
     if write_model is not None:
         named = ", ".join(f"{e['name']} ({', '.join(e['params'])})" for e in effects) or "none"
         header = (f"corrected model written by cdpr diagnose from {path}\n"
                   f"effects and parameters named by the report: {named}\n"
                   "parameters the report did not name keep the recording's model values")
-        model_path = str(save_robot(named_robot(model, effects).replace(
-            name=f"{model.name}-corrected"), write_model, header))
+        try:
+            model_path = str(save_robot(named_robot(model, effects).replace(
+                name=f"{model.name}-corrected"), write_model, header))
+        except OSError as e:  # checked before the fit; a disk that filled since: say so
+            write_error = f"--write-model {write_model}: cannot write: {e.strerror or e}"
+            say(write_error)
     report = {
         "format": FORMAT,
         "recording": str(path),
@@ -402,7 +396,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         "fitted": fitted_out,
         "model": model_path,
     }
-    return Diagnosis(report, rec, s, rm, sel, fitted, base_fw, fit_fw, test)
+    return Diagnosis(report, rec, s, rm, sel, fitted, base_fw, fit_fw, test, write_error)
 
 
 def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progress) -> FitResult:
