@@ -783,12 +783,19 @@ class WinchDrives:
         self._request[self._mask(nodes)] = RQ.OFF
 
     def quick_stop(self, nodes: Iterable[int] | None = None) -> None:
-        """Request a quick stop (each drive stops on its 0x605A ramp)."""
+        """Request a quick stop (each drive stops on its 0x605A ramp). Never raises (a
+        supervisor's reaction): on a dead link an event says it cannot reach the drives,
+        which stop on their own (consumer heartbeat, 0x6007)."""
         self._request[self._mask(nodes)] = RQ.QUICK_STOP
+        if not self.link_up():
+            self._bus_event(f"quick stop requested but {self._link_why()}: the drives stop "
+                            "on their own when they miss the master's heartbeat", "link_lost")
 
     def fault_reset(self, nodes: Iterable[int] | None = None, hold_cycles: int = 20) -> None:
         """Reset faulted drives with a rising edge of controlword bit 7 (over the next cycles).
-        They come back disabled, never enabled: that takes :meth:`enable`."""
+        They come back disabled, never enabled: that takes :meth:`enable`. Raises
+        BusLinkError on a dead link (an operator's action: it cannot be done)."""
+        self._require_link("fault_reset")
         m = self._mask(nodes) & faulted(self._states)
         self._reset_left[m] = hold_cycles
         self._request[m] = RQ.DISABLE

@@ -78,6 +78,11 @@ def test_link_loss_states_unknown_and_errors_name_the_bus(setup):
         hal.recover()
     with pytest.raises(BusLinkError, match="shutdown: --can socketcand"):
         hal.shutdown()
+    with pytest.raises(BusLinkError, match="fault_reset: --can socketcand"):
+        hal.fault_reset()
+    hal.quick_stop()  # a supervisor's reaction: never raises, says it cannot reach them
+    ev = hal.events()
+    assert [e.kind for e in ev] == ["link_lost"] and "quick stop requested" in ev[0].text
     # behind the dead link the drives lost their master and hold in Quick Stop Active
     wait_for(lambda: all(d.state == State.QUICK_STOP_ACTIVE for d in rig.bank.drives),
              what="drives holding")
