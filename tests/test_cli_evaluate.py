@@ -55,7 +55,8 @@ def run_json(capsys, *argv: str) -> tuple[int, dict, str]:
 def without_seconds(case: dict) -> dict:
     out = {k: v for k, v in case.items() if k not in ("seconds", "pid")}
     if "info" in out:
-        out["info"] = {k: v for k, v in out["info"].items() if k not in ("case_seconds", "cpu_seconds")}
+        out["info"] = {k: v for k, v in out["info"].items()
+                       if k not in ("case_seconds", "cpu_seconds")}
     return out
 
 
