@@ -197,9 +197,11 @@ def test_tensions_in_the_wrong_unit_are_refused(plain, tmp_path, capsys):
 
 
 def test_outputs_are_checked_before_the_fit(plain, tmp_path, capsys):
-    for opt, path in (("--write-model", tmp_path / "missing" / "x.toml"),
+    blocker = tmp_path / "a_file"  # a missing directory would be made: a file cannot be
+    blocker.write_text("x")
+    for opt, path in (("--write-model", blocker / "x.toml"),
                       ("--write-model", tmp_path),
-                      ("--out", tmp_path / "missing" / "r.json")):
+                      ("--out", blocker / "r.json")):
         rc = main(["diagnose", str(plain), "--json", "--jobs", "1", opt, str(path)])
         out, err = capsys.readouterr()
         assert rc == 2 and opt in json.loads(out)["error"]
