@@ -177,6 +177,9 @@ class Scenario:
     thermal_strain_per_s: float = 0.0
     friction_n: np.ndarray | float = 0.0
     recording: RecordingSpec = field(default_factory=RecordingSpec)
+    #: the supervisor's reactions a dry run of this scenario changes by default, condition
+    #: -> reaction name (``react = { slack = "log" }``; ``cdpr dry-run --react`` overrides)
+    react: dict[str, str] = field(default_factory=dict)
 
     def nuisances(self, process: bool = True) -> Nuisances:
         """The plant's nuisances for this scenario (``process``: with the per-visit process
@@ -189,7 +192,7 @@ class Scenario:
 
 
 _TOP = {"format", "robot", "seed", "init_pose", "truth", "noise", "nuisance", "poses", "notes",
-        "path", "recording"}
+        "path", "recording", "react"}
 _NUISANCE = ("hysteresis_m", "drift_m_per_h", "backlash_m", "backlash_cables",
              "thermal_strain_per_h", "friction_n", "friction_cables")
 _RECORDING = {"kind", "dwell_at_targets", "rate_hz", "state_column", "tracker", "load_cells"}
@@ -372,7 +375,24 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     return Scenario(p, model, truth, effects, slips, init_pose,
                     int(_num(p, "seed", data.get("seed", 0), nonneg=True)), noise, hyst, drift,
                     PoseSet(**kw), str(data.get("notes", "")), run_path, backlash, thermal,
-                    friction, RecordingSpec(**rkw))
+                    friction, RecordingSpec(**rkw), _react(p, data.get("react", {})))
+
+
+def _react(p: Path, react: Any) -> dict[str, str]:
+    """The ``react`` table: supervisor conditions -> reaction names, checked against the
+    supervisor's (controller/supervisor.py)."""
+    from controller.supervisor import parse_reactions
+
+    if not isinstance(react, dict):
+        raise ScenarioError(f"{p}: react: must be a table of condition = \"reaction\"")
+    for k, v in react.items():
+        if not isinstance(v, str):
+            raise ScenarioError(f"{p}: react.{k}: must be a reaction name (string)")
+        try:
+            parse_reactions([f"{k}={v}"])
+        except ValueError as e:
+            raise ScenarioError(f"{p}: react.{k}: {e}") from e
+    return {str(k): str(v).lower() for k, v in react.items()}
 
 
 def load_scenario(path: str | Path) -> Scenario:

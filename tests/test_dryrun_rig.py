@@ -240,3 +240,24 @@ def test_lockstep_in_process_survives_a_starved_heartbeat_thread(watch_wall):
             assert hw.faults() == []
     finally:
         world.close()
+
+
+def test_a_scenario_changes_the_default_reactions_and_the_command_line_wins(tmp_path, capsys):
+    from firmware_sim.scenario import ScenarioError
+
+    assert load_scenario(resolve_scenario("paper-calibration")).react == {"slack": "log"}
+    assert SC.react == {}
+    text = resolve_scenario("paper-centre").read_text(encoding="utf-8")
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('format = "cdpr-scenario/1"',
+                                'format = "cdpr-scenario/1"\nreact = { slack = "ignore" }'),
+                   encoding="utf-8")
+    with pytest.raises(ScenarioError, match=r"bad\.toml: react\.slack"):
+        load_scenario(bad)
+    code = main(["dry-run", "paper-calibration", "--duration", "0.3", "--json"])
+    err = capsys.readouterr().err
+    assert code == 0 and "reactions changed: slack=log (scenario: slack=log)" in err
+    code = main(["dry-run", "paper-calibration", "--duration", "0.3", "--json",
+                 "--react", "slack=hold"])
+    err = capsys.readouterr().err
+    assert code == 0 and "reactions changed: slack=hold (scenario: slack=log)" in err

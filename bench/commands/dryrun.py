@@ -177,8 +177,9 @@ def run(args: argparse.Namespace) -> int:
     if args.speed_pct is not None and not 0 < args.speed_pct <= 100:
         return _fail(args, 2, f"--speed-pct {args.speed_pct}: must be in (0, 100]")
     from controller.supervisor import parse_reactions
-    try:
-        reactions = parse_reactions(args.react)
+    try:  # the scenario's own (its ``react`` table), then the command line's
+        reactions = parse_reactions([f"{k}={v}" for k, v in sc.react.items()])
+        reactions.update(parse_reactions(args.react))
     except ValueError as exc:
         return _fail(args, 2, f"--react {exc}")
     if args.decimate is not None and args.decimate < 1:
@@ -247,6 +248,11 @@ def run(args: argparse.Namespace) -> int:
               f"{spec.name or path_ref}, {rate:.1f} Hz (bus limit {top:.1f} Hz), "
               f"{'real time' if args.realtime else 'lock-step, as fast as possible'}, "
               f"rig {args.rig}", file=sys.stderr)
+        if reactions:
+            print("cdpr dry-run: supervisor reactions changed: " + ", ".join(
+                f"{k}={r.label}" for k, r in reactions.items())
+                + (f" (scenario: {', '.join(f'{k}={v}' for k, v in sc.react.items())})"
+                   if sc.react else ""), file=sys.stderr)
     stop = threading.Event()
     previous = {}
 
