@@ -27,10 +27,12 @@ import threading
 import time
 from pathlib import Path
 
+from bench.dryrun.lockstep_bus import deliver_in_sender_thread
 from controller.winch import WinchSet
 from firmware_sim.cia402_drive import EDS_PATH
 from firmware_sim.rig import SimRig
 from firmware_sim.scenario import Scenario
+from hal.can_bus import open_bus
 from hal.interface import CanModbusHardware, open_hardware
 from hal.tracker import CallableTracker, Tracker, open_tracker
 
@@ -102,19 +104,31 @@ class InProcessWorld(SimWorld):
     def __init__(self, scenario: Scenario, winches: WinchSet, realtime: bool,
                  plant_rate_hz: float, eds: str | Path = EDS_PATH) -> None:
         clock = "wall" if realtime else "sync"
-        self.rig = SimRig(scenario, winches=winches, clock=clock, plant_thread=realtime,
-                          plant_rate_hz=plant_rate_hz, watch_wall_heartbeats=realtime)
+        # the drives on the HAL's virtual bus (a cheap copy of each frame, python-can's
+        # deep-copies it), on a channel of their own
+        can_spec = f"virtual:dryrun-{os.getpid()}-{id(self):x}"
+        bus = open_bus(can_spec)
+        try:
+            self.rig = SimRig(scenario, winches=winches, clock=clock, plant_thread=realtime,
+                              plant_rate_hz=plant_rate_hz, watch_wall_heartbeats=realtime,
+                              bus=bus)
+        except BaseException:
+            bus.shutdown()
+            raise
         try:
             self.rig.start()
-            self.hw = open_hardware(self.rig.can_spec, self.rig.modbus_spec, eds=eds,
+            self.hw = open_hardware(can_spec, self.rig.modbus_spec, eds=eds,
                                     winches=winches, clock=clock,
                                     poll="thread" if realtime else "manual",
                                     **_cell_timing(realtime, True))
             self.tracker = CallableTracker(self.rig.measure_pose)
+            if not realtime:  # lock-step: no thread hand-off per frame (same frames, callbacks)
+                self.buses = (deliver_in_sender_thread(self.rig.bank.network),
+                              deliver_in_sender_thread(self.hw.drives.network))
         except BaseException:
             self.rig.close()
             raise
-        self.info = dict(self.rig.endpoints(), kind="inprocess")
+        self.info = dict(self.rig.endpoints(), can=can_spec, virtual=can_spec, kind="inprocess")
         self._plant_period = 1.0 / plant_rate_hz
         self._next_plant = 0.0
         self.lockstep = not realtime
