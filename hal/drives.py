@@ -428,7 +428,7 @@ class WinchDrives:
         return out
 
     def _drain(self) -> None:
-        for k in np.flatnonzero(self._queue_overflow):
+        for k in (np.flatnonzero(self._queue_overflow) if self._queue_overflow.any() else ()):
             self._event(int(k), "emcy_overflow", 0, f"{self._queue_overflow[k]} EMCYs not kept "
                         "(more than the master could take between two cycles)")
             self._queue_overflow[k] = 0
@@ -871,6 +871,8 @@ class WinchDrives:
         self.cycle += 1
 
     def _check_pdos(self, fresh: np.ndarray, n_new: np.ndarray, expected: np.ndarray) -> None:
+        if fresh.all() and not self._miss_streak.any() and not (n_new > 1).any():
+            return  # every drive answered once, none was missing: nothing to report
         for k in np.flatnonzero(expected & ~fresh):
             if self._miss_streak[k] == 0:
                 self._event(k, "tpdo_missing", CODE_PDO_TIMEOUT,
@@ -900,24 +902,26 @@ class WinchDrives:
         new = decode_states(self._sw, self._have)
         was_fault = faulted(old)
         now_fault = faulted(new)
-        for k in np.flatnonzero(now_fault & ~was_fault):
+        any_fault = bool(was_fault.any() or now_fault.any())
+        for k in np.flatnonzero(now_fault & ~was_fault) if any_fault else ():
             code = self._cause(k)
             self._fault_code[k] = code
             text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
             self._event(k, "fault", code, f"{DriveState(new[k]).name}: {text}")
             self._request[k] = RQ.DISABLE
             self._confirm_fault_code(int(k))
-        for k in np.flatnonzero(~now_fault & was_fault & (new != ST.UNKNOWN)):
+        cleared = ~now_fault & was_fault & (new != ST.UNKNOWN) if any_fault else ()
+        for k in np.flatnonzero(cleared) if any_fault else ():
             self._event(k, "fault_cleared", 0, f"now {DriveState(new[k]).name}")
             self._fault_code[k] = 0
         known_ok = ~now_fault & (new != ST.UNKNOWN)
-        for k in np.flatnonzero(known_ok):
+        for k in np.flatnonzero(known_ok) if any(self._window_mark) else ():
             del self._window[k][:self._window_mark[k]]
         # a drive that quick-stopped on its own (master lost, 0x6007) holds there until the
         # controller enables it again: the master never re-enables it by itself
         qs = new == ST.QUICK_STOP_ACTIVE
         for k in np.flatnonzero(qs & (old != ST.QUICK_STOP_ACTIVE)
-                                & (self._request != RQ.QUICK_STOP)):
+                                & (self._request != RQ.QUICK_STOP)) if qs.any() else ():
             self._self_stopped[k] = True
             self._request[k] = RQ.QUICK_STOP
             code = next((c for c in reversed(self._window[k]) if c), int(self._code[k]))
@@ -930,7 +934,7 @@ class WinchDrives:
         self._target[entering] = self._pos[entering]  # hold where it stands
         self._setpoint_ok = oe
         limit = oe & ((self._sw & SW_INTERNAL_LIMIT) != 0)
-        for k in np.flatnonzero(limit & ~self._limit):
+        for k in np.flatnonzero(limit & ~self._limit) if limit.any() else ():
             self._event(k, "internal_limit", 0, "software position limit reached (bit 11)")
         self._limit = limit
         self._states = new
@@ -941,12 +945,12 @@ class WinchDrives:
         now = self._clock()
         self._hb_last = np.maximum(self._hb_last, self._rx_hb_t)
         back = self._hb_lost & (now - self._hb_last <= self.hb_timeout_s + 1e-9)
-        for k in np.flatnonzero(back):
+        for k in np.flatnonzero(back) if back.any() else ():
             self._hb_lost[k] = False
             self._event(k, "heartbeat_resumed", CODE_HEARTBEAT, "heartbeat back")
         watched = self._started & ~self._rebooted & ~self._relink
         lost = watched & ~self._hb_lost & (now - self._hb_last > self.hb_timeout_s + 1e-9)
-        for k in np.flatnonzero(lost):
+        for k in np.flatnonzero(lost) if lost.any() else ():
             self._hb_lost[k] = True
             self._have[k] = False  # its state is unknown now
             self._setpoint_ok[k] = False
@@ -960,16 +964,17 @@ class WinchDrives:
         cw = controlwords(states, self._request).astype(np.int64)
         # fault reset: bit 7 low for one cycle, then high while the drive is in Fault
         resetting = self._reset_left > 0
-        cw = np.where(resetting & ((self._last_cw & CW_FAULT_RESET) == 0) & faulted(states),
-                      CW_FAULT_RESET, cw)
-        hold = resetting & ((self._last_cw & CW_FAULT_RESET) != 0) & faulted(states)
-        cw = np.where(hold, CW_FAULT_RESET, cw)
-        done = resetting & ~faulted(states)
-        self._reset_left[done] = 0
-        self._reset_left[resetting & ~done] -= 1
-        for k in np.flatnonzero(resetting & ~done & (self._reset_left == 0)):
-            self._event(k, "fault_reset_failed", int(self._fault_code[k]),
-                        "still in Fault after the reset edge (cause persists?)")
+        if resetting.any():
+            cw = np.where(resetting & ((self._last_cw & CW_FAULT_RESET) == 0) & faulted(states),
+                          CW_FAULT_RESET, cw)
+            hold = resetting & ((self._last_cw & CW_FAULT_RESET) != 0) & faulted(states)
+            cw = np.where(hold, CW_FAULT_RESET, cw)
+            done = resetting & ~faulted(states)
+            self._reset_left[done] = 0
+            self._reset_left[resetting & ~done] -= 1
+            for k in np.flatnonzero(resetting & ~done & (self._reset_left == 0)):
+                self._event(k, "fault_reset_failed", int(self._fault_code[k]),
+                            "still in Fault after the reset edge (cause persists?)")
         # a drive not enabled, or being enabled now, gets its actual position as target
         going = enabling(states, cw)
         target = np.where(self._setpoint_ok & ~going, self._target, self._pos)
@@ -1124,7 +1129,11 @@ class WinchDrives:
     def faults(self) -> list[DriveFault]:
         """Active faults (drive Fault, quick stop of its own, heartbeat lost, node reset,
         wrong NMT state, link lost)."""
-        out = []
+        out: list[DriveFault] = []
+        nmt_bad = self._started & (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
+        if not (self._relink.any() or faulted(self._states).any() or self._self_stopped.any()
+                or self._hb_lost.any() or self._rebooted.any() or nmt_bad.any()):
+            return out  # none of the conditions below holds for any drive
         for k in range(self.n):
             nid, cable = self.node_ids[k], self.winches.cables[k]
             if self._relink[k]:

@@ -98,12 +98,25 @@ _CW_TABLE[Request.QUICK_STOP, :] = CW_QUICK_STOP
 _CW_TABLE[Request.QUICK_STOP, [_S.FAULT, _S.FAULT_REACTION_ACTIVE]] = CW_DISABLE_VOLTAGE
 
 
+def _state_table() -> np.ndarray:
+    """The state of every value of the statusword bits the masks look at (0x6F), by
+    :data:`SW_MASKS` in order (a later match wins), UNKNOWN where none matches."""
+    bits = np.arange(0x70, dtype=np.int64)
+    out = np.full(bits.shape, ST.UNKNOWN, dtype=np.int8)
+    for mask, value, state in SW_MASKS:
+        out[(bits & mask) == value] = state
+    return out
+
+
+_SW_BITS = 0x6F  # every mask of SW_MASKS lies within these bits
+assert all(mask & ~_SW_BITS == 0 for mask, _, _ in SW_MASKS)
+_STATE_OF_BITS = _state_table()
+
+
 def decode_states(statuswords: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
     """CiA 402 states (:class:`DriveState` values, int8) of statuswords, shape (n,)."""
     sw = np.asarray(statuswords, dtype=np.int64)
-    out = np.full(sw.shape, ST.UNKNOWN, dtype=np.int8)
-    for mask, value, state in SW_MASKS:
-        out[(sw & mask) == value] = state
+    out = _STATE_OF_BITS[sw & _SW_BITS]  # one look-up per drive (a table of SW_MASKS)
     if valid is not None:
         out[~np.asarray(valid, dtype=bool)] = ST.UNKNOWN
     return out
@@ -119,7 +132,8 @@ def enabling(states: np.ndarray, controlwords_: np.ndarray) -> np.ndarray:
     s = np.asarray(states)
     cw = np.asarray(controlwords_)
     going = (cw & 0x8F) == CW_ENABLE_OPERATION
-    return going & np.isin(s, (ST.READY_TO_SWITCH_ON, ST.SWITCHED_ON, ST.QUICK_STOP_ACTIVE))
+    return going & ((s == ST.READY_TO_SWITCH_ON) | (s == ST.SWITCHED_ON)
+                    | (s == ST.QUICK_STOP_ACTIVE))
 
 
 def faulted(states: np.ndarray) -> np.ndarray:

@@ -151,9 +151,12 @@ class Readings:
 
 def loadcell_faults(r: TensionReading) -> list[HardwareFault]:
     """The cables whose tension is not OK, as faults naming the Modbus unit."""
+    bad = r.status != CableStatus.OK
+    if not bad.any():
+        return []
     codes = r.exception_codes if r.exception_codes is not None else np.zeros(len(r.cables))
     out = []
-    for k in np.flatnonzero(r.status != CableStatus.OK):
+    for k in np.flatnonzero(bad):
         st = CableStatus(int(r.status[k]))
         out.append(HardwareFault(LOADCELL, int(r.unit_ids[k]), r.cables[k], st.name.lower(),
                                  int(codes[k]), r.messages[k] or st.name))
@@ -169,7 +172,10 @@ class LoadCellStatusTracker:
         self.events: list[HardwareEvent] = []
 
     def update(self, r: TensionReading, t_s: float, cycle: int) -> None:
-        for k in np.flatnonzero(r.status != self.status):
+        changed = r.status != self.status
+        if not changed.any():
+            return  # the same statuses (kept as they are)
+        for k in np.flatnonzero(changed):
             st = CableStatus(int(r.status[k]))
             if st is CableStatus.NO_DATA or (
                     st is CableStatus.OK and self.status[k] == CableStatus.NO_DATA):

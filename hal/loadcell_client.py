@@ -414,13 +414,15 @@ class LoadCellClient:
             comm_msg = list(self._comm_msg)
         m = self.map
         # NaN times (nothing received yet) give infinite ages
-        age = np.where(np.isnan(t_sample), np.inf, t - t_sample)
-        since_answer = np.where(np.isnan(t_answer), np.inf, t - t_answer)
-        stuck_for = np.nan_to_num(t_answer - t_sample, nan=0.0)
+        age = t - t_sample
+        age[np.isnan(t_sample)] = np.inf
+        since_answer = t - t_answer
+        since_answer[np.isnan(t_answer)] = np.inf
+        stuck_for = t_answer - t_sample  # times are finite or NaN: NaN (none yet) counts as 0
+        stuck_for[np.isnan(stuck_for)] = 0.0
         live = status == CableStatus.OK
         sensor = live & ((bits >> m.sensor_fault_bit) & 1).astype(bool)
-        with np.errstate(invalid="ignore"):
-            beyond = (raw < m.rated_min_N) | (raw > m.rated_max_N)
+        beyond = (raw < m.rated_min_N) | (raw > m.rated_max_N)  # NaN: neither (no warning)
         overload = live & (((bits >> m.overload_bit) & 1).astype(bool) | beyond)
         nan = live & np.isnan(raw)
         stale = live & (stuck_for > self.stale_s)
@@ -433,14 +435,16 @@ class LoadCellClient:
         status[sensor] = CableStatus.SENSOR_FAULT
         status[expired] = CableStatus.TIMEOUT
         ok = status == CableStatus.OK
-        values = np.full(m.n, np.nan)
-        values[ok] = self.calibration.true_from_measured(raw)[ok]
+        values = self.calibration.true_from_measured(raw)
         messages = [""] * m.n
-        for k in np.flatnonzero(~ok):
-            messages[k] = self._message(
-                k, CableStatus(int(status[k])), comm_msg[k], raw[k], bits[k],
-                counter[k], stuck_for[k], since_answer[k], bool(live[k]),
-            )
+        if not ok.all():
+            values[~ok] = np.nan
+            for k in np.flatnonzero(~ok):
+                messages[k] = self._message(
+                    k, CableStatus(int(status[k])), comm_msg[k], raw[k], bits[k],
+                    counter[k], stuck_for[k], since_answer[k], bool(live[k]),
+                )
+        exc[status != CableStatus.EXCEPTION] = 0
         return TensionReading(
             values_N=values,
             age_s=age,
@@ -450,7 +454,7 @@ class LoadCellClient:
             t=t,
             cables=m.cables,
             unit_ids=m.unit_ids,
-            exception_codes=np.where(status == CableStatus.EXCEPTION, exc, 0),
+            exception_codes=exc,
         )
 
     def _message(
