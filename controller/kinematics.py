@@ -28,6 +28,14 @@ EZ = np.array([0.0, 0.0, 1.0])
 _NO_PLANE = np.zeros((0, 3))  # e_h placeholder when no cable has a pulley
 
 
+_add_reduce = np.add.reduce
+
+
+def _sum_last(x: np.ndarray) -> np.ndarray:
+    """``x.sum(axis=-1)`` (the same reduction)."""
+    return _add_reduce(x, axis=-1)
+
+
 @dataclass(slots=True)
 class CableState:
     """Geometry of all cables at one pose (arrays over the n cables).
@@ -76,8 +84,10 @@ def cable_state(
         Rb = anchors @ np.swapaxes(R, -1, -2)
         B = pose[..., None, :3] + Rb
     b = B - exits  # from A to B
-    if radius is None or not (radius > 0).any():
-        d = np.sqrt((b * b).sum(axis=-1))
+    # (np.count_nonzero and np.add.reduce: any() and sum() without their Python wrappers,
+    # the same results; this runs every control cycle)
+    if radius is None or not np.count_nonzero(radius > 0):
+        d = np.sqrt(_sum_last(b * b))
         u = b / -d[..., None]
         zeros = np.zeros(d.shape)
         return CableState(R, Rb, B, exits, exits, u, d, zeros, d, zeros, _NO_PLANE, zeros)
@@ -85,9 +95,9 @@ def cable_state(
     bz = b[..., 2]
     e_h = b.copy()
     e_h[..., 2] = 0.0
-    b_h = np.sqrt((e_h * e_h).sum(axis=-1))
+    b_h = np.sqrt(_sum_last(e_h * e_h))
     on_axis = b_h == 0  # B on the swivel axis (degenerate): any plane, take +x
-    if on_axis.any():
+    if np.count_nonzero(on_axis):
         e_h[on_axis] = (1.0, 0.0, 0.0)
         e_h /= np.where(on_axis, 1.0, b_h)[..., None]
     else:
@@ -101,7 +111,7 @@ def cable_state(
     sin_c = (bz * r + h * free) * inv_d2
     beta = np.pi - np.arctan2(sin_c, cos_c)
     no_pulley = r == 0
-    if no_pulley.any():
+    if np.count_nonzero(no_pulley):
         beta[..., no_pulley] = 0.0
     # C = M + r (cos phi_c e_h + sin phi_c ez), M = A + r e_h
     C = exits + (r * (1.0 + cos_c))[..., None] * e_h

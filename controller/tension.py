@@ -40,9 +40,14 @@ class TensionResult:
     iterations: int = 0
 
 
+# the reductions of ndarray.sum/min/max without their Python wrappers (the same results;
+# a control cycle makes a dozen of them on arrays of a few values)
+_sum, _min, _max = np.add.reduce, np.minimum.reduce, np.maximum.reduce
+
+
 def _tolerance(f: np.ndarray, tmax: float) -> float:
     """Absolute tolerance on balance and bounds [N]: 1e-9 of the largest force in play."""
-    return 1e-9 * max(1.0, float(np.abs(f).max()), tmax if tmax < np.inf else 1.0)
+    return 1e-9 * max(1.0, float(_max(np.abs(f))), tmax if tmax < np.inf else 1.0)
 
 
 def _fail(n: int, reason: str, it: int = 0) -> TensionResult:
@@ -66,18 +71,18 @@ def closed_form(W: np.ndarray, f: np.ndarray, tmin: float, tmax: float,
     """Improved closed-form tension distribution (Pott 2014), ``W tau = f``: the tensions
     closest to the middle of the range, or to ``target`` (n,) when given."""
     m, n = W.shape
-    if not math.isfinite(float(W.sum()) + float(np.sum(f))):
-        return _fail(n, "closed-form: non-finite wrench matrix or wrench")
     f = np.asarray(f, dtype=float)
+    if not math.isfinite(float(_sum(W, axis=None)) + float(_sum(f, axis=None))):
+        return _fail(n, "closed-form: non-finite wrench matrix or wrench")
     tol = _tolerance(f, tmax)
     # the common case in a control cycle: one solve around the middle of the range (or the
     # target), every tension within bounds
     tm0 = 0.5 * (tmin + tmax) if target is None else np.asarray(target, float)
-    _, y, info = dposv(W @ W.T, f - (tm0 * W.sum(axis=1) if target is None else W @ tm0))
+    _, y, info = dposv(W @ W.T, f - (tm0 * _sum(W, axis=1) if target is None else W @ tm0))
     if info == 0:
         sol = y @ W
         sol += tm0
-        lo, hi = sol.min(), sol.max()
+        lo, hi = _min(sol), _max(sol)
         if lo >= tmin - tol and hi <= tmax + tol:
             e = W @ sol - f
             res = math.sqrt(float(e @ e))

@@ -428,7 +428,8 @@ class WinchDrives:
         return out
 
     def _drain(self) -> None:
-        for k in (np.flatnonzero(self._queue_overflow) if self._queue_overflow.any() else ()):
+        over = self._queue_overflow
+        for k in np.flatnonzero(over) if np.count_nonzero(over) else ():
             self._event(int(k), "emcy_overflow", 0, f"{self._queue_overflow[k]} EMCYs not kept "
                         "(more than the master could take between two cycles)")
             self._queue_overflow[k] = 0
@@ -871,7 +872,8 @@ class WinchDrives:
         self.cycle += 1
 
     def _check_pdos(self, fresh: np.ndarray, n_new: np.ndarray, expected: np.ndarray) -> None:
-        if fresh.all() and not self._miss_streak.any() and not (n_new > 1).any():
+        if (np.count_nonzero(fresh) == fresh.size and not np.count_nonzero(self._miss_streak)
+                and not np.count_nonzero(n_new > 1)):
             return  # every drive answered once, none was missing: nothing to report
         for k in np.flatnonzero(expected & ~fresh):
             if self._miss_streak[k] == 0:
@@ -902,7 +904,7 @@ class WinchDrives:
         new = decode_states(self._sw, self._have)
         was_fault = faulted(old)
         now_fault = faulted(new)
-        any_fault = bool(was_fault.any() or now_fault.any())
+        any_fault = bool(np.count_nonzero(was_fault) or np.count_nonzero(now_fault))
         for k in np.flatnonzero(now_fault & ~was_fault) if any_fault else ():
             code = self._cause(k)
             self._fault_code[k] = code
@@ -921,7 +923,7 @@ class WinchDrives:
         # controller enables it again: the master never re-enables it by itself
         qs = new == ST.QUICK_STOP_ACTIVE
         for k in np.flatnonzero(qs & (old != ST.QUICK_STOP_ACTIVE)
-                                & (self._request != RQ.QUICK_STOP)) if qs.any() else ():
+                                & (self._request != RQ.QUICK_STOP)) if np.count_nonzero(qs) else ():
             self._self_stopped[k] = True
             self._request[k] = RQ.QUICK_STOP
             code = next((c for c in reversed(self._window[k]) if c), int(self._code[k]))
@@ -934,7 +936,7 @@ class WinchDrives:
         self._target[entering] = self._pos[entering]  # hold where it stands
         self._setpoint_ok = oe
         limit = oe & ((self._sw & SW_INTERNAL_LIMIT) != 0)
-        for k in np.flatnonzero(limit & ~self._limit) if limit.any() else ():
+        for k in np.flatnonzero(limit & ~self._limit) if np.count_nonzero(limit) else ():
             self._event(k, "internal_limit", 0, "software position limit reached (bit 11)")
         self._limit = limit
         self._states = new
@@ -945,12 +947,12 @@ class WinchDrives:
         now = self._clock()
         self._hb_last = np.maximum(self._hb_last, self._rx_hb_t)
         back = self._hb_lost & (now - self._hb_last <= self.hb_timeout_s + 1e-9)
-        for k in np.flatnonzero(back) if back.any() else ():
+        for k in np.flatnonzero(back) if np.count_nonzero(back) else ():
             self._hb_lost[k] = False
             self._event(k, "heartbeat_resumed", CODE_HEARTBEAT, "heartbeat back")
         watched = self._started & ~self._rebooted & ~self._relink
         lost = watched & ~self._hb_lost & (now - self._hb_last > self.hb_timeout_s + 1e-9)
-        for k in np.flatnonzero(lost) if lost.any() else ():
+        for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():
             self._hb_lost[k] = True
             self._have[k] = False  # its state is unknown now
             self._setpoint_ok[k] = False
@@ -964,7 +966,7 @@ class WinchDrives:
         cw = controlwords(states, self._request).astype(np.int64)
         # fault reset: bit 7 low for one cycle, then high while the drive is in Fault
         resetting = self._reset_left > 0
-        if resetting.any():
+        if np.count_nonzero(resetting):
             cw = np.where(resetting & ((self._last_cw & CW_FAULT_RESET) == 0) & faulted(states),
                           CW_FAULT_RESET, cw)
             hold = resetting & ((self._last_cw & CW_FAULT_RESET) != 0) & faulted(states)
@@ -1131,8 +1133,9 @@ class WinchDrives:
         wrong NMT state, link lost)."""
         out: list[DriveFault] = []
         nmt_bad = self._started & (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
-        if not (self._relink.any() or faulted(self._states).any() or self._self_stopped.any()
-                or self._hb_lost.any() or self._rebooted.any() or nmt_bad.any()):
+        anything = (self._relink | faulted(self._states) | self._self_stopped | self._hb_lost
+                    | self._rebooted | nmt_bad)
+        if not np.count_nonzero(anything):
             return out  # none of the conditions below holds for any drive
         for k in range(self.n):
             nid, cable = self.node_ids[k], self.winches.cables[k]

@@ -152,7 +152,7 @@ class Readings:
 def loadcell_faults(r: TensionReading) -> list[HardwareFault]:
     """The cables whose tension is not OK, as faults naming the Modbus unit."""
     bad = r.status != CableStatus.OK
-    if not bad.any():
+    if not np.count_nonzero(bad):
         return []
     codes = r.exception_codes if r.exception_codes is not None else np.zeros(len(r.cables))
     out = []
@@ -173,7 +173,7 @@ class LoadCellStatusTracker:
 
     def update(self, r: TensionReading, t_s: float, cycle: int) -> None:
         changed = r.status != self.status
-        if not changed.any():
+        if not np.count_nonzero(changed):
             return  # the same statuses (kept as they are)
         for k in np.flatnonzero(changed):
             st = CableStatus(int(r.status[k]))

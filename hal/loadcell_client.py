@@ -437,7 +437,7 @@ class LoadCellClient:
         ok = status == CableStatus.OK
         values = self.calibration.true_from_measured(raw)
         messages = [""] * m.n
-        if not ok.all():
+        if np.count_nonzero(ok) != ok.size:
             values[~ok] = np.nan
             for k in np.flatnonzero(~ok):
                 messages[k] = self._message(

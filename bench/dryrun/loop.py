@@ -35,7 +35,6 @@ import math
 import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -197,17 +196,31 @@ class CrossTrack:
     path of a quasi-static plant or a tracker."""
 
     def __init__(self, period_s: float, window_s: float = 1.0) -> None:
-        self._pts: deque[np.ndarray] = deque(maxlen=max(2, int(window_s / period_s) + 1))
+        # the last ``cap`` distinct commanded positions, in a ring (oldest first from _next)
+        self._cap = max(2, int(window_s / period_s) + 1)
+        self._buf = np.empty((self._cap, 3))
+        self._n = 0  # positions held
+        self._next = 0  # where the next one goes
+        self._last = np.full(3, np.nan)  # the newest one
 
     def command(self, pos: np.ndarray) -> None:
-        if not self._pts or np.any(self._pts[-1] != pos[:3]):
-            self._pts.append(np.array(pos[:3], float))
+        p = pos[:3]
+        if self._n == 0 or np.count_nonzero(self._last != p):
+            self._buf[self._next] = p
+            self._last = self._buf[self._next].copy()
+            self._next = (self._next + 1) % self._cap
+            self._n = min(self._n + 1, self._cap)
+
+    def _points(self) -> np.ndarray:
+        if self._n < self._cap:
+            return self._buf[:self._n]
+        return np.concatenate((self._buf[self._next:], self._buf[:self._next]))
 
     def error(self, pos: np.ndarray) -> float:
         p = np.asarray(pos[:3], float)
-        if len(self._pts) == 1:
-            return float(np.linalg.norm(p - self._pts[0]))
-        pts = np.array(self._pts)
+        if self._n == 1:
+            return float(np.linalg.norm(p - self._buf[0]))
+        pts = self._points()
         a, b = pts[:-1], pts[1:]
         ab = b - a
         den = (ab * ab).sum(1)
