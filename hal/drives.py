@@ -1013,10 +1013,11 @@ class WinchDrives:
     def wait_feedback(self, timeout: float = 0.5) -> bool:
         """Wait until every expected drive answered the last SYNC (lock-step; blocks)."""
         mask = self._expected()
+        n_mask = np.count_nonzero(mask)
         deadline = time.monotonic() + timeout
         with self._rx:
             while True:
-                if np.all(self._rx_count[mask] > self._expect[mask]):
+                if np.count_nonzero(self._rx_count[mask] > self._expect[mask]) == n_mask:
                     return True
                 left = deadline - time.monotonic()
                 if left <= 0:

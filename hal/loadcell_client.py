@@ -43,6 +43,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.pdu.register_message import ReadInputRegistersRequest
+from pymodbus.transport import CommType
 
 from controller.loadcell_map import DEFAULT_MAP, RegisterMap, load_register_map
 
@@ -244,21 +246,34 @@ class LoadCellClient:
         start, count = self.map.block_start, self.map.block_count
         try:
             rr = client.read_input_registers(start, count=count, device_id=uid)
-        except ConnectionException as exc:
+        except Exception as exc:
+            return self._request_failed(k, client, exc)
+        return self._answer(k, rr)
+
+    def _request_failed(self, k: int, client, exc: Exception) -> bool:
+        """A request that raised ``exc``: the cable's status says why; False when the
+        connection is unusable (skip the rest of the lane). Other exceptions go on."""
+        if isinstance(exc, ConnectionException):
             client.close()
             reason = _last_pymodbus_error() or str(exc)
             self._fail(k, CableStatus.COMM_ERROR, f"connection failed: {reason}")
             return False
-        except ModbusIOException as exc:
+        if isinstance(exc, ModbusIOException):
             why = f"no answer within {self.timeout_s:g} s"
             if "No response received" not in str(exc):  # e.g. an answer from another unit
                 why += f" ({exc})"
             self._fail(k, CableStatus.TIMEOUT, why)
             return True
-        except (ModbusException, OSError, ValueError, struct.error, IndexError) as exc:
+        if isinstance(exc, (ModbusException, OSError, ValueError, struct.error, IndexError)):
             client.close()
             self._fail(k, CableStatus.COMM_ERROR, f"{type(exc).__name__}: {exc}")
             return True
+        raise exc
+
+    def _answer(self, k: int, rr) -> bool:
+        """Take the answer ``rr`` of cell ``k`` (an exception, registers that do not fit, or
+        the value with its status bits and counter)."""
+        count = self.map.block_count
         t = self.clock()
         if rr.isError():
             code = int(getattr(rr, "exception_code", 0) or 0)
@@ -320,12 +335,56 @@ class LoadCellClient:
             finally:
                 _quiet.active = False
 
+    def _pipelined(self) -> bool:
+        """Whether a sweep can send every request before it reads the answers: one unit per
+        connection (Modbus/TCP, one lane per unit), pymodbus with no retries."""
+        return self.connections == "per_unit" and len(self._lanes) > 1 and all(
+            len(ln.units) == 1 and getattr(getattr(ln.client, "transaction", None),
+                                           "retries", None) == 0 for ln in self._lanes)
+
+    def _sweep_pipelined(self) -> None:
+        """One sweep over per-unit connections: every request out, then every answer in (the
+        same requests and answers as one unit after the other; the cells answer in parallel,
+        so the sweep takes one round trip instead of one per unit). Each answer is awaited
+        for ``timeout_s`` from when its wait begins."""
+        start, count = self.map.block_start, self.map.block_count
+        lanes = self._lanes
+        for lane in lanes:
+            lane.lock.acquire()
+        _quiet.active = True
+        _quiet.last = ""
+        try:
+            sent = []
+            for lane in lanes:
+                k, client = lane.units[0], lane.client
+                try:
+                    sent.append((k, client, _send_read(client, start, count,
+                                                       self.map.unit_ids[k])))
+                except Exception as exc:
+                    self._request_failed(k, client, exc)
+            for k, client, request in sent:
+                try:
+                    rr = _await_answer(client, request)
+                except Exception as exc:
+                    self._request_failed(k, client, exc)
+                else:
+                    self._answer(k, rr)
+        finally:
+            _quiet.active = False
+            for lane in lanes:
+                lane.lock.release()
+
     def poll_once(self) -> None:
-        """One synchronous sweep: read every cell once (blocking I/O, up to n x timeout)."""
+        """One synchronous sweep: read every cell once (blocking I/O, up to n x timeout; with
+        one connection per unit the requests go out together, see
+        :meth:`_sweep_pipelined`)."""
         t0 = self.clock()
         with self._io_lock:
-            for lane in self._lanes:
-                self._poll_lane(lane, backoff=False)
+            if self._pipelined():
+                self._sweep_pipelined()
+            else:
+                for lane in self._lanes:
+                    self._poll_lane(lane, backoff=False)
         with self._swept:
             self.sweeps += 1
             self.last_sweep_s = self.clock() - t0
@@ -491,6 +550,50 @@ class LoadCellClient:
             f"{who}: sample counter stuck at {counter} for {stuck_for:.3f} s "
             f"(limit {self.stale_s:g} s) [{st.name}]"
         )
+
+
+def _send_read(client, start: int, count: int, unit_id: int):
+    """Send "read input registers" on a synchronous pymodbus client without waiting for the
+    answer (what ``client.read_input_registers`` sends first); the request."""
+    if not client.connect():
+        raise ConnectionException(f"Failed to connect[{client!s}]")
+    request = ReadInputRegistersRequest(address=start, count=count, dev_id=unit_id)
+    tm = client.transaction
+    request.transaction_id = tm.getNextTID()
+    tm.pdu_send(request)
+    return request
+
+
+def _await_answer(client, request):
+    """The answer to ``request`` sent by :func:`_send_read`: what ``read_input_registers``
+    returns or raises after sending, with no retries (pymodbus 3.16
+    ``TransactionManager.sync_execute``)."""
+    tm = client.transaction
+    try:
+        response = tm.sync_get_response(request.dev_id, request.transaction_id)
+    except TimeoutError:  # (asyncio's)
+        if tm.count_until_disconnect < 0:
+            if tm.comm_params.comm_type != CommType.SERIAL:
+                tm.connection_lost(TimeoutError("Server not responding"))
+            raise _io_error("ERROR: No response received of the last requests (default: "
+                            "retries+3), CLOSING CONNECTION.", request) from None
+        tm.count_until_disconnect -= 1
+        raise _io_error(f"No response received after {tm.retries} retries, continue with "
+                        "next request", request) from None
+    tm.count_until_disconnect = tm.max_until_disconnect
+    if response.dev_id != request.dev_id:
+        raise _io_error(f"ERROR: request uses device id={request.dev_id} but received "
+                        f"{response.dev_id}.", request)
+    if response.transaction_id != request.transaction_id:
+        raise _io_error(f"ERROR: request uses transaction id={request.transaction_id} but "
+                        f"received {response.transaction_id}.", request)
+    response.retries = 0
+    return response
+
+
+def _io_error(message: str, request) -> ModbusIOException:
+    return ModbusIOException(message, function_code=request.function_code,
+                             transaction_id=request.transaction_id, dev_id=request.dev_id)
 
 
 def client_from_args(args) -> LoadCellClient:

@@ -6,19 +6,21 @@ lock-step dry run in one process, every cycle then waits for two thread hand-off
 RPDOs and the SYNC to the simulated drives, their TPDOs back to the HAL), each a context
 switch on a busy machine. :func:`deliver_in_sender_thread` makes a network's bus receive
 its frames synchronously: a frame sent by any other bus of the channel is given to the
-network's listeners at once, in the sending thread, under the notifier's own lock (so
-deliveries to one network stay one at a time, as with its thread). Nothing else changes:
-the same frames, the same canopen callbacks, the same HAL and simulated drives.
+network's listeners at once, in the sending thread, one delivery at a time (as with the
+notifier thread, which from then on only idles). Nothing else changes: the same frames in
+the same order, the same canopen callbacks, the same HAL and simulated drives.
 
-Delivery falls back to the queue (and the notifier thread) while frames queued before are
-still waiting (order is kept) and when a listener itself sends to the same network in the
-same thread (no re-entry).
+A frame sent to the network from inside one of its own deliveries (a listener that
+answers itself) is delivered right after that delivery ends, in order, never re-entering
+it. Switch before the traffic that matters: frames the notifier thread holds at the moment
+of the switch may still arrive after the first ones delivered directly.
 """
 
 from __future__ import annotations
 
 import queue
 import threading
+from collections import deque
 
 import can
 import canopen
@@ -26,55 +28,62 @@ from can.interfaces import virtual
 
 
 class _DirectQueue(queue.Queue):
-    """A virtual bus's receive queue whose ``put`` delivers to the listeners at once."""
+    """A virtual bus's receive queue whose ``put`` delivers to the listeners at once (its
+    ``get`` never has a frame: the notifier thread idles)."""
 
-    def __init__(self, deliver, lock) -> None:
+    def __init__(self, listeners: list) -> None:
         super().__init__()
-        self._deliver = deliver
-        self._delivery_lock = lock
-        self._inside = threading.local()
-        self.direct = 0  #: frames delivered in the sender's thread
-        self.queued = 0  #: frames left to the notifier thread
+        self._listeners = listeners
+        self._lock = threading.RLock()  # one delivery at a time
+        self._inside = threading.local()  # this thread is delivering now
+        self._later: deque[can.Message] = deque()  # sent from inside a delivery
+        self.direct = 0  #: frames delivered as they were sent
+        self.deferred = 0  #: frames sent from inside a delivery, delivered after it
 
     def put(self, item, block: bool = True, timeout: float | None = None) -> None:
-        if self.queue or getattr(self._inside, "active", False):
-            self.queued += 1
-            super().put(item, block, timeout)
+        if getattr(self._inside, "active", False):
+            self.deferred += 1
+            self._later.append(item)  # only the thread holding the lock gets here
             return
-        with self._delivery_lock:
+        with self._lock:
             self._inside.active = True
             try:
                 self._deliver(item)
+                self.direct += 1
+                while self._later:
+                    self._deliver(self._later.popleft())
             finally:
                 self._inside.active = False
-        self.direct += 1
+
+    def _deliver(self, msg: can.Message) -> None:
+        for listener in self._listeners:
+            listener(msg)
 
 
 def deliver_in_sender_thread(network: canopen.Network) -> _DirectQueue:
     """Make the connected ``network`` (on a python-can ``virtual`` bus) receive every frame
     in the thread that sends it (see the module docstring); returns the new receive queue
-    (its ``direct``/``queued`` count the frames). TypeError for another kind of bus."""
+    (``direct``/``deferred`` count the frames). TypeError for another kind of bus."""
     bus = network.bus
-    notifier = network.notifier
-    if not isinstance(bus, virtual.VirtualBus) or notifier is None:
+    if not isinstance(bus, virtual.VirtualBus) or network.notifier is None:
         raise TypeError(f"synchronous delivery needs a connected network on a virtual bus, "
                         f"got {type(bus).__name__}")
-    listeners = list(network.listeners)
-
-    def deliver(msg: can.Message) -> None:
-        for listener in listeners:
-            listener(msg)
-
-    lock = getattr(notifier, "_lock", None) or threading.Lock()
-    direct = _DirectQueue(deliver, lock)
-    with virtual.channels_lock:
-        old = bus.queue
-        with old.mutex:  # frames already queued stay first, for the notifier thread
-            direct.queue.extend(old.queue)
+    direct = _DirectQueue(list(network.listeners))
+    with direct._lock:
+        with virtual.channels_lock:
+            old = bus.queue
+            i = next(i for i, q in enumerate(bus.channel) if q is old)
+            bus.channel[i] = direct
+            bus.queue = direct
+        with old.mutex:  # frames that were waiting: delivered first, in order
+            waiting = list(old.queue)
             old.queue.clear()
-        i = next(i for i, q in enumerate(bus.channel) if q is old)
-        bus.channel[i] = direct
-        bus.queue = direct
+        direct._inside.active = True
+        try:
+            for msg in waiting:
+                direct._deliver(msg)
+        finally:
+            direct._inside.active = False
     return direct
 
 

@@ -542,9 +542,9 @@ class ControlLoop:
                 held_since = self._stood_since = None
                 cmd = out.lengths if out.feasible else last_sent
             if not stopping:
-                bad = ~np.isfinite(cmd) | (cmd - hw.reference_offset_m < w.min_length_m) | (
-                    cmd - hw.reference_offset_m > w.max_length_m)
-                if bad.any():  # the winch limits: checked again before sending
+                raw = cmd - hw.reference_offset_m  # the drives' lengths
+                bad = ~np.isfinite(cmd) | (raw < w.min_length_m) | (raw > w.max_length_m)
+                if np.count_nonzero(bad):  # the winch limits: checked again before sending
                     j = int(np.flatnonzero(bad)[0])
                     self._event(t, "drive", hw.node_ids[j], hw.cables[j], "workspace", 0,
                                 "hold", True, f"setpoint {cmd[j]:.4f} m outside the winch's "

@@ -116,15 +116,18 @@ class InProcessWorld(SimWorld):
             bus.shutdown()
             raise
         try:
+            # lock-step: each frame handed to its receiver in the sending thread, no thread
+            # hand-off per frame (the same frames and callbacks); switched before any traffic
+            lockstep_rx = [] if realtime else [deliver_in_sender_thread(self.rig.bank.network)]
             self.rig.start()
             self.hw = open_hardware(can_spec, self.rig.modbus_spec, eds=eds,
                                     winches=winches, clock=clock,
                                     poll="thread" if realtime else "manual",
                                     **_cell_timing(realtime, True))
+            if not realtime:  # before the HAL starts (only boot-ups and heartbeats so far)
+                lockstep_rx.append(deliver_in_sender_thread(self.hw.drives.network))
+            self.lockstep_rx = tuple(lockstep_rx)  #: frames delivered (direct, deferred)
             self.tracker = CallableTracker(self.rig.measure_pose)
-            if not realtime:  # lock-step: no thread hand-off per frame (same frames, callbacks)
-                self.buses = (deliver_in_sender_thread(self.rig.bank.network),
-                              deliver_in_sender_thread(self.hw.drives.network))
         except BaseException:
             self.rig.close()
             raise
