@@ -811,7 +811,7 @@ class WinchDrives:
         if x.shape != (self.n,):
             raise ValueError(f"set_lengths: expected shape ({self.n},), got {x.shape}")
         bad = ~np.isfinite(x) | (x < self.winches.min_length_m) | (x > self.winches.max_length_m)
-        if bad.any():
+        if np.count_nonzero(bad):
             k = int(np.flatnonzero(bad)[0])
             raise ValueError(
                 f"set_lengths: {self.who(k)}: {float(x[k])!r} m is not within "
@@ -988,12 +988,12 @@ class WinchDrives:
             return
         bus_send = self.network.bus.send
         pack = self._rpdo.pack
+        cws, targets, ids = cw.tolist(), target.tolist(), self.node_ids  # plain ints
         try:
             with self._send_lock:
-                for k in np.flatnonzero(send):
-                    bus_send(can.Message(arbitration_id=0x200 + self.node_ids[k],
-                                         data=pack(int(cw[k]), int(target[k])),
-                                         is_extended_id=False))
+                for k in np.flatnonzero(send).tolist():
+                    bus_send(can.Message(arbitration_id=0x200 + ids[k],
+                                         data=pack(cws[k], targets[k]), is_extended_id=False))
                 with self._rx:
                     self._expect = self._rx_count.copy()
                 bus_send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
