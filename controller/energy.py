@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from controller import cables as cable_forces
-from controller.kinematics import cable_state
+from controller.cables import CableForces
+from controller.kinematics import CableState, cable_state
 from controller.masts import deflect
 from controller.robot import Robot
 
@@ -28,6 +29,14 @@ def potential_energy(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.n
     exits = deflect(a_star, r, theta, robot.mast_index) if robot.compliant else a_star
     st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
     cf = cable_forces.from_lengths(robot, st, l0) if robot.rho > 0 else None
+    return state_energy(robot, st, pose, theta, l0, cf)
+
+
+def state_energy(robot: Robot, st: CableState, pose: np.ndarray, theta: np.ndarray,
+                 l0: np.ndarray, cf: CableForces | None = None) -> float:
+    """E [J] from an evaluated cable state ``st`` at ``pose`` with mast rotations ``theta``
+    (``cf`` the sagging cables' forces when ``rho > 0``): what :func:`potential_energy`
+    returns, without evaluating the cables again."""
     cables = float(np.sum(cable_forces.energy(robot, st, l0, cf)))
     z_g = float(pose[2] + (st.R @ robot.com)[2])
     k = np.where(np.isfinite(robot.stiffness), robot.stiffness, 0.0)

@@ -27,7 +27,7 @@ import numpy as np
 
 from controller import cables
 from controller.cables import CableForces
-from controller.energy import potential_energy
+from controller.energy import potential_energy, state_energy
 from controller.kinematics import (
     CableState,
     cable_state,
@@ -401,7 +401,14 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
     """Newton's method for :func:`solve_equilibrium`. Steps keep their inverse Jacobian while
     it still contracts the residual tenfold per step (chord steps) and refresh it
     otherwise; a solve that starts near the last solution of the same robot starts with
-    that solution's inverse Jacobian."""
+    that solution's inverse Jacobian.
+
+    The line search asks the residual norm to fall. A cable's slack point is a kink of the
+    residual: the taut side's Newton step takes the cable past it, the slack side's takes
+    the platform far away, and the residual norm falls along neither (or hardly). Where it
+    stalls or creeps so (or every cable is slack, or the Jacobian is singular), Newton goes
+    on with the potential energy, smooth across slack points, as its merit
+    (:func:`_energy_newton`)."""
     if not np.all(np.isfinite(robot.ea)):
         raise ValueError("solve_equilibrium needs elastic cables (ea); use forward_rigid for "
                          "inextensible ones")
@@ -413,6 +420,7 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
     phi = float(np.linalg.norm(S * T.residual))
     lu = _reuse(robot, pose, th, l0)  # inverse Jacobian (chord steps reuse it)
     fresh = False
+    crawl = 0  # consecutive exact Newton steps that took off less than 5 % of the residual
     for it in range(1, max_iter + 1):
         if phi < tol:
             if lu is not None:
@@ -421,9 +429,7 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
                                      phi)
         if lu is None:
             if not T.taut.any():
-                return EquilibriumResult(pose, th, T.tensions, T.exits, False,
-                                         f"equilibrium: every cable slack at iteration {it}",
-                                         it, phi)
+                return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
             try:
                 lu = np.linalg.inv(_jacobian(robot, T, l0, r))
             except np.linalg.LinAlgError:
@@ -434,9 +440,7 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
             if not fresh:
                 lu = None
                 continue
-            return EquilibriumResult(pose, th, T.tensions, T.exits, False,
-                                     f"equilibrium: singular Jacobian at iteration {it} "
-                                     f"(scaled residual {phi:.3g})", it, phi)
+            return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
         step = 1.0
         for _ in range(30):
             p_new = compose(pose, step * dx[:6])
@@ -449,13 +453,14 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
             step *= 0.5
             if not fresh:
                 break  # a stale Jacobian that needs damping: refresh it instead
-        else:
-            return EquilibriumResult(pose, th, T.tensions, T.exits, False,
-                                     f"equilibrium: line search failed at iteration {it} "
-                                     f"(scaled residual {phi:.3g})", it, phi)
+        else:  # stalled at a kink of the residual
+            return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
         if not fresh and step < 1.0:
             lu = None
             continue
+        crawl = crawl + 1 if fresh and phi_new > 0.95 * phi else 0
+        if crawl >= 3:  # creeping along kinks: the energy takes the iterates through them
+            return _energy_newton(robot, l0, p_new, th_new, T_new, tol, max_iter, it)
         if phi_new > 0.1 * phi:
             lu = None  # slow contraction: refresh the Jacobian next step
         fresh = False
@@ -464,3 +469,62 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
     msg = "converged" if ok else (f"equilibrium: no convergence in {max_iter} iterations "
                                   f"(scaled residual {phi:.3g})")
     return EquilibriumResult(pose, th, T.tensions, T.exits, ok, msg, max_iter, phi)
+
+
+def _energy_newton(robot: Robot, l0: np.ndarray, pose: np.ndarray, th: np.ndarray,
+                   T: EquilibriumTerms, tol: float, max_iter: int, it0: int
+                   ) -> EquilibriumResult:
+    """Newton's method on the potential energy from where :func:`_newton` stalled: steps
+    solve ``(H + mu I) p = -g`` (g, H the energy's gradient and symmetrised Hessian over
+    the pose and the compliant mast axes, in metres, radians x 1 m and mast radians x mast
+    height; mu = 0 where H is positive definite, else enough to make it so) and are
+    halved until the energy falls (Armijo). The energy is continuously differentiable
+    across slack points, so the iterates go through the kinks that stall the residual's
+    line search; converged when the scaled residual is below ``tol``."""
+    m = robot.n_masts
+    a_star, r, S = _fixed(robot)
+    free_th = np.isfinite(robot.stiffness).ravel()
+    k = np.where(np.isfinite(robot.stiffness), robot.stiffness, 0.0).ravel()[free_th]
+    idx = np.concatenate([np.arange(6), 6 + np.flatnonzero(free_th)])
+    height = float(np.mean(np.linalg.norm(r, axis=1)))
+    D = np.concatenate([np.ones(6), np.full(len(k), height)])
+    floor = max(robot.weight, 1.0)  # [N/m]: gravity alone moves the platform by 1 m a step
+    E = state_energy(robot, T.state, pose, th, l0, T.cables)
+    phi = float(np.linalg.norm(S * T.residual))
+    it = it0
+    for it in range(it0, it0 + max_iter):
+        if phi < tol:
+            return EquilibriumResult(pose, th, T.tensions, T.exits, True, "converged", it, phi)
+        J = _jacobian(robot, T, l0, r)[np.ix_(idx, idx)]
+        g = -T.residual[idx]
+        g[6:] *= -k
+        H = -J
+        H[6:] *= -k[:, None]
+        Hs = 0.5 * (H + H.T) / D[:, None] / D[None, :]
+        lam, V = np.linalg.eigh(Hs)
+        mu = max(0.0, -2.0 * float(lam.min()))
+        if lam.min() + mu < 1e-9 * max(1.0, float(np.abs(lam).max())):
+            mu += floor
+        p = -(V @ ((V.T @ (g / D)) / (lam + mu))) / D
+        slope = float(g @ p)
+        step = 1.0
+        for _ in range(40):
+            dx = np.zeros(6 + 3 * m)
+            dx[idx] = step * p
+            p_new = compose(pose, dx[:6])
+            th_new = th + dx[6:].reshape(-1, 3)
+            T_new = _terms(robot, p_new, th_new, l0, a_star, r)
+            E_new = state_energy(robot, T_new.state, p_new, th_new, l0, T_new.cables)
+            phi_new = float(np.linalg.norm(S * T_new.residual))
+            if E_new <= E + 1e-4 * step * slope or phi_new < tol:
+                break
+            step *= 0.5
+        else:
+            return EquilibriumResult(pose, th, T.tensions, T.exits, False,
+                                     f"equilibrium: line search failed at iteration {it} "
+                                     f"(scaled residual {phi:.3g})", it, phi)
+        pose, th, T, phi, E = p_new, th_new, T_new, phi_new, E_new
+    ok = phi < tol
+    msg = "converged" if ok else (f"equilibrium: no convergence in {it0 + max_iter} iterations "
+                                  f"(scaled residual {phi:.3g})")
+    return EquilibriumResult(pose, th, T.tensions, T.exits, ok, msg, it, phi)
