@@ -640,10 +640,32 @@ class CaseError(RuntimeError):
     """A drawn case cannot be made (another draw of the seed is taken)."""
 
 
+#: whether this process has limited the BLAS libraries the diagnosis loads to one thread
+_ONE_BLAS_THREAD = False
+
+
+def _one_blas_thread() -> None:
+    """One BLAS thread in this process, the diagnosis's own libraries included. SciPy loads
+    its own OpenBLAS only with ``scipy.linalg``, after the evaluation command and its
+    workers limited the ones loaded then: left at one thread per core, its threads spun
+    against each other and against the other jobs (the diagnosis of a case took twice its
+    processor time, and three times its time on a busy machine)."""
+    global _ONE_BLAS_THREAD
+    if not _ONE_BLAS_THREAD:
+        import scipy.linalg  # noqa: F401  (loads scipy's OpenBLAS)
+
+        from bench.parallel import single_blas_thread
+
+        single_blas_thread()
+        _ONE_BLAS_THREAD = True
+
+
 def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float, **kw) -> dict:
     from bench.campaign import run_campaign
     from bench.diagnosis.report import diagnose
     from controller import equilibrium
+
+    _one_blas_thread()
 
     try:
         case = make_case(seed, attempt=attempt, **kw)

@@ -316,3 +316,39 @@ def test_read_results_ignores_blank_lines(tmp_path: Path):
     header, records = read_results(p)
     assert header == {"format": OUT_FORMAT, "config": {}}
     assert records == {3: {"seed": 3, "exact": True}}  # the last line of a seed wins
+
+
+BLAS_THREADS = """
+import ctypes, json
+from bench.parallel import single_blas_thread
+from bench import evaluate
+single_blas_thread()  # as `cdpr evaluate` and its workers do, before any case
+evaluate.run_case(5, **json.loads({kw!r}))
+out = {{}}
+for lib in sorted({{line.split()[-1] for line in open("/proc/self/maps")
+                   if "openblas" in line.lower() and ".so" in line}}):
+    h = ctypes.CDLL(lib)
+    for name in ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
+                 "openblas_get_num_threads64_", "openblas_get_num_threads"):
+        if hasattr(h, name):
+            out[lib] = getattr(h, name)()
+            break
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads /proc/self/maps")
+def test_a_case_diagnoses_on_one_blas_thread_whatever_the_libraries_loaded_later():
+    """SciPy loads its own OpenBLAS with the diagnosis, after the command limited the BLAS
+    loaded at start: every OpenBLAS in the process must run one thread once a case ran
+    (two threads spinning against each other doubled a diagnosis's processor time)."""
+    import subprocess
+    import sys
+
+    kw = json.dumps(ONE_KW | {"effects": list(ONE_KW["effects"])})
+    env = os.environ | {"OPENBLAS_NUM_THREADS": "2"}
+    got = subprocess.run([sys.executable, "-c", BLAS_THREADS.format(kw=kw)], env=env,
+                         capture_output=True, text=True, timeout=600, check=True)
+    threads = json.loads(got.stdout.strip().splitlines()[-1])
+    assert any("scipy_openblas" in lib for lib in threads), threads
+    assert set(threads.values()) == {1}, threads
