@@ -1,0 +1,64 @@
+"""The selection's fits: a set fitted before and asked for again inside a larger fit (dropping
+an effect, a held-out check without it) is refitted from the larger fit's values when the
+first fit stopped short; a first fit already at its minimum is kept."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.campaign import run_campaign
+from bench.diagnosis.fit import fit_effects
+from bench.diagnosis.report import split_samples
+from bench.diagnosis.residuals import ResidualModel
+from bench.diagnosis.samples import check_values, prepare
+from bench.diagnosis.select import Selector
+from bench.diagnosis.space import ParamSpace
+from bench.recording import read_recording
+from firmware_sim.scenario import parse_scenario
+
+SCALES = {"s_21": 1.004, "s_32": 0.997}
+
+
+@pytest.fixture(scope="module")
+def selector(tmp_path_factory):
+    sc = parse_scenario({
+        "format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 4,
+        "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
+        "truth": {"drum_scale": SCALES}, "nuisance": {},
+        "poses": {"kind": "grid", "n": [3, 3, 1], "rpy_deg": 1.0, "visits": 2},
+        "recording": {}})
+    rec = read_recording(run_campaign(sc, tmp_path_factory.mktemp("sel") / "rec"))
+    check_values(rec)
+    s = prepare(rec)
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
+    rm.estimate_noise(rec.robot)
+    train = split_samples(s, rec.init_pose)[0]
+    return Selector(rm, train, [])
+
+
+def _scales(fit) -> dict[str, float]:
+    return fit.space.values(fit.phi)["drum_scale"]
+
+
+def test_a_subset_fit_that_stopped_short_is_refitted_from_the_larger_fit(selector):
+    both = selector.fit(("cable_length_offset", "drum_scale"))
+    space = ParamSpace(selector.model, ("drum_scale",))
+    short = fit_effects(space, selector.rm, selector.train, max_nfev=1, prune=False)
+    proper = fit_effects(space, selector.rm, selector.train)
+    assert short.chi2 > 2.0 * proper.chi2  # the first fit stopped far from the minimum
+    selector.cache[("drum_scale",)] = short
+    got = selector.fit(("drum_scale",), both)
+    assert got is not short and got.chi2 < 1.01 * proper.chi2
+    for key, v in SCALES.items():
+        assert abs(_scales(got)[key] - v) < 5e-4
+    assert selector.fit(("drum_scale",)) is got  # cached for the next asker
+
+
+def test_a_subset_fit_at_its_minimum_is_kept(selector):
+    both = selector.fit(("cable_length_offset", "drum_scale"))
+    space = ParamSpace(selector.model, ("drum_scale",))
+    selector.cache[("drum_scale",)] = first = fit_effects(space, selector.rm, selector.train)
+    selector._refit_from.clear()
+    assert selector.fit(("drum_scale",), both) is first
+    # not a subset of the start: never refitted
+    assert selector.fit(("drum_scale",), selector.fit(("cable_length_offset",))) is first
