@@ -641,23 +641,24 @@ class CaseError(RuntimeError):
 
 
 #: whether this process has limited the BLAS libraries the diagnosis loads to one thread
-_ONE_BLAS_THREAD = False
+_ONE_BLAS = False
 
 
-def _one_blas_thread() -> None:
+def one_blas_thread() -> None:
     """One BLAS thread in this process, the diagnosis's own libraries included. SciPy loads
     its own OpenBLAS only with ``scipy.linalg``, after the evaluation command and its
     workers limited the ones loaded then: left at one thread per core, its threads spun
     against each other and against the other jobs (the diagnosis of a case took twice its
-    processor time, and three times its time on a busy machine)."""
-    global _ONE_BLAS_THREAD
-    if not _ONE_BLAS_THREAD:
+    processor time, and three times its time on a busy machine). Tests that diagnose call
+    it too."""
+    global _ONE_BLAS
+    if not _ONE_BLAS:
         import scipy.linalg  # noqa: F401  (loads scipy's OpenBLAS)
 
         from bench.parallel import single_blas_thread
 
         single_blas_thread()
-        _ONE_BLAS_THREAD = True
+        _ONE_BLAS = True
 
 
 def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float, **kw) -> dict:
@@ -665,7 +666,7 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float, **kw)
     from bench.diagnosis.report import diagnose
     from controller import equilibrium
 
-    _one_blas_thread()
+    one_blas_thread()
 
     try:
         case = make_case(seed, attempt=attempt, **kw)

@@ -17,8 +17,15 @@ import pytest
 
 from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
-from bench.evaluate import score
+from bench.evaluate import one_blas_thread, score
 from firmware_sim.scenario import load_scenario
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_blas_thread():
+    """The diagnosis's small matrices run fastest on one BLAS thread (threads spin against
+    each other and other jobs on a loaded machine), as in ``cdpr diagnose``."""
+    one_blas_thread()
 
 SCENARIOS = Path(__file__).parent / "data" / "scenarios"
 

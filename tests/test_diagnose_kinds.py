@@ -20,9 +20,16 @@ import pytest
 from bench.campaign import run_campaign
 from bench.cli import main
 from bench.diagnosis.report import diagnose
-from bench.evaluate import score
+from bench.evaluate import one_blas_thread, score
 from bench.recording import RecordingError, read_recording
 from firmware_sim.scenario import parse_scenario
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_blas_thread():
+    """The diagnosis's small matrices run fastest on one BLAS thread (threads spin against
+    each other and other jobs on a loaded machine), as in ``cdpr diagnose``."""
+    one_blas_thread()
 
 GRID = {"kind": "grid", "n": [3, 3, 1], "rpy_deg": 1.0, "visits": 2}
 
