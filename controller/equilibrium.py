@@ -475,19 +475,21 @@ def _energy_newton(robot: Robot, l0: np.ndarray, pose: np.ndarray, th: np.ndarra
                    T: EquilibriumTerms, tol: float, max_iter: int, it0: int
                    ) -> EquilibriumResult:
     """Newton's method on the potential energy from where :func:`_newton` stalled: steps
-    solve ``(H + mu I) p = -g`` (g, H the energy's gradient and symmetrised Hessian over
-    the pose and the compliant mast axes, in metres, radians x 1 m and mast radians x mast
-    height; mu = 0 where H is positive definite, else enough to make it so) and are
-    halved until the energy falls (Armijo). The energy is continuously differentiable
-    across slack points, so the iterates go through the kinks that stall the residual's
-    line search; converged when the scaled residual is below ``tol``."""
+    solve ``(H + mu D^2) p = -g`` (g, H the energy's gradient and symmetrised Hessian over
+    the pose and the compliant mast axes; D the square roots of H's diagonal, at least the
+    weight over 1 m, so that a mast axis stiffer than the others by thirty orders of
+    magnitude, as a fit can make it, does not drown them; mu = 0 where H is positive
+    definite, else enough to make it so) and are halved until the energy falls (Armijo).
+    The energy is continuously differentiable across slack points, so the iterates go
+    through the kinks that stall the residual's line search; converged when the scaled
+    residual is below ``tol``."""
     m = robot.n_masts
     a_star, r, S = _fixed(robot)
     free_th = np.isfinite(robot.stiffness).ravel()
     k = np.where(np.isfinite(robot.stiffness), robot.stiffness, 0.0).ravel()[free_th]
     idx = np.concatenate([np.arange(6), 6 + np.flatnonzero(free_th)])
     height = float(np.mean(np.linalg.norm(r, axis=1)))
-    D = np.concatenate([np.ones(6), np.full(len(k), height)])
+    D0 = np.concatenate([np.ones(6), np.full(len(k), height)])  # m, rad x 1 m, rad x height
     floor = max(robot.weight, 1.0)  # [N/m]: gravity alone moves the platform by 1 m a step
     E = state_energy(robot, T.state, pose, th, l0, T.cables)
     phi = float(np.linalg.norm(S * T.residual))
@@ -500,11 +502,12 @@ def _energy_newton(robot: Robot, l0: np.ndarray, pose: np.ndarray, th: np.ndarra
         g[6:] *= -k
         H = -J
         H[6:] *= -k[:, None]
-        Hs = 0.5 * (H + H.T) / D[:, None] / D[None, :]
-        lam, V = np.linalg.eigh(Hs)
+        H = 0.5 * (H + H.T)
+        D = D0 * np.sqrt(np.maximum(np.abs(np.diag(H)) / (D0 * D0), floor))
+        lam, V = np.linalg.eigh(H / D[:, None] / D[None, :])
         mu = max(0.0, -2.0 * float(lam.min()))
         if lam.min() + mu < 1e-9 * max(1.0, float(np.abs(lam).max())):
-            mu += floor
+            mu += 1.0
         p = -(V @ ((V.T @ (g / D)) / (lam + mu))) / D
         slope = float(g @ p)
         step = 1.0

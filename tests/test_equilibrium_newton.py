@@ -69,3 +69,16 @@ def test_energy_newton_finds_the_descents_stable_equilibrium():
         ref = eq._energy_descent(robot, l0, guess, None, 1e-9)
         assert en.success and ref.success, (en.message, ref.message)
         np.testing.assert_allclose(en.pose, ref.pose, atol=1e-6)
+
+
+def test_newton_converges_with_a_mast_axis_stiffer_than_the_others_by_decades():
+    """A fit can make a mast axis all but rigid (k = 1e41 N m/rad, finite): the energy's
+    curvature on that axis must not drown the others' (the energy Newton stalled there)."""
+    eq.STATS.reset()
+    for robot, l0, guess in _cases("cogiro", 16, seed=11):
+        stiffness = np.tile([3e5, 8e5, 1e5], (robot.n_masts, 1))
+        stiffness[1, 2] = 5.6e41
+        robot = robot.replace(stiffness=stiffness)
+        res = eq.solve_equilibrium(robot, l0, guess)
+        assert res.success and eq.is_stable(robot, res, l0), res.message
+    assert eq.STATS.fallbacks == 0 and eq.STATS.failures == 0, eq.STATS.as_dict()
