@@ -4,6 +4,7 @@ first fit stopped short; a first fit already at its minimum is kept."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from bench.campaign import run_campaign
@@ -62,3 +63,31 @@ def test_a_subset_fit_at_its_minimum_is_kept(selector):
     assert selector.fit(("drum_scale",), both) is first
     # not a subset of the start: never refitted
     assert selector.fit(("drum_scale",), selector.fit(("cable_length_offset",))) is first
+
+
+def test_a_fit_out_of_budget_runs_again_only_while_it_progresses(selector, monkeypatch):
+    import bench.diagnosis.fit as fit_module
+
+    space = ParamSpace(selector.model, ("drum_scale",))
+    runs = []
+    real = fit_module.least_squares
+
+    def counted(*a, **kw):
+        runs.append(kw.get("max_nfev"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(fit_module, "least_squares", counted)
+    res = fit_module.fit_effects(space, selector.rm, selector.train, max_nfev=2, prune=False)
+    assert len(runs) == fit_module.RETRIES + 1  # each short run lowered the chi-square
+    runs.clear()
+
+    def stalled(fun, x0, **kw):  # a run that spends its budget where it started
+        out = real(fun, x0, **kw | {"max_nfev": 1})
+        out.x, out.fun, out.status = np.array(x0, float), fun(np.array(x0, float)), 0
+        out.cost = 0.5 * float(out.fun @ out.fun)
+        runs.append(1)
+        return out
+
+    monkeypatch.setattr(fit_module, "least_squares", stalled)
+    res = fit_module.fit_effects(space, selector.rm, selector.train, prune=False)
+    assert len(runs) == 1 and not res.success and "did not converge" in res.message

@@ -17,7 +17,8 @@ from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import ParamSpace
 
 #: evaluations of one least-squares run, and runs more from where it stopped if it did not
-#: converge (a fit that still has not converged is reported as such)
+#: converge but lowered the chi-square (a run that spent its budget without progress is not
+#: repeated; a fit that still has not converged is reported as such)
 MAX_NFEV = 80
 RETRIES = 2
 #: relative tolerances on chi-square and parameters (chi-square differences that decide
@@ -140,6 +141,8 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     if free.any():
         z = x[free]
         nfev, ok, msg = 0, False, ""
+        r0 = fun_free(z)
+        cost = 0.5 * float(r0 @ r0)
         for _attempt in range(RETRIES + 1):
             res = least_squares(fun_free, z, bounds=(space.lo[free], space.hi[free]),
                                 jac=lambda z: fd_jacobian(fun_free, z, fun_free(z), steps[free],
@@ -153,6 +156,9 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
             msg = str(res.message)
             if ok:
                 break
+            if not cost - float(res.cost) > 1e-6 * cost:
+                break  # the budget went without progress: another one would go the same way
+            cost = float(res.cost)
         x[free] = z
         r, Jf = res.fun, res.jac
         if not ok:
