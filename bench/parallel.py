@@ -48,9 +48,15 @@ def single_blas_thread() -> bool:
     The physics works on small matrices (6 x 8, 18 x 18): several BLAS threads only add
     overhead there, and beside worker processes (``--jobs``) they fight over the cores
     (the diagnosis ran twice as long on two cores). Only the jobs that want it call
-    this (the diagnosis, the evaluation): a real-time rig keeps its own setting."""
+    this (the diagnosis, the evaluation): a real-time rig keeps its own setting. SciPy's own
+    OpenBLAS (loaded with ``scipy.linalg``) is loaded first, so that it is limited too."""
     import ctypes
     import ctypes.util
+
+    try:
+        import scipy.linalg  # noqa: F401  (loads scipy's OpenBLAS before the limit)
+    except ImportError:
+        pass
 
     try:
         with open("/proc/self/maps", encoding="ascii", errors="replace") as f:
