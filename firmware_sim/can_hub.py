@@ -34,6 +34,10 @@ import can
 
 log = logging.getLogger(__name__)
 
+#: frames from the bridged bus sent to the clients in one TCP write at most (the frames
+#: waiting when the hub reads: a SYNC's answers from every drive leave together)
+MAX_BATCH = 64
+
 
 def frame_element(msg: can.Message, timestamp: float | None = None) -> bytes:
     """The socketcand ``< frame ... >`` element of a CAN message."""
@@ -217,9 +221,18 @@ class CanHub:
             except can.CanError as exc:
                 log.warning("socketcand hub: bridged bus failed: %s", exc)
                 break
-            if msg is None or msg.is_error_frame or msg.is_remote_frame:
-                continue
-            self._broadcast(frame_element(msg, time.time()), exclude=None)
+            batch = []
+            while msg is not None:  # with whatever else is waiting: one write per client
+                if not (msg.is_error_frame or msg.is_remote_frame):
+                    batch.append(frame_element(msg, time.time()))
+                if len(batch) >= MAX_BATCH:
+                    break
+                try:
+                    msg = self.bus.recv(timeout=0.0)
+                except can.CanError:
+                    msg = None
+            if batch:
+                self._broadcast(b"".join(batch), exclude=None)
 
     def _broadcast(self, element: bytes, exclude: _Client | None) -> None:
         with self._lock:

@@ -178,6 +178,17 @@ class LightVirtualBus(VirtualBus):
             raise can.CanOperationError("Could not send message to one or more recipients")
 
 
+def send_frames(bus: can.BusABC, msgs: list[can.Message]) -> None:
+    """Send ``msgs`` in order: in one write where the bus can (``send_batch``, e.g.
+    :class:`hal.socketcand_link.SocketcandLink`), else one ``send`` each."""
+    batch = getattr(bus, "send_batch", None)
+    if batch is not None:
+        batch(msgs)
+        return
+    for m in msgs:
+        bus.send(m)
+
+
 def open_bus(spec: str | CanSpec, **options: Any) -> can.BusABC:
     """Open the bus of a ``--can`` specification (extra ``options`` go to :func:`can.Bus`)."""
     s = parse_can_spec(spec) if isinstance(spec, str) else spec

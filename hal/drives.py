@@ -83,7 +83,7 @@ import canopen
 import numpy as np
 
 from controller.winch import WinchSet, counts_to_m, m_to_counts
-from hal.can_bus import CanSpec, open_bus
+from hal.can_bus import CanSpec, open_bus, send_frames
 from hal.drives_cia402 import (
     CW_FAULT_RESET,
     RQ,
@@ -986,17 +986,23 @@ class WinchDrives:
         if self._link_down or not self.link_up():
             self._syncs += 1  # the cycle happened; nothing can go out (see _check_link)
             return
-        bus_send = self.network.bus.send
         pack = self._rpdo.pack
         cws, targets, ids = cw.tolist(), target.tolist(), self.node_ids  # plain ints
+        rpdos = [can.Message(arbitration_id=0x200 + ids[k], data=pack(cws[k], targets[k]),
+                             is_extended_id=False) for k in np.flatnonzero(send).tolist()]
+        sync = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+        bus = self.network.bus
         try:
             with self._send_lock:
-                for k in np.flatnonzero(send).tolist():
-                    bus_send(can.Message(arbitration_id=0x200 + ids[k],
-                                         data=pack(cws[k], targets[k]), is_extended_id=False))
-                with self._rx:
-                    self._expect = self._rx_count.copy()
-                bus_send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+                if hasattr(bus, "send_batch"):  # one write: nothing can answer in between
+                    with self._rx:
+                        self._expect = self._rx_count.copy()
+                    send_frames(bus, rpdos + [sync])
+                else:  # answers to the RPDOs (delivered at once in lock-step) come first
+                    send_frames(bus, rpdos)
+                    with self._rx:
+                        self._expect = self._rx_count.copy()
+                    bus.send(sync)
         except (can.CanError, OSError) as exc:
             # the bus refused the frames (bus off, link down): report once per streak and
             # keep cycling; the drives' heartbeats and TPDOs tell what happened to them

@@ -19,8 +19,13 @@ unit id and the cable. Calibration: ``measured = gain*true + offset``, so
 
 One silent cell must not hold up the others:
 
-- Modbus/TCP: one connection and one poller ("lane") per unit id, so a unit that does
-  not answer only ever delays itself (``connections="per_unit"``, the default for TCP);
+- Modbus/TCP: one connection per unit id (``connections="per_unit"``, the default for
+  TCP) and one poller thread that sends every unit its request at once and takes the
+  answers as they come (a sweep is one round trip; one thread wakes the interpreter once
+  per sweep, not eight times, which a control loop in the same process feels); a unit
+  that has not answered within ``timeout_s`` is TIMEOUT, and it and a unit whose
+  connection failed are asked again only every ``retry_s``, so a silent unit costs the
+  others at most one timeout per ``retry_s``;
 - a shared line (serial RTU, RTU over a TCP gateway: one request at a time): one lane;
   a unit that timed out is asked again only every ``retry_s`` and last in its sweep, so
   it costs the others at most one timeout per ``retry_s``.
@@ -34,6 +39,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import select
 import struct
 import threading
 import time
@@ -147,10 +153,10 @@ class LoadCellClient:
     :param max_age_s: no valid answer for longer makes the value TIMEOUT (poller stopped,
         server hung, unit silent), judged at each read; default ``timeout_s + 3 / rate_hz``
     :param clock: monotonic time source [s]
-    :param connections: "per_unit" (one connection and poller per unit id; default for
+    :param connections: "per_unit" (one connection per unit id, polled together; default for
         Modbus/TCP) or "shared" (one line for all; default for serial and RTU over TCP)
-    :param retry_s: on a shared line, a unit that timed out is asked again after this long
-        [s] (default ``max(0.5, 5 * timeout_s)``)
+    :param retry_s: a unit that timed out (or, polled together, whose connection failed)
+        is asked again after this long [s] (default ``max(0.5, 5 * timeout_s)``)
     """
 
     def __init__(
@@ -342,37 +348,59 @@ class LoadCellClient:
             len(ln.units) == 1 and getattr(getattr(ln.client, "transaction", None),
                                            "retries", None) == 0 for ln in self._lanes)
 
-    def _sweep_pipelined(self) -> None:
-        """One sweep over per-unit connections: every request out, then every answer in (the
-        same requests and answers as one unit after the other; the cells answer in parallel,
-        so the sweep takes one round trip instead of one per unit). Each answer is awaited
-        for ``timeout_s`` from when its wait begins."""
+    def _sweep_pipelined(self, lanes: list[_Lane] | None = None) -> None:
+        """One sweep over per-unit connections (``lanes``: those due, default all): every
+        request out, then the answers taken as they arrive (the same requests and answers
+        as one unit after the other; the cells answer in parallel, so the sweep takes one
+        round trip instead of one per unit). A unit that has not answered ``timeout_s``
+        after its request is TIMEOUT and its connection closed (a late answer must not be
+        taken for the next request's)."""
         start, count = self.map.block_start, self.map.block_count
-        lanes = self._lanes
+        lanes = self._lanes if lanes is None else lanes
         for lane in lanes:
             lane.lock.acquire()
         _quiet.active = True
         _quiet.last = ""
         try:
-            sent = []
+            waiting: dict[object, tuple[int, object, object]] = {}
             for lane in lanes:
                 k, client = lane.units[0], lane.client
                 try:
-                    sent.append((k, client, _send_read(client, start, count,
-                                                       self.map.unit_ids[k])))
+                    request = _send_read(client, start, count, self.map.unit_ids[k])
                 except Exception as exc:
                     self._request_failed(k, client, exc)
-            for k, client, request in sent:
-                try:
-                    rr = _await_answer(client, request)
-                except Exception as exc:
-                    self._request_failed(k, client, exc)
+                    continue
+                sock = getattr(client, "socket", None)
+                if sock is None:  # no socket to watch: wait for this answer alone
+                    self._take_answer(k, client, request)
                 else:
-                    self._answer(k, rr)
+                    waiting[sock] = (k, client, request)
+            deadline = time.monotonic() + self.timeout_s
+            while waiting:
+                left = deadline - time.monotonic()
+                ready = select.select(list(waiting), [], [], max(left, 0.0))[0] \
+                    if left > 0 else []
+                if not ready:
+                    for k, client, _ in waiting.values():
+                        client.close()
+                        self._fail(k, CableStatus.TIMEOUT, f"no answer within "
+                                   f"{self.timeout_s:g} s")
+                    break
+                for sock in ready:
+                    k, client, request = waiting.pop(sock)
+                    self._take_answer(k, client, request)
         finally:
             _quiet.active = False
             for lane in lanes:
                 lane.lock.release()
+
+    def _take_answer(self, k: int, client, request) -> None:
+        try:
+            rr = _await_answer(client, request)
+        except Exception as exc:
+            self._request_failed(k, client, exc)
+        else:
+            self._answer(k, rr)
 
     def poll_once(self) -> None:
         """One synchronous sweep: read every cell once (blocking I/O, up to n x timeout; with
@@ -426,8 +454,39 @@ class LoadCellClient:
                 delay = 0.0
             self._stop.wait(delay)
 
+    def _run_pipelined(self) -> None:
+        """One poller for all per-unit connections: pipelined sweeps at ``rate_hz``; a unit
+        that timed out or whose connection failed is asked again only every ``retry_s``."""
+        period = 1.0 / self.rate_hz
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            t0 = self.clock()
+            due = [ln for ln in self._lanes if t0 >= self._next_try[ln.units[0]]]
+            if due:
+                with self._io_lock:
+                    self._sweep_pipelined(due)
+                for ln in due:
+                    k = ln.units[0]
+                    if self._comm[k] in (CableStatus.TIMEOUT, CableStatus.COMM_ERROR):
+                        self._next_try[k] = self.clock() + self.retry_s
+                        with self._lock:
+                            self._comm_msg[k] += f"; asked again every {self.retry_s:g} s"
+                    else:
+                        self._next_try[k] = -np.inf
+            with self._swept:
+                self.sweeps += 1
+                self.last_sweep_s = self.clock() - t0
+                self._swept.notify_all()
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < 0:  # fell behind: do not try to catch up
+                next_t = time.monotonic()
+                delay = 0.0
+            self._stop.wait(delay)
+
     def start(self) -> LoadCellClient:
-        """Start the background pollers, one per lane (returns at once)."""
+        """Start the background poller(s) (returns at once): one thread for pipelined
+        sweeps over per-unit connections, else one per lane."""
         if self._threads:
             raise RuntimeError("load cell poller already running")
         self._stop.clear()
@@ -435,6 +494,12 @@ class LoadCellClient:
             for lane in self._lanes:
                 lane.passes = 0
             self._lane_sweeps = 0
+        if self._pipelined():
+            th = threading.Thread(target=self._run_pipelined, daemon=True,
+                                  name="loadcell-poller")
+            th.start()
+            self._threads.append(th)
+            return self
         for i, lane in enumerate(self._lanes):
             th = threading.Thread(target=self._run, args=(lane,), daemon=True,
                                   name=f"loadcell-poller-{i}")

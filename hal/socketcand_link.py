@@ -223,11 +223,24 @@ class SocketcandLink(can.BusABC):
                            dlc=len(data), is_extended_id=extended, is_rx=True,
                            channel=self.channel)
 
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+    @staticmethod
+    def _element(msg: can.Message) -> str:
         can_id = (f"{msg.arbitration_id & 0x1FFFFFFF:08X}" if msg.is_extended_id
                   else f"{msg.arbitration_id & 0x7FF:03X}")
         data = bytes(msg.data[:msg.dlc])
-        text = f"< send {can_id} {len(data):X} {' '.join(f'{b:02X}' for b in data)} >"
+        return f"< send {can_id} {len(data):X} {' '.join(f'{b:02X}' for b in data)} >"
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._send_text(self._element(msg))
+
+    def send_batch(self, msgs: list[can.Message]) -> None:
+        """Send frames in order in one TCP write (a cycle's RPDOs and SYNC: one segment, one
+        wake-up of the server instead of one per frame; socketcand reads a stream of
+        elements, so the frames are the same). All or nothing on this side of the link."""
+        if msgs:
+            self._send_text("".join(self._element(m) for m in msgs))
+
+    def _send_text(self, text: str) -> None:
         with self._lock:
             sock = self._sock
             if sock is None:

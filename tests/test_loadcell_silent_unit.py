@@ -45,6 +45,7 @@ def test_a_silent_unit_does_not_slow_the_others(server):
     feeder.start()
     try:
         client.start()
+        pollers = [t.name for t in threading.enumerate() if t.name.startswith("loadcell-poll")]
         time.sleep(1.2)
         a0, e0 = client.answers.copy(), client.errors.copy()
         time.sleep(1.0)
@@ -61,8 +62,10 @@ def test_a_silent_unit_does_not_slow_the_others(server):
     # a sweep with the silent unit in it would take 0.2 s: as many answers as it has tries
     assert np.all(others >= 4 * (tries + 1)), (others, tries)
     assert np.all(np.delete(r.status, 2) == CableStatus.OK), r.faults()
-    if client.connections == "shared":  # on one line the silent unit is asked rarely
-        assert tries <= 1.0 / client.retry_s + 1
+    # on one line, and polled together over per-unit connections, the silent unit is
+    # asked only every retry_s
+    assert tries <= 1.0 / client.retry_s + 1, tries
+    assert len(pollers) == 1, pollers  # one thread, whatever the connections
 
 
 def test_per_unit_connections_on_tcp_only():

@@ -28,6 +28,8 @@ import threading
 import time
 from pathlib import Path
 
+from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
+
 NAME = "dry-run"
 HELP = "run the controller in the loop with the simulated robot along a path"
 
@@ -47,6 +49,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "process (socketcand hub, Modbus/TCP) [inprocess]")
     p.add_argument("--realtime", action="store_true",
                    help="run on the wall clock (default: lock-step, as fast as possible)")
+    p.add_argument("--rt-priority", type=int, default=DEFAULT_RT_PRIORITY, metavar="P",
+                   help="with --realtime: the loop's thread in SCHED_FIFO at this priority "
+                        "when the system permits it, else normal scheduling, said at start "
+                        f"(0: normal) [{DEFAULT_RT_PRIORITY}]")
     p.add_argument("--rate", type=float, default=None, metavar="HZ",
                    help="control rate (SYNC) [the highest the CAN bus load allows]")
     p.add_argument("--speed-pct", type=float, default=None, metavar="P",
@@ -297,7 +303,8 @@ def run(args: argparse.Namespace) -> int:
                     injector.start()
             opts = LoopOptions(realtime=args.realtime, decimate=decimate,
                                init_pose=sc.init_pose if args.init_pose == "given" else None,
-                               max_duration_s=args.duration, reactions=reactions)
+                               max_duration_s=args.duration, reactions=reactions,
+                               rt_priority=args.rt_priority)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
                                on_progress=_progress_printer(args.quiet, args.duration), stop=stop)
@@ -328,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
         "ended": res.ended, "message": res.message, "trajectory_s": res.trajectory_s,
         "path_s": res.path_s, "init_pose": res.init_pose,
         "reference_offset_m": res.reference_offset_m, "drive_states": res.drive_states,
-        "plots": plots, "rig": args.rig,
+        "plots": plots, "rig": args.rig, "scheduling": res.scheduling,
     }
     if args.json:
         print(json.dumps(out))

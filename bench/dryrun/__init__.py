@@ -6,6 +6,8 @@
   rig in this process, ``cdpr sim`` in another process and real drives;
 - :mod:`bench.dryrun.world`: the simulated robot the loop runs against (drives, load
   cells, tracker and plant; in this process or as a ``cdpr sim`` process);
+- :mod:`bench.dryrun.realtime`: what a real-time loop asks of its process (interpreter
+  settings, SCHED_FIFO for its thread when permitted);
 - :mod:`bench.dryrun.record`: the recording written while the run goes;
 - :mod:`bench.dryrun.scenarios`: shipped dry-run scenarios by name;
 - :mod:`bench.dryrun.report`: summary, text table and plots.

@@ -29,10 +29,8 @@ then skips the deadlines it missed instead of bursting).
 from __future__ import annotations
 
 import array
-import contextlib
 import gc
 import math
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -41,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.dryrun.realtime import DEFAULT_RT_PRIORITY, realtime_interpreter, realtime_scheduling
 from bench.dryrun.record import DryRunRecorder
 from controller.cycle import LengthController
 from controller.feedrate import FeedRate, ramp_time
@@ -97,6 +96,8 @@ class LoopOptions:
     #: tensions of the mast update: "measured" (the load cells, the paper's future work) or
     #: "planned" (the tension distribution's, as the paper's offline estimate did)
     mast_tensions: str = "measured"
+    #: real time: SCHED_FIFO priority of the loop's thread when permitted (0: normal)
+    rt_priority: int = DEFAULT_RT_PRIORITY
 
 
 @dataclass
@@ -123,6 +124,8 @@ class LoopResult:
     substituted_cycles: int = 0
     drive_states: list[str] | None = None  #: CiA 402 states when the run ended
     lateness_s: array.array = field(default_factory=lambda: array.array("f"))
+    #: real time: the loop thread's scheduling ("SCHED_FIFO 50", "normal (...)")
+    scheduling: str | None = None
 
     @property
     def rate_hz(self) -> float:
@@ -146,7 +149,7 @@ class LoopResult:
                 "pose_error_rms_m": self.pose_error_rms_m,
                 "pose_error_max_m": self.pose_error_max_m, "init_pose": self.init_pose,
                 "reference_offset_m": self.reference_offset_m,
-                "drive_states": self.drive_states}
+                "drive_states": self.drive_states, "scheduling": self.scheduling}
 
 
 class CycleClock:
@@ -170,7 +173,7 @@ class CycleClock:
         if left > self.spin_s * 1.5:
             self.sleep(left - self.spin_s)
         while self.now() < self.deadline:
-            pass
+            self.sleep(0.0)  # spins, yet lets the HAL's threads have the interpreter
         return self.now() - self.deadline
 
     def done(self) -> bool:
@@ -228,24 +231,6 @@ class CrossTrack:
                     0, 1)
         d = a + s[:, None] * ab - p
         return float(np.sqrt((d * d).sum(1).min()))
-
-
-@contextlib.contextmanager
-def _realtime_interpreter():
-    """For a real-time loop: no automatic garbage collection (the loop collects the young
-    generation in its slack), and short GIL switch intervals so that the loop gets the
-    interpreter back quickly from the HAL's and the recorder's threads."""
-    was_enabled = gc.isenabled()
-    interval = sys.getswitchinterval()
-    gc.collect()
-    gc.disable()
-    sys.setswitchinterval(5e-4)
-    try:
-        yield
-    finally:
-        sys.setswitchinterval(interval)
-        if was_enabled:
-            gc.enable()
 
 
 def _faults(r: Readings) -> tuple[DeviceFault, ...]:
@@ -379,7 +364,10 @@ class ControlLoop:
                 res.ended, res.message = "refused", str(exc)
                 return res
             if self.opt.realtime:
-                with _realtime_interpreter():
+                with realtime_interpreter(), \
+                        realtime_scheduling(self.opt.rt_priority) as sched:
+                    res.scheduling = sched
+                    self.on_event(f"real time: the loop's thread runs {sched}")
                     self._cycle_loop(p0, traj)
             else:
                 self._cycle_loop(p0, traj)
@@ -468,7 +456,10 @@ class ControlLoop:
         path_cycle = -1
         k = 0
         next_progress = time.perf_counter()
-        clock = CycleClock(T) if opt.realtime else None
+        # a real-time thread wakes on time (no timer slack) and must not hold a core
+        # spinning; under the normal scheduler the last millisecond is spun
+        fifo = (self.result.scheduling or "").startswith("SCHED_FIFO")
+        clock = CycleClock(T, spin_s=1e-4 if fifo else 1e-3) if opt.realtime else None
         overrun = False
         while True:
             # ---- output: the setpoints of the last cycle go out with the SYNC
