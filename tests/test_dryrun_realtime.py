@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from bench.dryrun.realtime import realtime_interpreter, realtime_scheduling, realtime_service
+from bench.dryrun.realtime import realtime_interpreter, realtime_scheduling
 
 needs_sched = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"),
                                  reason="no POSIX scheduling on this system")
@@ -75,11 +75,3 @@ def test_interpreter_settings_are_restored():
     with realtime_interpreter():
         assert not gc.isenabled() and sys.getswitchinterval() == pytest.approx(5e-4)
     assert sys.getswitchinterval() == interval and gc.isenabled() == enabled
-
-
-def test_service_freezes_start_up_objects_and_keeps_collecting():
-    interval = sys.getswitchinterval()
-    with realtime_service():
-        assert gc.get_freeze_count() > 0 and gc.isenabled()
-        assert sys.getswitchinterval() == pytest.approx(5e-4)
-    assert gc.get_freeze_count() == 0 and sys.getswitchinterval() == interval

@@ -23,7 +23,6 @@ with file, line and field (exit 2).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import signal
@@ -88,8 +87,6 @@ def run(args: argparse.Namespace) -> int:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
     import numpy as np
 
-    from bench.dryrun.lockstep_bus import deliver_in_sender_thread
-    from bench.dryrun.realtime import realtime_service
     from firmware_sim.faults import (
         FaultControlServer,
         FaultInjector,
@@ -143,7 +140,6 @@ def run(args: argparse.Namespace) -> int:
 
     stop = threading.Event()
     previous = {}
-    service = contextlib.ExitStack()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda *_: stop.set())
@@ -154,12 +150,6 @@ def run(args: argparse.Namespace) -> int:
             return _fail(args, 1, str(exc))
         injector.start()
         control.start()
-        if args.clock == "wall":  # before the endpoints go out: the pause is at start-up
-            service.enter_context(realtime_service())
-            if rig.hub is not None:
-                # the drives take the master's frames in the hub's thread as it reads them
-                # (one thread hand-off fewer on the way from the wire to the drive)
-                deliver_in_sender_thread(rig.bank.network)
         can_spec = rig.can_spec if bus is None else str(parse_can_spec(args.can))
         sc = rig.scenario
         info = {
@@ -202,7 +192,6 @@ def run(args: argparse.Namespace) -> int:
         while not stop.wait(0.5):
             pass
     finally:
-        service.close()
         control.close()
         injector.stop()
         rig.close()

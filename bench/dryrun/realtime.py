@@ -14,8 +14,6 @@
   drives' RPDO deadline (a few periods) stops the robot. The loop never spins with the
   interpreter held (see :class:`bench.dryrun.loop.CycleClock`), so a real-time thread
   cannot starve the threads it needs.
-- A service that answers in time (:func:`realtime_service`, ``cdpr sim`` on the wall
-  clock): start-up objects frozen out of the garbage collector, short switch interval.
 """
 
 from __future__ import annotations
@@ -48,24 +46,6 @@ def realtime_interpreter() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def realtime_service() -> Iterator[None]:
-    """For a long-running process that must answer in time (``cdpr sim`` on the wall
-    clock): the objects made at start-up frozen out of the garbage collector (a full
-    collection otherwise scans them all: 20 to 50 ms during which the simulated drives
-    miss their RPDO deadline), and a 0.5 ms GIL switch interval; garbage collection stays
-    on (the process runs for hours). Restored after."""
-    interval = sys.getswitchinterval()
-    gc.collect()
-    gc.freeze()
-    sys.setswitchinterval(5e-4)
-    try:
-        yield
-    finally:
-        sys.setswitchinterval(interval)
-        gc.unfreeze()
-
-
-@contextlib.contextmanager
 def realtime_scheduling(priority: int) -> Iterator[str]:
     """The calling thread in ``SCHED_FIFO`` at ``priority`` inside, when permitted; yields
     what it got as text (``"SCHED_FIFO 50"``, or ``"normal (...why...)"``) and restores
@@ -95,5 +75,4 @@ def realtime_scheduling(priority: int) -> Iterator[str]:
             pass
 
 
-__all__ = ["DEFAULT_RT_PRIORITY", "realtime_interpreter", "realtime_scheduling",
-           "realtime_service"]
+__all__ = ["DEFAULT_RT_PRIORITY", "realtime_interpreter", "realtime_scheduling"]
