@@ -341,3 +341,31 @@ def test_cycle_clock_counts_overruns_and_skips_missed_deadlines():
     clock.wait()
     c.t += 0.001
     assert not clock.done()
+
+
+def test_real_time_collects_garbage_before_the_drives_are_fed(monkeypatch):
+    """A full collection takes tens of milliseconds: after the drives have seen their first
+    setpoint that is a lost master (their RPDO deadline), so it comes before, not between
+    the initialisation and the first cycle."""
+    import gc
+
+    truth = rocaspect()
+    w = World(truth, truth)
+    seen = {}
+    enable = w.hw.enable
+
+    def spy_enable(*a, **k):
+        seen["gc_enabled_at_enable"] = gc.isenabled()
+        return enable(*a, **k)
+
+    monkeypatch.setattr(w.hw, "enable", spy_enable)
+    collections = []
+    monkeypatch.setattr(gc, "collect", lambda *a: collections.append(
+        (a, "enable" in seen)) or 0)
+    was = gc.isenabled()
+    _, res = _run(w, truth, [Dwell(0.05)], realtime=True, rt_priority=0)
+    assert res.ended == "completed", res.message
+    assert seen["gc_enabled_at_enable"] is False
+    full = [after for a, after in collections if not a or a[0] == 2]
+    assert full and not any(full)  # every full collection before the drives were enabled
+    assert gc.isenabled() == was

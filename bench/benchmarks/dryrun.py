@@ -50,6 +50,9 @@ def _run(kind: str, realtime: bool, rate_hz: float, seconds: float,
                            lambda p0: build_trajectory(spec, p0),
                            LoopOptions(realtime=realtime, max_duration_s=seconds,
                                        init_dwell_s=0.5, decimate=5,
+                                       # a path shorter than the run: the platform holds
+                                       # at its end (the loop cycles all the same)
+                                       end_dwell_s=seconds,
                                        rt_priority=rt_priority), tick=tick)
         cpu0 = time.process_time()
         res = loop.run()

@@ -29,6 +29,7 @@ then skips the deadlines it missed instead of bursting).
 from __future__ import annotations
 
 import array
+import contextlib
 import gc
 import math
 import threading
@@ -358,18 +359,20 @@ class ControlLoop:
         res = self.result
         wall0 = time.perf_counter()
         try:
-            try:
-                p0, traj = self._initialise()
-            except PathRefused as exc:
-                res.ended, res.message = "refused", str(exc)
-                return res
-            if self.opt.realtime:
-                with realtime_interpreter(), \
-                        realtime_scheduling(self.opt.rt_priority) as sched:
+            with contextlib.ExitStack() as rt:
+                if self.opt.realtime:
+                    # the full collection comes before the drives are fed: once they have
+                    # seen a setpoint, a pause of tens of milliseconds is a lost master
+                    rt.enter_context(realtime_interpreter())
+                try:
+                    p0, traj = self._initialise()
+                except PathRefused as exc:
+                    res.ended, res.message = "refused", str(exc)
+                    return res
+                if self.opt.realtime:
+                    sched = rt.enter_context(realtime_scheduling(self.opt.rt_priority))
                     res.scheduling = sched
                     self.on_event(f"real time: the loop's thread runs {sched}")
-                    self._cycle_loop(p0, traj)
-            else:
                 self._cycle_loop(p0, traj)
         except KeyboardInterrupt:
             res.ended, res.message = "interrupted", "KeyboardInterrupt"
