@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.diagnosis.internal_forces import fit_internal_forces
 from bench.diagnosis.samples import Samples, pooled_std
 from controller import cables
 from controller.cycle import reference_lengths
@@ -282,59 +283,41 @@ class ResidualModel:
         self._pose_est = p
         return p
 
-    def _unmeasured(self, H: Robot, poses: np.ndarray, read: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _unmeasured(self, H: Robot, poses: np.ndarray, read: np.ndarray,
+                    rounds: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Length residuals (M,n), exits (M,n,3) and success (M,) at ``poses`` without measured
-        tensions: tensions balance gravity, their internal forces are fitted to the stretch.
-        A cable whose fitted tension comes out negative is slack: it carries nothing, the
-        others balance the platform, and its reading only says it is at least as long as the
-        straight line."""
+        tensions: tensions that balance gravity, pull, and fit the readings' stretch
+        (:mod:`bench.diagnosis.internal_forces`: exact over which cables are slack, so the
+        residuals do not jump with the parameters); a cable left at zero tension only says
+        it is at least as long as the straight line. ``rounds`` relinearisations of the
+        statics (exits and stretch move with the tensions)."""
         M, n = len(poses), H.n_cables
+        tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
+        floor = 1e-3 * tm  # linearisation tension of a cable at zero
         straight = H.replace(rho=0.0) if H.rho > 0 else H
         bs0 = batch_statics(straight, poses, np.full((M, n), 1.0))  # geometry only
-        W0 = wrench_matrix(bs0.state)
         wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
-        tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
-        taut = np.ones((M, n), dtype=bool)
-        lres = np.full((M, n), np.nan)
-        r0 = np.full((M, n), np.nan)
-        exits = bs0.exits
+        tau = _balance(wrench_matrix(bs0.state), -wg, tm)
+        tau_k = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
         ok = np.ones(M, dtype=bool)
-        for _outer in range(max(n - 5, 1)):
-            tau = _balance(W0 * taut[:, None, :], -wg, tm * taut)
-            ok = np.isfinite(tau).all(axis=1)
-            tau = np.where(ok[:, None], tau, tm) * taut
-            for _ in range(3):
-                bs = batch_statics(H, poses, tau)
-                exits = bs.exits
-                r0 = bs.unstretched - read
-                c = _stretch_sensitivity(H, bs, tau) * taut  # dL0/dtau (M,n)
-                if not np.any(c != 0):
-                    lres = r0.copy()
-                    break
-                Wb = wrench_matrix(bs.state) * taut[:, None, :]
-                _, _, Vt = np.linalg.svd(Wb)
-                Nsp = np.swapaxes(Vt[:, 6:, :], -1, -2)  # (M, n, n-6) internal forces
-                A = c[..., None] * Nsp
-                AtA = np.swapaxes(A, -1, -2) @ A
-                k = AtA.shape[-1]
-                reg = 1e-12 * np.trace(AtA, axis1=-2, axis2=-1)[:, None, None] * np.eye(k) \
-                    + 1e-300 * np.eye(k)
-                lam = -np.linalg.solve(AtA + reg, np.einsum("nki,nk->ni", A, r0)[..., None])[
-                    ..., 0]
-                lam = np.nan_to_num(lam)
-                lres = r0 + np.einsum("nki,ni->nk", A, lam)
-                tau = (tau + np.einsum("nki,ni->nk", Nsp, lam)) * taut
-            # the most negative tension of each sample goes slack, one cable at a time
-            neg = np.where(taut, tau, np.inf)
-            worst = np.argmin(neg, axis=1)
-            slack = (neg[np.arange(M), worst] < 0.0) & (taut.sum(axis=1) > 6)
-            if not slack.any():
-                break
-            taut[np.flatnonzero(slack), worst[slack]] = False
-        # a slack cable: its unstretched length read may exceed the straight line
-        lres = np.where(taut, lres, np.maximum(r0, 0.0))
-        return lres, exits, ok & np.isfinite(lres).all(axis=1)
+        at_zero = np.zeros((M, n), dtype=bool)
+        for _ in range(rounds):
+            bs = batch_statics(H, poses, tau_k)
+            W = wrench_matrix(bs.state)
+            wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
+            tau_p = _balance(W, -wg, tm)
+            good = np.isfinite(tau_p).all(axis=1) & np.isfinite(W).all(axis=(1, 2))
+            r = np.nan_to_num(bs.unstretched - read)
+            c = _stretch_sensitivity(H, bs, tau_k)
+            fit = fit_internal_forces(np.nan_to_num(W), -wg, np.nan_to_num(tau_p), r, c,
+                                      tau_k, tm)
+            ok = good & fit.feasible
+            at_zero = fit.at_zero
+            tau_k = np.where(good[:, None], np.maximum(fit.tensions, floor), tau_k)
+        bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k))
+        lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
+                        bs.unstretched - read)
+        return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
 
     # ----- noise ----------------------------------------------------------------------
     def estimate_noise(self, H: Robot) -> dict[str, float]:

@@ -1,0 +1,99 @@
+"""Tensions of samples without load cells (bench/diagnosis/internal_forces.py): exact over
+which cables are slack, continuous in the data, and honest when nothing balances."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.diagnosis.internal_forces import fit_internal_forces
+
+
+def _problem(seed: int, n: int = 8, M: int = 40, slack_long: float = 0.0):
+    rng = np.random.default_rng(seed)
+    W = rng.normal(size=(M, 6, n))
+    true = rng.uniform(20.0, 300.0, size=(M, n))
+    f = np.einsum("mik,mk->mi", W, true)
+    tau_p = true + np.einsum("mik,mk->mi", np.linalg.pinv(W), np.zeros((M, 6)))
+    tau_k = np.full((M, n), 150.0)
+    c = -rng.uniform(1e-6, 1e-5, size=(M, n))
+    # readings off by noise, and some cables read longer (slack candidates)
+    r = rng.normal(0.0, 2e-3, size=(M, n)) - slack_long * rng.uniform(0.0, 1.0, size=(M, n))
+    return W, f, tau_p, r, c, tau_k, np.full(n, 150.0)
+
+
+def _objective(tau, r, c, tau_k, tm, eps):
+    """The module's objective for one sample, by the definition (one-sided at zero)."""
+    e = np.where(tau > 1e-9, r + c * (tau - tau_k), np.maximum(r - c * tau_k, 0.0))
+    return float(np.sum(e * e) + eps * np.sum((tau - tm) ** 2))
+
+
+@pytest.mark.parametrize("slack_long", [0.0, 5e-3])
+def test_the_minimum_is_the_least_cost_over_a_dense_search_of_the_null_space(slack_long):
+    W, f, tau_p, r, c, tau_k, tm = _problem(3, slack_long=slack_long)
+    got = fit_internal_forces(W, f, tau_p, r, c, tau_k, tm)
+    assert got.feasible.all()
+    assert np.all(got.tensions >= 0.0)
+    np.testing.assert_allclose(np.einsum("mik,mk->mi", W, got.tensions), f, atol=1e-6)
+    rng = np.random.default_rng(7)
+    for i in range(W.shape[0]):
+        eps = 1e-9 * np.max(c[i] ** 2)
+        best = _objective(got.tensions[i], r[i], c[i], tau_k[i], tm, eps)
+        assert best == pytest.approx(got.cost[i], rel=1e-6, abs=1e-12)
+        _, _, Vt = np.linalg.svd(W[i])
+        N = Vt[6:].T
+        # random balanced tensions around the answer, and with cables pushed to zero
+        lam = rng.normal(size=(4000, 2)) * rng.choice([1.0, 10.0, 100.0], size=(4000, 1))
+        cand = got.tensions[i] + lam @ N.T
+        for t in cand[np.all(cand >= 0.0, axis=1)]:
+            assert _objective(t, r[i], c[i], tau_k[i], tm, eps) >= best - 1e-12
+
+
+def test_a_cable_reading_long_goes_slack_at_no_cost_and_a_short_one_never_does():
+    W, f, tau_p, r, c, tau_k, tm = _problem(5, M=20)
+    # cable 2 reads 5 cm longer than the straight line: slack explains it if a balance
+    # without it exists (8 cables, 6 equations: it does for these random problems)
+    r[:, 2] = -0.05 + c[:, 2] * tau_k[:, 2]
+    got = fit_internal_forces(W, f, tau_p, r, c, tau_k, tm)
+    slack_ok = got.feasible & got.at_zero[:, 2]
+    assert slack_ok.sum() >= 10
+    # a cable reading shorter than the straight line cannot be slack
+    r[:, 2] = 0.05 + c[:, 2] * tau_k[:, 2]
+    got2 = fit_internal_forces(W, f, tau_p, r, c, tau_k, tm)
+    assert not np.any(got2.at_zero[:, 2] & (got2.cost < 0.05 ** 2))
+
+
+def test_the_cost_moves_continuously_with_the_readings():
+    W, f, tau_p, r, c, tau_k, tm = _problem(11, M=1, slack_long=5e-3)
+    costs = []
+    for d in np.linspace(-0.01, 0.01, 401):  # cable 0 from long (slack) to short (taut)
+        rr = r.copy()
+        rr[:, 0] += d
+        costs.append(fit_internal_forces(W, f, tau_p, rr, c, tau_k, tm).cost[0])
+    jumps = np.abs(np.diff(costs))
+    assert jumps.max() < 2e-5  # 0.05 mm steps: no jump of a slack decision
+
+
+def test_rigid_cables_take_the_balance_nearest_mid_range():
+    W, f, tau_p, r, c, tau_k, tm = _problem(2, M=10)
+    c[:] = 0.0
+    r = np.abs(r)
+    got = fit_internal_forces(W, f, tau_p, r, c, tau_k, tm)
+    assert got.feasible.all()
+    for i in range(10):  # nearest non-negative balance to tm: check against the projection
+        _, _, Vt = np.linalg.svd(W[i])
+        N = Vt[6:].T
+        free = tau_p[i] + N @ (N.T @ (tm - tau_p[i]))
+        if np.all(free >= 0):
+            np.testing.assert_allclose(got.tensions[i], free, rtol=1e-6, atol=1e-6)
+
+
+def test_no_balance_with_pulling_cables_is_said_not_hidden():
+    W, f, tau_p, r, c, tau_k, tm = _problem(4, M=6)
+    W = np.abs(W)  # every cable pushes the wrench the same way...
+    f = -np.abs(f) - 10.0  # ...and the wrench asks the opposite
+    tau_p = np.einsum("mki,mk->mi", np.linalg.pinv(np.swapaxes(W, -1, -2)), f)
+    tau_p = np.einsum("mik,mk->mi", np.linalg.pinv(W), f)
+    got = fit_internal_forces(W, f, tau_p, r, c, tau_k, tm)
+    assert not got.feasible.any()
+    assert np.all(got.tensions >= 0.0) and np.all(np.isfinite(got.cost))
