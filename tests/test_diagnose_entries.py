@@ -49,3 +49,25 @@ def test_a_common_gain_within_its_uncertainty_or_noise_names_nothing(seed):
                 rng.normal(0, 0.003, 8)):  # the differences' noise
         params, _, _ = effect_entries(_fit(dev, rng), [EFFECT])
         assert params[EFFECT] == {}
+
+
+@pytest.mark.parametrize("k_fit, se_rel, undetermined", [
+    (4e4, 0.05, False),     # a soft mast, well known: reported
+    (1e7, 0.05, False),     # stiff yet measurable: reported
+    (6e12, 1e-3, True),     # run to the rigid bound with a tiny clipped error: not a number
+    (4e4, 0.6, True),       # known only to 60 %: undetermined
+])
+def test_a_stiffness_at_the_rigid_bound_is_undetermined_not_reported(k_fit, se_rel,
+                                                                      undetermined):
+    space = ParamSpace(resolve_robot("rocaspect"), ("mast_compliance",))
+    phi = space.neutral.copy()
+    j = next(k for k, p in enumerate(space.params) if p.key.startswith("kx_"))
+    phi[j] = 1.0 / k_fit
+    se = np.full(len(space), 1e-9)
+    se[j] = se_rel * phi[j]
+    fit = FitResult(space, phi, 100.0, 1000, 150.0, se, np.diag(se ** 2), True, "test",
+                    n_free=len(space))
+    params, _, undet = effect_entries(fit, ["mast_compliance"])
+    key = space.params[j].key
+    assert (key in undet["mast_compliance"]) == undetermined
+    assert (key in params["mast_compliance"]) == (not undetermined)

@@ -36,6 +36,9 @@ from controller.statics import batch_statics
 FORMAT = "cdpr-diagnosis/1"
 #: a stiffness or EA known only to this relative standard error is called undetermined
 UNDETERMINED_REL = 0.4
+#: ... and so is one fitted this many times stiffer than its effect's typical scale (the
+#: fit ran to the rigid bound: 1e9 N m/rad for a mast, 1e10 N for a cable's EA)
+RIGID_FACTOR = 1e3
 #: changes too small to matter (fit-space units): not reported as differing from the model
 PRACTICAL = {"exit_point_offset": 5e-4, "cable_length_offset": 1e-4, "drum_scale": 1e-4,
              "load_cell_calibration": 2e-3, "platform_mass": 2e-3, "pulley_kinematics": 2e-3,
@@ -126,7 +129,10 @@ def _undetermined(p: Param, phi: float, se: float) -> bool:
     if not math.isfinite(se):
         return True
     if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or too wide
-        return phi - 2.0 * se <= 0.0 or se > UNDETERMINED_REL * phi
+        # at the rigid bound (a stiffness RIGID_FACTOR times past the effect's scale) the
+        # standard error of a clipped fit says nothing: a number there would be a guess
+        return (phi - 2.0 * se <= 0.0 or se > UNDETERMINED_REL * phi
+                or phi * RIGID_FACTOR <= p.scale)
     limits = {"exit_point_offset": 5e-3, "cable_length_offset": 1e-3, "drum_scale": 5e-3,
               "pulley_kinematics": 0.03, "cable_sag": 0.05}
     if p.effect in limits:
