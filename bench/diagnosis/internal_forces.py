@@ -15,13 +15,14 @@ line costs nothing); ``eps`` is a small pull toward ``tm`` (mid-range, as a cont
 plans) that only decides what the stretch leaves open (rigid cables).
 
 The problem is not convex (a slack cable's cost drops to the one-sided value at zero
-tension), yet its minimum is exact and continuous in the data: in the null space
-(``tau = tau_p + N lam``, ``lam`` of dimension ``k = n - 6``) every face of the polytope
-``tau >= 0`` with ``j <= k`` cables at zero is tried (the minimiser of the quadratic on its
-affine hull: a ``j x j`` solve from one ``n x n`` matrix per sample), the feasible face of
-least cost wins. Vectorised over samples and faces (no Python loop over samples); the faces
-tried are capped at :data:`MAX_FACES` (about the ``n = 10`` robots' count) by the number of
-cables at zero.
+tension), yet its minimum is exact and continuous in the data. The balanced minimiser without the
+bounds comes from a 6 x 6 Schur complement; where it pulls on every cable and no cable
+reads longer than its line it is the answer (the problem is convex there). Elsewhere every
+face of the polytope ``tau >= 0`` with ``j <= n - 6`` cables at zero is tried (the
+minimiser of the quadratic on its affine hull: a ``j x j`` solve from one ``n x n`` matrix
+per sample) and the feasible face of least cost wins. Vectorised over samples and faces
+(no Python loop over samples); the faces tried are capped at :data:`MAX_FACES` (about the
+``n = 10`` robots' count) by the number of cables at zero.
 """
 
 from __future__ import annotations
@@ -63,13 +64,13 @@ def _faces(n: int, k: int) -> list[np.ndarray]:
     return out
 
 
-def fit_internal_forces(W: np.ndarray, f: np.ndarray, tau_p: np.ndarray, r: np.ndarray,
+def fit_internal_forces(W: np.ndarray, f: np.ndarray, r: np.ndarray,
                         c: np.ndarray, tau_k: np.ndarray, tm: np.ndarray,
                         eps_rel: float = 1e-9) -> InternalForces:
     """The tensions of the module's objective for M samples.
 
-    ``W`` (M,6,n) wrench matrices, ``f`` (M,6) the wrench to balance, ``tau_p`` (M,n) a
-    particular balance (``W tau_p = f``, any sign), ``r`` (M,n) length residuals [m] at
+    ``W`` (M,6,n) wrench matrices, ``f`` (M,6) the wrench to balance, ``r`` (M,n) length
+    residuals [m] at
     ``tau_k`` (M,n) [N], ``c`` (M,n) their sensitivity to tension [m/N], ``tm`` (n,) or
     (M,n) the tensions the ``eps`` term pulls toward [N]."""
     M, m, n = W.shape
@@ -79,61 +80,74 @@ def fit_internal_forces(W: np.ndarray, f: np.ndarray, tau_p: np.ndarray, r: np.n
     out_ok = np.zeros(M, dtype=bool)
     for a in range(0, M, BLOCK):
         sl = slice(a, min(a + BLOCK, M))
-        t, cost, ok = _block(W[sl], f[sl], tau_p[sl], r[sl], c[sl], tau_k[sl], tm[sl],
-                             eps_rel)
+        t, cost, ok = _block(W[sl], f[sl], r[sl], c[sl], tau_k[sl], tm[sl], eps_rel)
         out_t[sl], out_cost[sl], out_ok[sl] = t, cost, ok
     scale = np.maximum(np.abs(out_t).max(axis=1, keepdims=True), 1.0)
     return InternalForces(out_t, out_t <= 1e-9 * scale, out_cost, out_ok)
 
 
-def _block(W, f, tau_p, r, c, tau_k, tm, eps_rel):
+def _block(W, f, r, c, tau_k, tm, eps_rel):
     M, m, n = W.shape
-    # the null space of each W (rank 6 assumed; a rank-deficient pose has a larger one,
-    # of which the first n - 6 directions are used)
-    k = max(n - m, 0)
     c2 = c * c
     top = c2.max(axis=1, keepdims=True)
     eps = np.where(top > 0, eps_rel * top, 1.0)  # rigid cables: only the pull to tm
     w = c2 + eps  # per-cable curvature of the objective
     g = c * (c * tau_k - r) + eps * tm  # objective = sum(w tau^2 - 2 g tau) + const
     const = (r - c * tau_k) ** 2 + eps * tm * tm
-    if k == 0:
-        taus = tau_p[:, None, :]
-        masks = [np.zeros((1, n), dtype=bool)]
-    else:
-        _, _, Vt = np.linalg.svd(W)
-        N = np.swapaxes(Vt[:, m:m + k, :], -1, -2)  # (M, n, k)
-        Q = np.einsum("mik,mi,mil->mkl", N, w, N)
-        q = np.einsum("mik,mi->mk", N, w * tau_p - g)
-        Q += (1e-14 * np.trace(Q, axis1=-2, axis2=-1) + 1e-300)[:, None, None] * np.eye(k)
-        lam0 = -np.linalg.solve(Q, q[..., None])[..., 0]
-        tau0 = tau_p + np.einsum("mik,mk->mi", N, lam0)  # unconstrained minimiser
-        G = N @ np.linalg.solve(Q, np.swapaxes(N, -1, -2))  # (M, n, n)
-        taus_l = [tau0[:, None, :]]
-        masks = [np.zeros((1, n), dtype=bool)]
-        for S in _faces(n, k):
-            C, j = S.shape
-            GSS = G[:, S[:, :, None], S[:, None, :]]  # (M, C, j, j)
-            GSS = GSS + (1e-12 * np.abs(GSS).max(axis=(-2, -1), keepdims=True)
-                         + 1e-300) * np.eye(j)
-            vS = -tau0[:, S]  # (M, C, j): the move that brings the face's cables to zero
-            mu = np.linalg.solve(GSS, vS[..., None])[..., 0]
-            GnS = np.moveaxis(G[:, :, S], 1, -1)  # (M, C, j, n)
-            taus_l.append(tau0[:, None, :] + np.einsum("mcjn,mcj->mcn", GnS, mu))
-            mk = np.zeros((C, n), dtype=bool)
-            mk[np.arange(C)[:, None], S] = True
-            masks.append(mk)
-        taus = np.concatenate(taus_l, axis=1)  # (M, F, n)
-    zero = np.concatenate(masks, axis=0)  # (F, n)
-    scale = np.maximum(np.abs(tau_p).max(axis=1), np.abs(tm).max(axis=1))[:, None]
-    viol = np.maximum(-np.where(zero, 0.0, taus), 0.0).max(axis=-1)  # (M, F)
-    feasible = viol <= 1e-9 * scale
-    t = np.where(zero, 0.0, np.maximum(taus, 0.0))
-    w3, g3 = w[:, None, :], g[:, None, :]
-    cost = (w3 * t * t - 2.0 * g3 * t + const[:, None, :]).sum(axis=-1)
-    # a cable at zero costs its one-sided residual: a reading longer than the line is slack
     e0 = r - c * tau_k  # (M, n) the residual at zero tension
-    cz = np.maximum(e0, 0.0) ** 2 - e0 ** 2  # replaces e_i(0)^2
+    # a cable at zero costs its one-sided residual (a reading longer than the line is
+    # slack): this replaces its e_i(0)^2
+    cz = np.maximum(e0, 0.0) ** 2 - e0 ** 2
+    # the balanced minimiser without the bounds: tau = (g + W^T y) / w, W tau = f (the
+    # Schur complement A = W diag(1/w) W^T, on columns scaled by 1/sqrt(w))
+    sw = 1.0 / np.sqrt(w)
+    Ws = W * sw[:, None, :]
+    A = Ws @ np.swapaxes(Ws, -1, -2)
+    A += (1e-13 * np.trace(A, axis1=-2, axis2=-1) + 1e-300)[:, None, None] * np.eye(m)
+    y = np.linalg.solve(A, (f - np.einsum("mik,mk->mi", W, g / w))[..., None])[..., 0]
+    tau0 = (g + np.einsum("mik,mi->mk", W, y)) / w
+    scale = np.maximum(np.abs(tau0).max(axis=1), np.abs(tm).max(axis=1))
+    # where it pulls on every cable and no cable reads longer than its line, the problem
+    # is convex with its minimum inside: that is the answer
+    t = np.maximum(tau0, 0.0)
+    cost = (w * t * t - 2.0 * g * t + const).sum(axis=-1)
+    ok = np.all(tau0 >= -1e-9 * scale[:, None], axis=1)
+    hard = ~ok | np.any(e0 < 0.0, axis=1)
+    if n > m and hard.any():
+        h = np.flatnonzero(hard)
+        # how the balanced minimiser moves with a force on each cable: the inverse of the
+        # objective on the balanced subspace, diag(1/w) - diag(1/w) W^T A^-1 W diag(1/w)
+        P = np.eye(n) - np.swapaxes(Ws[h], -1, -2) @ np.linalg.solve(A[h], Ws[h])
+        G = sw[h][:, :, None] * P * sw[h][:, None, :]
+        th, ch, okh = _faces_min(G, tau0[h], w[h], g[h], const[h], cz[h], scale[h])
+        t[h], cost[h], ok[h] = th, ch, okh
+    return t, cost, ok
+
+
+def _faces_min(G, tau0, w, g, const, cz, scale):
+    """The least-cost feasible face for each sample (module docstring), from ``G = N Q^-1
+    N^T`` (M,n,n) and the unconstrained minimiser ``tau0`` (M,n)."""
+    M, n = tau0.shape
+    taus_l = [tau0[:, None, :]]
+    masks = [np.zeros((1, n), dtype=bool)]
+    for S in _faces(n, n - 6):
+        C, j = S.shape
+        GSS = G[:, S[:, :, None], S[:, None, :]]  # (M, C, j, j)
+        GSS = GSS + (1e-12 * np.abs(GSS).max(axis=(-2, -1), keepdims=True)
+                     + 1e-300) * np.eye(j)
+        vS = -tau0[:, S]  # (M, C, j): the move that brings the face's cables to zero
+        mu = np.linalg.solve(GSS, vS[..., None])[..., 0]
+        GnS = np.moveaxis(G[:, :, S], 1, -1)  # (M, C, j, n)
+        taus_l.append(tau0[:, None, :] + np.einsum("mcjn,mcj->mcn", GnS, mu))
+        mk = np.zeros((C, n), dtype=bool)
+        mk[np.arange(C)[:, None], S] = True
+        masks.append(mk)
+    taus = np.concatenate(taus_l, axis=1)  # (M, F, n)
+    zero = np.concatenate(masks, axis=0)  # (F, n)
+    viol = np.maximum(-np.where(zero, 0.0, taus), 0.0).max(axis=-1)  # (M, F)
+    feasible = viol <= 1e-9 * scale[:, None]
+    t = np.where(zero, 0.0, np.maximum(taus, 0.0))
+    cost = (w[:, None] * t * t - 2.0 * g[:, None] * t + const[:, None]).sum(axis=-1)
     cost = cost + (zero[None] * cz[:, None, :]).sum(axis=-1)
     pick_cost = np.where(feasible, cost, np.inf)
     best = np.argmin(pick_cost, axis=1)

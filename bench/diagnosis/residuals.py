@@ -305,12 +305,10 @@ class ResidualModel:
             bs = batch_statics(H, poses, tau_k)
             W = wrench_matrix(bs.state)
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
-            tau_p = _balance(W, -wg, tm)
-            good = np.isfinite(tau_p).all(axis=1) & np.isfinite(W).all(axis=(1, 2))
             r = np.nan_to_num(bs.unstretched - read)
             c = _stretch_sensitivity(H, bs, tau_k)
-            fit = fit_internal_forces(np.nan_to_num(W), -wg, np.nan_to_num(tau_p), r, c,
-                                      tau_k, tm)
+            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, c, tau_k, tm)
+            good = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(fit.tensions).all(axis=1)
             ok = good & fit.feasible
             at_zero = fit.at_zero
             tau_k = np.where(good[:, None], np.maximum(fit.tensions, floor), tau_k)
