@@ -95,3 +95,29 @@ def test_no_balance_with_pulling_cables_is_said_not_hidden():
     got = fit_internal_forces(W, f, r, c, tau_k, tm)
     assert not got.feasible.any()
     assert np.all(got.tensions >= 0.0) and np.all(np.isfinite(got.cost))
+
+
+def test_length_sensitivity_with_compliant_masts_matches_finite_differences():
+    from bench.diagnosis.residuals import _length_sensitivity
+    from controller.effects import apply_effects
+    from controller.robot import resolve_robot
+    from controller.statics import batch_statics
+
+    model = resolve_robot("rocaspect")
+    ks = {f"k{a}_{m}": k for m in model.mast_ids for a, k in zip("xyz", (2e5, 5e5, 3e5),
+                                                               strict=True)}
+    H = apply_effects(model, {"mast_compliance": ks})
+    assert H.compliant
+    poses = np.array([[10.0, 8.56, 1.2, 0, 0, 0], [6.0, 12.0, 2.0, 0.02, -0.01, 0.03]])
+    tau = np.tile(np.linspace(300.0, 900.0, H.n_cables), (2, 1))
+    C = _length_sensitivity(H, batch_statics(H, poses, tau), tau)
+    assert np.abs(C - np.eye(H.n_cables) * np.diagonal(C, axis1=1, axis2=2)[:, :, None]
+                  ).max() > 0  # the masts couple cables
+    h = 1.0
+    for j in range(H.n_cables):
+        up, dn = tau.copy(), tau.copy()
+        up[:, j] += h
+        dn[:, j] -= h
+        fd = (batch_statics(H, poses, up, tol=1e-14).unstretched
+              - batch_statics(H, poses, dn, tol=1e-14).unstretched) / (2 * h)
+        np.testing.assert_allclose(C[:, :, j], fd, rtol=0.05, atol=1e-3 * np.abs(fd).max())

@@ -51,11 +51,13 @@ from controller.cycle import reference_lengths
 from controller.equilibrium import scaled_residual
 from controller.forward import forward_pose
 from controller.kinematics import gravity_wrench, wrench_matrix
+from controller.masts import lever_arms
 from controller.pose import cross, euler_rate_matrix
 from controller.robot import Robot
 from controller.statics import (
     batch_statics,
     init_unstretched,
+    settled_exits,
     true_tensions,
     unstretched_from_readings,
 )
@@ -306,8 +308,8 @@ class ResidualModel:
             W = wrench_matrix(bs.state)
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
             r = np.nan_to_num(bs.unstretched - read)
-            c = _stretch_sensitivity(H, bs, tau_k)
-            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, c, tau_k, tm)
+            C = np.nan_to_num(_length_sensitivity(H, bs, tau_k))
+            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm)
             good = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(fit.tensions).all(axis=1)
             ok = good & fit.feasible
             at_zero = fit.at_zero
@@ -592,6 +594,25 @@ def _balance(W: np.ndarray, f: np.ndarray, tm: np.ndarray) -> np.ndarray:
         y = np.stack([np.linalg.lstsq(a, b, rcond=None)[0] for a, b in zip(WWt, rhs,
                                                                             strict=True)])
     return tm + np.einsum("nik,ni->nk", W, y)
+
+
+def _length_sensitivity(H: Robot, bs, tau: np.ndarray) -> np.ndarray:
+    """d(needed unstretched length i)/d(tension j) (M,n,n) [m/N] at the statics ``bs``: each
+    cable's stretch on the diagonal and, on a compliant mast, how the tension of a cable
+    on the same mast tilts it and moves the exit point (first order: the mast's rotation
+    ``c * (r_j x u_j)`` per newton, the exit ``theta x r_i``, the length along ``u_i``)."""
+    C = _stretch_sensitivity(H, bs, tau)[:, :, None] * np.eye(H.n_cables)
+    if not H.compliant:
+        return C
+    u = bs.state.u  # (M, n, 3) from the platform toward the exit
+    r = lever_arms(settled_exits(H), H.pivots, H.mast_index)  # (n, 3)
+    mi = H.mast_index
+    dtheta = -H.compliance[mi] * cross(r, u)  # (M, n_j, 3): mast rotation per newton on j
+    dexit = cross(dtheta[:, None, :, :], r[None, :, None, :])  # (M, n_i, n_j, 3)
+    same = (mi[:, None] == mi[None, :]).astype(float)  # (n_i, n_j)
+    ea = np.where(np.isfinite(H.ea), H.ea, np.inf)
+    stretch = 1.0 / (1.0 + tau / ea)  # dL0/dL
+    return C + np.einsum("mik,mijk->mij", u, dexit) * same * stretch[:, :, None]
 
 
 def _stretch_sensitivity(H: Robot, bs, tau: np.ndarray) -> np.ndarray:
