@@ -29,6 +29,7 @@ robots' count) by the number of cables at zero.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import combinations
 from math import comb
 
@@ -54,9 +55,11 @@ class InternalForces:
     feasible: np.ndarray
 
 
-def _faces(n: int, k: int) -> np.ndarray:
-    """(F, n) masks of the faces with 1..jmax cables at zero (under :data:`MAX_FACES`)."""
-    out, total = [], 1
+@lru_cache(maxsize=16)
+def _faces(n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The faces with 1..jmax cables at zero (under :data:`MAX_FACES`): masks (F, n) and
+    the cables' indices (F, k), padded with -1."""
+    masks, idx, total = [], [], 1
     for j in range(1, k + 1):
         c = comb(n, j)
         if total + c > MAX_FACES:
@@ -64,9 +67,11 @@ def _faces(n: int, k: int) -> np.ndarray:
         for S in combinations(range(n), j):
             m = np.zeros(n, dtype=bool)
             m[list(S)] = True
-            out.append(m)
+            masks.append(m)
+            idx.append(list(S) + [-1] * (k - j))
         total += c
-    return np.array(out, dtype=bool).reshape(-1, n)
+    return (np.array(masks, dtype=bool).reshape(-1, n),
+            np.array(idx, dtype=np.intp).reshape(-1, k))
 
 
 def fit_internal_forces(W: np.ndarray, f: np.ndarray, r: np.ndarray, C: np.ndarray,
@@ -149,52 +154,85 @@ def _block(W, f, r, C, tau_k, tm, eps_rel):
     if n > m and hard.any():
         h = np.flatnonzero(hard)
         viol0 = np.maximum(-tau0[h], 0.0).max(axis=1)
-        th, ch, okh = _faces_min(H[h], g[h], W[h], f[h], C[h], b[h], eps[h], tm[h], tol[h],
-                                 t[h], cost[h], ok[h], viol0)
+        th, ch, okh = _faces_min(W[h], f[h], C[h], b[h], eps[h], tm[h], tol[h], t[h],
+                                 cost[h], ok[h], viol0, e_own0[h] < 0.0)
         t[h], cost[h], ok[h] = th, ch, okh
     return t, cost, ok
 
 
-def _faces_min(H, g, W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0):
+def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
     """The least-objective feasible candidate over the faces (module docstring), the
-    interior one (``t0``, ``cost0``, ``ok0``, its bound violation ``viol0``) included."""
-    M, n = g.shape
-    faces = _faces(n, n - W.shape[-2])  # (F, n)
+    interior one (``t0``, ``cost0``, ``ok0``, its bound violation ``viol0``) included.
+    Only the faces that can win are solved: the convex problem's faces where the interior
+    minimiser pushes a cable, the slack ones whose cables all may be slack
+    (``maybe_slack`` (M,n): they would read longer than their line). Each face is a
+    ``k + j`` system in the null space of W (``tau = tau_p + N lam``, ``k = n - 6``)."""
+    M, m, n = W.shape
+    k = n - m
+    faces, fidx = _faces(n, k)
     F = len(faces)
     if F == 0:
         return t0, cost0, ok0
-    fz = np.broadcast_to(faces, (M, F, n))
-    # kept in the least squares: the convex problem's face
-    Hk = np.broadcast_to(H[:, None], (M, F, n, n))
-    gk = np.broadcast_to(g[:, None], (M, F, n))
-    # left out of it (slack): rows of the face's cables dropped from C^T C and C^T b
-    Cs = np.where(fz[..., :, None], 0.0, C[:, None])  # (M, F, n, n): rows i in S zeroed
-    Hd = np.swapaxes(Cs, -1, -2) @ Cs + eps[:, None, None, None] * np.eye(n)
-    gd = -np.einsum("mfji,mfj->mfi", Cs, np.where(fz, 0.0, b[:, None])) \
-        + eps[:, None, None] * tm[:, None]
-    HH = np.concatenate([Hk, Hd], axis=1)
-    gg = np.concatenate([gk, gd], axis=1)
-    zz = np.concatenate([fz, fz], axis=1)
-    Wb = np.broadcast_to(W[:, None], (M, 2 * F) + W.shape[1:])
-    fb = np.broadcast_to(f[:, None], (M, 2 * F, f.shape[-1]))
-    taus = _kkt(HH, gg, Wb, fb, zz)  # (M, 2F, n)
-    taus = np.where(zz, 0.0, taus)
-    bal = np.linalg.norm(np.einsum("mfik,mfk->mfi", Wb, taus) - fb, axis=-1) <= \
-        1e-6 * (np.abs(f).sum(axis=-1)[:, None] + 1.0)
-    viol = np.maximum(-taus, 0.0).max(axis=-1)  # (M, 2F)
-    feasible = (viol <= tol[:, None]) & bal
+    # (sample, face) pairs of each kind
+    kept_m, kept_f = np.nonzero(np.broadcast_to(~ok0[:, None], (M, F)))
+    inside = ~np.any(faces[None, :, :] & ~maybe_slack[:, None, :], axis=-1)  # S within P
+    drop_m, drop_f = np.nonzero(inside)
+    pm = np.concatenate([kept_m, drop_m])
+    pf = np.concatenate([kept_f, drop_f])
+    slack = np.concatenate([np.zeros(len(kept_m), bool), np.ones(len(drop_m), bool)])
+    z = faces[pf]  # (P, n) cables at zero
+    # the null space and a particular balance of each sample's W
+    U, sv, Vt = np.linalg.svd(W)
+    N = np.swapaxes(Vt[:, m:, :], -1, -2)  # (M, n, k)
+    sv = np.where(sv > 1e-12 * sv[:, :1], sv, np.inf)
+    tp = np.einsum("mjn,mj->mn", Vt[:, :m, :], np.einsum("mij,mi->mj", U, f) / sv)
+    ep = b + np.einsum("mij,mj->mi", C, tp)  # residuals at the particular balance
+    CN = C @ N  # (M, n, k)
+    d = np.einsum("mnk,mn->mk", N, tm - tp)
+    # per pair: the least squares over the kept rows, the face's cables held at zero
+    rho = ~(z & slack[:, None])  # rows kept
+    CNp = CN[pm] * rho[:, :, None]
+    Np, epair = eps[pm], ep[pm]
+    Q = np.swapaxes(CNp, -1, -2) @ CNp + Np[:, None, None] * np.eye(k)
+    q = np.einsum("pnk,pn->pk", CNp, epair * rho) - Np[:, None] * d[pm]
+    h0 = (np.trace(Q, axis1=-2, axis2=-1) / k)[:, None, None] + 1e-300
+    idx = fidx[pf]  # (P, k) padded with -1
+    real = idx >= 0
+    A = np.where(real[:, :, None], N[pm[:, None], np.maximum(idx, 0)], 0.0)  # (P, k, k)
+    K = np.zeros((len(pm), 2 * k, 2 * k))
+    K[:, :k, :k] = Q / h0
+    K[:, :k, k:] = np.swapaxes(A, -1, -2)
+    K[:, k:, :k] = A
+    # padded constraint rows pin their multiplier to zero; a tiny regularisation keeps a
+    # face whose cables the null space cannot all release solvable (it comes out infeasible)
+    K[:, k:, k:] = np.where(real, -1e-12, 1.0)[:, :, None] * np.eye(k)
+    rhs = np.concatenate([-q / h0[:, :, 0],
+                          np.where(real, -tp[pm[:, None], np.maximum(idx, 0)], 0.0)], axis=1)
+    lam = np.linalg.solve(K, rhs[..., None])[:, :k, 0]
+    taus = np.where(z, 0.0, tp[pm] + np.einsum("pnk,pk->pn", N[pm], lam))  # (P, n)
+    bal = np.linalg.norm(np.einsum("pik,pk->pi", W[pm], taus) - f[pm], axis=-1) <= \
+        1e-6 * (np.abs(f[pm]).sum(axis=-1) + 1.0)
+    viol = np.maximum(-taus, 0.0).max(axis=-1)
+    feasible = (viol <= tol[pm]) & bal
     tc = np.maximum(taus, 0.0)
-    cost = _cost(tc, b[:, None], C[:, None], eps[:, None], tm[:, None], zz)
-    # with the interior candidate
-    all_t = np.concatenate([t0[:, None], tc], axis=1)
-    all_cost = np.concatenate([cost0[:, None], cost], axis=1)
-    all_ok = np.concatenate([ok0[:, None], feasible], axis=1)
-    all_viol = np.concatenate([viol0[:, None],
-                               np.where(bal, viol, np.inf)], axis=1)
-    pick = np.where(all_ok, all_cost, np.inf)
-    best = np.argmin(pick, axis=1)
+    cost = _cost(tc, b[pm], C[pm], eps[pm], tm[pm], z)
+    # candidates: the interior ones, then the pairs; the least cost of each sample (the
+    # least violation where none is feasible)
     rows = np.arange(M)
-    ok = np.isfinite(pick[rows, best])
-    # no feasible candidate: the one that violates the bound least
-    best = np.where(ok, best, np.argmin(all_viol, axis=1))
-    return all_t[rows, best], all_cost[rows, best], ok
+    sample = np.concatenate([rows, pm])
+    c_all = np.concatenate([cost0, cost])
+    t_all = np.concatenate([t0, tc], axis=0)
+    pick_cost = np.where(np.concatenate([ok0, feasible]), c_all, np.inf)
+    v_all = np.concatenate([viol0, np.where(bal, viol, np.inf)])
+    first = _first_per_sample(sample, pick_cost, M)
+    ok = np.isfinite(pick_cost[first])
+    least_viol = _first_per_sample(sample, v_all, M)
+    pick = np.where(ok, first, least_viol)
+    return t_all[pick], c_all[pick], ok
+
+
+def _first_per_sample(sample: np.ndarray, key: np.ndarray, M: int) -> np.ndarray:
+    """Index of the candidate of least ``key`` for each sample 0..M-1 (each has one)."""
+    order = np.lexsort((key, sample))
+    starts = np.searchsorted(sample[order], np.arange(M))
+    return order[starts]

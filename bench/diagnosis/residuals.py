@@ -142,6 +142,7 @@ class ResidualModel:
         self.replicate_dof = 0
         self._warm_exits: np.ndarray | None = None  # last deflected exits (warm start)
         self._pose_est: np.ndarray | None = None  # last estimated poses (warm start)
+        self._warm_tau: np.ndarray | None = None  # last fitted unmeasured tensions (warm start)
         # slack cables: measured tension within the load-cell noise of zero (the noise of
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
         tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
@@ -286,21 +287,27 @@ class ResidualModel:
         return p
 
     def _unmeasured(self, H: Robot, poses: np.ndarray, read: np.ndarray,
-                    rounds: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    rounds: int = 4, rtol: float = 1e-7
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Length residuals (M,n), exits (M,n,3) and success (M,) at ``poses`` without measured
         tensions: tensions that balance gravity, pull, and fit the readings' stretch
         (:mod:`bench.diagnosis.internal_forces`: exact over which cables are slack, so the
         residuals do not jump with the parameters); a cable left at zero tension only says
-        it is at least as long as the straight line. ``rounds`` relinearisations of the
-        statics (exits and stretch move with the tensions)."""
+        it is at least as long as the straight line. Up to ``rounds`` relinearisations of
+        the statics (exits and stretch move with the tensions), until the tensions move by
+        less than ``rtol`` of mid-range; warm-started from the last call's tensions."""
         M, n = len(poses), H.n_cables
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
-        straight = H.replace(rho=0.0) if H.rho > 0 else H
-        bs0 = batch_statics(straight, poses, np.full((M, n), 1.0))  # geometry only
-        wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
-        tau = _balance(wrench_matrix(bs0.state), -wg, tm)
-        tau_k = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
+        warm = self._warm_tau
+        if warm is not None and warm.shape == (M, n) and np.isfinite(warm).all():
+            tau_k = np.maximum(warm, floor)
+        else:
+            straight = H.replace(rho=0.0) if H.rho > 0 else H
+            bs0 = batch_statics(straight, poses, np.full((M, n), 1.0))  # geometry only
+            wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
+            tau = _balance(wrench_matrix(bs0.state), -wg, tm)
+            tau_k = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
         ok = np.ones(M, dtype=bool)
         at_zero = np.zeros((M, n), dtype=bool)
         for _ in range(rounds):
@@ -313,7 +320,12 @@ class ResidualModel:
             good = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(fit.tensions).all(axis=1)
             ok = good & fit.feasible
             at_zero = fit.at_zero
-            tau_k = np.where(good[:, None], np.maximum(fit.tensions, floor), tau_k)
+            new = np.where(good[:, None], np.maximum(fit.tensions, floor), tau_k)
+            moved = float(np.abs(new - tau_k).max()) if M else 0.0
+            tau_k = new
+            if moved <= rtol * float(tm.max()):
+                break
+        self._warm_tau = tau_k
         bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k))
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)
