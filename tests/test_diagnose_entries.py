@@ -56,6 +56,7 @@ def test_a_common_gain_within_its_uncertainty_or_noise_names_nothing(seed):
     (1e7, 0.05, False),     # stiff yet measurable: reported
     (6e12, 1e-3, True),     # run to the rigid bound with a tiny clipped error: not a number
     (4e4, 0.6, True),       # known only to 60 %: undetermined
+    (1e3, 1e-4, True),      # run to the soft bound of the fit: not a number either
 ])
 def test_a_stiffness_at_the_rigid_bound_is_undetermined_not_reported(k_fit, se_rel,
                                                                       undetermined):

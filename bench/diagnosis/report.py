@@ -128,6 +128,11 @@ def _undetermined(p: Param, phi: float, se: float) -> bool:
     """Whether the poses cannot fix this parameter."""
     if not math.isfinite(se):
         return True
+    # at a bound of the fit its standard error says nothing (a lower bound of zero is
+    # physical: no pulley, no sag; a compliance of zero is the rigid bound below)
+    if phi >= p.hi - 1e-6 * (p.hi - p.lo) or (p.lo != 0.0
+                                               and phi <= p.lo + 1e-6 * (p.hi - p.lo)):
+        return True
     if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or too wide
         # at the rigid bound (a stiffness RIGID_FACTOR times past the effect's scale) the
         # standard error of a clipped fit says nothing: a number there would be a guess
