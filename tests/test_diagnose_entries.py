@@ -57,6 +57,8 @@ def test_a_common_gain_within_its_uncertainty_or_noise_names_nothing(seed):
     (6e12, 1e-3, True),     # run to the rigid bound with a tiny clipped error: not a number
     (4e4, 0.6, True),       # known only to 60 %: undetermined
     (1e3, 1e-4, True),      # run to the soft bound of the fit: not a number either
+    (1.07e3, 1e-9, True),   # stopped near it with an absurdly small error: the same
+    (2.5e3, 0.05, False),   # soft, yet clear of the bound: reported
 ])
 def test_a_stiffness_at_the_rigid_bound_is_undetermined_not_reported(k_fit, se_rel,
                                                                       undetermined):

@@ -128,10 +128,12 @@ def _undetermined(p: Param, phi: float, se: float) -> bool:
     """Whether the poses cannot fix this parameter."""
     if not math.isfinite(se):
         return True
-    # at a bound of the fit its standard error says nothing (a lower bound of zero is
-    # physical: no pulley, no sag; a compliance of zero is the rigid bound below)
-    if phi >= p.hi - 1e-6 * (p.hi - p.lo) or (p.lo != 0.0
-                                               and phi <= p.lo + 1e-6 * (p.hi - p.lo)):
+    # at or near a bound of the fit (within 1 % of its range; a compliance within a factor
+    # two of the softest allowed) the fit was stopped by the bound and its standard error
+    # says nothing; a lower bound of zero is physical (no pulley, no sag; a compliance of
+    # zero is the rigid bound below)
+    margin = 0.5 * p.hi if p.kind == "inverse" else 0.01 * (p.hi - p.lo)
+    if phi >= p.hi - margin or (p.lo != 0.0 and phi <= p.lo + margin):
         return True
     if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or too wide
         # at the rigid bound (a stiffness RIGID_FACTOR times past the effect's scale) the
