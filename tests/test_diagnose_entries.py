@@ -74,3 +74,28 @@ def test_a_stiffness_at_the_rigid_bound_is_undetermined_not_reported(k_fit, se_r
     key = space.params[j].key
     assert (key in undet["mast_compliance"]) == undetermined
     assert (key in params["mast_compliance"]) == (not undetermined)
+
+
+def _offset_fit(dl: np.ndarray, se: float) -> FitResult:
+    space = ParamSpace(resolve_robot("rocaspect"), ("cable_length_offset",))
+    phi = space.neutral + dl
+    cov = np.eye(len(space)) * se ** 2
+    return FitResult(space, phi, 100.0, 1000, 150.0, np.sqrt(np.diag(cov)), cov, True, "test",
+                     n_free=len(space))
+
+
+def test_a_length_offset_within_the_encoder_references_uncertainty_is_no_finding():
+    """A slack, sagging cable's reference length hangs on its load cell's mean reading at
+    initialisation: an offset from then on, within that uncertainty, is not named; beyond
+    it, or with a reference known exactly, it is."""
+    dl = np.zeros(8)
+    dl[3] = 4.7e-4  # ten of its own standard errors, one of the reference's
+    fit = _offset_fit(dl, 4.4e-5)
+    floor = np.zeros(8)
+    floor[3] = 4.6e-4 ** 2
+    assert effect_entries(fit, ["cable_length_offset"])[0]["cable_length_offset"] \
+        == {"dl_22": pytest.approx(4.7e-4)}
+    assert effect_entries(fit, ["cable_length_offset"], floor)[0]["cable_length_offset"] == {}
+    dl[3] = 3e-3  # a slip of 3 mm stands out of both
+    params = effect_entries(_offset_fit(dl, 4.4e-5), ["cable_length_offset"], floor)[0]
+    assert set(params["cable_length_offset"]) == {"dl_22"}

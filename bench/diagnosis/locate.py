@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from bench.diagnosis.samples import Samples
@@ -135,30 +137,97 @@ def steps_in_time(s: Samples, length: np.ndarray, sigma: float,
 JUMP_Z = 12.0
 #: ... and is at least this large [m]
 JUMP_MIN_M = 5e-4
+#: rows on each side of a jump over which the new level must hold
+JUMP_HOLD = 4
+#: ... and stand this many standard errors out of their scatter
+HOLD_Z = 5.0
+#: rows on each side whose jumps give the local spread
+JUMP_LOCAL = 15
 
 
 def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
               t_after: float = -np.inf) -> list[dict]:
-    """Slips during moves: a cable's length residual jumping between two consecutive raw rows
+    """Slips during moves: a cable's length residual stepping between two consecutive raw rows
     (``stream``, residuals ``length`` (R,n)) far beyond its row-to-row spread, alone (a jump
-    of most cables at once is the pose, not a cable). One step per cable, the largest."""
+    of most cables at once is the pose, not a cable). One step per cable, the largest.
+
+    A step is told from what a model error does along a move: the jump is taken against the
+    local slope (the median of the neighbouring rows' changes: a residual that ramps as the
+    platform moves away from where the model holds does not step), and the new level must
+    hold over the next :data:`JUMP_HOLD` rows against the line through the previous ones, out
+    of their scatter (a single wild row, a transient that returns, a noisy reading is no
+    slip)."""
+    R = len(length)
     same = np.concatenate([[False], stream.block[1:] == stream.block[:-1]])
     d = np.full(length.shape, np.nan)
     d[1:] = length[1:] - length[:-1]
     d[~same] = np.nan
-    d[stream.t <= t_after] = np.nan
+    # the local slope: median of the changes of the two rows on each side (same block)
+    nb = []
+    for off in (-2, -1, 1, 2):
+        sh = np.full(length.shape, np.nan)
+        lo, hi = max(off, 0), R + min(off, 0)
+        sh[lo - off:hi - off] = d[lo:hi]
+        nb.append(sh)
+    with warnings.catch_warnings():  # rows without neighbours: no slope
+        warnings.simplefilter("ignore", RuntimeWarning)
+        slope = np.nanmedian(np.stack(nb), axis=0) if R else d
+    slope = np.where(np.isfinite(slope), slope, 0.0)
+    j = d - slope
+    j[stream.t <= t_after] = np.nan
     found = []
     with np.errstate(invalid="ignore"):
-        mad = 1.4826 * np.nanmedian(np.abs(d), axis=0)
-        z = np.abs(d) / np.maximum(mad, 1e-9)
-        big = (z > JUMP_Z) & (np.abs(d) > JUMP_MIN_M)
+        mad = 1.4826 * np.nanmedian(np.abs(j), axis=0)
+        z = np.abs(j) / np.maximum(mad, 1e-9)
+        big = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M)
     many = big.sum(axis=1) > max(1, len(cable_ids) // 2)
     big[many] = False
     for k, cid in enumerate(cable_ids):
-        rows = np.flatnonzero(big[:, k])
-        if not len(rows):
+        rows = [i for i in np.flatnonzero(big[:, k])
+                if _local_z(j[:, k], int(i)) > JUMP_Z
+                and _holds(stream, length[:, k], int(i), float(j[i, k]))]
+        if not rows:
             continue
-        i = rows[np.argmax(np.abs(d[rows, k]))]
+        i = rows[int(np.argmax(np.abs(j[rows, k])))]
         found.append({"cable": cid, "t_s": float(0.5 * (stream.t[i - 1] + stream.t[i])),
-                      "step_m": float(d[i, k]), "z": float(z[i, k]), "row": int(stream.row[i])})
+                      "step_m": float(j[i, k]), "z": float(z[i, k]), "row": int(stream.row[i])})
     return found
+
+
+def _local_z(j: np.ndarray, i: int) -> float:
+    """Jump ``j[i]`` against the robust spread of the jumps of the :data:`JUMP_LOCAL` rows on
+    each side (a slack, sagging cable's reading swings with its tension's noise there)."""
+    w = np.concatenate([j[max(i - JUMP_LOCAL, 0):i], j[i + 1:i + 1 + JUMP_LOCAL]])
+    w = w[np.isfinite(w)]
+    if len(w) < 4:
+        return 0.0
+    return float(abs(j[i]) / max(1.4826 * float(np.median(np.abs(w))), 1e-9))
+
+
+def _holds(stream: Samples, r: np.ndarray, i: int, jump: float) -> bool:
+    """Whether residual ``r`` keeps the level it jumped to at row ``i``: a line with one slope
+    and a step at ``i`` through :data:`JUMP_HOLD` rows on each side (same block) has a step
+    of the jump's sign and at least half its size."""
+    lo, hi = max(i - JUMP_HOLD, 0), min(i + JUMP_HOLD, len(r))
+    idx = np.arange(lo, hi)
+    idx = idx[(stream.block[idx] == stream.block[i]) & np.isfinite(r[idx])]
+    after = idx >= i
+    if after.sum() < 2 or (~after).sum() < 2:
+        return False
+    t = stream.t[idx] - stream.t[i]
+    A = np.column_stack([np.ones(len(idx)), t, after.astype(float)])
+    coef, *_ = np.linalg.lstsq(A, r[idx], rcond=None)
+    step = float(coef[2])
+    if step * jump <= 0 or abs(step) < 0.5 * abs(jump):
+        return False
+    # and stands out of the rows' own scatter there (a slack, sagging cable's reading
+    # swings with its tension's noise)
+    dof = len(idx) - 3
+    if dof < 1:
+        return True
+    res = r[idx] - A @ coef
+    try:
+        var = float(res @ res) / dof * np.linalg.inv(A.T @ A)[2, 2]
+    except np.linalg.LinAlgError:
+        return False
+    return abs(step) > HOLD_Z * np.sqrt(max(var, 0.0))

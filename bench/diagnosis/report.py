@@ -155,13 +155,17 @@ def _undetermined(p: Param, phi: float, se: float) -> bool:
     return se > 100 * SCALES.get(p.effect, 1.0)
 
 
-def effect_entries(fit: FitResult, effects: list[str]) -> tuple[dict, dict, dict]:
+def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | None = None
+                   ) -> tuple[dict, dict, dict]:
     """Per chosen candidate: report params and stderr (only those that differ from the
-    model), and the undetermined keys."""
+    model), and the undetermined keys. ``floor_var`` (per fit parameter, fit units squared)
+    is an uncertainty the fit cannot see, added to its own before a parameter is judged to
+    differ (the encoder reference's, for a length offset from the initialisation on)."""
     params: dict[str, dict] = {e: {} for e in effects}
     errs: dict[str, dict] = {e: {} for e in effects}
     undet: dict[str, list] = {e: [] for e in effects}
     values = fit.space.values(fit.phi)
+    fv = np.zeros(len(fit.space.params)) if floor_var is None else floor_var
     for e in effects:
         for k in fit.space.indices(e):
             p = fit.space.params[k]
@@ -171,8 +175,8 @@ def effect_entries(fit: FitResult, effects: list[str]) -> tuple[dict, dict, dict
                 undet[e].append(p.key)
                 continue
             if p.kind != "inverse" and abs(phi - p.neutral) <= max(
-                    3.0 * se, PRACTICAL.get(p.effect, 0.0) if not p.key.startswith("offset_")
-                    else 0.3):
+                    3.0 * math.sqrt(se ** 2 + fv[k]),
+                    PRACTICAL.get(p.effect, 0.0) if not p.key.startswith("offset_") else 0.3):
                 continue  # the model's value within the uncertainty, or a negligible change
             if p.kind == "inverse" and abs(phi - p.neutral) <= max(3.0 * se,
                                                                     0.02 * abs(p.neutral)):
@@ -182,7 +186,7 @@ def effect_entries(fit: FitResult, effects: list[str]) -> tuple[dict, dict, dict
             params[e][p.key] = float(value)
             errs[e][p.key] = float(err)
         if not params[e]:
-            for k in _jointly_differing(fit, e, undet[e]):
+            for k in _jointly_differing(fit, e, undet[e], fv):
                 p = fit.space.params[k]
                 phi = p.from_value(values[p.effect][p.key])
                 se = float(fit.stderr[k])
@@ -197,7 +201,8 @@ JOINT_P = 1e-6
 REST_P = 0.01
 
 
-def _jointly_differing(fit: FitResult, effect: str, undetermined: list[str]) -> list[int]:
+def _jointly_differing(fit: FitResult, effect: str, undetermined: list[str],
+                       floor_var: np.ndarray | None = None) -> list[int]:
     """Parameters of ``effect`` that must differ from the model, when each one alone stays
     within its uncertainty but together they differ clearly (Wald test, p < JOINT_P).
 
@@ -217,7 +222,10 @@ def _jointly_differing(fit: FitResult, effect: str, undetermined: list[str]) -> 
     if len(ix) == 0:
         return []
     d = (fit.phi - space.neutral)[ix]
-    Ci = np.linalg.pinv(fit.cov[np.ix_(ix, ix)], rcond=1e-12, hermitian=True)
+    cov = fit.cov[np.ix_(ix, ix)]
+    if floor_var is not None:
+        cov = cov + np.diag(floor_var[ix])
+    Ci = np.linalg.pinv(cov, rcond=1e-12, hermitian=True)
     b = Ci @ d
     wald = float(d @ b)
     if not np.isfinite(wald) or chi2_dist.sf(wald, len(ix)) > JOINT_P:
@@ -242,6 +250,24 @@ def _jointly_differing(fit: FitResult, effect: str, undetermined: list[str]) -> 
             small = 0.3
         if abs(d[j]) > small:
             out.append(int(ix[j]))
+    return out
+
+
+def _reference_var(rm: ResidualModel, fit: FitResult) -> np.ndarray:
+    """Per fit parameter, the variance of the encoder reference (:meth:`ResidualModel.
+    reference_sd` under the fitted robot) for a length offset that applies from the
+    initialisation on (no step found later): the two are the same signature."""
+    out = np.zeros(len(fit.space.params))
+    keys = [p.key for p in fit.space.params]
+    if not any(k.startswith("dl_") for k in keys):
+        return out
+    ref = rm.reference_sd(cleaned_robot(fit))
+    ids = rm.model.cable_ids
+    for j, k in enumerate(keys):
+        if k.startswith("dl_"):
+            c = ids.index(k[3:])
+            if rm.slip_times[c] <= rm.init_end:
+                out[j] = ref[c] ** 2
     return out
 
 
@@ -366,7 +392,8 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     sel = selector.run(candidates)
     fit_idx = np.union1d(train, valid)
     final = _final_fit(selector, sel, fit_idx, say)
-    params, errs, undet = effect_entries(final, sel.effects)
+    floor = _reference_var(rm, final)
+    params, errs, undet = effect_entries(final, sel.effects, floor)
     # an effect whose parameters all vanish or cannot be fixed is not reported: the least
     # important such effect goes, the others are refitted without it (what it shared with
     # them may become measurable), and so on
@@ -379,7 +406,8 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         sel.rejected[report_name(e)] = "no parameter differs measurably from the model"
         sel.effects = [c for c in sel.effects if c != e]
         final = _final_fit(selector, sel, fit_idx, say)
-        params, errs, undet = effect_entries(final, sel.effects)
+        floor = _reference_var(rm, final)
+        params, errs, undet = effect_entries(final, sel.effects, floor)
     sel.fit = final
     fitted = cleaned_robot(final)
     say("fitted: equilibrium of every sample under the corrected model")

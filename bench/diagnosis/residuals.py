@@ -158,6 +158,26 @@ class ResidualModel:
         sample or row of the initialisation (the encoders are referenced there)."""
         return (self.s.t[:, None] >= self.slip_times) & ~self.s.is_init[:, None]
 
+    def reference_sd(self, H: Robot) -> np.ndarray:
+        """(n,) [m] uncertainty of each cable's encoder reference under ``H``, carried from the
+        load cells' noise at initialisation (``u0`` hangs on the mean of the init rows'
+        tensions: a slack, sagging cable's length by millimetres per newton). A length offset
+        from the initialisation on looks like it: smaller than this, it is no finding."""
+        n = self.model.n_cables
+        init = self.s.is_init
+        if self.tau0 is None or not init.any():
+            return np.zeros(n)
+        rows = float(np.sum(np.maximum(self.s.count[init], 1)))
+        sig = (self.s.tau_row_sd if self.s.tau_row_sd else 0.5) / np.sqrt(rows)
+        dT = max(10.0 * sig, 0.1)
+        try:
+            tau0 = true_tensions(H, self.tau0)
+            u_a = init_unstretched(H, self.init_pose, tau0)[0]
+            u_b = init_unstretched(H, self.init_pose, tau0 + dT)[0]
+        except ValueError:
+            return np.zeros(n)
+        return np.abs(u_b - u_a) / dT * sig
+
     # ----- degrees of freedom -------------------------------------------------------
     def dof_lost(self, idx: np.ndarray | None = None) -> float:
         """Residual degrees of freedom taken by per-sample unknowns (an estimated pose: 6 of

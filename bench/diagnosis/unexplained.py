@@ -73,7 +73,11 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
 
     # per cable, per mast: whitened length residual RMS
     # in noise units (a residual projected by per-sample unknowns scaled back)
-    L = b.length / rm.sd["length"][:, None] * rm.rank_factor()[:, None]
+    # (a sagging cable's share of its load cell's noise included, as in the whitening)
+    sd = rm.sd["length"][:, None]
+    if b.length_extra_sd is not None:
+        sd = np.sqrt(sd ** 2 + b.length_extra_sd ** 2)
+    L = b.length / sd * rm.rank_factor()[:, None]
     L = np.where(rm.has_len[:, None], L, np.nan)
     if np.isfinite(L).any():
         per = np.array([_wrms(L[:, k], w) for k in range(model.n_cables)])

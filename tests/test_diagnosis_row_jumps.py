@@ -1,0 +1,70 @@
+"""Slips during moves (``locate.row_jumps``): a step in one cable's length residual between two
+rows is found; what a model error or noise does along a move is not."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from bench.diagnosis.locate import row_jumps
+
+IDS = tuple("12345678")
+
+
+def _stream(R: int = 400, rate: float = 10.0):
+    t = np.arange(R) / rate
+    return SimpleNamespace(t=t, block=np.ones(R, dtype=int), row=np.arange(R) + 2)
+
+
+def _noise(R: int, rng, sd: float = 2e-5) -> np.ndarray:
+    return rng.normal(0.0, sd, (R, len(IDS)))
+
+
+def test_a_slip_during_a_ramp_is_found_at_its_row():
+    rng = np.random.default_rng(1)
+    st = _stream()
+    L = _noise(400, rng)
+    L[:, 2] += 1e-4 * np.arange(400)  # the model's error grows along the move
+    L[250:, 2] += 3e-3  # the slip
+    found = row_jumps(st, L, IDS)
+    assert [f["cable"] for f in found] == ["3"]
+    assert found[0]["row"] == 252 and abs(found[0]["step_m"] - 3e-3) < 3e-4
+
+
+def test_a_steep_curved_ramp_is_no_slip():
+    """A residual that grows by millimetres per row as the platform leaves where the model
+    holds (a sagging cable under a straight model) ramps; it does not step."""
+    rng = np.random.default_rng(2)
+    st = _stream()
+    L = _noise(400, rng)
+    x = np.arange(400) / 10.0  # [s]
+    L[:, 3] += 2e-2 * np.clip(x - 20, 0, None) ** 2  # up to 4 mm more per row
+    L[:, 5] -= 3e-2 * np.clip(x - 15, 0, 5)  # 3 mm per row for 5 s, then flat
+    assert row_jumps(st, L, IDS) == []
+
+
+def test_a_noisy_reading_and_a_wild_row_are_no_slip():
+    """A slack, sagging cable's reading swings by millimetres with its tension's noise; one
+    wild row comes back at the next."""
+    rng = np.random.default_rng(3)
+    st = _stream()
+    L = _noise(400, rng)
+    L[200:300, 4] += rng.normal(0.0, 5e-3, 100)
+    L[120, 6] += 8e-3
+    assert row_jumps(st, L, IDS) == []
+
+
+def test_a_jump_of_most_cables_at_once_is_the_pose_not_a_slip():
+    rng = np.random.default_rng(4)
+    st = _stream()
+    L = _noise(400, rng)
+    L[180:, :6] += 2e-3
+    assert row_jumps(st, L, IDS) == []
+
+
+def test_nothing_before_the_initialisation_ends():
+    rng = np.random.default_rng(5)
+    st = _stream()
+    L = _noise(400, rng)
+    L[30:, 1] += 4e-3
+    assert row_jumps(st, L, IDS, t_after=5.0) == []
+    assert [f["cable"] for f in row_jumps(st, L, IDS)] == ["2"]
