@@ -133,6 +133,9 @@ class Plant:
         # the tangent point): their forces and energy agree to a few tenths of a newton,
         # which the tolerances allow (micrometres of position)
         self._approx_n = 0.5 if (t.rho > 0 and t.has_pulleys) else 0.0
+        # what the energy cannot tell apart [J]: 1e-9 of the platform's weight over the frame
+        self._energy_roundoff = 1e-9 * t.weight * max(float(np.ptp(t.anchors, axis=0).max()),
+                                                       1.0)
         self._last_readings = self.reference.copy()
         self._direction = np.zeros(t.n_cables)
         n = t.n_cables
@@ -261,6 +264,11 @@ class Plant:
                 raise PlantError(f"plant: no rest position found ({res.message}; energy "
                                  f"gradient {np.linalg.norm(res.jac, np.inf):.3g})")
             y = res.x
+        turn = _turn_angle(pose0[3:6], self._unpack(y, pose0)[0][3:6])
+        if turn > MAX_TURN_RAD:
+            raise PlantError(f"plant: the rest position found is turned by {turn:.2f} rad from "
+                             f"where the search started (a spurious stationary point, not "
+                             f"where the platform goes)")
         self._rests += 1
         check = self.check_every <= 1 or self._rests % self.check_every == 1
         fd = self._fd_gradient(y, *args) if check else None
@@ -291,7 +299,10 @@ class Plant:
             for _ in range(8):
                 e_new = self._energy(y + step, *args)
                 g_new = self._gradient(y + step, *args)
-                if e_new <= e or np.linalg.norm(g_new, np.inf) < 0.5 * gn:
+                # (within round-off of the energy only: far off, a halved gradient may be
+                # another stationary point, the platform turned over)
+                if e_new <= e or (np.linalg.norm(g_new, np.inf) < 0.5 * gn
+                                  and e_new <= e + self._energy_roundoff):
                     break
                 step *= 0.5
             else:
@@ -310,6 +321,17 @@ class Plant:
     def platform_point(self, state: PlantState, point: np.ndarray) -> np.ndarray:
         """A platform point (F_p) in F_b for ``state`` [m]."""
         return state.pose[:3] + rotation(state.pose[3:6]) @ point
+
+
+#: a rest position turned this much [rad] from where its search started is spurious: the
+#: platform rests near its last position or the commanded pose
+MAX_TURN_RAD = 0.5
+
+
+def _turn_angle(rpy_a: np.ndarray, rpy_b: np.ndarray) -> float:
+    """Angle [rad] of the rotation between two orientations (roll, pitch, yaw)."""
+    R = rotation(rpy_a).T @ rotation(rpy_b)
+    return float(np.arccos(np.clip(0.5 * (np.trace(R) - 1.0), -1.0, 1.0)))
 
 
 def _safe_inverse(H: np.ndarray) -> np.ndarray:

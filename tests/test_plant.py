@@ -90,3 +90,31 @@ def test_sensor_effects_and_nuisances():
     tau = np.full(8, 100.0)
     meas = plant.measured_tensions(tau)
     assert meas[5] == pytest.approx(107.0) and meas[0] == 100.0
+
+
+def test_turn_angle_is_the_rotation_between_orientations_whatever_their_angles():
+    assert plant_mod._turn_angle(np.zeros(3), np.zeros(3)) == pytest.approx(0.0, abs=1e-7)
+    assert plant_mod._turn_angle(np.zeros(3), np.array([0.3, 0, 0])) == pytest.approx(0.3)
+    # the same orientation written with a roll of -2 pi: no turn
+    assert plant_mod._turn_angle(np.array([0.01, 0, 0]), np.array([0.01 - 2 * np.pi, 0, 0])) \
+        == pytest.approx(0.0, abs=1e-7)
+    assert plant_mod._turn_angle(np.zeros(3), np.array([-3.23, -1.39, -1.16])) > 1.0
+
+
+def test_a_rest_position_turned_over_is_refused(monkeypatch):
+    """A search that ends at another stationary point (the platform turned over: a case of
+    the evaluation had its roll jump to -3.2 rad in one row) is an error, not a row."""
+    model = rocaspect()
+    plant = Plant(model, model, P0)
+    ctl = LengthController(model, P0)
+    real = plant._chord
+
+    def turned(y, args, gtol, max_iter=30):
+        y, ok = real(y, args, gtol, max_iter)
+        y = y.copy()
+        y[3] += 1.0 * plant._scale[3]  # a roll of one radian more
+        return y, True
+
+    monkeypatch.setattr(plant, "_chord", turned)
+    with pytest.raises(PlantError, match="turned"):
+        plant.settle(ctl.step(P0).lengths, guess=P0)

@@ -374,15 +374,21 @@ class Selector:
 
     def _pairs(self, current: FitResult, candidates: list[str]
                ) -> tuple[list[str], FitResult] | None:
-        """When the best single effect leaves far more than the noise, the best pair of the
-        best single effects (greedy selection can take first an effect that imitates two
-        others, sag for compliance, and never recover): each pair fitted from either
-        member's own fit. The pair replaces the single effect when it lowers the BIC."""
+        """When the best single effect leaves far more than the noise, the best pairs of
+        single effects (greedy selection can take first an effect that imitates two others,
+        sag for compliance, and never recover): the pairs of every fitted single effect
+        ranked by their joint linearised fit at the model, the best :data:`PAIR_FITS` and
+        the best of the :data:`PAIR_TOP` best single effects fitted from either member's own
+        fit. The pair replaces the single effect when it lowers the BIC."""
         if current.reduced_chi2 <= INADEQUATE or not self.measured_noise:
             return None
         singles = sorted(((f.bic, k[0]) for k, f in self.cache.items()
                           if len(k) == 1 and k[0] in candidates), key=lambda x: x[0])
-        top = [e for _, e in singles[:PAIR_TOP]]
+        best4 = {e for _, e in singles[:PAIR_TOP]}
+        # every fitted single takes part: effects on different residual blocks (load cells
+        # on the force balance, geometry on the lengths) each do little alone against the
+        # other's share, and a pair of them can be what the data hold
+        top = [e for _, e in singles]
         pairs = [(a, b) for i, a in enumerate(top) for b in top[i + 1:] if compatible([a], b)]
         # rank the pairs by their linearised fit at the model, refit the best few
         base = self.cache.get(())
@@ -405,8 +411,13 @@ class Selector:
             ranked.append((float(r1 @ r1), (a, b)))
         del base
         ranked.sort(key=lambda x: x[0])
-        todo = [tuple(sorted(p)) for _, p in ranked[:PAIR_FITS]
-                if tuple(sorted(p)) not in self.cache]
+        # the best pairs by their linearised fit, and the best of the best single effects
+        # (the linearisation is rough where a parameter starts at a kink: a pulley radius)
+        picked = [p for _, p in ranked[:PAIR_FITS]]
+        among = [p for _, p in ranked if set(p) <= best4]
+        if among and among[0] not in picked:
+            picked.append(among[0])
+        todo = [tuple(sorted(p)) for p in picked if tuple(sorted(p)) not in self.cache]
         if not todo:
             return None
         self.progress(f"the best single effect leaves {current.reduced_chi2:.3g} x the noise: "
