@@ -68,3 +68,14 @@ def test_nothing_before_the_initialisation_ends():
     L[30:, 1] += 4e-3
     assert row_jumps(st, L, IDS, t_after=5.0) == []
     assert [f["cable"] for f in row_jumps(st, L, IDS)] == ["2"]
+
+
+def test_one_cable_dominating_a_jump_spread_over_all_is_its_slip():
+    """Without tensions the internal forces refitted at each row spread one cable's slip over
+    the others: the cable whose jump dominates is the one that slipped."""
+    rng = np.random.default_rng(6)
+    st = _stream()
+    L = _noise(400, rng)
+    L[220:] += np.array([0.8, 0.25, 0.35, 0.55, -3.0, 0.6, -0.5, 0.7]) * 1e-3
+    found = row_jumps(st, L, IDS)
+    assert [f["cable"] for f in found] == ["5"] and found[0]["row"] == 222

@@ -137,6 +137,8 @@ def steps_in_time(s: Samples, length: np.ndarray, sigma: float,
 JUMP_Z = 12.0
 #: ... and is at least this large [m]
 JUMP_MIN_M = 5e-4
+#: one cable's jump is its own when this many times the next largest
+DOMINANT = 2.5
 #: rows on each side of a jump over which the new level must hold
 JUMP_HOLD = 4
 #: ... and stand this many standard errors out of their scatter
@@ -180,8 +182,17 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         mad = 1.4826 * np.nanmedian(np.abs(j), axis=0)
         z = np.abs(j) / np.maximum(mad, 1e-9)
         big = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M)
+    # most cables at once: the pose, unless one cable's jump dominates (without tensions the
+    # internal forces refitted at each row spread one cable's slip over the others)
     many = big.sum(axis=1) > max(1, len(cable_ids) // 2)
+    mag = np.sort(np.nan_to_num(np.abs(j)), axis=1)
+    dominant = many & (mag[:, -1] > DOMINANT * mag[:, -2]) if len(cable_ids) > 1 else many
+    alone = big.copy()
     big[many] = False
+    if dominant.any():
+        rows_d = np.flatnonzero(dominant)
+        top = np.argmax(np.where(np.isfinite(j), np.abs(j), -1.0)[rows_d], axis=1)
+        big[rows_d, top] = alone[rows_d, top]
     for k, cid in enumerate(cable_ids):
         rows = [i for i in np.flatnonzero(big[:, k])
                 if _local_z(j[:, k], int(i)) > JUMP_Z

@@ -352,12 +352,14 @@ class ResidualModel:
         return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
 
     # ----- noise ----------------------------------------------------------------------
-    def estimate_noise(self, H: Robot) -> dict[str, float]:
+    def estimate_noise(self, H: Robot, groups: np.ndarray | None = None) -> dict[str, float]:
         """Noise of each residual block, for dwell samples and rows of moves apart (a moving
         platform adds what a dwell does not: channels read at slightly different instants,
         dynamics): white noise from raw rows (second differences), repeatability from the
         spread over replicate groups (model errors repeat at a pose, noise does not); a kind
-        without replicates takes the other kind's, declared defaults without any."""
+        without replicates takes the other kind's, declared defaults without any.
+        ``groups`` (N,) replaces the replicate groups (visits of a target split where a
+        cable's reading stepped: a slip is no noise)."""
         b = self.blocks(H)
         if self.rows is not None:
             rw = self.rows.white_noise_by_kind(H)
@@ -365,7 +367,7 @@ class ResidualModel:
                 own = rw.get(kind) or rw.get(1 - kind) or {}
                 self.white_k[kind].update(own)
         self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
-        tg = self.s.target
+        tg = self.s.target if groups is None else np.asarray(groups)
         count = np.maximum(self.s.count, 1)
         found: dict[int, dict[str, float]] = {0: {}, 1: {}}
         reps = _replicated(tg)
