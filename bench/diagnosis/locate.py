@@ -150,8 +150,9 @@ JUMP_LOCAL = 15
 def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
               t_after: float = -np.inf) -> list[dict]:
     """Slips during moves: a cable's length residual stepping between two consecutive raw rows
-    (``stream``, residuals ``length`` (R,n)) far beyond its row-to-row spread, alone (a jump
-    of most cables at once is the pose, not a cable). One step per cable, the largest.
+    (``stream``, residuals ``length`` (R,n)) far beyond its row-to-row spread and far above
+    the other cables' at that row (a jump of several cables at once is the pose, not a
+    cable). One step per cable, the largest.
 
     A step is told from what a model error does along a move: the jump is taken against the
     local slope (the median of the neighbouring rows' changes: a residual that ramps as the
@@ -182,17 +183,15 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         mad = 1.4826 * np.nanmedian(np.abs(j), axis=0)
         z = np.abs(j) / np.maximum(mad, 1e-9)
         big = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M)
-    # most cables at once: the pose, unless one cable's jump dominates (without tensions the
-    # internal forces refitted at each row spread one cable's slip over the others)
-    many = big.sum(axis=1) > max(1, len(cable_ids) // 2)
-    mag = np.sort(np.nan_to_num(np.abs(j)), axis=1)
-    dominant = many & (mag[:, -1] > DOMINANT * mag[:, -2]) if len(cable_ids) > 1 else many
-    alone = big.copy()
-    big[many] = False
-    if dominant.any():
-        rows_d = np.flatnonzero(dominant)
-        top = np.argmax(np.where(np.isfinite(j), np.abs(j), -1.0)[rows_d], axis=1)
-        big[rows_d, top] = alone[rows_d, top]
+    # one cable's own: its jump dominates the other cables' at that row (a jump of several
+    # cables at once is the pose, or all the cables' lengths changing at a new visit; without
+    # tensions, the internal forces refitted at each row spread one cable's slip over the
+    # others, far less)
+    if len(cable_ids) > 1:
+        mag = np.nan_to_num(np.abs(j))
+        top2 = np.sort(mag, axis=1)[:, -2:]
+        second = np.where(mag >= top2[:, 1:2], top2[:, :1], top2[:, 1:2])
+        big &= mag > DOMINANT * second
     for k, cid in enumerate(cable_ids):
         rows = [i for i in np.flatnonzero(big[:, k])
                 if _local_z(j[:, k], int(i)) > JUMP_Z

@@ -21,6 +21,7 @@ from bench.diagnosis.fit import FitResult
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
 from bench.diagnosis.select import (
+    BIC_ENTER,
     BIC_TIE,
     Selection,
     Selector,
@@ -367,7 +368,9 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
 
     # where: baseline residuals, steps in time
     base_blocks = rm.blocks(model)
-    steps = locate.steps_in_time(s, base_blocks.length, nz["length"], model.cable_ids,
+    one_sided = base_blocks.slack if base_blocks.slack is not None else False
+    steps = locate.steps_in_time(s, np.where(one_sided, np.nan, base_blocks.length),
+                                 nz["length"], model.cable_ids,
                                  t_after=rm.init_end) if rm.has_len.any() else []
     if s.stream is not None and rm.has_len.any():
         stream_rm = ResidualModel(s.stream, model, rec.init_pose, rec.init_tensions)
@@ -403,15 +406,32 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     params, errs, undet = effect_entries(final, sel.effects, floor)
     # an effect whose parameters all vanish or cannot be fixed is not reported: the least
     # important such effect goes, the others are refitted without it (what it shared with
-    # them may become measurable), and so on
+    # them may become measurable), and so on. When the data need what it took (the others
+    # alone fit far worse), the selection goes on from the others without it: effects it
+    # imitated, whose parameters the poses can fix, may take its place
+    left_out: list[str] = []
     while True:
         empty = [e for e in sel.effects if not params[e]]
         if not empty:
             break
         e = empty[-1]  # effects are sorted by importance
         say(f"dropping {report_name(e)}: no parameter differs from the model")
-        sel.rejected[report_name(e)] = "no parameter differs measurably from the model"
-        sel.effects = [c for c in sel.effects if c != e]
+        rest = tuple(c for c in sel.effects if c != e)
+        # (an offset within the encoder reference's uncertainty is that uncertainty: what
+        # the data need there is no effect to look for)
+        by_reference = bool(effect_entries(final, [e])[0][e])
+        needed = not by_reference and selector.fit(rest, sel.fit).bic - sel.fit.bic > BIC_ENTER
+        rejected = dict(sel.rejected)
+        rejected[report_name(e)] = "no parameter differs measurably from the model"
+        left_out.append(e)
+        if needed:
+            say(f"the others fit far worse without {report_name(e)}: selecting on from them "
+                f"without it")
+            sel = selector.run([c for c in candidates if c not in left_out], rest)
+            sel.rejected = rejected | sel.rejected
+        else:
+            sel.rejected = rejected
+            sel.effects = [c for c in sel.effects if c != e]
         final = _final_fit(selector, sel, fit_idx, say)
         floor = _reference_var(rm, final)
         params, errs, undet = effect_entries(final, sel.effects, floor)

@@ -143,6 +143,7 @@ class ResidualModel:
         self._warm_exits: np.ndarray | None = None  # last deflected exits (warm start)
         self._pose_est: np.ndarray | None = None  # last estimated poses (warm start)
         self._warm_tau: np.ndarray | None = None  # last fitted unmeasured tensions (warm start)
+        self._at_zero: np.ndarray | None = None  # cables the last unmeasured fit left at zero
         # slack cables: measured tension within the load-cell noise of zero (the noise of
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
         tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
@@ -262,6 +263,8 @@ class ResidualModel:
             lres, ex, good = self._unmeasured(H, poses[u], read[u])
             ok[u] = good
             length[u] = lres
+            # a cable left at zero tension: a one-sided residual, like a slack one's
+            slack_all[u] = self._at_zero
             if self.has_exit[u].any():
                 e = ex - s.exit_meas[u]
                 e[~self.has_exit[u]] = np.nan
@@ -346,6 +349,7 @@ class ResidualModel:
             if moved <= rtol * float(tm.max()):
                 break
         self._warm_tau = tau_k
+        self._at_zero = at_zero
         bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k))
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)

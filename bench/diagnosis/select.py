@@ -210,17 +210,27 @@ class Selector:
 
     # ----- screening ------------------------------------------------------------------
     def screen(self, current: FitResult, candidates: list[str]) -> dict[str, float]:
-        """Predicted BIC change of adding each candidate (linearised at the current fit)."""
-        robot = current.space.robot(current.phi)
+        """Predicted BIC change of adding each candidate, linearised at the current fit with
+        the current parameters free too: a new effect may fit only together with a change of
+        those already chosen (a length offset beside pulley radii that took its share), which
+        a screen holding them fixed cannot see."""
+        sp = current.space
+        robot = sp.robot(current.phi)
         r0 = self.rm.whitened(robot, self.train)
         n_res = len(r0)
+        Jc = fd_jacobian(lambda phi: self.rm.whitened(sp.robot(phi), self.train),
+                         current.phi, r0, sp.scale * 1e-2, sp.lo, sp.hi) if len(sp) \
+            else np.zeros((n_res, 0))
         out = {}
         for eff in candidates:
             sub = ParamSpace(robot, (eff,))
             J = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
                             sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi)
-            delta = _bounded_lstsq(J, -r0, sub.neutral, sub.lo, sub.hi)
-            r1 = r0 + J @ delta
+            both = np.hstack([Jc, J])
+            delta = _bounded_lstsq(both, -r0, np.concatenate([current.phi, sub.neutral]),
+                                   np.concatenate([sp.lo, sub.lo]),
+                                   np.concatenate([sp.hi, sub.hi]))
+            r1 = r0 + both @ delta
             out[eff] = float(r1 @ r1 - r0 @ r0) + len(sub) * np.log(n_res)
         return out
 
@@ -284,10 +294,13 @@ class Selector:
         return ok, info
 
     # ----- the whole selection --------------------------------------------------------
-    def run(self, candidates: list[str]) -> Selection:
+    def run(self, candidates: list[str], initial: tuple[str, ...] = ()) -> Selection:
+        """Choose effects among ``candidates``, starting from the set ``initial`` (the model
+        as it is by default)."""
+        self.stalled = False
         base = self.fit(())
-        current = base
-        chosen: list[str] = []
+        chosen: list[str] = [e for e in initial if e in candidates]
+        current = self.fit(tuple(chosen), None) if chosen else base
         sel = Selection([], base, base)
         for _ in range(3 * len(candidates) + 3):
             changed = False
