@@ -389,6 +389,11 @@ class ResidualModel:
                 white = self.white_k[kind][name] ** 2 * float(np.mean(1.0 / count[sel]))
                 var = float(np.nanmean(sd ** 2)) - white
                 found[kind][name] = float(np.sqrt(max(var, 0.0)))
+        if found[0] and found[1]:
+            # rows of moves carry at least the visit-to-visit error of the dwells (the lengths
+            # change between visits whether the platform stands or moves); their own replicate
+            # groups, rows near each other on few moves, can miss it
+            found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
         for kind in (0, 1):
             if found[kind]:
                 self.sigma_k[kind].update(found[kind])

@@ -638,8 +638,11 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
 
 
 def _near_groups(pose_meas: np.ndarray, pose_des: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Group path rows that lie within NEAR_M / NEAR_RAD of a group's first row, on different
-    moves (no chains: every member is near the first); every other row is its own group."""
+    """Group path rows that lie within NEAR_M / NEAR_RAD of a group's first row, on moves
+    that are not neighbours (no chains: every member is near the first); every other row is
+    its own group. Neighbouring moves meet at the target between them: rows near it share
+    that visit's errors (the lengths change from visit to visit), and their spread would
+    miss them."""
     N = len(seg)
     ids = np.full(N, -1)
     if N == 0:
@@ -661,7 +664,7 @@ def _near_groups(pose_meas: np.ndarray, pose_des: np.ndarray, seg: np.ndarray) -
             for dy in (-1, 0, 1):
                 for dz in (-1, 0, 1):
                     for j in seeds.get((c[0] + dx, c[1] + dy, c[2] + dz), ()):
-                        if seg[i] in members[j]:
+                        if any(abs(int(seg[i]) - int(m)) < 2 for m in members[j]):
                             continue
                         if (np.linalg.norm(pos[i, :3] - pos[j, :3]) <= NEAR_M
                                 and np.abs(pos[i, 3:] - pos[j, 3:]).max() <= NEAR_RAD):
