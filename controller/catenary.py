@@ -129,15 +129,24 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
         g = sa / np.maximum(Ta, 1e-9)
         dT_dH, dT_dV = Ha / Tn * g, V_end / Tn * g
         dT_dL = (w * V_end / Tn * g) if end == "A" else np.zeros_like(Ha)
-        Jm = np.empty((len(act), 3, 3))
-        Jm[:, 0] = np.stack([f11, f12, f1L], axis=-1)
-        Jm[:, 1] = np.stack([f21, f22, f2L], axis=-1)
-        Jm[:, 2] = np.stack([dT_dH, dT_dV, dT_dL], axis=-1)
-        dx = np.linalg.solve(Jm, r.T[..., None])[..., 0]
-        dH, dV, dL = dx[:, 0], dx[:, 1], dx[:, 2]
+        dH, dV, dL = _solve3((f11, f12, f1L), (f21, f22, f2L), (dT_dH, dT_dV, dT_dL), r)
         step = np.where(dH > 0.5 * Ha, 0.5 * Ha / np.where(dH != 0, dH, 1.0), 1.0)
         H[act], VB[act], L0[act] = Ha - step * dH, Va - step * dV, La - step * dL
     return L0.reshape(shape), H.reshape(shape), VB.reshape(shape), ok.reshape(shape)
+
+
+def _solve3(row0, row1, row2, r):
+    """Solutions (x0, x1, x2) of the 3x3 systems with rows ``row0..2`` (each three arrays of
+    shape (K,)) and right-hand sides ``r`` (3,K), elementwise by Cramer's rule (one LAPACK
+    call per system costs more than the arithmetic)."""
+    (a, b, c), (d, e, f), (g, h, i) = row0, row1, row2
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g  # cofactors of the first row
+    det = a * A + b * B + c * C
+    r0, r1, r2 = r
+    x0 = (r0 * A + r1 * (c * h - b * i) + r2 * (b * f - c * e)) / det
+    x1 = (r0 * B + r1 * (a * i - c * g) + r2 * (c * d - a * f)) / det
+    x2 = (r0 * C + r1 * (b * g - a * h) + r2 * (a * e - b * d)) / det
+    return x0, x1, x2
 
 
 def energy(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray, w: float,

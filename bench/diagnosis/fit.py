@@ -8,6 +8,7 @@ from the whitened Jacobian at the solution.
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,16 +62,20 @@ def bic(chi2: float, n_params: int, n_res: int) -> float:
 
 
 def fd_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.ndarray,
-                steps: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Forward differences with absolute steps, turned inward at the bounds."""
+                steps: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                frozen: Callable[[], AbstractContextManager] | None = None) -> np.ndarray:
+    """Forward differences with absolute steps, turned inward at the bounds. ``frozen``
+    (e.g. :meth:`ResidualModel.frozen`) is entered around the columns when ``f0`` is the
+    last evaluation ``fun`` made: the columns keep its per-sample solutions' pieces."""
     J = np.empty((len(f0), len(x)))
-    for k in range(len(x)):
-        h = steps[k] if x[k] + steps[k] <= hi[k] else -steps[k]
-        if x[k] + h < lo[k]:
-            h = steps[k]
-        xp = x.copy()
-        xp[k] += h
-        J[:, k] = (fun(xp) - f0) / h
+    with frozen() if frozen is not None else nullcontext():
+        for k in range(len(x)):
+            h = steps[k] if x[k] + steps[k] <= hi[k] else -steps[k]
+            if x[k] + h < lo[k]:
+                h = steps[k]
+            xp = x.copy()
+            xp[k] += h
+            J[:, k] = (fun(xp) - f0) / h
     return J
 
 
@@ -116,7 +121,7 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     steps = space.scale * 1e-2
 
     def jac(phi: np.ndarray) -> np.ndarray:
-        return fd_jacobian(fun, phi, fun(phi), steps, space.lo, space.hi)
+        return fd_jacobian(fun, phi, fun(phi), steps, space.lo, space.hi, rm.frozen)
 
     lost = rm.dof_lost(idx)
     n_eff = float(rm.entry_weights(idx).sum())
@@ -138,15 +143,26 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         full[free] = z
         return fun(full)
 
+    last: dict[str, np.ndarray] = {}  # the last evaluation outside the Jacobian's columns
+
+    def fun_last(z: np.ndarray) -> np.ndarray:
+        last["z"], last["r"] = z.copy(), fun_free(z)
+        return last["r"]
+
+    def jac_free(z: np.ndarray) -> np.ndarray:
+        # least_squares asks for the Jacobian where it last evaluated the residuals
+        f0 = last["r"] if "z" in last and np.array_equal(last["z"], z) else fun_last(z)
+        return fd_jacobian(fun_free, z, f0, steps[free], space.lo[free], space.hi[free],
+                           rm.frozen)
+
     if free.any():
         z = x[free]
         nfev, ok, msg = 0, False, ""
-        r0 = fun_free(z)
+        r0 = fun_last(z)
         cost = 0.5 * float(r0 @ r0)
         for _attempt in range(RETRIES + 1):
-            res = least_squares(fun_free, z, bounds=(space.lo[free], space.hi[free]),
-                                jac=lambda z: fd_jacobian(fun_free, z, fun_free(z), steps[free],
-                                                          space.lo[free], space.hi[free]),
+            res = least_squares(fun_last, z, bounds=(space.lo[free], space.hi[free]),
+                                jac=jac_free,
                                 x_scale=space.scale[free], method="trf", max_nfev=max_nfev,
                                 xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
             z = res.x

@@ -24,6 +24,12 @@ kept in the least squares (the convex problem's faces) and left out of it (slack
 feasible candidate of least objective wins. Vectorised over samples and faces (no Python
 loop over samples); the faces tried are capped at :data:`MAX_FACES` (about the ``n = 10``
 robots' count) by the number of cables at zero.
+
+The winning candidate's face (the cables held at zero, and whether they were left out of
+the least squares) is returned; given back as a ``hint``, each sample is solved on that
+face alone (one KKT solve, no search) and searched only where the hinted candidate no
+longer pulls or balances: the minimiser on the same piece of the objective, which is what
+a finite-difference derivative around the hinted solution needs.
 """
 
 from __future__ import annotations
@@ -53,6 +59,12 @@ class InternalForces:
     at_zero: np.ndarray
     cost: np.ndarray
     feasible: np.ndarray
+    face: np.ndarray | None = None  # (M,n) cables the winning candidate holds at zero
+    dropped: np.ndarray | None = None  # (M,n) of those, the ones left out (read as slack)
+
+    def hint(self) -> tuple[np.ndarray, np.ndarray]:
+        """The winning faces, as :func:`fit_internal_forces` takes them back."""
+        return self.face, self.dropped
 
 
 @lru_cache(maxsize=16)
@@ -76,13 +88,16 @@ def _faces(n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_internal_forces(W: np.ndarray, f: np.ndarray, r: np.ndarray, C: np.ndarray,
                         tau_k: np.ndarray, tm: np.ndarray,
-                        eps_rel: float = 1e-9) -> InternalForces:
+                        eps_rel: float = 1e-9,
+                        hint: tuple[np.ndarray, np.ndarray] | None = None) -> InternalForces:
     """The tensions of the module's objective for M samples.
 
     ``W`` (M,6,n) wrench matrices, ``f`` (M,6) the wrench to balance, ``r`` (M,n) length
     residuals [m] at ``tau_k`` (M,n) [N], ``C`` their sensitivity to the tensions [m/N]:
     (M,n,n), or (M,n) for its diagonal; ``tm`` (n,) or (M,n) the tensions the ``eps``
-    term pulls toward [N]."""
+    term pulls toward [N]. ``hint`` (face, dropped), both (M,n) bool, from an earlier
+    result's :meth:`InternalForces.hint`: each sample solved on that face (module
+    docstring), searched only where its candidate there is not feasible."""
     M, m, n = W.shape
     C = np.asarray(C, float)
     if C.ndim == 2:
@@ -91,12 +106,15 @@ def fit_internal_forces(W: np.ndarray, f: np.ndarray, r: np.ndarray, C: np.ndarr
     out_t = np.zeros((M, n))
     out_cost = np.full(M, np.inf)
     out_ok = np.zeros(M, dtype=bool)
+    out_face = np.zeros((M, n), dtype=bool)
+    out_drop = np.zeros((M, n), dtype=bool)
     for a in range(0, M, BLOCK):
         sl = slice(a, min(a + BLOCK, M))
-        t, cost, ok = _block(W[sl], f[sl], r[sl], C[sl], tau_k[sl], tm[sl], eps_rel)
-        out_t[sl], out_cost[sl], out_ok[sl] = t, cost, ok
+        hs = None if hint is None else (hint[0][sl], hint[1][sl])
+        out = _block(W[sl], f[sl], r[sl], C[sl], tau_k[sl], tm[sl], eps_rel, hs)
+        out_t[sl], out_cost[sl], out_ok[sl], out_face[sl], out_drop[sl] = out
     scale = np.maximum(np.abs(out_t).max(axis=1, keepdims=True), 1.0)
-    return InternalForces(out_t, out_t <= 1e-9 * scale, out_cost, out_ok)
+    return InternalForces(out_t, out_t <= 1e-9 * scale, out_cost, out_ok, out_face, out_drop)
 
 
 def _cost(t, b, C, eps, tm, zero):
@@ -129,24 +147,51 @@ def _kkt(H, g, W, f, fixed):
     return np.linalg.solve(K, rhs[..., None])[..., :n, 0]
 
 
-def _block(W, f, r, C, tau_k, tm, eps_rel):
+def _solve_face(W, f, C, b, eps, tm, face, dropped):
+    """The balanced minimisers (M,n) with the cables ``face`` (M,n) held at zero and the rows
+    ``dropped`` (M,n) left out of the least squares (one KKT solve per sample), and whether
+    each balances the wrench."""
+    n = W.shape[-1]
+    Cr = np.where(dropped[..., None], 0.0, C)
+    H = np.swapaxes(Cr, -1, -2) @ Cr + eps[:, None, None] * np.eye(n)
+    g = -np.einsum("mji,mj->mi", Cr, b) + eps[:, None] * tm
+    t = _kkt(H, g, W, f, face)
+    return t, _balanced(W, t, f)
+
+
+def _balanced(W, t, f):
+    """Whether tensions ``t`` (...,n) balance the wrench ``f`` (...,6) to round-off."""
+    return np.linalg.norm(np.einsum("...ik,...k->...i", W, t) - f, axis=-1) <= \
+        1e-6 * (np.abs(f).sum(axis=-1) + 1.0)
+
+
+def _block(W, f, r, C, tau_k, tm, eps_rel, hint=None):
     M, m, n = W.shape
     CtC = np.swapaxes(C, -1, -2) @ C
     top = np.max(np.diagonal(CtC, axis1=-2, axis2=-1), axis=-1)
     eps = np.where(top > 0, eps_rel * top, 1.0)  # rigid cables: only the pull to tm
     b = r - np.einsum("mij,mj->mi", C, tau_k)  # residuals at zero tensions
-    eyeM = eps[:, None, None] * np.eye(n)
-    H = CtC + eyeM
-    g = -np.einsum("mji,mj->mi", C, b) + eps[:, None] * tm
     none = np.zeros((M, n), dtype=bool)
-    tau0 = _kkt(H, g, W, f, none)
+    if hint is not None:
+        face, dropped = hint
+        th, bal = _solve_face(W, f, C, b, eps, tm, face, dropped)
+        tol = 1e-9 * np.maximum(np.abs(th).max(axis=1), np.abs(tm).max(axis=1))
+        good = np.all(th >= -tol[:, None], axis=1) & bal
+        t = np.maximum(th, 0.0)
+        cost = _cost(t, b, C, eps, tm, face)
+        face, dropped = face.copy(), dropped.copy()
+        if not good.all():  # the hinted face no longer pulls or balances: search
+            h = np.flatnonzero(~good)
+            out = _block(W[h], f[h], r[h], C[h], tau_k[h], tm[h], eps_rel)
+            t[h], cost[h], good[h], face[h], dropped[h] = out
+        return t, cost, good, face, dropped
+    tau0, balanced = _solve_face(W, f, C, b, eps, tm, none, none)
     scale = np.maximum(np.abs(tau0).max(axis=1), np.abs(tm).max(axis=1))
     tol = 1e-9 * scale
     t = np.maximum(tau0, 0.0)
     cost = _cost(t, b, C, eps, tm, none)
-    balanced = np.linalg.norm(np.einsum("mik,mk->mi", W, tau0) - f, axis=1) <= \
-        1e-6 * (np.abs(f).sum(axis=1) + 1.0)
     ok = np.all(tau0 >= -tol[:, None], axis=1) & balanced
+    face, dropped = none.copy(), none.copy()
     # a cable that would read longer than its line with its own tension at zero may be
     # slack: those samples, and those pushing a cable, try the faces
     e_own0 = b + np.einsum("mij,mj->mi", C, tau0) - np.diagonal(C, axis1=-2, axis2=-1) * tau0
@@ -154,10 +199,10 @@ def _block(W, f, r, C, tau_k, tm, eps_rel):
     if n > m and hard.any():
         h = np.flatnonzero(hard)
         viol0 = np.maximum(-tau0[h], 0.0).max(axis=1)
-        th, ch, okh = _faces_min(W[h], f[h], C[h], b[h], eps[h], tm[h], tol[h], t[h],
-                                 cost[h], ok[h], viol0, e_own0[h] < 0.0)
-        t[h], cost[h], ok[h] = th, ch, okh
-    return t, cost, ok
+        out = _faces_min(W[h], f[h], C[h], b[h], eps[h], tm[h], tol[h], t[h], cost[h], ok[h],
+                         viol0, e_own0[h] < 0.0)
+        t[h], cost[h], ok[h], face[h], dropped[h] = out
+    return t, cost, ok, face, dropped
 
 
 def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
@@ -171,8 +216,9 @@ def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
     k = n - m
     faces, fidx = _faces(n, k)
     F = len(faces)
+    none = np.zeros((M, n), dtype=bool)
     if F == 0:
-        return t0, cost0, ok0
+        return t0, cost0, ok0, none, none
     # (sample, face) pairs of each kind
     kept_m, kept_f = np.nonzero(np.broadcast_to(~ok0[:, None], (M, F)))
     inside = ~np.any(faces[None, :, :] & ~maybe_slack[:, None, :], axis=-1)  # S within P
@@ -210,8 +256,7 @@ def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
                           np.where(real, -tp[pm[:, None], np.maximum(idx, 0)], 0.0)], axis=1)
     lam = np.linalg.solve(K, rhs[..., None])[:, :k, 0]
     taus = np.where(z, 0.0, tp[pm] + np.einsum("pnk,pk->pn", N[pm], lam))  # (P, n)
-    bal = np.linalg.norm(np.einsum("pik,pk->pi", W[pm], taus) - f[pm], axis=-1) <= \
-        1e-6 * (np.abs(f[pm]).sum(axis=-1) + 1.0)
+    bal = _balanced(W[pm], taus, f[pm])
     viol = np.maximum(-taus, 0.0).max(axis=-1)
     feasible = (viol <= tol[pm]) & bal
     tc = np.maximum(taus, 0.0)
@@ -228,7 +273,9 @@ def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
     ok = np.isfinite(pick_cost[first])
     least_viol = _first_per_sample(sample, v_all, M)
     pick = np.where(ok, first, least_viol)
-    return t_all[pick], c_all[pick], ok
+    z_all = np.concatenate([none, z])
+    d_all = np.concatenate([none, z & slack[:, None]])
+    return t_all[pick], c_all[pick], ok, z_all[pick], d_all[pick]
 
 
 def _first_per_sample(sample: np.ndarray, key: np.ndarray, M: int) -> np.ndarray:

@@ -40,6 +40,8 @@ hypothesis and compare poses and tensions: the headline.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,9 +142,16 @@ class ResidualModel:
         self.white_k = {0: dict(self.white), 1: dict(self.white)}
         self.sigma_source = "defaults (no replicate visits)"
         self.replicate_dof = 0
-        self._warm_exits: np.ndarray | None = None  # last deflected exits (warm start)
-        self._pose_est: np.ndarray | None = None  # last estimated poses (warm start)
-        self._warm_tau: np.ndarray | None = None  # last fitted unmeasured tensions (warm start)
+        # per sample (NaN before the first): the last deflected exits and estimated poses
+        # (warm starts)
+        self._warm_exits = np.full((s.n, n, 3), np.nan)
+        self._pose_est = np.full((s.n, 6), np.nan)
+        # per sample: the last fitted unmeasured tensions (warm start, NaN before the first)
+        # and their faces (cables at zero, rows left out: a hint inside :meth:`frozen`)
+        self._warm_tau = np.full((s.n, n), np.nan)
+        self._warm_face = np.zeros((s.n, n), dtype=bool)
+        self._warm_drop = np.zeros((s.n, n), dtype=bool)
+        self._frozen = False
         self._at_zero: np.ndarray | None = None  # cables the last unmeasured fit left at zero
         # slack cables: measured tension within the load-cell noise of zero (the noise of
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
@@ -195,8 +204,9 @@ class ResidualModel:
         return np.sqrt(self.model.n_cables / self.len_rank)
 
     # ----- inverse residuals --------------------------------------------------------
-    def blocks(self, H: Robot) -> Blocks:
-        """Inverse residuals of hypothesis ``H`` on every sample."""
+    def blocks(self, H: Robot, idx: np.ndarray | None = None) -> Blocks:
+        """Inverse residuals of hypothesis ``H`` on every sample, or on the samples ``idx``
+        (indices) only when given (NaN elsewhere)."""
         s, n, N = self.s, self.model.n_cables, self.s.n
         length = np.full((N, n), np.nan)
         wrench = np.full((N, 6), np.nan)
@@ -210,19 +220,24 @@ class ResidualModel:
             return Blocks(length, wrench, exits_err, ok, None, poses)
         dl = np.where(self._slipped(), H.length_offset, 0.0)
         read = unstretched_from_readings(H, s.l_meas, self.reference, u0, dl)
-        if self.est_pose.any():
-            poses[self.est_pose] = self._estimate_poses(H, read)
+        sel = np.ones(N, dtype=bool)
+        if idx is not None:
+            sel = np.zeros(N, dtype=bool)
+            sel[idx] = True
+        e = np.flatnonzero(self.est_pose & sel)
+        if len(e):
+            poses[e] = self._estimate_poses(H, read, e)
         extra = np.zeros((N, n)) if H.rho > 0 else None
         slack_all = np.zeros((N, n), dtype=bool)
         # samples with measured tensions
-        m = np.flatnonzero(np.isfinite(poses).all(axis=1) & self.has_tau)
+        m = np.flatnonzero(np.isfinite(poses).all(axis=1) & self.has_tau & sel)
         if len(m):
             tau = true_tensions(H, s.tau[m])
-            warm = self._warm_exits if self._warm_exits is not None and \
-                len(self._warm_exits) == len(m) else None
+            warm = self._warm_exits[m]
+            warm = warm if np.isfinite(warm).all() else None
             bs = batch_statics(H, poses[m], tau, exits0=warm)
-            if H.compliant:
-                self._warm_exits = bs.exits
+            if H.compliant and not self._frozen:
+                self._warm_exits[m] = bs.exits
             ok[m] = bs.feasible
             lres = bs.unstretched - read[m]
             if H.rho > 0:
@@ -258,9 +273,9 @@ class ResidualModel:
                 e[~self.has_exit[m]] = np.nan
                 exits_err[m] = e
         # samples without tensions: internal forces from the stretch
-        u = np.flatnonzero(self.has_pose & ~self.has_tau)
+        u = np.flatnonzero(self.has_pose & ~self.has_tau & sel)
         if len(u):
-            lres, ex, good = self._unmeasured(H, poses[u], read[u])
+            lres, ex, good = self._unmeasured(H, u, poses[u], read[u])
             ok[u] = good
             length[u] = lres
             # a cable left at zero tension: a one-sided residual, like a slack one's
@@ -272,18 +287,20 @@ class ResidualModel:
         length[~self.has_len] = np.nan
         return Blocks(length, wrench, exits_err, ok, extra, poses, slack_all)
 
-    def _estimate_poses(self, H: Robot, read: np.ndarray, iterations: int = 15) -> np.ndarray:
-        """Poses of the samples without a tracker pose: the needed unstretched lengths (measured
-        tensions) match the readings in the least-squares sense (damped Gauss-Newton, steps
-        of at most 5 cm and 0.05 rad; from the last estimates when they are near the
-        commanded poses, else from the commanded poses)."""
+    def _estimate_poses(self, H: Robot, read: np.ndarray, idx: np.ndarray,
+                        iterations: int = 15) -> np.ndarray:
+        """Poses (M,6) of the samples ``idx`` (M,) without a tracker pose: the needed
+        unstretched lengths (measured tensions) match the readings ``read`` (N,n) in the
+        least-squares sense (damped Gauss-Newton, steps of at most 5 cm and 0.05 rad; from
+        the last estimates when they are near the commanded poses, else from the commanded
+        poses; inside :meth:`frozen`, from those of the evaluation before)."""
         s = self.s
-        idx = np.flatnonzero(self.est_pose)
         start = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx], self.init_pose)
         p = start.copy()
-        if self._pose_est is not None and len(self._pose_est) == len(idx):
-            near = np.abs(self._pose_est[:, :3] - start[:, :3]).max(axis=1) < 0.2
-            p[near] = self._pose_est[near]
+        last = self._pose_est[idx]
+        near = np.isfinite(last).all(axis=1) & \
+            (np.abs(last[:, :3] - start[:, :3]).max(axis=1) < 0.2)
+        p[near] = last[near]
         tau = true_tensions(H, s.tau[idx])
         ea = np.where(np.isfinite(H.ea), H.ea, np.inf)
         # a slack cable only says it is at least as long as the straight line: it does not
@@ -306,31 +323,53 @@ class ResidualModel:
             p = p + dp
             if np.abs(dp).max() < 1e-10:
                 break
-        self._pose_est = p
+        if not self._frozen:
+            self._pose_est[idx] = p
         return p
 
-    def _unmeasured(self, H: Robot, poses: np.ndarray, read: np.ndarray,
+    @contextmanager
+    def frozen(self) -> Iterator[None]:
+        """Evaluations inside start each sample from the last evaluation before (its
+        unmeasured tensions, estimated pose, deflected exits) and keep its internal-force
+        face (which cables sit at zero, which read as slack:
+        :mod:`bench.diagnosis.internal_forces`), searching the faces only for the samples
+        where it no longer pulls or balances: for the columns of a finite-difference
+        Jacobian around that evaluation (the derivative on its piece of the objective, at a
+        fraction of a full evaluation's cost). They leave the warm starts of the
+        evaluations after unchanged."""
+        self._frozen = True
+        try:
+            yield
+        finally:
+            self._frozen = False
+
+    def _unmeasured(self, H: Robot, u: np.ndarray, poses: np.ndarray, read: np.ndarray,
                     rounds: int = 4, rtol: float = 1e-7
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Length residuals (M,n), exits (M,n,3) and success (M,) at ``poses`` without measured
-        tensions: tensions that balance gravity, pull, and fit the readings' stretch
-        (:mod:`bench.diagnosis.internal_forces`: exact over which cables are slack, so the
-        residuals do not jump with the parameters); a cable left at zero tension only says
-        it is at least as long as the straight line. Up to ``rounds`` relinearisations of
-        the statics (exits and stretch move with the tensions), until the tensions move by
-        less than ``rtol`` of mid-range; warm-started from the last call's tensions."""
+        """Length residuals (M,n), exits (M,n,3) and success (M,) of the samples ``u`` (M,) at
+        ``poses`` without measured tensions: tensions that balance gravity, pull, and fit the
+        readings' stretch (:mod:`bench.diagnosis.internal_forces`: exact over which cables
+        are slack, so the residuals do not jump with the parameters); a cable left at zero
+        tension only says it is at least as long as the straight line. Up to ``rounds``
+        relinearisations of the statics (exits and stretch move with the tensions), until the
+        tensions move by less than ``rtol`` of mid-range; each sample warm-started from its
+        last tensions (inside :meth:`frozen`, from those of the last evaluation before, on
+        its faces)."""
         M, n = len(poses), H.n_cables
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
-        warm = self._warm_tau
-        if warm is not None and warm.shape == (M, n) and np.isfinite(warm).all():
-            tau_k = np.maximum(warm, floor)
-        else:
+        warm = self._warm_tau[u]
+        known = np.isfinite(warm).all(axis=1)
+        tau_k = np.maximum(np.where(known[:, None], warm, tm), floor)
+        if not known.all():
+            c = np.flatnonzero(~known)
             straight = H.replace(rho=0.0) if H.rho > 0 else H
-            bs0 = batch_statics(straight, poses, np.full((M, n), 1.0))  # geometry only
+            bs0 = batch_statics(straight, poses[c], np.full((len(c), n), 1.0))  # geometry only
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
             tau = _balance(wrench_matrix(bs0.state), -wg, tm)
-            tau_k = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
+            tau_k[c] = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
+        hint = (self._warm_face[u], self._warm_drop[u]) if self._frozen and known.all() \
+            else None
         ok = np.ones(M, dtype=bool)
         at_zero = np.zeros((M, n), dtype=bool)
         for _ in range(rounds):
@@ -339,7 +378,7 @@ class ResidualModel:
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
             r = np.nan_to_num(bs.unstretched - read)
             C = np.nan_to_num(_length_sensitivity(H, bs, tau_k))
-            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm)
+            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm, hint=hint)
             good = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(fit.tensions).all(axis=1)
             ok = good & fit.feasible
             at_zero = fit.at_zero
@@ -348,7 +387,8 @@ class ResidualModel:
             tau_k = new
             if moved <= rtol * float(tm.max()):
                 break
-        self._warm_tau = tau_k
+        if not self._frozen:
+            self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
         self._at_zero = at_zero
         bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k))
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
@@ -472,7 +512,7 @@ class ResidualModel:
     def whitened(self, H: Robot, idx: np.ndarray | None = None) -> np.ndarray:
         """Residuals of ``idx`` samples (all by default), divided by their noise, as one vector
         (NaN entries dropped; their positions depend only on the data)."""
-        return self.whiten(self.blocks(H), idx)
+        return self.whiten(self.blocks(H, idx), idx)
 
     def whiten(self, b: Blocks, idx: np.ndarray | None = None) -> np.ndarray:
         sl = slice(None) if idx is None else idx
