@@ -153,6 +153,7 @@ class ResidualModel:
         self._warm_drop = np.zeros((s.n, n), dtype=bool)
         self._frozen = False
         self._at_zero: np.ndarray | None = None  # cables the last unmeasured fit left at zero
+        self._init_cache: dict[bytes, np.ndarray | ValueError] = {}
         # slack cables: measured tension within the load-cell noise of zero (the noise of
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
         tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
@@ -214,8 +215,7 @@ class ResidualModel:
         ok = np.zeros(N, dtype=bool)
         poses = np.where(self.has_pose[:, None], s.pose_meas, np.nan)
         try:
-            tau0 = true_tensions(H, self.tau0) if self.tau0 is not None else None
-            u0, _ = init_unstretched(H, self.init_pose, tau0)
+            u0 = self._init_unstretched(H)
         except ValueError:
             return Blocks(length, wrench, exits_err, ok, None, poses)
         dl = np.where(self._slipped(), H.length_offset, 0.0)
@@ -287,6 +287,32 @@ class ResidualModel:
         length[~self.has_len] = np.nan
         return Blocks(length, wrench, exits_err, ok, extra, poses, slack_all)
 
+    #: robot fields the unstretched lengths at initialisation hang on (not the readings' scale
+    #: and offsets; the load cells' calibration through the tensions)
+    _INIT_FIELDS = ("exits", "anchors", "mast_index", "pivots", "stiffness", "tilt",
+                    "pulley_radius", "ea", "mass", "com", "gravity", "tension_min",
+                    "tension_max", "rho")
+
+    def _init_unstretched(self, H: Robot) -> np.ndarray:
+        """:func:`init_unstretched` (n,) [m] of ``H`` at the initialisation pose with the
+        recording's initial tensions; the last few kept (the columns of a finite-difference
+        Jacobian change it for some parameters only). Raises ValueError as it does."""
+        tau0 = true_tensions(H, self.tau0) if self.tau0 is not None else None
+        key = b"".join(np.asarray(getattr(H, f), dtype=float).tobytes()
+                       for f in self._INIT_FIELDS) + (b"" if tau0 is None else tau0.tobytes())
+        if key not in self._init_cache:
+            try:
+                got: np.ndarray | ValueError = init_unstretched(H, self.init_pose, tau0)[0]
+            except ValueError as e:
+                got = e
+            if len(self._init_cache) >= 8:
+                self._init_cache.pop(next(iter(self._init_cache)))
+            self._init_cache[key] = got
+        got = self._init_cache[key]
+        if isinstance(got, ValueError):
+            raise got
+        return got
+
     def _estimate_poses(self, H: Robot, read: np.ndarray, idx: np.ndarray,
                         iterations: int = 15) -> np.ndarray:
         """Poses (M,6) of the samples ``idx`` (M,) without a tracker pose: the needed
@@ -333,10 +359,11 @@ class ResidualModel:
         unmeasured tensions, estimated pose, deflected exits) and keep its internal-force
         face (which cables sit at zero, which read as slack:
         :mod:`bench.diagnosis.internal_forces`), searching the faces only for the samples
-        where it no longer pulls or balances: for the columns of a finite-difference
-        Jacobian around that evaluation (the derivative on its piece of the objective, at a
-        fraction of a full evaluation's cost). They leave the warm starts of the
-        evaluations after unchanged."""
+        where it no longer pulls or balances, and relinearise once (twice with compliant
+        masts): for the columns of a
+        finite-difference Jacobian around that evaluation (the derivative on its piece of
+        the objective to about 1e-3, at a sixth of a full evaluation's cost). They leave the
+        warm starts of the evaluations after unchanged."""
         self._frozen = True
         try:
             yield
@@ -353,8 +380,8 @@ class ResidualModel:
         tension only says it is at least as long as the straight line. Up to ``rounds``
         relinearisations of the statics (exits and stretch move with the tensions), until the
         tensions move by less than ``rtol`` of mid-range; each sample warm-started from its
-        last tensions (inside :meth:`frozen`, from those of the last evaluation before, on
-        its faces)."""
+        last tensions (inside :meth:`frozen`: from those of the last evaluation before, on
+        its faces, one relinearisation, two with compliant masts)."""
         M, n = len(poses), H.n_cables
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
@@ -372,8 +399,15 @@ class ResidualModel:
             else None
         ok = np.ones(M, dtype=bool)
         at_zero = np.zeros((M, n), dtype=bool)
+        exits = None  # deflected exits of the last round (each round starts from them)
+        # on held faces from the last evaluation's tensions, one relinearisation gives the
+        # tensions to first order in a finite-difference step (a column within 1e-3); two
+        # with compliant masts (the wrench matrix moves with the tensions)
+        if hint is not None:
+            rounds = 2 if H.compliant else 1
         for _ in range(rounds):
-            bs = batch_statics(H, poses, tau_k)
+            bs = batch_statics(H, poses, tau_k, exits0=exits)
+            exits = bs.exits if H.compliant else None
             W = wrench_matrix(bs.state)
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
             r = np.nan_to_num(bs.unstretched - read)
@@ -390,7 +424,7 @@ class ResidualModel:
         if not self._frozen:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
         self._at_zero = at_zero
-        bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k))
+        bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k), exits0=exits)
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)
         return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
