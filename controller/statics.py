@@ -123,7 +123,9 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
         else:
             turn, tau_exit, u_exit = 0.0, tau, st.u
         if not robot.compliant:
-            if not sag or (turn < turn_tol and it > 1):
+            # given tensions hang the cables the same way whatever the directions: nothing
+            # to iterate
+            if not sag or tensions is not None or (turn < turn_tol and it > 1):
                 return _done(robot, st, exits, theta, tau_exit, cf, it)
             continue
         new_exits, theta = deflected_exits(robot, tau_exit, u_exit, a_star)
