@@ -219,13 +219,14 @@ class Selector:
         r0 = self.rm.whitened(robot, self.train)
         n_res = len(r0)
         Jc = fd_jacobian(lambda phi: self.rm.whitened(sp.robot(phi), self.train),
-                         current.phi, r0, sp.scale * 1e-2, sp.lo, sp.hi) if len(sp) \
+                         current.phi, r0, sp.scale * 1e-2, sp.lo, sp.hi,
+                         self.rm.frozen) if len(sp) \
             else np.zeros((n_res, 0))
         out = {}
         for eff in candidates:
             sub = ParamSpace(robot, (eff,))
             J = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
-                            sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi)
+                            sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi, self.rm.frozen)
             both = np.hstack([Jc, J])
             delta = _bounded_lstsq(both, -r0, np.concatenate([current.phi, sub.neutral]),
                                    np.concatenate([sp.lo, sub.lo]),
@@ -412,7 +413,8 @@ class Selector:
             sub = ParamSpace(robot0, (e,))
             cols[e] = (sub, fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi),
                                                                             self.train),
-                                        sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi))
+                                        sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi,
+                                        self.rm.frozen))
         ranked = []
         for a, b in pairs:
             (sa, ja), (sb, jb) = cols[a], cols[b]
@@ -496,7 +498,8 @@ class Selector:
                 return self.rm.whitened(space.robot(full), self.train)
 
             J_keep = fd_jacobian(fun_keep, phi_wo[keep], r_wo, space.scale[keep] * 1e-2,
-                                 space.lo[keep], space.hi[keep]) if len(keep) else \
+                                 space.lo[keep], space.hi[keep], self.rm.frozen) \
+                if len(keep) else \
                 np.zeros((n_res, 0))
             p_keep = int(np.isfinite(current.stderr[keep]).sum())
             for a in candidates:
@@ -504,7 +507,8 @@ class Selector:
                     continue
                 sub = ParamSpace(robot_wo, (a,))
                 J_a = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
-                                  sub.neutral, r_wo, sub.scale * 1e-2, sub.lo, sub.hi)
+                                  sub.neutral, r_wo, sub.scale * 1e-2, sub.lo, sub.hi,
+                                  self.rm.frozen)
                 J = np.hstack([J_keep, J_a])
                 x0 = np.concatenate([phi_wo[keep], sub.neutral])
                 lo = np.concatenate([space.lo[keep], sub.lo])
@@ -581,7 +585,7 @@ class Selector:
         for a in others:
             sub = ParamSpace(robot_wo, (a,))
             J = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
-                            sub.neutral, r_wo, sub.scale * 1e-2, sub.lo, sub.hi)
+                            sub.neutral, r_wo, sub.scale * 1e-2, sub.lo, sub.hi, self.rm.frozen)
             delta = _bounded_lstsq(J, -sig, sub.neutral, sub.lo, sub.hi)
             rem = sig + J @ delta
             out[a] = float(np.clip(1.0 - (rem @ rem) / norm, 0.0, 1.0))
