@@ -102,11 +102,11 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
         held |= hold
     pruned = _fit(space, rm, idx, full.phi, max_nfev, held)
     if pruned.bic < full.bic and pruned.success:
-        # the held parameters keep the uncertainty the full fit gave them, and the others
-        # keep at least theirs: pruning chose among models, it did not add information
-        pruned.stderr = np.where(weak, full.stderr,
-                                 np.maximum(pruned.stderr, np.where(np.isfinite(full.stderr),
-                                                                    full.stderr, 0.0)))
+        # the held parameters keep the uncertainty the full fit gave them; the others have
+        # the pruned fit's. The full fit's would be the errors of a model that lets every
+        # weak parameter trade against them (a load cell's gain against its offset when its
+        # tension varies little): fifty times the spread of the values over the evaluation
+        pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
         return pruned
     return full
 
@@ -183,10 +183,13 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         r, Jf, nfev, ok, msg = fun(x), np.zeros((0, 0)), 1, True, "nothing to fit"
     chi2 = float(r @ r)
     n_res = len(r)
-    groups = rm.entry_blocks(idx) if free.any() else None
-    columns = rm.entry_columns(idx) if free.any() else None
-    cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, columns) \
-        if free.any() else (np.zeros((0, 0)), np.zeros(0))
+    if free.any():
+        groups = rm.entry_blocks(idx)
+        errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx),
+                                rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff)
+        cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, errors)
+    else:
+        cov, se = np.zeros((0, 0)), np.zeros(0)
     se_all = np.full(len(x), np.inf)
     se_all[free] = se
     cov_all = np.zeros((len(x), len(x)))
@@ -230,16 +233,25 @@ def null_parameters(J: np.ndarray, space: ParamSpace) -> np.ndarray:
 
 def standard_errors(J: np.ndarray, chi2: float, n_res: float,
                     scale: np.ndarray | None = None, r: np.ndarray | None = None,
-                    groups: np.ndarray | None = None, columns: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance and standard errors from the whitened Jacobian (computed in parameter
-    units of ``scale``); inflated by the reduced chi-square when the fit leaves more than
-    the noise. With the residuals ``r``, the sample ``groups`` of their entries (what
-    shares errors: a target's visits, a stretch of moves) and their ``columns`` (the same
-    quantity over samples), the covariance is inflated by the design effect of residuals
-    correlated within groups, and each standard error is at least the cluster-robust
-    (sandwich) one when there are groups enough: correlated residuals, or residuals larger
-    than the noise estimate in places, do not make the fit look surer than it is."""
+                    groups: np.ndarray | None = None,
+                    errors: ErrorStructure | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance and standard errors from the whitened Jacobian ``J`` (computed in parameter
+    units of ``scale``) at the whitened residuals ``r``; ``n_res`` the residuals' degrees of
+    freedom before the fit's own parameters.
+
+    With the ``errors`` structure of the entries (:class:`ErrorStructure`), the covariance
+    is the sandwich ``A^-1 J^T C J A^-1`` (``A = J^T J``), the residuals' covariance ``C``
+    estimated from ``r`` itself (:func:`error_meat`): each kind of quantity its own level,
+    and its correlation within a move and within a stretch of time. This holds parameter
+    by parameter: an error shared by a move's rows inflates a length offset, which those
+    rows see together, and leaves a load-cell gain fitted through the tension noise,
+    independent from row to row, as sure as that noise makes it. Without ``errors``, the
+    covariance is ``A^-1`` inflated by the reduced chi-square when above 1.
+
+    With the entries' ``groups`` (stretches that may share errors), each standard error is
+    at least the cluster-robust (sandwich) one when there are groups enough: residuals
+    that depart from the model of their errors in places do not make the fit look surer
+    than it is."""
     p = J.shape[1]
     if p == 0:
         return np.zeros((0, 0)), np.zeros(0)
@@ -251,16 +263,12 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     weak = w < 1e-12 * top
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
-    red = chi2 / max(n_res - p, 1)
-    cov = cov_s * np.outer(D, D) * max(red, 1.0)
-    if r is not None and groups is not None and columns is not None and len(groups) == len(r):
-        # design effect: squared sums of each quantity's residuals within a group against
-        # the sum of squares (1 for independent residuals)
-        key = groups.astype(np.int64) * (int(columns.max()) + 1) + columns
-        _, inv_k = np.unique(key, return_inverse=True)
-        sums = np.bincount(inv_k, weights=r)
-        deff = float(np.sum(sums ** 2) / max(float(r @ r), 1e-300))
-        cov = cov * max(deff, 1.0)
+    if r is not None and errors is not None and len(errors.weights) == len(r):
+        dof = errors.n_eff / max(n_res - p, 1.0)
+        cov = cov_s @ error_meat(Js, r, errors) @ cov_s * dof * np.outer(D, D)
+    else:
+        red = chi2 / max(n_res - p, 1)
+        cov = cov_s * np.outer(D, D) * max(red, 1.0)
     if r is not None and groups is not None and len(groups) == len(r):
         ug, inv = np.unique(groups, return_inverse=True)
         G = len(ug)
@@ -276,3 +284,63 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     # cannot fix at all were held at the model's values before the fit
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     return cov, se
+
+
+@dataclass
+class ErrorStructure:
+    """What the entries of a whitened residual vector may share, entry by entry:
+    ``weights`` the sample weights whose square roots the whitening multiplied in,
+    ``kinds`` the kind of quantity (a length, a force, a moment, an exit point: each its
+    own error level), ``columns`` the quantity (a cable's length, a force axis), ``moves``
+    the move (rows of a move) or target (dwells) of the sample, ``stretches`` the stretch
+    of time it lies in; ``n_eff`` the effective number of residuals (weights summed, the
+    degrees of freedom before per-sample unknowns and the fit's parameters)."""
+
+    weights: np.ndarray
+    kinds: np.ndarray
+    columns: np.ndarray
+    moves: np.ndarray
+    stretches: np.ndarray
+    n_eff: float
+
+
+def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
+    """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a
+    variance-components model of the unweighted whitened residuals ``u = r / sqrt(weight)``:
+    per kind of quantity, a variance ``v``; a covariance ``c1`` between two samples of one
+    quantity in one move (or at one target) within a stretch; ``c2`` between two in one
+    stretch but different moves. Each is a moment estimate over every such pair of the
+    recording (averages of cross-products; covariances clipped to ``[0, v]``), so it stays
+    steady where a cluster-robust sandwich over a handful of stretches would not. Entry
+    ``i`` of ``r`` is ``sqrt(w_i) u_i``: a pair adds ``sqrt(w_i w_j) cov(u_i, u_j) J_i J_j^T``
+    (rows a move weighs down but whose errors are independent count as such)."""
+    p = Js.shape[1]
+    sw = np.sqrt(np.clip(e.weights, 1e-12, None))
+    u = r / sw
+    b = Js * sw[:, None]
+    ncol = int(e.columns.max()) + 1 if len(e.columns) else 1
+    nmove = int(e.moves.max()) + 1 if len(e.moves) else 1
+    meat = np.zeros((p, p))
+    for k in np.unique(e.kinds):
+        m = e.kinds == k
+        uk, bk = u[m], b[m]
+        key2 = e.stretches[m].astype(np.int64) * ncol + e.columns[m]
+        key1 = key2 * nmove + e.moves[m]
+        _, i1 = np.unique(key1, return_inverse=True)
+        _, i2 = np.unique(key2, return_inverse=True)
+        n1, n2 = np.bincount(i1).astype(float), np.bincount(i2).astype(float)
+        S1, S2 = np.bincount(i1, weights=uk), np.bincount(i2, weights=uk)
+        Q = float(uk @ uk)
+        v = Q / max(len(uk), 1)
+        pairs1 = float(np.sum(n1 * (n1 - 1.0)))
+        pairs2 = float(np.sum(n2 ** 2) - np.sum(n1 ** 2))
+        c1 = (float(S1 @ S1) - Q) / pairs1 if pairs1 > 0 else 0.0
+        c2 = (float(S2 @ S2) - float(S1 @ S1)) / pairs2 if pairs2 > 0 else 0.0
+        c1, c2 = float(np.clip(c1, 0.0, v)), float(np.clip(c2, 0.0, v))
+        B1 = np.zeros((len(n1), p))
+        np.add.at(B1, i1, bk)
+        B2 = np.zeros((len(n2), p))
+        np.add.at(B2, i2, bk)
+        bb, BB1, BB2 = bk.T @ bk, B1.T @ B1, B2.T @ B2
+        meat += v * bb + c1 * (BB1 - bb) + c2 * (BB2 - BB1)
+    return meat

@@ -580,6 +580,21 @@ class ResidualModel:
             len(self.s.cluster) == self.s.n else self.s.block
         return self._per_entry(groups.astype(float), idx).astype(int)
 
+    def entry_moves(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The move (rows of a move) or target (dwells) of each entry of :meth:`whiten`'s
+        vector (``Samples.block``)."""
+        return self._per_entry(self.s.block.astype(float), idx).astype(int)
+
+    def entry_kinds(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The kind of each entry of :meth:`whiten`'s vector, by quantity (0 a cable length,
+        1 a force axis, 2 a moment axis, 3 an exit point's axis) and by sample (a dwell's
+        average, or a row of a move: + 4): each kind has its own error level."""
+        n = self.model.n_cables
+        quantity = np.searchsorted(np.array([n, n + 3, n + 6]), self.entry_columns(idx),
+                                   side="right")
+        moving = self._per_entry(np.clip(self.s.kind, 0, 1).astype(float), idx)
+        return quantity + 4 * moving.astype(int)
+
     def entry_columns(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The column of each entry of :meth:`whiten`'s vector (a cable's length, a force or
         moment axis, an exit point's axis): the same quantity over the samples."""
