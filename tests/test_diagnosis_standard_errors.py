@@ -1,0 +1,95 @@
+"""Standard errors of the diagnosis fits (``bench.diagnosis.fit.standard_errors``): checked
+against the spread of the estimates over many simulated data sets (a linear model, fitted
+by weighted least squares the way the diagnosis whitens its residuals)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.diagnosis.fit import ErrorStructure, standard_errors
+
+
+def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray):
+    """Whitened Jacobian, estimate and whitened residuals of a weighted linear fit."""
+    J = X * np.sqrt(w)[:, None]
+    beta = np.linalg.lstsq(J, y * np.sqrt(w), rcond=None)[0]
+    return J, beta, (y - X @ beta) * np.sqrt(w)
+
+
+def _spread_and_se(make, reps: int = 400, seed: int = 3):
+    rng = np.random.default_rng(seed)
+    est, ses = [], []
+    for _ in range(reps):
+        X, y, errors = make(rng)
+        J, beta, r = _wls(X, y, errors.weights)
+        _, se = standard_errors(J, float(r @ r), errors.n_eff, r=r, errors=errors)
+        est.append(beta)
+        ses.append(se)
+    return np.std(est, axis=0), np.sqrt(np.mean(np.square(ses), axis=0))
+
+
+def test_weighted_rows_with_independent_errors_are_not_inflated():
+    """Rows of moves weighed down to a quarter (and a few dwells at full weight), their
+    errors independent after all: the errors are those of the weighted estimator, half
+    the ones that trust the weights."""
+    n = 240
+    w = np.where(np.arange(n) % 20 == 0, 1.0, 0.25)
+
+    def make(rng):
+        X = np.column_stack([np.ones(n), rng.uniform(-1, 1, n)])
+        y = X @ np.array([0.5, -2.0]) + rng.normal(0.0, 1.0, n)
+        e = ErrorStructure(w, np.zeros(n, int), np.zeros(n, int), np.arange(n),
+                           np.zeros(n, int), float(w.sum()))
+        return X, y, e
+
+    spread, se = _spread_and_se(make)
+    assert np.all(np.abs(se / spread - 1.0) < 0.15), (se, spread)
+    # the covariance that believes the weights (rows of variance 3) is too large by far
+    X, _, e = make(np.random.default_rng(0))
+    J = X * np.sqrt(w)[:, None]
+    naive = np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    assert np.all(naive / spread > 1.6)
+
+
+def test_shared_errors_inflate_what_they_share_and_nothing_else():
+    """An error shared by the samples of a move (a random intercept per move): the offset,
+    which the move's samples see together, gets its inflated error; a slope that averages
+    to zero within each move is as sure as the independent noise makes it."""
+    moves, per = 30, 10
+    n = moves * per
+    move = np.repeat(np.arange(moves), per)
+    x = np.tile(np.linspace(-1.0, 1.0, per), moves)
+
+    def make(rng):
+        X = np.column_stack([np.ones(n), x])
+        y = X @ np.array([1.0, 0.3]) + rng.normal(0.0, 1.0, moves)[move] \
+            + rng.normal(0.0, 1.0, n)
+        e = ErrorStructure(np.ones(n), np.zeros(n, int), np.zeros(n, int), move,
+                           np.zeros(n, int), float(n))
+        return X, y, e
+
+    spread, se = _spread_and_se(make)
+    assert np.all(np.abs(se / spread - 1.0) < 0.15), (se, spread)
+    # the offset's error is several times the independent one, the slope's is not
+    assert spread[0] > 2.0 * np.sqrt(2.0 / n)
+    assert spread[1] < 1.3 * np.sqrt(2.0 / np.sum(x ** 2))
+
+
+def test_each_kind_of_quantity_keeps_its_own_level():
+    """Two kinds of quantity whose residuals differ tenfold in size relative to their assumed
+    noise (a length noise underestimated, a force noise right): each parameter gets the
+    error of the kind that fixes it."""
+    n = 200
+    kinds = np.repeat([0, 1], n // 2)
+
+    def make(rng):
+        X = np.zeros((n, 2))
+        X[kinds == 0, 0] = 1.0
+        X[kinds == 1, 1] = 1.0
+        y = X @ np.array([0.2, -0.1]) + np.where(kinds == 0, 10.0, 1.0) * rng.normal(0, 1, n)
+        e = ErrorStructure(np.ones(n), kinds, kinds, np.arange(n), np.zeros(n, int),
+                           float(n))
+        return X, y, e
+
+    spread, se = _spread_and_se(make)
+    assert np.all(np.abs(se / spread - 1.0) < 0.15), (se, spread)
