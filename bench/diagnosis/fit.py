@@ -186,8 +186,7 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     if free.any():
         groups = rm.entry_blocks(idx)
         errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx),
-                                rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff,
-                                rm.entry_reference(idx))
+                                rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff)
         cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, errors)
     else:
         cov, se = np.zeros((0, 0)), np.zeros(0)
@@ -295,10 +294,7 @@ class ErrorStructure:
     ``columns`` the quantity (a cable's length, a force axis), ``moves`` the move (rows of a
     move) or target (dwells) of the sample, ``stretches`` the stretch of time it lies in
     (moves nest in it); ``n_eff`` the effective number of residuals (weights summed: the
-    degrees of freedom before per-sample unknowns and the fit's parameters);
-    ``reference`` the encoder reference's error over the entry's noise (a cable's length
-    entries share it: the initialisation's visit sets every later reading; 0 elsewhere),
-    ``reference_kind`` the kind whose error level it has (the initialisation's dwell)."""
+    degrees of freedom before per-sample unknowns and the fit's parameters)."""
 
     weights: np.ndarray
     kinds: np.ndarray
@@ -306,8 +302,6 @@ class ErrorStructure:
     moves: np.ndarray
     stretches: np.ndarray
     n_eff: float
-    reference: np.ndarray | None = None
-    reference_kind: int = 0
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -318,18 +312,16 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a
     variance-components model of the unweighted whitened residuals ``u = r / sqrt(weight)``.
 
-    - The encoder reference: every length entry of a cable carries the error of its
-      reference, set by the initialisation's visit (``reference`` times the error level of
-      ``reference_kind``). No recording can measure it (it is one draw per cable); the
-      recording's visit-to-visit noise says how large it is.
-    - Per kind of entry, of the residuals less their column's mean (the reference's share):
-      a variance ``v``; a covariance ``c1`` between two samples of one quantity in one move
-      (or at one target) within a stretch; ``c2`` between two in one stretch but different
-      moves. Each is a moment estimate over every such pair of the recording (averages of
-      cross-products; covariances clipped to ``[0, v]``), steady where a cluster-robust
-      sandwich over a handful of stretches would not be. The variance leans on its
-      quantity's over every kind by ``PRIOR_ENTRIES`` pseudo-entries (a kind of a handful
-      of entries says little).
+    Per kind of entry: a variance ``v``; a covariance ``c1`` between two samples of one
+    quantity in one move (or at one target) within a stretch; ``c2`` between two in one
+    stretch but different moves. Each is a moment estimate over every such pair of the
+    recording (averages of cross-products; covariances clipped to ``[0, v]``), steady where
+    a cluster-robust sandwich over a handful of stretches would not be. The variance leans
+    on its quantity's over every kind by ``PRIOR_ENTRIES`` pseudo-entries (a kind of a
+    handful of entries says little).
+
+    No error of the encoder reference is added: the initialisation defines it (a winding's
+    visit-to-visit change is a change from there).
 
     Entry ``i`` of ``r`` is ``sqrt(w_i) u_i``: a pair adds ``sqrt(w_i w_j) cov(u_i, u_j) J_i
     J_j^T`` (rows a move weighs down but whose errors are independent count as such)."""
@@ -338,11 +330,8 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     b = Js * sw[:, None]
     ncol = int(e.columns.max()) + 1 if len(e.columns) else 1
     nmove = int(e.moves.max()) + 1 if len(e.moves) else 1
-    _, icol = np.unique(e.columns, return_inverse=True)
     u = r / sw
-    u = u - (np.bincount(icol, weights=u) / np.bincount(icol))[icol]
     meat = np.zeros((p, p))
-    level: dict[int, float] = {}
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
     quantity = e.kinds % 4
@@ -358,7 +347,6 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         S1, S2 = np.bincount(i1, weights=uk), np.bincount(i2, weights=uk)
         Q = float(uk @ uk)
         v = (Q + PRIOR_ENTRIES * pooled[int(k) % 4]) / (len(uk) + PRIOR_ENTRIES)
-        level[int(k)] = v
         pairs1 = float(np.sum(n1 * (n1 - 1.0)))
         pairs2 = float(np.sum(n2 ** 2) - np.sum(n1 ** 2))
         c1 = (float(S1 @ S1) - Q) / pairs1 if pairs1 > 0 else 0.0
@@ -370,9 +358,4 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         np.add.at(B2, i2, bk)
         bb, BB1, BB2 = bk.T @ bk, B1.T @ B1, B2.T @ B2
         meat += v * bb + c1 * (BB1 - bb) + c2 * (BB2 - BB1)
-    if e.reference is not None and np.any(e.reference > 0) and level:
-        v_ref = level.get(e.reference_kind, max(level.values()))
-        G = np.zeros((int(icol.max()) + 1, p))
-        np.add.at(G, icol, b * e.reference[:, None])
-        meat += v_ref * (G.T @ G)
     return meat

@@ -585,18 +585,6 @@ class ResidualModel:
         vector (``Samples.block``)."""
         return self._per_entry(self.s.block.astype(float), idx).astype(int)
 
-    def entry_reference(self, idx: np.ndarray | None = None) -> np.ndarray:
-        """Per entry of :meth:`whiten`'s vector, the error of its cable's encoder reference
-        over the entry's length noise (0 for entries that are not lengths): the reference is
-        set at the initialisation, whose visit errs like any dwell (its sample's noise)."""
-        init = self.s.is_init & self.has_len
-        if not init.any():
-            return np.zeros(len(self.entry_columns(idx)))
-        ref = float(np.median(self.sd["length"][init]))
-        # (the initialisation's own samples are referenced: their residuals hold none of it)
-        ratio = self._per_entry(np.where(self.s.is_init, 0.0, ref / self.sd["length"]), idx)
-        return np.where(self.entry_kinds(idx) % 4 == 0, ratio, 0.0)
-
     def entry_kinds(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The kind of each entry of :meth:`whiten`'s vector, by quantity (0 a cable length,
         1 a force axis, 2 a moment axis, 3 an exit point's axis) and by sample (a dwell's
