@@ -314,7 +314,9 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
 
     Per kind of entry: a variance ``v``; a covariance ``c1`` between two samples of one
     quantity in one move (or at one target) within a stretch; ``c2`` between two in one
-    stretch but different moves. Each is a moment estimate over every such pair of the
+    stretch but different moves; ``c3`` between two in different stretches (an error a
+    quantity keeps over the whole recording: hysteresis by the direction of approach,
+    averaged over the moves, a drift). Each is a moment estimate over every such pair of the
     recording (averages of cross-products; covariances clipped to ``[0, v]``), steady where
     a cluster-robust sandwich over a handful of stretches would not be. The variance leans
     on its quantity's over every kind by ``PRIOR_ENTRIES`` pseudo-entries (a kind of a
@@ -343,19 +345,26 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         key1 = key2 * nmove + e.moves[m]
         _, i1 = np.unique(key1, return_inverse=True)
         _, i2 = np.unique(key2, return_inverse=True)
+        _, i3 = np.unique(e.columns[m], return_inverse=True)
         n1, n2 = np.bincount(i1).astype(float), np.bincount(i2).astype(float)
+        n3 = np.bincount(i3).astype(float)
         S1, S2 = np.bincount(i1, weights=uk), np.bincount(i2, weights=uk)
+        S3 = np.bincount(i3, weights=uk)
         Q = float(uk @ uk)
         v = (Q + PRIOR_ENTRIES * pooled[int(k) % 4]) / (len(uk) + PRIOR_ENTRIES)
         pairs1 = float(np.sum(n1 * (n1 - 1.0)))
         pairs2 = float(np.sum(n2 ** 2) - np.sum(n1 ** 2))
+        pairs3 = float(np.sum(n3 ** 2) - np.sum(n2 ** 2))
         c1 = (float(S1 @ S1) - Q) / pairs1 if pairs1 > 0 else 0.0
         c2 = (float(S2 @ S2) - float(S1 @ S1)) / pairs2 if pairs2 > 0 else 0.0
-        c1, c2 = float(np.clip(c1, 0.0, v)), float(np.clip(c2, 0.0, v))
+        c3 = (float(S3 @ S3) - float(S2 @ S2)) / pairs3 if pairs3 > 0 else 0.0
+        c1, c2, c3 = (float(np.clip(c, 0.0, v)) for c in (c1, c2, c3))
         B1 = np.zeros((len(n1), p))
         np.add.at(B1, i1, bk)
         B2 = np.zeros((len(n2), p))
         np.add.at(B2, i2, bk)
-        bb, BB1, BB2 = bk.T @ bk, B1.T @ B1, B2.T @ B2
-        meat += v * bb + c1 * (BB1 - bb) + c2 * (BB2 - BB1)
+        B3 = np.zeros((len(n3), p))
+        np.add.at(B3, i3, bk)
+        bb, BB1, BB2, BB3 = bk.T @ bk, B1.T @ B1, B2.T @ B2, B3.T @ B3
+        meat += v * bb + c1 * (BB1 - bb) + c2 * (BB2 - BB1) + c3 * (BB3 - BB2)
     return meat
