@@ -87,11 +87,13 @@ def end_forces(h: np.ndarray, v: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
 
 
 def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray, w: float,
-                end: str = "A", tol: float = 1e-12, max_iter: int = 60
+                end: str = "A", tol: float = 1e-12, max_iter: int = 60,
+                guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unstretched length L0 [m] and end forces (H, V_B) of the cable spanning (h, v) with
     tension T [N] at end ``A`` (upper) or ``B`` (lower); the fourth array says where it
-    converged."""
+    converged. ``guess`` (L0, H, V_B), shaped as the result, starts Newton's method where
+    it is finite with H > 0 (a solution for nearby spans: a warm start)."""
     h, v, T = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (h, v, T)))
     shape = h.shape
     inv_ea = np.broadcast_to(np.asarray(inv_ea, dtype=float), shape).ravel()
@@ -100,6 +102,10 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
     L0 = d / (1.0 + T * inv_ea)
     H = np.maximum(T * h / d, 1e-6)
     VB = T * v / d - 0.5 * w * L0
+    if guess is not None:
+        gL, gH, gV = (np.broadcast_to(np.asarray(g, dtype=float), shape).ravel() for g in guess)
+        use = np.isfinite(gL) & np.isfinite(gH) & np.isfinite(gV) & (gH > 0) & (gL > 0)
+        L0, H, VB = np.where(use, gL, L0), np.where(use, gH, H), np.where(use, gV, VB)
     scale = np.maximum(d, 1e-9)
     ok = np.zeros(h.shape, dtype=bool)
     act = np.arange(h.size)  # elements still iterating (the converged ones stop)
