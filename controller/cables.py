@@ -38,6 +38,7 @@ class CableForces:
     H: np.ndarray | None = None
     VB: np.ndarray | None = None
     free: np.ndarray | None = None  # unstretched length of the sagging span [m]
+    converged: np.ndarray | None = None  # where the catenary's solution converged
 
 
 def _geometry(st: CableState, C: np.ndarray | None = None
@@ -92,14 +93,15 @@ def from_lengths(robot: Robot, st: CableState, l0: np.ndarray,
     return CableForces(fB, fA, T, H, VB, l0 - lw)
 
 
-def from_tensions(robot: Robot, st: CableState, tension: np.ndarray
-                  ) -> tuple[CableForces, np.ndarray]:
+def from_tensions(robot: Robot, st: CableState, tension: np.ndarray,
+                  guess: CableForces | None = None) -> tuple[CableForces, np.ndarray]:
     """Forces of cables holding ``tension`` (..., n) [N] at their exit ends, and the
-    unstretched lengths (..., n) [m] that hang so."""
+    unstretched lengths (..., n) [m] that hang so; ``guess`` the forces of the same cables
+    hung nearly so (sagging cables: a warm start of the catenary, same solution)."""
     if robot.rho <= 0:
         f = tension[..., None] * st.u
         return CableForces(f, f, tension), st.length / (1.0 + tension / robot.ea)
-    return _inverse(robot, st, tension, "A")
+    return _inverse(robot, st, tension, "A", guess)
 
 
 def from_platform_tensions(robot: Robot, st: CableState, tension_b: np.ndarray
@@ -111,8 +113,8 @@ def from_platform_tensions(robot: Robot, st: CableState, tension_b: np.ndarray
     return _inverse(robot, st, tension_b, "B")
 
 
-def _inverse(robot: Robot, st: CableState, tension: np.ndarray, end: str
-             ) -> tuple[CableForces, np.ndarray]:
+def _inverse(robot: Robot, st: CableState, tension: np.ndarray, end: str,
+             guess: CableForces | None = None) -> tuple[CableForces, np.ndarray]:
     w = robot.rho * robot.gravity
     inv = _inv_ea(robot)
     tension = np.asarray(tension, dtype=float)
@@ -123,11 +125,16 @@ def _inverse(robot: Robot, st: CableState, tension: np.ndarray, end: str
         tension = np.maximum(tension, 1.02 * w * rise + 0.1)
     C, wrap = _leave(st, None)
     h, v, e_h = _geometry(st, C)
-    lf, H, VB, _ = catenary.unstretched(h, v, tension, inv, w, end=end)
+    g = None
+    if guess is not None and guess.H is not None and guess.free is not None \
+            and guess.converged is not None and np.shape(guess.H) == np.shape(h):
+        # only solutions that converged start the next one (the same answer, sooner)
+        g = (np.where(guess.converged, guess.free, np.nan), guess.H, guess.VB)
+    lf, H, VB, ok = catenary.unstretched(h, v, tension, inv, w, end=end, guess=g)
     VA = VB + w * lf
     TA = np.hypot(H, VA)
     fB, fA = _pulls(H, VB, VA, e_h)
-    return CableForces(fB, fA, TA, H, VB, lf), lf + wrap / (1.0 + TA * inv)
+    return CableForces(fB, fA, TA, H, VB, lf, ok), lf + wrap / (1.0 + TA * inv)
 
 
 def platform_directions(robot: Robot, st: CableState, cf: CableForces | None) -> np.ndarray:

@@ -21,13 +21,37 @@ from __future__ import annotations
 import numpy as np
 
 
+def _differences(a: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, ...]:
+    """For ``b = a + d`` (d >= 0): ``ra = sqrt(1+a^2)``, ``rb``, and ``asinh(b) - asinh(a)``
+    and ``b/rb - a/ra`` each divided by ``d``, without the cancellation of the plain
+    differences when the cable's weight is small against its tension (``d = w L0/H``
+    tiny: a light or very taut cable, the straight limit). Where a and b share a sign,
+    ``asinh(b) - asinh(a) = asinh(d (a+b) / (b ra + a rb))`` and
+    ``b/rb - a/ra = d (a+b) / ((b ra + a rb) ra rb)``; elsewhere the plain differences
+    (no cancellation there)."""
+    b = a + d
+    ra, rb = np.hypot(1.0, a), np.hypot(1.0, b)
+    same = a * b > 0
+    den = np.where(same, b * ra + a * rb, 1.0)
+    pos = d > 0
+    dd = np.where(pos, d, 1.0)
+    q = d * (a + b) / den
+    asd = np.where(same, np.arcsinh(q), np.arcsinh(b) - np.arcsinh(a)) / dd
+    gd = np.where(same, q / (ra * rb), b / rb - a / ra) / dd
+    # d = 0 (no cable): the limits, the derivatives at a
+    asd = np.where(pos, asd, 1.0 / ra)
+    gd = np.where(pos, gd, 1.0 / ra ** 3)
+    return b, ra, rb, asd, gd
+
+
 def spans(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
           w: float) -> tuple[np.ndarray, np.ndarray]:
     """Horizontal and vertical spans (h, v) [m] of the cable for end forces (H, V_B)."""
     a = VB / H
-    b = (VB + w * L0) / H
-    h = H * L0 * inv_ea + (H / w) * (np.arcsinh(b) - np.arcsinh(a))
-    v = (VB * L0 + 0.5 * w * L0 * L0) * inv_ea + (H / w) * (np.hypot(1.0, b) - np.hypot(1.0, a))
+    b, ra, rb, asd, _ = _differences(a, w * L0 / H)
+    # (H/w) [asinh(b) - asinh(a)] = L0 asd; (H/w) [rb - ra] = L0 (a + b)/(ra + rb)
+    h = H * L0 * inv_ea + L0 * asd
+    v = (VB * L0 + 0.5 * w * L0 * L0) * inv_ea + L0 * (a + b) / (ra + rb)
     return h, v
 
 
@@ -35,11 +59,11 @@ def flexibility(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarra
                 w: float) -> tuple[np.ndarray, ...]:
     """Partial derivatives of the spans: (dh/dH, dh/dVB, dv/dH, dv/dVB, dh/dL0, dv/dL0)."""
     a = VB / H
-    b = (VB + w * L0) / H
-    ra, rb = np.hypot(1.0, a), np.hypot(1.0, b)
-    dh_dH = L0 * inv_ea + (np.arcsinh(b) - np.arcsinh(a) - b / rb + a / ra) / w
-    dh_dV = (1.0 / rb - 1.0 / ra) / w
-    dv_dV = L0 * inv_ea + (b / rb - a / ra) / w
+    b, ra, rb, asd, gd = _differences(a, w * L0 / H)
+    k = L0 / H  # d / w
+    dh_dH = L0 * inv_ea + k * (asd - gd)
+    dh_dV = -k * (a + b) / ((ra + rb) * ra * rb)  # (1/rb - 1/ra) / w
+    dv_dV = L0 * inv_ea + k * gd
     dh_dL = H * inv_ea + 1.0 / rb
     dv_dL = (VB + w * L0) * inv_ea + b / rb
     return dh_dH, dh_dV, dh_dV, dv_dV, dh_dL, dv_dL
@@ -87,11 +111,13 @@ def end_forces(h: np.ndarray, v: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
 
 
 def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray, w: float,
-                end: str = "A", tol: float = 1e-12, max_iter: int = 60
+                end: str = "A", tol: float = 1e-12, max_iter: int = 60,
+                guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unstretched length L0 [m] and end forces (H, V_B) of the cable spanning (h, v) with
     tension T [N] at end ``A`` (upper) or ``B`` (lower); the fourth array says where it
-    converged."""
+    converged. ``guess`` (L0, H, V_B), shaped as the result, starts Newton's method where
+    it is finite with H > 0 (a solution for nearby spans: a warm start)."""
     h, v, T = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (h, v, T)))
     shape = h.shape
     inv_ea = np.broadcast_to(np.asarray(inv_ea, dtype=float), shape).ravel()
@@ -100,6 +126,10 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
     L0 = d / (1.0 + T * inv_ea)
     H = np.maximum(T * h / d, 1e-6)
     VB = T * v / d - 0.5 * w * L0
+    if guess is not None:
+        gL, gH, gV = (np.broadcast_to(np.asarray(g, dtype=float), shape).ravel() for g in guess)
+        use = np.isfinite(gL) & np.isfinite(gH) & np.isfinite(gV) & (gH > 0) & (gL > 0)
+        L0, H, VB = np.where(use, gL, L0), np.where(use, gH, H), np.where(use, gV, VB)
     scale = np.maximum(d, 1e-9)
     ok = np.zeros(h.shape, dtype=bool)
     act = np.arange(h.size)  # elements still iterating (the converged ones stop)

@@ -111,7 +111,7 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
         else:
             tau = np.asarray(tensions, dtype=float)
             if sag:
-                cf, l0 = cables.from_tensions(robot, st, tau)
+                cf, l0 = cables.from_tensions(robot, st, tau, cf)
         if sag:
             new_dirs = cables.platform_directions(robot, st, cf)
             turn = 0.0 if dirs is None else float(np.abs(new_dirs - dirs).max())
@@ -134,7 +134,7 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
         if step < tol and turn < turn_tol:
             st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
             if sag:  # forces for the final exit points
-                cf, _ = (cables.from_tensions(robot, st, tau_exit) if tensions is not None
+                cf, _ = (cables.from_tensions(robot, st, tau_exit, cf) if tensions is not None
                          else cables.from_platform_tensions(robot, st, tau))
             return _done(robot, st, exits, theta, tau_exit, cf, it)
     st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
@@ -147,7 +147,7 @@ def _done(robot: Robot, st: CableState, exits: np.ndarray, theta: np.ndarray,
     if cf is None:
         l0 = unstretched_lengths(st.length, tau_exit, robot.ea)
     else:
-        l0 = cables.from_tensions(robot, st, cf.tension)[1]
+        l0 = cables.from_tensions(robot, st, cf.tension, cf)[1]
     return PoseStatics(tau_exit, exits, theta, st, True, "", it, l0, cf)
 
 
@@ -237,7 +237,7 @@ def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None =
             step = float(np.abs(new - exits).max())
             exits = new
             st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
-            cf, l0 = cables.from_tensions(robot, st, tau)
+            cf, l0 = cables.from_tensions(robot, st, tau, cf)
             if step < tol:
                 break
     return BatchStatics(tau, np.array(exits), st, np.isfinite(tau).all(axis=1), l0,

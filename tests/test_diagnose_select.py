@@ -71,6 +71,8 @@ def test_a_fit_out_of_budget_runs_again_only_while_it_progresses(selector, monke
     space = ParamSpace(selector.model, ("drum_scale",))
     runs = []
     real = fit_module.least_squares
+    # the finite-difference runs alone (the secant path before them: its own test)
+    monkeypatch.setattr(fit_module, "SECANT_MIN", 10**6)
 
     def counted(*a, **kw):
         runs.append(kw.get("max_nfev"))
@@ -91,3 +93,33 @@ def test_a_fit_out_of_budget_runs_again_only_while_it_progresses(selector, monke
     monkeypatch.setattr(fit_module, "least_squares", stalled)
     res = fit_module.fit_effects(space, selector.rm, selector.train, prune=False)
     assert len(runs) == 1 and not res.success and "did not converge" in res.message
+
+
+def test_the_secant_path_ends_at_the_finite_difference_minimum(selector, monkeypatch):
+    import bench.diagnosis.fit as fit_module
+
+    space = ParamSpace(selector.model, ("drum_scale", "cable_length_offset"))
+    assert len(space) >= fit_module.SECANT_MIN
+    jacobians = []
+    real = fit_module.fd_jacobian
+
+    def counted(*a, **kw):
+        jacobians.append(1)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(fit_module, "fd_jacobian", counted)
+    secant = fit_module.fit_effects(space, selector.rm, selector.train, prune=False)
+    n_secant = len(jacobians)
+    jacobians.clear()
+    monkeypatch.setattr(fit_module, "SECANT_MIN", 10**6)
+    exact = fit_module.fit_effects(space, selector.rm, selector.train, prune=False)
+    assert secant.success and exact.success
+    # the same minimum: parameters within a small fraction of their standard errors
+    se = exact.stderr[np.isfinite(exact.stderr)]
+    assert len(se)
+    d = np.abs(secant.phi - exact.phi)[np.isfinite(exact.stderr)] / se
+    assert d.max() < 0.1
+    assert abs(secant.chi2 - exact.chi2) < 0.05 + 1e-6 * exact.chi2
+    # the standard errors come from finite differences at the minimum either way
+    np.testing.assert_allclose(secant.stderr, exact.stderr, rtol=0.05)
+    assert n_secant <= len(jacobians)

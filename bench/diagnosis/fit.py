@@ -25,6 +25,18 @@ RETRIES = 2
 #: relative tolerances on chi-square and parameters (chi-square differences that decide
 #: matter from about 1: far coarser than this)
 FIT_TOL = 1e-7
+#: fits of at least this many free parameters take the path to their minimum with secant
+#: (Broyden) updates of the Jacobian between finite-difference ones (one evaluation a step
+#: instead of one per parameter), and are then checked and finished with finite differences
+SECANT_MIN = 6
+#: a secant step whose chi-square drop is below this share of the drop its Jacobian
+#: predicted gets finite differences again; so does every this-many-th step
+SECANT_RATIO = 0.5
+SECANT_STEPS = 6
+#: a fit is at its minimum when the Gauss-Newton step with finite-difference Jacobian (within
+#: the bounds) predicts a chi-square drop below this (parameters within about a tenth of a
+#: standard error of the minimum) or below FIT_TOL of the chi-square
+SETTLED = 1e-2
 
 @dataclass
 class FitResult:
@@ -149,34 +161,55 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         last["z"], last["r"] = z.copy(), fun_free(z)
         return last["r"]
 
-    def jac_free(z: np.ndarray) -> np.ndarray:
+    def f_at(z: np.ndarray) -> np.ndarray:
         # least_squares asks for the Jacobian where it last evaluated the residuals
-        f0 = last["r"] if "z" in last and np.array_equal(last["z"], z) else fun_last(z)
-        return fd_jacobian(fun_free, z, f0, steps[free], space.lo[free], space.hi[free],
+        return last["r"] if "z" in last and np.array_equal(last["z"], z) else fun_last(z)
+
+    def jac_free(z: np.ndarray) -> np.ndarray:
+        return fd_jacobian(fun_free, z, f_at(z), steps[free], space.lo[free], space.hi[free],
                            rm.frozen)
 
     if free.any():
         z = x[free]
+        lo, hi, sc = space.lo[free], space.hi[free], space.scale[free]
         nfev, ok, msg = 0, False, ""
         r0 = fun_last(z)
         cost = 0.5 * float(r0 @ r0)
-        for _attempt in range(RETRIES + 1):
-            res = least_squares(fun_last, z, bounds=(space.lo[free], space.hi[free]),
-                                jac=jac_free,
-                                x_scale=space.scale[free], method="trf", max_nfev=max_nfev,
+        secant = int(free.sum()) >= SECANT_MIN
+        if secant:
+            # the path to the minimum with secant Jacobians (module docstring), then the
+            # minimum checked (and the fit finished) with finite differences
+            res = least_squares(fun_last, z, bounds=(lo, hi),
+                                jac=_SecantJacobian(jac_free, f_at, sc), x_scale=sc,
+                                method="trf", max_nfev=2 * max_nfev,
                                 xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
             z = res.x
             nfev += int(res.nfev)
-            # status 0: the evaluation budget ran out before a convergence test passed
-            ok = bool(res.status > 0)
-            msg = str(res.message)
-            if ok:
-                break
-            if not cost - float(res.cost) > 1e-6 * cost:
-                break  # the budget went without progress: another one would go the same way
-            cost = float(res.cost)
+            cost = min(cost, float(res.cost))
+            rz = f_at(z)
+            Jz = jac_free(z)
+            if _settled(Jz, rz, z, lo, hi, sc):
+                r, Jf, ok, msg = rz, Jz, True, "converged (secant path, checked)"
+            jac_first = _First(Jz, z, jac_free)
+        if not ok:
+            for _attempt in range(RETRIES + 1):
+                res = least_squares(fun_last, z, bounds=(lo, hi),
+                                    jac=jac_first if secant else jac_free,
+                                    x_scale=sc, method="trf", max_nfev=max_nfev,
+                                    xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
+                secant = False
+                z = res.x
+                nfev += int(res.nfev)
+                # status 0: the evaluation budget ran out before a convergence test passed
+                ok = bool(res.status > 0)
+                msg = str(res.message)
+                if ok:
+                    break
+                if not cost - float(res.cost) > 1e-6 * cost:
+                    break  # the budget went without progress: another one would go the same
+                cost = float(res.cost)
+            r, Jf = res.fun, res.jac
         x[free] = z
-        r, Jf = res.fun, res.jac
         if not ok:
             msg = f"did not converge in {nfev} evaluations: {msg}"
     else:
@@ -196,6 +229,77 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     cov_all[np.ix_(free, free)] = cov
     return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_eff), se_all,
                      cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff)
+
+
+class _SecantJacobian:
+    """Jacobians for ``least_squares`` at its accepted points (``residuals`` there):
+    finite differences (``exact``) at the first, then Broyden's update along each step (in
+    the parameters' ``scale``), until a step falls short of what its Jacobian predicted
+    (:data:`SECANT_RATIO`) or :data:`SECANT_STEPS` updates were made; then finite
+    differences again."""
+
+    def __init__(self, exact: Callable[[np.ndarray], np.ndarray],
+                 residuals: Callable[[np.ndarray], np.ndarray], scale: np.ndarray) -> None:
+        self.exact, self.residuals = exact, residuals
+        self.scale = np.asarray(scale, dtype=float)
+        self.J: np.ndarray | None = None
+        self.z = self.f = None
+        self.updates = 0
+
+    def __call__(self, z: np.ndarray, *_: object) -> np.ndarray:
+        f = self.residuals(z)
+        if self.J is not None and self.updates < SECANT_STEPS:
+            dz = z - self.z
+            pred = self.f + self.J @ dz
+            old = float(self.f @ self.f)
+            drop_pred = old - float(pred @ pred)
+            drop = old - float(f @ f)
+            dzs = dz / self.scale
+            nz = float(dzs @ dzs)
+            if drop_pred > 0 and drop >= SECANT_RATIO * drop_pred and nz > 0:
+                self.J = self.J + np.outer(f - pred, dzs / self.scale / nz)
+                self.z, self.f = z.copy(), f.copy()
+                self.updates += 1
+                return self.J
+        self.J = self.exact(z)
+        self.z, self.f = z.copy(), f.copy()
+        self.updates = 0
+        return self.J
+
+
+class _First:
+    """A Jacobian function that answers ``J`` (computed at ``z``) when first asked there."""
+
+    def __init__(self, J: np.ndarray, z: np.ndarray,
+                 exact: Callable[[np.ndarray], np.ndarray]) -> None:
+        self.J, self.z, self.exact = J, z.copy(), exact
+
+    def __call__(self, z: np.ndarray, *_: object) -> np.ndarray:
+        if self.J is not None and np.array_equal(z, self.z):
+            J, self.J = self.J, None
+            return J
+        self.J = None
+        return self.exact(z)
+
+
+def _settled(J: np.ndarray, r: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+             scale: np.ndarray) -> bool:
+    """Whether the Gauss-Newton step of the whitened residuals ``r`` (finite-difference
+    Jacobian ``J``) within the bounds predicts a chi-square drop below :data:`SETTLED` (or
+    :data:`FIT_TOL` of the chi-square)."""
+    from scipy.optimize import lsq_linear
+
+    if not (np.isfinite(J).all() and np.isfinite(r).all()):
+        return False
+    Js = J * scale
+    norm = np.linalg.norm(Js, axis=0)
+    norm[norm == 0] = 1.0
+    A = Js / norm
+    d = lsq_linear(A, -r, bounds=((lo - z) / scale * norm, (hi - z) / scale * norm),
+                   method="bvls" if J.shape[1] < 60 else "trf", lsmr_tol="auto").x
+    chi2 = float(r @ r)
+    r1 = r + A @ d
+    return chi2 - float(r1 @ r1) < max(SETTLED, FIT_TOL * chi2)
 
 
 #: a parameter whose Jacobian column is within this fraction of the span of the columns
