@@ -208,6 +208,8 @@ def _jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray,
     return J
 
 
+#: a Newton step longer than this [m, rad] must not raise the potential energy
+BIG_STEP = 0.01
 _FIXED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 #: per robot: (pose, theta, l0, inverse Jacobian) of the last converged solution, to start
 #: the next solve near it with that inverse (a warm start of the quasi-Newton iteration)
@@ -436,8 +438,16 @@ def _near(pose: np.ndarray, guess: np.ndarray) -> bool:
 
 def platform_stiffness(robot: Robot, res: EquilibriumResult, l0: np.ndarray) -> np.ndarray:
     """Stiffness of the platform at an equilibrium, masts condensed out: K (6,6) with
-    ``dF = -K dx`` for a pose increment dx = (dt, w) [N/m, N, N m/rad]."""
-    _, J = residual_and_jacobian(robot, res.pose, res.theta, l0)
+    ``dF = -K dx`` for a pose increment dx = (dt, w) [N/m, N, N m/rad]. Straight cables carry
+    the result's tensions (the mixed form's, for cables too stiff for their lengths to give
+    them)."""
+    T, J = residual_and_jacobian(robot, res.pose, res.theta, l0)
+    if T.cables is None:
+        tau = np.asarray(res.tensions, dtype=float)
+        T = EquilibriumTerms(T.state, T.exits, tau, tau > 0, tau[:, None] * T.state.u,
+                             T.residual)
+        a_star, r, _ = _fixed(robot)
+        J = _jacobian(robot, T, np.asarray(l0, dtype=float), r)
     A, B, C, D = J[:6, :6], J[:6, 6:], J[6:, :6], J[6:, 6:]
     return -(A - B @ np.linalg.solve(D, C))
 
@@ -459,7 +469,10 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
     the platform far away, and the residual norm falls along neither (or hardly). Where it
     stalls or creeps so (or every cable is slack, or the Jacobian is singular), Newton goes
     on with the potential energy, smooth across slack points, as its merit
-    (:func:`_energy_newton`)."""
+    (:func:`_energy_newton`). So it does where a step longer than ``BIG_STEP`` raises the
+    energy: the residual also falls towards saddles, and a long step up the energy heads for
+    one (or a state of the cables the linearisation ignored), away from the stable
+    equilibrium near the guess."""
     if not np.all(np.isfinite(robot.ea)):
         raise ValueError("solve_equilibrium needs elastic cables (ea); use forward_rigid for "
                          "inextensible ones")
@@ -505,6 +518,12 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
             if not fresh:
                 break  # a stale Jacobian that needs damping: refresh it instead
         else:  # stalled at a kink of the residual
+            return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
+        if (np.abs(dx[:6]).max() * step > BIG_STEP and state_energy(
+                robot, T_new.state, p_new, th_new, l0, T_new.cables)
+                > state_energy(robot, T.state, pose, th, l0, T.cables)):
+            # a long step up the energy: towards a saddle (the residual falls there too),
+            # or across slack points the linearisation ignored; the energy's Newton descends
             return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
         if not fresh and step < 1.0:
             lu = None
@@ -678,8 +697,8 @@ def _mixed_newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.nda
     phi = merit(T, e)
     it = 0
     for it in range(max_iter):
-        if phi < tol:
-            tau = np.maximum(T.tensions, 0.0)
+        if phi < tol:  # slack side of the complementarity: tension 0 (it is below tol)
+            tau = np.where(-beta * e > T.tensions, 0.0, np.maximum(T.tensions, 0.0))
             return EquilibriumResult(pose, th, tau, T.exits, True, "converged", it, phi)
         fb, da, db = ncp(T.tensions, e)
         Jx, B, G = _mixed_jacobian(robot, T, l0, r)
