@@ -10,7 +10,10 @@ with ``tau = ea (L - L0)/L0`` (0 when slack), L the geometric length to the
 displaced exit points A# (pulleys included) and M_i the cable moments about the
 pivots (:mod:`controller.masts`). Newton's method with the analytic Jacobian
 (:func:`residual_and_jacobian`), a backtracking line search and a warm start;
-non-convergence is reported, never hidden.
+non-convergence is reported, never hidden. Cables far stiffer than the platform's weight
+(ea above ``STIFF`` times it, as a fit can make them) are solved by continuation: softened
+to that ea, then Newton's method on the mixed form, the tensions as unknowns
+(:func:`_mixed_newton`).
 
 Pose increments are ``(dt, w)`` with w a small rotation in F_b (see
 :func:`controller.pose.compose`).
