@@ -10,7 +10,10 @@ with ``tau = ea (L - L0)/L0`` (0 when slack), L the geometric length to the
 displaced exit points A# (pulleys included) and M_i the cable moments about the
 pivots (:mod:`controller.masts`). Newton's method with the analytic Jacobian
 (:func:`residual_and_jacobian`), a backtracking line search and a warm start;
-non-convergence is reported, never hidden.
+non-convergence is reported, never hidden. Cables far stiffer than the platform's weight
+(ea above ``STIFF`` times it, as a fit can make them) are solved by continuation: softened
+to that ea, then Newton's method on the mixed form, the tensions as unknowns
+(:func:`_mixed_newton`).
 
 Pose increments are ``(dt, w)`` with w a small rotation in F_b (see
 :func:`controller.pose.compose`).
@@ -33,6 +36,7 @@ from controller.kinematics import (
     cable_state,
     gravity_wrench,
     unit_vector_derivative,
+    wrench_matrix,
 )
 from controller.masts import deflect, lever_arms, mast_incidence, mast_moments
 from controller.pose import compose, cross, skew
@@ -47,17 +51,18 @@ class ConvergenceError(RuntimeError):
 class SolverStats(threading.local):
     """Counts of :func:`solve_equilibrium` outcomes in this thread: ``calls``, ``newton``
     (converged by Newton from the guess), ``fallbacks`` (the energy descent was needed),
-    ``failures`` (no stable equilibrium found). For evaluations."""
+    ``failures`` (no stable equilibrium found), ``mixed`` (of the ``newton`` ones, those
+    finished on the mixed form: cables stiffer than ``STIFF``). For evaluations."""
 
     def __init__(self) -> None:
         self.reset()
 
     def reset(self) -> None:
-        self.calls = self.newton = self.fallbacks = self.failures = 0
+        self.calls = self.newton = self.fallbacks = self.failures = self.mixed = 0
 
     def as_dict(self) -> dict[str, int]:
         return {"calls": self.calls, "newton": self.newton, "fallbacks": self.fallbacks,
-                "failures": self.failures}
+                "failures": self.failures, "mixed": self.mixed}
 
 
 STATS = SolverStats()
@@ -157,12 +162,17 @@ def residual_and_jacobian(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0:
     return T, _jacobian(robot, T, l0, r)
 
 
-def _jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray) -> np.ndarray:
+def _jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray,
+              K: np.ndarray | None = None) -> np.ndarray:
+    """d(residual)/d(dt, w, theta); ``K`` (n,3,3) overrides the cables' stiffnesses
+    df_j = K_j (dB_j - dA_j) (the mixed form passes the geometric part alone)."""
     st, tau, f = T.state, T.tensions, T.forces
     n, m = robot.n_cables, robot.n_masts
     u = st.u
     # df_j = K_j (dB_j - dA_j)
-    if T.cables is not None:
+    if K is not None:
+        pass
+    elif T.cables is not None:
         K = cables.stiffness(robot, st, T.cables)
     else:
         kax = np.where(T.taut, robot.ea / l0, 0.0)
@@ -201,6 +211,8 @@ def _jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray) 
     return J
 
 
+#: a Newton step longer than this [m, rad] must not raise the potential energy
+BIG_STEP = 0.01
 _FIXED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 #: per robot: (pose, theta, l0, inverse Jacobian) of the last converged solution, to start
 #: the next solve near it with that inverse (a warm start of the quasi-Newton iteration)
@@ -253,31 +265,75 @@ def solve_equilibrium(robot: Robot, l0: np.ndarray, guess: np.ndarray,
     there, several cables changing state on the way) or lands far away on an
     unstable equilibrium, a trust-region descent of the potential energy
     (:mod:`controller.energy`) takes over from the guess and Newton polishes.
+
+    Cables stiffer than ``STIFF`` times the platform's weight (ea in N; a fit can drive an ea
+    to 1e14 N) are solved by continuation: the equilibrium with those cables softened to
+    that ea (the displacement form, as above), then Newton's method on the mixed form
+    (:func:`_mixed_newton`, tensions as unknowns) with the true ea from there.
     """
-    # forces cannot be resolved finer than round-off in ea * (L - L0) / L0
-    tol = max(tol, 20 * np.finfo(float).eps * float(np.max(robot.ea))
-              * np.sqrt(robot.n_cables) / max(robot.weight, 1.0))
+    soft = _softened(robot)
+    model = robot if soft is None else soft
+    # forces cannot be resolved finer than round-off in ea * (L - L0) / L0 (the mixed form,
+    # with tensions as unknowns, resolves them whatever ea)
+    tol_d = max(tol, 20 * np.finfo(float).eps * float(np.max(model.ea))
+                * np.sqrt(model.n_cables) / max(model.weight, 1.0))
+    if soft is None:
+        tol = tol_d
+
+    def finish(res: EquilibriumResult) -> EquilibriumResult:
+        if soft is None or not res.success:
+            return res
+        return _mixed_newton(robot, l0, res.pose, res.theta, tol, max_iter, res.tensions)
+
     STATS.calls += 1
-    res = _newton(robot, l0, guess, theta, tol, max_iter)
-    if res.success and (_near(res.pose, guess) or is_stable(robot, res, l0)):
-        STATS.newton += 1
-        return res
+    res = _newton(model, l0, guess, theta, tol_d, max_iter)
+    if res.success and (_near(res.pose, guess) or is_stable(model, res, l0)):
+        out = finish(res)
+        if out.success:
+            STATS.newton += 1
+            STATS.mixed += soft is not None
+            return out
+        res = out
     if max_iter < 5:
         STATS.failures += not res.success
         return res
     STATS.fallbacks += 1
-    descent = _energy_descent(robot, np.asarray(l0, float), np.array(guess, float), theta, tol)
-    polished = _newton(robot, l0, descent.pose, descent.theta, tol, max_iter)
-    if polished.success and is_stable(robot, polished, l0):
-        return polished
+    descent = _energy_descent(model, np.asarray(l0, float), np.array(guess, float), theta, tol_d)
+    polished = _newton(model, l0, descent.pose, descent.theta, tol_d, max_iter)
+    if polished.success and is_stable(model, polished, l0):
+        out = finish(polished)
+        if out.success:
+            return out
     if descent.success:
-        return descent
+        out = finish(descent)
+        if out.success:
+            return out
     STATS.failures += 1
     if res.success:
         return EquilibriumResult(res.pose, res.theta, res.tensions, res.exits, False,
                                  "equilibrium: only an unstable equilibrium found", res.nit,
                                  res.residual)
     return min((res, descent, polished), key=lambda x: x.residual)
+
+
+#: cables stiffer than this many times the platform's weight [N/N] are solved by continuation
+#: from this ea (:func:`solve_equilibrium`); real cables are below 1e4 (ROCASPECT 1.7e3)
+STIFF = 1e5
+_SOFT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _softened(robot: Robot) -> Robot | None:
+    """The robot with every ea capped at ``STIFF`` times its weight, or None when no cable
+    is that stiff (or the cables sag: the catenary has its own stiffness)."""
+    if robot.rho > 0:
+        return None
+    got = _SOFT.get(robot)
+    if got is None:
+        cap = STIFF * max(robot.weight, 1.0)
+        got = (robot.replace(ea=np.minimum(robot.ea, cap)) if np.max(robot.ea) > cap
+               else False)
+        _SOFT[robot] = got
+    return got or None
 
 
 def scaled_residual(robot: Robot, l0: np.ndarray, pose: np.ndarray,
@@ -385,8 +441,16 @@ def _near(pose: np.ndarray, guess: np.ndarray) -> bool:
 
 def platform_stiffness(robot: Robot, res: EquilibriumResult, l0: np.ndarray) -> np.ndarray:
     """Stiffness of the platform at an equilibrium, masts condensed out: K (6,6) with
-    ``dF = -K dx`` for a pose increment dx = (dt, w) [N/m, N, N m/rad]."""
-    _, J = residual_and_jacobian(robot, res.pose, res.theta, l0)
+    ``dF = -K dx`` for a pose increment dx = (dt, w) [N/m, N, N m/rad]. Straight cables carry
+    the result's tensions (the mixed form's, for cables too stiff for their lengths to give
+    them)."""
+    T, J = residual_and_jacobian(robot, res.pose, res.theta, l0)
+    if T.cables is None:
+        tau = np.asarray(res.tensions, dtype=float)
+        T = EquilibriumTerms(T.state, T.exits, tau, tau > 0, tau[:, None] * T.state.u,
+                             T.residual)
+        a_star, r, _ = _fixed(robot)
+        J = _jacobian(robot, T, np.asarray(l0, dtype=float), r)
     A, B, C, D = J[:6, :6], J[:6, 6:], J[6:, :6], J[6:, 6:]
     return -(A - B @ np.linalg.solve(D, C))
 
@@ -408,7 +472,10 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
     the platform far away, and the residual norm falls along neither (or hardly). Where it
     stalls or creeps so (or every cable is slack, or the Jacobian is singular), Newton goes
     on with the potential energy, smooth across slack points, as its merit
-    (:func:`_energy_newton`)."""
+    (:func:`_energy_newton`). So it does where a step longer than ``BIG_STEP`` raises the
+    energy: the residual also falls towards saddles, and a long step up the energy heads for
+    one (or a state of the cables the linearisation ignored), away from the stable
+    equilibrium near the guess."""
     if not np.all(np.isfinite(robot.ea)):
         raise ValueError("solve_equilibrium needs elastic cables (ea); use forward_rigid for "
                          "inextensible ones")
@@ -454,6 +521,12 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
             if not fresh:
                 break  # a stale Jacobian that needs damping: refresh it instead
         else:  # stalled at a kink of the residual
+            return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
+        if (np.abs(dx[:6]).max() * step > BIG_STEP and state_energy(
+                robot, T_new.state, p_new, th_new, l0, T_new.cables)
+                > state_energy(robot, T.state, pose, th, l0, T.cables)):
+            # a long step up the energy: towards a saddle (the residual falls there too),
+            # or across slack points the linearisation ignored; the energy's Newton descends
             return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
         if not fresh and step < 1.0:
             lu = None
@@ -531,3 +604,139 @@ def _energy_newton(robot: Robot, l0: np.ndarray, pose: np.ndarray, th: np.ndarra
     msg = "converged" if ok else (f"equilibrium: no convergence in {it0 + max_iter} iterations "
                                   f"(scaled residual {phi:.3g})")
     return EquilibriumResult(pose, th, T.tensions, T.exits, ok, msg, it, phi)
+
+
+#: the mixed form weighs a cable's length error at most as a spring of the platform's weight per
+#: this length would: a stiffer cable's geometric nonlinearity is not magnified by its ea
+MIXED_LENGTH = 1e-3  # [m]
+
+
+def _mixed_terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, tau: np.ndarray,
+                 l0: np.ndarray, a_star: np.ndarray, r: np.ndarray
+                 ) -> tuple[EquilibriumTerms, np.ndarray]:
+    """Residual of the mixed form at (pose, theta, tensions ``tau``): the equilibrium rows of
+    :func:`_terms` with the tensions given, and each cable's length error
+    ``e = L - L0 (1 + tau/ea)`` (n,) [m]."""
+    exits = deflect(a_star, r, theta, robot.mast_index) if robot.compliant else a_star
+    st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+    f = tau[:, None] * st.u
+    wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
+    F = np.empty(6 + 3 * robot.n_masts)
+    F[:3] = f.sum(axis=0) + wg[:3]
+    F[3:6] = cross(st.Rb, f).sum(axis=0) + wg[3:]
+    M = mast_moments(r, tau, st.u, robot.mast_index, robot.n_masts)
+    F[6:] = (theta - robot.compliance * M).ravel()
+    e = st.length - l0 - tau * (l0 / robot.ea)
+    return EquilibriumTerms(st, exits, tau, tau > 0, f, F), e
+
+
+def _mixed_jacobian(robot: Robot, T: EquilibriumTerms, l0: np.ndarray, r: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Blocks of the mixed form's Jacobian: d(rows)/d(dt, w, theta) at fixed tensions (the
+    cables' geometric stiffness alone), d(rows)/d(tau) (6+3m, n) and dL/d(dt, w, theta)
+    (n, 6+3m)."""
+    st = T.state
+    n, m = robot.n_cables, robot.n_masts
+    K = T.tensions[:, None, None] * unit_vector_derivative(st)
+    Jx = _jacobian(robot, T, l0, r, K)
+    Wm = wrench_matrix(st)
+    B = np.zeros((6 + 3 * m, n))
+    B[:6] = Wm
+    G = np.zeros((n, 6 + 3 * m))
+    G[:, :6] = -Wm.T  # dL/d(t, w) (kinematics.length_jacobian)
+    if robot.compliant:  # dL_j/dtheta_i = (r_j x u_j)^T; mast rows d/dtau_j = c_i (r_j x u_j)
+        ru = cross(r, st.u)
+        cols = 6 + 3 * robot.mast_index[:, None] + np.arange(3)
+        rows = np.arange(n)[:, None]
+        B[cols, rows] = robot.compliance[robot.mast_index] * ru
+        G[rows, cols] = ru
+    return Jx, B, G
+
+
+def _mixed_newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray | None,
+                  tol: float, max_iter: int, tau0: np.ndarray | None = None
+                  ) -> EquilibriumResult:
+    """Newton's method on the mixed form: unknowns the pose, the mast rotations and the
+    tensions tau; rows the equilibrium (as :func:`_terms`, with tau) and each cable's
+    complementarity ``min(tau_j, beta_j s_j) = 0`` with ``s_j = L0_j (1 + tau_j/ea_j) - L_j``
+    (>= 0: not stretched beyond its law) and ``beta_j = min(ea_j/L0_j, weight/MIXED_LENGTH)``
+    (semi-smooth Newton: a taut cable's row linearises its length, a slack one's sets its
+    tension to 0). Residual norm as merit, halving steps.
+
+    Cables much stiffer than the platform's weight (ea of 1e12 N and more, as a fit can make
+    them) break the displacement form (:func:`_newton`): a step of s sideways changes such a
+    cable's length by s^2/2L, which ea/L turns into an error of kilonewtons that the residual's
+    line search rejects, and its tension ea (L - L0)/L0 cannot be resolved from the lengths
+    finer than ea * 1e-16. Here that length error stays a length error and the tension an
+    unknown of its own."""
+    l0 = np.asarray(l0, dtype=float)
+    n, m = robot.n_cables, robot.n_masts
+    N = 6 + 3 * m
+    pose = np.array(guess, dtype=float)
+    th = np.zeros((m, 3)) if theta is None else np.array(theta, dtype=float)
+    a_star, r, S = _fixed(robot)
+    w = max(robot.weight, 1.0)
+    beta = np.minimum(robot.ea / l0, w / MIXED_LENGTH)
+    cl = l0 / robot.ea  # [m/N]
+    if tau0 is None:  # a soft spring's tension to start
+        T, e = _mixed_terms(robot, pose, th, np.zeros(n), l0, a_star, r)
+        tau0 = np.maximum(beta * (T.state.length - l0), 0.0)
+    T, e = _mixed_terms(robot, pose, th, np.asarray(tau0, dtype=float), l0, a_star, r)
+
+    def ncp(tau: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fischer-Burmeister a + b - |(a, b)| of a = tau/weight, b = beta s/weight, and its
+        derivatives by a and b."""
+        a, b = tau / w, -beta * e / w
+        rho = np.hypot(a, b)
+        safe = np.where(rho > 0, rho, 1.0)
+        da = np.where(rho > 0, 1.0 - a / safe, 1.0 - math.sqrt(0.5))
+        db = np.where(rho > 0, 1.0 - b / safe, 1.0 - math.sqrt(0.5))
+        return a + b - rho, da, db
+
+    def merit(T: EquilibriumTerms, e: np.ndarray) -> float:
+        v = np.concatenate([S * T.residual, ncp(T.tensions, e)[0]])
+        return math.sqrt(float(v @ v))
+
+    phi = merit(T, e)
+    it = 0
+    for it in range(max_iter):
+        if phi < tol:  # slack side of the complementarity: tension 0 (it is below tol)
+            tau = np.where(-beta * e > T.tensions, 0.0, np.maximum(T.tensions, 0.0))
+            return EquilibriumResult(pose, th, tau, T.exits, True, "converged", it, phi)
+        fb, da, db = ncp(T.tensions, e)
+        Jx, B, G = _mixed_jacobian(robot, T, l0, r)
+        # rows scaled: equilibrium by S, complementarity in weights; unknowns dtau / weight
+        A = np.empty((N + n, N + n))
+        A[:N, :N] = S[:, None] * Jx
+        A[:N, N:] = S[:, None] * B * w
+        # d(fb) = da dtau/w + db beta (cl dtau - G dx)/w
+        A[N:, :N] = -(db * beta / w)[:, None] * G
+        A[N:, N:] = np.diag(da + db * beta * cl)
+        rhs = np.concatenate([-S * T.residual, -fb])
+        try:
+            z = np.linalg.solve(A, rhs)
+        except np.linalg.LinAlgError:
+            break
+        if not np.all(np.isfinite(z)):
+            break
+        dtau = z[N:] * w
+        step = 1.0
+        for _ in range(30):
+            p_new = compose(pose, step * z[:6])
+            th_new = th + step * z[6:N].reshape(-1, 3)
+            T_new, e_new = _mixed_terms(robot, p_new, th_new, T.tensions + step * dtau, l0,
+                                        a_star, r)
+            phi_new = merit(T_new, e_new)
+            if phi_new < (1.0 - 1e-4 * step) * phi or phi_new < tol:
+                break
+            step *= 0.5
+        else:
+            return EquilibriumResult(pose, th, np.maximum(T.tensions, 0.0), T.exits, False,
+                                     f"equilibrium (mixed form): line search failed at "
+                                     f"iteration {it} (scaled residual {phi:.3g})", it, phi)
+        pose, th, T, e, phi = p_new, th_new, T_new, e_new, phi_new
+    ok = phi < tol
+    msg = "converged" if ok else (f"equilibrium (mixed form): no convergence in {it + 1} "
+                                  f"iterations (scaled residual {phi:.3g})")
+    return EquilibriumResult(pose, th, np.maximum(T.tensions, 0.0), T.exits, ok, msg, it + 1,
+                             phi)
