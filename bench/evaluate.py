@@ -481,7 +481,9 @@ class CaseScore:
 
 def score(report: dict, truth: dict[str, dict[str, float]], model, seed: int = 0,
           seconds: float = 0.0) -> CaseScore:
-    """Score a diagnosis report against the concealed truth."""
+    """Score a diagnosis report against the concealed truth: its effects, and every parameter
+    of an effect it names right, those of the truth and those it reports besides (whose
+    truth is the model's value; a mast the truth leaves rigid is not scored)."""
     named = [e["name"] for e in report["effects"]]
     truth = {e: {k: v for k, v in p.items() if not k.startswith("slip_time_")}
              for e, p in truth.items()}
@@ -495,6 +497,8 @@ def score(report: dict, truth: dict[str, dict[str, float]], model, seed: int = 0
             continue
         e = by_name[eff]
         keys = set(params)
+        if eff != "mast_compliance":  # a reported parameter the truth leaves at the model's
+            keys |= {k for k in e["params"] if k in neutral or k.startswith("dl_")}
         if eff == "exit_point_offset":  # every offset counts, absent ones are zero
             keys |= {f"d{ax}_{c}" for c in model.cable_ids for ax in "xyz"}
         if eff == "cable_elasticity" and "ea" in params:

@@ -352,3 +352,25 @@ def test_a_case_diagnoses_on_one_blas_thread_whatever_the_libraries_loaded_later
     threads = json.loads(got.stdout.strip().splitlines()[-1])
     assert any("scipy_openblas" in lib for lib in threads), threads
     assert set(threads.values()) == {1}, threads
+
+
+def test_score_counts_every_parameter_of_an_effect_named_right():
+    """A parameter the report gives beside the truth's (a drum scale of a cable the truth
+    leaves at 1) is scored against the model's value: its z-score and its tolerance count.
+    One the report does not give is not invented; a rigid mast of the truth is not scored."""
+    from bench.evaluate import score
+    from controller.robot import load_robot, shipped_robot_path
+
+    model = load_robot(shipped_robot_path("rocaspect"))
+    c = model.cable_ids
+    truth = {"drum_scale": {f"s_{c[0]}": 1.003}}
+    report = {"effects": [{"name": "drum_scale",
+                           "params": {f"s_{c[0]}": 1.0031, f"s_{c[1]}": 1.0004},
+                           "stderr": {f"s_{c[0]}": 0.0001, f"s_{c[1]}": 0.0001}}],
+              "fitted": {}, "mismatch": {}}
+    s = score(report, truth, model)
+    assert s.exact and s.params_total == 2
+    assert sorted(round(z, 6) for z in s.z) == [1.0, 4.0]
+    report["effects"][0]["params"].pop(f"s_{c[1]}")
+    s = score(report, truth, model)
+    assert s.params_total == 1 and [round(z, 6) for z in s.z] == [1.0]
