@@ -93,3 +93,34 @@ def test_each_kind_of_quantity_keeps_its_own_level():
 
     spread, se = _spread_and_se(make)
     assert np.all(np.abs(se / spread - 1.0) < 0.15), (se, spread)
+
+
+def test_an_error_shared_by_few_visits_is_not_understated_by_the_fit_absorbing_it(monkeypatch):
+    """A dozen visits, each with its own error shared by its rows, against six parameters
+    that differ from visit to visit: the fit absorbs half of the visits' error, so the
+    plain moments of its residuals under-state it (errors too small by about 1.4). The
+    components estimated against the fit's projection give the spread of the estimates."""
+    import bench.diagnosis.fit as fit
+
+    moves, per, p = 12, 10, 6
+    n = moves * per
+    move = np.repeat(np.arange(moves), per)
+    design = np.random.default_rng(11).normal(0.0, 1.0, (moves, p - 1))
+    X = np.column_stack([np.ones(n), design[move]])
+
+    def make(rng):
+        y = X @ np.linspace(-1.0, 1.0, p) + rng.normal(0.0, 1.0, moves)[move] \
+            + rng.normal(0.0, 0.3, n)
+        e = ErrorStructure(np.ones(n), np.zeros(n, int), np.zeros(n, int), move,
+                           np.zeros(n, int), float(n))
+        return X, y, e
+
+    spread, se = _spread_and_se(make)
+    assert np.all(np.abs(se / spread - 1.0) < 0.15), (se, spread)
+    # the plain moments of the fitted residuals: too small
+    monkeypatch.setattr(fit, "_unbiased_components",
+                        lambda Js, sw, kinds, stats: stats / np.where(
+                            np.concatenate([k.pairs for k in kinds]) > 0,
+                            np.concatenate([k.pairs for k in kinds]), 1.0))
+    spread0, se0 = _spread_and_se(make)
+    assert np.all(se0 / spread0 < 0.85), (se0, spread0)

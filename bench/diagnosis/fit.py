@@ -368,7 +368,7 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
     if r is not None and errors is not None and len(errors.weights) == len(r):
-        dof = errors.n_eff / max(n_res - p, 1.0)
+        dof = errors.n_eff / max(n_res, 1.0)
         cov = cov_s @ error_meat(Js, r, errors) @ cov_s * dof * np.outer(D, D)
     else:
         red = chi2 / max(n_res - p, 1)
@@ -410,6 +410,10 @@ class ErrorStructure:
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
 PRIOR_ENTRIES = 30
+#: share of a component's moment statistic the fit must leave in its residuals for the
+#: component to be estimated from them (an error level; a covariance shared by samples)
+MIN_KEPT_LEVEL = 0.1
+MIN_KEPT_SHARED = 0.5
 
 
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
@@ -437,38 +441,130 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     ncol = int(e.columns.max()) + 1 if len(e.columns) else 1
     nmove = int(e.moves.max()) + 1 if len(e.moves) else 1
     u = r / sw
+    kinds = [_KindGroups(e.kinds == k, e, ncol, nmove) for k in np.unique(e.kinds)]
+    # the moment statistics u^T P_l u of every kind and component, and the pairs behind each
+    stats = np.array([kg.statistics(u) for kg in kinds]).ravel()
+    theta = _unbiased_components(Js, sw, kinds, stats)
     meat = np.zeros((p, p))
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
-    quantity = e.kinds % 4
-    pooled = {int(q): float(np.mean(u[quantity == q] ** 2)) for q in np.unique(quantity)}
-    for k in np.unique(e.kinds):
-        m = e.kinds == k
-        uk, bk = u[m], b[m]
-        key2 = e.stretches[m].astype(np.int64) * ncol + e.columns[m]
-        key1 = key2 * nmove + e.moves[m]
-        _, i1 = np.unique(key1, return_inverse=True)
-        _, i2 = np.unique(key2, return_inverse=True)
-        _, i3 = np.unique(e.columns[m], return_inverse=True)
-        n1, n2 = np.bincount(i1).astype(float), np.bincount(i2).astype(float)
-        n3 = np.bincount(i3).astype(float)
-        S1, S2 = np.bincount(i1, weights=uk), np.bincount(i2, weights=uk)
-        S3 = np.bincount(i3, weights=uk)
-        Q = float(uk @ uk)
-        v = (Q + PRIOR_ENTRIES * pooled[int(k) % 4]) / (len(uk) + PRIOR_ENTRIES)
-        pairs1 = float(np.sum(n1 * (n1 - 1.0)))
-        pairs2 = float(np.sum(n2 ** 2) - np.sum(n1 ** 2))
-        pairs3 = float(np.sum(n3 ** 2) - np.sum(n2 ** 2))
-        c1 = (float(S1 @ S1) - Q) / pairs1 if pairs1 > 0 else 0.0
-        c2 = (float(S2 @ S2) - float(S1 @ S1)) / pairs2 if pairs2 > 0 else 0.0
-        c3 = (float(S3 @ S3) - float(S2 @ S2)) / pairs3 if pairs3 > 0 else 0.0
-        c1, c2, c3 = (float(np.clip(c, 0.0, v)) for c in (c1, c2, c3))
-        B1 = np.zeros((len(n1), p))
-        np.add.at(B1, i1, bk)
-        B2 = np.zeros((len(n2), p))
-        np.add.at(B2, i2, bk)
-        B3 = np.zeros((len(n3), p))
-        np.add.at(B3, i3, bk)
-        bb, BB1, BB2, BB3 = bk.T @ bk, B1.T @ B1, B2.T @ B2, B3.T @ B3
-        meat += v * bb + c1 * (BB1 - bb) + c2 * (BB2 - BB1) + c3 * (BB3 - BB2)
+    quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
+    size = np.array([kg.n for kg in kinds], dtype=float)
+    level = theta.reshape(len(kinds), 4)[:, 0]
+    for j, kg in enumerate(kinds):
+        same = quantity == quantity[j]
+        pooled = float(size[same] @ level[same] / size[same].sum())
+        v = (level[j] * kg.n + PRIOR_ENTRIES * pooled) / (kg.n + PRIOR_ENTRIES)
+        c = np.clip(theta[4 * j + 1: 4 * j + 4], 0.0, v)
+        grams = kg.grams(b[kg.mask])
+        meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
     return meat
+
+
+class _KindGroups:
+    """The groups of one kind of entry (``mask``) that the components of :func:`error_meat`
+    pair: level 1 one quantity in one move of a stretch, 2 in one stretch, 3 over the
+    recording. ``P_0`` is the identity, ``P_l`` (l = 1..3) pairs entries in one group of
+    level ``l`` but not of level ``l - 1`` (no entry with itself)."""
+
+    def __init__(self, mask: np.ndarray, e: ErrorStructure, ncol: int, nmove: int) -> None:
+        self.mask = mask
+        self.n = int(mask.sum())
+        key2 = e.stretches[mask].astype(np.int64) * ncol + e.columns[mask]
+        key1 = key2 * nmove + e.moves[mask]
+        self.index = [np.unique(k, return_inverse=True)[1]
+                      for k in (key1, key2, e.columns[mask])]
+        sq = [float(self.n)] + [float(np.sum(np.bincount(i).astype(float) ** 2))
+                                for i in self.index]
+        self.pairs = np.array([sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)])
+
+    def _sums(self, x: np.ndarray, level: int) -> np.ndarray:
+        i = self.index[level - 1]
+        out = np.zeros((int(i.max()) + 1,) + x.shape[1:])
+        np.add.at(out, i, x)
+        return out
+
+    def apply(self, x: np.ndarray, level: int) -> np.ndarray:
+        """``P_level x`` for ``x`` (n_kind, ...) of this kind's entries."""
+        if level == 0:
+            return x
+        g = self._sums(x, level)[self.index[level - 1]]
+        if level == 1:
+            return g - x
+        return g - self._sums(x, level - 1)[self.index[level - 2]]
+
+    def statistics(self, u: np.ndarray) -> list[float]:
+        """``u^T P_l u`` for l = 0..3 (this kind's entries of ``u``)."""
+        uk = u[self.mask]
+        sq = [float(uk @ uk)] + [float(np.sum(self._sums(uk, lv) ** 2)) for lv in (1, 2, 3)]
+        return [sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)]
+
+    def grams(self, x: np.ndarray) -> list[np.ndarray]:
+        """``x^T P_l x`` for l = 0..3 (x: this kind's rows)."""
+        g = [x.T @ x]
+        for lv in (1, 2, 3):
+            sl = self._sums(x, lv)
+            g.append(sl.T @ sl)
+        return [g[0]] + [g[lv] - g[lv - 1] for lv in (1, 2, 3)]
+
+
+def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups],
+                         stats: np.ndarray) -> np.ndarray:
+    """Variance components ``theta`` (kind by kind: v, c1, c2, c3) whose expected moment
+    statistics, over residuals the fit has already projected, equal ``stats``.
+
+    The fit removes from the whitened residuals their part in the span ``Q`` of the Jacobian:
+    ``r_fit = (I - Q Q^T) r``. An error shared by the few rows of a visit loses much more
+    than ``p / N`` of its variance that way (a dozen visits of a cable against a dozen
+    parameters): moments of the fitted residuals then under-state it, and the standard errors
+    with it (by half, on continuous recordings with few targets). With ``u = D^-1 r``
+    (``D = diag(sqrt(w))``), ``Y = D^-1 Q``, ``Z = D Q`` and the pair matrices ``P`` of
+    :class:`_KindGroups`: ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' P) - 2 tr(Y^T P' P Z)
+    + tr(Y^T P' Y Z^T P Z))``, a linear system solved for ``theta`` (the plain moments
+    where it is singular)."""
+    U, sv, _ = np.linalg.svd(Js, full_matrices=False)
+    Q = U[:, sv > 1e-9 * max(float(sv.max(initial=0.0)), 1e-300)]
+    Y, Z = Q / sw[:, None], Q * sw[:, None]
+    K = 4 * len(kinds)
+    plain = stats / np.where(np.concatenate([kg.pairs for kg in kinds]) > 0,
+                             np.concatenate([kg.pairs for kg in kinds]), 1.0)
+    if Q.shape[1] == 0:
+        return plain
+    A = np.zeros((K, K))
+    PY, PZ, GY, GZ = [], [], [], []
+    for kg in kinds:
+        yk, zk = Y[kg.mask], Z[kg.mask]
+        PY.append([kg.apply(yk, lv) for lv in range(4)])
+        PZ.append([kg.apply(zk, lv) for lv in range(4)])
+        GY.append([yk.T @ py for py in PY[-1]])
+        GZ.append([zk.T @ pz for pz in PZ[-1]])
+    for j, kg in enumerate(kinds):
+        for lp in range(4):
+            row = 4 * j + lp
+            A[row, row] += kg.pairs[lp]
+            for lv in range(4):
+                # tr(Y^T P' P Z) = sum of (P' Y) * (P Z): P' symmetric
+                A[row, 4 * j + lv] -= 2.0 * float(np.sum(PY[j][lp] * PZ[j][lv]))
+            for i in range(len(kinds)):
+                for lv in range(4):
+                    A[row, 4 * i + lv] += float(np.sum(GY[j][lp] * GZ[i][lv].T))
+    pairs = np.concatenate([kg.pairs for kg in kinds])
+    kept = np.diag(A) / np.where(pairs > 0, pairs, 1.0)
+    # a component the fit absorbs for the most part (an error common to every row, against
+    # a fitted offset) is not told by the residuals: it stays at its plain moment estimate
+    floor = np.tile([MIN_KEPT_LEVEL] + [MIN_KEPT_SHARED] * 3, len(kinds))
+    used = (pairs > 0) & (kept >= floor)
+    theta = plain.copy()
+    theta[pairs <= 0] = 0.0
+    fixed = ~used
+    try:
+        sol = np.linalg.solve(A[np.ix_(used, used)],
+                              stats[used] - A[np.ix_(used, fixed)] @ theta[fixed])
+    except np.linalg.LinAlgError:
+        return plain
+    if np.all(np.isfinite(sol)):
+        theta[used] = sol
+    level = theta.reshape(-1, 4)[:, 0]
+    if np.any(level <= 0):
+        return plain
+    return theta
