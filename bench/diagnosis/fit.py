@@ -12,6 +12,7 @@ from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 from scipy.optimize import least_squares
 
 from bench.diagnosis.residuals import ResidualModel
@@ -474,15 +475,16 @@ class _KindGroups:
         key1 = key2 * nmove + e.moves[mask]
         self.index = [np.unique(k, return_inverse=True)[1]
                       for k in (key1, key2, e.columns[mask])]
+        # group-by-entry indicator matrices: sums over each group are one sparse product
+        self.ind = [sparse.csr_matrix((np.ones(self.n), (i, np.arange(self.n))),
+                                      shape=(int(i.max()) + 1 if self.n else 0, self.n))
+                    for i in self.index]
         sq = [float(self.n)] + [float(np.sum(np.bincount(i).astype(float) ** 2))
                                 for i in self.index]
         self.pairs = np.array([sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)])
 
     def _sums(self, x: np.ndarray, level: int) -> np.ndarray:
-        i = self.index[level - 1]
-        out = np.zeros((int(i.max()) + 1,) + x.shape[1:])
-        np.add.at(out, i, x)
-        return out
+        return self.ind[level - 1] @ x
 
     def apply(self, x: np.ndarray, level: int) -> np.ndarray:
         """``P_level x`` for ``x`` (n_kind, ...) of this kind's entries."""
@@ -522,8 +524,9 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     :class:`_KindGroups`: ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' P) - 2 tr(Y^T P' P Z)
     + tr(Y^T P' Y Z^T P Z))``, a linear system solved for ``theta`` (the plain moments
     where it is singular)."""
-    U, sv, _ = np.linalg.svd(Js, full_matrices=False)
-    Q = U[:, sv > 1e-9 * max(float(sv.max(initial=0.0)), 1e-300)]
+    w, V = np.linalg.eigh(Js.T @ Js)
+    keep = w > 1e-10 * max(float(w.max(initial=0.0)), 1e-300)
+    Q = (Js @ V[:, keep]) / np.sqrt(w[keep])  # an orthonormal basis of the Jacobian's span
     Y, Z = Q / sw[:, None], Q * sw[:, None]
     K = 4 * len(kinds)
     plain = stats / np.where(np.concatenate([kg.pairs for kg in kinds]) > 0,
