@@ -58,6 +58,16 @@ class FitResult:
     dof_lost: float = 0.0  # residual degrees of freedom taken by per-sample unknowns
     n_free: int = 0
     n_eff: float | None = None  # effective number of residuals (weights summed)
+    #: fit-space variance of the error that holding pruned parameters at the model's values
+    #: may have moved into the others (:func:`pruning_bias_var`); zero without pruning
+    bias_var: np.ndarray | None = None
+
+    @property
+    def reported_stderr(self) -> np.ndarray:
+        """Standard errors as reported: the fit's, with the error pruning may have moved in."""
+        if self.bias_var is None:
+            return self.stderr
+        return np.sqrt(self.stderr ** 2 + self.bias_var)
 
     @property
     def dof(self) -> float:
@@ -120,8 +130,33 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
         # weak parameter trade against them (a load cell's gain against its offset when its
         # tension varies little): fifty times the spread of the values over the evaluation
         pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
+        pruned.bias_var = pruning_bias_var(full, weak, space.neutral)
         return pruned
     return full
+
+
+def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> np.ndarray:
+    """Per parameter, the squared error that holding the ``weak`` parameters at ``neutral``
+    moves into a kept one, estimated without bias from the full fit: ``(B d)^2 - diag(B
+    S_hh B^T)``, clipped at 0, with ``d`` the held parameters' full-fit departures, ``S``
+    the full fit's covariance and ``B = S_kh S_hh^-1`` how a kept parameter follows them.
+
+    A held parameter that is in truth zero adds nothing on average (its departure is its
+    noise); one the data could not tell from zero but that is not (a mass change that only
+    the cables' stretch separates from the load cells' common gain) adds what it moved into
+    the others, which the pruned fit's own errors cannot show."""
+    out = np.zeros(len(full.phi))
+    kept = np.isfinite(full.stderr) & ~weak & (np.diag(full.cov) > 0)
+    if not weak.any() or not kept.any():
+        return out
+    S = full.cov
+    Shh = S[np.ix_(weak, weak)]
+    B = S[np.ix_(kept, weak)] @ np.linalg.pinv(Shh, rcond=1e-12, hermitian=True)
+    d = (full.phi - neutral)[weak]
+    bias = B @ d
+    var = np.einsum("ij,jk,ik->i", B, Shh, B)
+    out[kept] = np.clip(bias ** 2 - var, 0.0, None)
+    return out
 
 
 def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray | None,

@@ -183,14 +183,15 @@ def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | N
                                                                     0.02 * abs(p.neutral)):
                 continue  # the model's own stiffness within the uncertainty
             value = values[p.effect][p.key]
-            err = se / phi**2 if p.kind == "inverse" else se
+            rse = float(fit.reported_stderr[k])  # with what pruning may have moved in
+            err = rse / phi**2 if p.kind == "inverse" else rse
             params[e][p.key] = float(value)
             errs[e][p.key] = float(err)
         if not params[e]:
             for k in _jointly_differing(fit, e, undet[e], fv):
                 p = fit.space.params[k]
                 phi = p.from_value(values[p.effect][p.key])
-                se = float(fit.stderr[k])
+                se = float(fit.reported_stderr[k])
                 params[e][p.key] = float(values[p.effect][p.key])
                 errs[e][p.key] = float(se / phi**2 if p.kind == "inverse" else se)
     return params, errs, undet
