@@ -395,32 +395,55 @@ class ResidualModel:
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
             tau = _balance(wrench_matrix(bs0.state), -wg, tm)
             tau_k[c] = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
-        hint = (self._warm_face[u], self._warm_drop[u]) if self._frozen and known.all() \
-            else None
+        hint = (self._warm_face[u], self._warm_drop[u]) if known.all() else None
         ok = np.ones(M, dtype=bool)
         at_zero = np.zeros((M, n), dtype=bool)
         exits = None  # deflected exits of the last round (each round starts from them)
         # on held faces from the last evaluation's tensions, one relinearisation gives the
         # tensions to first order in a finite-difference step (a column within 1e-3); two
         # with compliant masts (the wrench matrix moves with the tensions)
-        if hint is not None:
+        held_only = self._frozen and hint is not None
+        if held_only:
             rounds = 2 if H.compliant else 1
-        for _ in range(rounds):
+        # outside frozen, the rounds relinearise on the faces of the last evaluation (one
+        # KKT solve per sample) until the tensions settle, then search the faces in full:
+        # where a face changes, they settle on the new faces and search again. The last
+        # round always searches and the tensions stop when it moves them less than
+        # ``rtol``: the fixed point of full searches every round, with one search (two
+        # where a face changed) instead of three or four; ``rounds`` caps the searches,
+        # and the rounds on held faces between two searches
+        search = hint is None
+        held = searches = 0
+        while True:
             bs = batch_statics(H, poses, tau_k, exits0=exits)
             exits = bs.exits if H.compliant else None
             W = wrench_matrix(bs.state)
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
             r = np.nan_to_num(bs.unstretched - read)
             C = np.nan_to_num(_length_sensitivity(H, bs, tau_k))
-            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm, hint=hint)
+            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm,
+                                      hint=None if search else hint)
             good = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(fit.tensions).all(axis=1)
             ok = good & fit.feasible
             at_zero = fit.at_zero
             new = np.where(good[:, None], np.maximum(fit.tensions, floor), tau_k)
             moved = float(np.abs(new - tau_k).max()) if M else 0.0
             tau_k = new
-            if moved <= rtol * float(tm.max()):
-                break
+            settled = moved <= rtol * float(tm.max())
+            if held_only:
+                held += 1
+                if settled or held >= rounds:
+                    break
+            elif search:
+                searches += 1
+                if settled or searches >= rounds:
+                    break
+                # a face changed: settle on the new faces before the next search
+                hint, search, held = fit.hint(), False, 0
+            else:
+                held += 1
+                hint = fit.hint()
+                search = settled or held >= rounds
         if not self._frozen:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
         self._at_zero = at_zero
