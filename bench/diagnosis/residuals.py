@@ -57,6 +57,7 @@ from controller.masts import lever_arms
 from controller.pose import cross, euler_rate_matrix
 from controller.robot import Robot
 from controller.statics import (
+    BatchStatics,
     batch_statics,
     init_unstretched,
     settled_exits,
@@ -414,8 +415,9 @@ class ResidualModel:
         # and the rounds on held faces between two searches
         search = hint is None
         held = searches = 0
+        bs = None
         while True:
-            bs = batch_statics(H, poses, tau_k, exits0=exits)
+            bs = _statics(H, poses, tau_k, exits, bs)
             exits = bs.exits if H.compliant else None
             W = wrench_matrix(bs.state)
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
@@ -447,7 +449,7 @@ class ResidualModel:
         if not self._frozen:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
         self._at_zero = at_zero
-        bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k), exits0=exits)
+        bs = _statics(H, poses, np.where(at_zero, 0.0, tau_k), exits, bs)
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)
         return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
@@ -736,6 +738,20 @@ def _replicated(target: np.ndarray) -> np.ndarray:
     """Samples that belong to a replicate group of two or more."""
     _, inv, cnt = np.unique(target, return_inverse=True, return_counts=True)
     return cnt[inv] >= 2
+
+
+def _statics(H: Robot, poses: np.ndarray, tau: np.ndarray, exits: np.ndarray | None,
+             last: BatchStatics | None) -> BatchStatics:
+    """:func:`batch_statics` of ``poses`` holding ``tau``, from ``exits`` (a warm start of
+    compliant masts); without compliant masts the geometry does not hang on the tensions:
+    that of ``last`` (the same poses) is kept and only the cables' forces and unstretched
+    lengths are evaluated again (what :func:`batch_statics` computes, without the cable
+    states)."""
+    if last is None or H.compliant:
+        return batch_statics(H, poses, tau, exits0=exits)
+    cf, l0 = cables.from_tensions(H, last.state, tau)
+    return BatchStatics(tau, last.exits, last.state, np.isfinite(tau).all(axis=1), l0,
+                        cf.platform)
 
 
 def _balance(W: np.ndarray, f: np.ndarray, tm: np.ndarray) -> np.ndarray:
