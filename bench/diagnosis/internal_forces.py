@@ -23,7 +23,9 @@ polytope ``tau >= 0`` with ``j <= n - 6`` cables at zero is tried twice, the fac
 kept in the least squares (the convex problem's faces) and left out of it (slack), and the
 feasible candidate of least objective wins. Vectorised over samples and faces (no Python
 loop over samples); the faces tried are capped at :data:`MAX_FACES` (about the ``n = 10``
-robots' count) by the number of cables at zero.
+robots' count) by the number of cables at zero. With eight cables (a two-dimensional null
+space) each face's minimiser is solved in closed form (:func:`_faces_min_k2`), degenerate
+faces by the general KKT solve.
 
 The winning candidate's face (the cables held at zero, and whether they were left out of
 the least squares) is returned; given back as a ``hint``, each sample is solved on that
