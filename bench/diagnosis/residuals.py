@@ -378,11 +378,13 @@ class ResidualModel:
         ``poses`` without measured tensions: tensions that balance gravity, pull, and fit the
         readings' stretch (:mod:`bench.diagnosis.internal_forces`: exact over which cables
         are slack, so the residuals do not jump with the parameters); a cable left at zero
-        tension only says it is at least as long as the straight line. Up to ``rounds``
-        relinearisations of the statics (exits and stretch move with the tensions), until the
-        tensions move by less than ``rtol`` of mid-range; each sample warm-started from its
-        last tensions (inside :meth:`frozen`: from those of the last evaluation before, on
-        its faces, one relinearisation, two with compliant masts)."""
+        tension only says it is at least as long as the straight line. Relinearisations of
+        the statics (exits and stretch move with the tensions) until a round that searches
+        every face moves the tensions by less than ``rtol`` of mid-range (at most ``rounds``
+        such searches; the rounds before them keep each sample's last faces, see below);
+        each sample warm-started from its last tensions (inside :meth:`frozen`: from those of
+        the last evaluation before, on its faces, one relinearisation, two with compliant
+        masts)."""
         M, n = len(poses), H.n_cables
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
