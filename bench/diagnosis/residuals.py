@@ -382,9 +382,9 @@ class ResidualModel:
         the statics (exits and stretch move with the tensions) until a round that searches
         every face moves the tensions by less than ``rtol`` of mid-range (at most ``rounds``
         such searches; the rounds before them keep each sample's last faces, see below);
-        each sample warm-started from its last tensions (inside :meth:`frozen`: from those of
-        the last evaluation before, on its faces, one relinearisation, two with compliant
-        masts)."""
+        each sample warm-started from its last tensions and deflected exits (inside
+        :meth:`frozen`: from those of the last evaluation before, on its faces, one
+        relinearisation, two with compliant masts)."""
         M, n = len(poses), H.n_cables
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
@@ -401,7 +401,12 @@ class ResidualModel:
         hint = (self._warm_face[u], self._warm_drop[u]) if known.all() else None
         ok = np.ones(M, dtype=bool)
         at_zero = np.zeros((M, n), dtype=bool)
-        exits = None  # deflected exits of the last round (each round starts from them)
+        # deflected exits of the last round (each round starts from them; the first from
+        # those of the last evaluation outside frozen, where every sample has them: the
+        # masts' iteration converges to its tolerance from there in fewer steps)
+        exits = self._warm_exits[u] if H.compliant else None
+        if exits is not None and not np.isfinite(exits).all():
+            exits = None
         # on held faces from the last evaluation's tensions, one relinearisation gives the
         # tensions to first order in a finite-difference step (a column within 1e-3); two
         # with compliant masts (the wrench matrix moves with the tensions)
@@ -452,6 +457,8 @@ class ResidualModel:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
         self._at_zero = at_zero
         bs = _statics(H, poses, np.where(at_zero, 0.0, tau_k), exits, bs)
+        if H.compliant and not self._frozen:
+            self._warm_exits[u] = bs.exits
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)
         return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
