@@ -142,3 +142,35 @@ def test_the_frozen_jacobian_equals_the_full_one(no_tensions, effects):
     np.testing.assert_allclose(frozen, full, rtol=5e-3, atol=1e-4 * np.abs(full).max())
     # the evaluations after start where they did before the columns
     np.testing.assert_allclose(fun(x), f0, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("effects", [("exit_point_offset",), ("drum_scale", "mast_compliance")])
+def test_rounds_on_the_last_faces_end_where_searches_every_round_end(no_tensions, effects,
+                                                                   monkeypatch):
+    """Outside frozen(), the unmeasured tensions relinearise on the last evaluation's faces
+    and search once they settle: the same residuals as a search in every round, from the
+    same warm start."""
+    import bench.diagnosis.residuals as residuals
+
+    rm = no_tensions
+    space = ParamSpace(rm.model, effects)
+    rng = np.random.default_rng(2)
+    x0, x1 = (np.clip(space.neutral + rng.normal(size=len(space)) * k * space.scale,
+                      space.lo, space.hi) for k in (1.0, 3.0))
+    rm.whitened(space.robot(x0))  # the warm start: its tensions and faces
+    warm = (rm._warm_tau.copy(), rm._warm_face.copy(), rm._warm_drop.copy())
+    fit = residuals.fit_internal_forces
+    hinted = []
+    with monkeypatch.context() as mp:
+        mp.setattr(residuals, "fit_internal_forces",
+                   lambda *a, hint=None, **k: hinted.append(hint is not None)
+                   or fit(*a, hint=hint, **k))
+        held = rm.whitened(space.robot(x1))
+    assert any(hinted) and not hinted[-1]  # rounds on held faces, a search last
+    rm._warm_tau[:], rm._warm_face[:], rm._warm_drop[:] = warm
+    with monkeypatch.context() as mp:
+        mp.setattr(residuals, "fit_internal_forces",
+                   lambda *a, hint=None, **k: fit(*a, **k))  # every round searches
+        full = rm.whitened(space.robot(x1))
+    assert np.abs(full).max() > 1.0
+    np.testing.assert_allclose(held, full, rtol=1e-7, atol=1e-5)

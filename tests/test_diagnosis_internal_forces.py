@@ -121,3 +121,94 @@ def test_length_sensitivity_with_compliant_masts_matches_finite_differences():
         fd = (batch_statics(H, poses, up, tol=1e-14).unstretched
               - batch_statics(H, poses, dn, tol=1e-14).unstretched) / (2 * h)
         np.testing.assert_allclose(C[:, :, j], fd, rtol=0.05, atol=1e-3 * np.abs(fd).max())
+
+
+def _degenerate_problem(seed: int, M: int = 60, near: float = 0.0):
+    """Balance problems (eight cables) whose null space makes faces degenerate: cables 0 and
+    1 have parallel null-space rows (a face holding both at zero cannot be reached but by
+    tensions the balance fixes), cable 2 a zero row (its tension is the same in every
+    balance: a face holding it alone is reached only where that is zero). ``near`` tilts
+    the parallel rows and lifts the zero row by that much (near-degenerate faces)."""
+    rng = np.random.default_rng(seed)
+    n = 8
+    W = np.empty((M, 6, n))
+    for i in range(M):
+        N0 = rng.normal(size=(n, 2))
+        N0[1] = rng.uniform(0.5, 2.0) * N0[0] + near * rng.normal(size=2)
+        N0[2] = near * rng.normal(size=2)
+        comp = np.linalg.svd(N0.T)[2][2:]  # (6, n): the complement of N0's span
+        R = np.linalg.qr(rng.normal(size=(6, 6)))[0] * rng.uniform(0.5, 2.0, size=6)
+        W[i] = R @ comp  # well conditioned: only the faces are degenerate
+    true = rng.uniform(20.0, 300.0, size=(M, n))
+    f = np.einsum("mik,mk->mi", W, true)
+    tau_k = np.full((M, n), 150.0)
+    c = -rng.uniform(1e-6, 1e-5, size=(M, n))
+    r = rng.normal(0.0, 2e-3, size=(M, n)) - 5e-3 * rng.uniform(0.0, 1.0, size=(M, n))
+    return W, f, r, c, tau_k, np.full(n, 150.0)
+
+
+def _both_ways(monkeypatch, W, f, r, c, tau_k, tm):
+    """fit_internal_forces with the eight-cable closed form, and with the general solve."""
+    from bench.diagnosis import internal_forces
+
+    closed = fit_internal_forces(W, f, r, c, tau_k, tm)
+    search = internal_forces._faces_min
+    with monkeypatch.context() as mp:
+        mp.setattr(internal_forces, "_faces_min",
+                   lambda *a: search(*a, closed_form=False))
+        general = fit_internal_forces(W, f, r, c, tau_k, tm)
+    return closed, general
+
+
+def _assert_same(closed, general, problem):
+    scale = np.abs(general.tensions).max()
+    np.testing.assert_allclose(closed.tensions, general.tensions, rtol=1e-8,
+                               atol=1e-9 * scale)
+    np.testing.assert_allclose(closed.cost, general.cost, rtol=1e-7, atol=1e-15)
+    np.testing.assert_array_equal(closed.feasible, general.feasible)
+    np.testing.assert_array_equal(closed.face, general.face)
+    # the rows left out may differ only where the face's minimiser is the same with its rows
+    # kept or not (a face holding two cables: the constraints fix it; one cable whose
+    # length does not hang on the others' tensions: its residual is the same all along the
+    # face): two equal candidates, which one comes first is round-off
+    differ = (closed.dropped != general.dropped).any(axis=1)
+    if differ.any():
+        W, f, r, c, tau_k, tm = problem
+        swapped = fit_internal_forces(W, f, r, c, tau_k, tm, hint=general.hint())
+        np.testing.assert_allclose(swapped.tensions, closed.tensions, rtol=1e-8,
+                                   atol=1e-9 * scale)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("slack_long", [0.0, 5e-3])
+def test_the_closed_form_of_eight_cables_equals_the_general_solve(monkeypatch, seed,
+                                                                  slack_long):
+    W, f, tau_p, r, c, tau_k, tm = _problem(seed, M=80, slack_long=slack_long)
+    coupled = c[:, :, None] * np.eye(8) + np.random.default_rng(seed).normal(
+        0.0, 1e-6, size=(80, 8, 8))  # compliant masts: lengths hang on others' tensions
+    held = []
+    for C in (c, coupled, np.zeros_like(c)):  # stretch, coupled stretch, rigid cables
+        closed, general = _both_ways(monkeypatch, W, f, r, C, tau_k, tm)
+        _assert_same(closed, general, (W, f, r, C, tau_k, tm))
+        held += list(closed.face.sum(axis=1))
+    assert {0, 1, 2} <= set(held)  # interior winners, and faces of one and two cables
+
+
+@pytest.mark.parametrize("near", [0.0, 1e-7, 1e-4, 0.1])
+def test_the_closed_form_on_degenerate_faces_equals_the_general_solve(monkeypatch, near):
+    from bench.diagnosis import internal_forces
+
+    W, f, r, c, tau_k, tm = _degenerate_problem(1, near=near)
+    general_pairs = []
+    lams = internal_forces._face_lams
+    with monkeypatch.context() as mp:
+        mp.setattr(internal_forces, "_face_lams",
+                   lambda *a: general_pairs.append(len(a[6])) or lams(*a))
+        fit_internal_forces(W, f, r, c, tau_k, tm)
+    closed, general = _both_ways(monkeypatch, W, f, r, c, tau_k, tm)
+    _assert_same(closed, general, (W, f, r, c, tau_k, tm))
+    assert closed.feasible.any()
+    if near <= 1e-7:  # the degenerate faces went to the general solve
+        assert sum(general_pairs) > 0
+    if near >= 0.1:  # nothing degenerate left: all in closed form
+        assert sum(general_pairs) == 0

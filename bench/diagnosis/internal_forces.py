@@ -23,7 +23,9 @@ polytope ``tau >= 0`` with ``j <= n - 6`` cables at zero is tried twice, the fac
 kept in the least squares (the convex problem's faces) and left out of it (slack), and the
 feasible candidate of least objective wins. Vectorised over samples and faces (no Python
 loop over samples); the faces tried are capped at :data:`MAX_FACES` (about the ``n = 10``
-robots' count) by the number of cables at zero.
+robots' count) by the number of cables at zero. With eight cables (a two-dimensional null
+space) each face's minimiser is solved in closed form (:func:`_faces_min_k2`), degenerate
+faces by the general KKT solve.
 
 The winning candidate's face (the cables held at zero, and whether they were left out of
 the least squares) is returned; given back as a ``hint``, each sample is solved on that
@@ -205,45 +207,34 @@ def _block(W, f, r, C, tau_k, tm, eps_rel, hint=None):
     return t, cost, ok, face, dropped
 
 
-def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
-    """The least-objective feasible candidate over the faces (module docstring), the
-    interior one (``t0``, ``cost0``, ``ok0``, its bound violation ``viol0``) included.
-    Only the faces that can win are solved: the convex problem's faces where the interior
-    minimiser pushes a cable, the slack ones whose cables all may be slack
-    (``maybe_slack`` (M,n): they would read longer than their line). Each face is a
-    ``k + j`` system in the null space of W (``tau = tau_p + N lam``, ``k = n - 6``)."""
-    M, m, n = W.shape
-    k = n - m
-    faces, fidx = _faces(n, k)
-    F = len(faces)
-    none = np.zeros((M, n), dtype=bool)
-    if F == 0:
-        return t0, cost0, ok0, none, none
-    # (sample, face) pairs of each kind
-    kept_m, kept_f = np.nonzero(np.broadcast_to(~ok0[:, None], (M, F)))
-    inside = ~np.any(faces[None, :, :] & ~maybe_slack[:, None, :], axis=-1)  # S within P
-    drop_m, drop_f = np.nonzero(inside)
-    pm = np.concatenate([kept_m, drop_m])
-    pf = np.concatenate([kept_f, drop_f])
-    slack = np.concatenate([np.zeros(len(kept_m), bool), np.ones(len(drop_m), bool)])
-    z = faces[pf]  # (P, n) cables at zero
-    # the null space and a particular balance of each sample's W
+def _null_space(W, f):
+    """The null space (M,n,k) of each sample's W (M,m,n) and a particular balance (M,n) of
+    ``W tau = f``."""
+    m = W.shape[1]
     U, sv, Vt = np.linalg.svd(W)
     N = np.swapaxes(Vt[:, m:, :], -1, -2)  # (M, n, k)
     sv = np.where(sv > 1e-12 * sv[:, :1], sv, np.inf)
     tp = np.einsum("mjn,mj->mn", Vt[:, :m, :], np.einsum("mij,mi->mj", U, f) / sv)
-    ep = b + np.einsum("mij,mj->mi", C, tp)  # residuals at the particular balance
-    CN = C @ N  # (M, n, k)
-    d = np.einsum("mnk,mn->mk", N, tm - tp)
-    # per pair: the least squares over the kept rows, the face's cables held at zero
+    return N, tp
+
+
+def _face_lams(N, tp, CN, ep, eps, d, pm, pf, slack, faces, fidx):
+    """The null-space coordinates (P,k) of each pair's minimiser: sample ``pm``, face
+    ``pf`` (``faces[pf]``, its cables' indices ``fidx[pf]`` padded with -1) held at zero,
+    its rows left out of the least squares where ``slack``. Each is a ``k + j`` KKT
+    system, solved as one batched ``2k`` system (general ``k``; a tiny regularisation keeps
+    degenerate faces solvable)."""
+    k = N.shape[-1]
+    idx = fidx[pf]  # (P, k) padded with -1
+    real = idx >= 0
+    z = faces[pf]
+    # the least squares over the kept rows, the face's cables held at zero
     rho = ~(z & slack[:, None])  # rows kept
     CNp = CN[pm] * rho[:, :, None]
     Np, epair = eps[pm], ep[pm]
     Q = np.swapaxes(CNp, -1, -2) @ CNp + Np[:, None, None] * np.eye(k)
     q = np.einsum("pnk,pn->pk", CNp, epair * rho) - Np[:, None] * d[pm]
     h0 = (np.trace(Q, axis1=-2, axis2=-1) / k)[:, None, None] + 1e-300
-    idx = fidx[pf]  # (P, k) padded with -1
-    real = idx >= 0
     A = np.where(real[:, :, None], N[pm[:, None], np.maximum(idx, 0)], 0.0)  # (P, k, k)
     K = np.zeros((len(pm), 2 * k, 2 * k))
     K[:, :k, :k] = Q / h0
@@ -254,7 +245,42 @@ def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
     K[:, k:, k:] = np.where(real, -1e-12, 1.0)[:, :, None] * np.eye(k)
     rhs = np.concatenate([-q / h0[:, :, 0],
                           np.where(real, -tp[pm[:, None], np.maximum(idx, 0)], 0.0)], axis=1)
-    lam = np.linalg.solve(K, rhs[..., None])[:, :k, 0]
+    return np.linalg.solve(K, rhs[..., None])[:, :k, 0]
+
+
+def _faces_min(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack,
+               closed_form: bool = True):
+    """The least-objective feasible candidate over the faces (module docstring), the
+    interior one (``t0``, ``cost0``, ``ok0``, its bound violation ``viol0``) included.
+    Only the faces that can win are solved: the convex problem's faces where the interior
+    minimiser pushes a cable, the slack ones whose cables all may be slack
+    (``maybe_slack`` (M,n): they would read longer than their line). Each face is a
+    ``k + j`` system in the null space of W (``tau = tau_p + N lam``, ``k = n - 6``);
+    with ``k = 2`` (eight cables) in closed form (:func:`_faces_min_k2`) unless
+    ``closed_form`` is False."""
+    M, m, n = W.shape
+    k = n - m
+    faces, fidx = _faces(n, k)
+    F = len(faces)
+    none = np.zeros((M, n), dtype=bool)
+    if F == 0:
+        return t0, cost0, ok0, none, none
+    if k == 2 and closed_form:
+        return _faces_min_k2(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack)
+    # (sample, face) pairs of each kind
+    kept_m, kept_f = np.nonzero(np.broadcast_to(~ok0[:, None], (M, F)))
+    inside = ~np.any(faces[None, :, :] & ~maybe_slack[:, None, :], axis=-1)  # S within P
+    drop_m, drop_f = np.nonzero(inside)
+    pm = np.concatenate([kept_m, drop_m])
+    pf = np.concatenate([kept_f, drop_f])
+    slack = np.concatenate([np.zeros(len(kept_m), bool), np.ones(len(drop_m), bool)])
+    z = faces[pf]  # (P, n) cables at zero
+    # the null space and a particular balance of each sample's W
+    N, tp = _null_space(W, f)
+    ep = b + np.einsum("mij,mj->mi", C, tp)  # residuals at the particular balance
+    CN = C @ N  # (M, n, k)
+    d = np.einsum("mnk,mn->mk", N, tm - tp)
+    lam = _face_lams(N, tp, CN, ep, eps, d, pm, pf, slack, faces, fidx)
     taus = np.where(z, 0.0, tp[pm] + np.einsum("pnk,pk->pn", N[pm], lam))  # (P, n)
     bal = _balanced(W[pm], taus, f[pm])
     viol = np.maximum(-taus, 0.0).max(axis=-1)
@@ -283,3 +309,110 @@ def _first_per_sample(sample: np.ndarray, key: np.ndarray, M: int) -> np.ndarray
     order = np.lexsort((key, sample))
     starts = np.searchsorted(sample[order], np.arange(M))
     return order[starts]
+
+
+#: below this, a face's constraints are degenerate for the closed form (|det| of the two
+#: cables' null-space rows against their norms; a single cable's squared row norm): the
+#: general regularised solve decides those (they come out infeasible or near a kink)
+DEGENERATE = 1e-6
+
+
+def _faces_min_k2(W, f, C, b, eps, tm, tol, t0, cost0, ok0, viol0, maybe_slack):
+    """:func:`_faces_min` for a two-dimensional null space (``n = m + 2``), dense over
+    (sample, face) and in closed form, the same candidates in the same order.
+
+    A face with both null-space coordinates fixed by its two cables at zero has
+    ``lam = A^-1 c`` (``A`` their rows of N, ``c = -tau_p`` there), the same whether their
+    rows are kept or left out (the one candidate stands for both); a face with one cable
+    (row ``a``) minimises the quadratic along the line ``a . lam = c``:
+    ``lam = c a / |a|^2 + s v`` with ``v`` normal to ``a``. Degenerate constraints
+    (:data:`DEGENERATE`) are solved by :func:`_face_lams` instead."""
+    M, m, n = W.shape
+    faces, fidx = _faces(n, 2)
+    F = len(faces)
+    single = fidx[:, 1] < 0  # (F,) faces with one cable at zero
+    sing, pairs = np.flatnonzero(single), np.flatnonzero(~single)
+    i1, i2 = fidx[:, 0], np.maximum(fidx[:, 1], 0)
+    N, tp = _null_space(W, f)
+    ep = b + np.einsum("mij,mj->mi", C, tp)  # residuals at the particular balance
+    CN = C @ N  # (M, n, 2)
+    d = np.einsum("mnk,mn->mk", N, tm - tp)
+    inside = ~np.any(faces[None, :, :] & ~maybe_slack[:, None, :], axis=-1)  # (M, F)
+    # the quadratics of the single faces: every row kept, and the face's row left out
+    outer = (CN[:, :, :, None] * CN[:, :, None, :]).reshape(M, n, 4)
+    keep = np.vstack([np.ones((1, n)), ~faces[sing]]).astype(float)  # (1 + Fs, n)
+    Q = (keep @ outer).reshape(M, -1, 2, 2) + eps[:, None, None, None] * np.eye(2)
+    q = np.einsum("sn,mnk->msk", keep, CN * ep[:, :, None]) - eps[:, None, None] * d[:, None]
+    Q = np.concatenate([np.broadcast_to(Q[:, :1], (M, len(sing), 2, 2)), Q[:, 1:]], axis=1)
+    q = np.concatenate([np.broadcast_to(q[:, :1], (M, len(sing), 2)), q[:, 1:]], axis=1)
+    # single faces (kept, then slack): lam = c a / |a|^2 + s v, s minimising along v
+    a = np.concatenate([N[:, i1[sing]]] * 2, axis=1)  # (M, 2 Fs, 2)
+    c = np.concatenate([-tp[:, i1[sing]]] * 2, axis=1)
+    a2 = np.sum(a * a, axis=-1)
+    ok_a = a2 > DEGENERATE
+    lam_a = a * (c / np.where(ok_a, a2, 1.0))[..., None]
+    v = np.stack([-a[..., 1], a[..., 0]], axis=-1)
+    Qv = np.einsum("msij,msj->msi", Q, v)
+    s = -np.sum(v * (q + np.einsum("msij,msj->msi", Q, lam_a)), axis=-1) / \
+        np.sum(v * Qv, axis=-1)
+    lam_s = lam_a + s[..., None] * v
+    # two-cable faces: lam = A^-1 c
+    p1, p2 = N[:, i1[~single]], N[:, i2[~single]]  # (M, Fp, 2) rows of A
+    det = p1[..., 0] * p2[..., 1] - p1[..., 1] * p2[..., 0]
+    ok_p = np.abs(det) > DEGENERATE * np.sum(p1 * p1 + p2 * p2, axis=-1)
+    c1, c2 = -tp[:, i1[~single]], -tp[:, i2[~single]]
+    dd = np.where(ok_p, det, 1.0)
+    lam_p = np.stack([(p2[..., 1] * c1 - p1[..., 1] * c2) / dd,
+                      (p1[..., 0] * c2 - p2[..., 0] * c1) / dd], axis=-1)
+    # candidates (columns): every face with its rows kept (face order), then the single
+    # faces with their row left out
+    Fs = len(sing)
+    lam = np.zeros((M, F + Fs, 2))
+    lam[:, sing] = lam_s[:, :Fs]
+    lam[:, F:] = lam_s[:, Fs:]
+    lam[:, pairs] = lam_p
+    cols_face = np.concatenate([np.arange(F), sing])
+    slack = np.concatenate([np.zeros(F, bool), np.ones(Fs, bool)])
+    good = np.ones((M, F + Fs), dtype=bool)
+    good[:, sing] = ok_a[:, :Fs]
+    good[:, F:] = ok_a[:, Fs:]
+    good[:, pairs] = ok_p
+    # which candidates the general search has: the kept faces where the interior pushes a
+    # cable, the slack faces whose cables all may be slack (a two-cable face's slack
+    # candidate is its kept one)
+    present = np.zeros((M, F + Fs), dtype=bool)
+    present[:, :F] = ~ok0[:, None] | (inside & ~single[None, :])
+    present[:, F:] = inside[:, sing]
+    # degenerate constraints: the general solve
+    bad_m, bad_c = np.nonzero(present & ~good)
+    if len(bad_m):
+        lam[bad_m, bad_c] = _face_lams(N, tp, CN, ep, eps, d, bad_m, cols_face[bad_c],
+                                       slack[bad_c], faces, fidx)
+    z = faces[cols_face]  # (F + Fs, n) cables at zero
+    taus = np.where(z, 0.0, tp[:, None, :] + lam @ np.swapaxes(N, -1, -2))  # (M, F+Fs, n)
+    bal = np.linalg.norm(taus @ np.swapaxes(W, -1, -2) - f[:, None, :], axis=-1) <= \
+        1e-6 * (np.abs(f).sum(axis=-1) + 1.0)[:, None]
+    viol = np.maximum(-taus, 0.0).max(axis=-1)
+    feasible = (viol <= tol[:, None]) & bal & present
+    tc = np.maximum(taus, 0.0)
+    e = b[:, None, :] + tc @ np.swapaxes(C, -1, -2)
+    e = np.where(z, np.maximum(e, 0.0), e)
+    cost = np.sum(e * e, axis=-1) + eps[:, None] * np.sum((tc - tm[:, None, :]) ** 2, axis=-1)
+    # the interior candidate, then the columns: the least cost of each sample (the least
+    # violation where none is feasible), the first of equals
+    pick_cost = np.concatenate([np.where(ok0, cost0, np.inf)[:, None],
+                                np.where(feasible, cost, np.inf)], axis=1)
+    first = np.argmin(pick_cost, axis=1)
+    rows = np.arange(M)
+    ok = np.isfinite(pick_cost[rows, first])
+    v_all = np.concatenate([viol0[:, None], np.where(bal & present, viol, np.inf)], axis=1)
+    pick = np.where(ok, first, np.argmin(v_all, axis=1))
+    col = np.maximum(pick - 1, 0)
+    inner = (pick == 0)[:, None]
+    t = np.where(inner, t0, tc[rows, col])
+    face = np.where(inner, False, z[col])
+    # rows left out: the slack candidates', and a two-cable face's where its kept candidate
+    # stands for the slack one alone (the interior balanced: kept faces were not searched)
+    pair = np.concatenate([~single, np.zeros(Fs, bool)])
+    dropped = face & (slack[col] | (pair[col] & ok0))[:, None]
+    return t, np.where(pick == 0, cost0, cost[rows, col]), ok, face, dropped

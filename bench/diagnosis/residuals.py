@@ -57,6 +57,7 @@ from controller.masts import lever_arms
 from controller.pose import cross, euler_rate_matrix
 from controller.robot import Robot
 from controller.statics import (
+    BatchStatics,
     batch_statics,
     init_unstretched,
     settled_exits,
@@ -377,11 +378,13 @@ class ResidualModel:
         ``poses`` without measured tensions: tensions that balance gravity, pull, and fit the
         readings' stretch (:mod:`bench.diagnosis.internal_forces`: exact over which cables
         are slack, so the residuals do not jump with the parameters); a cable left at zero
-        tension only says it is at least as long as the straight line. Up to ``rounds``
-        relinearisations of the statics (exits and stretch move with the tensions), until the
-        tensions move by less than ``rtol`` of mid-range; each sample warm-started from its
-        last tensions (inside :meth:`frozen`: from those of the last evaluation before, on
-        its faces, one relinearisation, two with compliant masts)."""
+        tension only says it is at least as long as the straight line. Relinearisations of
+        the statics (exits and stretch move with the tensions) until a round that searches
+        every face moves the tensions by less than ``rtol`` of mid-range (at most ``rounds``
+        such searches; the rounds before them keep each sample's last faces, see below);
+        each sample warm-started from its last tensions and deflected exits (inside
+        :meth:`frozen`: from those of the last evaluation before, on its faces, one
+        relinearisation, two with compliant masts)."""
         M, n = len(poses), H.n_cables
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
@@ -395,36 +398,67 @@ class ResidualModel:
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
             tau = _balance(wrench_matrix(bs0.state), -wg, tm)
             tau_k[c] = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
-        hint = (self._warm_face[u], self._warm_drop[u]) if self._frozen and known.all() \
-            else None
+        hint = (self._warm_face[u], self._warm_drop[u]) if known.all() else None
         ok = np.ones(M, dtype=bool)
         at_zero = np.zeros((M, n), dtype=bool)
-        exits = None  # deflected exits of the last round (each round starts from them)
+        # deflected exits of the last round (each round starts from them; the first from
+        # those of the last evaluation outside frozen, where every sample has them: the
+        # masts' iteration converges to its tolerance from there in fewer steps)
+        exits = self._warm_exits[u] if H.compliant else None
+        if exits is not None and not np.isfinite(exits).all():
+            exits = None
         # on held faces from the last evaluation's tensions, one relinearisation gives the
         # tensions to first order in a finite-difference step (a column within 1e-3); two
         # with compliant masts (the wrench matrix moves with the tensions)
-        if hint is not None:
+        held_only = self._frozen and hint is not None
+        if held_only:
             rounds = 2 if H.compliant else 1
-        for _ in range(rounds):
-            bs = batch_statics(H, poses, tau_k, exits0=exits)
+        # outside frozen, the rounds relinearise on the faces of the last evaluation (one
+        # KKT solve per sample) until the tensions settle, then search the faces in full:
+        # where a face changes, they settle on the new faces and search again. The last
+        # round always searches and the tensions stop when it moves them less than
+        # ``rtol``: the fixed point of full searches every round, with one search (two
+        # where a face changed) instead of three or four; ``rounds`` caps the searches,
+        # and the rounds on held faces between two searches
+        search = hint is None
+        held = searches = 0
+        bs = None
+        while True:
+            bs = _statics(H, poses, tau_k, exits, bs)
             exits = bs.exits if H.compliant else None
             W = wrench_matrix(bs.state)
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
             r = np.nan_to_num(bs.unstretched - read)
             C = np.nan_to_num(_length_sensitivity(H, bs, tau_k))
-            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm, hint=hint)
+            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm,
+                                      hint=None if search else hint)
             good = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(fit.tensions).all(axis=1)
             ok = good & fit.feasible
             at_zero = fit.at_zero
             new = np.where(good[:, None], np.maximum(fit.tensions, floor), tau_k)
             moved = float(np.abs(new - tau_k).max()) if M else 0.0
             tau_k = new
-            if moved <= rtol * float(tm.max()):
-                break
+            settled = moved <= rtol * float(tm.max())
+            if held_only:
+                held += 1
+                if settled or held >= rounds:
+                    break
+            elif search:
+                searches += 1
+                if settled or searches >= rounds:
+                    break
+                # a face changed: settle on the new faces before the next search
+                hint, search, held = fit.hint(), False, 0
+            else:
+                held += 1
+                hint = fit.hint()
+                search = settled or held >= rounds
         if not self._frozen:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
         self._at_zero = at_zero
-        bs = batch_statics(H, poses, np.where(at_zero, 0.0, tau_k), exits0=exits)
+        bs = _statics(H, poses, np.where(at_zero, 0.0, tau_k), exits, bs)
+        if H.compliant and not self._frozen:
+            self._warm_exits[u] = bs.exits
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)
         return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
@@ -713,6 +747,20 @@ def _replicated(target: np.ndarray) -> np.ndarray:
     """Samples that belong to a replicate group of two or more."""
     _, inv, cnt = np.unique(target, return_inverse=True, return_counts=True)
     return cnt[inv] >= 2
+
+
+def _statics(H: Robot, poses: np.ndarray, tau: np.ndarray, exits: np.ndarray | None,
+             last: BatchStatics | None) -> BatchStatics:
+    """:func:`batch_statics` of ``poses`` holding ``tau``, from ``exits`` (a warm start of
+    compliant masts); without compliant masts the geometry does not hang on the tensions:
+    that of ``last`` (the same poses) is kept and only the cables' forces and unstretched
+    lengths are evaluated again (what :func:`batch_statics` computes, without the cable
+    states)."""
+    if last is None or H.compliant:
+        return batch_statics(H, poses, tau, exits0=exits)
+    cf, l0 = cables.from_tensions(H, last.state, tau)
+    return BatchStatics(tau, last.exits, last.state, np.isfinite(tau).all(axis=1), l0,
+                        cf.platform)
 
 
 def _balance(W: np.ndarray, f: np.ndarray, tm: np.ndarray) -> np.ndarray:
