@@ -162,3 +162,37 @@ def test_pruning_a_parameter_that_is_not_zero_widens_what_it_moved_into():
     assert plain > 4.0 and reported < 0.8 * plain, (plain, reported)
     plain0, reported0 = _pruned_z(0.0)
     assert 0.8 < reported0 < plain0 < 1.1, (plain0, reported0)
+
+
+def test_an_error_by_the_direction_of_approach_widens_an_offset_where_directions_differ():
+    """Hysteresis: each cable reads +-h by the direction of its last move, on top of
+    independent noise. A per-cable offset takes up the mean of the two directions; what the
+    imbalance of directions moves into it is an error the plain levels do not see (each row
+    looks independent) and the direction component does. A slope along a balanced design
+    is not widened."""
+    cols, per = 4, 60
+    n = cols * per
+    col = np.repeat(np.arange(cols), per)
+    rng0 = np.random.default_rng(2)
+    # two thirds of one direction: the offset takes up a third of the hysteresis
+    s = np.where(rng0.random(n) < 2 / 3, 1.0, -1.0)
+    x = rng0.uniform(-1, 1, n)
+    X = np.column_stack([(col[:, None] == np.arange(cols)).astype(float), x])
+
+    def make(rng):
+        y = X @ np.r_[np.zeros(cols), 0.5] + rng.normal(0.0, 1.0, cols)[col] * s \
+            + rng.normal(0.0, 0.3, n)
+        e = ErrorStructure(np.ones(n), np.zeros(n, int), col, np.arange(n),
+                           np.zeros(n, int), float(n), s)
+        return X, y, e
+
+    spread, se = _spread_and_se(make)
+    assert np.all(np.abs(se / spread - 1.0) < 0.2), (se, spread)
+
+    def make_plain(rng):
+        X_, y, e = make(rng)
+        return X_, y, ErrorStructure(e.weights, e.kinds, e.columns, e.moves, e.stretches,
+                                     e.n_eff)
+
+    spread0, se0 = _spread_and_se(make_plain)
+    assert np.all(se0[:cols] / spread0[:cols] < 0.75), (se0, spread0)

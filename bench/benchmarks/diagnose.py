@@ -45,3 +45,58 @@ def bench_diagnose(quick: bool) -> dict[str, float]:
             raise RuntimeError(f"benchmark diagnosis named {named}")
         return {"diagnose_s": statistics.median(times),
                 "diagnose_samples": float(dg.report["samples"])}
+
+
+#: length of the long continuous recording [s] (the issue's "one-hour dry run")
+HOUR_S = 3600.0
+
+
+def hour_campaign(out: Path, rate_hz: float = 20.0, targets: int | None = None) -> Path:
+    """Record the paper's case as a continuous log of at least an hour (a dry run's, without
+    stops): the 40 grid targets (the first ``targets`` of them) visited in turn at 0.25 m/s,
+    rows at ``rate_hz``, as many rounds as make an hour of straight-line motion (the moves'
+    angles and accelerations make it longer: about two hours, 145,000 rows at 20 Hz)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from bench.campaign import run_campaign
+    from firmware_sim.scenario import RecordingSpec, load_scenario
+
+    path = Path(str(resources.files("bench") / "data" / "paper_scenario.toml"))
+    sc = load_scenario(path)
+    if targets is not None:
+        chosen = sc.poses.generate(np.random.default_rng(sc.seed))[:targets]
+        sc.poses = replace(sc.poses, kind="list", poses=tuple(map(tuple, chosen)))
+    pts = sc.poses.generate(np.random.default_rng(0))[:, :3]
+    hop = float(np.mean(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    per_round = len(pts) * hop / sc.poses.speed_m_s
+    sc.poses = replace(sc.poses, visits=max(1, int(np.ceil(HOUR_S / per_round))), dwell_s=0.0)
+    sc.recording = RecordingSpec(kind="continuous", dwell_at_targets=False, rate_hz=rate_hz)
+    return run_campaign(sc, out)
+
+
+@register("diagnose_hour")
+def bench_diagnose_hour(quick: bool) -> dict[str, float]:
+    """``diagnose_hour_s``: wall time of ``cdpr diagnose`` (one process) on a one-hour
+    continuous recording of the paper's case (``diagnose_hour_rows`` rows over
+    ``diagnose_hour_recorded_s`` seconds);
+    ``diagnose_hour_cpu_s`` its processor time. Recording it (the
+    simulated plant settles at every row) takes minutes and is not timed."""
+    from bench.diagnosis.report import diagnose
+    from bench.parallel import single_blas_thread
+    from bench.recording import read_recording
+
+    single_blas_thread()  # as `cdpr diagnose` runs
+    with tempfile.TemporaryDirectory() as d:
+        rec = hour_campaign(Path(d) / "rec", rate_hz=10.0 if quick else 20.0)
+        t0, c0 = time.perf_counter(), time.process_time()
+        dg = diagnose(rec)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        named = sorted(e["name"] for e in dg.report["effects"])
+        if named != ["exit_point_offset", "mast_compliance"]:
+            raise RuntimeError(f"benchmark diagnosis of the one-hour recording named {named}")
+        rows = float(dg.report["mismatch"]["samples"]["rows"])
+        t = read_recording(rec).t
+        return {"diagnose_hour_s": wall, "diagnose_hour_cpu_s": cpu,
+                "diagnose_hour_rows": rows, "diagnose_hour_recorded_s": float(t[-1] - t[0])}

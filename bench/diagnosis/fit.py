@@ -255,7 +255,8 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     if free.any():
         groups = rm.entry_blocks(idx)
         errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx),
-                                rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff)
+                                rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff,
+                                rm.entry_directions(idx))
         cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, errors)
     else:
         cov, se = np.zeros((0, 0)), np.zeros(0)
@@ -442,6 +443,9 @@ class ErrorStructure:
     moves: np.ndarray
     stretches: np.ndarray
     n_eff: float
+    #: the sign of the last move of each length entry's cable (+1, -1; 0 for other entries
+    #: or unknown): an error by the direction of approach (hysteresis) pairs by it
+    directions: np.ndarray | None = None
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -450,6 +454,9 @@ PRIOR_ENTRIES = 30
 #: component to be estimated from them (an error level; a covariance shared by samples)
 MIN_KEPT_LEVEL = 0.1
 MIN_KEPT_SHARED = 0.5
+#: components of each kind's errors: a level, three shared ones nested in time, one by the
+#: direction of approach
+NCOMP = 5
 
 
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
@@ -486,12 +493,12 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     # on its quantity's level over every sample
     quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
     size = np.array([kg.n for kg in kinds], dtype=float)
-    level = theta.reshape(len(kinds), 4)[:, 0]
+    level = theta.reshape(len(kinds), NCOMP)[:, 0]
     for j, kg in enumerate(kinds):
         same = quantity == quantity[j]
         pooled = float(size[same] @ level[same] / size[same].sum())
         v = (level[j] * kg.n + PRIOR_ENTRIES * pooled) / (kg.n + PRIOR_ENTRIES)
-        c = np.clip(theta[4 * j + 1: 4 * j + 4], 0.0, v)
+        c = np.clip(theta[NCOMP * j + 1: NCOMP * (j + 1)], 0.0, v)
         grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
     return meat
@@ -501,7 +508,10 @@ class _KindGroups:
     """The groups of one kind of entry (``mask``) that the components of :func:`error_meat`
     pair: level 1 one quantity in one move of a stretch, 2 in one stretch, 3 over the
     recording. ``P_0`` is the identity, ``P_l`` (l = 1..3) pairs entries in one group of
-    level ``l`` but not of level ``l - 1`` (no entry with itself)."""
+    level ``l`` but not of level ``l - 1`` (no entry with itself); ``P_4 = S (G - I) S``
+    pairs two entries of one quantity by the product of their directions ``s`` (an error of
+    +-h by the direction of approach: hysteresis, which a length offset cannot take up
+    where both directions occur)."""
 
     def __init__(self, mask: np.ndarray, e: ErrorStructure, ncol: int, nmove: int) -> None:
         self.mask = mask
@@ -516,7 +526,20 @@ class _KindGroups:
                     for i in self.index]
         sq = [float(self.n)] + [float(np.sum(np.bincount(i).astype(float) ** 2))
                                 for i in self.index]
-        self.pairs = np.array([sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)])
+        self.s = (np.zeros(self.n) if e.directions is None
+                  else np.sign(np.asarray(e.directions, dtype=float)[mask]))
+        # tr(P_a P_b): the pair sets of levels 0..3 are disjoint; the direction's overlaps
+        T = np.zeros((NCOMP, NCOMP))
+        T[[0, 1, 2, 3], [0, 1, 2, 3]] = [sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)]
+        if np.any(self.s):
+            ss = [float(self.s @ self.s)] + [float(np.sum(self._sums(self.s, lv) ** 2))
+                                             for lv in (1, 2, 3)]
+            cross = [0.0] + [ss[lv] - ss[lv - 1] for lv in (1, 2, 3)]
+            T[4, :4] = T[:4, 4] = cross
+            s2 = self._sums(self.s ** 2, 3)
+            T[4, 4] = float(s2 @ s2 - np.sum(self.s ** 4))
+        self.trace = T
+        self.pairs = np.diag(T).copy()
 
     def _sums(self, x: np.ndarray, level: int) -> np.ndarray:
         return self.ind[level - 1] @ x
@@ -525,29 +548,39 @@ class _KindGroups:
         """``P_level x`` for ``x`` (n_kind, ...) of this kind's entries."""
         if level == 0:
             return x
+        if level == 4:
+            sx = self._s(x)
+            return self._s(self._sums(sx, 3)[self.index[2]] - sx)
         g = self._sums(x, level)[self.index[level - 1]]
         if level == 1:
             return g - x
         return g - self._sums(x, level - 1)[self.index[level - 2]]
 
+    def _s(self, x: np.ndarray) -> np.ndarray:
+        return x * (self.s[:, None] if x.ndim > 1 else self.s)
+
     def statistics(self, u: np.ndarray) -> list[float]:
-        """``u^T P_l u`` for l = 0..3 (this kind's entries of ``u``)."""
+        """``u^T P_l u`` for l = 0..4 (this kind's entries of ``u``)."""
         uk = u[self.mask]
         sq = [float(uk @ uk)] + [float(np.sum(self._sums(uk, lv) ** 2)) for lv in (1, 2, 3)]
-        return [sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)]
+        su = self._s(uk)
+        sd = float(np.sum(self._sums(su, 3) ** 2) - su @ su)
+        return [sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)] + [sd]
 
     def grams(self, x: np.ndarray) -> list[np.ndarray]:
-        """``x^T P_l x`` for l = 0..3 (x: this kind's rows)."""
+        """``x^T P_l x`` for l = 0..4 (x: this kind's rows)."""
         g = [x.T @ x]
         for lv in (1, 2, 3):
             sl = self._sums(x, lv)
             g.append(sl.T @ sl)
-        return [g[0]] + [g[lv] - g[lv - 1] for lv in (1, 2, 3)]
+        sx = self._s(x)
+        ssum = self._sums(sx, 3)
+        return [g[0]] + [g[lv] - g[lv - 1] for lv in (1, 2, 3)] + [ssum.T @ ssum - sx.T @ sx]
 
 
 def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups],
                          stats: np.ndarray) -> np.ndarray:
-    """Variance components ``theta`` (kind by kind: v, c1, c2, c3) whose expected moment
+    """Variance components ``theta`` (kind by kind: v, c1, c2, c3, cd) whose expected moment
     statistics, over residuals the fit has already projected, equal ``stats``.
 
     The fit removes from the whitened residuals their part in the span ``Q`` of the Jacobian:
@@ -558,12 +591,14 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     (``D = diag(sqrt(w))``), ``Y = D^-1 Q``, ``Z = D Q`` and the pair matrices ``P`` of
     :class:`_KindGroups`: ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' P) - 2 tr(Y^T P' P Z)
     + tr(Y^T P' Y Z^T P Z))``, a linear system solved for ``theta`` (the plain moments
-    where it is singular)."""
+    where it is singular). The level ``v`` and ``c1..c3`` have disjoint pair sets; the
+    direction's ``cd`` overlaps them (``tr(P_4 P_l)`` of :class:`_KindGroups`)."""
     w, V = np.linalg.eigh(Js.T @ Js)
     keep = w > 1e-10 * max(float(w.max(initial=0.0)), 1e-300)
     Q = (Js @ V[:, keep]) / np.sqrt(w[keep])  # an orthonormal basis of the Jacobian's span
     Y, Z = Q / sw[:, None], Q * sw[:, None]
-    K = 4 * len(kinds)
+    L = NCOMP
+    K = L * len(kinds)
     plain = stats / np.where(np.concatenate([kg.pairs for kg in kinds]) > 0,
                              np.concatenate([kg.pairs for kg in kinds]), 1.0)
     if Q.shape[1] == 0:
@@ -572,25 +607,25 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     PY, PZ, GY, GZ = [], [], [], []
     for kg in kinds:
         yk, zk = Y[kg.mask], Z[kg.mask]
-        PY.append([kg.apply(yk, lv) for lv in range(4)])
-        PZ.append([kg.apply(zk, lv) for lv in range(4)])
+        PY.append([kg.apply(yk, lv) for lv in range(L)])
+        PZ.append([kg.apply(zk, lv) for lv in range(L)])
         GY.append([yk.T @ py for py in PY[-1]])
         GZ.append([zk.T @ pz for pz in PZ[-1]])
     for j, kg in enumerate(kinds):
-        for lp in range(4):
-            row = 4 * j + lp
-            A[row, row] += kg.pairs[lp]
-            for lv in range(4):
+        for lp in range(L):
+            row = L * j + lp
+            A[row, L * j: L * (j + 1)] += kg.trace[lp]
+            for lv in range(L):
                 # tr(Y^T P' P Z) = sum of (P' Y) * (P Z): P' symmetric
-                A[row, 4 * j + lv] -= 2.0 * float(np.sum(PY[j][lp] * PZ[j][lv]))
+                A[row, L * j + lv] -= 2.0 * float(np.sum(PY[j][lp] * PZ[j][lv]))
             for i in range(len(kinds)):
-                for lv in range(4):
-                    A[row, 4 * i + lv] += float(np.sum(GY[j][lp] * GZ[i][lv].T))
+                for lv in range(L):
+                    A[row, L * i + lv] += float(np.sum(GY[j][lp] * GZ[i][lv].T))
     pairs = np.concatenate([kg.pairs for kg in kinds])
     kept = np.diag(A) / np.where(pairs > 0, pairs, 1.0)
     # a component the fit absorbs for the most part (an error common to every row, against
     # a fitted offset) is not told by the residuals: it stays at its plain moment estimate
-    floor = np.tile([MIN_KEPT_LEVEL] + [MIN_KEPT_SHARED] * 3, len(kinds))
+    floor = np.tile([MIN_KEPT_LEVEL] + [MIN_KEPT_SHARED] * (L - 1), len(kinds))
     used = (pairs > 0) & (kept >= floor)
     theta = plain.copy()
     theta[pairs <= 0] = 0.0
@@ -602,7 +637,7 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
         return plain
     if np.all(np.isfinite(sol)):
         theta[used] = sol
-    level = theta.reshape(-1, 4)[:, 0]
+    level = theta.reshape(-1, L)[:, 0]
     if np.any(level <= 0):
         return plain
     return theta

@@ -619,6 +619,25 @@ class ResidualModel:
         vector (``Samples.block``)."""
         return self._per_entry(self.s.block.astype(float), idx).astype(int)
 
+    def entry_directions(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The sign (+1 paid out, -1 reeled in, 0 unknown) of the last move of each length
+        entry's cable of :meth:`whiten`'s vector (``Samples.direction``); 0 for the other
+        entries."""
+        n = self.model.n_cables
+        sl = slice(None) if idx is None else idx
+        d = np.sign(np.asarray(self.s.direction, dtype=float)[sl])
+        if d.shape != (len(self.s.t[sl]), n):
+            d = np.zeros((len(self.s.t[sl]), n))
+        parts = [self._mask(d, self.has_len[sl][:, None])]
+        m = len(d)
+        if self.any_tau:
+            mm = (self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl]))[:, None]
+            parts += [self._mask(np.zeros((m, 3)), mm)] * 2
+        if self.has_exit.any():
+            parts.append(self._mask(np.zeros((m, n, 3)), self.has_exit[sl][..., None]))
+        parts = [q for q in parts if q.size]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
     def entry_kinds(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The kind of each entry of :meth:`whiten`'s vector, by quantity (0 a cable length,
         1 a force axis, 2 a moment axis, 3 an exit point's axis) and by sample (a dwell's
