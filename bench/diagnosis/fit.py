@@ -256,7 +256,8 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         groups = rm.entry_blocks(idx)
         errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx),
                                 rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff,
-                                rm.entry_directions(idx))
+                                rm.entry_directions(idx), rm.entry_knots(idx),
+                                (n_eff - lost) / max(n_eff, 1e-12))
         cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, errors)
     else:
         cov, se = np.zeros((0, 0)), np.zeros(0)
@@ -446,6 +447,13 @@ class ErrorStructure:
     #: the sign of the last move of each length entry's cable (+1, -1; 0 for other entries
     #: or unknown): an error by the direction of approach (hysteresis) pairs by it
     directions: np.ndarray | None = None
+    #: (entries, stops x quantities) the visit-to-visit error of the lengths where moves blend
+    #: it between stops (:meth:`ResidualModel.entry_knots`): a known covariance ``K K^T`` of
+    #: the unweighted whitened residuals, which the other components are estimated beside
+    knots: np.ndarray | None = None
+    #: share of the residuals' degrees of freedom per-sample unknowns leave (their moments
+    #: are that share of the errors'; the caller scales the meat back by its inverse)
+    kept: float = 1.0
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -487,8 +495,15 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     kinds = [_KindGroups(e.kinds == k, e, ncol, nmove) for k in np.unique(e.kinds)]
     # the moment statistics u^T P_l u of every kind and component, and the pairs behind each
     stats = np.array([kg.statistics(u) for kg in kinds]).ravel()
-    theta = _unbiased_components(Js, sw, kinds, stats)
+    knots = e.knots if e.knots is not None and len(e.knots) == len(r) and e.knots.any() \
+        else None
+    theta = _unbiased_components(Js, sw, kinds, stats, knots, e.kept)
     meat = np.zeros((p, p))
+    if knots is not None:
+        # the blended visit-to-visit error: known from the replicate dwells, in the readings'
+        # units (the caller's scaling by 1 / kept undone: the score sees it whole)
+        kb = knots.T @ b
+        meat += e.kept * (kb.T @ kb)
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
     quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
@@ -579,7 +594,8 @@ class _KindGroups:
 
 
 def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups],
-                         stats: np.ndarray) -> np.ndarray:
+                         stats: np.ndarray, knots: np.ndarray | None = None,
+                         kept: float = 1.0) -> np.ndarray:
     """Variance components ``theta`` (kind by kind: v, c1, c2, c3, cd) whose expected moment
     statistics, over residuals the fit has already projected, equal ``stats``.
 
@@ -592,18 +608,17 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     :class:`_KindGroups`: ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' P) - 2 tr(Y^T P' P Z)
     + tr(Y^T P' Y Z^T P Z))``, a linear system solved for ``theta`` (the plain moments
     where it is singular). The level ``v`` and ``c1..c3`` have disjoint pair sets; the
-    direction's ``cd`` overlaps them (``tr(P_4 P_l)`` of :class:`_KindGroups`)."""
+    direction's ``cd`` overlaps them (``tr(P_4 P_l)`` of :class:`_KindGroups`).
+
+    A known covariance ``kept * K K^T`` (``knots``: the blended visit-to-visit error of
+    :class:`ErrorStructure`) is taken out of the statistics first, by the same expectation
+    with ``C = kept K K^T``: the components are what the residuals hold beside it."""
     w, V = np.linalg.eigh(Js.T @ Js)
     keep = w > 1e-10 * max(float(w.max(initial=0.0)), 1e-300)
     Q = (Js @ V[:, keep]) / np.sqrt(w[keep])  # an orthonormal basis of the Jacobian's span
     Y, Z = Q / sw[:, None], Q * sw[:, None]
     L = NCOMP
     K = L * len(kinds)
-    plain = stats / np.where(np.concatenate([kg.pairs for kg in kinds]) > 0,
-                             np.concatenate([kg.pairs for kg in kinds]), 1.0)
-    if Q.shape[1] == 0:
-        return plain
-    A = np.zeros((K, K))
     PY, PZ, GY, GZ = [], [], [], []
     for kg in kinds:
         yk, zk = Y[kg.mask], Z[kg.mask]
@@ -611,6 +626,30 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
         PZ.append([kg.apply(zk, lv) for lv in range(L)])
         GY.append([yk.T @ py for py in PY[-1]])
         GZ.append([zk.T @ pz for pz in PZ[-1]])
+    if knots is not None:
+        # E[u_fit^T P' u_fit] of C = kept K K^T: tr(P'C) - 2 tr(Y^T P' C Z) + tr(Y^T P' Y Z^T C Z)
+        kz = knots.T @ Z
+        zcz = kz.T @ kz
+        known = np.zeros(K)
+        for j, kg in enumerate(kinds):
+            kk = knots[kg.mask]
+            if not kk.any():
+                continue
+            ckz = kk @ kz
+            for lp in range(L):
+                known[L * j + lp] = (float(np.sum(kg.apply(kk, lp) * kk))
+                                     - 2.0 * float(np.sum(PY[j][lp] * ckz))
+                                     + float(np.sum(GY[j][lp] * zcz)))
+        stats = stats - kept * known
+    pairs_all = np.concatenate([kg.pairs for kg in kinds])
+    plain = stats / np.where(pairs_all > 0, pairs_all, 1.0)
+    if knots is not None:
+        # what the known part leaves of a level is at least a little of it (never negative)
+        lv0 = np.arange(0, K, L)
+        plain[lv0] = np.maximum(plain[lv0], 1e-3)
+    if Q.shape[1] == 0:
+        return plain
+    A = np.zeros((K, K))
     for j, kg in enumerate(kinds):
         for lp in range(L):
             row = L * j + lp

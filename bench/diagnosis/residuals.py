@@ -143,6 +143,8 @@ class ResidualModel:
         self.white_k = {0: dict(self.white), 1: dict(self.white)}
         self.sigma_source = "defaults (no replicate visits)"
         self.replicate_dof = 0
+        #: visit-to-visit length error of dwells [m] measured on replicates (None unmeasured)
+        self.visit_sd: float | None = None
         # per sample (NaN before the first): the last deflected exits and estimated poses
         # (warm starts)
         self._warm_exits = np.full((s.n, n, 3), np.nan)
@@ -502,6 +504,7 @@ class ResidualModel:
             # change between visits whether the platform stands or moves); their own replicate
             # groups, rows near each other on few moves, can miss it
             found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
+        self.visit_sd = found[0].get("length")
         for kind in (0, 1):
             if found[kind]:
                 self.sigma_k[kind].update(found[kind])
@@ -618,6 +621,52 @@ class ResidualModel:
         """The move (rows of a move) or target (dwells) of each entry of :meth:`whiten`'s
         vector (``Samples.block``)."""
         return self._per_entry(self.s.block.astype(float), idx).astype(int)
+
+    def entry_knots(self, idx: np.ndarray | None = None) -> np.ndarray | None:
+        """The visit-to-visit error of the lengths where the recording stops between moves
+        (dwells and rows of moves both fitted): (entries of :meth:`whiten`'s vector, stops x
+        cables), whitened. A cable's error changes from stop to stop (what replicate dwells
+        measure, ``visit_sd``) and rows of the move between two stops carry a blend of theirs
+        (linear in time), so a move's rows share their error with the dwells at both ends
+        and with the rows of the moves before and after: its covariance is ``K K^T``. None
+        when there is nothing to blend (no rows of moves, or no dwell replicates told the
+        level). The initialisation's stops carry none: the encoders are referenced there."""
+        s, n = self.s, self.model.n_cables
+        sl = np.arange(s.n) if idx is None else np.asarray(idx)
+        if not self.visit_sd or not (s.kind[sl] == 1).any() or not (s.kind[sl] == 0).any():
+            return None
+        stops = np.flatnonzero(s.kind == 0)
+        stops = stops[np.argsort(s.t[stops], kind="stable")]
+        ts = s.t[stops]
+        t = s.t[sl]
+        b = np.clip(np.searchsorted(ts, t), 1, len(ts) - 1) if len(ts) > 1 \
+            else np.zeros(len(t), dtype=int)
+        hat = np.zeros((len(sl), len(stops)))
+        if len(ts) > 1:
+            f = np.clip((t - ts[b - 1]) / np.maximum(ts[b] - ts[b - 1], 1e-9), 0.0, 1.0)
+            rows = np.arange(len(sl))
+            hat[rows, b - 1] = 1.0 - f
+            hat[rows, b] += f
+        else:
+            hat[:, 0] = 1.0
+        own = np.flatnonzero(s.kind[sl] == 0)
+        hat[own] = 0.0
+        by_index = np.argsort(stops)
+        hat[own, by_index[np.searchsorted(stops[by_index], sl[own])]] = 1.0
+        hat[:, s.is_init[stops]] = 0.0
+        if not hat.any():
+            return None
+        # per sample and cable: the stops' weights on that cable's column, over its noise
+        amp = self.visit_sd / self.sd["length"][sl]
+        S = len(stops)
+        K = (hat * amp[:, None])[:, None, :, None] * np.eye(n)[None, :, None, :]  # (M,n,S,n)
+        out = [K[self.has_len[sl]].reshape(-1, S * n)]
+        if self.any_tau:
+            mm = self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl])
+            out.append(np.zeros((int(mm.sum()) * 6, S * n)))
+        if self.has_exit.any():
+            out.append(np.zeros((int(self.has_exit[sl].sum()) * 3, S * n)))
+        return np.concatenate(out)
 
     def entry_directions(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The sign (+1 paid out, -1 reeled in, 0 unknown) of the last move of each length
