@@ -1,0 +1,87 @@
+"""The visit-to-visit length error of a continuous recording with dwells
+(``ResidualModel.entry_knots``): each stop has its own error, and the rows of the move
+between two stops carry a blend of their two errors. The standard errors count it whole
+(``tests/test_diagnosis_standard_errors.py`` checks them against the spread of estimates)."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from bench.campaign import run_campaign
+from bench.diagnosis.residuals import ResidualModel
+from bench.diagnosis.samples import prepare
+from bench.recording import read_recording
+from firmware_sim.scenario import parse_scenario
+
+POSES = {"kind": "grid", "n": [3, 2, 1], "x": [7.0, 13.0], "y": [6.0, 11.0], "z": [1.0, 1.5],
+         "rpy_deg": 0.0, "visits": 2, "dwell_s": 2.0, "init_s": 3.0, "speed_m_s": 0.5}
+
+
+def _model(tmp_path, recording: dict, poses: dict | None = None) -> ResidualModel:
+    sc = parse_scenario({"format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 5,
+                         "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0], "truth": {},
+                         "nuisance": {"hysteresis_m": 5e-5, "drift_m_per_h": 2e-5},
+                         "poses": copy.deepcopy(poses or POSES), "recording": recording})
+    rec = read_recording(run_campaign(sc, tmp_path / "rec"))
+    s = prepare(rec)
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
+    rm.estimate_noise(rec.robot)
+    return rm
+
+
+@pytest.fixture(scope="module")
+def dwells_and_moves(tmp_path_factory):
+    return _model(tmp_path_factory.mktemp("blend"),
+                  {"kind": "continuous", "dwell_at_targets": True, "rate_hz": 10.0})
+
+
+def test_rows_of_a_move_blend_the_errors_of_the_stops_at_its_ends(dwells_and_moves):
+    rm = dwells_and_moves
+    s, n = rm.s, rm.model.n_cables
+    K = rm.entry_knots()
+    assert K is not None and rm.visit_sd and rm.visit_sd > 0
+    assert K.shape[0] == len(rm.whitened(rm.model))
+    stops = np.flatnonzero(s.kind == 0)
+    assert K.shape[1] == len(stops) * n
+    # length entries come first, sample by sample, cable by cable; the rest carry none
+    m = int(rm.has_len.sum())
+    L = K[: m * n].reshape(m, n, len(stops), n)
+    assert not K[m * n:].any()
+    amp = rm.visit_sd / rm.sd["length"][rm.has_len]
+    hat = L.sum(axis=3) / amp[:, None, None]  # (samples, cables, stops)
+    # each entry loads its own cable only
+    off = L * (1.0 - np.eye(n))[None, :, None, :]
+    assert not off.any()
+    kinds = s.kind[rm.has_len]
+    init = s.is_init[stops]
+    for i in range(m):
+        h = hat[i, 0]
+        assert np.allclose(hat[i], h)  # the same weights for every cable of a sample
+        if kinds[i] == 0:
+            own = np.flatnonzero(stops == np.flatnonzero(rm.has_len)[i])[0]
+            # a dwell: its own stop's error whole; the initialisation's: none (the reference)
+            assert np.isclose(h[own], 0.0 if init[own] else 1.0)
+            assert np.isclose(h.sum(), h[own])
+        else:
+            # a row of a move: weights on at most two stops next to each other, summing to
+            # one (less the initialisation's share on the first move)
+            nz = np.flatnonzero(h > 1e-12)
+            assert 1 <= len(nz) <= 2 and (len(nz) == 1 or nz[1] == nz[0] + 1)
+            assert h.sum() <= 1.0 + 1e-9
+            if s.t[rm.has_len][i] > s.t[stops[~init]].min():
+                assert np.isclose(h.sum(), 1.0)
+    # the rows blend: some rows of moves share two stops' errors
+    moving = hat[kinds == 1, 0]
+    assert np.any(np.sum(moving > 0.2, axis=1) == 2)
+
+
+def test_nothing_to_blend_without_rows_of_moves_or_without_dwells(tmp_path):
+    dwell = _model(tmp_path / "d", {"kind": "dwell"},
+                   POSES | {"rate_hz": 2.0, "dwell_s": 3.0, "init_s": 4.0})
+    assert dwell.visit_sd and dwell.entry_knots() is None
+    moves = _model(tmp_path / "m", {"kind": "continuous", "dwell_at_targets": False,
+                                    "rate_hz": 10.0})
+    assert moves.entry_knots() is None
