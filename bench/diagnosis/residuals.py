@@ -27,15 +27,18 @@ Noise: each sample's residual has the variance ``sigma_p^2 + sigma_w^2 / count``
 ``sigma_w`` the row-to-row (white) noise, from second differences of raw rows;
 ``sigma_p`` what changes between visits of one pose (repeatability), from
 replicate groups. Rows of a move count with their weight (they share slow
-errors). Where per-sample unknowns are solved for (an estimated pose, internal
-forces), a sample's length residual is the noise projected onto the ``r`` of ``n``
-directions the unknowns leave (``r = n - 6`` without a tracker pose, ``r = 6``
-without tensions): its spread measured on replicates is ``r / n`` of the readings'
-noise, which is what whitens it (each such residual counts ``r / n`` of a degree of
-freedom, :meth:`ResidualModel.dof_lost`), so that a parameter fitted to noise lowers
-the chi-square by one, not by ``n / r``. Forward figures
-(:meth:`ResidualModel.forward`) solve the equilibrium of each sample under the
-hypothesis and compare poses and tensions: the headline.
+errors); where a recording stops between moves, a cable's visit-to-visit error
+changes at each stop and the rows of a move carry a blend of the errors of its two
+stops (:meth:`ResidualModel.entry_knots`, for the standard errors). Where per-sample
+unknowns are solved for (an estimated pose, internal forces), a sample's length
+residual is the noise projected onto the ``r`` of ``n`` directions the unknowns leave
+(``r = n - 6`` without a tracker pose, ``r = 6`` without tensions): its spread
+measured on replicates is ``r / n`` of the readings' noise, which is what whitens it
+(each such residual counts ``r / n`` of a degree of freedom,
+:meth:`ResidualModel.dof_lost`), so that a parameter fitted to noise lowers the
+chi-square by one, not by ``n / r``. Forward figures (:meth:`ResidualModel.forward`)
+solve the equilibrium of each sample under the hypothesis and compare poses and
+tensions: the headline.
 """
 
 from __future__ import annotations
