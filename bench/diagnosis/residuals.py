@@ -460,10 +460,18 @@ class ResidualModel:
                 search = settled or held >= rounds
         if not self._frozen:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
-        self._at_zero = at_zero
         bs = _statics(H, poses, np.where(at_zero, 0.0, tau_k), exits, bs)
         if H.compliant and not self._frozen:
             self._warm_exits[u] = bs.exits
+        # the balance holds at most n - 6 cables at zero; where the platform hangs on fewer
+        # cables (more of them slack), the fitted tension of another slack one comes out
+        # within round-off of zero: a cable whose fitted tension is below what a load cell
+        # would tell from slack and whose reading is longer than its straight line is slack,
+        # one-sided like a measured slack cable (two-sided, it would count millimetres)
+        faint = ~at_zero & (fit.tensions < self.slack_threshold) & \
+            (bs.state.length - read < 0.0)
+        at_zero = at_zero | faint
+        self._at_zero = at_zero
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)
         return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
@@ -486,6 +494,12 @@ class ResidualModel:
         self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
         tg = self.s.target if groups is None else np.asarray(groups)
         count = np.maximum(self.s.count, 1)
+        # every call starts from the declared defaults: replicate groups of an earlier call
+        # (e.g. visits on both sides of a slip, before the groups were split) must not leave
+        # their spread behind where this call finds none
+        self.sigma_k = {0: dict(DEFAULTS), 1: dict(DEFAULTS)}
+        self.sigma_source = "defaults (no replicate visits)"
+        self.replicate_dof = 0
         found: dict[int, dict[str, float]] = {0: {}, 1: {}}
         reps = _replicated(tg)
         for kind in (0, 1):
