@@ -79,3 +79,19 @@ def test_one_cable_dominating_a_jump_spread_over_all_is_its_slip():
     L[220:] += np.array([0.8, 0.25, 0.35, 0.55, -3.0, 0.6, -0.5, 0.7]) * 1e-3
     found = row_jumps(st, L, IDS)
     assert [f["cable"] for f in found] == ["5"] and found[0]["row"] == 222
+
+
+def test_a_jump_where_another_cable_goes_slack_is_the_balance_not_a_slip():
+    """Without load cells each row's tensions are fitted to the stretch: where the fit moves
+    a cable to zero tension (its residual left out, one-sided), the others' residuals change
+    with the new balance. The same jump between rows on one balance is a slip."""
+    rng = np.random.default_rng(6)
+    st = _stream()
+    L = _noise(400, rng)
+    L[:, 4] += 3e-2  # a model centimetres off
+    L[250:, 4] += 6e-3
+    switched = L.copy()
+    switched[250:, 0] = np.nan  # cable 1 at zero tension from row 250 on
+    assert row_jumps(st, switched, IDS) == []
+    found = row_jumps(st, L, IDS)
+    assert [f["cable"] for f in found] == ["5"] and found[0]["row"] == 252

@@ -159,9 +159,18 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
     platform moves away from where the model holds does not step), and the new level must
     hold over the next :data:`JUMP_HOLD` rows against the line through the previous ones, out
     of their scatter (a single wild row, a transient that returns, a noisy reading is no
-    slip)."""
+    slip).
+
+    Residuals left out (NaN: a cable read as slack, one-sided) mark the balance each row
+    was evaluated on: where a cable goes slack or taut between two rows, every cable's
+    residual changes with the balance (without load cells, the tensions fitted to the
+    stretch move to another set of cables at zero; under a model centimetres off, two such
+    sets can fit almost equally and the fit switches between them), not with the readings:
+    such a pair of rows tells no step."""
     R = len(length)
     same = np.concatenate([[False], stream.block[1:] == stream.block[:-1]])
+    gone = ~np.isfinite(length)
+    same[1:] &= np.all(gone[1:] == gone[:-1], axis=1)
     d = np.full(length.shape, np.nan)
     d[1:] = length[1:] - length[:-1]
     d[~same] = np.nan
