@@ -87,6 +87,7 @@ def test_a_jump_where_another_cable_goes_slack_is_the_balance_not_a_slip():
     with the new balance. The same jump between rows on one balance is a slip."""
     rng = np.random.default_rng(6)
     st = _stream()
+    st.tau = np.full((400, len(IDS)), np.nan)  # no load cells: tensions fitted per row
     L = _noise(400, rng)
     L[:, 4] += 3e-2  # a model centimetres off
     L[250:, 4] += 6e-3
@@ -94,4 +95,8 @@ def test_a_jump_where_another_cable_goes_slack_is_the_balance_not_a_slip():
     switched[250:, 0] = np.nan  # cable 1 at zero tension from row 250 on
     assert row_jumps(st, switched, IDS) == []
     found = row_jumps(st, L, IDS)
+    assert [f["cable"] for f in found] == ["5"] and found[0]["row"] == 252
+    # measured tensions: the slip itself slackened cable 1 (its load cell reads zero)
+    st.tau = np.full((400, len(IDS)), 100.0)
+    found = row_jumps(st, switched, IDS)
     assert [f["cable"] for f in found] == ["5"] and found[0]["row"] == 252

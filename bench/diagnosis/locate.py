@@ -161,16 +161,21 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
     of their scatter (a single wild row, a transient that returns, a noisy reading is no
     slip).
 
-    Residuals left out (NaN: a cable read as slack, one-sided) mark the balance each row
-    was evaluated on: where a cable goes slack or taut between two rows, every cable's
-    residual changes with the balance (without load cells, the tensions fitted to the
-    stretch move to another set of cables at zero; under a model centimetres off, two such
-    sets can fit almost equally and the fit switches between them), not with the readings:
-    such a pair of rows tells no step."""
+    Rows without measured tensions (``stream.tau`` not finite) have them fitted to the
+    stretch: there, residuals left out (NaN: a cable at zero tension, one-sided) mark the
+    balance the row was evaluated on, and where a cable goes to or from zero between two
+    such rows every cable's residual changes with the balance (under a model centimetres
+    off, two sets of cables at zero can fit almost equally and the fit switches between
+    them), not with the readings: such a pair of rows tells no step. (With measured
+    tensions a slip itself may slacken a cable: those pairs count.)"""
     R = len(length)
     same = np.concatenate([[False], stream.block[1:] == stream.block[:-1]])
-    gone = ~np.isfinite(length)
-    same[1:] &= np.all(gone[1:] == gone[:-1], axis=1)
+    tau = getattr(stream, "tau", None)
+    if tau is not None and R > 1:
+        fitted = ~np.isfinite(np.asarray(tau, float).reshape(R, -1)).all(axis=1)
+        gone = ~np.isfinite(length)
+        switch = np.any(gone[1:] != gone[:-1], axis=1) & fitted[1:] & fitted[:-1]
+        same[1:] &= ~switch
     d = np.full(length.shape, np.nan)
     d[1:] = length[1:] - length[:-1]
     d[~same] = np.nan
