@@ -15,6 +15,7 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import least_squares
 
+from bench.diagnosis.likelihood import StretchLikelihood
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import ParamSpace
 
@@ -120,19 +121,68 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
         weak &= ~hold
     if not weak.any():
         return full
-    held = weak | ~np.isfinite(full.stderr)
-    if hold is not None:
-        held |= hold
-    pruned = _fit(space, rm, idx, full.phi, max_nfev, held)
-    if pruned.bic < full.bic and pruned.success:
-        # the held parameters keep the uncertainty the full fit gave them; the others have
-        # the pruned fit's. The full fit's would be the errors of a model that lets every
-        # weak parameter trade against them (a load cell's gain against its offset when its
-        # tension varies little): fifty times the spread of the values over the evaluation
-        pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
-        pruned.bias_var = pruning_bias_var(full, weak, space.neutral)
-        return pruned
+    # all the weak parameters held at once; when the BIC refuses that (they share a
+    # direction the data fix, and holding them all pins it), those that can be held
+    # together (:func:`pruning_set`)
+    tried = np.zeros_like(weak)
+    for attempt in range(2):
+        if attempt:
+            weak = pruning_set(full, weak, space.neutral)
+            if not weak.any() or np.array_equal(weak, tried):
+                break
+        tried = weak
+        held = weak | ~np.isfinite(full.stderr)
+        if hold is not None:
+            held |= hold
+        pruned = _fit(space, rm, idx, full.phi, max_nfev, held)
+        if pruned.bic < full.bic and pruned.success:
+            # the held parameters keep the uncertainty the full fit gave them; the others
+            # have the pruned fit's. The full fit's would be the errors of a model that lets
+            # every weak parameter trade against them (a load cell's gain against its offset
+            # when its tension varies little): fifty times the spread of the values over the
+            # evaluation
+            pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
+            pruned.bias_var = pruning_bias_var(full, weak, space.neutral)
+            return pruned
     return full
+
+
+def pruning_set(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> np.ndarray:
+    """Of the ``weak`` parameters (each within two standard errors of ``neutral``, the
+    model's value, in the full fit), those that can be held there together (when the BIC
+    refused holding them all).
+
+    Weak parameters can share a poorly known direction (a load cell's gain and offset
+    where its tension varies little; the cells' common gain beside their offsets, or
+    beside the mass): each one alone is within its marginal error of the model, yet
+    holding one fixes the direction, and the others then sit where it puts them. They
+    are tested jointly: in order of their distance to the model (in standard errors), a
+    parameter is held when, with those already held at the model's values, it is still
+    within two standard errors of its own (the full fit's covariance, linearised: the
+    value and error it would have in the fit holding the others). A cell 2 % off among
+    gains whose common mode is known to 2.5 % is kept once another cell's gain fixes that
+    mode; held all at once, such a set raised the chi-square past what pruning saves, and
+    nothing was pruned (every gain and offset kept: a model the BIC then rejects for the
+    parameters a look-alike does without)."""
+    out = np.zeros(len(full.phi), dtype=bool)
+    cand = np.flatnonzero(weak)
+    if not len(cand):
+        return out
+    d = full.phi - neutral
+    S = full.cov
+    held: list[int] = []
+    for k in sorted(cand, key=lambda j: abs(d[j]) / full.stderr[j]):
+        if held:
+            h = np.array(held)
+            b = np.linalg.lstsq(S[np.ix_(h, h)], S[h, k], rcond=1e-12)[0]
+            m = d[k] - float(b @ d[h])
+            v = float(S[k, k] - b @ S[h, k])
+        else:
+            m, v = d[k], float(S[k, k])
+        if m * m < 4.0 * max(v, 1e-12 * float(S[k, k])):
+            held.append(int(k))
+    out[held] = True
+    return out
 
 
 def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> np.ndarray:
@@ -162,8 +212,12 @@ def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> 
 def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray | None,
          max_nfev: int, hold: np.ndarray | None) -> FitResult:
 
+    # the residuals, with the likelihood's Jacobian term where tensions move with the
+    # length errors (estimated poses: bench.diagnosis.likelihood) as one entry more
+    lik = StretchLikelihood(rm, idx)
+
     def fun(phi: np.ndarray) -> np.ndarray:
-        return rm.whitened(space.robot(phi), idx)
+        return lik.residuals(space.robot(phi))
 
     x0 = space.neutral.copy() if phi0 is None else np.clip(phi0, space.lo, space.hi)
     steps = space.scale * 1e-2
@@ -175,8 +229,8 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     n_eff = float(rm.entry_weights(idx).sum())
     if len(space) == 0:
         r = fun(x0)
-        chi2 = float(r @ r)
-        return FitResult(space, x0, chi2, len(r), bic(chi2, 0, n_eff), np.zeros(0),
+        chi2 = float(r @ r) - lik.K
+        return FitResult(space, x0, chi2, len(r) - lik.n_extra, bic(chi2, 0, n_eff), np.zeros(0),
                          np.zeros((0, 0)), True, "no parameters", 1, lost, 0, n_eff)
     # parameters the data cannot fix at all (seen at the start, before the fit can wander
     # along them) stay at the model's values; compliance-like ones are held first
@@ -250,7 +304,10 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
             msg = f"did not converge in {nfev} evaluations: {msg}"
     else:
         r, Jf, nfev, ok, msg = fun(x), np.zeros((0, 0)), 1, True, "nothing to fit"
-    chi2 = float(r @ r)
+    chi2 = float(r @ r) - lik.K
+    if lik.n_extra:  # the errors' model holds the residuals proper
+        r = r[:-lik.n_extra]
+        Jf = Jf[:-lik.n_extra] if len(Jf) else Jf
     n_res = len(r)
     if free.any():
         groups = rm.entry_blocks(idx)
@@ -258,7 +315,8 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
                                 rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff,
                                 rm.entry_directions(idx), rm.entry_knots(idx),
                                 (n_eff - lost) / max(n_eff, 1e-12))
-        cov, se = standard_errors(Jf, chi2, n_eff - lost, space.scale[free], r, groups, errors)
+        cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r, groups,
+                                  errors)
     else:
         cov, se = np.zeros((0, 0)), np.zeros(0)
     se_all = np.full(len(x), np.inf)

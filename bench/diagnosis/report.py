@@ -62,6 +62,14 @@ SEPARATE = {
         "long moves that change one cable's length at a constant direction",
     frozenset({"load_cell_calibration", "platform_mass"}):
         "a known extra mass on the platform, or the same poses at two pretension levels",
+    # without a tracker a common EA, and a gain common to every load cell with the mass,
+    # are one in the statics and in the cables' stretch
+    frozenset({"platform_mass", "cable_elasticity"}):
+        "tracker poses, or a known extra mass on the platform (without a tracker a common "
+        "change of EA and a gain common to every load cell with the mass are the same in the "
+        "statics and in the cables' stretch)",
+    frozenset({"load_cell_calibration", "cable_elasticity"}):
+        "tracker poses, or a known extra mass on the platform",
     frozenset({"cable_elasticity", "drum_scale"}):
         "the same pose at two pretension levels (elasticity follows tension, scale does not)",
     frozenset({"cable_length_offset", "exit_point_offset"}):
@@ -447,6 +455,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         say("unexplained: " + leftover["summary"])
 
     effects = []
+    names = [report_name(e) for e in sel.effects]
     for e in sel.effects:
         name = report_name(e)
         rest = tuple(c for c in sel.effects if c != e)
@@ -468,10 +477,16 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
                              for a, d in sel.alternatives.get(e, [])
                              if report_name(a) != name],
         }
-        if name == "platform_mass" and "mass" in params[e] and rm.any_tau:
-            alt = _common_gain_alternative(rm, final, fit_idx)
+        if rm.any_tau and ((name == "platform_mass" and "mass" in params[e]) or (
+                name == "load_cell_calibration" and "platform_mass" not in names
+                and any(k.startswith("gain_") for k in params[e]))):
+            alt = _common_gain_alternative(rm, final, fit_idx, name)
             if alt is not None and alt["delta_bic"] < BIC_TIE:
-                entry["alternatives"].append(alt)
+                same = [a for a in entry["alternatives"] if a["name"] == alt["name"]]
+                if same:  # the selection's refit of it: what it is, said
+                    same[0]["note"] = alt["note"]
+                else:
+                    entry["alternatives"].append(alt)
         if name == "cable_length_offset":
             late = [(c, t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
                     if t > rm.init_end and f"dl_{c}" in params[e]]
@@ -502,7 +517,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         fitted_out["heldout_pose_rms_m"] = None
 
     mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
-                         pose_noise, excluded)
+                         pose_noise, excluded, effects)
     model_path = write_error = None
     if write_model is not None:
         named = ", ".join(f"{e['name']} ({', '.join(e['params'])})" for e in effects) or "none"
@@ -560,24 +575,46 @@ def _pose_noise(s: Samples, fw: Forward) -> float | None:
     return float(np.sqrt(np.sum(sd ** 2)))
 
 
-def _common_gain_alternative(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> dict | None:
-    """A gain shared by every load cell in place of the fitted mass change: in statics the
-    two are the same (W tau_meas / g balances m g), only the stretch of the cables can tell
-    them apart. Its BIC change is evaluated, not refitted."""
+def _common_gain_alternative(rm: ResidualModel, fit: FitResult, idx: np.ndarray,
+                             named: str = "platform_mass") -> dict | None:
+    """The other side of the load cells' gauge: a gain shared by every load cell in place of
+    the fitted mass change (``named`` platform_mass), or a mass change in place of the
+    fitted gains' common part (their geometric mean; ``named`` load_cell_calibration). In
+    statics the two are the same (W tau_meas / g balances m g); only the cables' stretch
+    (and with it the likelihood's Jacobian term, :mod:`bench.diagnosis.likelihood`) tells
+    them apart. Its chi-square change is evaluated, one parameter for one, not refitted."""
+    from bench.diagnosis.likelihood import StretchLikelihood
+
     robot = fit.space.robot(fit.phi)
     model = rm.model
-    ratio = robot.mass / model.mass
-    alt = robot.replace(mass=model.mass, load_cell_gain=robot.load_cell_gain * ratio)
-    r_fit = rm.whitened(robot, idx)
-    r_alt = rm.whitened(alt, idx)
+    if named == "platform_mass":
+        ratio = robot.mass / model.mass
+        alt = robot.replace(mass=model.mass, load_cell_gain=robot.load_cell_gain * ratio)
+        out = {"name": "load_cell_calibration",
+               "note": f"a gain of {ratio:.4f} shared by every load cell instead of the mass"}
+    else:
+        common = float(np.exp(np.mean(np.log(robot.load_cell_gain / model.load_cell_gain))))
+        if not np.isfinite(common) or abs(common - 1.0) < 1e-3:
+            return None
+        alt = robot.replace(mass=robot.mass / common,
+                            load_cell_gain=robot.load_cell_gain / common,
+                            load_cell_offset=robot.load_cell_offset / common)
+        out = {"name": "platform_mass",
+               "note": f"a mass of {alt.mass:.4g} kg instead of a gain of {common:.4f} shared "
+                       f"by every load cell"}
+    lik = StretchLikelihood(rm, idx)
+    r_fit = lik.residuals(robot)
+    r_alt = lik.residuals(alt)
     d = float(r_alt @ r_alt - r_fit @ r_fit)  # one parameter for one: no penalty change
-    return {"name": "load_cell_calibration", "delta_bic": d,
-            "note": f"a gain of {ratio:.4f} shared by every load cell instead of the mass"}
+    if not np.isfinite(d):
+        return None
+    return out | {"delta_bic": d}
 
 
 def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Forward,
               steps: list[dict], sel: Selection, leftover: dict | None, noise: dict,
-              pose_noise: float | None, excluded: list[dict]) -> dict:
+              pose_noise: float | None, excluded: list[dict],
+              effects: list[dict] | None = None) -> dict:
     model = rec.robot
     tension = base_fw.tension_err if np.isfinite(base_fw.tension_err).any() else None
     dist = np.linalg.norm(base_fw.pose_err[:, :3], axis=1)
@@ -594,7 +631,7 @@ def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Fo
         noise_out["pose_m"] = pose_noise
     out = {
         "summary": _summary(rec, s, rm, blocks, dist, label, growth, steps, sel, leftover,
-                            noise, untested),
+                            noise, untested, effects),
         "by_cable": locate.by_cable(model.cable_ids, blocks.length, tension),
         "by_mast": locate.by_mast(model.mast_ids, model.mast_index, blocks.length),
         "regions": regions[:6],
@@ -626,7 +663,8 @@ def _explained(sel: Selection) -> dict[str, float]:
 
 def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.ndarray,
              label: str, growth: dict | None, steps: list[dict], sel: Selection,
-             leftover: dict | None, noise: dict, untested: list[str]) -> str:
+             leftover: dict | None, noise: dict, untested: list[str],
+             effects: list[dict] | None = None) -> str:
     model = rec.robot
     parts = []
     what = "pose error" if label == "pose_rms_m" else "exit-point error"
@@ -680,6 +718,14 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                                "more poses spread over the workspace")
             parts.append(f"{report_name(a)} fits about as well as {report_name(e)} (delta BIC "
                          f"{d:+.1f}); {how} would separate them")
+    for entry in effects or []:
+        for alt in entry.get("alternatives", []):
+            if "note" in alt:
+                how = SEPARATE[frozenset({"load_cell_calibration", "platform_mass"})]
+                parts.append(f"{alt['name']} fits about as well as {entry['name']} (delta BIC "
+                             f"{alt['delta_bic']:+.1f}: {alt['note']}): a gain common to every "
+                             f"load cell and the platform's mass are one in the statics, only "
+                             f"the cables' stretch tells them apart; {how} would")
     for e, imit in sel.imitation.items():
         close = [a for a, v in imit.items() if v > 0.8 and a not in
                  [x for x, _ in sel.alternatives.get(e, [])] and report_name(a) != report_name(e)]

@@ -484,6 +484,9 @@ class Selector:
         out: dict[tuple[str, str], float] = {}
         r_cur = self.rm.whitened(space.robot(current.phi), self.train)
         n_res = len(r_cur)
+        # the current fit's BIC on the residuals alone, as the linearised swaps have them (a
+        # fit's chi-square may hold the likelihood's Jacobian term: bench.diagnosis.likelihood)
+        base = float(r_cur @ r_cur) + current.bic - current.chi2
         for e in chosen:
             phi_wo = current.phi.copy()
             ix = space.indices(e)
@@ -516,7 +519,7 @@ class Selector:
                 d = _bounded_lstsq(J, -r_wo, x0, lo, hi)
                 r1 = r_wo + J @ d
                 bic_pred = float(r1 @ r1) + (p_keep + len(sub)) * np.log(n_res)
-                out[(e, a)] = bic_pred - current.bic
+                out[(e, a)] = bic_pred - base
         self._swap_cache[key] = out
         return out
 
