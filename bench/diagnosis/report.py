@@ -394,10 +394,9 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
             slips[model.cable_ids.index(st["cable"])] = max(st["t_s"], rm.init_end)
             say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s")
         rm.slip_times = slips
-        # the visits of a target on both sides of a step differ by the slip: split them, and
-        # estimate the noise again
-        epoch = sum((s.t >= st["t_s"]).astype(int) for st in steps)
-        rm.estimate_noise(model, groups=s.target * (len(steps) + 1) + epoch)
+        # the visits of a target on both sides of a step differ by the slip: estimate the noise
+        # again (the slipped cable's replicate groups split at its step)
+        rm.estimate_noise(model)
         nz = rm.noise_summary()
         say(f"noise, the replicate groups split at the steps: lengths "
             f"{nz['length'] * 1e3:.3f} mm, forces {nz['force']:.2f} N")

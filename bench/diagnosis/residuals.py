@@ -145,7 +145,7 @@ class ResidualModel:
         self.sigma_k = {0: dict(self.sigma), 1: dict(self.sigma)}
         self.white_k = {0: dict(self.white), 1: dict(self.white)}
         self.sigma_source = "defaults (no replicate visits)"
-        self.replicate_dof = 0
+        self.replicate_dof = 0.0
         #: visit-to-visit length error of dwells [m] measured on replicates (None unmeasured)
         self.visit_sd: float | None = None
         # per sample (NaN before the first): the last deflected exits and estimated poses
@@ -483,8 +483,18 @@ class ResidualModel:
         dynamics): white noise from raw rows (second differences), repeatability from the
         spread over replicate groups (model errors repeat at a pose, noise does not); a kind
         without replicates takes the other kind's, declared defaults without any.
-        ``groups`` (N,) replaces the replicate groups (visits of a target split where a
-        cable's reading stepped: a slip is no noise)."""
+
+        Replicate groups are the samples' targets, split per cable where that cable's
+        length offset starts (``slip_times`` after the initialisation: a slip is no noise).
+        A slip moves only its own cable's residual where the pose and the tensions are
+        measured, so the other cables keep their replicates; where per-sample unknowns are
+        solved for (an estimated pose, fitted internal forces) it moves every cable's, and
+        such samples split for every cable. The wrench splits at every slip. ``groups``
+        (N,) or (N,n) replaces the targets (split the same way).
+
+        ``replicate_dof`` counts the independent replicate differences, per cable (mean over
+        cables): a sample counts with its weight (rows of one move share its slow errors, so
+        twelve pairs of rows from two moves are a few differences, not twelve)."""
         b = self.blocks(H)
         if self.rows is not None:
             rw = self.rows.white_noise_by_kind(H)
@@ -492,30 +502,34 @@ class ResidualModel:
                 own = rw.get(kind) or rw.get(1 - kind) or {}
                 self.white_k[kind].update(own)
         self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
-        tg = self.s.target if groups is None else np.asarray(groups)
+        G = self._replicate_groups(groups)
         count = np.maximum(self.s.count, 1)
+        w = np.clip(self.s.weight, 0.0, 1.0)
         # every call starts from the declared defaults: replicate groups of an earlier call
         # (e.g. visits on both sides of a slip, before the groups were split) must not leave
         # their spread behind where this call finds none
         self.sigma_k = {0: dict(DEFAULTS), 1: dict(DEFAULTS)}
         self.sigma_source = "defaults (no replicate visits)"
-        self.replicate_dof = 0
+        self.replicate_dof = 0.0
         found: dict[int, dict[str, float]] = {0: {}, 1: {}}
-        reps = _replicated(tg)
+        dof_len = np.zeros(self.model.n_cables)
         for kind in (0, 1):
-            sel = (self.s.kind == kind) & reps
-            if not sel.any():
+            of_kind = self.s.kind == kind
+            if not of_kind.any():
                 continue
             for name, vals in self._block_values(b).items():
-                v = vals[sel]
+                v = np.where(of_kind[:, None], vals, np.nan)
+                g = G[name]
                 if not np.isfinite(v).any():
                     continue
-                sd = pooled_std(v, tg[sel])
-                if sd is None or not np.isfinite(sd).any():
+                sd, rep, dof = _pooled_columns(v, g, w)
+                if sd is None:
                     continue
-                white = self.white_k[kind][name] ** 2 * float(np.mean(1.0 / count[sel]))
+                white = self.white_k[kind][name] ** 2 * float(np.mean(1.0 / count[rep]))
                 var = float(np.nanmean(sd ** 2)) - white
                 found[kind][name] = float(np.sqrt(max(var, 0.0)))
+                if name == "length":
+                    dof_len += dof
         if found[0] and found[1]:
             # rows of moves carry at least the visit-to-visit error of the dwells (the lengths
             # change between visits whether the platform stands or moves); their own replicate
@@ -532,10 +546,29 @@ class ResidualModel:
                                            for k, v in found[1 - kind].items()})
         if found[0] or found[1]:
             self.sigma_source = "replicate visits"
-            self.replicate_dof = int(np.sum(reps)) - len(np.unique(tg[reps]))
+            self.replicate_dof = float(np.mean(dof_len))
         self.sigma = dict(self.sigma_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
         self._update_sd()
         return self.noise_summary()
+
+    def _replicate_groups(self, groups: np.ndarray | None) -> dict[str, np.ndarray]:
+        """Replicate group ids per block column (see :meth:`estimate_noise`): ``length`` (N,n),
+        ``exit`` (N,3n), ``force`` and ``moment`` (N,3)."""
+        s, n = self.s, self.model.n_cables
+        tg = s.target if groups is None else np.asarray(groups)
+        tg = np.broadcast_to(tg[:, None] if tg.ndim == 1 else tg, (s.n, n)).astype(np.int64)
+        # epochs: a cable's slip located after the initialisation starts a new one
+        late = self.slip_times > self.init_end
+        ep = (s.t[:, None] >= self.slip_times) & late & ~s.is_init[:, None]
+        # slips happen in time order: how many have happened numbers the epochs of every cable
+        every = ep.sum(axis=1).astype(np.int64)
+        projected = self.len_rank < n  # per-sample unknowns spread a slip over every cable
+        per_cable = np.where(projected[:, None], every[:, None], np.where(ep, -1, 0))
+        length = _renumber(np.stack([tg, per_cable], axis=-1))
+        common = _renumber(np.stack([tg[:, :1], every[:, None]], axis=-1))[:, 0]
+        return {"length": length, "exit": np.repeat(length, 3, axis=1),
+                "force": np.repeat(common[:, None], 3, axis=1),
+                "moment": np.repeat(common[:, None], 3, axis=1)}
 
     def white_noise_by_kind(self, H: Robot) -> dict[int, dict[str, float]]:
         """:meth:`white_noise` of the raw-row triples of dwells (kind 0) and of moves (1)."""
@@ -832,6 +865,52 @@ def _replicated(target: np.ndarray) -> np.ndarray:
     """Samples that belong to a replicate group of two or more."""
     _, inv, cnt = np.unique(target, return_inverse=True, return_counts=True)
     return cnt[inv] >= 2
+
+
+def _renumber(keys: np.ndarray) -> np.ndarray:
+    """(N,d) group ids from keys (N,d,k): equal keys within a column, equal ids."""
+    N, d = keys.shape[:2]
+    out = np.zeros((N, d), dtype=np.int64)
+    for j in range(d):
+        out[:, j] = np.unique(keys[:, j], axis=0, return_inverse=True)[1].ravel()
+    return out
+
+
+def _pooled_columns(values: np.ndarray, groups: np.ndarray, weight: np.ndarray
+                    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """Pooled within-group standard deviation of ``values`` (N,d), column j grouped by
+    ``groups[:, j]`` (NaN values left out), the samples that took part (N,) and the
+    independent differences per column (d,): each sample counts with its ``weight``, a
+    group of weights w_i gives sum(w_i) - max(w_i) (n - 1 for n samples of weight one).
+    None when no column has replicates."""
+    N, d = values.shape
+    sd = np.full(d, np.nan)
+    dof = np.zeros(d)
+    rep = np.zeros(N, dtype=bool)
+    for j in range(d):
+        ok = np.isfinite(values[:, j])
+        if ok.sum() < 2:
+            continue
+        g = groups[ok, j]
+        _, inv, cnt = np.unique(g, return_inverse=True, return_counts=True)
+        inv = inv.ravel()
+        multi = cnt[inv] >= 2
+        if not multi.any():
+            continue
+        x = values[ok, j]
+        m = np.bincount(inv, weights=x) / cnt
+        ss = float(np.sum(((x - m[inv]) ** 2)[multi]))
+        k = int(np.sum(cnt[cnt >= 2] - 1))
+        sd[j] = np.sqrt(ss / k)
+        ww = weight[ok]
+        wsum = np.bincount(inv, weights=ww)
+        wmax = np.zeros(len(cnt))
+        np.maximum.at(wmax, inv, ww)
+        dof[j] = float(np.sum((wsum - wmax)[cnt >= 2]))
+        rep[np.flatnonzero(ok)[multi]] = True
+    if not np.isfinite(sd).any():
+        return None, rep, dof
+    return sd, rep, dof
 
 
 def _statics(H: Robot, poses: np.ndarray, tau: np.ndarray, exits: np.ndarray | None,
