@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.diagnosis.internal_forces import fit_internal_forces
-from bench.diagnosis.samples import Samples, pooled_std
+from bench.diagnosis.samples import Samples
 from controller import cables
 from controller.cycle import reference_lengths
 from controller.equilibrium import scaled_residual
