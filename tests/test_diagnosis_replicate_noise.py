@@ -98,3 +98,24 @@ def test_replicate_differences_count_rows_of_a_move_by_their_weight():
     v[0, 0] = np.nan
     _, _, dof = _pooled_columns(v, np.stack([groups, groups], axis=1), w)
     assert dof[0] == pytest.approx(dof[1] - 1 / 3)
+
+
+def test_rows_of_moves_without_replicates_take_the_dwells_visit_to_visit_error(tmp_path):
+    """Rows of moves with no replicates of their own carry the dwells' measured visit-to-visit
+    error (plus their own row-to-row noise), not a declared default far above it."""
+    sc = parse_scenario({"format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 5,
+                         "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0], "truth": {},
+                         "nuisance": {"hysteresis_m": 5e-5, "drift_m_per_h": 2e-5},
+                         "noise": {"process_m": 1e-4},
+                         "poses": {**copy.deepcopy(POSES), "visits": 2},
+                         "recording": {"kind": "continuous", "dwell_at_targets": True,
+                                       "rate_hz": 10.0}})
+    rec = read_recording(run_campaign(sc, tmp_path / "rec"))
+    s = prepare(rec)
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
+    # every row of a move its own group: only the dwells have replicates
+    groups = np.where(s.kind == 1, s.target.max() + 1 + np.arange(s.n), s.target)
+    rm.estimate_noise(rm.model, groups=groups)
+    visit = rm.sigma_k[0]["length"]
+    assert rm.sigma_source == "replicate visits" and 0 < visit < 2e-4
+    assert rm.sigma_k[1]["length"] == pytest.approx(visit)

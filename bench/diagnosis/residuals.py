@@ -540,10 +540,11 @@ class ResidualModel:
             if found[kind]:
                 self.sigma_k[kind].update(found[kind])
             elif found[1 - kind]:
-                # no replicates of its own: the other kind's repeatability, at least the
-                # declared default (rows of moves may hide it under their row-to-row noise)
-                self.sigma_k[kind].update({k: max(v, DEFAULTS[k])
-                                           for k, v in found[1 - kind].items()})
+                # no replicates of its own: the other kind's measured repeatability (the
+                # lengths change from visit to visit whether the platform stands or moves; a
+                # kind's own row-to-row noise is measured apart, in ``white_k``). A declared
+                # default above a measurement would hide effects of a low-noise recording
+                self.sigma_k[kind].update(found[1 - kind])
         if found[0] or found[1]:
             self.sigma_source = "replicate visits"
             self.replicate_dof = float(np.mean(dof_len))
