@@ -242,3 +242,45 @@ def test_an_error_that_moves_blend_between_stops_is_counted_whole():
     assert np.all(np.abs(se / spread - 1.0) < 0.15), (se, spread)
     spread0, se0 = _spread_and_se(_blended_visits(False))
     assert np.any(se0 / spread0 < 0.8), (se0, spread0)
+
+
+def _independent(n: int) -> ErrorStructure:
+    return ErrorStructure(np.ones(n), np.zeros(n, int), np.zeros(n, int), np.arange(n),
+                          np.zeros(n, int), float(n))
+
+
+def test_a_parameter_the_residuals_do_not_see_is_undetermined_not_exact():
+    """A parameter whose column is only the rounding of a finite difference (a mast
+    stiffness that no sample's residual moves with) has no information: its error is
+    infinite, not the zero that the covariance's truncated inverse gave it (reported to
+    1e-15 of itself, 40 times off). The others keep the errors they have without it."""
+    rng = np.random.default_rng(5)
+    n = 200
+    X = np.column_stack([np.ones(n), rng.uniform(-1, 1, n)])
+    y = X @ np.array([0.3, 1.5]) + rng.normal(0.0, 1.0, n)
+    J, beta, r = _wls(X, y, np.ones(n))
+    _, se_two = standard_errors(J, float(r @ r), float(n), r=r, errors=_independent(n))
+    noise = rng.normal(0.0, 1e-9, n)  # a column of rounding noise
+    J3 = np.column_stack([J, noise])
+    _, se = standard_errors(J3, float(r @ r), float(n), r=r, errors=_independent(n))
+    assert np.isinf(se[2])
+    assert np.allclose(se[:2], se_two, rtol=1e-6)
+    # two parameters with one column (exact look-alikes): neither is fixed by the data
+    J4 = np.column_stack([J, J[:, 1]])
+    _, se4 = standard_errors(J4, float(r @ r), float(n), r=r, errors=_independent(n))
+    assert np.isinf(se4[1]) and np.isinf(se4[2]) and np.isclose(se4[0], se_two[0], rtol=1e-6)
+
+
+def test_a_smooth_well_determined_fit_keeps_its_errors():
+    """Nothing without information: every error finite, the classical ones (independent
+    errors of unit variance: sqrt of the diagonal of (J^T J)^-1, to the spread of the
+    residuals), however different the parameters' scales."""
+    rng = np.random.default_rng(6)
+    n = 300
+    X = np.column_stack([np.ones(n), rng.uniform(-1, 1, n), 1e-4 * rng.uniform(-1, 1, n)])
+    y = X @ np.array([0.3, 1.5, 2e4]) + rng.normal(0.0, 1.0, n)
+    J, beta, r = _wls(X, y, np.ones(n))
+    _, se = standard_errors(J, float(r @ r), float(n), r=r, errors=_independent(n))
+    classical = np.sqrt(np.diag(np.linalg.inv(J.T @ J)) * float(r @ r) / (n - 3))
+    assert np.all(np.isfinite(se))
+    assert np.allclose(se, classical, rtol=0.05)

@@ -431,6 +431,13 @@ def null_parameters(J: np.ndarray, space: ParamSpace) -> np.ndarray:
     return fixed
 
 
+#: a parameter whose unit vector has more than this share of its squared length in
+#: directions without information (eigenvalues of J^T J below 1e-12 of the largest) is
+#: undetermined: exact look-alikes share such a direction by a share of order one,
+#: rounding gives a well-determined parameter one of order 1e-30
+NULL_LOADING = 1e-6
+
+
 def standard_errors(J: np.ndarray, chi2: float, n_res: float,
                     scale: np.ndarray | None = None, r: np.ndarray | None = None,
                     groups: np.ndarray | None = None,
@@ -479,10 +486,14 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
             cov_r = cov_s @ meat @ cov_s * np.outer(D, D)
             d = np.sqrt(np.clip(np.diag(cov_r) / np.maximum(np.diag(cov), 1e-300), 1.0, None))
             cov = cov * np.outer(d, d)
-    # directions without information (a gauge such as the load cells' common mode, which
-    # the reported values divide out) are left out of the covariance: parameters the data
-    # cannot fix at all were held at the model's values before the fit
+    # directions without information are left out of the covariance, whose inverse they
+    # would make infinite; a parameter that moves along one (its finite-difference column
+    # only rounding noise, or a combination of parameters the residuals do not see at
+    # all) is not fixed by the data: its error is infinite, not the zero the truncated
+    # inverse gives it (a mast stiffness reported to 1e-15 of itself, 40 times off)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    if weak.any():
+        se[np.sum(V[:, weak] ** 2, axis=1) > NULL_LOADING] = np.inf
     return cov, se
 
 
