@@ -401,6 +401,9 @@ def _settled(J: np.ndarray, r: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np
 #: a parameter whose Jacobian column is within this fraction of the span of the columns
 #: before it adds no information
 NULL_RATIO = 1e-4
+#: ... and one whose norm in the parameters' scales is within this fraction of the largest
+#: column's is rounding noise (the square root of standard_errors' eigenvalue cut)
+NULL_SCALED = 1e-6
 
 
 def null_parameters(J: np.ndarray, space: ParamSpace) -> np.ndarray:
@@ -414,10 +417,18 @@ def null_parameters(J: np.ndarray, space: ParamSpace) -> np.ndarray:
     order = sorted(range(J.shape[1]), key=lambda k: space.params[k].kind == "inverse")
     fixed = np.ones(J.shape[1], dtype=bool)
     basis: list[np.ndarray] = []
+    # a column that in the parameters' scales is a vanishing share of the largest is the
+    # rounding of a finite difference, not a direction (standard_errors' cut, 1e-12 of the
+    # largest eigenvalue of J^T J): the Gram-Schmidt test alone, blind to scale, takes such
+    # noise for a new direction and lets the fit wander along it
+    with np.errstate(invalid="ignore", over="ignore"):
+        scaled = np.linalg.norm(J, axis=0) * np.abs(space.scale)
+    ok = np.isfinite(scaled)
+    top = float(scaled[ok].max(initial=0.0))
     for k in order:
         c = J[:, k].astype(float)
         norm = float(np.linalg.norm(c))
-        if norm == 0.0 or not np.isfinite(norm):
+        if norm == 0.0 or not np.isfinite(norm) or scaled[k] <= NULL_SCALED * top:
             continue
         v = c / norm
         for b in basis:  # modified Gram-Schmidt, twice for stability
