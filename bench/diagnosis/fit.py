@@ -142,7 +142,8 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             # when its tension varies little): fifty times the spread of the values over the
             # evaluation
             pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
-            pruned.bias_var = pruning_bias_var(full, weak, space.neutral)
+            pruned.bias_var = pruning_bias_var(
+                full, weak, space.neutral, weak & (full.stderr > UNFIXED * space.scale))
             return pruned
     return full
 
@@ -185,7 +186,14 @@ def pruning_set(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> np.nd
     return out
 
 
-def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> np.ndarray:
+#: a held parameter whose full-fit standard error exceeds this many times its effect's
+#: typical meaningful change (``ParamSpace.scale``: 5 kg of mass, a load cell's gain to 5 %,
+#: its offset to 5 N) is one the data cannot fix: holding it is an assumption
+UNFIXED = 50.0
+
+
+def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray,
+                     unfixed: np.ndarray | None = None) -> np.ndarray:
     """Per parameter, the squared error that holding the ``weak`` parameters at ``neutral``
     moves into a kept one, estimated without bias from the full fit: ``(B d)^2 - diag(B
     S_hh B^T)``, clipped at 0, with ``d`` the held parameters' full-fit departures, ``S``
@@ -194,7 +202,14 @@ def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> 
     A held parameter that is in truth zero adds nothing on average (its departure is its
     noise); one the data could not tell from zero but that is not (a mass change that only
     the cables' stretch separates from the load cells' common gain) adds what it moved into
-    the others, which the pruned fit's own errors cannot show."""
+    the others, which the pruned fit's own errors cannot show.
+
+    Where that departure cannot be told from the data at all (``unfixed``: held parameters
+    the full fit leaves wider than their effect's meaningful range), its estimate is zero
+    whatever it is: a platform 8 % heavier than the model, its mass known to 12 % without a
+    tracker, moved whole into the load cells' common gain, reported to 0.05 % (z 170). There
+    the squared error is at least ``diag(B_u S_uu B_u^T)`` over those parameters: the kept
+    parameter's error in the full fit beside them, which holding them only assumes away."""
     out = np.zeros(len(full.phi))
     kept = np.isfinite(full.stderr) & ~weak & (np.diag(full.cov) > 0)
     if not weak.any() or not kept.any():
@@ -206,6 +221,11 @@ def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> 
     bias = B @ d
     var = np.einsum("ij,jk,ik->i", B, Shh, B)
     out[kept] = np.clip(bias ** 2 - var, 0.0, None)
+    if unfixed is not None and (unfixed & weak).any():
+        u = unfixed[weak]
+        Bu = B[:, u]
+        spread = np.einsum("ij,jk,ik->i", Bu, Shh[np.ix_(u, u)], Bu)
+        out[kept] = np.maximum(out[kept], spread)
     return out
 
 
