@@ -142,8 +142,8 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             # when its tension varies little): fifty times the spread of the values over the
             # evaluation
             pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
-            pruned.bias_var = pruning_bias_var(
-                full, weak, space.neutral, weak & (full.stderr > UNFIXED * space.scale))
+            pruned.bias_var = pruning_bias_var(full, weak, space.neutral,
+                                               weak & unfixed(space, full.stderr))
             return pruned
     return full
 
@@ -186,10 +186,15 @@ def pruning_set(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> np.nd
     return out
 
 
-#: a held parameter whose full-fit standard error exceeds this many times its effect's
-#: typical meaningful change (``ParamSpace.scale``: 5 kg of mass, a load cell's gain to 5 %,
-#: its offset to 5 N) is one the data cannot fix: holding it is an assumption
-UNFIXED = 50.0
+def unfixed(space: ParamSpace, stderr: np.ndarray) -> np.ndarray:
+    """Parameters that the data cannot fix at the model's values with these standard errors:
+    those the report would call undetermined there (``bench.diagnosis.report``: an exit
+    point known to worse than 5 mm, a gain to 5 %, a load cell's offset to 5 N, the mass to
+    5 %, ...). Holding one of them is an assumption, not a measurement."""
+    from bench.diagnosis.report import _undetermined
+
+    return np.array([_undetermined(p, float(p.neutral), float(se))
+                     for p, se in zip(space.params, stderr, strict=True)], dtype=bool)
 
 
 def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray,
@@ -205,7 +210,7 @@ def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray,
     the others, which the pruned fit's own errors cannot show.
 
     Where that departure cannot be told from the data at all (``unfixed``: held parameters
-    the full fit leaves wider than their effect's meaningful range), its estimate is zero
+    the full fit leaves undetermined, :func:`unfixed`), its estimate is zero
     whatever it is: a platform 8 % heavier than the model, its mass known to 12 % without a
     tracker, moved whole into the load cells' common gain, reported to 0.05 % (z 170). There
     the squared error is at least ``diag(B_u S_uu B_u^T)`` over those parameters: the kept
