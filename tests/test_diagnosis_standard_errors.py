@@ -353,3 +353,22 @@ def test_a_held_parameter_the_data_cannot_fix_widens_what_it_moves_into():
     rms_new = float(np.sqrt(np.mean(np.square(z_new))))
     assert len(z_old) > 100
     assert rms_old > 20.0 and 0.4 < rms_new < 1.25, (rms_old, rms_new)
+
+
+def test_held_parameters_the_data_cannot_fix_are_those_the_report_calls_undetermined():
+    """The mass known to 12 % (no tracker) cannot be fixed; known to 0.5 kg it can; a load
+    cell's offset known to 1 N is fixed (holding it widens nothing: its gain keeps the
+    pruned fit's error where the offset is zero, as on most recordings)."""
+    from bench.diagnosis.fit import unfixed
+    from bench.diagnosis.space import ParamSpace
+    from controller.robot import resolve_robot
+
+    sp = ParamSpace(resolve_robot("cogiro"), ["platform_mass", "load_cell_calibration"])
+    keys = [p.key for p in sp.params]
+    se = np.full(len(keys), 1e-4)
+    se[keys.index("mass")] = 0.12 * sp.neutral[keys.index("mass")]
+    se[keys.index("offset_11")] = 1.0
+    u = unfixed(sp, se)
+    assert u[keys.index("mass")] and not u[keys.index("offset_11")]
+    se[keys.index("mass")] = 0.5
+    assert not unfixed(sp, se).any()
