@@ -359,7 +359,7 @@ def test_held_parameters_the_data_cannot_fix_are_those_the_report_calls_undeterm
     """The mass known to 12 % (no tracker) cannot be fixed; known to 0.5 kg it can; a load
     cell's offset known to 1 N is fixed (holding it widens nothing: its gain keeps the
     pruned fit's error where the offset is zero, as on most recordings)."""
-    from bench.diagnosis.fit import unfixed
+    from bench.diagnosis.fit import unfixed_parameters as unfixed
     from bench.diagnosis.space import ParamSpace
     from controller.robot import resolve_robot
 

@@ -143,7 +143,7 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             # evaluation
             pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
             pruned.bias_var = pruning_bias_var(full, weak, space.neutral,
-                                               weak & unfixed(space, full.stderr))
+                                               weak & unfixed_parameters(space, full.stderr))
             return pruned
     return full
 
@@ -186,7 +186,7 @@ def pruning_set(full: FitResult, weak: np.ndarray, neutral: np.ndarray) -> np.nd
     return out
 
 
-def unfixed(space: ParamSpace, stderr: np.ndarray) -> np.ndarray:
+def unfixed_parameters(space: ParamSpace, stderr: np.ndarray) -> np.ndarray:
     """Parameters that the data cannot fix at the model's values with these standard errors:
     those the report would call undetermined there (``bench.diagnosis.report``: an exit
     point known to worse than 5 mm, a gain to 5 %, a load cell's offset to 5 N, the mass to
@@ -210,7 +210,7 @@ def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray,
     the others, which the pruned fit's own errors cannot show.
 
     Where that departure cannot be told from the data at all (``unfixed``: held parameters
-    the full fit leaves undetermined, :func:`unfixed`), its estimate is zero
+    the full fit leaves undetermined, :func:`unfixed_parameters`), its estimate is zero
     whatever it is: a platform 8 % heavier than the model, its mass known to 12 % without a
     tracker, moved whole into the load cells' common gain, reported to 0.05 % (z 170). There
     the squared error is at least ``diag(B_u S_uu B_u^T)`` over those parameters: the kept
