@@ -39,6 +39,10 @@ class CableForces:
     VB: np.ndarray | None = None
     free: np.ndarray | None = None  # unstretched length of the sagging span [m]
     converged: np.ndarray | None = None  # where the catenary's solution converged
+    #: sagging cables: what the catenaries were solved for, (h, v, tension, 1/EA, w) broadcast
+    #: to ``H``'s shape; given back as a guess, an element whose inputs are the same to the
+    #: bit keeps its solution as it is (a finite-difference column moves a few cables only)
+    inputs: tuple[np.ndarray, ...] | None = None
 
 
 def _geometry(st: CableState, C: np.ndarray | None = None
@@ -117,7 +121,7 @@ def _inverse(robot: Robot, st: CableState, tension: np.ndarray, end: str,
              guess: CableForces | None = None) -> tuple[CableForces, np.ndarray]:
     w = robot.rho * robot.gravity
     inv = _inv_ea(robot)
-    tension = np.asarray(tension, dtype=float)
+    tension = np.array(tension, dtype=float)  # a copy: kept in the result's inputs
     if end == "A":
         # the top of a hanging cable pulls harder than its bottom by w times the height
         # between them (slack readings below that are noise)
@@ -125,16 +129,44 @@ def _inverse(robot: Robot, st: CableState, tension: np.ndarray, end: str,
         tension = np.maximum(tension, 1.02 * w * rise + 0.1)
     C, wrap = _leave(st, None)
     h, v, e_h = _geometry(st, C)
-    g = None
-    if guess is not None and guess.H is not None and guess.free is not None \
-            and guess.converged is not None and np.shape(guess.H) == np.shape(h):
-        # only solutions that converged start the next one (the same answer, sooner)
-        g = (np.where(guess.converged, guess.free, np.nan), guess.H, guess.VB)
-    lf, H, VB, ok = catenary.unstretched(h, v, tension, inv, w, end=end, guess=g)
+    inputs = tuple(np.broadcast_arrays(h, v, tension, inv, w))
+    usable = guess is not None and guess.H is not None and guess.free is not None \
+        and guess.converged is not None and np.shape(guess.H) == np.shape(h)
+    same = None
+    if usable and guess.inputs is not None \
+            and all(np.shape(a) == np.shape(h) for a in guess.inputs):
+        same = np.ones(np.shape(h), dtype=bool)
+        for a, b in zip(inputs, guess.inputs, strict=True):
+            same &= a == b
+    if same is not None and same.all():
+        lf, H, VB, ok = guess.free, guess.H, guess.VB, guess.converged
+    else:
+        todo = Ellipsis if same is None else ~same  # the elements to solve
+        sub = tuple(x[todo] for x in inputs[:4])
+        g = None
+        if usable:
+            # only solutions that converged start the next one (the same answer, sooner)
+            g = tuple(np.asarray(x)[todo] for x in (
+                np.where(guess.converged, guess.free, np.nan), guess.H, guess.VB))
+        lf_, H_, VB_, ok_ = catenary.unstretched(*sub, w, end=end, guess=g)
+        if g is not None and not ok_.all():
+            # a warm start from too far away may stall where the cold start converges
+            bad = ~ok_ & np.isfinite(g[0])
+            l2, H2, V2, ok2 = catenary.unstretched(*(x[bad] for x in sub), w, end=end)
+            take = np.zeros_like(ok_)
+            take[bad] = ok2
+            lf_[take], H_[take], VB_[take] = l2[ok2], H2[ok2], V2[ok2]
+            ok_ = ok_ | take
+        if same is None:
+            lf, H, VB, ok = lf_, H_, VB_, ok_
+        else:
+            lf, H, VB, ok = (np.array(x, copy=True) for x in (guess.free, guess.H, guess.VB,
+                                                             guess.converged))
+            lf[todo], H[todo], VB[todo], ok[todo] = lf_, H_, VB_, ok_
     VA = VB + w * lf
     TA = np.hypot(H, VA)
     fB, fA = _pulls(H, VB, VA, e_h)
-    return CableForces(fB, fA, TA, H, VB, lf, ok), lf + wrap / (1.0 + TA * inv)
+    return CableForces(fB, fA, TA, H, VB, lf, ok, inputs), lf + wrap / (1.0 + TA * inv)
 
 
 def platform_directions(robot: Robot, st: CableState, cf: CableForces | None) -> np.ndarray:

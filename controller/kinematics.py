@@ -70,19 +70,25 @@ def cable_state(
     anchors: np.ndarray,
     exits: np.ndarray,
     radius: np.ndarray | None = None,
+    frame: CableState | None = None,
 ) -> CableState:
     """Inverse kinematics: cable geometry at ``pose`` (6,) for exit points ``exits`` (n,3).
 
     Stacked poses (..., 6) with exits (n,3) or (..., n,3) give stacked states
-    (leading dimensions first, e.g. ``u`` (..., n, 3)).
+    (leading dimensions first, e.g. ``u`` (..., n, 3)). ``frame``: a state of the same
+    ``pose`` and ``anchors`` (other exits), whose platform side (``R``, ``Rb``, ``B``) is
+    taken as it is (iterations over the exit points at a fixed pose; the same result).
     """
-    R = rotation(pose[..., 3:6])
-    if pose.ndim == 1:
-        Rb = anchors @ R.T
-        B = pose[:3] + Rb
+    if frame is not None:
+        R, Rb, B = frame.R, frame.Rb, frame.B
     else:
-        Rb = anchors @ np.swapaxes(R, -1, -2)
-        B = pose[..., None, :3] + Rb
+        R = rotation(pose[..., 3:6])
+        if pose.ndim == 1:
+            Rb = anchors @ R.T
+            B = pose[:3] + Rb
+        else:
+            Rb = anchors @ np.swapaxes(R, -1, -2)
+            B = pose[..., None, :3] + Rb
     b = B - exits  # from A to B
     # (np.count_nonzero and np.add.reduce: any() and sum() without their Python wrappers,
     # the same results; this runs every control cycle)

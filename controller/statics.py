@@ -61,7 +61,7 @@ def deflected_exits(robot: Robot, tensions: np.ndarray, u: np.ndarray,
 
 def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
                  tensions: np.ndarray | None = None, tol: float = 1e-10,
-                 max_iter: int = 50) -> PoseStatics:
+                 max_iter: int = 50, forces0: CableForces | None = None) -> PoseStatics:
     """Tensions and exit points at ``pose``, solved together.
 
     With ``tensions`` given (measured at the exit ends), only the exit points are
@@ -71,6 +71,8 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
     the platform along their catenary's end tangents, iterated together; the
     tensions stay closest to the distribution the straight cables would have
     (otherwise the internal forces drift from one iteration to the next).
+    ``forces0``: with ``tensions`` given, sagging cables hung nearly so (e.g.
+    :attr:`PoseStatics.forces` of a nearby robot): the catenaries start there.
     """
     pose = np.asarray(pose, dtype=float)
     a_star = settled_exits(robot)
@@ -87,9 +89,10 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
     dirs = None
     target = None  # sagging cables: tensions closest to the straight cables' distribution
     result: TensionResult | None = None
-    cf: CableForces | None = None
+    cf: CableForces | None = forces0 if tensions is not None and sag else None
+    st = None  # the platform side of the geometry is the same at every iteration
     for it in range(1, max_iter + 1):
-        st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+        st = cable_state(pose, robot.anchors, exits, robot.pulley_radius, st)
         d = st.u if dirs is None else dirs
         if tensions is None:
             W = wrench_matrix(st) if not sag else np.vstack([d.T, cross(st.Rb, d).T])
@@ -132,12 +135,12 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
         step = float(np.abs(new_exits - exits).max())
         exits = new_exits
         if step < tol and turn < turn_tol:
-            st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+            st = cable_state(pose, robot.anchors, exits, robot.pulley_radius, st)
             if sag:  # forces for the final exit points
                 cf, _ = (cables.from_tensions(robot, st, tau_exit, cf) if tensions is not None
                          else cables.from_platform_tensions(robot, st, tau))
             return _done(robot, st, exits, theta, tau_exit, cf, it)
-    st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
+    st = cable_state(pose, robot.anchors, exits, robot.pulley_radius, st)
     return PoseStatics(tau, exits, theta, st, False,
                        f"exit points did not settle in {max_iter} iterations", max_iter)
 
@@ -175,10 +178,20 @@ def init_unstretched(robot: Robot, init_pose: np.ndarray,
     ``init_tensions`` are true tensions at p0 (None: the tension distribution).
     Returns ``(u0 (n,) [m], tau0 (n,) [N])``. Raises ValueError if p0 is infeasible.
     """
-    ps = pose_statics(robot, np.asarray(init_pose, float), method=method, tensions=init_tensions)
+    ps = init_statics(robot, init_pose, init_tensions, method)
+    return ps.unstretched, ps.tensions
+
+
+def init_statics(robot: Robot, init_pose: np.ndarray, init_tensions: np.ndarray | None = None,
+                 method: str = "closed_form", forces0: CableForces | None = None
+                 ) -> PoseStatics:
+    """The statics behind :func:`init_unstretched` (``unstretched`` is ``u0``; ``forces0`` as
+    in :func:`pose_statics`). Raises ValueError if p0 is infeasible."""
+    ps = pose_statics(robot, np.asarray(init_pose, float), method=method, tensions=init_tensions,
+                      forces0=forces0)
     if not ps.feasible:
         raise ValueError(f"initialisation pose is not feasible under {robot.name}: {ps.reason}")
-    return ps.unstretched, ps.tensions
+    return ps
 
 
 def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.ndarray,
@@ -198,12 +211,15 @@ def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.
 
 def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None = None,
                   method: str = "closed_form", tol: float = 1e-10, max_iter: int = 20,
-                  exits0: np.ndarray | None = None) -> BatchStatics:
+                  exits0: np.ndarray | None = None,
+                  forces0: CableForces | None = None) -> BatchStatics:
     """:func:`pose_statics` for N poses (N,6) at once.
 
     With ``tensions`` (N,n) measured at the exit ends, the exit points of all poses
     are iterated together (vectorised), starting from ``exits0`` (N,n,3) when given
-    (a warm start); without, each pose gets its tension distribution.
+    (a warm start); without, each pose gets its tension distribution. ``forces0``: sagging
+    cables hung nearly so (e.g. :attr:`BatchStatics.forces` of nearby hypotheses or
+    poses): the catenaries' Newton iterations start there (the same solutions, sooner).
     """
     poses = np.asarray(poses, dtype=float)
     N, n = len(poses), robot.n_cables
@@ -227,7 +243,7 @@ def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None =
     if robot.compliant and exits0 is not None and exits0.shape == (N,) + a_star.shape:
         exits = exits0
     st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
-    cf, l0 = cables.from_tensions(robot, st, tau)
+    cf, l0 = cables.from_tensions(robot, st, tau, forces0)
     if robot.compliant:
         r = lever_arms(a_star, robot.pivots, robot.mast_index)
         for _ in range(max_iter):
@@ -236,12 +252,12 @@ def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None =
             new = deflect(a_star, r, theta, robot.mast_index)
             step = float(np.abs(new - exits).max())
             exits = new
-            st = cable_state(poses, robot.anchors, exits, robot.pulley_radius)
+            st = cable_state(poses, robot.anchors, exits, robot.pulley_radius, st)
             cf, l0 = cables.from_tensions(robot, st, tau, cf)
             if step < tol:
                 break
     return BatchStatics(tau, np.array(exits), st, np.isfinite(tau).all(axis=1), l0,
-                        _platform_forces(st, tau, cf))
+                        _platform_forces(st, tau, cf), cf if robot.rho > 0 else None)
 
 
 def _platform_forces(st: CableState, tau: np.ndarray, cf: CableForces | None) -> np.ndarray:
@@ -260,3 +276,5 @@ class BatchStatics:
     feasible: np.ndarray
     unstretched: np.ndarray
     platform_forces: np.ndarray
+    #: sagging cables hung at the measured tensions (a warm start for nearby solutions)
+    forces: CableForces | None = None

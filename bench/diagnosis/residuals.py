@@ -62,6 +62,7 @@ from controller.robot import Robot
 from controller.statics import (
     BatchStatics,
     batch_statics,
+    init_statics,
     init_unstretched,
     settled_exits,
     true_tensions,
@@ -155,6 +156,11 @@ class ResidualModel:
         # per sample: the last fitted unmeasured tensions (warm start, NaN before the first)
         # and their faces (cables at zero, rows left out: a hint inside :meth:`frozen`)
         self._warm_tau = np.full((s.n, n), np.nan)
+        # sagging cables: the catenaries of the last evaluation outside :meth:`frozen` (of
+        # the samples with measured tensions, and at those tensions plus the step that carries
+        # their noise into the lengths) and of the last initialisation: the next ones start
+        # there, and a cable whose spans and tension are the same keeps its solution
+        self._cat_memo: dict[str, tuple[bytes, cables.CableForces]] = {}
         self._warm_face = np.zeros((s.n, n), dtype=bool)
         self._warm_drop = np.zeros((s.n, n), dtype=bool)
         self._frozen = False
@@ -241,16 +247,21 @@ class ResidualModel:
             tau = true_tensions(H, s.tau[m])
             warm = self._warm_exits[m]
             warm = warm if np.isfinite(warm).all() else None
-            bs = batch_statics(H, poses[m], tau, exits0=warm)
+            key = m.tobytes()
+            bs = batch_statics(H, poses[m], tau, exits0=warm,
+                               forces0=self._memo("tau", key) if H.rho > 0 else None)
             if H.compliant and not self._frozen:
                 self._warm_exits[m] = bs.exits
+            self._keep("tau", key, bs.forces)
             ok[m] = bs.feasible
             lres = bs.unstretched - read[m]
             if H.rho > 0:
                 # a sagging cable's length hangs on its tension (more so the slacker it is):
                 # the load cells' noise carries into its length residual
                 dT = 0.5
-                l_up = cables.from_tensions(H, bs.state, tau + dT)[1]
+                cf_up, l_up = cables.from_tensions(H, bs.state, tau + dT,
+                                                   self._memo("tau_up", key) or bs.forces)
+                self._keep("tau_up", key, cf_up)
                 extra[m] = np.abs(l_up - bs.unstretched) / dT * self.tau_noise[m][:, None]
             # a slack cable only says it is at least as long as the straight line (its
             # reading is noise about zero: a sagging model would hang it at that tension
@@ -293,6 +304,18 @@ class ResidualModel:
         length[~self.has_len] = np.nan
         return Blocks(length, wrench, exits_err, ok, extra, poses, slack_all)
 
+    def _memo(self, name: str, key: bytes) -> cables.CableForces | None:
+        """The catenaries kept as ``name`` for the samples ``key`` (None: none kept)."""
+        got = self._cat_memo.get(name)
+        return got[1] if got is not None and got[0] == key else None
+
+    def _keep(self, name: str, key: bytes, cf: cables.CableForces | None,
+              always: bool = False) -> None:
+        """Keep ``cf`` as ``name`` (outside :meth:`frozen` only, unless ``always``: the columns
+        of a finite-difference Jacobian start from the evaluation they differ from)."""
+        if cf is not None and cf.H is not None and (always or not self._frozen):
+            self._cat_memo[name] = (key, cf)
+
     #: robot fields the unstretched lengths at initialisation hang on (not the readings' scale
     #: and offsets; the load cells' calibration through the tensions)
     _INIT_FIELDS = ("exits", "anchors", "mast_index", "pivots", "stiffness", "tilt",
@@ -308,7 +331,10 @@ class ResidualModel:
                        for f in self._INIT_FIELDS) + (b"" if tau0 is None else tau0.tobytes())
         if key not in self._init_cache:
             try:
-                got: np.ndarray | ValueError = init_unstretched(H, self.init_pose, tau0)[0]
+                ps = init_statics(H, self.init_pose, tau0,
+                                  forces0=self._memo("init", b"") if H.rho > 0 else None)
+                got: np.ndarray | ValueError = ps.unstretched
+                self._keep("init", b"", ps.forces, always=True)
             except ValueError as e:
                 got = e
             if len(self._init_cache) >= 8:
@@ -339,8 +365,10 @@ class ResidualModel:
         # place the platform
         taut = (s.tau[idx] >= self.slack_threshold).astype(float)
         limit = np.array([0.05, 0.05, 0.05, 0.05, 0.05, 0.05])
+        bs = None
         for _ in range(iterations):
-            bs = batch_statics(H, p, tau)
+            # sagging cables: the catenaries of the last iteration start the next one's
+            bs = batch_statics(H, p, tau, forces0=None if bs is None else bs.forces)
             r = np.nan_to_num((bs.unstretched - read[idx]) * taut)
             J = -np.swapaxes(wrench_matrix(bs.state), -1, -2) / (1.0 + tau / ea)[..., None]
             J = np.nan_to_num(J * taut[..., None])
