@@ -61,7 +61,8 @@ def deflected_exits(robot: Robot, tensions: np.ndarray, u: np.ndarray,
 
 def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
                  tensions: np.ndarray | None = None, tol: float = 1e-10,
-                 max_iter: int = 50, forces0: CableForces | None = None) -> PoseStatics:
+                 max_iter: int = 50, forces0: CableForces | None = None,
+                 exits0: np.ndarray | None = None) -> PoseStatics:
     """Tensions and exit points at ``pose``, solved together.
 
     With ``tensions`` given (measured at the exit ends), only the exit points are
@@ -72,11 +73,16 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
     tensions stay closest to the distribution the straight cables would have
     (otherwise the internal forces drift from one iteration to the next).
     ``forces0``: with ``tensions`` given, sagging cables hung nearly so (e.g.
-    :attr:`PoseStatics.forces` of a nearby robot): the catenaries start there.
+    :attr:`PoseStatics.forces` of a nearby robot): the catenaries start there; ``exits0``
+    (n,3), with ``tensions`` given, the exit points the masts' iteration starts from (a warm
+    start: the same solution to ``tol``).
     """
     pose = np.asarray(pose, dtype=float)
     a_star = settled_exits(robot)
     exits = a_star
+    if tensions is not None and robot.compliant and exits0 is not None \
+            and np.shape(exits0) == a_star.shape and np.isfinite(exits0).all():
+        exits = np.asarray(exits0, dtype=float)
     theta = np.zeros((robot.n_masts, 3))
     sag = robot.rho > 0
     if sag:  # slack-ish heavy cables contract slowly; 1e-9 of direction is 1e-7 of force
@@ -183,12 +189,12 @@ def init_unstretched(robot: Robot, init_pose: np.ndarray,
 
 
 def init_statics(robot: Robot, init_pose: np.ndarray, init_tensions: np.ndarray | None = None,
-                 method: str = "closed_form", forces0: CableForces | None = None
-                 ) -> PoseStatics:
-    """The statics behind :func:`init_unstretched` (``unstretched`` is ``u0``; ``forces0`` as
-    in :func:`pose_statics`). Raises ValueError if p0 is infeasible."""
+                 method: str = "closed_form", forces0: CableForces | None = None,
+                 exits0: np.ndarray | None = None) -> PoseStatics:
+    """The statics behind :func:`init_unstretched` (``unstretched`` is ``u0``; ``forces0`` and
+    ``exits0`` as in :func:`pose_statics`). Raises ValueError if p0 is infeasible."""
     ps = pose_statics(robot, np.asarray(init_pose, float), method=method, tensions=init_tensions,
-                      forces0=forces0)
+                      forces0=forces0, exits0=exits0)
     if not ps.feasible:
         raise ValueError(f"initialisation pose is not feasible under {robot.name}: {ps.reason}")
     return ps
