@@ -32,7 +32,11 @@ _add_reduce = np.add.reduce
 
 
 def _sum_last(x: np.ndarray) -> np.ndarray:
-    """``x.sum(axis=-1)`` (the same reduction)."""
+    """``x.sum(axis=-1)`` (the same reduction: three components are added in the order numpy
+    adds them, component by component, which is three times faster than a reduction over an
+    axis of three)."""
+    if x.shape[-1] == 3:
+        return x[..., 0] + x[..., 1] + x[..., 2]
     return _add_reduce(x, axis=-1)
 
 
