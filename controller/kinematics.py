@@ -102,16 +102,17 @@ def cable_state(
         zeros = np.zeros(d.shape)
         return CableState(R, Rb, B, exits, exits, u, d, zeros, d, zeros, _NO_PLANE, zeros)
     r = np.asarray(radius, dtype=float)
-    bz = b[..., 2]
-    e_h = b.copy()
-    e_h[..., 2] = 0.0
-    b_h = np.sqrt(_sum_last(e_h * e_h))
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    b_h = np.sqrt(bx * bx + by * by)
+    e_h = np.zeros(b.shape)
     on_axis = b_h == 0  # B on the swivel axis (degenerate): any plane, take +x
     if np.count_nonzero(on_axis):
-        e_h[on_axis] = (1.0, 0.0, 0.0)
-        e_h /= np.where(on_axis, 1.0, b_h)[..., None]
+        safe = np.where(on_axis, 1.0, b_h)
+        e_h[..., 0] = np.where(on_axis, 1.0, bx / safe)
+        e_h[..., 1] = np.where(on_axis, 0.0, by / safe)
     else:
-        e_h /= b_h[..., None]
+        e_h[..., 0] = bx / b_h
+        e_h[..., 1] = by / b_h
     h = b_h - r  # horizontal distance from the pulley centre M to B
     D2 = h * h + bz * bz  # bz: vertical distance from M (at A's height) to B
     free = np.sqrt(np.maximum(D2 - r * r, 0.0))
