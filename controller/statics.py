@@ -135,7 +135,9 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
             # given tensions hang the cables the same way whatever the directions: nothing
             # to iterate
             if not sag or tensions is not None or (turn < turn_tol and it > 1):
-                return _done(robot, st, exits, theta, tau_exit, cf, it)
+                # given tensions: the sagging cables were just hung at them from these exits
+                return _done(robot, st, exits, theta, tau_exit, cf, it,
+                             l0 if sag and tensions is not None else None)
             continue
         new_exits, theta = deflected_exits(robot, tau_exit, u_exit, a_star)
         step = float(np.abs(new_exits - exits).max())
@@ -152,8 +154,12 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
 
 
 def _done(robot: Robot, st: CableState, exits: np.ndarray, theta: np.ndarray,
-          tau_exit: np.ndarray, cf: CableForces | None, it: int) -> PoseStatics:
-    if cf is None:
+          tau_exit: np.ndarray, cf: CableForces | None, it: int,
+          l0: np.ndarray | None = None) -> PoseStatics:
+    """``l0``: the unstretched lengths of ``cf`` when they were solved at ``st`` already."""
+    if l0 is not None:
+        pass
+    elif cf is None:
         l0 = unstretched_lengths(st.length, tau_exit, robot.ea)
     else:
         l0 = cables.from_tensions(robot, st, cf.tension, cf)[1]
