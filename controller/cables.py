@@ -150,13 +150,13 @@ def _inverse(robot: Robot, st: CableState, tension: np.ndarray, end: str,
                 np.where(guess.converged, guess.free, np.nan), guess.H, guess.VB))
         lf_, H_, VB_, ok_ = catenary.unstretched(*sub, w, end=end, guess=g)
         if g is not None and not ok_.all():
-            # a warm start from too far away may stall where the cold start converges
+            # where a warm start does not converge, the cold start's answer (it may converge;
+            # where it does not either, the same as without a guess: an answer that does not
+            # hang on the history of the guesses)
             bad = ~ok_ & np.isfinite(g[0])
-            l2, H2, V2, ok2 = catenary.unstretched(*(x[bad] for x in sub), w, end=end)
-            take = np.zeros_like(ok_)
-            take[bad] = ok2
-            lf_[take], H_[take], VB_[take] = l2[ok2], H2[ok2], V2[ok2]
-            ok_ = ok_ | take
+            if bad.any():
+                l2, H2, V2, ok2 = catenary.unstretched(*(x[bad] for x in sub), w, end=end)
+                lf_[bad], H_[bad], VB_[bad], ok_[bad] = l2, H2, V2, ok2
         if same is None:
             lf, H, VB, ok = lf_, H_, VB_, ok_
         else:

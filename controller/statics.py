@@ -156,8 +156,9 @@ def pose_statics(robot: Robot, pose: np.ndarray, method: str = "closed_form",
 def _done(robot: Robot, st: CableState, exits: np.ndarray, theta: np.ndarray,
           tau_exit: np.ndarray, cf: CableForces | None, it: int,
           l0: np.ndarray | None = None) -> PoseStatics:
-    """``l0``: the unstretched lengths of ``cf`` when they were solved at ``st`` already."""
-    if l0 is not None:
+    """``l0``: the unstretched lengths of ``cf`` when they were solved at ``st`` already (kept
+    where every catenary converged; otherwise solved again at the tensions they reached)."""
+    if l0 is not None and cf is not None and cf.converged is not None and cf.converged.all():
         pass
     elif cf is None:
         l0 = unstretched_lengths(st.length, tau_exit, robot.ea)
