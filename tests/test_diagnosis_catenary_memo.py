@@ -133,3 +133,19 @@ def test_the_jacobian_with_kept_catenaries_equals_one_solved_from_scratch(saggin
                - copy.deepcopy(fresh).whitened(space.robot(x))) / steps[k]
         assert np.abs(ref).max() > 0
         np.testing.assert_allclose(J[:, k], ref, rtol=1e-5, atol=1e-5 * np.abs(ref).max())
+
+
+def test_a_cable_too_slack_to_hang_gets_the_same_answer_whatever_the_guess():
+    """A reading below what any catenary of its span pulls at the top has no solution; the
+    answer it gets must not hang on what was solved before (the cold start's)."""
+    r, st, tau = _hung(0.3)
+    cf = cables.from_tensions(r, st, tau)[0]
+    low = tau.copy()
+    low[0, 2] = 4.0  # newtons: less than the weight of the span
+    cold_cf, cold = cables.from_tensions(r, st, low)
+    assert not cold_cf.converged[0, 2] and cold_cf.converged.sum() == cold_cf.converged.size - 1
+    for guess in (cf, cables.from_tensions(r, st, tau * 1.3)[0]):
+        warm_cf, warm = cables.from_tensions(r, st, low, guess)
+        assert not warm_cf.converged[0, 2]
+        assert np.array_equal(warm[0, 2], cold[0, 2])
+        np.testing.assert_allclose(warm, cold, rtol=0, atol=1e-9)
