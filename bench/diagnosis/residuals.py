@@ -166,7 +166,6 @@ class ResidualModel:
         self._frozen = False
         self._at_zero: np.ndarray | None = None  # cables the last unmeasured fit left at zero
         self._init_cache: dict[bytes, np.ndarray | ValueError] = {}
-        self._init_exits: np.ndarray | None = None  # the last deflected exits there (warm start)
         # slack cables: measured tension within the load-cell noise of zero (the noise of
         # one row, from the spread within dwells; 0.5 N if the recording cannot tell)
         tau_noise = s.tau_row_sd if s.tau_row_sd else 0.5
@@ -332,13 +331,13 @@ class ResidualModel:
                        for f in self._INIT_FIELDS) + (b"" if tau0 is None else tau0.tobytes())
         if key not in self._init_cache:
             try:
+                # (the masts' iteration starts from the settled exits every time: a warm start
+                # moves u0 within the iteration's tolerance, and the finite-difference columns
+                # of a stiffness the data hardly fix are of that size)
                 ps = init_statics(H, self.init_pose, tau0,
-                                  forces0=self._memo("init", b"") if H.rho > 0 else None,
-                                  exits0=self._init_exits)
+                                  forces0=self._memo("init", b"") if H.rho > 0 else None)
                 got: np.ndarray | ValueError = ps.unstretched
                 self._keep("init", b"", ps.forces, always=True)
-                if H.compliant:
-                    self._init_exits = ps.exits
             except ValueError as e:
                 got = e
             if len(self._init_cache) >= 8:
