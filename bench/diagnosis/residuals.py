@@ -267,6 +267,11 @@ class ResidualModel:
             # reading is noise about zero: a sagging model would hang it at that tension
             # from its exit point, metres long)
             slack = tau < self.slack_threshold
+            if H.rho > 0 and bs.forces is not None and bs.forces.converged is not None:
+                # a reading below what any catenary of the cable's span pulls at its top (no
+                # solution: the cable cannot hang there at that tension) says no more than a
+                # slack one: Newton's last iterate is no length (metres off, either sign)
+                slack = slack | ~bs.forces.converged
             slack_all[m] = slack
             if slack.any():
                 chord = bs.state.length / (1.0 + np.maximum(tau, 0.0) / H.ea)
