@@ -586,45 +586,11 @@ def oracle(rec_dir: Path, sc) -> dict[str, float]:
                           else k for k, v in rest.items())
             space = ParamSpace(sc.model, names)
             start = apply_effects(sc.model, rest)
-            phi0 = np.array([p.from_value(_value_of(start, sc.model, p))
-                             for p in space.params])
+            phi0 = space.phi_of(start)
             fit = fit_effects(space, rm, np.arange(s.n), phi0, max_nfev=25, prune=False)
             chi2 = min(chi2, fit.chi2)
         out[e] = chi2 - base
     return out
-
-
-def _value_of(robot: Robot, model: Robot, p) -> float:
-    """The value of fit parameter ``p`` (a :class:`bench.diagnosis.space.Param`) in ``robot``
-    (exit offsets relative to ``model``)."""
-    k = p.key
-    c = lambda pre: robot.cable_ids.index(k[len(pre):])  # noqa: E731
-    if k.startswith(("dx_", "dy_", "dz_")):
-        i = c(k[:3])
-        return float(robot.exits[i, "xyz".index(k[1])] - model.exits[i, "xyz".index(k[1])])
-    if k.startswith("k") and k[2:3] == "_":
-        return float(robot.stiffness[robot.mast_ids.index(k[3:]), "xyz".index(k[1])])
-    if k == "ea":
-        return float(np.mean(robot.ea))
-    if k.startswith("ea_"):
-        return float(robot.ea[c("ea_")])
-    if k.startswith("dl_"):
-        return float(robot.length_offset[c("dl_")])
-    if k.startswith("s_"):
-        return float(robot.drum_scale[c("s_")])
-    if k.startswith("gain_"):
-        return float(robot.load_cell_gain[c("gain_")])
-    if k.startswith("offset_"):
-        return float(robot.load_cell_offset[c("offset_")])
-    if k == "mass":
-        return float(robot.mass)
-    if k.startswith("com_"):
-        return float(robot.com["xyz".index(k[-1])])
-    if k.startswith("r_"):
-        return float(robot.pulley_radius[c("r_")])
-    if k == "rho":
-        return float(robot.rho)
-    return float(p.neutral)
 
 
 def run_case(seed: int, workdir: str | None = None, **kw) -> dict:

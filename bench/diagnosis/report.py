@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.diagnosis import locate, unexplained
+from bench.diagnosis import gauge, locate, unexplained
 from bench.diagnosis.fit import FitResult
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
@@ -559,7 +559,8 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
         f"{len(idx)} samples")
     # what the selection's fit held (the data cannot fix it) stays held
     held = ~np.isfinite(start.stderr) if len(space) else None
-    res = fit_effects(space, selector.rm, idx, _warm(key, start), hold=held)
+    res = selector.gauge_floor(fit_effects(space, selector.rm, idx, _warm(key, start),
+                                           hold=held), idx)
     if not res.success:
         say(f"the final fit did not converge: {res.message}")
     return res
@@ -587,17 +588,14 @@ def _common_gain_alternative(rm: ResidualModel, fit: FitResult, idx: np.ndarray,
     robot = fit.space.robot(fit.phi)
     model = rm.model
     if named == "platform_mass":
-        ratio = robot.mass / model.mass
-        alt = robot.replace(mass=model.mass, load_cell_gain=robot.load_cell_gain * ratio)
+        alt, ratio = gauge.mass_as_common_gain(robot, model)
         out = {"name": "load_cell_calibration",
                "note": f"a gain of {ratio:.4f} shared by every load cell instead of the mass"}
     else:
-        common = float(np.exp(np.mean(np.log(robot.load_cell_gain / model.load_cell_gain))))
-        if not np.isfinite(common) or abs(common - 1.0) < 1e-3:
+        moved = gauge.common_gain_as_mass(robot, model)
+        if moved is None:
             return None
-        alt = robot.replace(mass=robot.mass / common,
-                            load_cell_gain=robot.load_cell_gain / common,
-                            load_cell_offset=robot.load_cell_offset / common)
+        alt, common = moved
         out = {"name": "platform_mass",
                "note": f"a mass of {alt.mass:.4g} kg instead of a gain of {common:.4f} shared "
                        f"by every load cell"}

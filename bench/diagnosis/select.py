@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.diagnosis import gauge
 from bench.diagnosis.fit import FitResult, fd_jacobian, fit_effects
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
@@ -132,6 +133,7 @@ class Selector:
         # with an assumed noise, "far more than the noise" says little: no wider search
         self.measured_noise = rm.sigma_source == "replicate visits"
         self.stalled = False
+        self._floored: dict[int, FitResult] = {}
 
     # ----- fits -----------------------------------------------------------------------
     def fit(self, effects: tuple[str, ...], start: FitResult | None = None) -> FitResult:
@@ -140,7 +142,8 @@ class Selector:
         check without it) is refitted from ``start``'s values too, and the better fit kept:
         the first fit may have stopped in a poor local minimum (a pulley radius started at
         0, where the residual is rough), and an effect compared with that stays in for the
-        wrong reason."""
+        wrong reason. Where the change of effects moves along the load cells' gauge, the
+        fits start from ``start`` moved along it too (:func:`bench.diagnosis.gauge.starts`)."""
         key = tuple(sorted(effects))
         if key in self.cache:
             cached = self.cache[key]
@@ -150,8 +153,7 @@ class Selector:
             if tag in self._refit_from:
                 return cached
             self._refit_from.add(tag)
-            res = fit_effects(ParamSpace(self.model, key), self.rm, self.train,
-                              _warm(key, start))
+            res = self._best_of(key, self._starts(key, start))
             if res.bic < cached.bic - 1e-6 * max(1.0, abs(cached.bic)):
                 self.progress(f"{' + '.join(key) or 'the model as it is'}: refitted from "
                               f"{' + '.join(start.space.effects)} (chi-square {cached.chi2:.4g}"
@@ -160,17 +162,77 @@ class Selector:
                 return res
             return cached
         space = ParamSpace(self.model, key)
-        phi0 = space.neutral.copy()
-        if start is not None:  # warm start from a fit that shares effects
-            for k, p in enumerate(space.params):
-                for j, q in enumerate(start.space.params):
-                    if p.key == q.key and p.effect == q.effect:
-                        phi0[k] = start.phi[j]
         self.progress(f"fitting {' + '.join(key) or 'the model as it is'} "
                       f"({len(space)} parameters)")
-        res = fit_effects(space, self.rm, self.train, phi0)
+        res = self._best_of(key, self._starts(key, start) if start is not None
+                            else [space.neutral.copy()])
         self.cache[key] = res
         return res
+
+    def _starts(self, key: tuple[str, ...], start: FitResult | None) -> list[np.ndarray | None]:
+        """Starting points of a fit of ``key`` from ``start``: its values (the others at the
+        model's), and the same moved along the load cells' gauge when the change of
+        effects calls for it."""
+        if start is None:
+            return [None]
+        if gauge.complete(key, self.model):  # the whole gauge free: every start on it is one
+            return [_warm(key, start)]  # (and the fit is pinned at its median cell after)
+        space = ParamSpace(self.model, key)
+        return [_warm(key, start)] + gauge.starts(space, start.space, start.phi)
+
+    def _best_of(self, key: tuple[str, ...], phis: list[np.ndarray | None]) -> FitResult:
+        """The best fit of ``key`` from starts ``phis``; for a set with the load cells and
+        another effect of their gauge, also that fit with the scale fixed at the median
+        cell (:meth:`_pinned`), and the errors of the one chosen floored by
+        :meth:`gauge_floor`."""
+        space = ParamSpace(self.model, key)
+        fits = [fit_effects(space, self.rm, self.train, phi0) for phi0 in phis]
+        best = min(fits, key=lambda f: f.bic)
+        return self.gauge_floor(min([best] + self._pinned(best), key=lambda f: f.bic))
+
+    def _pinned(self, fit: FitResult) -> list[FitResult]:
+        """``fit`` refitted with the load cells' gauge fixed at its median cell, for a set
+        with the load cells and another effect of the gauge (the mass, the stretch). Where
+        the data cannot fix the tensions' scale (the whole gauge free), or fix it only
+        weakly through the cables' stretch, the fit holds one of the gauge's parameters at
+        the model's value (E*A where it is null; a mass within its error of the model's
+        where pruning holds it) and reports the others with errors that take it as known:
+        eight gains 7 % high at standard errors of a few thousandths in place of a mass
+        change known to 12 %. Which one is held is the data's choice no more than the
+        cell's; the fewer parameters decide (BIC)."""
+        space = fit.space
+        if not _on_gauge(space.effects):
+            return []
+        pin = gauge.pinned(space, fit.phi)
+        if pin is None:
+            return []
+        phi0, hold = pin
+        other = ~np.isfinite(fit.stderr) & ~gauge.members(space)  # what the data cannot fix
+        return [fit_effects(space, self.rm, self.train, phi0, hold=hold | other)]
+
+    def gauge_floor(self, fit: FitResult, idx: np.ndarray | None = None) -> FitResult:
+        """``fit`` (of a set with the load cells and another effect of their gauge, on
+        samples ``idx``, the training ones by default) with each parameter of the gauge
+        reported with at least the error it has with the tensions' scale free: what the
+        fit held to fix the scale (a gain, the mass, E*A) is an assumption, and the data
+        know the scale only through the cables' stretch (a mass known to 12 % without a
+        tracker is not known to 0.03 kg because every gain was held at one). Directions
+        the data cannot fix at all are left out (an exact gauge: the values are those of
+        the scale chosen). In place: the floor is added to ``fit.bias_var``."""
+        space = fit.space
+        if not _on_gauge(space.effects) or id(fit) in self._floored:
+            return fit
+        idx = self.train if idx is None else idx
+        mem = gauge.members(space)
+        other = ~np.isfinite(fit.stderr) & ~mem
+        free = fit_effects(space, self.rm, idx, fit.phi, hold=other, prune=False, max_nfev=2)
+        kept = mem & np.isfinite(fit.stderr) & np.isfinite(free.stderr)
+        extra = np.zeros(len(space))
+        extra[kept] = np.clip(free.stderr[kept] ** 2 - fit.reported_stderr[kept] ** 2, 0.0,
+                              None)
+        fit.bias_var = extra if fit.bias_var is None else fit.bias_var + extra
+        self._floored[id(fit)] = fit  # (kept: an id is unique while its object lives)
+        return fit
 
     def fit_many(self, sets: list[tuple[str, ...]], start: FitResult | None = None,
                  multistart: bool = False) -> list[FitResult]:
@@ -181,10 +243,7 @@ class Selector:
         todo = [tuple(sorted(s)) for s in sets if tuple(sorted(s)) not in self.cache]
         jobs: list[tuple[tuple[str, ...], np.ndarray | None]] = []
         for s_ in todo:
-            jobs.append((s_, _warm(s_, start)))
-            gauge = _gauge_start(s_, start)
-            if gauge is not None:
-                jobs.append((s_, gauge))
+            jobs.extend((s_, phi0) for phi0 in self._starts(s_, start))
             if multistart and start is not None:
                 new = [e for e in s_ if e not in start.space.effects]
                 solo = self.cache.get(tuple(new)) if len(new) == 1 else None
@@ -205,6 +264,8 @@ class Selector:
         for s_, res in done:
             if s_ not in results or res.bic < results[s_].bic:
                 results[s_] = res
+        for s_, res in results.items():
+            results[s_] = self.gauge_floor(min([res] + self._pinned(res), key=lambda f: f.bic))
         self.cache.update(results)
         return [self.fit(s_, start) for s_ in sets]
 
@@ -326,7 +387,9 @@ class Selector:
             ok, info = self.heldout_improves(tuple(chosen), rest, current)
             info["delta_bic"] = current.bic - without.bic
             sel.heldout[e] = info
-            if not ok:
+            # an effect of the gauge that replaces more parameters of the others predicts
+            # what they predict (the same readings): held-out poses cannot choose, the BIC did
+            if not ok and not _takes_over(e, chosen, current, without):
                 self.progress(f"rejecting {e}: held-out poses do not improve")
                 sel.rejected[e] = "held-out poses do not improve"
                 chosen.remove(e)
@@ -352,10 +415,9 @@ class Selector:
             sel.screening = dict(pred)
         promising = sorted((d, e) for e, d in pred.items() if d < -BIC_ENTER)[:3]
         tried = [e for _, e in promising]
-        if "load_cell_calibration" in chosen and "platform_mass" in rest \
-                and "platform_mass" not in tried:
-            # the gains' common mode hides a mass change from the linearised screen
-            tried.append("platform_mass")
+        # along the load cells' gauge the screen sees nothing (a common gain, a mass change
+        # and a common stretch give the same readings): what each would take over is fitted
+        tried += [e for e in _gauge_moves(chosen, rest) if e not in tried]
         fits = self.fit_many([tuple(chosen + [e]) for e in tried], current,
                              multistart=current.reduced_chi2 > INADEQUATE
                              and self.measured_noise) if tried else []
@@ -374,7 +436,14 @@ class Selector:
                 for f, e in zip(extra, more, strict=True):
                     if best is None or f.bic < best[0].bic:
                         best = (f, e)
-        if best is None or best[0].bic - current.bic > -BIC_ENTER:
+        if best is not None and best[0].bic - current.bic > -BIC_ENTER:
+            # an effect of the gauge that takes over what the chosen ones carried with more
+            # parameters (a mass for every cell's gain) is a simpler account of the same
+            # readings, not a new effect: a clear BIC drop is enough
+            swaps = [(f, e) for f, e in zip(fits, tried, strict=True)
+                     if _takes_over(e, chosen + [e], f, current)]
+            best = min(swaps, key=lambda x: x[0].bic) if swaps else None
+        if best is None:
             return None
         # the vocabulary is not converging on the data (physics it lacks): an effect that
         # leaves far more than the noise and takes less than half of what was left is the
@@ -466,7 +535,8 @@ class Selector:
             if len(chosen) < 2:
                 break
             reduced = self.fit(tuple(c for c in chosen if c != e), current)
-            if reduced.bic - current.bic < BIC_ENTER:
+            if reduced.bic - current.bic < BIC_ENTER and not _takes_over(e, chosen, current,
+                                                                         reduced):
                 self.progress(f"dropping {e}: the other effects explain it")
                 chosen = [c for c in chosen if c != e]
                 current = reduced
@@ -532,6 +602,8 @@ class Selector:
         pred = self.swap_screen(current, chosen, candidates)
         pairs = [p for p, d in sorted(pred.items(), key=lambda kv: kv[1])
                  if d < SWAP_SCREEN][:4]
+        # swaps along the load cells' gauge, which the linearised screen cannot see
+        pairs += [p for p in _gauge_swaps(chosen, candidates) if p not in pairs]
         if not pairs:
             return None
         sets = [tuple(c for c in chosen if c != e) + (a,) for e, a in pairs]
@@ -554,7 +626,8 @@ class Selector:
         for e in chosen:
             others = [c for c in candidates if c not in chosen
                       and compatible([x for x in chosen if x != e], c)]
-            near = [a for a in others if pred.get((e, a), np.inf) < BIC_TIE + SWAP_SCREEN_MARGIN]
+            near = [a for a in others if pred.get((e, a), np.inf) < BIC_TIE + SWAP_SCREEN_MARGIN
+                    or (e, a) in _gauge_swaps(chosen, candidates)]
             sets = [tuple(c for c in chosen if c != e) + (a,) for a in near]
             alt = []
             for a, f in zip(near, self.fit_many(sets, cur), strict=True):
@@ -607,28 +680,55 @@ def _warm(effects: tuple[str, ...], start: FitResult | None) -> np.ndarray | Non
     return phi0
 
 
-def _gauge_start(effects: tuple[str, ...], start: FitResult | None) -> np.ndarray | None:
-    """A start for a set holding both the load cells and the mass, from a fit of the load
-    cells without the mass: the gains' common mode moved into the mass (in statics a gain
-    shared by every cell and the mass are the same; only the cables' stretch tells them
-    apart). Without it the fit stays where the gains carry the mass."""
-    if start is None or not {"load_cell_calibration", "platform_mass"} <= set(effects):
-        return None
-    if "platform_mass" in start.space.effects or \
-            "load_cell_calibration" not in start.space.effects:
-        return None
-    phi0 = _warm(effects, start)
-    space = ParamSpace(start.space.model, effects)
-    gains = [k for k, p in enumerate(space.params) if p.key.startswith("gain_")]
-    mass = [k for k, p in enumerate(space.params) if p.key == "mass"]
-    if not gains or not mass:
-        return None
-    common = float(np.median(phi0[gains] / space.neutral[gains]))
-    if not np.isfinite(common) or common <= 0:
-        return None
-    phi0[gains] = phi0[gains] / common
-    phi0[mass] = space.neutral[mass] * common
-    return phi0
+#: effects of the load cells' gauge the selection moves between (the common form of the
+#: stretch: a per-cable stretch and the masts' compliance come in by their own evidence)
+GAUGE_MOVES = ("load_cell_calibration", "platform_mass", "cable_elasticity")
+
+
+def _gauge_moves(chosen: list[str], rest: list[str]) -> list[str]:
+    """Candidates to add for what they take over along the load cells' gauge: with the
+    load cells and another effect of the group chosen (or the load cells alone), the others
+    of :data:`GAUGE_MOVES`; with the group chosen without the load cells, the load cells."""
+    held = set(chosen) & gauge.GAUGE_EFFECTS
+    if not held:
+        return []
+    if "load_cell_calibration" in held:
+        return [e for e in GAUGE_MOVES if e in rest and compatible(chosen, e)]
+    return ["load_cell_calibration"] if "load_cell_calibration" in rest else []
+
+
+def _on_gauge(effects: tuple[str, ...]) -> bool:
+    """Whether a set holds the load cells and another effect of their gauge."""
+    e = set(effects)
+    return "load_cell_calibration" in e and bool(
+        e & {"platform_mass", "cable_elasticity", PER_CABLE_EA})
+
+
+def _takes_over(e: str, chosen: list[str], with_: FitResult, without: FitResult) -> bool:
+    """Whether effect ``e`` of the load cells' gauge, among ``chosen`` (with the load cells),
+    accounts more simply for what the others carry without it: fewer free parameters with
+    it and a BIC lower by more than :data:`BIC_TIE` (a mass for a gain shared by every cell:
+    the same readings, eight parameters for one)."""
+    return (e in GAUGE_MOVES and e != "load_cell_calibration"
+            and "load_cell_calibration" in chosen
+            and with_.n_free < without.n_free and with_.bic < without.bic - BIC_TIE)
+
+
+def _gauge_swaps(chosen: list[str], candidates: list[str]) -> list[tuple[str, str]]:
+    """(chosen, other) swaps within :data:`GAUGE_MOVES` where the load cells are among
+    the two sets (one effect taking over another's share of the gauge)."""
+    out = []
+    for e in chosen:
+        if e not in gauge.GAUGE_EFFECTS:
+            continue
+        for a in GAUGE_MOVES:
+            if a in chosen or a not in candidates \
+                    or not compatible([c for c in chosen if c != e], a):
+                continue
+            if "load_cell_calibration" in set(chosen) | {a} and \
+                    not (a == "load_cell_calibration" and e == "load_cell_calibration"):
+                out.append((e, a))
+    return out
 
 
 def _fit_job(rm: ResidualModel, train: np.ndarray, effects: tuple[str, ...],

@@ -77,6 +77,33 @@ class Param:
         return v
 
 
+def param_value(robot: Robot, model: Robot, p: Param) -> float:
+    """The value of fit parameter ``p`` in ``robot``, in the conventions' units (exit
+    offsets relative to ``model``; a common ``ea`` is the cables' mean)."""
+    k = p.key
+    c = lambda pre: robot.cable_ids.index(k[len(pre):])  # noqa: E731
+    if k.startswith(("dx_", "dy_", "dz_")):
+        i = c(k[:3])
+        return float(robot.exits[i, "xyz".index(k[1])] - model.exits[i, "xyz".index(k[1])])
+    if k.startswith("k") and k[2:3] == "_":
+        return float(robot.stiffness[robot.mast_ids.index(k[3:]), "xyz".index(k[1])])
+    if k == "ea":
+        return float(np.mean(robot.ea))
+    per_cable = {"ea_": robot.ea, "dl_": robot.length_offset, "s_": robot.drum_scale,
+                 "gain_": robot.load_cell_gain, "offset_": robot.load_cell_offset,
+                 "r_": robot.pulley_radius}
+    for pre, arr in per_cable.items():
+        if k.startswith(pre):
+            return float(arr[c(pre)])
+    if k == "mass":
+        return float(robot.mass)
+    if k.startswith("com_"):
+        return float(robot.com["xyz".index(k[-1])])
+    if k == "rho":
+        return float(robot.rho)
+    return float(p.to_value(p.neutral))
+
+
 def effect_fit_params(effect: str, model: Robot) -> list[Param]:
     """The fit parameters of one effect for ``model``."""
     cids, mids = model.cable_ids, model.mast_ids
@@ -166,6 +193,12 @@ class ParamSpace:
     def robot(self, phi: np.ndarray) -> Robot:
         """The hypothesis robot for fit-space values ``phi``."""
         return apply_effects(self.model, self.values(phi))
+
+    def phi_of(self, robot: Robot) -> np.ndarray:
+        """Fit-space values that describe ``robot`` (the inverse of :meth:`robot` for what
+        the space's effects hold), within the bounds."""
+        phi = np.array([p.from_value(param_value(robot, self.model, p)) for p in self.params])
+        return np.clip(phi, self.lo, self.hi)
 
     def indices(self, effect: str) -> np.ndarray:
         """Parameters of a candidate (``effect`` as in :attr:`effects`)."""
