@@ -17,7 +17,7 @@ from scipy.optimize import least_squares
 
 from bench.diagnosis.likelihood import StretchLikelihood
 from bench.diagnosis.residuals import ResidualModel
-from bench.diagnosis.space import ParamSpace
+from bench.diagnosis.space import ParamSpace, undetermined
 
 #: evaluations of one least-squares run, and runs more from where it stopped if it did not
 #: converge but lowered the chi-square (a run that spent its budget without progress is not
@@ -191,9 +191,7 @@ def unfixed_parameters(space: ParamSpace, stderr: np.ndarray) -> np.ndarray:
     those the report would call undetermined there (``bench.diagnosis.report``: an exit
     point known to worse than 5 mm, a gain to 5 %, a load cell's offset to 5 N, the mass to
     5 %, ...). Holding one of them is an assumption, not a measurement."""
-    from bench.diagnosis.report import _undetermined
-
-    return np.array([_undetermined(p, float(p.neutral), float(se))
+    return np.array([undetermined(p, float(p.neutral), float(se))
                      for p, se in zip(space.params, stderr, strict=True)], dtype=bool)
 
 

@@ -28,18 +28,18 @@ from bench.diagnosis.select import (
     candidate_effects,
     untested_effects,
 )
-from bench.diagnosis.space import EXPLAINS, SCALES, Param, ParamSpace, report_name
+from bench.diagnosis.space import (
+    EXPLAINS,
+    ParamSpace,
+    report_name,
+    undetermined,
+)
 from bench.recording import Recording, RecordingError, read_recording
 from controller.kinematics import gravity_wrench
 from controller.robot import Robot, save_robot
 from controller.statics import batch_statics
 
 FORMAT = "cdpr-diagnosis/1"
-#: a stiffness or EA known only to this relative standard error is called undetermined
-UNDETERMINED_REL = 0.4
-#: ... and so is one fitted this many times stiffer than its effect's typical scale (the
-#: fit ran to the rigid bound: 1e9 N m/rad for a mast, 1e10 N for a cable's EA)
-RIGID_FACTOR = 1e3
 #: changes too small to matter (fit-space units): not reported as differing from the model
 PRACTICAL = {"exit_point_offset": 5e-4, "cable_length_offset": 1e-4, "drum_scale": 1e-4,
              "load_cell_calibration": 2e-3, "platform_mass": 2e-3, "pulley_kinematics": 2e-3,
@@ -133,37 +133,6 @@ def exit_rms(rm: ResidualModel, H: Robot) -> float | None:
     return _f(locate.rms(np.linalg.norm(e, axis=2)))
 
 
-def _undetermined(p: Param, phi: float, se: float) -> bool:
-    """Whether the poses cannot fix this parameter."""
-    if not math.isfinite(se):
-        return True
-    # at or near a bound of the fit (within 1 % of its range; a compliance within a factor
-    # two of the softest allowed) the fit was stopped by the bound and its standard error
-    # says nothing; a lower bound of zero is physical (no pulley, no sag; a compliance of
-    # zero is the rigid bound below)
-    margin = 0.5 * p.hi if p.kind == "inverse" else 0.01 * (p.hi - p.lo)
-    if phi >= p.hi - margin or (p.lo != 0.0 and phi <= p.lo + margin):
-        return True
-    if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or too wide
-        # at the rigid bound (a stiffness RIGID_FACTOR times past the effect's scale) the
-        # standard error of a clipped fit says nothing: a number there would be a guess
-        return (phi - 2.0 * se <= 0.0 or se > UNDETERMINED_REL * phi
-                or phi * RIGID_FACTOR <= p.scale)
-    limits = {"exit_point_offset": 5e-3, "cable_length_offset": 1e-3, "drum_scale": 5e-3,
-              "pulley_kinematics": 0.03, "cable_sag": 0.05}
-    if p.effect in limits:
-        return se > max(limits[p.effect], 0.5 * abs(phi - p.neutral))
-    if p.key.startswith("gain_"):
-        return se > 0.05
-    if p.key.startswith("offset_"):
-        return se > 5.0
-    if p.key == "mass":
-        return se > max(2.0, 0.05 * p.neutral)  # 5 % of the platform (a 91 kg one: 4.5 kg)
-    if p.key.startswith("com_"):
-        return se > 0.05
-    return se > 100 * SCALES.get(p.effect, 1.0)
-
-
 def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | None = None
                    ) -> tuple[dict, dict, dict]:
     """Per chosen candidate: report params and stderr (only those that differ from the
@@ -180,7 +149,7 @@ def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | N
             p = fit.space.params[k]
             se = float(fit.stderr[k])
             phi = p.from_value(values[p.effect][p.key])
-            if _undetermined(p, phi, se):
+            if undetermined(p, phi, se):
                 undet[e].append(p.key)
                 continue
             if p.kind != "inverse" and abs(phi - p.neutral) <= max(

@@ -9,6 +9,7 @@ hypothesis robot through :func:`controller.effects.apply_effects`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,11 @@ SCALES = {
     "cable_sag": 1e-3,
 }
 
+#: a stiffness or EA known only to this relative standard error is called undetermined
+UNDETERMINED_REL = 0.4
+#: ... and so is one fitted this many times stiffer than its effect's typical scale (the
+#: fit ran to the rigid bound: 1e9 N m/rad for a mast, 1e10 N for a cable's EA)
+RIGID_FACTOR = 1e3
 #: a candidate of the selection that the report names ``cable_elasticity``: each cable's
 #: own E*A (``ea_{ij}``) instead of one for all
 PER_CABLE_EA = "cable_elasticity_each"
@@ -102,6 +108,38 @@ def param_value(robot: Robot, model: Robot, p: Param) -> float:
     if k == "rho":
         return float(robot.rho)
     return float(p.to_value(p.neutral))
+
+
+def undetermined(p: Param, phi: float, se: float) -> bool:
+    """Whether the data cannot fix parameter ``p`` at fit-space value ``phi`` with standard
+    error ``se`` (the report lists it as undetermined, gives no value)."""
+    if not math.isfinite(se):
+        return True
+    # at or near a bound of the fit (within 1 % of its range; a compliance within a factor
+    # two of the softest allowed) the fit was stopped by the bound and its standard error
+    # says nothing; a lower bound of zero is physical (no pulley, no sag; a compliance of
+    # zero is the rigid bound below)
+    margin = 0.5 * p.hi if p.kind == "inverse" else 0.01 * (p.hi - p.lo)
+    if phi >= p.hi - margin or (p.lo != 0.0 and phi <= p.lo + margin):
+        return True
+    if p.kind == "inverse":  # compliance or 1/EA: cannot tell it from rigid, or too wide
+        # at the rigid bound (a stiffness RIGID_FACTOR times past the effect's scale) the
+        # standard error of a clipped fit says nothing: a number there would be a guess
+        return (phi - 2.0 * se <= 0.0 or se > UNDETERMINED_REL * phi
+                or phi * RIGID_FACTOR <= p.scale)
+    limits = {"exit_point_offset": 5e-3, "cable_length_offset": 1e-3, "drum_scale": 5e-3,
+              "pulley_kinematics": 0.03, "cable_sag": 0.05}
+    if p.effect in limits:
+        return se > max(limits[p.effect], 0.5 * abs(phi - p.neutral))
+    if p.key.startswith("gain_"):
+        return se > 0.05
+    if p.key.startswith("offset_"):
+        return se > 5.0
+    if p.key == "mass":
+        return se > max(2.0, 0.05 * p.neutral)  # 5 % of the platform (a 91 kg one: 4.5 kg)
+    if p.key.startswith("com_"):
+        return se > 0.05
+    return se > 100 * SCALES.get(p.effect, 1.0)
 
 
 def effect_fit_params(effect: str, model: Robot) -> list[Param]:
