@@ -525,6 +525,10 @@ def _newton(robot: Robot, l0: np.ndarray, guess: np.ndarray, theta: np.ndarray |
         if (np.abs(dx[:6]).max() * step > BIG_STEP and state_energy(
                 robot, T_new.state, p_new, th_new, l0, T_new.cables)
                 > state_energy(robot, T.state, pose, th, l0, T.cables)):
+            if not fresh:
+                # a stale Jacobian's long step up the energy: the Jacobian of here decides
+                lu = None
+                continue
             # a long step up the energy: towards a saddle (the residual falls there too),
             # or across slack points the linearisation ignored; the energy's Newton descends
             return _energy_newton(robot, l0, pose, th, T, tol, max_iter, it)
@@ -555,7 +559,14 @@ def _energy_newton(robot: Robot, l0: np.ndarray, pose: np.ndarray, th: np.ndarra
     definite, else enough to make it so) and are halved until the energy falls (Armijo).
     The energy is continuously differentiable across slack points, so the iterates go
     through the kinks that stall the residual's line search; converged when the scaled
-    residual is below ``tol``."""
+    residual is below ``tol``.
+
+    Where H is positive definite (mu = 0: a convex neighbourhood, no saddle ahead), a full
+    step that halves the scaled residual is taken whatever the energy does: sagging cables on
+    pulleys have an energy that is their forces' potential only to a fraction of a percent
+    (the leave point of :func:`controller.cables._leave`), so its minimum lies micrometres
+    from the equilibrium, and there the energy changes by its round-off alone: the
+    Armijo steps shrank to nothing 1e-4 (scaled) short of the equilibrium (case 9948)."""
     m = robot.n_masts
     a_star, r, S = _fixed(robot)
     free_th = np.isfinite(robot.stiffness).ravel()
@@ -592,7 +603,8 @@ def _energy_newton(robot: Robot, l0: np.ndarray, pose: np.ndarray, th: np.ndarra
             T_new = _terms(robot, p_new, th_new, l0, a_star, r)
             E_new = state_energy(robot, T_new.state, p_new, th_new, l0, T_new.cables)
             phi_new = float(np.linalg.norm(S * T_new.residual))
-            if E_new <= E + 1e-4 * step * slope or phi_new < tol:
+            if (E_new <= E + 1e-4 * step * slope or phi_new < tol
+                    or (mu == 0.0 and step == 1.0 and phi_new <= 0.5 * phi)):
                 break
             step *= 0.5
         else:
