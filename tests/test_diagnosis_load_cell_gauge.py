@@ -143,3 +143,23 @@ def test_a_heavier_platform_is_not_read_as_every_cell_reading_high(heavier_platf
     gains = [k for k in by["load_cell_calibration"]["params"] if k.startswith("gain_")]
     assert not gains
     assert by["load_cell_calibration"]["params"]["offset_42"] == pytest.approx(15.0, abs=3.0)
+
+
+def test_only_a_move_along_the_gauge_takes_over_on_a_small_bic_drop():
+    """A mass for the cells' common gain, or a stretch where the mass is free too, may
+    replace more parameters on a BIC drop under the entry threshold; a stretch beside the
+    cells alone (the mass fixes the tensions' scale there) is an effect of its own."""
+    from types import SimpleNamespace
+
+    from bench.diagnosis.select import BIC_ENTER, BIC_TIE, _takes_over
+
+    with_ = SimpleNamespace(n_free=3, bic=100.0)
+    without = SimpleNamespace(n_free=9, bic=100.0 + 0.5 * (BIC_TIE + BIC_ENTER))
+    lc, mass, ea = "load_cell_calibration", "platform_mass", "cable_elasticity"
+    assert _takes_over(mass, [lc, mass], with_, without)
+    assert _takes_over(ea, [lc, mass, ea], with_, without)
+    assert not _takes_over(ea, [lc, ea], with_, without)
+    assert not _takes_over(mass, [mass], with_, without)  # no load cells: nothing to trade
+    assert not _takes_over(mass, [lc, mass], SimpleNamespace(n_free=10, bic=100.0), without)
+    assert not _takes_over(mass, [lc, mass], with_,
+                           SimpleNamespace(n_free=9, bic=100.0 + 0.5 * BIC_TIE))

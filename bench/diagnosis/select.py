@@ -709,8 +709,11 @@ def _takes_over(e: str, chosen: list[str], with_: FitResult, without: FitResult)
     accounts more simply for what the others carry without it: fewer free parameters with
     it and a BIC lower by more than :data:`BIC_TIE` (a mass for a gain shared by every cell:
     the same readings, eight parameters for one)."""
-    return (e in GAUGE_MOVES and e != "load_cell_calibration"
-            and "load_cell_calibration" in chosen
+    # the mass trades exactly with the cells' common gain in the statics; the stretch only
+    # where the mass is free too (else the mass fixes the tensions' scale, and a stretch is
+    # an effect of its own that must pay its way like any other)
+    on_orbit = e == "platform_mass" or (e == "cable_elasticity" and "platform_mass" in chosen)
+    return (on_orbit and "load_cell_calibration" in chosen
             and with_.n_free < without.n_free and with_.bic < without.bic - BIC_TIE)
 
 
