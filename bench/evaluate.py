@@ -32,7 +32,9 @@ z-scores, and how often the equilibrium solver needed its fallback.
 from __future__ import annotations
 
 import copy
+import json
 import math
+import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -593,14 +595,17 @@ def oracle(rec_dir: Path, sc) -> dict[str, float]:
     return out
 
 
-def run_case(seed: int, workdir: str | None = None, **kw) -> dict:
-    """Generate, record and diagnose one case (a plain function for process pools and Dask)."""
+def run_case(seed: int, workdir: str | None = None, keep: str | None = None, **kw) -> dict:
+    """Generate, record and diagnose one case (a plain function for process pools and Dask).
+
+    ``keep``: a folder where the case's recording (``<seed>/rec``) and its scenario with
+    the concealed truth (``<seed>/case.json``) are kept, to diagnose them again by hand."""
     from firmware_sim.plant import PlantError
 
     t_case = time.perf_counter()
     for attempt in range(5):
         try:
-            return _run_case(seed, attempt, workdir, t_case, **kw)
+            return _run_case(seed, attempt, workdir, t_case, keep=keep, **kw)
         except (CaseError, PlantError) as e:  # draw another case for this seed
             last = e
     raise RuntimeError(f"seed {seed}: no case could be made in 5 draws: {last}")
@@ -631,7 +636,8 @@ def one_blas_thread() -> None:
         _ONE_BLAS = True
 
 
-def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float, **kw) -> dict:
+def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
+              keep: str | None = None, **kw) -> dict:
     from bench.campaign import run_campaign
     from bench.diagnosis.report import diagnose
     from controller import equilibrium
@@ -679,6 +685,8 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float, **kw)
         seconds = time.perf_counter() - t0
         cpu = time.process_time() - c0
         eq = equilibrium.STATS.as_dict()
+        if keep is not None:
+            _keep_case(Path(keep) / str(seed), rec, case)
     truth = {e: dict(p) for e, p in case["truth"].items()}
     s = score(dg.report, truth, sc.model, seed, seconds)
     s.info = dict(case["case"]) | {
@@ -694,6 +702,16 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float, **kw)
         "unexplained_summary": (dg.report["unexplained"] or {}).get("summary"),
     }
     return s.as_dict()
+
+
+def _keep_case(folder: Path, rec: Path, case: dict[str, Any]) -> None:
+    """Copy a case's recording and write its scenario (truth included) into ``folder``
+    (replaced if it exists)."""
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    shutil.copytree(rec, folder / "rec")
+    (folder / "case.json").write_text(json.dumps(case, indent=1, default=float) + "\n")
 
 
 def _duration(sc) -> float:

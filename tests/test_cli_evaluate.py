@@ -96,6 +96,27 @@ def test_jobs_1_runs_in_this_process_and_effects_are_imposed(capsys, monkeypatch
     assert set(out["summary"]["matrix"]) == {"exit_point_offset"}
 
 
+def test_keep_holds_each_case_to_diagnose_again(tmp_path, capsys):
+    from bench.diagnosis.report import diagnose
+
+    keep = tmp_path / "kept"
+    rc, out, _ = run_json(capsys, "--cases", "1", "--seed", "5", "--jobs", "1", "--keep",
+                          str(keep), *SMALL, *ONE)
+    assert rc == 0
+    case = json.loads((keep / "5" / "case.json").read_text())
+    assert case["seed"] == 5 and set(case["truth"]) == {"drum_scale"}
+    # the kept recording diagnoses as the evaluation's did
+    again = diagnose(keep / "5" / "rec").report
+    assert sorted(e["name"] for e in again["effects"]) == sorted(out["cases"][0]["named"])
+
+
+def test_keep_into_a_folder_that_cannot_be_made_exits_2(tmp_path, capsys):
+    (tmp_path / "file").write_text("")
+    rc, out, err = run_json(capsys, "--cases", "1", "--keep", str(tmp_path / "file" / "x"),
+                            *SMALL, *ONE)
+    assert rc == 2 and "--keep" in out["error"] and "--keep" in err
+
+
 def test_human_report(capsys):
     rc = main(["evaluate", "--cases", "2", "--seed", "5", "--jobs", "2", *SMALL, *ONE])
     cap = capsys.readouterr()

@@ -68,6 +68,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="visits of each pose (default: 2 to 4)")
     p.add_argument("--out", metavar="FILE",
                    help="append per-case results as JSON lines; a re-run skips seeds in FILE")
+    p.add_argument("--keep", metavar="DIR",
+                   help="keep each case's recording and scenario (truth included) in "
+                        "DIR/<seed>/ (rec/, case.json), to diagnose it again by hand")
     p.add_argument("--retry-errors", action="store_true",
                    help="with --out: run again the seeds whose case raised")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -339,6 +342,11 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--robot: {e}") from e
         out_path = Path(args.out) if args.out else None
         header, previous = read_results(out_path) if out_path else (None, {})
+        if args.keep is not None:
+            try:
+                Path(args.keep).mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise UsageError(f"--keep {args.keep}: cannot make the folder: {e}") from e
         out = _open_out(out_path, config, header) if out_path else None
     except UsageError as e:
         return _fail(args, 2, str(e))
@@ -369,7 +377,8 @@ def run(args: argparse.Namespace) -> int:
         if todo:
             outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
                                 scheduler=args.scheduler,
-                                connect_timeout_s=args.connect_timeout, **case_kwargs(config))
+                                connect_timeout_s=args.connect_timeout, keep=args.keep,
+                                **case_kwargs(config))
             with interrupt_on_term(), closing(outcomes):
                 for done, o in enumerate(outcomes, 1):
                     rec = (o.value if o.ok else
