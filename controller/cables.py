@@ -64,7 +64,10 @@ def _leave(st: CableState, t_exit: np.ndarray | None) -> tuple[np.ndarray, np.nd
 
 
 def _inv_ea(robot: Robot) -> np.ndarray:
-    return np.where(np.isfinite(robot.ea), 1.0 / robot.ea, 0.0)
+    """Compliance 1/EA [1/N] per cable: 0 for an inextensible cable (EA inf), inf for a
+    zero EA (a fit's trial value at its bound; no warning)."""
+    with np.errstate(divide="ignore"):
+        return np.where(np.isfinite(robot.ea), 1.0 / robot.ea, 0.0)
 
 
 def _pulls(H, VB, VA, e_h):

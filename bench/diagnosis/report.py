@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.diagnosis import gauge, locate, unexplained
+from bench.diagnosis import gauge, locate, probes, unexplained
 from bench.diagnosis.fit import FitResult
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
@@ -417,8 +417,10 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     say("fitted: equilibrium of every sample under the corrected model")
     fit_fw = rm.forward(fitted)
     fit_blocks = rm.blocks(fitted)
+    say("probing for physics outside the vocabulary beside the named effects")
+    probed = probes.screen(rm, final.space, final.phi)
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
-                                   model.pivots, model.mast_ids, fitted)
+                                   model.pivots, model.mast_ids, fitted, probed)
     if leftover is not None:
         say("unexplained: " + leftover["summary"])
 

@@ -164,6 +164,9 @@ class ResidualModel:
         self._warm_face = np.zeros((s.n, n), dtype=bool)
         self._warm_drop = np.zeros((s.n, n), dtype=bool)
         self._frozen = False
+        #: (N,n) [m] a length change added to every evaluation's unstretched lengths (the
+        #: out-of-vocabulary probes of :mod:`bench.diagnosis.probes`); None: none
+        self.extra_length: np.ndarray | None = None
         self._at_zero: np.ndarray | None = None  # cables the last unmeasured fit left at zero
         self._init_cache: dict[bytes, np.ndarray | ValueError] = {}
         # slack cables: measured tension within the load-cell noise of zero (the noise of
@@ -231,6 +234,8 @@ class ResidualModel:
         except ValueError:
             return Blocks(length, wrench, exits_err, ok, None, poses)
         dl = np.where(self._slipped(), H.length_offset, 0.0)
+        if self.extra_length is not None:
+            dl = dl + self.extra_length
         read = unstretched_from_readings(H, s.l_meas, self.reference, u0, dl)
         sel = np.ones(N, dtype=bool)
         if idx is not None:

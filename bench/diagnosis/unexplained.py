@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from bench.diagnosis import locate
+from bench.diagnosis import locate, probes
 from bench.diagnosis.residuals import Blocks, ResidualModel
 
 #: the fitted model leaves clearly more than the noise above this reduced chi-square ...
@@ -46,9 +46,12 @@ CABLE_RATIO = 2.0
 
 
 def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: np.ndarray,
-            pivots: np.ndarray, mast_ids: tuple[str, ...], fitted=None) -> dict | None:
+            pivots: np.ndarray, mast_ids: tuple[str, ...], fitted=None,
+            probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None = None
+            ) -> dict | None:
     """The ``unexplained`` object for the fitted model's residual blocks ``b`` (``fitted``:
-    the corrected robot, for the load cells' direction test)."""
+    the corrected robot, for the load cells' direction test; ``probed``: the
+    out-of-vocabulary probes tested beside the chosen effects, :func:`probes.screen`)."""
     model = rm.model
     s = rm.s
     w = rm.s.weight
@@ -103,9 +106,13 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
         if dirs:
             out["direction"] = {c: {"difference_over_noise": _r(diff), "z": _r(z)}
                                 for c, diff, z in dirs}
+            # (all the winches' hysteresis is part of the noise model: a cable's is a
+            # finding when it also stands out from the others')
             strong = [(c, diff, z) for c, diff, z in dirs
-                      if abs(z) > STRUCT_Z and abs(diff) > STRUCT_SIZE]
-            if strong:
+                      if abs(z) > STRUCT_Z and abs(diff) > STRUCT_SIZE
+                      and abs(diff) > probes.DIRECTION_RATIO * float(np.median(
+                          [abs(o[1]) for o in dirs if o[0] != c] or [0.0]))]
+            if strong and not _probed(probed, "direction"):
                 c, diff, z = max(strong, key=lambda x: abs(x[2]))
                 findings.append(f"cable {c}'s length residual depends on the direction of its "
                                 f"last move: {abs(diff):.1f} times the noise between paying "
@@ -131,7 +138,9 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
             strong = [(c, d, z) for c, d, z in trend
                       if abs(z) > STRUCT_Z and abs(d) > STRUCT_SIZE]
-            if strong:
+            if _probed(probed, "thermal", "drift"):
+                pass  # the probes' findings say it, with the named effects free beside them
+            elif strong:
                 many = len(strong) >= max(3, model.n_cables // 2)
                 c, d, z = max(strong, key=lambda x: abs(x[2]))
                 if many:
@@ -146,6 +155,13 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 findings.append(f"the length residuals of the cables drift together with time "
                                 f"({abs(common[0]):.1f} times the noise over the recording; "
                                 f"thermal expansion or creep?)")
+    if probed:
+        findings.extend(probes.findings(*probed))
+        shown = [r.as_dict() for r in probed[0] if r.finding or r.name == "thermal"]
+        if shown:
+            out["probes"] = shown
+        if probed[1]:
+            out["effects_in_question"] = [st.as_dict() for st in probed[1]]
     # load cells reading differently by the direction of motion (pulley friction)
     if fitted is not None and rm.any_tau:
         fr = _cell_direction(rm, b, fitted)
@@ -177,6 +193,12 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     out["findings"] = findings
     out["summary"] = "; ".join(findings)
     return out
+
+
+def _probed(probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None,
+            *names: str) -> bool:
+    """Whether a probe of one of ``names`` is a finding."""
+    return any(r.finding and r.name in names for r in (probed[0] if probed else []))
 
 
 def _force_noise(rm: ResidualModel) -> float:

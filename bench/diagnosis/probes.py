@@ -1,0 +1,280 @@
+"""Out-of-vocabulary probes: forms of length error a real robot can have that the effect
+vocabulary lacks, tested jointly with the effects the selection chose.
+
+The residual tests of :mod:`bench.diagnosis.unexplained` look at what the fitted model
+leaves. An effect the selection chose may have taken a share of a drift or a
+direction-dependent error (a cable's stretch follows the path, and the path follows the
+clock), so what is left of it can stand below the noise. A probe is tested the way the
+selection screens a candidate effect: its columns beside the chosen effects' parameters,
+all free, linearised at the final fit (:func:`screen`). A probe that lowers the BIC by more
+than an effect needs to enter, and whose size stands above the noise, is physics the
+vocabulary does not hold: the report says so instead of trusting the named effects.
+
+The probes, each a length change (N samples, n cables) [m] per unit parameter added to the
+unstretched lengths behind the encoder readings (``ResidualModel.extra_length``), zero at
+the initialisation (the encoders are referenced there):
+
+- ``thermal``: every cable's length changes in proportion to its length and to time
+  (thermal expansion, creep of all cables): one parameter, the strain over the recording;
+- ``drift``: one cable's length changes in proportion to time (creep, a slipping drum):
+  one parameter per cable, the change over the recording [m];
+- ``direction``: one cable's length differs by the direction of its last move (backlash,
+  friction in its winch): one parameter per cable, the difference between paying out and
+  reeling in [m]; a finding only when it stands out from the other cables' (what all the
+  winches share is their hysteresis, part of the noise model).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bench.diagnosis.fit import fd_jacobian
+from bench.diagnosis.residuals import ResidualModel
+from bench.diagnosis.space import ParamSpace
+
+#: a probe is a finding when it lowers the BIC by more than this (what an effect needs to
+#: enter the selection: bench.diagnosis.select.BIC_ENTER) ...
+PROBE_BIC = 25.0
+#: ... and its largest length change stands this many times above the length noise
+PROBE_SIZE = 1.0
+#: a cable's direction probe needs this many samples after each sign of its last move
+MIN_PER_SIGN = 3
+#: a cable's direction-dependent error is a finding only this many times the others' median
+DIRECTION_RATIO = 2.0
+#: length change [m] of a probe column's finite difference (the probes are linear in it)
+STEP_M = 1e-4
+
+#: what each probe stands for, in the report's words
+WHAT = {
+    "thermal": "every cable's length drifts in proportion to its length with time "
+               "(thermal expansion or creep of the cables?)",
+    "drift": "the length drifts with time (creep, or a drum slipping slowly?)",
+    "direction": "the length depends on the direction of the cable's last move "
+                 "(backlash or friction in the winch?)",
+}
+
+
+@dataclass
+class ProbeResult:
+    """One probe column tested beside the chosen effects: ``name`` (``thermal``, ``drift``,
+    ``direction``), ``cable`` (None for ``thermal``), ``value`` the fitted parameter (strain
+    over the recording, or metres), ``delta_bic`` (negative: the probe fits better, after
+    dividing the chi-square drop by the fit's reduced chi-square when above 1),
+    ``size_over_noise`` the largest length change it makes over the length noise."""
+
+    name: str
+    cable: str | None
+    value: float
+    delta_bic: float
+    size_over_noise: float
+    finding: bool = field(default=False)
+
+    def as_dict(self) -> dict:
+        return {"probe": self.name, "cable": self.cable, "value": _r(self.value),
+                "delta_bic": _r(self.delta_bic), "size_over_noise": _r(self.size_over_noise),
+                "finding": self.finding}
+
+
+def columns(rm: ResidualModel) -> list[tuple[str, str | None, np.ndarray]]:
+    """The probes' columns (name, cable or None, (N,n) length change [m] per unit)."""
+    s, model = rm.s, rm.model
+    n = model.n_cables
+    t = np.asarray(s.t, float)
+    after = ~s.is_init
+    if not after.any() or not np.isfinite(t).any():
+        return []
+    t_ref = rm.init_end if np.isfinite(rm.init_end) else float(np.nanmin(t))
+    span = float(np.nanmax(t[after]) - t_ref)
+    out: list[tuple[str, str | None, np.ndarray]] = []
+    if span > 0:
+        tau = np.where(after, np.clip((t - t_ref) / span, 0.0, 1.0), 0.0)
+        lengths = np.where(np.isfinite(s.l_meas), np.abs(s.l_meas), 0.0)
+        out.append(("thermal", None, tau[:, None] * lengths))
+        for k, cid in enumerate(model.cable_ids):
+            x = np.zeros((s.n, n))
+            x[:, k] = tau
+            out.append(("drift", cid, x))
+    d = np.where(after[:, None], np.sign(s.direction), 0.0) if s.direction.shape == (s.n, n) \
+        else np.zeros((s.n, n))
+    use = rm.has_len & after
+    for k, cid in enumerate(model.cable_ids):
+        if (np.sum(use & (d[:, k] > 0)) >= MIN_PER_SIGN
+                and np.sum(use & (d[:, k] < 0)) >= MIN_PER_SIGN):
+            x = np.zeros((s.n, n))
+            x[:, k] = 0.5 * d[:, k]
+            out.append(("direction", cid, x))
+    return out
+
+
+@dataclass
+class Stand:
+    """A named effect that a probe replaces about as well (``delta_bic`` of the probe in
+    its place, below :data:`select.BIC_TIE`): the data cannot tell the effect from physics
+    the vocabulary lacks."""
+
+    effect: str
+    probe: ProbeResult
+    delta_bic: float
+
+    def as_dict(self) -> dict:
+        return {"effect": self.effect, "delta_bic": _r(self.delta_bic)} | {
+            k: v for k, v in self.probe.as_dict().items() if k != "finding"}
+
+
+def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
+           idx: np.ndarray | None = None) -> tuple[list[ProbeResult], list[Stand]]:
+    """Each probe column fitted beside the fitted parameters of ``space`` (at ``phi``; the
+    ones the fit held at the model's values stay held), linearised there, on the samples
+    ``idx`` (all by default): its fitted value, BIC change and size, the findings marked
+    (:data:`PROBE_BIC`, :data:`PROBE_SIZE`). Then each effect of ``space`` with a probe in
+    its place: the effects a probe of size above the noise replaces within
+    ``select.BIC_TIE``."""
+    from bench.diagnosis.select import BIC_TIE, _bounded_lstsq
+
+    cols = columns(rm)
+    if not cols:
+        return [], []
+    robot = space.robot(phi)
+    rm.extra_length = None
+    r0 = rm.whitened(robot, idx)
+    n_res = len(r0)
+    if n_res == 0:
+        return [], []
+    act = np.flatnonzero(phi != space.neutral)  # the parameters the fit left free
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        p = phi.copy()
+        p[act] = z
+        return rm.whitened(space.robot(p), idx)
+
+    lo, hi = space.lo[act], space.hi[act]
+    Jc = fd_jacobian(fun, phi[act], r0, space.scale[act] * 1e-2, lo, hi, rm.frozen) \
+        if len(act) else np.zeros((n_res, 0))
+    Jp = np.empty((n_res, len(cols)))
+    sizes = np.empty(len(cols))
+    try:
+        with rm.frozen():
+            for j, (_, _, x) in enumerate(cols):
+                sizes[j] = float(np.max(np.abs(x)))
+                unit = STEP_M / max(sizes[j], 1e-12)
+                rm.extra_length = x * unit
+                Jp[:, j] = (rm.whitened(robot, idx) - r0) / unit
+    finally:
+        rm.extra_length = None
+    ok = np.isfinite(Jp).all(axis=0) & np.isfinite(Jc).all()
+    noise = _length_noise(rm)
+    log_n = math.log(n_res)
+
+    def solve(keep: np.ndarray, j: int | None, r_at: np.ndarray = r0) -> tuple[float, float]:
+        """chi-square of the linearised fit from the residuals ``r_at`` with the ``keep``
+        columns of the effects (and probe column ``j``) free; the probe's value."""
+        A = Jc[:, keep] if j is None else np.hstack([Jc[:, keep], Jp[:, j:j + 1]])
+        x0 = phi[act][keep] if j is None else np.concatenate([phi[act][keep], [0.0]])
+        a = lo[keep] if j is None else np.concatenate([lo[keep], [-np.inf]])
+        b = hi[keep] if j is None else np.concatenate([hi[keep], [np.inf]])
+        d = _bounded_lstsq(A, -r_at, x0, a, b) if A.shape[1] else np.zeros(0)
+        r = r_at + A @ d
+        return float(r @ r), float(d[-1]) if j is not None else 0.0
+
+    # the chosen effects refitted on these samples, linearised, without a probe: what a
+    # probe adds is measured from there (the final fit saw fewer samples)
+    every = np.ones(len(act), dtype=bool)
+    chi0, _ = solve(every, None)
+    dof = max(float(rm.entry_weights(idx).sum()) - len(act) - rm.dof_lost(idx), 1.0)
+    inflation = max(chi0 / dof, 1.0)
+    out: list[ProbeResult] = []
+    for j, (name, cid, _) in enumerate(cols):
+        if not ok[j]:
+            continue
+        chi, value = solve(every, j)
+        # (a direction column is half the difference: its size is the half, as the
+        # residuals' two-group test reports it)
+        res = ProbeResult(name, cid, value, -(chi0 - chi) / inflation + log_n,
+                          abs(value) * sizes[j] / noise)
+        res.finding = res.delta_bic < -PROBE_BIC and res.size_over_noise > PROBE_SIZE
+        out.append(res)
+    # a direction-dependent error common to the cables is the winches' hysteresis, which the
+    # noise model holds (its direction component): one cable's is a finding when it also
+    # stands out from the others'
+    dirs = [r for r in out if r.name == "direction"]
+    for r in dirs:
+        others = [abs(o.value) for o in dirs if o is not r]
+        if others and abs(r.value) <= DIRECTION_RATIO * float(np.median(others)):
+            r.finding = False
+    stands: list[Stand] = []
+    pos = {k: i for i, k in enumerate(act)}
+    for e in space.effects:
+        mine = [pos[k] for k in space.indices(e) if k in pos]
+        if not mine:
+            continue
+        keep = every.copy()
+        keep[mine] = False
+        # without the effect: its parameters back at the model's values
+        p = phi.copy()
+        p[act[mine]] = space.neutral[act[mine]]
+        r_wo = rm.whitened(space.robot(p), idx)
+        if r_wo.shape != r0.shape or not np.isfinite(r_wo).all():
+            continue
+        best: Stand | None = None
+        for j, (name, cid, _) in enumerate(cols):
+            if not ok[j]:
+                continue
+            chi, value = solve(keep, j, r_wo)
+            size = abs(value) * sizes[j] / noise
+            d_bic = (chi - chi0) / inflation + (1 - len(mine)) * log_n
+            if size > PROBE_SIZE and d_bic < BIC_TIE and (best is None
+                                                           or d_bic < best.delta_bic):
+                best = Stand(e, ProbeResult(name, cid, value, d_bic, size), d_bic)
+        if best is not None:
+            stands.append(best)
+    return out, stands
+
+
+def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> list[str]:
+    """Sentences for the report: the thermal probe, then cables by probe kind, then the named
+    effects a probe stands in for."""
+    out = []
+    hit = [r for r in results if r.finding]
+    th = [r for r in hit if r.name == "thermal"]
+    if th:
+        r = th[0]
+        out.append(f"{WHAT['thermal']}: a strain of {r.value:+.1e} over the recording "
+                   f"({r.size_over_noise:.1f} times the noise on the longest cable) lowers "
+                   f"the BIC by {-r.delta_bic:.0f} beside the named effects")
+    for name in ("drift", "direction"):
+        got = sorted((r for r in hit if r.name == name), key=lambda r: r.delta_bic)
+        if th and name == "drift":
+            # a common drift's share of each cable is the thermal probe's
+            got = [r for r in got if r.delta_bic < th[0].delta_bic - PROBE_BIC]
+        if not got:
+            continue
+        which = ", ".join(str(r.cable) for r in got)
+        top = got[0]
+        what = (f"{top.value * 1e3:+.2f} mm over the recording" if name == "drift" else
+                f"{abs(top.value) * 1e3:.2f} mm between paying out and reeling in")
+        out.append(f"cable{'s' if len(got) > 1 else ''} {which}: {WHAT[name]}: "
+                   f"{what} on cable {top.cable} ({top.size_over_noise:.1f} times the "
+                   f"noise), lowering the BIC by {-top.delta_bic:.0f} beside the named effects")
+    from bench.diagnosis.space import report_name
+
+    for st in stands or []:
+        p = st.probe
+        where = "" if p.cable is None else f" on cable {p.cable}"
+        out.append(f"{report_name(st.effect)} may stand for physics outside the vocabulary: "
+                   f"{WHAT[p.name]}{where} explains the data as well in its place (BIC "
+                   f"{st.delta_bic:+.0f}, {p.size_over_noise:.1f} times the noise)")
+    return out
+
+
+def _length_noise(rm: ResidualModel) -> float:
+    """The median length noise of a sample [m] (what a probe's size stands against)."""
+    sd = rm.sd["length"][rm.has_len] if rm.has_len.any() else rm.sd["length"]
+    sd = sd[np.isfinite(sd)]
+    return float(np.median(sd)) if sd.size else 1e-4
+
+
+def _r(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(f"{x:.4g}")
