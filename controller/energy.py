@@ -23,12 +23,15 @@ from controller.robot import Robot
 
 
 def potential_energy(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
-                     a_star: np.ndarray, r: np.ndarray) -> float:
+                     a_star: np.ndarray, r: np.ndarray, guess: CableForces | None = None
+                     ) -> float:
     """E [J] at ``pose`` (6,) with mast rotations ``theta`` (m,3) [rad] and unstretched lengths
-    ``l0`` (n,) [m]; ``a_star`` settled exits (n,3) and ``r`` lever arms (n,3) [m]."""
+    ``l0`` (n,) [m]; ``a_star`` settled exits (n,3) and ``r`` lever arms (n,3) [m]. ``guess``:
+    sagging cables hung nearly so (their catenaries' Newton starts there: the same
+    solutions, sooner)."""
     exits = deflect(a_star, r, theta, robot.mast_index) if robot.compliant else a_star
     st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
-    cf = cable_forces.from_lengths(robot, st, l0) if robot.rho > 0 else None
+    cf = cable_forces.from_lengths(robot, st, l0, guess) if robot.rho > 0 else None
     return state_energy(robot, st, pose, theta, l0, cf)
 
 

@@ -142,10 +142,12 @@ def _terms_sag(robot: Robot, st: CableState, exits: np.ndarray, theta: np.ndarra
 
 
 def energy_gradient(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
-                    a_star: np.ndarray, r: np.ndarray) -> np.ndarray:
+                    a_star: np.ndarray, r: np.ndarray, guess: CableForces | None = None
+                    ) -> np.ndarray:
     """Gradient of :func:`controller.energy.potential_energy` w.r.t. ``(dt, w, theta)``
-    (6+3m,): ``-F`` on the platform and ``K theta - M`` on the masts (0 on rigid axes)."""
-    T = _terms(robot, pose, theta, l0, a_star, r)
+    (6+3m,): ``-F`` on the platform and ``K theta - M`` on the masts (0 on rigid axes).
+    ``guess``: as for the energy."""
+    T = _terms(robot, pose, theta, l0, a_star, r, guess)
     g = -T.residual
     k = np.where(np.isfinite(robot.stiffness), robot.stiffness, 0.0).ravel()
     g[6:] = k * T.residual[6:]

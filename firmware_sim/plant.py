@@ -128,6 +128,9 @@ class Plant:
         height = float(np.mean(np.linalg.norm(self._r, axis=1)))
         self._scale = np.concatenate([np.ones(6), np.full(int(self._free.sum()), height)])
         self._hess_inv: np.ndarray | None = None
+        #: sagging cables at the last rest position: the catenaries of every evaluation of
+        #: the next rest search start there (the same solutions, in a few Newton steps)
+        self._hung: cables.CableForces | None = None
         self._rests = 0
         # sagging cables on pulleys leave them where the chord would (an approximation of
         # the tangent point): their forces and energy agree to a few tenths of a newton,
@@ -193,12 +196,13 @@ class Plant:
 
     def _energy(self, y: np.ndarray, pose0: np.ndarray, l0: np.ndarray, e0: float) -> float:
         pose, theta = self._unpack(y, pose0)
-        return potential_energy(self.truth, pose, theta, l0, self._a_star, self._r) - e0
+        return potential_energy(self.truth, pose, theta, l0, self._a_star, self._r,
+                                self._hung) - e0
 
     def _gradient(self, y: np.ndarray, pose0: np.ndarray, l0: np.ndarray, e0: float
                   ) -> np.ndarray:
         pose, theta = self._unpack(y, pose0)
-        g = energy_gradient(self.truth, pose, theta, l0, self._a_star, self._r)
+        g = energy_gradient(self.truth, pose, theta, l0, self._a_star, self._r, self._hung)
         out = np.empty_like(y)
         out[:3] = g[:3]
         out[3:6] = g[3:6] @ euler_rate_matrix(pose[3:6])  # w = E(rpy) d(rpy)
@@ -239,7 +243,8 @@ class Plant:
         start = self.state
         pose0 = start.pose.copy() if guess is None else np.asarray(guess, dtype=float).copy()
         y0 = np.concatenate([np.zeros(6), start.theta.ravel()[self._free] * self._scale[6:]])
-        e0 = potential_energy(self.truth, pose0, start.theta, l0, self._a_star, self._r)
+        e0 = potential_energy(self.truth, pose0, start.theta, l0, self._a_star, self._r,
+                              self._hung)
         args = (pose0, l0, e0)
         if self._hess_inv is None:
             self._hess_inv = _safe_inverse(self._hessian(y0, *args))
@@ -279,7 +284,10 @@ class Plant:
         pose, theta = self._unpack(y, pose0)
         exits = self._exits(theta)
         st = cable_state(pose, self.truth.anchors, exits, self.truth.pulley_radius)
-        tau = cables.from_lengths(self.truth, st, l0).tension  # at the exit ends
+        hung = cables.from_lengths(self.truth, st, l0, self._hung)
+        if self.truth.rho > 0:
+            self._hung = hung
+        tau = hung.tension  # at the exit ends
         return PlantState(pose, tau, exits, theta, np.asarray(l0, float).copy())
 
     def _chord(self, y: np.ndarray, args: tuple, gtol: float,

@@ -118,3 +118,21 @@ def test_a_rest_position_turned_over_is_refused(monkeypatch):
     monkeypatch.setattr(plant, "_chord", turned)
     with pytest.raises(PlantError, match="turned"):
         plant.settle(ctl.step(P0).lengths, guess=P0)
+
+
+def test_sagging_cables_start_from_the_last_rest_and_land_where_a_cold_start_does():
+    """The catenaries of a rest search start from the last rest position's (a few Newton
+    steps instead of a dozen): the rest positions and tensions are a cold start's."""
+    model = rocaspect()
+    truth = apply_effects(model, {"cable_sag": {"rho": 0.3}})
+    ctl = LengthController(model, P0)
+    warm = Plant(model, truth, P0)
+    cold = Plant(model, truth, P0)
+    for target in ([10.3, 8.8, 1.1, 0, 0, 0], [10.6, 9.0, 1.2, 0, 0, 0.01]):
+        lengths = ctl.step(np.array(target)).lengths
+        a = warm.settle(lengths)
+        assert warm._hung is not None
+        cold._hung = None
+        b = cold.settle(lengths)
+        np.testing.assert_allclose(a.pose, b.pose, atol=1e-9)
+        np.testing.assert_allclose(a.tensions, b.tensions, rtol=1e-8, atol=1e-6)
