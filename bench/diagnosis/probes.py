@@ -161,7 +161,8 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
                 sizes[j] = float(np.max(np.abs(x)))
                 unit = STEP_M / max(sizes[j], 1e-12)
                 rm.extra_length = x * unit
-                Jp[:, j] = (rm.whitened(robot, idx) - r0) / unit
+                r = rm.whitened(robot, idx)
+                Jp[:, j] = (r - r0) / unit if r.shape == r0.shape else np.nan
     finally:
         rm.extra_length = None
     ok = np.isfinite(Jp).all(axis=0) & np.isfinite(Jc).all()

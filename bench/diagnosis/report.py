@@ -418,7 +418,11 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     fit_fw = rm.forward(fitted)
     fit_blocks = rm.blocks(fitted)
     say("probing for physics outside the vocabulary beside the named effects")
-    probed = probes.screen(rm, final.space, final.phi)
+    try:
+        probed = probes.screen(rm, final.space, final.phi)
+    except (ValueError, np.linalg.LinAlgError) as e:  # a check beside the answer: say so
+        say(f"the probes could not be evaluated: {e}")
+        probed = None
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
                                    model.pivots, model.mast_ids, fitted, probed)
     if leftover is not None:
