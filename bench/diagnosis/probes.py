@@ -245,8 +245,15 @@ def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> l
         out.append(f"{WHAT['thermal']}: a strain of {r.value:+.1e} over the recording "
                    f"({r.size_over_noise:.1f} times the noise on the longest cable) lowers "
                    f"the BIC by {-r.delta_bic:.0f} beside the named effects")
+    # a cable found by both a drift and a direction is said by the stronger (a backlash's
+    # error follows the moves, and the moves the clock)
+    best: dict[str, ProbeResult] = {}
+    for r in hit:
+        if r.cable is not None and (r.cable not in best or r.delta_bic < best[r.cable].delta_bic):
+            best[r.cable] = r
     for name in ("drift", "direction"):
-        got = sorted((r for r in hit if r.name == name), key=lambda r: r.delta_bic)
+        got = sorted((r for r in hit if r.name == name and best.get(r.cable) is r),
+                     key=lambda r: r.delta_bic)
         if th and name == "drift":
             # a common drift's share of each cable is the thermal probe's
             got = [r for r in got if r.delta_bic < th[0].delta_bic - PROBE_BIC]
@@ -265,7 +272,7 @@ def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> l
         p = st.probe
         where = "" if p.cable is None else f" on cable {p.cable}"
         out.append(f"{report_name(st.effect)} may stand for physics outside the vocabulary: "
-                   f"{WHAT[p.name]}{where} explains the data as well in its place (BIC "
+                   f"{WHAT[p.name]}{where} explains the data as well or better in its place (BIC "
                    f"{st.delta_bic:+.0f}, {p.size_over_noise:.1f} times the noise)")
     return out
 

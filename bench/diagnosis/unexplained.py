@@ -112,6 +112,9 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                       if abs(z) > STRUCT_Z and abs(diff) > STRUCT_SIZE
                       and abs(diff) > probes.DIRECTION_RATIO * float(np.median(
                           [abs(o[1]) for o in dirs if o[0] != c] or [0.0]))]
+            # (the probes, fitted with the named effects free, judge a cable they tested:
+            # this test only one they could not)
+            strong = [x for x in strong if not _tested(probed, "direction", x[0])]
             if strong and not _probed(probed, "direction"):
                 c, diff, z = max(strong, key=lambda x: abs(x[2]))
                 findings.append(f"cable {c}'s length residual depends on the direction of its "
@@ -138,6 +141,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
             strong = [(c, d, z) for c, d, z in trend
                       if abs(z) > STRUCT_Z and abs(d) > STRUCT_SIZE]
+            strong = [x for x in strong if not _tested(probed, "drift", x[0])]
             if _probed(probed, "thermal", "drift"):
                 pass  # the probes' findings say it, with the named effects free beside them
             elif strong:
@@ -151,7 +155,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                     findings.append(f"cable {c}'s length residual drifts with time "
                                     f"({abs(d):.1f} times the noise over the recording)")
             elif common is not None and abs(common[1]) > STRUCT_Z \
-                    and abs(common[0]) > STRUCT_SIZE:
+                    and abs(common[0]) > STRUCT_SIZE and not _tested(probed, "thermal"):
                 findings.append(f"the length residuals of the cables drift together with time "
                                 f"({abs(common[0]):.1f} times the noise over the recording; "
                                 f"thermal expansion or creep?)")
@@ -193,6 +197,12 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     out["findings"] = findings
     out["summary"] = "; ".join(findings)
     return out
+
+
+def _tested(probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None,
+            name: str, cable: str | None = None) -> bool:
+    """Whether the probes tested ``name`` (on ``cable``)."""
+    return any(r.name == name and r.cable == cable for r in (probed[0] if probed else []))
 
 
 def _probed(probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None,
