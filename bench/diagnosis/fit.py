@@ -7,9 +7,11 @@ from the whitened Jacobian at the solution.
 
 from __future__ import annotations
 
+import hashlib
+import weakref
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
@@ -103,6 +105,39 @@ def fd_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.n
     return J
 
 
+#: fits kept per residual model (:func:`fit_effects`' memo)
+MEMO_SIZE = 512
+_MEMO: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
+              phi0: np.ndarray | None, max_nfev: int, hold: np.ndarray | None,
+              prune: bool) -> tuple:
+    """What a fit's result hangs on: the space (its effects on its model), the samples, the
+    start, what is held, the budget, the residual model's noise (its whitening) and this
+    module's settings. Not the residual model's warm starts: they only shorten the path."""
+    h = hashlib.blake2b(digest_size=20)
+    for a in (idx, phi0, hold, rm.slip_times, rm.sqrt_w, rm.len_rank,
+              *(rm.sd[k] for k in sorted(rm.sd))):
+        if a is None:
+            h.update(b"-")
+        else:
+            a = np.ascontiguousarray(a)
+            h.update(str((a.dtype, a.shape)).encode())
+            h.update(a.tobytes())
+    h.update(repr((rm.visit_sd, rm.slack_threshold)).encode())
+    settings = (MAX_NFEV, RETRIES, FIT_TOL, SECANT_MIN, SECANT_RATIO, SECANT_STEPS, SETTLED,
+                id(least_squares), id(fd_jacobian))
+    return (id(space.model), id(rm.s), space.effects, int(max_nfev), bool(prune), settings,
+            h.digest())
+
+
+def _copy(res: FitResult) -> FitResult:
+    """A copy of ``res`` whose arrays its user may change (``bias_var`` is added to in place)."""
+    return replace(res, phi=res.phi.copy(), stderr=res.stderr.copy(), cov=res.cov.copy(),
+                   bias_var=None if res.bias_var is None else res.bias_var.copy())
+
+
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
                 phi0: np.ndarray | None = None, max_nfev: int = MAX_NFEV,
                 hold: np.ndarray | None = None, prune: bool = True) -> FitResult:
@@ -112,7 +147,30 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     that come out within two standard errors of the model's value are then held there
     and the rest refitted, when that lowers the BIC: an effect counts only the
     parameters the data need (three offset cables, not twenty-four).
+
+    A fit asked for again with the same inputs (the selection reaches one set from one
+    start on several paths: a backward step and a held-out check, a gauge start equal to
+    the warm one) is the one made before (a copy), not made again: run again, it would
+    only move within the fit's tolerance with the residual model's warm starts.
     """
+    key = _memo_key(space, rm, idx, phi0, max_nfev, hold, prune)
+    memo = _MEMO.setdefault(rm, {})
+    got = memo.get(key)
+    if got is not None:
+        return _copy(got[-1])
+    res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune)
+    if len(memo) >= MEMO_SIZE:
+        memo.pop(next(iter(memo)))
+    # (the model, the samples and the functions named by id in the key are kept alive with
+    # the entry: their ids cannot be reused while it lives)
+    memo[key] = (space.model, rm.s, least_squares, fd_jacobian, _copy(res))
+    return res
+
+
+def _fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
+                 phi0: np.ndarray | None, max_nfev: int, hold: np.ndarray | None,
+                 prune: bool) -> FitResult:
+    """:func:`fit_effects` made anew."""
     full = _fit(space, rm, idx, phi0, max_nfev, hold)
     if len(space) == 0 or not prune:
         return full
