@@ -103,3 +103,54 @@ def test_a_change_of_the_fit_settings_fits_anew(problem, evaluations, monkeypatc
     evaluations.clear()
     fit_effects(space, rm, train, prune=False)
     assert evaluations
+
+
+# ----- pruning: a pruned fit the full fit's curvature says the BIC refuses is not made ------
+
+def _counted_fits(monkeypatch) -> list:
+    calls = []
+    real = fit_module._fit
+
+    def counted(*a, **kw):
+        calls.append(1)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(fit_module, "_fit", counted)
+    return calls
+
+
+def test_pruning_cost_is_the_held_departures_distance_under_the_curvature():
+    space = type("S", (), {"neutral": np.zeros(3)})()
+    curv = np.diag([4.0, 1.0, 9.0])
+    res = fit_module.FitResult(space, np.array([2.0, 0.5, 3.0]), 0.0, 10, 0.0, np.ones(3),
+                               np.eye(3), True, "", curvature_cov=curv)
+    weak = np.array([True, False, True])
+    assert fit_module.pruning_cost(res, weak) == pytest.approx(2.0 ** 2 / 4 + 3.0 ** 2 / 9)
+    res.curvature_cov = None  # no curvature known: no prediction, the pruned fit is made
+    assert fit_module.pruning_cost(res, weak) == 0.0
+
+
+def test_a_hopeless_pruning_is_not_fitted_and_the_answer_is_the_same(problem, monkeypatch):
+    rm, train = problem
+    # length offsets on a recording whose error is one drum's scale: the offsets within two
+    # (widened) standard errors of zero carry far more chi-square than they would save
+    space = ParamSpace(rm.model, ("cable_length_offset",))
+    calls = _counted_fits(monkeypatch)
+    monkeypatch.setattr(fit_module, "PRUNE_HOPELESS", np.inf)
+    made = fit_effects(space, rm, train)
+    n_made = len(calls)
+    calls.clear()
+    monkeypatch.setattr(fit_module, "PRUNE_HOPELESS", 10.0)
+    skipped = fit_effects(space, rm, train)
+    assert len(calls) < n_made
+    assert skipped.chi2 == made.chi2 and skipped.n_free == made.n_free
+    np.testing.assert_array_equal(skipped.phi, made.phi)
+
+
+def test_a_pruning_the_bic_takes_is_still_made(problem, monkeypatch):
+    rm, train = problem
+    space = ParamSpace(rm.model, ("drum_scale",))  # one drum of eight is off
+    calls = _counted_fits(monkeypatch)
+    res = fit_effects(space, rm, train, hold=np.zeros(len(space), dtype=bool))
+    assert len(calls) >= 2 and res.n_free < len(space)
+    assert res.phi[space.params.index(next(p for p in space.params if p.key == "s_21"))] != 0
