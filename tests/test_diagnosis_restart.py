@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from bench.diagnosis.select import Selection, Selector
+from tests.robots import rocaspect
 
 
 class _Space:
@@ -32,8 +33,12 @@ def _fit(sizes: dict[str, int], bic: float, undetermined: int = 0) -> SimpleName
 
 def _selector(found: tuple[list[str], SimpleNamespace]) -> tuple[Selector, list]:
     sel = object.__new__(Selector)
+    sel.model = rocaspect()  # 24 exit-point offsets, 8 pulley radii, 8 length offsets, ...
     sel.progress = lambda msg: None
     sel.stalled = True
+    sel.budget = None
+    sel.max_effects = 5
+    sel.cache = {("exit_point_offset",): None, (): None}
     calls: list = []
 
     def search(chosen, current, candidates, selection):
@@ -63,13 +68,23 @@ def test_the_search_without_the_widest_effect_replaces_a_worse_set():
     assert not sel.stalled  # the new path's own state
 
 
-def test_the_widest_effect_counts_free_parameters_only():
-    chosen = ["exit_point_offset", "pulley_kinematics"]
-    # 24 exit parameters of which 20 undetermined: 4 free against the pulleys' 8
-    current = _fit({"exit_point_offset": 24, "pulley_kinematics": 8}, 300.0, undetermined=20)
-    sel, calls = _selector((["exit_point_offset"], _fit({"exit_point_offset": 24}, 400.0)))
+def test_an_effect_no_wider_than_another_candidate_runs_no_restart():
+    # the pulleys (8 radii) are the widest chosen, but the exit points have more: the
+    # pulleys cannot carry the shares of two effects
+    chosen = ["pulley_kinematics", "cable_elasticity"]
+    current = _fit({"pulley_kinematics": 8, "cable_elasticity": 1}, 300.0)
+    sel, calls = _selector((["exit_point_offset"], _fit({"exit_point_offset": 24}, 100.0)))
     assert sel._restart(chosen, current, CANDIDATES, BASE) is None
-    assert "pulley_kinematics" not in calls[0][2] and "exit_point_offset" in calls[0][2]
+    assert calls == []
+
+
+def test_the_width_counts_the_parameters_the_data_fix():
+    # 24 exit parameters of which 20 undetermined: 4, fewer than the pulleys' 8
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 300.0, undetermined=20)
+    sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 100.0)))
+    assert sel._restart(chosen, current, CANDIDATES, BASE) is None
+    assert calls == []
 
 
 def test_a_restart_that_ends_higher_keeps_the_set_and_its_state():
@@ -111,3 +126,29 @@ def test_no_restart_without_an_effect_of_the_load_cells_gauge():
                         ["load_cell_calibration", "platform_mass", "cable_elasticity"],
                         BASE) is None
     assert calls == []
+
+
+def test_the_restart_may_fit_as_many_new_sets_as_the_first_search_and_one_effect_more():
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 340.0)
+    seen: list = []
+    sel, _ = _selector((chosen, current))
+
+    def search(chosen_, current_, candidates, selection):
+        seen.append((sel.budget, sel.max_effects))
+        return chosen, current
+
+    sel._search = search
+    sel._restart(chosen, current, CANDIDATES, BASE)
+    # as many new sets as the first search, and one effect more than it chose at most
+    assert seen == [(2 * len(sel.cache), 3)]
+    assert sel.budget is None and sel.max_effects == 5
+
+
+def test_a_search_whose_budget_is_spent_stops():
+    sel, _ = _selector(([], BASE))
+    del sel._search  # the real search
+    sel.budget = len(sel.cache)
+    sel._forward = lambda *a: (_ for _ in ()).throw(AssertionError("no step"))
+    assert sel._search(["pulley_kinematics"], BASE, CANDIDATES, None) == (
+        ["pulley_kinematics"], BASE)
