@@ -28,7 +28,7 @@ def _fit(sizes: dict[str, int], bic: float, undetermined: int = 0) -> SimpleName
     space = _Space(sizes)
     stderr = np.ones(sum(sizes.values()))
     stderr[:undetermined] = np.inf  # the first effect's first parameters: undetermined
-    return SimpleNamespace(space=space, stderr=stderr, bic=bic)
+    return SimpleNamespace(space=space, stderr=stderr, bic=bic, reduced_chi2=1.0)
 
 
 def _selector(found: tuple[list[str], SimpleNamespace]) -> tuple[Selector, list]:

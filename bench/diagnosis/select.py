@@ -409,6 +409,14 @@ class Selector:
                     pair = self._pairs(current, candidates)
                     if pair is not None:
                         chosen, current = pair
+            if self.max_effects < MAX_EFFECTS and len(chosen) >= self.max_effects - 1 \
+                    and current.reduced_chi2 > INADEQUATE:
+                # a restart (_restart) with as many effects as the first search chose that
+                # still leaves far more than the noise: the one effect more it may add must
+                # take most of what is left, where the first search's set explained it
+                self.progress(f"the search again leaves {current.reduced_chi2:.3g} x the "
+                              f"noise with {len(chosen)} effects: it stops here")
+                break
             chosen, current, dropped = self._backward(chosen, current)
             swapped = self._swap(chosen, current, candidates)
             if swapped is not None:
@@ -435,7 +443,7 @@ class Selector:
         what a single effect does, which the swaps test), and not for one of the load
         cells' gauge: what it shares with the others of the gauge, the gauge moves and
         swaps search already (:func:`_gauge_moves`, :func:`_gauge_swaps`)."""
-        if len(chosen) < 2:
+        if len(chosen) < 2 or current.reduced_chi2 > INADEQUATE:
             return None
         free = {e: int(np.isfinite(current.stderr[current.space.indices(e)]).sum())
                 for e in chosen}
