@@ -152,3 +152,24 @@ def test_a_search_whose_budget_is_spent_stops():
     sel._forward = lambda *a: (_ for _ in ()).throw(AssertionError("no step"))
     assert sel._search(["pulley_kinematics"], BASE, CANDIDATES, None) == (
         ["pulley_kinematics"], BASE)
+
+
+def test_a_restart_far_from_the_data_with_as_many_effects_as_the_first_set_stops():
+    sel, _ = _selector(([], BASE))
+    del sel._search
+    sel.max_effects = 3  # in a restart from a set of two
+    far = SimpleNamespace(reduced_chi2=6.7)
+    sel._forward = lambda *a: (["drum_scale", "mast_compliance"], far)
+    sel._pairs = lambda *a: None
+    sel._backward = lambda *a: (_ for _ in ()).throw(AssertionError("stopped before"))
+    assert sel._search(["drum_scale"], BASE, CANDIDATES, None) == (
+        ["drum_scale", "mast_compliance"], far)
+
+
+def test_a_restart_far_from_the_data_is_not_run():
+    sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 1.0)))
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 500.0)
+    current.reduced_chi2 = 5.0  # the first search's set leaves far more than the noise
+    assert sel._restart(["exit_point_offset", "cable_elasticity"], current, CANDIDATES,
+                        BASE) is None
+    assert calls == []
