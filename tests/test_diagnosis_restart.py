@@ -157,7 +157,7 @@ def test_a_search_whose_budget_is_spent_stops():
 def test_a_restart_far_from_the_data_with_as_many_effects_as_the_first_set_stops():
     sel, _ = _selector(([], BASE))
     del sel._search
-    sel.max_effects = 3  # in a restart from a set of two
+    sel.max_effects, sel.budget = 3, 100  # in a restart from a set of two
     far = SimpleNamespace(reduced_chi2=6.7)
     sel._forward = lambda *a: (["drum_scale", "mast_compliance"], far)
     sel._pairs = lambda *a: None

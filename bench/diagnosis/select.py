@@ -409,7 +409,7 @@ class Selector:
                     pair = self._pairs(current, candidates)
                     if pair is not None:
                         chosen, current = pair
-            if self.max_effects < MAX_EFFECTS and len(chosen) >= self.max_effects - 1 \
+            if self.budget is not None and len(chosen) >= self.max_effects - 1 \
                     and current.reduced_chi2 > INADEQUATE:
                 # a restart (_restart) with as many effects as the first search chose that
                 # still leaves far more than the noise: the one effect more it may add must
@@ -428,8 +428,9 @@ class Selector:
     def _restart(self, chosen: list[str], current: FitResult, candidates: list[str],
                  base: FitResult) -> tuple[list[str], FitResult] | None:
         """The search again from the model as it is without the widest chosen effect (the
-        most free parameters), when others were chosen beside it: the set it leads to
-        when its BIC is lower, else None.
+        most parameters the data fix), when others were chosen beside it and the set
+        explains the data within :data:`INADEQUATE` x the noise: the set it leads to when
+        its BIC is lower, else None.
 
         Greedy steps favour a wide effect while the model is far from the data: its many
         parameters take a share of several effects at once (exit points moved where pulley
