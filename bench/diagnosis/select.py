@@ -133,6 +133,10 @@ class Selector:
         # with an assumed noise, "far more than the noise" says little: no wider search
         self.measured_noise = rm.sigma_source == "replicate visits"
         self.stalled = False
+        #: the search stops once the cache holds this many fitted sets (None: no limit)
+        self.budget: int | None = None
+        #: at most this many effects in the search's sets
+        self.max_effects = MAX_EFFECTS
         self._floored: dict[int, FitResult] = {}
 
     # ----- fits -----------------------------------------------------------------------
@@ -364,22 +368,10 @@ class Selector:
         chosen: list[str] = [e for e in initial if e in candidates]
         current = self.fit(tuple(chosen), None) if chosen else base
         sel = Selection([], base, base)
-        for _ in range(3 * len(candidates) + 3):
-            changed = False
-            step = self._forward(current, chosen, candidates, sel)
-            if step is not None:
-                chosen, current = step
-                changed = True
-                if len(chosen) == 1:
-                    pair = self._pairs(current, candidates)
-                    if pair is not None:
-                        chosen, current = pair
-            chosen, current, dropped = self._backward(chosen, current)
-            swapped = self._swap(chosen, current, candidates)
-            if swapped is not None:
-                chosen, current = swapped
-            if not (changed or dropped or swapped is not None):
-                break
+        chosen, current = self._search(chosen, current, candidates, sel)
+        restart = self._restart(chosen, current, candidates, base)
+        if restart is not None:
+            chosen, current = restart
         # held-out check of each chosen effect against the set without it
         for e in list(chosen):
             rest = tuple(c for c in chosen if c != e)
@@ -400,11 +392,92 @@ class Selector:
         self._lookalikes(sel, candidates)
         return sel
 
+    def _search(self, chosen: list[str], current: FitResult, candidates: list[str],
+                sel: Selection) -> tuple[list[str], FitResult]:
+        """Forward steps, backward drops and swaps from ``chosen`` until none changes it (or
+        the sets fitted reach :attr:`budget`)."""
+        for _ in range(3 * len(candidates) + 3):
+            if self.budget is not None and len(self.cache) >= self.budget:
+                self.progress("the search's budget of fits is spent: it stops here")
+                break
+            changed = False
+            step = self._forward(current, chosen, candidates, sel)
+            if step is not None:
+                chosen, current = step
+                changed = True
+                if len(chosen) == 1:
+                    pair = self._pairs(current, candidates)
+                    if pair is not None:
+                        chosen, current = pair
+            if self.budget is not None and len(chosen) >= self.max_effects - 1 \
+                    and current.reduced_chi2 > INADEQUATE:
+                # a restart (_restart) with as many effects as the first search chose that
+                # still leaves far more than the noise: the one effect more it may add must
+                # take most of what is left, where the first search's set explained it
+                self.progress(f"the search again leaves {current.reduced_chi2:.3g} x the "
+                              f"noise with {len(chosen)} effects: it stops here")
+                break
+            chosen, current, dropped = self._backward(chosen, current)
+            swapped = self._swap(chosen, current, candidates)
+            if swapped is not None:
+                chosen, current = swapped
+            if not (changed or dropped or swapped is not None):
+                break
+        return chosen, current
+
+    def _restart(self, chosen: list[str], current: FitResult, candidates: list[str],
+                 base: FitResult) -> tuple[list[str], FitResult] | None:
+        """The search again from the model as it is without the widest chosen effect (the
+        most parameters the data fix), when others were chosen beside it and the set
+        explains the data within :data:`INADEQUATE` x the noise: the set it leads to when
+        its BIC is lower, else None.
+
+        Greedy steps favour a wide effect while the model is far from the data: its many
+        parameters take a share of several effects at once (exit points moved where pulley
+        radii and a length offset, or the masts' bending and a drum's scale, act), and
+        once it is in, none of those it imitates lowers the BIC alone, nor does a
+        one-for-one swap: the whole path from the first step on is another. One restart
+        without it follows that other path; what it cannot beat is kept.
+
+        Only for an effect that the data fix with more parameters than any other candidate
+        has (it can carry the shares of two of them; one no wider than another imitates
+        what a single effect does, which the swaps test), and not for one of the load
+        cells' gauge: what it shares with the others of the gauge, the gauge moves and
+        swaps search already (:func:`_gauge_moves`, :func:`_gauge_swaps`)."""
+        if len(chosen) < 2 or current.reduced_chi2 > INADEQUATE:
+            return None
+        free = {e: int(np.isfinite(current.stderr[current.space.indices(e)]).sum())
+                for e in chosen}
+        wide = max(chosen, key=lambda e: (free[e], -chosen.index(e)))
+        widest_other = max((len(ParamSpace(self.model, (c,))) for c in candidates
+                            if c != wide), default=0)
+        if wide in gauge.GAUGE_EFFECTS or free[wide] <= widest_other:
+            return None
+        rest = [c for c in candidates if c != wide]
+        stalled = self.stalled
+        self.stalled = False
+        self.progress(f"searching again without {wide} ({free[wide]} free parameters): "
+                      f"it may imitate several effects")
+        # a second opinion costs at most what the first search did (as many new sets), and
+        # looks for the wide effect's place taken by two: one effect more at most
+        self.budget, self.max_effects = 2 * len(self.cache), len(chosen) + 1
+        try:
+            other, fit = self._search([], base, rest, Selection([], base, base))
+        finally:
+            self.budget, self.max_effects = None, MAX_EFFECTS
+        if fit.bic < current.bic:
+            self.progress(f"{' + '.join(sorted(other))} explains the data better than "
+                          f"{' + '.join(sorted(chosen))} (BIC {fit.bic:.1f} against "
+                          f"{current.bic:.1f})")
+            return other, fit
+        self.stalled = stalled
+        return None
+
     def _forward(self, current: FitResult, chosen: list[str], candidates: list[str],
                  sel: Selection) -> tuple[list[str], FitResult] | None:
         """Add the effect whose refit lowers the BIC most (screened by linearised signatures)."""
         rest = [c for c in candidates if c not in chosen and compatible(chosen, c)]
-        if not rest or len(chosen) >= MAX_EFFECTS:
+        if not rest or len(chosen) >= min(MAX_EFFECTS, self.max_effects):
             return None
         if self.stalled:
             return None

@@ -1,0 +1,175 @@
+"""The selection's restart: when a wide effect (the most free parameters) was chosen with
+others, the search runs again from the model as it is without it, and the set it ends in
+replaces the first when its BIC is lower; a single chosen effect runs no restart."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from bench.diagnosis.select import Selection, Selector
+from tests.robots import rocaspect
+
+
+class _Space:
+    def __init__(self, sizes: dict[str, int]) -> None:
+        self.effects = tuple(sizes)
+        self._ix, k = {}, 0
+        for e, n in sizes.items():
+            self._ix[e] = np.arange(k, k + n)
+            k += n
+
+    def indices(self, e: str) -> np.ndarray:
+        return self._ix[e]
+
+
+def _fit(sizes: dict[str, int], bic: float, undetermined: int = 0) -> SimpleNamespace:
+    space = _Space(sizes)
+    stderr = np.ones(sum(sizes.values()))
+    stderr[:undetermined] = np.inf  # the first effect's first parameters: undetermined
+    return SimpleNamespace(space=space, stderr=stderr, bic=bic, reduced_chi2=1.0)
+
+
+def _selector(found: tuple[list[str], SimpleNamespace]) -> tuple[Selector, list]:
+    sel = object.__new__(Selector)
+    sel.model = rocaspect()  # 24 exit-point offsets, 8 pulley radii, 8 length offsets, ...
+    sel.progress = lambda msg: None
+    sel.stalled = True
+    sel.budget = None
+    sel.max_effects = 5
+    sel.cache = {("exit_point_offset",): None, (): None}
+    calls: list = []
+
+    def search(chosen, current, candidates, selection):
+        calls.append((list(chosen), current, list(candidates)))
+        return found
+
+    sel._search = search
+    return sel, calls
+
+
+CANDIDATES = ["exit_point_offset", "cable_elasticity", "cable_length_offset",
+              "pulley_kinematics"]
+BASE = _fit({}, 1e5)
+
+
+def test_the_search_without_the_widest_effect_replaces_a_worse_set():
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 340.0, undetermined=7)
+    other = (["cable_elasticity", "cable_length_offset", "pulley_kinematics"],
+             _fit({"cable_elasticity": 1, "cable_length_offset": 1, "pulley_kinematics": 8},
+                  215.0))
+    sel, calls = _selector(other)
+    got = sel._restart(chosen, current, CANDIDATES, BASE)
+    assert got == other
+    assert calls == [([], BASE, ["cable_elasticity", "cable_length_offset",
+                                 "pulley_kinematics"])]
+    assert not sel.stalled  # the new path's own state
+
+
+def test_an_effect_no_wider_than_another_candidate_runs_no_restart():
+    # the pulleys (8 radii) are the widest chosen, but the exit points have more: the
+    # pulleys cannot carry the shares of two effects
+    chosen = ["pulley_kinematics", "cable_elasticity"]
+    current = _fit({"pulley_kinematics": 8, "cable_elasticity": 1}, 300.0)
+    sel, calls = _selector((["exit_point_offset"], _fit({"exit_point_offset": 24}, 100.0)))
+    assert sel._restart(chosen, current, CANDIDATES, BASE) is None
+    assert calls == []
+
+
+def test_the_width_counts_the_parameters_the_data_fix():
+    # 24 exit parameters of which 20 undetermined: 4, fewer than the pulleys' 8
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 300.0, undetermined=20)
+    sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 100.0)))
+    assert sel._restart(chosen, current, CANDIDATES, BASE) is None
+    assert calls == []
+
+
+def test_a_restart_that_ends_higher_keeps_the_set_and_its_state():
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 200.0)
+    sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 900.0)))
+    assert sel._restart(chosen, current, CANDIDATES, BASE) is None
+    assert len(calls) == 1 and sel.stalled
+
+
+def test_a_single_effect_runs_no_restart():
+    sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 1.0)))
+    current = _fit({"exit_point_offset": 24}, 500.0)
+    assert sel._restart(["exit_point_offset"], current, CANDIDATES, BASE) is None
+    assert calls == []
+
+
+def test_the_selection_record_is_untouched_by_the_restart():
+    # the restart records its screens in a selection of its own
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 340.0)
+    seen: list = []
+    sel, _ = _selector((chosen, current))
+
+    def search(chosen_, current_, candidates, selection):
+        seen.append(selection)
+        return chosen, current
+
+    sel._search = search
+    sel._restart(chosen, current, CANDIDATES, BASE)
+    assert isinstance(seen[0], Selection) and seen[0].effects == []
+
+
+def test_no_restart_without_an_effect_of_the_load_cells_gauge():
+    # the cells' gains trade with the mass along the gauge: the gauge moves search that
+    sel, calls = _selector((["platform_mass"], _fit({"platform_mass": 4}, 1.0)))
+    current = _fit({"load_cell_calibration": 16, "platform_mass": 4}, 500.0)
+    assert sel._restart(["load_cell_calibration", "platform_mass"], current,
+                        ["load_cell_calibration", "platform_mass", "cable_elasticity"],
+                        BASE) is None
+    assert calls == []
+
+
+def test_the_restart_may_fit_as_many_new_sets_as_the_first_search_and_one_effect_more():
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 340.0)
+    seen: list = []
+    sel, _ = _selector((chosen, current))
+
+    def search(chosen_, current_, candidates, selection):
+        seen.append((sel.budget, sel.max_effects))
+        return chosen, current
+
+    sel._search = search
+    sel._restart(chosen, current, CANDIDATES, BASE)
+    # as many new sets as the first search, and one effect more than it chose at most
+    assert seen == [(2 * len(sel.cache), 3)]
+    assert sel.budget is None and sel.max_effects == 5
+
+
+def test_a_search_whose_budget_is_spent_stops():
+    sel, _ = _selector(([], BASE))
+    del sel._search  # the real search
+    sel.budget = len(sel.cache)
+    sel._forward = lambda *a: (_ for _ in ()).throw(AssertionError("no step"))
+    assert sel._search(["pulley_kinematics"], BASE, CANDIDATES, None) == (
+        ["pulley_kinematics"], BASE)
+
+
+def test_a_restart_far_from_the_data_with_as_many_effects_as_the_first_set_stops():
+    sel, _ = _selector(([], BASE))
+    del sel._search
+    sel.max_effects, sel.budget = 3, 100  # in a restart from a set of two
+    far = SimpleNamespace(reduced_chi2=6.7)
+    sel._forward = lambda *a: (["drum_scale", "mast_compliance"], far)
+    sel._pairs = lambda *a: None
+    sel._backward = lambda *a: (_ for _ in ()).throw(AssertionError("stopped before"))
+    assert sel._search(["drum_scale"], BASE, CANDIDATES, None) == (
+        ["drum_scale", "mast_compliance"], far)
+
+
+def test_a_restart_far_from_the_data_is_not_run():
+    sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 1.0)))
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 500.0)
+    current.reduced_chi2 = 5.0  # the first search's set leaves far more than the noise
+    assert sel._restart(["exit_point_offset", "cable_elasticity"], current, CANDIDATES,
+                        BASE) is None
+    assert calls == []
