@@ -61,8 +61,9 @@ WHAT = {
 class ProbeResult:
     """One probe column tested beside the chosen effects: ``name`` (``thermal``, ``drift``,
     ``direction``), ``cable`` (None for ``thermal``), ``value`` the fitted parameter (strain
-    over the recording, or metres), ``delta_bic`` (negative: the probe fits better, after
-    dividing the chi-square drop by the fit's reduced chi-square when above 1),
+    over the recording, or metres), ``delta_bic`` (negative: the probe fits better; its
+    chi-square drop is the value's squared z, with the larger of the classical variance
+    times the fit's reduced chi-square when above 1 and the cluster-robust one),
     ``size_over_noise`` the largest length change it makes over the length noise."""
 
     name: str
@@ -178,22 +179,40 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         b = hi[keep] if j is None else np.concatenate([hi[keep], [np.inf]])
         d = _bounded_lstsq(A, -r_at, x0, a, b) if A.shape[1] else np.zeros(0)
         r = r_at + A @ d
-        return float(r @ r), float(d[-1]) if j is not None else 0.0
+        return float(r @ r), float(d[-1]) if j is not None else 0.0, r
 
     # the chosen effects refitted on these samples, linearised, without a probe: what a
     # probe adds is measured from there (the final fit saw fewer samples)
     every = np.ones(len(act), dtype=bool)
-    chi0, _ = solve(every, None)
+    chi0, _, _ = solve(every, None)
     dof = max(float(rm.entry_weights(idx).sum()) - len(act) - rm.dof_lost(idx), 1.0)
     inflation = max(chi0 / dof, 1.0)
+    # each probe column less what the effects' columns hold of it (its coefficient's
+    # information), and the error clusters (rows of neighbouring moves, a target's visits
+    # share their errors: a drift judged row by row would count each error many times)
+    if Jc.shape[1] and np.isfinite(Jc).all():
+        U, sv, _ = np.linalg.svd(Jc, full_matrices=False)
+        U = U[:, sv > sv[0] * 1e-10]
+        Pp = Jp - U @ (U.T @ np.where(np.isfinite(Jp), Jp, 0.0))
+    else:
+        Pp = Jp
+    _, cluster = np.unique(rm.entry_blocks(idx), return_inverse=True)
+    n_groups = int(cluster.max()) + 1 if cluster.size else 0
     out: list[ProbeResult] = []
     for j, (name, cid, _) in enumerate(cols):
         if not ok[j]:
             continue
-        chi, value = solve(every, j)
+        _, value, r = solve(every, j)
+        info = float(Pp[:, j] @ Pp[:, j])
+        if info <= 0:
+            continue
+        var = inflation / info  # the classical variance of the probe's coefficient
+        if n_groups >= 3:  # cluster-robust (sandwich), never below the classical
+            score = np.bincount(cluster, weights=Pp[:, j] * r, minlength=n_groups)
+            var = max(var, float(score @ score) / info ** 2 * n_groups / (n_groups - 1))
         # (a direction column is half the difference: its size is the half, as the
         # residuals' two-group test reports it)
-        res = ProbeResult(name, cid, value, -(chi0 - chi) / inflation + log_n,
+        res = ProbeResult(name, cid, value, -value ** 2 / var + log_n,
                           abs(value) * sizes[j] / noise)
         res.finding = res.delta_bic < -PROBE_BIC and res.size_over_noise > PROBE_SIZE
         out.append(res)
@@ -223,7 +242,7 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         for j, (name, cid, _) in enumerate(cols):
             if not ok[j]:
                 continue
-            chi, value = solve(keep, j, r_wo)
+            chi, value, _ = solve(keep, j, r_wo)
             size = abs(value) * sizes[j] / noise
             d_bic = (chi - chi0) / inflation + (1 - len(mine)) * log_n
             if size > PROBE_SIZE and d_bic < BIC_TIE and (best is None
