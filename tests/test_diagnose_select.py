@@ -123,3 +123,16 @@ def test_the_secant_path_ends_at_the_finite_difference_minimum(selector, monkeyp
     # the standard errors come from finite differences at the minimum either way
     np.testing.assert_allclose(secant.stderr, exact.stderr, rtol=0.05)
     assert n_secant <= len(jacobians)
+
+
+def test_swap_predictions_hold_only_the_candidates_asked_for(selector):
+    """A selection run again without an effect (the report drops an effect without a
+    parameter and selects on from the others) must not be handed swaps into that effect
+    from the run before: the swap screen's memo is keyed on the candidates too (the report
+    looped forever on a dropped drum scale swapped back in)."""
+    current = selector.fit(("cable_length_offset",))
+    every = selector.swap_screen(current, ["cable_length_offset"],
+                                 ["drum_scale", "exit_point_offset"])
+    assert ("cable_length_offset", "drum_scale") in every
+    fewer = selector.swap_screen(current, ["cable_length_offset"], ["exit_point_offset"])
+    assert set(fewer) == {("cable_length_offset", "exit_point_offset")}

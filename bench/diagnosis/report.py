@@ -400,8 +400,9 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         needed = not by_reference and selector.fit(rest, sel.fit).bic - sel.fit.bic > BIC_ENTER
         rejected = dict(sel.rejected)
         rejected[report_name(e)] = "no parameter differs measurably from the model"
+        again = e in left_out  # dropped before: never select on from it twice
         left_out.append(e)
-        if needed:
+        if needed and not again:
             say(f"the others fit far worse without {report_name(e)}: selecting on from them "
                 f"without it")
             sel = selector.run([c for c in candidates if c not in left_out], rest)

@@ -620,7 +620,9 @@ class Selector:
                     ) -> dict[tuple[str, str], float]:
         """Predicted BIC change of replacing each chosen effect by each other candidate,
         linearised at the current fit with the remaining effects refitted jointly."""
-        key = (id(current), tuple(chosen))
+        # (the candidates are part of the key: a selection run again without an effect must
+        # not be handed swaps into it from the run before)
+        key = (id(current), tuple(chosen), tuple(candidates))
         if key in self._swap_cache:
             return self._swap_cache[key]
         space = current.space
