@@ -75,6 +75,7 @@ def test_columns_are_zero_at_the_initialisation_and_follow_the_lengths(diagnosed
     assert init.any()
     for name, cable, x in cols:
         assert x.shape == (rm.s.n, rm.model.n_cables)
+        assert np.any(x[rm.has_len] != 0.0), (name, cable)  # it changes some residual
         assert np.all(x[init] == 0.0), (name, cable)
         if cable is not None:  # one cable's column
             k = rm.model.cable_ids.index(cable)
