@@ -6,6 +6,10 @@
    predicts its chi-square drop; the most promising are refitted with the full
    nonlinear model; the best enters when its BIC drops by more than
    ``BIC_ENTER``. A backward pass drops effects the others make unnecessary.
+   The entry also needs the effect's parameters to stand out from the model's values by
+   their own standard errors (:func:`stands_out`): the BIC's chi-square counts every
+   residual as independent, the errors (a sandwich of the residuals' own structure)
+   do not, and rows of a continuous recording share their errors.
 3. Every chosen effect must also improve held-out samples the fits never saw:
    every k-th target pose, and a whole region of the workspace.
 4. Look-alikes: each chosen effect is swapped for each other candidate and
@@ -494,7 +498,8 @@ class Selector:
         fits = self.fit_many([tuple(chosen + [e]) for e in tried], current,
                              multistart=current.reduced_chi2 > INADEQUATE
                              and self.measured_noise) if tried else []
-        best = min(zip(fits, tried, strict=True), key=lambda x: x[0].bic) if fits else None
+        every = list(zip(fits, tried, strict=True))
+        best = min(every, key=lambda x: x[0].bic) if fits else None
         # the linearised screen is myopic where effects overlap (offsets absorb most of a
         # pulley's signature): while the best model leaves far more than the noise, every
         # remaining candidate is refitted
@@ -507,8 +512,22 @@ class Selector:
                 extra = self.fit_many([tuple(chosen + [e]) for e in more], current,
                                       multistart=True)
                 for f, e in zip(extra, more, strict=True):
+                    every.append((f, e))
                     if best is None or f.bic < best[0].bic:
                         best = (f, e)
+        if best is not None and best[0].bic - current.bic <= -BIC_ENTER:
+            # the BIC's drop must hold by the parameters' own errors too: of the sets that
+            # clear the bar, the best whose new effect does
+            clear = [(f, e) for f, e in every if f.bic - current.bic <= -BIC_ENTER]
+            firm = [(f, e) for f, e in clear if stands_out(f, e)]
+            if not firm:
+                weak = min(clear, key=lambda x: x[0].bic)
+                w, k = wald_statistic(*weak)
+                self.progress(f"{weak[1]} lowers the BIC by {current.bic - weak[0].bic:.1f}, "
+                              f"but its {k} parameters stand out from the model's values "
+                              f"by their own errors by a chi-square of {w:.1f} only: it "
+                              f"does not enter")
+            best = min(firm, key=lambda x: x[0].bic) if firm else (current, "")
         if best is not None and best[0].bic - current.bic > -BIC_ENTER:
             # an effect of the gauge that takes over what the chosen ones carried with more
             # parameters (a mass for every cell's gain) is a simpler account of the same
@@ -608,9 +627,12 @@ class Selector:
             if len(chosen) < 2:
                 break
             reduced = self.fit(tuple(c for c in chosen if c != e), current)
-            if reduced.bic - current.bic < BIC_ENTER and not _takes_over(e, chosen, current,
-                                                                         reduced):
-                self.progress(f"dropping {e}: the other effects explain it")
+            weak = not stands_out(current, e)
+            if (reduced.bic - current.bic < BIC_ENTER or weak) and not _takes_over(
+                    e, chosen, current, reduced):
+                self.progress(f"dropping {e}: the other effects explain it" if not weak else
+                              f"dropping {e}: its parameters do not stand out from the "
+                              f"model's by their errors")
                 chosen = [c for c in chosen if c != e]
                 current = reduced
                 dropped = True
@@ -741,6 +763,44 @@ class Selector:
             rem = sig + J @ delta
             out[a] = float(np.clip(1.0 - (rem @ rem) / norm, 0.0, 1.0))
         return out
+
+
+def wald_statistic(fit: FitResult, effect: str) -> tuple[float, int]:
+    """(W, k): the Wald statistic of ``effect``'s parameters' departure from the model's
+    values under ``fit``'s covariance (the others free), and k the parameters the data fix
+    (0, 0 when none)."""
+    space = fit.space
+    ix = np.array([k for k in space.indices(effect)
+                   if np.isfinite(fit.stderr[k]) and fit.stderr[k] > 0], dtype=int)
+    if not len(ix):
+        return 0.0, 0
+    d = (fit.phi - space.neutral)[ix]
+    cov = fit.cov[np.ix_(ix, ix)]
+    w = float(d @ np.linalg.pinv(cov, rcond=1e-12, hermitian=True) @ d)
+    return (w if np.isfinite(w) else 0.0), len(ix)
+
+
+def stands_out(fit: FitResult, effect: str) -> bool:
+    """Whether ``effect``'s parameters in ``fit`` depart from the model's values, by their
+    own errors, at the significance the BIC asks of one parameter to enter (a chi-square
+    drop of :data:`BIC_ENTER` + ln n): the Wald statistic's tail probability with as many
+    degrees of freedom as parameters the data fix is below that one's.
+
+    The BIC's chi-square counts every residual as independent evidence of the stated
+    noise. The fit's covariance is the residuals' own (a sandwich of their structure:
+    :func:`bench.diagnosis.fit.standard_errors`): where rows share their errors (a
+    continuous recording's rows between two stops, a per-visit change of the lengths)
+    or the model misfits, W is smaller than the chi-square's drop. A parameter named 1.7
+    standard errors from the model's value is no finding, whatever the chi-square said.
+    (The BIC's charge per parameter is the complexity's, which the BIC made; this test
+    asks only that the departure be real.)"""
+    from scipy.stats import chi2 as chi2_dist
+
+    w, k = wald_statistic(fit, effect)
+    if k == 0:
+        return False
+    bar = BIC_ENTER + float(np.log(max(fit.n_eff or fit.n_res, 2)))
+    return bool(chi2_dist.sf(w, k) < chi2_dist.sf(bar, 1))
 
 
 def _warm(effects: tuple[str, ...], start: FitResult | None) -> np.ndarray | None:

@@ -37,12 +37,26 @@ from bench.diagnosis.residuals import Blocks, ResidualModel
 LEVEL = 1.5
 #: ... when it also stands this many standard deviations above 1
 LEVEL_Z = 4.0
+#: without replicate visits the noise is an assumed repeatability (``residuals.DEFAULTS``),
+#: which a winch's may exceed twice: the level alone is a finding above this reduced
+#: chi-square only (the residuals twice the assumed noise)
+LEVEL_ASSUMED = 4.0
 #: a structured residual (direction, time) is declared at this significance ...
 STRUCT_Z = 8.0
 #: ... when it is also this large against the noise (half the difference, or the drift)
 STRUCT_SIZE = 1.0
 #: a cable stands out when its residual RMS is this many times the others' median ...
 CABLE_RATIO = 2.0
+
+
+def level_exceeded(ratio: float, dof: float, noise_dof: float, assumed: bool) -> bool:
+    """Whether a reduced chi-square ``ratio`` over ``dof`` residual degrees of freedom says
+    the model leaves more than the noise: above :data:`LEVEL` (:data:`LEVEL_ASSUMED` when
+    the noise is ``assumed``, not measured) and :data:`LEVEL_Z` standard deviations above
+    1 (its spread for the residuals' degrees of freedom and the noise estimate's own,
+    ``noise_dof``; 0 without one)."""
+    sd = math.sqrt(2.0 / max(dof, 1.0) + (2.0 / noise_dof if noise_dof > 0 else 0.0))
+    return ratio > (LEVEL_ASSUMED if assumed else LEVEL) and (ratio - 1.0) > LEVEL_Z * sd
 
 
 def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: np.ndarray,
@@ -67,9 +81,8 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     # spread of the ratio: chi-square of dof residuals, and a noise estimate of its own dof
     nd = rm.replicate_dof * max(model.n_cables, 1) if rm.sigma_source == "replicate visits" \
         else 0
-    sd = math.sqrt(2.0 / dof + (2.0 / nd if nd > 0 else 0.0))
-    level = ratio > LEVEL and (ratio - 1.0) > LEVEL_Z * sd
     assumed = rm.sigma_source != "replicate visits"
+    level = level_exceeded(ratio, dof, nd, assumed)
     findings: list[str] = []
     out: dict = {"reduced_chi2": ratio, "rms_over_noise": math.sqrt(max(ratio, 0.0)),
                  "noise_source": rm.sigma_source}
