@@ -572,17 +572,23 @@ class Selector:
         cols = {}
         for e in top:
             sub = ParamSpace(robot0, (e,))
-            cols[e] = (sub, fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi),
-                                                                            self.train),
-                                        sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi,
-                                        self.rm.frozen))
+            J = fd_jacobian(lambda phi, s=sub: self.rm.whitened(s.robot(phi), self.train),
+                            sub.neutral, r0, sub.scale * 1e-2, sub.lo, sub.hi,
+                            self.rm.frozen)
+            # and the secant to the effect's own fit: where its residuals start at a kink
+            # or bend (a sag's lengths grow with the square of the cables' weight, a
+            # pulley radius from zero), the tangent at the model sees only a part of what
+            # the effect does, and a pair with it ranked low however well it fits
+            own = self.cache[(e,)]
+            sec = self.rm.whitened(own.space.robot(own.phi), self.train) - r0
+            lo, hi = np.append(sub.lo, -1.0), np.append(sub.hi, 2.0)
+            cols[e] = (np.append(sub.neutral, 0.0), lo, hi, np.hstack([J, sec[:, None]]))
         ranked = []
         for a, b in pairs:
-            (sa, ja), (sb, jb) = cols[a], cols[b]
+            (xa, la, ha, ja), (xb, lb, hb, jb) = cols[a], cols[b]
             J = np.hstack([ja, jb])
-            x0 = np.concatenate([sa.neutral, sb.neutral])
-            d = _bounded_lstsq(J, -r0, x0, np.concatenate([sa.lo, sb.lo]),
-                               np.concatenate([sa.hi, sb.hi]))
+            x0 = np.concatenate([xa, xb])
+            d = _bounded_lstsq(J, -r0, x0, np.concatenate([la, lb]), np.concatenate([ha, hb]))
             r1 = r0 + J @ d
             ranked.append((float(r1 @ r1), (a, b)))
         del base
