@@ -1,0 +1,28 @@
+"""The pairs of effects are ranked by a linear fit of their signatures: each effect's
+tangent at the model and its secant to its own fit (:meth:`Selector._pairs`). A sag's
+lengths grow with the square of the cables' weight, so its tangent at the model sees
+only the load it adds: ranked by tangents alone, sag + EA was never fitted on this
+continuous ROCASPECT-class recording (case 10923 of `cdpr evaluate --seed 10800`) and the
+selection named a 15 kg heavier platform instead."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from bench.campaign import run_campaign
+from bench.diagnosis.report import diagnose
+from bench.evaluate import one_blas_thread
+from firmware_sim.scenario import parse_scenario
+
+SCENARIO = Path(__file__).parent / "data" / "scenarios" / "sag_and_ea_continuous_10923.json"
+
+
+def test_sag_and_ea_are_named_not_a_heavier_platform(tmp_path):
+    one_blas_thread()
+    sc = parse_scenario(json.loads(SCENARIO.read_text()))
+    rep = diagnose(run_campaign(sc, tmp_path / "rec")).report
+    named = {e["name"]: e for e in rep["effects"]}
+    assert set(named) == {"cable_sag", "cable_elasticity"}, rep["mismatch"]["summary"]
+    rho = named["cable_sag"]["params"]["rho"]  # the truth's 0.05606 kg/m
+    assert abs(rho - 0.05606) < 3 * named["cable_sag"]["stderr"]["rho"] + 1e-3
