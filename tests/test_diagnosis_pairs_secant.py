@@ -3,7 +3,7 @@ tangent at the model and its secant to its own fit (:meth:`Selector._pairs`). A 
 lengths grow with the square of the cables' weight, so its tangent at the model sees
 only the load it adds: ranked by tangents alone, sag + EA was never fitted on this
 continuous ROCASPECT-class recording (case 10923 of `cdpr evaluate --seed 10800`) and the
-selection named a 15 kg heavier platform instead."""
+selection named a platform 3 kg heavier instead."""
 
 from __future__ import annotations
 
