@@ -125,3 +125,27 @@ def test_the_level_against_an_assumed_noise_needs_twice_the_noise():
     assert level_exceeded(4.5, 1000.0, 0.0, assumed=True)
     assert not level_exceeded(1.2, 1000.0, 400.0, assumed=False)
     assert not level_exceeded(1.58, 20.0, 10.0, assumed=False)  # within its own spread
+
+
+def test_a_stiffness_at_the_rigid_bound_is_posed_at_the_models_value():
+    """An effect's evidence poses the platform under the set without it; where that fit ran
+    the cables' EA to its rigid bound (1e19 N) there is no finite equilibrium (eight rigid
+    cables, six coordinates): the model's EA stands in. Other parameters keep their fit."""
+    from bench.diagnosis.report import posable_robot
+
+    model = resolve_robot("ipanema")
+    space = ParamSpace(model, ("cable_elasticity", "cable_length_offset"))
+    phi = space.neutral.copy()
+    j = next(k for k, p in enumerate(space.params) if p.effect == "cable_elasticity")
+    phi[j] = 1e-25 * space.scale[j] / 1e-3  # far past the rigid bound
+    k = next(k for k, p in enumerate(space.params) if p.effect == "cable_length_offset")
+    phi[k] = 2e-3
+    n = len(space)
+    fit = FitResult(space, phi, 0.0, 100, 0.0, np.full(n, 1e-4), np.eye(n) * 1e-8, True, "t")
+    robot = posable_robot(fit)
+    assert np.allclose(robot.ea, model.ea)
+    cable = model.cable_ids.index(space.params[k].key.split("_")[1])
+    assert robot.length_offset[cable] == pytest.approx(2e-3)
+    phi[j] = space.neutral[j]  # a stiffness the data fixed: the fit's robot itself
+    fit2 = FitResult(space, phi, 0.0, 100, 0.0, np.full(n, 1e-4), np.eye(n) * 1e-8, True, "t")
+    assert np.allclose(posable_robot(fit2).ea, space.robot(phi).ea)

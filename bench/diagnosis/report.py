@@ -30,6 +30,7 @@ from bench.diagnosis.select import (
 )
 from bench.diagnosis.space import (
     EXPLAINS,
+    RIGID_FACTOR,
     ParamSpace,
     report_name,
     undetermined,
@@ -256,6 +257,20 @@ def cleaned_robot(fit: FitResult) -> Robot:
     return fit.space.robot(fit.phi)
 
 
+def posable_robot(fit: FitResult) -> Robot:
+    """The fitted robot with every stiffness the fit ran to its rigid bound (a compliance
+    or 1/EA ``RIGID_FACTOR`` times past the effect's scale) at the model's value: rigid
+    cables over-determine the pose (eight lengths, six coordinates), and a fitted EA of
+    1e19 N pulls them against each other with tensions that grow with it (no finite
+    equilibrium to pose the platform at). For the poses of a fit whose stiffness the data
+    left at that bound (an effect's evidence: the set without it)."""
+    sp = fit.space
+    rigid = np.array([p.kind == "inverse" and fit.phi[k] * RIGID_FACTOR <= p.scale
+                      for k, p in enumerate(sp.params)], dtype=bool)
+    return sp.robot(np.where(rigid, sp.neutral, fit.phi)) if rigid.any() else \
+        cleaned_robot(fit)
+
+
 def named_robot(model: Robot, effects: list[dict]) -> Robot:
     """The model with exactly the parameters the report names (what --write-model writes)."""
     from controller.effects import apply_effects
@@ -434,7 +449,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     for e in sel.effects:
         name = report_name(e)
         rest = tuple(c for c in sel.effects if c != e)
-        without = cleaned_robot(selector.fit(rest, sel.fit))
+        without = posable_robot(selector.fit(rest, sel.fit))
         before = pose_figures(rm.forward(without, test), test)["pose_rms_m"] \
             if len(test) else None
         after = pose_figures(fit_fw, test)["pose_rms_m"] if len(test) else None
