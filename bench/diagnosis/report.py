@@ -535,8 +535,10 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
 
 
 def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progress) -> FitResult:
-    """The chosen effects refitted on the training and validation samples (warm start)."""
-    from bench.diagnosis.fit import fit_effects
+    """The chosen effects refitted on the training and validation samples (warm start), each
+    group of parameters then checked by a refit that holds it
+    (:func:`bench.diagnosis.fit.profile_pruning`)."""
+    from bench.diagnosis.fit import fit_effects, profile_pruning
     from bench.diagnosis.select import _warm
 
     key = tuple(sorted(sel.effects))
@@ -544,7 +546,8 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
     if start is None:
         start = selector.fit(key)
     if np.array_equal(np.sort(idx), np.sort(selector.train)):
-        return start  # nothing held out for validation: the selection's fit is the final one
+        # nothing held out for validation: the selection's fit is the final one
+        return profile_pruning(start, selector.rm, idx, say)
     space = ParamSpace(selector.model, key)
     say(f"final fit of {' + '.join(report_name(e) for e in key) or 'the model as it is'} on "
         f"{len(idx)} samples")
@@ -554,7 +557,8 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
                                            hold=held), idx)
     if not res.success:
         say(f"the final fit did not converge: {res.message}")
-    return res
+        return res
+    return profile_pruning(res, selector.rm, idx, say)
 
 
 def _pose_noise(s: Samples, fw: Forward) -> float | None:
