@@ -1,6 +1,6 @@
-"""The selection's restart: when a wide effect (the most free parameters) was chosen with
-others, the search runs again from the model as it is without it, and the set it ends in
-replaces the first when its BIC is lower; a single chosen effect runs no restart."""
+"""The selection's restart: when a wide effect (the most free parameters) was chosen, the
+search runs again from the model as it is without it, and the set it ends in
+replaces the first when its BIC is lower; a single wide effect too."""
 
 from __future__ import annotations
 
@@ -95,11 +95,20 @@ def test_a_restart_that_ends_higher_keeps_the_set_and_its_state():
     assert len(calls) == 1 and sel.stalled
 
 
-def test_a_single_effect_runs_no_restart():
-    sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 1.0)))
-    current = _fit({"exit_point_offset": 24}, 500.0)
+def test_a_single_wide_effect_runs_the_restart_too():
+    # exit points took in one step what pulley radii and two cables' stretch did: no effect
+    # was left for a second step, and only a search without them finds the other path
+    found = (["cable_elasticity", "pulley_kinematics"],
+             _fit({"cable_elasticity": 2, "pulley_kinematics": 8}, 300.0))
+    sel, calls = _selector(found)
+    current = _fit({"exit_point_offset": 24}, 360.0)
+    assert sel._restart(["exit_point_offset"], current, CANDIDATES, BASE) == found
+    assert calls[0][0] == [] and "exit_point_offset" not in calls[0][2]
+    # ... and keeps the exit points when the other path fits worse
+    sel, calls = _selector((found[0], _fit({"cable_elasticity": 2, "pulley_kinematics": 8},
+                                           400.0)))
     assert sel._restart(["exit_point_offset"], current, CANDIDATES, BASE) is None
-    assert calls == []
+    assert len(calls) == 1
 
 
 def test_the_selection_record_is_untouched_by_the_restart():

@@ -432,9 +432,11 @@ class Selector:
     def _restart(self, chosen: list[str], current: FitResult, candidates: list[str],
                  base: FitResult) -> tuple[list[str], FitResult] | None:
         """The search again from the model as it is without the widest chosen effect (the
-        most parameters the data fix), when others were chosen beside it and the set
-        explains the data within :data:`INADEQUATE` x the noise: the set it leads to when
-        its BIC is lower, else None.
+        most parameters the data fix), when the set explains the data within
+        :data:`INADEQUATE` x the noise: the set it leads to when its BIC is lower, else
+        None. Alone too: 17 exit-point coordinates took, in one step, what pulley radii and
+        two cables' stretch did on an IPAnema-class recording without tensions, and no
+        effect was left for a second step.
 
         Greedy steps favour a wide effect while the model is far from the data: its many
         parameters take a share of several effects at once (exit points moved where pulley
@@ -448,7 +450,7 @@ class Selector:
         what a single effect does, which the swaps test), and not for one of the load
         cells' gauge: what it shares with the others of the gauge, the gauge moves and
         swaps search already (:func:`_gauge_moves`, :func:`_gauge_swaps`)."""
-        if len(chosen) < 2 or current.reduced_chi2 > INADEQUATE:
+        if not chosen or current.reduced_chi2 > INADEQUATE:
             return None
         free = {e: int(np.isfinite(current.stderr[current.space.indices(e)]).sum())
                 for e in chosen}
