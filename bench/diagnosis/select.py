@@ -538,7 +538,7 @@ class Selector:
                      if _takes_over(e, chosen + [e], f, current)]
             best = min(swaps, key=lambda x: x[0].bic) if swaps else None
         if best is None:
-            return None
+            return self._whole_gauge(current, chosen, rest)
         # the vocabulary is not converging on the data (physics it lacks): an effect that
         # leaves far more than the noise and takes less than half of what was left is the
         # last one added
@@ -548,6 +548,37 @@ class Selector:
                           f"no further effect is tried")
             self.stalled = True
         return chosen + [best[1]], best[0]
+
+    def _whole_gauge(self, current: FitResult, chosen: list[str], rest: list[str]
+                     ) -> tuple[list[str], FitResult] | None:
+        """With the load cells chosen and no other effect of their gauge: the mass and the
+        cables' stretch added together (and the masts' compliance where the model's masts
+        bend: the whole gauge, its scale pinned at the median cell), when that accounts for
+        the readings with fewer free parameters and a BIC lower by more than
+        :data:`BIC_TIE` (:func:`_takes_over`'s rule). Every cell's gain 8.6 % high is a
+        platform 8.6 % heavier whose cables stretch as the model says only if they are 8.6 %
+        stiffer too: neither the mass alone (the stretch then differs) nor the stretch alone
+        takes it over, one step at a time."""
+        if "load_cell_calibration" not in chosen or set(chosen) & {
+                "platform_mass", "cable_elasticity", PER_CABLE_EA}:
+            return None
+        add = [e for e in ("platform_mass", "cable_elasticity", "mast_compliance")
+               if e in rest and e not in chosen]
+        target = chosen + add
+        if not gauge.complete(target, self.model):
+            target = [e for e in target if e != "mast_compliance"]
+            if not gauge.complete(target, self.model):
+                return None
+        if not all(compatible([c for c in target if c != e], e) for e in target):
+            return None
+        (f,) = self.fit_many([tuple(target)], current)
+        if f.n_free < current.n_free and f.bic < current.bic - BIC_TIE:
+            self.progress(f"{' + '.join(e for e in target if e not in chosen)} together "
+                          f"take over the load cells' common gain (BIC {f.bic:.1f} against "
+                          f"{current.bic:.1f}, {f.n_free} free parameters against "
+                          f"{current.n_free})")
+            return target, f
+        return None
 
     def _pairs(self, current: FitResult, candidates: list[str]
                ) -> tuple[list[str], FitResult] | None:
