@@ -35,7 +35,7 @@ def _selector(found: tuple[list[str], SimpleNamespace]) -> tuple[Selector, list]
     sel = object.__new__(Selector)
     sel.model = rocaspect()  # 24 exit-point offsets, 8 pulley radii, 8 length offsets, ...
     sel.progress = lambda msg: None
-    sel.stalled = True
+    sel.stalled = False
     sel.budget = None
     sel.max_effects = 5
     sel.cache = {("exit_point_offset",): None, (): None}
@@ -91,6 +91,7 @@ def test_a_restart_that_ends_higher_keeps_the_set_and_its_state():
     chosen = ["exit_point_offset", "cable_elasticity"]
     current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 200.0)
     sel, calls = _selector((["pulley_kinematics"], _fit({"pulley_kinematics": 8}, 900.0)))
+    sel.stalled = True  # the first search's state (the restart searches unstalled)
     assert sel._restart(chosen, current, CANDIDATES, BASE) is None
     assert len(calls) == 1 and sel.stalled
 
@@ -152,6 +153,33 @@ def test_the_restart_may_fit_as_many_new_sets_as_the_first_search_and_one_effect
     # as many new sets as the first search, and one effect more than it chose at most
     assert seen == [(2 * len(sel.cache), 3)]
     assert sel.budget is None and sel.max_effects == 5
+
+
+def test_a_stalled_search_restarts_far_from_the_data_with_two_effects_more():
+    chosen = ["exit_point_offset", "load_cell_calibration"]
+    current = _fit({"exit_point_offset": 24, "load_cell_calibration": 16}, 39198.0)
+    current.reduced_chi2 = 33.0  # the stall rule ended the first search there
+    better = (["cable_sag", "drum_scale", "platform_mass"], _fit({"cable_sag": 1}, 685.0))
+    sel, calls = _selector(better)
+    sel.stalled = True
+    seen: list = []
+    search = sel._search
+
+    def spy(*a):
+        seen.append((sel.max_effects, sel.stalled))
+        return search(*a)
+
+    sel._search = spy
+    assert sel._restart(chosen, current, CANDIDATES, BASE) == better
+    # the restart searches afresh (not stalled) and may name one effect more than the
+    # first search would have been allowed
+    assert seen == [(len(chosen) + 2, False)]
+    assert [c for c in calls[0][2]] == [c for c in CANDIDATES if c != "exit_point_offset"]
+    # a worse set leaves the first one and the stall in place
+    sel2, _ = _selector((["drum_scale"], _fit({"drum_scale": 8}, 5e4)))
+    sel2.stalled = True
+    assert sel2._restart(chosen, current, CANDIDATES, BASE) is None
+    assert sel2.stalled
 
 
 def test_a_search_whose_budget_is_spent_stops():

@@ -433,10 +433,12 @@ class Selector:
                  base: FitResult) -> tuple[list[str], FitResult] | None:
         """The search again from the model as it is without the widest chosen effect (the
         most parameters the data fix), when the set explains the data within
-        :data:`INADEQUATE` x the noise: the set it leads to when its BIC is lower, else
-        None. Alone too: 17 exit-point coordinates took, in one step, what pulley radii and
-        two cables' stretch did on an IPAnema-class recording without tensions, and no
-        effect was left for a second step.
+        :data:`INADEQUATE` x the noise or the search stalled (:meth:`_forward`): the set it
+        leads to when its BIC is lower, else None. After a stall the restart may add one
+        effect more than the first search chose (sag, mass and drum scales behind a stall
+        of load cells, exit points and drums at 33 x the noise). Alone too: 17 exit-point
+        coordinates took, in one step, what pulley radii and two cables' stretch did on an
+        IPAnema-class recording without tensions, and no effect was left for a second step.
 
         Greedy steps favour a wide effect while the model is far from the data: its many
         parameters take a share of several effects at once (exit points moved where pulley
@@ -450,7 +452,7 @@ class Selector:
         what a single effect does, which the swaps test), and not for one of the load
         cells' gauge: what it shares with the others of the gauge, the gauge moves and
         swaps search already (:func:`_gauge_moves`, :func:`_gauge_swaps`)."""
-        if not chosen or current.reduced_chi2 > INADEQUATE:
+        if not chosen or (current.reduced_chi2 > INADEQUATE and not self.stalled):
             return None
         free = {e: int(np.isfinite(current.stderr[current.space.indices(e)]).sum())
                 for e in chosen}
@@ -466,7 +468,8 @@ class Selector:
                       f"it may imitate several effects")
         # a second opinion costs at most what the first search did (as many new sets), and
         # looks for the wide effect's place taken by two: one effect more at most
-        self.budget, self.max_effects = 2 * len(self.cache), len(chosen) + 1
+        # (two more where the first search stalled: it named what it could, not what was)
+        self.budget, self.max_effects = 2 * len(self.cache), len(chosen) + 1 + int(stalled)
         try:
             other, fit = self._search([], base, rest, Selection([], base, base))
         finally:
