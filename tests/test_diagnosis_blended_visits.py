@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bench.campaign import run_campaign
-from bench.diagnosis.residuals import ResidualModel
+from bench.diagnosis.residuals import DEFAULTS, ResidualModel
 from bench.diagnosis.samples import prepare
 from bench.recording import read_recording
 from firmware_sim.scenario import parse_scenario
@@ -78,10 +78,52 @@ def test_rows_of_a_move_blend_the_errors_of_the_stops_at_its_ends(dwells_and_mov
     assert np.any(np.sum(moving > 0.2, axis=1) == 2)
 
 
-def test_nothing_to_blend_without_rows_of_moves_or_without_dwells(tmp_path):
+def test_nothing_to_blend_without_rows_of_moves(tmp_path):
     dwell = _model(tmp_path / "d", {"kind": "dwell"},
                    POSES | {"rate_hz": 2.0, "dwell_s": 3.0, "init_s": 4.0})
     assert dwell.visit_sd and dwell.entry_knots() is None
-    moves = _model(tmp_path / "m", {"kind": "continuous", "dwell_at_targets": False,
-                                    "rate_hz": 10.0})
-    assert moves.entry_knots() is None
+
+
+def test_without_dwells_the_error_changes_where_moves_meet(tmp_path):
+    """A continuous recording that never stops: the knots are the times where the commanded
+    path turns (the targets), the level the spread of rows near each other on different
+    moves; a row blends the knots before and after it."""
+    rm = _model(tmp_path / "m", {"kind": "continuous", "dwell_at_targets": False,
+                                 "rate_hz": 10.0})
+    s, n = rm.s, rm.model.n_cables
+    assert not (s.kind[~s.is_init] == 0).any()
+    turns = s.turns
+    assert turns is not None and len(turns) >= 2 and np.all(np.diff(turns) > 0)
+    # every knot between the first and the last is where the commanded path reaches a
+    # target of the grid (rows at 10 Hz, 0.5 m/s: within 5 cm)
+    rec = read_recording(tmp_path / "m" / "rec")
+    grid = np.array([[x, y] for x in np.linspace(7.0, 13.0, 3) for y in (6.0, 11.0)])
+    for tk in turns[1:-1]:
+        p = rec.pose_des[int(np.argmin(np.abs(rec.t - tk))), :2]
+        assert np.min(np.linalg.norm(grid - p, axis=1)) < 0.05, (tk, p)
+    K = rm.entry_knots()
+    assert K is not None and rm.visit_sd and rm.visit_sd > 0
+    m = int(rm.has_len.sum())
+    assert K.shape == (len(rm.whitened(rm.model)), len(turns) * n)
+    L = K[: m * n].reshape(m, n, len(turns), n)
+    amp = rm.visit_sd / rm.sd["length"][rm.has_len]
+    hat = L.sum(axis=3)[:, 0] / amp[:, None]  # (samples, turns)
+    kinds = s.kind[rm.has_len]
+    assert not hat[kinds == 0].any()  # the initialisation carries none
+    for h in hat[kinds == 1]:
+        nz = np.flatnonzero(h > 1e-12)
+        assert 1 <= len(nz) <= 2 and (len(nz) == 1 or nz[1] == nz[0] + 1)
+        assert np.isclose(h.sum(), 1.0)
+    # the knots' errors are independent of each other
+    assert np.any(np.sum(hat[kinds == 1] > 0.2, axis=1) == 2)
+
+
+def test_without_replicates_the_declared_repeatability_changes_at_each_turn(tmp_path):
+    """Nothing measures the level (one pass through each target): the repeatability the
+    diagonal assumes (``DEFAULTS``) is the level of the turns' errors too."""
+    rm = _model(tmp_path / "one", {"kind": "continuous", "dwell_at_targets": False,
+                                   "rate_hz": 10.0}, POSES | {"visits": 1})
+    assert rm.sigma_source.startswith("defaults")
+    assert rm.visit_sd == DEFAULTS["length"]
+    K = rm.entry_knots()
+    assert K is not None and K.shape[1] == len(rm.s.turns) * rm.model.n_cables

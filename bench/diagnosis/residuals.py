@@ -577,6 +577,18 @@ class ResidualModel:
             # groups, rows near each other on few moves, can miss it
             found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
         self.visit_sd = found[0].get("length")
+        if self.visit_sd is None and not (self.s.kind == 0)[~self.s.is_init].any():
+            # no dwells: the spread of rows near each other on different moves tells the
+            # level (the lengths change from stop to stop; between stops, rows blend it)
+            self.visit_sd = found[1].get("length")
+        if self.visit_sd is None and "length" not in found[1]:
+            # nothing measured the level: the declared repeatability changes from stop to
+            # stop as the diagonal's default says it does (a continuous recording without
+            # replicates named per-cable stretch from the moves' shared errors, W 108 on 8;
+            # with the stops' blend at this level, 9.8). Estimating the level from the
+            # residuals' moments instead told it from a move's shared error no better
+            # than the default (a third of the truth there) and named the stretch again
+            self.visit_sd = DEFAULTS["length"]
         for kind in (0, 1):
             if found[kind]:
                 self.sigma_k[kind].update(found[kind])
@@ -722,35 +734,24 @@ class ResidualModel:
         (linear in time), so a move's rows share their error with the dwells at both ends
         and with the rows of the moves before and after: its covariance is ``K K^T``. None
         when there is nothing to blend (no rows of moves, or no dwell replicates told the
-        level). The initialisation's stops carry none: the encoders are referenced there."""
+        level). The initialisation's stops carry none: the encoders are referenced there.
+        A recording that never stops has its knots where the moves meet
+        (``Samples.turns``), its level from rows near each other on different moves."""
         s, n = self.s, self.model.n_cables
         sl = np.arange(s.n) if idx is None else np.asarray(idx)
-        if not self.visit_sd or not (s.kind[sl] == 1).any() or not (s.kind[sl] == 0).any():
+        if not self.visit_sd or not (s.kind[sl] == 1).any():
             return None
-        stops = np.flatnonzero(s.kind == 0)
-        stops = stops[np.argsort(s.t[stops], kind="stable")]
-        ts = s.t[stops]
-        t = s.t[sl]
-        b = np.clip(np.searchsorted(ts, t), 1, len(ts) - 1) if len(ts) > 1 \
-            else np.zeros(len(t), dtype=int)
-        hat = np.zeros((len(sl), len(stops)))
-        if len(ts) > 1:
-            f = np.clip((t - ts[b - 1]) / np.maximum(ts[b] - ts[b - 1], 1e-9), 0.0, 1.0)
-            rows = np.arange(len(sl))
-            hat[rows, b - 1] = 1.0 - f
-            hat[rows, b] += f
+        if (s.kind == 0)[~s.is_init].any():
+            hat = self._dwell_knots(sl)
+        elif s.turns is not None and len(s.turns):
+            hat = self._turn_knots(sl)
         else:
-            hat[:, 0] = 1.0
-        own = np.flatnonzero(s.kind[sl] == 0)
-        hat[own] = 0.0
-        by_index = np.argsort(stops)
-        hat[own, by_index[np.searchsorted(stops[by_index], sl[own])]] = 1.0
-        hat[:, s.is_init[stops]] = 0.0
-        if not hat.any():
+            return None
+        if hat is None or not hat.any():
             return None
         # per sample and cable: the stops' weights on that cable's column, over its noise
         amp = self.visit_sd / self.sd["length"][sl]
-        S = len(stops)
+        S = hat.shape[1]
         K = (hat * amp[:, None])[:, None, :, None] * np.eye(n)[None, :, None, :]  # (M,n,S,n)
         out = [K[self.has_len[sl]].reshape(-1, S * n)]
         if self.any_tau:
@@ -759,6 +760,32 @@ class ResidualModel:
         if self.has_exit.any():
             out.append(np.zeros((int(self.has_exit[sl].sum()) * 3, S * n)))
         return np.concatenate(out)
+
+    def _dwell_knots(self, sl: np.ndarray) -> np.ndarray | None:
+        """(samples ``sl``, stops): each sample's weights on the dwells' errors (its own for a
+        dwell; the two stops around it, linear in time, for a row of a move); none on the
+        initialisation's."""
+        s = self.s
+        if not (s.kind[sl] == 0).any():
+            return None
+        stops = np.flatnonzero(s.kind == 0)
+        stops = stops[np.argsort(s.t[stops], kind="stable")]
+        hat = _blend(s.t[stops], s.t[sl])
+        own = np.flatnonzero(s.kind[sl] == 0)
+        hat[own] = 0.0
+        by_index = np.argsort(stops)
+        hat[own, by_index[np.searchsorted(stops[by_index], sl[own])]] = 1.0
+        hat[:, s.is_init[stops]] = 0.0
+        return hat
+
+    def _turn_knots(self, sl: np.ndarray) -> np.ndarray:
+        """(samples ``sl``, turns): where the recording never stops, the lengths' error
+        changes where moves meet (``Samples.turns``) and blends along each move; the
+        initialisation's dwell carries none (the encoders are referenced there)."""
+        s = self.s
+        hat = _blend(np.asarray(s.turns, dtype=float), s.t[sl])
+        hat[s.kind[sl] == 0] = 0.0
+        return hat
 
     def entry_directions(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The sign (+1 paid out, -1 reeled in, 0 unknown) of the last move of each length
@@ -901,6 +928,21 @@ class ResidualModel:
                 e[~self.has_exit[i]] = np.nan
                 exit_err[i] = e
         return Forward(pose_err, tension_err, exit_err, ok)
+
+
+def _blend(ts: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(len(t), len(ts)) weights of times ``t`` [s] on knots at sorted times ``ts`` [s]:
+    linear between the two around each time (the end knot's alone outside them)."""
+    hat = np.zeros((len(t), len(ts)))
+    if len(ts) == 1:
+        hat[:, 0] = 1.0
+        return hat
+    b = np.clip(np.searchsorted(ts, t), 1, len(ts) - 1)
+    f = np.clip((t - ts[b - 1]) / np.maximum(ts[b] - ts[b - 1], 1e-9), 0.0, 1.0)
+    rows = np.arange(len(t))
+    hat[rows, b - 1] = 1.0 - f
+    hat[rows, b] += f
+    return hat
 
 
 def _replicated(target: np.ndarray) -> np.ndarray:

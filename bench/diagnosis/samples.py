@@ -91,6 +91,8 @@ class Samples:
     triples: Samples | None = None  # raw rows in consecutive triples (white noise)
     cluster: np.ndarray | None = None  # samples that may share errors (standard errors)
     stream: Samples | None = None  # raw rows in time order, decimated (jumps in time)
+    #: times [s] where moves start, meet and end, in order (:func:`_turns`)
+    turns: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         N = len(self.t)
@@ -360,6 +362,28 @@ def _segments(rec: Recording, rows: np.ndarray) -> np.ndarray:
     return seg
 
 
+def _turns(rec: Recording, rows: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Times [s] where the moves of path ``rows`` (move ids ``seg``) start, meet and end,
+    sorted: a move's first and last rows, one time (the middle) where a move ends within
+    2.5 row periods of the next one's start (no dwell between them)."""
+    if not len(rows):
+        return np.zeros(0)
+    t = rec.t[rows]
+    first = np.r_[True, seg[1:] != seg[:-1]]
+    last = np.r_[seg[1:] != seg[:-1], True]
+    starts, ends = t[first], t[last]
+    dt = np.diff(t)
+    med = float(np.median(dt)) if len(dt) else 0.0
+    out = [starts[0]]
+    for k in range(1, len(starts)):
+        if starts[k] - ends[k - 1] <= 2.5 * med:
+            out.append(0.5 * (starts[k] + ends[k - 1]))
+        else:
+            out += [ends[k - 1], starts[k]]
+    out.append(ends[-1])
+    return np.unique(np.asarray(out, dtype=float))
+
+
 def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     """The static samples of a recording (see the module docstring)."""
     N = rec.n_samples
@@ -393,6 +417,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     qs = _quasi_static(rec, path)
     n_accel = int((~qs).sum())
     seg_all = _segments(rec, path)
+    turns = _turns(rec, path, seg_all)
     # a sensor read slower than the rows holds its last value: while the platform moves,
     # only rows where the tracker (and the load cells) report a fresh value are measurements
     fresh = _fresh(rec, path)
@@ -458,6 +483,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     s.triples = _triples(rec, dwell_runs, moving)
     s.cluster = _clusters(s)
     s.stream = _stream(rec)
+    s.turns = turns
     s.info = {"rows": N, "dwell_samples": len(dwell_runs), "path_samples": len(path),
               "dwells_available": n_dwell, "path_rows_accelerating": n_accel,
               "path_rows_stale": n_stale, "rows_in_other_states": dropped_states}
