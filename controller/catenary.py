@@ -44,11 +44,19 @@ def _differences(a: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, ...]:
     return b, ra, rb, asd, gd
 
 
-def spans(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
-          w: float) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal and vertical spans (h, v) [m] of the cable for end forces (H, V_B)."""
+def _terms(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, w: float) -> tuple[np.ndarray, ...]:
+    """``a = V_B/H`` and :func:`_differences` of it: what :func:`spans` and
+    :func:`flexibility` share (one Newton iteration computes them once)."""
     a = VB / H
-    b, ra, rb, asd, _ = _differences(a, w * L0 / H)
+    return (a, *_differences(a, w * L0 / H))
+
+
+def spans(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
+          w: float, terms: tuple[np.ndarray, ...] | None = None
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal and vertical spans (h, v) [m] of the cable for end forces (H, V_B)
+    (``terms``: :func:`_terms` of the same, when already at hand)."""
+    a, b, ra, rb, asd, _ = _terms(H, VB, L0, w) if terms is None else terms
     # (H/w) [asinh(b) - asinh(a)] = L0 asd; (H/w) [rb - ra] = L0 (a + b)/(ra + rb)
     h = H * L0 * inv_ea + L0 * asd
     v = (VB * L0 + 0.5 * w * L0 * L0) * inv_ea + L0 * (a + b) / (ra + rb)
@@ -56,10 +64,11 @@ def spans(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
 
 
 def flexibility(H: np.ndarray, VB: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
-                w: float) -> tuple[np.ndarray, ...]:
-    """Partial derivatives of the spans: (dh/dH, dh/dVB, dv/dH, dv/dVB, dh/dL0, dv/dL0)."""
-    a = VB / H
-    b, ra, rb, asd, gd = _differences(a, w * L0 / H)
+                w: float, terms: tuple[np.ndarray, ...] | None = None
+                ) -> tuple[np.ndarray, ...]:
+    """Partial derivatives of the spans: (dh/dH, dh/dVB, dv/dH, dv/dVB, dh/dL0, dv/dL0)
+    (``terms``: :func:`_terms` of the same, when already at hand)."""
+    a, b, ra, rb, asd, gd = _terms(H, VB, L0, w) if terms is None else terms
     k = L0 / H  # d / w
     dh_dH = L0 * inv_ea + k * (asd - gd)
     dh_dV = -k * (a + b) / ((ra + rb) * ra * rb)  # (1/rb - 1/ra) / w
@@ -94,12 +103,13 @@ def end_forces(h: np.ndarray, v: np.ndarray, L0: np.ndarray, inv_ea: np.ndarray,
     scale = np.maximum(np.hypot(h, v), 1e-9)
     ok = np.zeros(h.shape, dtype=bool)
     for _ in range(max_iter):
-        hh, vv = spans(H, VB, L0, inv_ea, w)
+        terms = _terms(H, VB, L0, w)
+        hh, vv = spans(H, VB, L0, inv_ea, w, terms)
         eh, ev = hh - h, vv - v
         ok = np.hypot(eh, ev) < tol * scale
         if ok.all():
             break
-        f11, f12, f21, f22, _, _ = flexibility(H, VB, L0, inv_ea, w)
+        f11, f12, f21, f22, _, _ = flexibility(H, VB, L0, inv_ea, w, terms)
         det = f11 * f22 - f12 * f21
         dH = (f22 * eh - f12 * ev) / det
         dV = (-f21 * eh + f11 * ev) / det
@@ -138,7 +148,8 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
     for _ in range(max_iter):
         Ha, Va, La, ia = H[act], VB[act], L0[act], inv_ea[act]
         Ta, sa = T[act], scale[act]
-        hh, vv = spans(Ha, Va, La, ia, w)
+        terms = _terms(Ha, Va, La, w)
+        hh, vv = spans(Ha, Va, La, ia, w, terms)
         V_end = Va + w * La if end == "A" else Va
         r = np.stack([hh - h[act], vv - v[act],
                       (np.hypot(Ha, V_end) - Ta) / np.maximum(Ta, 1e-9) * sa])
@@ -154,7 +165,8 @@ def unstretched(h: np.ndarray, v: np.ndarray, T: np.ndarray, inv_ea: np.ndarray,
             break
         act, r = act[keep], r[:, keep]
         Ha, Va, La, ia, Ta, sa, V_end = (x[keep] for x in (Ha, Va, La, ia, Ta, sa, V_end))
-        f11, f12, f21, f22, f1L, f2L = flexibility(Ha, Va, La, ia, w)
+        f11, f12, f21, f22, f1L, f2L = flexibility(Ha, Va, La, ia, w,
+                                                   tuple(x[keep] for x in terms))
         Tn = np.maximum(np.hypot(Ha, V_end), 1e-12)
         g = sa / np.maximum(Ta, 1e-9)
         dT_dH, dT_dV = Ha / Tn * g, V_end / Tn * g

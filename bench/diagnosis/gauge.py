@@ -89,13 +89,16 @@ def complete(effects: tuple[str, ...] | list[str], model: Robot) -> bool:
         bool(e & {"cable_elasticity", PER_CABLE_EA})
 
 
-def pinned(space: ParamSpace, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def pinned(space: ParamSpace, phi: np.ndarray, cov: np.ndarray | None = None
+           ) -> tuple[np.ndarray, np.ndarray] | None:
     """For a fit of a set that holds the whole gauge (:func:`complete`): ``phi`` moved
-    along it until the load cell whose gain departs least from the cells' median (in ratio
-    to the model's) reads with the model's gain, and the mask that holds that gain there.
-    The scale the data cannot fix is then fixed where most cells are right (fewest gains to
-    report); the other ends of the gauge (the mass, or the stretch, at the model's) are
-    sets without that effect, which the selection fits too. None without gains."""
+    along it until one load cell reads with the model's gain, and the mask that holds that
+    gain there. The scale the data cannot fix is then fixed where most cells are right
+    (fewest gains to report): at the cell with the most others whose gains agree with its
+    own (:func:`agreeing_cell`, under the fit's covariance ``cov``), ties to the one that
+    departs least from the cells' median (in ratio to the model's). The other ends of the
+    gauge (the mass, or the stretch, at the model's) are sets without that effect, which
+    the selection fits too. None without gains."""
     ix = [k for k, p in enumerate(space.params) if p.key.startswith("gain_")]
     if not ix:
         return None
@@ -104,12 +107,41 @@ def pinned(space: ParamSpace, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray] 
         lr = np.log(robot.load_cell_gain / space.model.load_cell_gain)
     if not np.isfinite(lr).all():
         return None
-    k = int(np.argmin(np.abs(lr - np.median(lr))))
+    ratio_cov = None
+    if cov is not None and len(ix) == len(lr):
+        g = phi[ix]  # (a gain's parameter is its value: d log g = d g / g)
+        ratio_cov = cov[np.ix_(ix, ix)] / np.outer(g, g)
+    k = agreeing_cell(lr, ratio_cov)
     moved = space.phi_of(scale_tensions(robot, float(np.exp(lr[k]))))
     key = f"gain_{space.model.cable_ids[k]}"
     hold = np.array([p.key == key for p in space.params])
     moved[hold] = space.neutral[hold]
     return moved, hold
+
+
+#: two cells' gains agree when their log-ratio differs by less than this many standard errors
+AGREE_SIGMAS = 2.0
+
+
+def agreeing_cell(log_gain: np.ndarray, cov: np.ndarray | None = None) -> int:
+    """Index of the load cell whose gain (``log_gain``: log of the ratio to the model's)
+    the most other cells share: the cells calibrated right all read with one gain along
+    the gauge, which the data place wherever the scale falls; held at the model's, every
+    one of them is then at the model's too. Two gains agree when their difference is within
+    :data:`AGREE_SIGMAS` of its standard error under ``cov`` (the log-gains' covariance:
+    the scale the data know poorly is common to every gain and cancels in the difference).
+    Ties, and no finite covariance, to the cell nearest the gains' median (three cells
+    right of eight, five off each its own way: their median may fall on a wrong one)."""
+    lr = np.asarray(log_gain, dtype=float)
+    med = np.abs(lr - np.median(lr))
+    count = np.zeros(len(lr))
+    if cov is not None and np.isfinite(cov).all():
+        v = np.diag(cov)
+        var = v[:, None] + v[None, :] - 2.0 * cov
+        diff = np.abs(lr[:, None] - lr[None, :])
+        count = np.sum(diff ** 2 <= AGREE_SIGMAS ** 2 * np.clip(var, 0.0, None), axis=1)
+    best = np.flatnonzero(count == count.max())
+    return int(best[np.argmin(med[best])])
 
 
 def members(space: ParamSpace) -> np.ndarray:

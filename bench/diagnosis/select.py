@@ -211,7 +211,7 @@ class Selector:
         space = fit.space
         if not _on_gauge(space.effects):
             return []
-        pin = gauge.pinned(space, fit.phi)
+        pin = gauge.pinned(space, fit.phi, fit.cov)
         if pin is None:
             return []
         phi0, hold = pin
@@ -224,9 +224,12 @@ class Selector:
         reported with at least the error it has with the tensions' scale free: what the
         fit held to fix the scale (a gain, the mass, E*A) is an assumption, and the data
         know the scale only through the cables' stretch (a mass known to 12 % without a
-        tracker is not known to 0.03 kg because every gain was held at one). Directions
-        the data cannot fix at all are left out (an exact gauge: the values are those of
-        the scale chosen). In place: the floor is added to ``fit.bias_var``."""
+        tracker is not known to 0.03 kg because every gain was held at one). Where that
+        leaves the gauge exact (every member free), the members other than gains that the
+        fit held at the model's (the cables' E*A it found right) stay held: their stretch
+        fixes the scale, weakly. Directions the data cannot fix at all are left out (an
+        exact gauge: the values are those of the scale chosen). In place: the floor is
+        added to ``fit.bias_var``."""
         space = fit.space
         if not _on_gauge(space.effects) or id(fit) in self._floored:
             return fit
@@ -234,6 +237,13 @@ class Selector:
         mem = gauge.members(space)
         other = ~np.isfinite(fit.stderr) & ~mem
         free = fit_effects(space, self.rm, idx, fit.phi, hold=other, prune=False, max_nfev=2)
+        held = mem & (fit.phi == space.neutral) & ~np.array(
+            [p.key.startswith("gain_") for p in space.params], dtype=bool)
+        if held.any() and not np.isfinite(free.stderr[mem & ~held]).any():
+            # every member free, the gauge is exact; the stretch the fit held at the
+            # model's (seven cables of eight) still tells the scale, if weakly
+            free = fit_effects(space, self.rm, idx, fit.phi, hold=other | held, prune=False,
+                               max_nfev=2)
         kept = mem & np.isfinite(fit.stderr) & np.isfinite(free.stderr)
         extra = np.zeros(len(space))
         extra[kept] = np.clip(free.stderr[kept] ** 2 - fit.reported_stderr[kept] ** 2, 0.0,
