@@ -23,12 +23,16 @@ class _Space:
     def indices(self, e: str) -> np.ndarray:
         return self._ix[e]
 
+    def robot(self, phi: np.ndarray):
+        return rocaspect()  # (every load cell at the model's gain)
+
 
 def _fit(sizes: dict[str, int], bic: float, undetermined: int = 0) -> SimpleNamespace:
     space = _Space(sizes)
     stderr = np.ones(sum(sizes.values()))
     stderr[:undetermined] = np.inf  # the first effect's first parameters: undetermined
-    return SimpleNamespace(space=space, stderr=stderr, bic=bic, reduced_chi2=1.0)
+    return SimpleNamespace(space=space, stderr=stderr, bic=bic, reduced_chi2=1.0,
+                           phi=np.zeros(len(stderr)))
 
 
 def _selector(found: tuple[list[str], SimpleNamespace]) -> tuple[Selector, list]:
@@ -210,3 +214,33 @@ def test_a_restart_far_from_the_data_is_not_run():
     assert sel._restart(["exit_point_offset", "cable_elasticity"], current, CANDIDATES,
                         BASE) is None
     assert calls == []
+
+
+def test_with_the_cells_gain_shared_both_restarts_run_and_the_better_is_kept():
+    """Exit points and the load cells stalled at 33 x the noise, every cell 30 % high: the
+    search runs again without the exit points (two effects more, the stall) and without
+    the cells (three in their place); the lower BIC of the two is kept."""
+    chosen = ["exit_point_offset", "load_cell_calibration"]
+    current = _fit({"exit_point_offset": 24, "load_cell_calibration": 16}, 39198.0)
+    current.reduced_chi2 = 33.0
+    current.space.robot = lambda phi: rocaspect().replace(load_cell_gain=np.full(8, 1.3))
+    sel, _ = _selector(([], BASE))
+    sel.stalled = True
+    no_exit = (["cable_sag", "drum_scale", "platform_mass"], _fit({"cable_sag": 1}, 685.0))
+    no_cells = (["platform_mass"], _fit({"platform_mass": 4}, 5000.0))
+    seen: list = []
+
+    def search(chosen_, current_, candidates, selection):
+        seen.append((sel.max_effects, "exit_point_offset" in candidates))
+        return no_cells if "exit_point_offset" in candidates else no_exit
+
+    sel._search = search
+    assert sel._restart(chosen, current, CANDIDATES + ["load_cell_calibration"],
+                        BASE) == no_exit
+    assert seen == [(len(chosen) + 2, False), (len(chosen) + 3, True)]
+    # the cells right (no gain shared), only the first restart runs
+    current.space.robot = lambda phi: rocaspect()
+    seen.clear()
+    sel.stalled = True
+    sel._restart(chosen, current, CANDIDATES + ["load_cell_calibration"], BASE)
+    assert seen == [(len(chosen) + 2, False)]

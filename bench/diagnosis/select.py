@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.diagnosis import gauge
-from bench.diagnosis.fit import FitResult, fd_jacobian, fit_effects
+from bench.diagnosis.fit import ErrorStructure, FitResult, error_meat, fd_jacobian, fit_effects
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
 from controller.effects import EFFECT_NAMES
@@ -337,12 +337,13 @@ class Selector:
         """Whether adding the effect predicts held-out samples better than the fits without it.
 
         ``d`` is how much the two fits' predictions differ there (whitened, squared): a real
-        effect lowers the held-out chi-square by about ``d`` (give or take ``2 sqrt(d)``), a
-        spurious one raises it by about ``d``. The effect passes when the drop exceeds
-        ``d/2 - 3 sqrt(d)``: half the predicted improvement, less three standard deviations
-        (so an effect the held-out samples cannot see, ``d`` small, only must not make them
-        worse). Set 0: every k-th block; set 1: the validation region, refitted without (it
-        decides too only when set 0 cannot see the effect)."""
+        effect lowers the held-out chi-square by about ``d`` (give or take ``2 sqrt(d)`` for
+        independent errors), a spurious one raises it by about ``d``. The effect passes when
+        the drop exceeds ``d/2`` less one and a half of its standard deviations
+        (:meth:`_heldout_sd`; ``3 sqrt(d)`` for independent errors), so an effect the
+        held-out samples cannot see, ``d`` small, only must not make them worse. Set 0:
+        every k-th block; set 1: the validation region, refitted without (it decides too
+        only when set 0 cannot see the effect)."""
         info: dict[str, float] = {}
         ok = True
         new = [e for e in with_ if e not in without]
@@ -366,12 +367,39 @@ class Selector:
             info[f"heldout_{k}_chi2_with"] = b
             info[f"heldout_{k}_predicted"] = d
             info[f"heldout_{k}_n"] = len(idx)
-            passed = a - b > 0.5 * d - 3.0 * np.sqrt(d)
+            sd = self._heldout_sd(idx, diff, r_with)
+            info[f"heldout_{k}_sd"] = float(sd)
+            passed = a - b > 0.5 * d - 1.5 * sd
             if k == 0 and d >= CONCLUSIVE:
                 return passed, info  # the validation blocks see the effect: they decide
             if not passed:
                 ok = False
         return ok, info
+
+    def _heldout_sd(self, idx: np.ndarray, diff: np.ndarray, r: np.ndarray) -> float:
+        """Standard deviation of the noise in the held-out chi-square change between two
+        fits whose whitened predictions on samples ``idx`` differ by ``diff`` (``r``: the
+        residuals of one of them): ``2 sqrt(diff^T C diff)``, with the errors' covariance
+        ``C`` of the standard errors (:func:`bench.diagnosis.fit.error_meat`: a move's rows
+        share errors, the lengths blend theirs between stops), estimated from ``r`` beside
+        ``diff`` (its part along ``diff`` is the effect, not noise). At least the
+        ``2 sqrt(d)`` of independent errors: held out on a continuous recording, two moves'
+        rows, whose shared errors a mast's bending followed, made a true effect look
+        four deviations worse than predicted."""
+        d = float(diff @ diff)
+        if d <= 0.0 or len(diff) != len(r):
+            return 2.0 * np.sqrt(max(d, 0.0))
+        rm = self.rm
+        w = rm.entry_weights(idx)
+        errors = ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx),
+                                rm.entry_moves(idx), rm.entry_blocks(idx), float(w.sum()),
+                                rm.entry_directions(idx), rm.entry_knots(idx))
+        beside = r - diff * float(diff @ r) / d
+        try:
+            var = float(error_meat(diff[:, None], beside, errors)[0, 0])
+        except (ValueError, np.linalg.LinAlgError):
+            var = d
+        return 2.0 * np.sqrt(max(var, d) if np.isfinite(var) else d)
 
     # ----- the whole selection --------------------------------------------------------
     def run(self, candidates: list[str], initial: tuple[str, ...] = ()) -> Selection:
@@ -461,36 +489,71 @@ class Selector:
         has (it can carry the shares of two of them; one no wider than another imitates
         what a single effect does, which the swaps test), and not for one of the load
         cells' gauge: what it shares with the others of the gauge, the gauge moves and
-        swaps search already (:func:`_gauge_moves`, :func:`_gauge_swaps`)."""
-        if not chosen or (current.reduced_chi2 > INADEQUATE and not self.stalled):
+        swaps search already (:func:`_gauge_moves`, :func:`_gauge_swaps`).
+
+        Also where the load cells, the only effect of the gauge chosen, carry a gain shared
+        by the cells and leave far more than the noise (:meth:`_cells_as_scale`): the search
+        runs again without them, and may name three effects in their place (the cables'
+        weight, a lighter platform and stiffer cables read as every cell 30 % high, at 9 x
+        the noise; without the cells the three explain it). Where both restarts apply, the
+        better of the two is kept (exit points and the cells' gain stalled on sag, mass and
+        drum scales: the restart without the exit points finds them)."""
+        scale = self._cells_as_scale(chosen, current)
+        if not chosen:
             return None
-        free = {e: int(np.isfinite(current.stderr[current.space.indices(e)]).sum())
-                for e in chosen}
-        wide = max(chosen, key=lambda e: (free[e], -chosen.index(e)))
-        widest_other = max((len(ParamSpace(self.model, (c,))) for c in candidates
-                            if c != wide), default=0)
-        if wide in gauge.GAUGE_EFFECTS or free[wide] <= widest_other:
-            return None
-        rest = [c for c in candidates if c != wide]
+        tries = []
+        if current.reduced_chi2 <= INADEQUATE or self.stalled:
+            free = {e: int(np.isfinite(current.stderr[current.space.indices(e)]).sum())
+                    for e in chosen}
+            wide = max(chosen, key=lambda e: (free[e], -chosen.index(e)))
+            widest_other = max((len(ParamSpace(self.model, (c,))) for c in candidates
+                                if c != wide), default=0)
+            if wide not in gauge.GAUGE_EFFECTS and free[wide] > widest_other:
+                tries.append((wide, free[wide], 1 + int(self.stalled)))
+        if scale:
+            n_cells = int(np.isfinite(current.stderr[current.space.indices(
+                "load_cell_calibration")]).sum())
+            tries.append(("load_cell_calibration", n_cells, 3))
         stalled = self.stalled
-        self.stalled = False
-        self.progress(f"searching again without {wide} ({free[wide]} free parameters): "
-                      f"it may imitate several effects")
-        # a second opinion costs at most what the first search did (as many new sets), and
-        # looks for the wide effect's place taken by two: one effect more at most
-        # (two more where the first search stalled: it named what it could, not what was)
-        self.budget, self.max_effects = 2 * len(self.cache), len(chosen) + 1 + int(stalled)
-        try:
-            other, fit = self._search([], base, rest, Selection([], base, base))
-        finally:
-            self.budget, self.max_effects = None, MAX_EFFECTS
-        if fit.bic < current.bic:
-            self.progress(f"{' + '.join(sorted(other))} explains the data better than "
-                          f"{' + '.join(sorted(chosen))} (BIC {fit.bic:.1f} against "
+        best = None
+        for wide, n_free, more in tries:
+            rest = [c for c in candidates if c != wide]
+            self.stalled = False
+            self.progress(f"searching again without {wide} ({n_free} free parameters): "
+                          f"it may imitate several effects")
+            # a second opinion costs at most what the first search did (as many new sets),
+            # and looks for the wide effect's place taken by two: one effect more at most
+            # (two more where the first search stalled: it named what it could, not what
+            # was; three for the cells' shared gain: the mass, the stretch and the cables'
+            # weight each scale the tensions)
+            self.budget, self.max_effects = 2 * len(self.cache), len(chosen) + more
+            try:
+                other, fit = self._search([], base, rest, Selection([], base, base))
+            finally:
+                self.budget, self.max_effects = None, MAX_EFFECTS
+            if fit.bic < (current if best is None else best[1]).bic:
+                best = (other, fit)
+        if best is not None:
+            self.progress(f"{' + '.join(sorted(best[0]))} explains the data better than "
+                          f"{' + '.join(sorted(chosen))} (BIC {best[1].bic:.1f} against "
                           f"{current.bic:.1f})")
-            return other, fit
+            return best
         self.stalled = stalled
         return None
+
+    def _cells_as_scale(self, chosen: list[str], current: FitResult) -> bool:
+        """Whether the load cells, chosen without another effect of their gauge, carry a
+        gain shared by the cells (the median cell's off the model's) while the set leaves
+        more than :data:`INADEQUATE` x the noise: the common gain scales every tension, as a
+        heavier platform, stiffer cables or the cables' own weight do, and may stand in for
+        several of them at once, none of which then lowers the BIC alone."""
+        if "load_cell_calibration" not in chosen or current.reduced_chi2 <= INADEQUATE \
+                or set(chosen) & (gauge.GAUGE_EFFECTS - {"load_cell_calibration"}):
+            return False
+        robot = current.space.robot(current.phi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lr = np.log(robot.load_cell_gain / self.model.load_cell_gain)
+        return bool(np.isfinite(lr).all() and abs(float(np.median(lr))) > gauge.MIN_MOVE)
 
     def _forward(self, current: FitResult, chosen: list[str], candidates: list[str],
                  sel: Selection) -> tuple[list[str], FitResult] | None:
