@@ -816,7 +816,11 @@ class Selector:
     def _swap(self, chosen: list[str], current: FitResult, candidates: list[str]
               ) -> tuple[list[str], FitResult] | None:
         """Replace a chosen effect by another when that lowers the BIC clearly (a look-alike
-        that entered first). Only swaps the linearised screen finds promising are refitted."""
+        that entered first): by :data:`BIC_ENTER`, or by :data:`BIC_TIE` where the other
+        needs no more free parameters (two accounts of one signature, the better by a
+        likelihood ratio of 150 at equal cost: a sag entered as a lighter platform, whose
+        tangent at the model it shares, and lost to it by 12 only). Only swaps the
+        linearised screen finds promising are refitted."""
         if not chosen:
             return None
         pred = self.swap_screen(current, chosen, candidates)
@@ -824,16 +828,34 @@ class Selector:
                  if d < SWAP_SCREEN][:4]
         # swaps along the load cells' gauge, which the linearised screen cannot see
         pairs += [p for p in _gauge_swaps(chosen, candidates) if p not in pairs]
+        pairs += [p for p in self._displaced(chosen, candidates) if p not in pairs]
         if not pairs:
             return None
         sets = [tuple(c for c in chosen if c != e) + (a,) for e, a in pairs]
         fits = self.fit_many(sets, current)
         best = min(range(len(fits)), key=lambda k: fits[k].bic)
-        if fits[best].bic - current.bic > -BIC_ENTER:
+        bar = BIC_TIE if fits[best].n_free <= current.n_free else BIC_ENTER
+        if fits[best].bic - current.bic > -bar:
             return None
         e, a = pairs[best]
         self.progress(f"swapping {e} for {a}: it explains the data better")
         return [c for c in chosen if c != e] + [a], fits[best]
+
+    def _displaced(self, chosen: list[str], candidates: list[str]) -> list[tuple[str, str]]:
+        """(chosen, other) swaps where the fit of the chosen effects with the other added
+        (fitted already) holds every parameter of that chosen one at the model's values:
+        the other took its place, which a screen linearised at the model may not see (a
+        sag's tangent there is the load it adds, a mass's)."""
+        out = []
+        for a in candidates:
+            f = self.cache.get(tuple(sorted(chosen + [a]))) if a not in chosen else None
+            if f is None:
+                continue
+            for e in chosen:
+                ix = f.space.indices(e)
+                if len(ix) and np.array_equal(f.phi[ix], f.space.neutral[ix]):
+                    out.append((e, a))
+        return out
 
     def _importance(self, e: str, chosen: list[str], current: FitResult) -> float:
         without = self.fit(tuple(c for c in chosen if c != e), current)
