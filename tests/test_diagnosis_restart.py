@@ -1,6 +1,7 @@
 """The selection's restart: when a wide effect (the most free parameters) was chosen, the
 search runs again from the model as it is without it, and the set it ends in
-replaces the first when its BIC is lower; a single wide effect too."""
+replaces the first when its BIC is lower; a single wide effect too. And the swaps that
+follow from what a fit held: an effect displaced by another (`Selector._displaced`)."""
 
 from __future__ import annotations
 
@@ -244,3 +245,34 @@ def test_with_the_cells_gain_shared_both_restarts_run_and_the_better_is_kept():
     sel.stalled = True
     sel._restart(chosen, current, CANDIDATES + ["load_cell_calibration"], BASE)
     assert seen == [(len(chosen) + 2, False)]
+
+
+def test_an_effect_held_at_the_model_beside_another_is_displaced_by_it():
+    """The mass chosen, then the sag fitted beside it with the mass held at the model's
+    values: the sag took its place, a swap to try; where the mass kept a value, or the set
+    was never fitted, none."""
+    sel, _ = _selector(([], BASE))
+    held = _fit({"cable_sag": 1, "platform_mass": 4}, 571.2)
+    held.space.neutral = np.zeros(5)
+    held.phi = np.array([0.0357, 0.0, 0.0, 0.0, 0.0])
+    sel.cache = {("cable_sag", "platform_mass"): held}
+    cands = ["cable_sag", "platform_mass", "exit_point_offset"]
+    assert sel._displaced(["platform_mass"], cands) == [("platform_mass", "cable_sag")]
+    held.phi[1] = 29.3 - 35.0  # the mass keeps a change: both effects act
+    assert sel._displaced(["platform_mass"], cands) == []
+    sel.cache = {}
+    assert sel._displaced(["platform_mass"], cands) == []
+
+
+def test_a_swap_at_equal_cost_needs_a_tie_a_wider_one_the_entry_bar():
+    chosen = ["platform_mass"]
+    current = _fit({"platform_mass": 4}, 583.2)
+    current.n_free = 1
+    sel, _ = _selector(([], BASE))
+    sel.swap_screen = lambda *a: {("platform_mass", "cable_sag"): -12.0}
+    sag = _fit({"cable_sag": 1}, 571.2)
+    sag.n_free = 1
+    sel.fit_many = lambda sets, start: [sag]
+    assert sel._swap(chosen, current, ["cable_sag"]) == (["cable_sag"], sag)
+    sag.n_free = 2  # one parameter more: the entry bar
+    assert sel._swap(chosen, current, ["cable_sag"]) is None
