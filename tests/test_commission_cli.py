@@ -48,13 +48,20 @@ def cli(capsys, *argv: str) -> tuple[int, dict]:
     return code, json.loads(out[-1])
 
 
+def _sigint_ignored() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 class Jog:
     """``cdpr commission jog`` in its own process; keys fed on stdin by a thread."""
 
     def __init__(self, *args: str) -> None:
         cmd = [sys.executable, "-m", "bench.cli", "commission", "jog", *args, "--json"]
+        # started as a shell's background job would be, SIGINT ignored: the jog must stop
+        # on it all the same
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     preexec_fn=_sigint_ignored)
         self.lines: queue.Queue[str | None] = queue.Queue()
         self.seen: list[str] = []
         self.pressing = threading.Event()
@@ -171,8 +178,8 @@ def test_commissioning_against_cdpr_sim_in_another_process(sim, capsys, tmp_path
                 time.sleep(0.02)
             jog.proc.send_signal(signal.SIGINT)
             jog.pressing.clear()
+            assert jog.proc.wait(30) == 130  # (a jog that ignored it fails here, not hangs)
             out = json.loads(jog.proc.stdout.read().strip().splitlines()[-1])
-            assert jog.proc.wait(30) == 130
         finally:
             jog.close()
         assert out == {"error": "interrupted", "state": "SWITCH_ON_DISABLED"}

@@ -168,6 +168,22 @@ def sigint_deferred() -> Iterator[None]:
             print("Ctrl-C during the cleanup: finished it first", file=sys.stderr)
 
 
+@contextmanager
+def sigint_raises() -> Iterator[None]:
+    """While a command drives a winch: SIGINT (Ctrl-C, or ``kill -INT`` from a supervisor)
+    raises KeyboardInterrupt, whatever the process inherited. A process started in the
+    background of a shell without job control inherits SIGINT ignored, and Python then
+    leaves it so: a jog would keep moving on the operator's stop."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def command_line(args: argparse.Namespace) -> list[str]:
     """The command as typed (from sys.argv when run as ``cdpr``), else rebuilt from ``args``."""
     if Path(sys.argv[0]).name in ("cdpr", "cli.py") and "commission" in sys.argv:
@@ -210,7 +226,8 @@ def dispatch(args: argparse.Namespace, func: Callable[[argparse.Namespace, Ui, S
     if eds is not None and not Path(eds).is_file():
         return fail(2, f"--eds {eds}: no such file")
     try:
-        code = func(args, ui, section)
+        with sigint_raises():
+            code = func(args, ui, section)
     except KeyboardInterrupt:
         section.write("interrupted (Ctrl-C)")
         print(f"{name}: interrupted", file=sys.stderr)
