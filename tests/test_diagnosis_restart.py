@@ -276,3 +276,84 @@ def test_a_swap_at_equal_cost_needs_a_tie_a_wider_one_the_entry_bar():
     assert sel._swap(chosen, current, ["cable_sag"]) == (["cable_sag"], sag)
     sag.n_free = 2  # one parameter more: the entry bar
     assert sel._swap(chosen, current, ["cable_sag"]) is None
+
+
+def test_a_lookalike_that_beats_the_chosen_effect_is_swapped_in():
+    """Pulley radii refitted as a look-alike of exit offsets (case 12079: the linearised
+    swap screen predicted +228, the refit -11.4 at fewer free parameters): the swap the
+    screen missed; at a BIC within the tie, or at more parameters short of the entry bar,
+    none."""
+    sel, _ = _selector(([], BASE))
+    cur = _fit({"mast_compliance": 12, "exit_point_offset": 24}, 213.0)
+    cur.n_free = 17
+    pulleys = _fit({"mast_compliance": 12, "pulley_kinematics": 8}, 213.0 - 11.4)
+    pulleys.n_free = 16
+    sel.fit = lambda effects, start: pulleys
+    record = Selection(["mast_compliance", "exit_point_offset"], cur, BASE)
+    record.alternatives = {"exit_point_offset": [("pulley_kinematics", -11.4)],
+                           "mast_compliance": []}
+    e, a, chosen, fit = sel._missed_swap(record)
+    assert (e, a, fit) == ("exit_point_offset", "pulley_kinematics", pulleys)
+    assert chosen == ["mast_compliance", "pulley_kinematics"]
+    pulleys.bic = 213.0 - 8.0  # within the tie
+    assert sel._missed_swap(record) is None
+    pulleys.bic, pulleys.n_free = 213.0 - 20.0, 18  # more parameters: the entry bar
+    assert sel._missed_swap(record) is None
+    pulleys.bic = 213.0 - 30.0
+    assert sel._missed_swap(record) is not None
+    record.alternatives = {}
+    assert sel._missed_swap(record) is None
+
+
+def test_lookalikes_within_the_screens_error_on_a_large_signal_are_refitted():
+    """The linearised swap screen's error grows with the signal it replaces: on exit
+    offsets that remove a chi-square of 82,000 a prediction of +228 is refitted (the best
+    LOOKALIKE_REFITS of them), on a signal of 2,000 it is not."""
+    chosen = ["exit_point_offset"]
+    cands = ["exit_point_offset", "pulley_kinematics", "drum_scale", "cable_length_offset"]
+    pred = {("exit_point_offset", "pulley_kinematics"): 228.0,
+            ("exit_point_offset", "drum_scale"): 700.0,
+            ("exit_point_offset", "cable_length_offset"): 1642.0}
+    for signal, want in ((82000.0, [("pulley_kinematics",), ("drum_scale",)]),
+                         (2000.0, [])):
+        sel, _ = _selector(([], BASE))
+        cur = _fit({"exit_point_offset": 24}, 213.0)
+        cur.chi2 = 180.0
+        sel._signal = {}
+
+        def screen(c, ch, ca, signal=signal, sel=sel):
+            sel._signal[(id(c), tuple(ch), tuple(ca), "exit_point_offset")] = signal
+            return pred
+
+        refitted: list = []
+
+        def many(sets, start, refitted=refitted):
+            refitted.extend(sets)
+            return [SimpleNamespace(bic=start.bic + 5.0, chi2=start.chi2) for _ in sets]
+
+        sel.swap_screen, sel.fit_many = screen, many
+        sel.imitation = lambda *a: {}
+        record = Selection(chosen, cur, BASE)
+        sel._lookalikes(record, cands)
+        assert refitted == want
+        assert record.alternatives["exit_point_offset"] == \
+            [(s[0], 5.0) for s in want]
+
+
+def test_an_imitation_the_refit_does_not_bear_out_is_no_alternative():
+    """Exit offsets imitate 99 % of the masts' signature, linearised; refitted in their
+    place they leave a chi-square 19,000 higher: no alternative. Where the refit fits as
+    well and only its parameters cost BIC, it is one."""
+    for rise, listed in ((19000.0, False), (3.0, True)):
+        sel, _ = _selector(([], BASE))
+        cur = _fit({"mast_compliance": 12}, 213.0)
+        cur.chi2 = 180.0
+        sel._signal = {}
+        sel.swap_screen = lambda *a: {}
+        sel.fit_many = lambda sets, start: []
+        sel.imitation = lambda *a: {"exit_point_offset": 0.99}
+        sel.fit = lambda effects, start, rise=rise: SimpleNamespace(
+            chi2=start.chi2 + rise, bic=start.bic + rise + 60.0)
+        record = Selection(["mast_compliance"], cur, BASE)
+        sel._lookalikes(record, ["mast_compliance", "exit_point_offset"])
+        assert bool(record.alternatives["mast_compliance"]) == listed
