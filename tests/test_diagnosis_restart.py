@@ -307,11 +307,11 @@ def test_a_lookalike_that_beats_the_chosen_effect_is_swapped_in():
 
 def test_lookalikes_within_the_screens_error_on_a_large_signal_are_refitted():
     """The linearised swap screen's error grows with the signal it replaces: on exit
-    offsets that remove a chi-square of 82,000 a prediction of +228 is refitted (the best
-    LOOKALIKE_REFITS of them), on a signal of 2,000 it is not."""
+    offsets that remove a chi-square of 82,000 a prediction of +400 is refitted (the best
+    LOOKALIKE_REFITS of them), on a signal of 2,000 it is not (beyond the margin)."""
     chosen = ["exit_point_offset"]
     cands = ["exit_point_offset", "pulley_kinematics", "drum_scale", "cable_length_offset"]
-    pred = {("exit_point_offset", "pulley_kinematics"): 228.0,
+    pred = {("exit_point_offset", "pulley_kinematics"): 400.0,
             ("exit_point_offset", "drum_scale"): 700.0,
             ("exit_point_offset", "cable_length_offset"): 1642.0}
     for signal, want in ((82000.0, [("pulley_kinematics",), ("drum_scale",)]),

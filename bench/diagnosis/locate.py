@@ -164,7 +164,7 @@ JUMP_LOCAL = 15
 
 
 def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
-              t_after: float = -np.inf) -> list[dict]:
+              t_after: float = -np.inf, absorbed: np.ndarray | None = None) -> list[dict]:
     """Slips during moves: a cable's length residual stepping between two consecutive raw rows
     (``stream``, residuals ``length`` (R,n)) far beyond its row-to-row spread and far above
     the other cables' at that row (a jump of several cables at once is the pose, not a
@@ -183,7 +183,16 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
     such rows every cable's residual changes with the balance (under a model centimetres
     off, two sets of cables at zero can fit almost equally and the fit switches between
     them), not with the readings: such a pair of rows tells no step. (With measured
-    tensions a slip itself may slacken a cable: those pairs count.)"""
+    tensions a slip itself may slacken a cable: those pairs count.)
+
+    ``absorbed`` (R, n, k): where finite, the directions of a row's length residual that its
+    fitted tensions take up (:attr:`bench.diagnosis.residuals.ResidualModel.absorbed`). There
+    a slip of one cable is no jump of that cable alone: the refitted tensions stretch the
+    others to share it (a 2.9 mm slip read as 0.95 mm on its cable and 1.2 mm on another).
+    Each cable's slip is fitted to the whole row's jump through its pattern (the unit
+    change of its reading less what the tensions take up, :func:`cable_accounts`), and a
+    jump is one cable's own where that cable's account leaves far less of it than any
+    other cable's."""
     R = len(length)
     same = np.concatenate([[False], stream.block[1:] == stream.block[:-1]])
     tau = getattr(stream, "tau", None)
@@ -206,32 +215,69 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         warnings.simplefilter("ignore", RuntimeWarning)
         slope = np.nanmedian(np.stack(nb), axis=0) if R else d
     slope = np.where(np.isfinite(slope), slope, 0.0)
-    j = d - slope
-    j[stream.t <= t_after] = np.nan
+    raw = d - slope
+    raw[stream.t <= t_after] = np.nan
+    j, own = raw, None
+    if absorbed is not None:
+        # each cable's slip that accounts for the jump best, where the tensions are fitted
+        beta, own, fitted_rows = cable_accounts(raw, absorbed)
+        j = np.where(fitted_rows[:, None], beta, raw)
     found = []
     with np.errstate(invalid="ignore"):
         mad = 1.4826 * np.nanmedian(np.abs(j), axis=0)
         z = np.abs(j) / np.maximum(mad, 1e-9)
         big = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M)
     # one cable's own: its jump dominates the other cables' at that row (a jump of several
-    # cables at once is the pose, or all the cables' lengths changing at a new visit; without
-    # tensions, the internal forces refitted at each row spread one cable's slip over the
-    # others, far less)
+    # cables at once is the pose, or all the cables' lengths changing at a new visit)
     if len(cable_ids) > 1:
-        mag = np.nan_to_num(np.abs(j))
+        mag = np.nan_to_num(np.abs(raw))
         top2 = np.sort(mag, axis=1)[:, -2:]
         second = np.where(mag >= top2[:, 1:2], top2[:, :1], top2[:, 1:2])
-        big &= mag > DOMINANT * second
+        alone = mag > DOMINANT * second
+        big &= alone if own is None else np.where(fitted_rows[:, None], own, alone)
     for k, cid in enumerate(cable_ids):
         rows = [i for i in np.flatnonzero(big[:, k])
                 if _local_z(j[:, k], int(i)) > JUMP_Z
-                and _holds(stream, length[:, k], int(i), float(j[i, k]))]
+                and _holds(stream, length[:, k], int(i), float(raw[i, k]))]
         if not rows:
             continue
         i = rows[int(np.argmax(np.abs(j[rows, k])))]
         found.append({"cable": cid, "t_s": float(0.5 * (stream.t[i - 1] + stream.t[i])),
                       "step_m": float(j[i, k]), "z": float(z[i, k]), "row": int(stream.row[i])})
     return found
+
+
+def cable_accounts(jump: np.ndarray, absorbed: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each cable's slip (R, n) [m] that best accounts for the rows' jumps ``jump`` (R, n)
+    where the tensions are fitted, whether it is that cable's own (R, n): its account
+    leaves :data:`DOMINANT` squared times less of the jump than the next best cable's, and
+    the rows that have such accounts (R,): ``absorbed`` (R, n, k) finite and every cable's
+    jump measured.
+
+    A slip ``s`` of cable ``c`` changes a row's residual by ``s P e_c`` with ``P`` the
+    projection off the absorbed directions: the least-squares slip is ``(P j)_c / P_cc``
+    and it explains ``(P j)_c^2 / P_cc`` of the jump's ``|j|^2``."""
+    R, n = jump.shape
+    rows = np.isfinite(absorbed).all(axis=(1, 2)) & np.isfinite(jump).all(axis=1)
+    beta = np.full((R, n), np.nan)
+    own = np.zeros((R, n), dtype=bool)
+    if not rows.any():
+        return beta, own, rows
+    A = absorbed[rows]
+    P = np.eye(n) - A @ np.linalg.pinv(A, rcond=1e-10)
+    jr = jump[rows]
+    pj = np.einsum("rij,rj->ri", P, jr)
+    pcc = np.diagonal(P, axis1=-2, axis2=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b = np.where(pcc > 1e-9, pj / pcc, 0.0)
+        explained = np.where(pcc > 1e-9, pj * pj / pcc, 0.0)
+    left = np.einsum("ri,ri->r", jr, jr)[:, None] - explained  # (rows, n)
+    top2 = np.sort(left, axis=1)[:, :2]
+    second = np.where(left <= top2[:, :1], top2[:, 1:2], top2[:, :1])
+    beta[rows] = b
+    own[rows] = DOMINANT ** 2 * np.maximum(left, 0.0) < second
+    return beta, own, rows
 
 
 def _local_z(j: np.ndarray, i: int) -> float:

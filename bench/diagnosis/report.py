@@ -367,9 +367,11 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
                                  t_after=rm.init_end) if rm.has_len.any() else []
     if s.stream is not None and rm.has_len.any():
         stream_rm = ResidualModel(s.stream, model, rec.init_pose, rec.init_tensions)
+        stream_rm.keep_absorbed = True
         sb = stream_rm.blocks(model)
         jumps = locate.row_jumps(s.stream, np.where(sb.slack, np.nan, sb.length),
-                                 model.cable_ids, t_after=rm.init_end)
+                                 model.cable_ids, t_after=rm.init_end,
+                                 absorbed=stream_rm.absorbed)
         seen = {st["cable"] for st in steps}
         steps += [j for j in jumps if j["cable"] not in seen]
     if steps:

@@ -156,6 +156,12 @@ class ResidualModel:
         # per sample: the last fitted unmeasured tensions (warm start, NaN before the first)
         # and their faces (cables at zero, rows left out: a hint inside :meth:`frozen`)
         self._warm_tau = np.full((s.n, n), np.nan)
+        #: per sample without measured tensions (NaN elsewhere, and until an evaluation with
+        #: :attr:`keep_absorbed` set): the directions (n, n - 6) of its length residual that
+        #: the fitted internal forces take up, to first order (the stretch and the masts'
+        #: deflection of a tension change in the wrench matrix's null space) [m/N]
+        self.keep_absorbed = False
+        self.absorbed = np.full((s.n, n, max(n - 6, 0)), np.nan)
         # sagging cables: the catenaries of the last evaluation outside :meth:`frozen` (of
         # the samples with measured tensions, and at those tensions plus the step that carries
         # their noise into the lengths) and of the last initialisation: the next ones start
@@ -501,6 +507,9 @@ class ResidualModel:
                 search = settled or held >= rounds
         if not self._frozen:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
+        if self.keep_absorbed and n > 6:
+            null = np.swapaxes(np.linalg.svd(np.nan_to_num(W))[2][:, 6:, :], -1, -2)
+            self.absorbed[u] = C @ null
         bs = _statics(H, poses, np.where(at_zero, 0.0, tau_k), exits, bs)
         if H.compliant and not self._frozen:
             self._warm_exits[u] = bs.exits

@@ -49,6 +49,8 @@ EXPLAINED = 1.3
 LINEAR_ERROR = 0.01
 #: look-alikes refitted per chosen effect beyond the screen's margin
 LOOKALIKE_REFITS = 2
+#: ... whose linearised BIC change is within this of a tie, whatever the signal
+LOOKALIKE_MARGIN = 250.0
 #: above this reduced chi-square the linearised screen is not trusted alone
 INADEQUATE = 3.0
 #: the pairs of this many best single effects are fitted when one effect is far from enough
@@ -907,11 +909,14 @@ class Selector:
             near = [a for a in others if pred.get((e, a), np.inf) < BIC_TIE + SWAP_SCREEN_MARGIN
                     or (e, a) in _gauge_swaps(chosen, candidates)]
             # the screen is linear: its error grows with the signal it is asked to replace
-            # (pulley radii for exit offsets of 0.1 m: predicted +228, refitted +0.9), so the
-            # best predictions within a fraction of that signal are refitted too
+            # (pulley radii for exit offsets of 0.1 m: predicted +228, refitted -11; one
+            # cable's E*A for the masts beside exit offsets and the mass: +107, refitted
+            # -37), so the best predictions within a fraction of that signal, or within a
+            # margin, are refitted too
             signal = self._signal.get((id(cur), tuple(chosen), tuple(candidates), e), 0.0)
             wide = sorted((pred[(e, a)], a) for a in others if (e, a) in pred
-                          and pred[(e, a)] < BIC_TIE + LINEAR_ERROR * signal)
+                          and pred[(e, a)] < BIC_TIE + max(LINEAR_ERROR * signal,
+                                                           LOOKALIKE_MARGIN))
             near += [a for _, a in wide[:LOOKALIKE_REFITS] if a not in near]
             sets = [tuple(c for c in chosen if c != e) + (a,) for a in near]
             alt = []
