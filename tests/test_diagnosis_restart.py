@@ -357,3 +357,43 @@ def test_an_imitation_the_refit_does_not_bear_out_is_no_alternative():
         record = Selection(["mast_compliance"], cur, BASE)
         sel._lookalikes(record, ["mast_compliance", "exit_point_offset"])
         assert bool(record.alternatives["mast_compliance"]) == listed
+
+
+def _far(sizes: dict[str, int], bic: float, red: float, z: float) -> SimpleNamespace:
+    """A fit whose last effect's parameters sit ``z`` of their errors from the model's."""
+    f = _fit(sizes, bic)
+    k = len(f.stderr)
+    f.space.neutral = np.zeros(k)
+    f.phi = np.full(k, z)
+    f.cov = np.eye(k)
+    f.reduced_chi2, f.n_eff, f.n_res = red, 128.0, 128
+    return f
+
+
+def test_far_from_the_data_the_bic_lets_an_effect_in_that_its_errors_would_not():
+    """Exit offsets leave 286 x the noise (a CoGiRo dwell without tensions, case 12204): a
+    drum scale lowers the BIC by 19,223, and its errors, which measure the misfit of the
+    effects still missing, make it stand out by a chi-square of 26 on 8 only. It enters;
+    where the set with it comes within ten times the noise of the data (an effect outside
+    the vocabulary may leave that much), the errors decide and it does not."""
+    current = _far({"exit_point_offset": 24}, 22442.0, 286.0, 0.0)
+    for red, enters in ((40.0, True), (4.0, False), (1.2, False)):
+        sel, _ = _selector(([], BASE))
+        sel.measured_noise = False
+        drum = _far({"exit_point_offset": 24, "drum_scale": 8}, 22442.0 - 19223.0, red, 0.6)
+        sel.screen = lambda cur, rest: {"drum_scale": -19000.0}
+        sel.fit_many = lambda sets, start, multistart=False, drum=drum: [drum]
+        sel._whole_gauge = lambda *a: None
+        got = sel._forward(current, ["exit_point_offset"], ["exit_point_offset", "drum_scale"],
+                           Selection([], BASE, BASE))
+        assert (got is not None and got[0] == ["exit_point_offset", "drum_scale"]) == enters
+
+
+def test_far_from_the_data_the_backward_step_keeps_what_the_bic_needs():
+    sel, _ = _selector(([], BASE))
+    for red, kept in ((40.0, True), (4.0, False), (1.2, False)):
+        current = _far({"exit_point_offset": 24, "drum_scale": 8}, 3219.0, red, 0.6)
+        without = _far({"exit_point_offset": 24}, 22442.0, 286.0, 0.0)
+        sel.fit = lambda effects, start, without=without: without
+        chosen, fit, dropped = sel._backward(["exit_point_offset", "drum_scale"], current)
+        assert (not dropped) == kept

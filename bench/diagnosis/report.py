@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.diagnosis import gauge, locate, probes, unexplained
+from bench.diagnosis import gauge, locate, probes, slips, unexplained
 from bench.diagnosis.fit import FitResult
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
@@ -335,6 +335,49 @@ def prepare_outputs(write_model: str | Path | None, plots: str | Path | None = N
         raise OSError(problem)
 
 
+def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
+                 candidates: list[str], train: np.ndarray, holdouts: list[np.ndarray],
+                 steps: list[dict], say: Progress, pool: Executor | None
+                 ) -> tuple[Selector, Selection]:
+    """The selection again where a chosen length offset fits far better from a later time
+    on (:func:`bench.diagnosis.slips.later_starts`, asked of the chosen set and of the
+    offset alone: the effects chosen beside it may have taken up its early misfit): a slip
+    no step in time showed. Kept where its BIC, charged one parameter per slip time, is
+    lower than the first selection's by :data:`BIC_ENTER` (the same noise, so the two
+    compare); else the first selection stands and the slip times are as they were."""
+    if "cable_length_offset" not in sel.effects:
+        return selector, sel
+    charge = float(np.log(max(sel.fit.n_eff or 2.0, 2.0)))
+    later: dict[int, tuple[float, float, float]] = {}
+    # (the cables whose offsets the selection named: the offset alone moves every cable)
+    named = set(slips.offset_cables(sel.fit, rm.model.cable_ids).values())
+    for f in (sel.fit, selector.fit(("cable_length_offset",), sel.fit)):
+        for c, got in slips.later_starts(rm, f, train, BIC_ENTER + charge).items():
+            if c in named and (c not in later or got[2] > later[c][2]):
+                later[c] = got
+    if not later:
+        return selector, sel
+    before = rm.slip_times.copy()
+    times = before.copy()
+    for c, (t_s, _, gain) in later.items():
+        times[c] = t_s
+        say(f"cable {rm.model.cable_ids[c]}: its length offset fits better from t = "
+            f"{t_s:.1f} s on (chi-square {gain:.0f} lower) than from the initialisation: "
+            f"the selection again with a slip then")
+    rm.slip_times = times
+    again = Selector(rm, train, holdouts, progress=say, pool=pool)
+    sel2 = again.run(candidates)
+    if sel2.fit.bic + charge * len(later) < sel.fit.bic - BIC_ENTER:
+        for c, (t_s, size, gain) in later.items():
+            steps.append({"cable": rm.model.cable_ids[c], "t_s": t_s, "step_m": size,
+                          "z": float(np.sqrt(gain)), "source": "fit"})
+        return again, sel2
+    say(f"the slips at those times fit no better (BIC {sel2.fit.bic:.1f} against "
+        f"{sel.fit.bic:.1f}): the first selection stands")
+    rm.slip_times = before
+    return selector, sel
+
+
 def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor | None = None,
              write_model: str | Path | None = None) -> Diagnosis:
     """Diagnose the recording directory ``path``."""
@@ -375,11 +418,11 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         seen = {st["cable"] for st in steps}
         steps += [j for j in jumps if j["cable"] not in seen]
     if steps:
-        slips = np.full(model.n_cables, rm.init_end)
+        slip_at = np.full(model.n_cables, rm.init_end)
         for st in steps:
-            slips[model.cable_ids.index(st["cable"])] = max(st["t_s"], rm.init_end)
+            slip_at[model.cable_ids.index(st["cable"])] = max(st["t_s"], rm.init_end)
             say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s")
-        rm.slip_times = slips
+        rm.slip_times = slip_at
         # the visits of a target on both sides of a step differ by the slip: estimate the noise
         # again (the slipped cable's replicate groups split at its step)
         rm.estimate_noise(model)
@@ -394,6 +437,8 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     candidates = candidate_effects(rm)
     selector = Selector(rm, train, [valid, region], progress=say, pool=pool)
     sel = selector.run(candidates)
+    selector, sel = _later_slips(rm, selector, sel, candidates, train, [valid, region],
+                                 steps, say, pool)
     fit_idx = np.union1d(train, valid)
     final = _final_fit(selector, sel, fit_idx, say)
     floor = _reference_var(rm, final)

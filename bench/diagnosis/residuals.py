@@ -730,6 +730,10 @@ class ResidualModel:
             len(self.s.cluster) == self.s.n else self.s.block
         return self._per_entry(groups.astype(float), idx).astype(int)
 
+    def entry_samples(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The sample (index into the samples) of each entry of :meth:`whiten`'s vector."""
+        return self._per_entry(np.arange(self.s.n, dtype=float), idx).astype(int)
+
     def entry_moves(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The move (rows of a move) or target (dwells) of each entry of :meth:`whiten`'s
         vector (``Samples.block``)."""

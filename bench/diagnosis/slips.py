@@ -1,0 +1,93 @@
+"""Slip times the fit tells: a cable's length offset that starts later than the
+initialisation, where no step in time was seen.
+
+The steps in time (:mod:`bench.diagnosis.locate`) need visits of one target on both sides
+of a slip, or a jump between two rows of a move. A slip between the first visit of a
+target and the next, whose target is not visited again before it, or one that slackens
+its cable at the visits after it, shows in neither: the length offset is then fitted
+from the initialisation on, the samples before the slip misfit by the whole offset, and
+other effects are named to absorb that. Here the selected fit is asked where its offset
+should start: the samples are split in time at every gap, those before the split
+evaluated without the offset, and the offset's size refitted (to first order) on those
+after. A split that lowers the chi-square by more than the bar is the slip's time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.diagnosis.fit import FitResult
+from bench.diagnosis.residuals import ResidualModel
+
+#: the effect whose parameters are slips
+OFFSET = "cable_length_offset"
+
+
+def offset_cables(fit: FitResult, ids: tuple[str, ...] | None = None) -> dict[int, int]:
+    """``{parameter index: cable index}`` of the length offsets ``fit`` names: free (a
+    finite error) and away from zero."""
+    space = fit.space
+    if OFFSET not in space.effects:
+        return {}
+    ids = space.model.cable_ids if ids is None else ids
+    out = {}
+    for k in space.indices(OFFSET):
+        if np.isfinite(fit.stderr[k]) and fit.phi[k] != space.neutral[k]:
+            out[int(k)] = ids.index(space.params[k].key[len("dl_"):])
+    return out
+
+
+def later_starts(rm: ResidualModel, fit: FitResult, idx: np.ndarray, bar: float
+                 ) -> dict[int, tuple[float, float, float]]:
+    """For each cable whose length offset ``fit`` names (free, away from zero) and whose
+    slip time is still the end of the initialisation: where a later start of the offset
+    lowers the chi-square of the samples ``idx`` by more than ``bar``, ``{cable index: (t
+    [s], offset [m], chi-square drop)}`` (the time half-way between the last sample without
+    the offset and the first with it)."""
+    space = fit.space
+    if OFFSET not in space.effects:
+        return {}
+    s = rm.s
+    idx = np.asarray(idx)
+    r1 = rm.whitened(space.robot(fit.phi), idx)
+    sample = rm.entry_samples(idx)
+    ids = rm.model.cable_ids
+    out = {}
+    for k, c in offset_cables(fit, ids).items():
+        if rm.slip_times[c] > rm.init_end:
+            continue
+        phi0 = fit.phi.copy()
+        phi0[k] = space.neutral[k]
+        r0 = rm.whitened(space.robot(phi0), idx)
+        d = r1 - r0
+        n = s.n
+        A = np.bincount(sample, weights=r0 * r0, minlength=n)
+        B = np.bincount(sample, weights=r0 * d, minlength=n)
+        C = np.bincount(sample, weights=d * d, minlength=n)
+        moved = np.flatnonzero(C > 0)  # the samples the offset acts on
+        if len(moved) < 2:
+            continue
+        order = moved[np.argsort(s.t[moved], kind="stable")]
+        t = s.t[order]
+        a, b, cc = A[order], B[order], C[order]
+        chi_all = a.sum() - b.sum() ** 2 / cc.sum()
+        # split before sample j (j = 1 .. m-1) where its time differs from the one before
+        cb, cc_ = np.cumsum(b), np.cumsum(cc)
+        j = np.flatnonzero(t[1:] > t[:-1]) + 1
+        if not len(j):
+            continue
+        after_c = cc.sum() - cc_[j - 1]
+        after_b = b.sum() - cb[j - 1]
+        ok = after_c > 0
+        j, after_b, after_c = j[ok], after_b[ok], after_c[ok]
+        if not len(j):
+            continue
+        chi = a.sum() - after_b ** 2 / after_c
+        gain = chi_all - chi
+        best = int(np.argmax(gain))
+        if gain[best] > bar:
+            jj = j[best]
+            size = float(-after_b[best] / after_c[best]) * (fit.phi[k] - space.neutral[k])
+            out[c] = (float(0.5 * (t[jj - 1] + t[jj])), float(space.params[k].to_value(
+                space.neutral[k] + size)), float(gain[best]))
+    return out
