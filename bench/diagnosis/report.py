@@ -342,7 +342,9 @@ def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
     """The selection again where a chosen length offset fits far better from a later time
     on (:func:`bench.diagnosis.slips.later_starts`, asked of the chosen set and of the
     offset alone: the effects chosen beside it may have taken up its early misfit): a slip
-    no step in time showed. Kept where its BIC, charged one parameter per slip time, is
+    no step in time showed. The search starts from the first selection's effects (its
+    backward steps drop those that took up the misfit; half the time of a search from
+    the model). Kept where its BIC, charged one parameter per slip time, is
     lower than the first selection's by :data:`BIC_ENTER` (the same noise, so the two
     compare); else the first selection stands and the slip times are as they were."""
     if "cable_length_offset" not in sel.effects:
@@ -366,7 +368,7 @@ def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
             f"the selection again with a slip then")
     rm.slip_times = times
     again = Selector(rm, train, holdouts, progress=say, pool=pool)
-    sel2 = again.run(candidates)
+    sel2 = again.run(candidates, tuple(sel.effects))
     if sel2.fit.bic + charge * len(later) < sel.fit.bic - BIC_ENTER:
         for c, (t_s, size, gain) in later.items():
             steps.append({"cable": rm.model.cable_ids[c], "t_s": t_s, "step_m": size,

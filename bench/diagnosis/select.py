@@ -636,13 +636,14 @@ class Selector:
         if best is not None and best[0].bic - current.bic <= -BIC_ENTER:
             # the BIC's drop must hold by the parameters' own errors too: of the sets that
             # clear the bar, the best whose new effect does. (Not where the set with it
-            # still leaves :data:`FAR` x the noise: there the errors measure the misfit of
+            # still leaves :data:`FAR` x the noise and it took half of the excess: there
+            # the errors measure the misfit of
             # the effects still missing, and would keep out every one of them; a CoGiRo
             # dwell without tensions, exit offsets at 286 x the noise, refused a drum scale
             # that lowered the BIC by 19,223, and the truth (BIC 132) was never reached.
             # The backward step checks the errors once the set explains the data.)
             clear = [(f, e) for f, e in every if f.bic - current.bic <= -BIC_ENTER]
-            firm = [(f, e) for f, e in clear if f.reduced_chi2 > FAR or stands_out(f, e)]
+            firm = [(f, e) for f, e in clear if _far_step(current, f) or stands_out(f, e)]
             if not firm:
                 weak = min(clear, key=lambda x: x[0].bic)
                 w, k = wald_statistic(*weak)
@@ -795,7 +796,7 @@ class Selector:
             if len(chosen) < 2:
                 break
             reduced = self.fit(tuple(c for c in chosen if c != e), current)
-            weak = current.reduced_chi2 <= FAR and not stands_out(current, e)
+            weak = not _far_step(reduced, current) and not stands_out(current, e)
             if (reduced.bic - current.bic < BIC_ENTER or weak) and not _takes_over(
                     e, chosen, current, reduced):
                 self.progress(f"dropping {e}: the other effects explain it" if not weak else
@@ -1004,6 +1005,16 @@ def stands_out(fit: FitResult, effect: str) -> bool:
         return False
     bar = BIC_ENTER + float(np.log(max(fit.n_eff or fit.n_res, 2)))
     return bool(chi2_dist.sf(w, k) < chi2_dist.sf(bar, 1))
+
+
+def _far_step(without: FitResult, with_: FitResult) -> bool:
+    """Whether adding an effect moved a fit still far from the data (``with_`` leaves more
+    than :data:`FAR` x the noise) by half of what ``without`` left above the noise or
+    more: its errors measure the misfit of the effects still missing, and its own
+    parameters need not stand out by them. (An effect that takes a tenth of a misfit
+    outside the vocabulary is no such step: the errors decide there.)"""
+    before, after = without.reduced_chi2, with_.reduced_chi2
+    return bool(after > FAR and before - after >= 0.5 * (before - 1.0))
 
 
 def _warm(effects: tuple[str, ...], start: FitResult | None) -> np.ndarray | None:
