@@ -67,7 +67,8 @@ DETECTABLE = 150.0
 WITHOUT = {
     "no_tensions": ("exit_point_offset", "mast_compliance", "cable_elasticity",
                     "cable_length_offset", "drum_scale", "pulley_kinematics"),
-    "no_tracker": ("load_cell_calibration", "platform_mass", "cable_elasticity"),
+    "no_tracker": ("load_cell_calibration", "platform_mass", "cable_elasticity",
+                   "cable_length_offset", "drum_scale"),
 }
 
 #: the pose set of a dwell case unless ``make_case(poses=...)`` overrides some of its keys
@@ -378,6 +379,11 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
     nz = {k: v * (noise_scale if k != "encoder_m" else 1.0) for k, v in nz.items()}
     nuisance: dict[str, Any] = {"hysteresis_m": float(rng.uniform(0, 1.5e-4)),
                                 "drift_m_per_h": float(rng.uniform(0, 8e-5))}
+    # the tensions at referencing: another controller's (or an operator's) pretension, off
+    # the distribution's by up to 40 % of the typical tension (a generator of its own, not
+    # the case's other draws)
+    nuisance["init_pretension_n"] = float(np.random.default_rng([seed, 402]).uniform(0, 0.4)
+                                          * float(np.mean(typical_tensions(model, init))))
     if oov == "backlash":
         nuisance["backlash_m"] = float(rng.uniform(1.5e-3, 4e-3))
         nuisance["backlash_cables"] = [str(rng.choice(model.cable_ids))]

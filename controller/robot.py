@@ -74,6 +74,11 @@ class Robot:
     load_cell_gain: np.ndarray = field(default=None)  # (n,) [-]
     load_cell_offset: np.ndarray = field(default=None)  # (n,) [N]
     source: str = "<memory>"
+    #: (k,) [N] a hypothesis about a recording without load cells at initialisation: the
+    #: tensions when the encoders were referenced differ from the tension distribution's by
+    #: these internal forces (coordinates in a basis of the wrench matrix's null space at the
+    #: initialisation pose, :func:`controller.statics.pretensioned`); None: the distribution's
+    init_internal: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n, m = len(self.cable_ids), len(self.mast_ids)

@@ -207,6 +207,32 @@ def init_statics(robot: Robot, init_pose: np.ndarray, init_tensions: np.ndarray 
     return ps
 
 
+def internal_basis(W: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (n, n - rank W) of the wrench matrix's null space: the tension
+    changes that leave the platform's wrench unchanged (internal forces)."""
+    _, sv, vt = np.linalg.svd(W)
+    rank = int(np.sum(sv > 1e-10 * sv[0]))
+    return vt[rank:].T.copy()
+
+
+def pretensioned(robot: Robot, init_pose: np.ndarray, internal: np.ndarray,
+                 basis: np.ndarray) -> np.ndarray:
+    """Tensions [N] at initialisation other than the tension distribution's: ``robot``'s
+    distribution at ``init_pose`` plus the internal forces ``basis @ internal`` (``basis``
+    (n, k) [-], ``internal`` (k,) [N]) projected on the null space of the wrench matrix
+    there (so a basis of a nearby robot's serves, and the forces vary smoothly with the
+    robot), at least zero. Raises ValueError if ``init_pose`` is infeasible.
+
+    What the real tensions were when the encoders were referenced is only known where load
+    cells read them: a controller's pretension (its own tension distribution, an operator's
+    setting) makes them any balanced set."""
+    ps = init_statics(robot, init_pose)
+    W = wrench_matrix(ps.state)
+    extra = basis @ np.asarray(internal, dtype=float)
+    extra = extra - np.linalg.pinv(W) @ (W @ extra)
+    return np.maximum(ps.tensions + extra, 0.0)
+
+
 def unstretched_from_readings(robot: Robot, readings: np.ndarray, reference: np.ndarray,
                               u0: np.ndarray, length_offset: np.ndarray | None = None
                               ) -> np.ndarray:

@@ -30,12 +30,15 @@ from controller import cables
 from controller.cycle import reference_lengths
 from controller.energy import potential_energy
 from controller.equilibrium import energy_gradient
-from controller.kinematics import cable_state
+from controller.kinematics import cable_state, wrench_matrix
 from controller.masts import deflect, lever_arms
 from controller.pose import euler_rate_matrix, rotation
 from controller.robot import Robot
 from controller.statics import (
+    init_statics,
     init_unstretched,
+    internal_basis,
+    pretensioned,
     settled_exits,
     unstretched_from_readings,
 )
@@ -67,7 +70,10 @@ class Nuisances:
     [1/s] (a slow temperature change: lengths drift in proportion to each cable's
     length); ``friction_n`` (n,): pulley friction between a load cell and the platform,
     the cell reads this much less while its cable pays out and more while it reels in
-    [N].
+    [N]; ``init_pretension_n``: the tensions when the encoders were referenced differ from
+    the tension distribution's by internal forces of this size [N] (in a random direction
+    of the wrench matrix's null space, within the tension limits: a controller's or an
+    operator's pretension; recordings with load cells measure it, others cannot).
     """
 
     hysteresis_m: float = 0.0
@@ -76,6 +82,7 @@ class Nuisances:
     backlash_m: float | np.ndarray = 0.0
     thermal_strain_per_s: float = 0.0
     friction_n: float | np.ndarray = 0.0
+    init_pretension_n: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -122,6 +129,9 @@ class Plant:
         self.init_pose = np.asarray(self.init_pose, dtype=float)
         self.reference = reference_lengths(self.model, self.init_pose)  # d_model(p0)
         self.u0, self.init_tensions = init_unstretched(t, self.init_pose)
+        if self.nuisances.init_pretension_n:
+            self.u0, self.init_tensions = init_unstretched(
+                t, self.init_pose, self._pretension(self.nuisances.init_pretension_n))
         self._a_star = settled_exits(t)
         self._r = lever_arms(self._a_star, t.pivots, t.mast_index)
         self._free = np.isfinite(t.stiffness).ravel()
@@ -146,6 +156,21 @@ class Plant:
         ps_exits = self._exits(np.zeros((t.n_masts, 3)))
         self.state = PlantState(self.init_pose.copy(), self.init_tensions.copy(), ps_exits,
                                 np.zeros((t.n_masts, 3)), self.u0.copy())
+
+    def _pretension(self, size: float) -> np.ndarray:
+        """Tensions [N] at initialisation: the distribution's plus internal forces of
+        ``size`` [N] in a random null-space direction, shortened to keep every tension
+        above the robot's minimum (:attr:`Nuisances.init_pretension_n`)."""
+        t = self.truth
+        ps = init_statics(t, self.init_pose)
+        basis = internal_basis(wrench_matrix(ps.state))
+        if not basis.shape[1]:
+            return ps.tensions
+        d = self.rng.normal(size=basis.shape[1])
+        e = pretensioned(t, self.init_pose, d / np.linalg.norm(d), basis) - ps.tensions
+        room = np.where(e < 0, (ps.tensions - t.tension_min) / np.maximum(-e, 1e-12), np.inf)
+        a = min(float(size), 0.9 * max(float(room.min()), 0.0))
+        return ps.tensions + a * e
 
     # ----- the truth's unstretched lengths ------------------------------------------
     def unstretched(self, readings: np.ndarray, t: float = 0.0,

@@ -38,6 +38,8 @@ backlash_cables = []             # cable ids (default: none)
 thermal_strain_per_h = 0.0       # thermal expansion of every cable [1/h]
 friction_n = 0.0                 # pulley friction seen by friction_cables' load cells [N]
 friction_cables = []             # cable ids (default: every cable when friction_n > 0)
+init_pretension_n = 0.0          # tensions at referencing off the distribution's by internal
+                                 # forces of this size [N] (random null-space direction)
 
 [recording]                      # what is recorded and how
 kind = "dwell"                   # dwell: visits with dwells | continuous: rows along the path
@@ -180,6 +182,8 @@ class Scenario:
     #: the supervisor's reactions a dry run of this scenario changes by default, condition
     #: -> reaction name (``react = { slack = "log" }``; ``cdpr dry-run --react`` overrides)
     react: dict[str, str] = field(default_factory=dict)
+    #: internal forces [N] by which the tensions at referencing differ from the distribution's
+    init_pretension_n: float = 0.0
 
     def nuisances(self, process: bool = True) -> Nuisances:
         """The plant's nuisances for this scenario (``process``: with the per-visit process
@@ -188,13 +192,14 @@ class Scenario:
 
         return Nuisances(self.hysteresis_m, self.drift_m_per_s,
                          self.noise.process_m if process else 0.0, self.backlash_m,
-                         self.thermal_strain_per_s, self.friction_n)
+                         self.thermal_strain_per_s, self.friction_n,
+                         self.init_pretension_n)
 
 
 _TOP = {"format", "robot", "seed", "init_pose", "truth", "noise", "nuisance", "poses", "notes",
         "path", "recording", "react"}
 _NUISANCE = ("hysteresis_m", "drift_m_per_h", "backlash_m", "backlash_cables",
-             "thermal_strain_per_h", "friction_n", "friction_cables")
+             "thermal_strain_per_h", "friction_n", "friction_cables", "init_pretension_n")
 _RECORDING = {"kind", "dwell_at_targets", "rate_hz", "state_column", "tracker", "load_cells"}
 
 
@@ -375,7 +380,9 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     return Scenario(p, model, truth, effects, slips, init_pose,
                     int(_num(p, "seed", data.get("seed", 0), nonneg=True)), noise, hyst, drift,
                     PoseSet(**kw), str(data.get("notes", "")), run_path, backlash, thermal,
-                    friction, RecordingSpec(**rkw), _react(p, data.get("react", {})))
+                    friction, RecordingSpec(**rkw), _react(p, data.get("react", {})),
+                    _num(p, "nuisance.init_pretension_n", nz.get("init_pretension_n", 0.0),
+                         nonneg=True))
 
 
 def _react(p: Path, react: Any) -> dict[str, str]:

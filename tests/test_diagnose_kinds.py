@@ -101,6 +101,42 @@ def test_continuous_recording(continuous, tmp_path, state):
     assert not score(dg.report, sc.effects, sc.model).failures
 
 
+def test_a_table_of_poses_one_row_per_pose(tmp_path):
+    """A lab's table written one row per standing pose, seconds apart, without a state
+    column (recording-format.md: "one row per sample"): every row is a standing measurement.
+    Read as rows of a slow, jerky move, 0.3-1 m apart every 5 s, most were dropped as
+    accelerating (an independent generator's recording kept 8 of 49 rows)."""
+    truth = {"exit_point_offset": {"dx_21": 0.03, "dy_32": -0.025}}
+    sc = parse_scenario(scenario(truth=truth))
+    rec = run_campaign(sc, tmp_path / "rec")
+
+    def table(rows):
+        head, body = rows[0], rows[1:]
+        st, t = head.index("state"), head.index("t")
+        pose = [head.index(c) for c in ("x_des", "y_des", "z_des", "roll_des", "pitch_des",
+                                        "yaw_des")]
+
+        def key(r):
+            return (r[st], *(r[c] for c in pose))
+
+        # the last (settled) row of each standing run
+        keep = [r for k, r in enumerate(body) if r[st] in ("init", "dwell")
+                and (k + 1 == len(body) or key(body[k + 1]) != key(r))]
+        for k, r in enumerate(keep):
+            r[t] = f"{5.0 * k:.1f}"
+        rows[:] = [[v for c, v in enumerate(r) if c != st] for r in [head, *keep]]
+
+    tab = _edit_csv(rec, tmp_path / "table", table)
+    r = read_recording(tab)
+    assert r.state is None and 15 < r.n_samples < 25
+    from bench.diagnosis.samples import prepare
+    info = prepare(r).info
+    assert info["dwell_samples"] >= r.n_samples - 2 and info["path_rows_accelerating"] == 0
+    dg = diagnose(tab)
+    assert named(dg) == {"exit_point_offset"}, dg.report["mismatch"]["summary"]
+    assert not score(dg.report, sc.effects, sc.model).failures
+
+
 def test_without_tensions(tmp_path):
     truth = {"exit_point_offset": {"dx_21": 0.03, "dy_32": -0.025}}
     sc, rec, dg = run(tmp_path, scenario(truth=truth, recording={"load_cells": False}))

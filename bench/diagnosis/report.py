@@ -8,6 +8,7 @@ recording cannot give are None (JSON null), never 0.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from concurrent.futures import Executor
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.diagnosis import gauge, locate, probes, slips, unexplained
-from bench.diagnosis.fit import FitResult
+from bench.diagnosis.fit import FitResult, fit_effects
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
 from bench.diagnosis.select import (
@@ -25,6 +26,7 @@ from bench.diagnosis.select import (
     BIC_TIE,
     Selection,
     Selector,
+    _warm,
     candidate_effects,
     untested_effects,
 )
@@ -380,6 +382,118 @@ def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
     return selector, sel
 
 
+def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidates: list[str],
+                train: np.ndarray, holdouts: list[np.ndarray], say: Progress,
+                pool: Executor | None) -> tuple[Selector, Selection]:
+    """Without load cells at initialisation, the tensions there are the model's tension
+    distribution only by assumption: another controller's (or an operator's) pretension
+    shortens the cables' unstretched lengths at referencing by their stretch, constant
+    offsets in the wrench matrix's null space that length offsets (or other effects) would
+    take up. Where one chosen effect, dropped, is replaced by such internal forces
+    (:attr:`~controller.robot.Robot.init_internal`, fitted beside the others) at a lower
+    BIC, the selection runs again with them in every fit (from the other effects) and is
+    kept where its BIC is lower; else the first selection stands."""
+    k = rm.init_basis.shape[1]
+    if rm.tau0 is not None or k == 0 or not sel.effects or rm.model.init_internal is not None:
+        return selector, sel
+    model = rm.model
+    flagged = model.replace(init_internal=np.zeros(k))
+    best: tuple[float, tuple[str, ...]] | None = None
+    for e in sel.effects:
+        rest = tuple(sorted(c for c in sel.effects if c != e))
+        space = ParamSpace(flagged, rest)
+        phi0 = _warm(rest, sel.fit)
+        f = fit_effects(space, rm, train, None if phi0 is None else
+                        np.concatenate([phi0, np.zeros(k)]))
+        say(f"{' + '.join(rest) or 'the model'} with the tensions at initialisation fitted: "
+            f"BIC {f.bic:.1f} against {sel.fit.bic:.1f}")
+        if f.bic < sel.fit.bic and (best is None or f.bic < best[0]):
+            best = (f.bic, rest)
+    sparse = _sparse_offsets(rm, sel.fit, flagged, train)
+    if sparse is not None:
+        say(f"{' + '.join(sel.fit.space.effects)} with the tensions at initialisation fitted "
+            f"and fewer length offsets: BIC {sparse.bic:.1f} against {sel.fit.bic:.1f}")
+        if sparse.bic < sel.fit.bic and (best is None or sparse.bic < best[0]):
+            best = (sparse.bic, tuple(sel.fit.space.effects))
+        else:
+            sparse = None
+    if best is None:
+        return selector, sel
+    say("the tensions at initialisation are not the distribution's: the selection again "
+        "with them fitted")
+    rm.model = flagged
+    again = Selector(rm, train, holdouts, progress=say, pool=pool)
+    if sparse is not None and best[1] == tuple(sel.fit.space.effects):
+        again.cache[best[1]] = sparse  # (the search starts from the fit in that gauge)
+    sel2 = again.run(candidates, best[1])
+    if sel2.fit.bic < sel.fit.bic:
+        return again, sel2
+    say(f"it fits no better (BIC {sel2.fit.bic:.1f} against {sel.fit.bic:.1f}): the first "
+        f"selection stands")
+    rm.model = model
+    return selector, sel
+
+
+def _sparse_offsets(rm: ResidualModel, fit: FitResult, flagged: Robot, train: np.ndarray
+                    ) -> FitResult | None:
+    """``fit`` (length offsets among its effects, the tensions at initialisation the
+    distribution's) with those tensions fitted too and the offsets in their sparsest
+    gauge. A change ``lam`` of the internal forces at initialisation shortens the cables'
+    unstretched lengths from then on by ``G lam`` (``G`` (n, k) [m/N], to first order), as
+    offsets would: the data fix the offsets only up to ``G``'s columns. Of those readings,
+    the one with the fewest offsets that differ from zero (every set of k offsets zeroed in
+    turn) is fitted, the others held at zero, where it has fewer than ``fit``. None where
+    it has not (or the fit has no length offsets)."""
+    space = fit.space
+    ix = space.indices("cable_length_offset")
+    k = rm.init_basis.shape[1]
+    if not len(ix) or not k:
+        return None
+    H = space.robot(fit.phi)
+    h = 10.0  # [N]
+    try:
+        u0 = rm._init_unstretched(H)
+        G = np.column_stack([(rm._init_unstretched(H.replace(init_internal=h * np.eye(k)[j]))
+                              - u0) / h for j in range(k)])
+    except ValueError:
+        return None
+    cable = [rm.model.cable_ids.index(space.params[i].key[len("dl_"):]) for i in ix]
+    d, se = fit.phi[ix], fit.stderr[ix]
+    ok = np.isfinite(se) & (se > 0)
+    if ok.sum() <= k:
+        return None
+    # the reading with the most offsets at zero: each set of k offsets zeroed exactly (the
+    # internal forces that do it), the others counted where within two standard errors of
+    # zero; ties to the smallest weighted sum of absolute offsets
+    Gc, dc, w = G[cable][ok], d[ok], 1.0 / se[ok]
+    best: tuple[int, float, np.ndarray] | None = None
+    for S in itertools.combinations(range(len(dc)), k):
+        A = Gc[list(S)]
+        if np.linalg.cond(A) > 1e8:
+            continue
+        lam_s = np.linalg.solve(A, dc[list(S)])
+        left = np.abs(dc - Gc @ lam_s) * w
+        got = (int(np.sum(left < 2.0)), -float(left.sum()), lam_s, S)
+        if best is None or got[:2] > best[:2]:
+            best = got
+    if best is None:
+        return None
+    lam, S = best[2], best[3]
+    d2 = d - G[cable] @ lam
+    zero_new = ok & (np.abs(d2) < 2.0 * se)
+    zero_old = ok & (np.abs(d) < 2.0 * se)
+    if zero_new.sum() <= zero_old.sum():
+        return None
+    fspace = ParamSpace(flagged, space.effects)
+    phi0 = np.concatenate([fit.phi, lam])
+    phi0[ix] = np.where(zero_new, 0.0, d2)
+    # the k offsets zeroed exactly fix the gauge (held: the data cannot tell them from the
+    # internal forces); the others are fitted, and pruned where they vanish
+    hold = np.concatenate([~np.isfinite(fit.stderr), np.zeros(k, dtype=bool)])
+    hold[ix[np.flatnonzero(ok)[list(S)]]] = True
+    return fit_effects(fspace, rm, train, phi0, hold=hold)
+
+
 def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor | None = None,
              write_model: str | Path | None = None) -> Diagnosis:
     """Diagnose the recording directory ``path``."""
@@ -441,6 +555,8 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
     sel = selector.run(candidates)
     selector, sel = _later_slips(rm, selector, sel, candidates, train, [valid, region],
                                  steps, say, pool)
+    selector, sel = _pretension(rm, selector, sel, candidates, train, [valid, region], say,
+                                pool)
     fit_idx = np.union1d(train, valid)
     final = _final_fit(selector, sel, fit_idx, say)
     floor = _reference_var(rm, final)
@@ -679,7 +795,8 @@ def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Fo
         "noise": noise_out,
         "steps": steps,
         "signatures": {report_name(e): float(v) for e, v in _explained(sel).items()},
-        "imitation": {report_name(e): {report_name(a): round(v, 3) for a, v in d.items()}
+        "imitation": {report_name(e): {report_name(a): round(v, 3) for a, v in
+                                       sorted(d.items(), key=lambda kv: kv[1])}
                       for e, d in sel.imitation.items()},
         "samples": dict(s.info),
         "untested": untested,
@@ -687,7 +804,30 @@ def _mismatch(rec: Recording, s: Samples, rm: ResidualModel, blocks, base_fw: Fo
     }
     if growth:
         out["growth_from_init"] = growth
+    pre = _fitted_pretension(rm, sel)
+    if pre is not None:
+        out["init_tensions"] = pre
     return out
+
+
+def _fitted_pretension(rm: ResidualModel, sel: Selection) -> dict | None:
+    """The tensions at initialisation the fits took (where :func:`_pretension` found them
+    other than the distribution's): per cable, fitted and the distribution's [N]."""
+    if rm.model.init_internal is None:
+        return None
+    from controller.statics import init_statics
+
+    H = sel.fit.space.robot(sel.fit.phi)
+    try:
+        dist = init_statics(H, rm.init_pose).tensions
+        tau = rm._init_tensions(H)
+    except ValueError:
+        return None
+    tau = dist if tau is None else tau
+    ids = rm.model.cable_ids
+    return {"source": "fitted: no load cells at initialisation",
+            "tension_n": {c: float(v) for c, v in zip(ids, tau, strict=True)},
+            "distribution_n": {c: float(v) for c, v in zip(ids, dist, strict=True)}}
 
 
 def _explained(sel: Selection) -> dict[str, float]:
@@ -698,7 +838,11 @@ def _explained(sel: Selection) -> dict[str, float]:
     for e, d in sel.screening.items():
         p = len(ParamSpace(sel.baseline.space.model, (e,)))
         dchi = d - p * math.log(max(n, 2))
-        out[e] = float(np.clip(-dchi / base, 0.0, 1.0)) if base > 0 else 0.0
+        v = float(np.clip(-dchi / base, 0.0, 1.0)) if base > 0 else 0.0
+        # (the two forms of the cables' stretch are one effect of the report: the better)
+        if v >= max((out[c] for c in out if report_name(c) == report_name(e)), default=0.0):
+            out = {c: w for c, w in out.items() if report_name(c) != report_name(e)}
+            out[e] = v
     return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
@@ -767,19 +911,33 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                              f"{alt['delta_bic']:+.1f}: {alt['note']}): a gain common to every "
                              f"load cell and the platform's mass are one in the statics, only "
                              f"the cables' stretch tells them apart; {how} would")
+    said: set[tuple[str, str]] = set()
     for e, imit in sel.imitation.items():
-        close = [a for a, v in imit.items() if v > 0.8 and a not in
-                 [x for x, _ in sel.alternatives.get(e, [])] and report_name(a) != report_name(e)]
+        close = [a for a, v in sorted(imit.items(), key=lambda kv: -kv[1]) if v > 0.8
+                 and a not in [x for x, _ in sel.alternatives.get(e, [])]
+                 and report_name(a) != report_name(e)]
         for a in close:
+            if (report_name(a), report_name(e)) in said:  # two forms of one effect: once
+                continue
+            said.add((report_name(a), report_name(e)))
             parts.append(f"on these poses {report_name(a)} can imitate {imit[a]:.0%} of "
                          f"{report_name(e)}'s signature")
     for e, why in sel.rejected.items():
         parts.append(f"{report_name(e)} improved the fit but {why}: not reported")
     if not rm.has_pose.any() and rm.est_pose.any():
+        tested = [report_name(e) for e in dict.fromkeys(candidate_effects(rm))]
         parts.append("without tracker poses the poses were estimated from the encoder lengths "
-                     "and measured tensions: the load cells, the mass and the cables' stretch "
-                     "are tested; " + ", ".join(untested) + " cannot be told from such data")
+                     "and measured tensions: " + ", ".join(dict.fromkeys(tested))
+                     + " are tested; " + ", ".join(untested) + " cannot be told from such data")
     elif not rm.any_tau:
         parts.append("without tensions the internal forces were fitted to the cables' stretch; "
                      + ", ".join(untested) + " cannot be told from such data")
+    pre = _fitted_pretension(rm, sel)
+    if pre is not None:
+        d = np.array(list(pre["tension_n"].values())) - np.array(list(
+            pre["distribution_n"].values()))
+        parts.append(f"the tensions at initialisation (no load cells read them) were fitted: "
+                     f"{float(np.sqrt(np.mean(d ** 2))):.0f} N RMS off the tension "
+                     f"distribution's (another pretension; the encoders were referenced "
+                     f"under it); load cells at initialisation would measure them")
     return "; ".join(parts) + "."

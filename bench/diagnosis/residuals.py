@@ -43,6 +43,7 @@ tensions: the headline.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -64,6 +65,8 @@ from controller.statics import (
     batch_statics,
     init_statics,
     init_unstretched,
+    internal_basis,
+    pretensioned,
     settled_exits,
     true_tensions,
     unstretched_from_readings,
@@ -336,13 +339,34 @@ class ResidualModel:
     #: and offsets; the load cells' calibration through the tensions)
     _INIT_FIELDS = ("exits", "anchors", "mast_index", "pivots", "stiffness", "tilt",
                     "pulley_radius", "ea", "mass", "com", "gravity", "tension_min",
-                    "tension_max", "rho")
+                    "tension_max", "rho", "init_internal")
+
+    def _init_tensions(self, H: Robot) -> np.ndarray | None:
+        """True tensions [N] at initialisation under ``H``: the load cells' readings there;
+        without them, ``H``'s tension distribution (None), or that with ``H``'s
+        :attr:`~controller.robot.Robot.init_internal` forces in :attr:`init_basis`.
+        Raises ValueError if the initialisation pose is infeasible under ``H``."""
+        if self.tau0 is not None:
+            return true_tensions(H, self.tau0)
+        if H.init_internal is None or not np.any(H.init_internal):
+            return None
+        return pretensioned(H, self.init_pose, H.init_internal, self.init_basis)
+
+    @functools.cached_property
+    def init_basis(self) -> np.ndarray:
+        """(n, n - 6) a basis of the internal forces at initialisation (the null space of the
+        recording model's wrench matrix at the initialisation pose) [-]."""
+        try:
+            ps = init_statics(self.model, self.init_pose)
+        except ValueError:
+            return np.zeros((self.model.n_cables, 0))
+        return internal_basis(wrench_matrix(ps.state))
 
     def _init_unstretched(self, H: Robot) -> np.ndarray:
         """:func:`init_unstretched` (n,) [m] of ``H`` at the initialisation pose with the
         recording's initial tensions; the last few kept (the columns of a finite-difference
         Jacobian change it for some parameters only). Raises ValueError as it does."""
-        tau0 = true_tensions(H, self.tau0) if self.tau0 is not None else None
+        tau0 = self._init_tensions(H)
         key = b"".join(np.asarray(getattr(H, f), dtype=float).tobytes()
                        for f in self._INIT_FIELDS) + (b"" if tau0 is None else tau0.tobytes())
         if key not in self._init_cache:
@@ -905,8 +929,7 @@ class ResidualModel:
         if not have_l.any():
             return Forward(pose_err, tension_err, exit_err, ok)
         try:
-            tau0 = true_tensions(H, self.tau0) if self.tau0 is not None else None
-            u0, _ = init_unstretched(H, self.init_pose, tau0)
+            u0, _ = init_unstretched(H, self.init_pose, self._init_tensions(H))
         except ValueError:
             return Forward(pose_err, tension_err, exit_err, ok)
         todo = np.flatnonzero(have_l) if idx is None else np.intersect1d(idx,

@@ -75,9 +75,11 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
     """Effects this recording can see.
 
     Without tracker poses (tensions and encoders only) the poses are estimated from the
-    lengths, which absorbs what moves exit points or scales lengths: only the load cells,
-    the mass and the cables' stretch are tested. Without tensions, the cables' sag (it
-    hangs on the tensions) is not (:func:`untested_effects` says which are not)."""
+    lengths, which absorbs what moves exit points: the load cells, the mass, the cables'
+    stretch and the length readings' offsets and scales are tested (a reading's error is
+    absorbed only in the pose's six directions at each sample; the stretch and the force
+    balance see the rest). Without tensions, the cables' sag (it hangs on the tensions) is
+    not (:func:`untested_effects` says which are not)."""
     out = []
     have_len = bool(rm.has_len.any())
     have_exit = bool(rm.has_exit.any())
@@ -87,7 +89,7 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
         out += ["exit_point_offset", "mast_compliance"]
     if have_len:
         out += ["cable_elasticity", PER_CABLE_EA]
-    if have_len and measured_pose:
+    if have_len and (measured_pose or (rm.est_pose.any() and rm.any_tau)):
         out += ["cable_length_offset", "drum_scale"]
     if rm.any_tau:
         out += ["load_cell_calibration", "platform_mass"]

@@ -25,6 +25,12 @@ SCALES = {
     "cable_sag": 1e-3,
 }
 
+#: the nuisance of a recording without load cells at initialisation: the internal forces
+#: [N] by which the tensions there differ from the distribution's (``Robot.init_internal``;
+#: in the fits of every set once the report finds them needed, never reported as an effect)
+PRETENSION = "init_pretension"
+SCALES[PRETENSION] = 1.0
+
 #: a stiffness or EA known only to this relative standard error is called undetermined
 UNDETERMINED_REL = 0.4
 #: ... and so is one fitted this many times stiffer than its effect's typical scale (the
@@ -107,6 +113,8 @@ def param_value(robot: Robot, model: Robot, p: Param) -> float:
         return float(robot.com["xyz".index(k[-1])])
     if k == "rho":
         return float(robot.rho)
+    if p.effect == PRETENSION and robot.init_internal is not None:
+        return float(robot.init_internal[int(k.rsplit("_", 1)[1]) - 1])
     return float(p.to_value(p.neutral))
 
 
@@ -203,6 +211,10 @@ class ParamSpace:
         self.params: list[Param] = []
         for e in self.effects:
             self.params += effect_fit_params(e, model)
+        if model.init_internal is not None:  # a nuisance of every fit, never reported
+            self.params += [Param(f"{PRETENSION}_{k + 1}", PRETENSION, "value", float(v),
+                                  SCALES[PRETENSION], -1e6, 1e6)
+                            for k, v in enumerate(model.init_internal)]
         self.neutral = np.array([p.neutral for p in self.params])
         self.scale = np.array([p.scale for p in self.params])
         self.lo = np.array([p.lo for p in self.params])
@@ -221,7 +233,8 @@ class ParamSpace:
         out: dict[str, dict[str, float]] = {}
         vals = np.array([p.to_value(float(v)) for p, v in zip(self.params, phi, strict=True)])
         for p, v in zip(self.params, vals, strict=True):
-            out.setdefault(p.effect, {})[p.key] = float(v)
+            if p.effect != PRETENSION:
+                out.setdefault(p.effect, {})[p.key] = float(v)
         return out
 
     def canonical(self, phi: np.ndarray) -> np.ndarray:
@@ -230,7 +243,10 @@ class ParamSpace:
 
     def robot(self, phi: np.ndarray) -> Robot:
         """The hypothesis robot for fit-space values ``phi``."""
-        return apply_effects(self.model, self.values(phi))
+        robot = apply_effects(self.model, self.values(phi))
+        nuisance = [k for k, p in enumerate(self.params) if p.effect == PRETENSION]
+        return robot.replace(init_internal=np.asarray(phi, float)[nuisance]) if nuisance \
+            else robot
 
     def phi_of(self, robot: Robot) -> np.ndarray:
         """Fit-space values that describe ``robot`` (the inverse of :meth:`robot` for what
