@@ -83,6 +83,31 @@ class Recording:
         return out if np.all(np.isfinite(out)) else None
 
 
+    def table_rows(self) -> np.ndarray:
+        """(N,) bool: rows that are standing measurements of their own in a table of poses
+        logged one row per pose: without a ``state`` column, the rows on both sides are
+        more than :data:`TABLE_GAP_S` away in time and the commanded pose (else the measured
+        one, else the encoder lengths) differs on both sides. A move is logged at 10-50 Hz;
+        between such rows none was, so they are no rows of one."""
+        N = self.n_samples
+        out = np.zeros(N, dtype=bool)
+        if self.state is not None or N == 0:
+            return out
+        p = next((a for a in (self.pose_des[:, :3], self.pose_meas[:, :3], self.l_cmd,
+                              self.l_meas) if np.isfinite(a).all(axis=1).any()), None)
+        if p is None:
+            return out
+        big = np.full(N + 1, True)  # between row k-1 and row k (the ends: no neighbour)
+        with np.errstate(invalid="ignore"):
+            moved = np.linalg.norm(np.diff(p, axis=0), axis=1)
+            big[1:-1] = (np.diff(self.t) > TABLE_GAP_S) & ~(moved == 0)
+        return big[:-1] & big[1:]
+
+
+#: a table of poses: rows this many seconds apart with no row between (:meth:`table_rows`)
+TABLE_GAP_S = 1.0
+
+
 def _column_groups(robot: Robot) -> dict[str, tuple[str, int, int]]:
     """Known column name -> (group, cable index or axis, component)."""
     cols: dict[str, tuple[str, int, int]] = {}

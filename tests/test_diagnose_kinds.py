@@ -132,6 +132,9 @@ def test_a_table_of_poses_one_row_per_pose(tmp_path):
     from bench.diagnosis.samples import prepare
     info = prepare(r).info
     assert info["dwell_samples"] >= r.n_samples - 2 and info["path_rows_accelerating"] == 0
+    from bench.iso9283.segments import segment  # ISO 9283 takes each row as a visit
+
+    assert len(segment(r).visits) == r.n_samples - len(r.init_rows)
     dg = diagnose(tab)
     assert named(dg) == {"exit_point_offset"}, dg.report["mismatch"]["summary"]
     assert not score(dg.report, sc.effects, sc.model).failures

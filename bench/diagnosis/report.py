@@ -390,9 +390,12 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     shortens the cables' unstretched lengths at referencing by their stretch, constant
     offsets in the wrench matrix's null space that length offsets (or other effects) would
     take up. Where one chosen effect, dropped, is replaced by such internal forces
-    (:attr:`~controller.robot.Robot.init_internal`, fitted beside the others) at a lower
-    BIC, the selection runs again with them in every fit (from the other effects) and is
-    kept where its BIC is lower; else the first selection stands."""
+    (:attr:`~controller.robot.Robot.init_internal`, fitted beside the others) at a BIC
+    less than :data:`BIC_ENTER` higher (the nuisance comes free, an effect stays by the
+    selection's bar over it), or the chosen length offsets are fewer with them
+    (:func:`_sparse_offsets`), the selection runs again with them in every fit (from the
+    other effects) and is kept where its BIC, charged BIC_ENTER per effect, is lower;
+    else the first selection stands."""
     k = rm.init_basis.shape[1]
     if rm.tau0 is not None or k == 0 or not sel.effects or rm.model.init_internal is not None:
         return selector, sel
@@ -407,14 +410,16 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
                         np.concatenate([phi0, np.zeros(k)]))
         say(f"{' + '.join(rest) or 'the model'} with the tensions at initialisation fitted: "
             f"BIC {f.bic:.1f} against {sel.fit.bic:.1f}")
-        if f.bic < sel.fit.bic and (best is None or f.bic < best[0]):
+        # (the nuisance enters free; an effect stays only by the selection's bar over it)
+        if f.bic < sel.fit.bic + BIC_ENTER and (best is None or f.bic < best[0]):
             best = (f.bic, rest)
     sparse = _sparse_offsets(rm, sel.fit, flagged, train)
     if sparse is not None:
         say(f"{' + '.join(sel.fit.space.effects)} with the tensions at initialisation fitted "
             f"and fewer length offsets: BIC {sparse.bic:.1f} against {sel.fit.bic:.1f}")
-        if sparse.bic < sel.fit.bic and (best is None or sparse.bic < best[0]):
-            best = (sparse.bic, tuple(sel.fit.space.effects))
+        if sparse.bic < sel.fit.bic and (best is None
+                                         or sparse.bic + BIC_ENTER < best[0]):
+            best = (sparse.bic + BIC_ENTER, tuple(sel.fit.space.effects))
         else:
             sparse = None
     if best is None:
@@ -426,7 +431,7 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     if sparse is not None and best[1] == tuple(sel.fit.space.effects):
         again.cache[best[1]] = sparse  # (the search starts from the fit in that gauge)
     sel2 = again.run(candidates, best[1])
-    if sel2.fit.bic < sel.fit.bic:
+    if sel2.fit.bic + BIC_ENTER * len(sel2.effects) < sel.fit.bic + BIC_ENTER * len(sel.effects):
         return again, sel2
     say(f"it fits no better (BIC {sel2.fit.bic:.1f} against {sel.fit.bic:.1f}): the first "
         f"selection stands")

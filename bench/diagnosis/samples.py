@@ -50,11 +50,6 @@ NEAR_RAD = 5e-3
 #: a row whose commanded pose jumps from both neighbours faster than this [m/s] is a
 #: standing measurement of its own (a table of poses), not a row of a motion
 JUMP_M_S = 2.0
-#: without a ``state`` column, a row more than this many seconds from both neighbours, with
-#: the commanded pose changing on both sides, is a standing measurement of its own (a table
-#: of poses written one row per pose: no move is recorded between its rows, so their
-#: commanded "accelerations" say nothing about the platform's)
-TABLE_GAP_S = 1.0
 #: at most this many path rows are kept per move, evenly spread over it
 PER_MOVE = 12
 #: rows of one move share its slowly varying errors (the sign of hysteresis and friction,
@@ -281,31 +276,27 @@ def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
 
 def _isolated(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which path ``rows`` are standing measurements of their own: the commanded (or
-    measured) pose jumps to them and away from them faster than any motion, or (without a
-    ``state`` column) the rows on both sides are :data:`TABLE_GAP_S` away in time."""
+    measured) pose jumps to them and away from them faster than any motion, or they are
+    rows of a table of poses (:meth:`~bench.recording.Recording.table_rows`)."""
     out = np.zeros(len(rows), dtype=bool)
-    # the commanded (else measured) position; without either, the encoder lengths
-    p = next((a for a in (rec.pose_des[:, :3], rec.pose_meas[:, :3], rec.l_cmd, rec.l_meas)
-              if np.isfinite(a).all(axis=1).any()), None)
-    if not len(rows) or p is None:
+    src = rec.pose_des if np.isfinite(rec.pose_des[:, :3]).any() else rec.pose_meas
+    if not len(rows):
+        return out
+    out |= rec.table_rows()[rows]
+    if not np.isfinite(src[:, :3]).any():
         return out
     N = rec.n_samples
+    p = src[:, :3]
     t = rec.t
-    table = rec.state is None
 
-    def apart(i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    def speed(i: np.ndarray, j: np.ndarray) -> np.ndarray:
         ok = (j >= 0) & (j < N)
         jj = np.clip(j, 0, N - 1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.linalg.norm(p[i] - p[jj], axis=1)
-            dt = np.abs(t[i] - t[jj])
-            v = np.nan_to_num(step / dt, nan=np.inf, posinf=np.inf)
-        far = v > JUMP_M_S
-        if table:
-            far |= (dt > TABLE_GAP_S) & (step > 0)
-        return np.where(ok, far, True)
+            v = np.linalg.norm(p[i] - p[jj], axis=1) / np.abs(t[i] - t[jj])
+        return np.where(ok, np.nan_to_num(v, nan=np.inf, posinf=np.inf), np.inf)
 
-    return apart(rows, rows - 1) & apart(rows, rows + 1)
+    return out | ((speed(rows, rows - 1) > JUMP_M_S) & (speed(rows, rows + 1) > JUMP_M_S))
 
 
 #: with rows of moves, samples within this many consecutive moves may share errors

@@ -29,7 +29,8 @@ SCALES = {
 #: [N] by which the tensions there differ from the distribution's (``Robot.init_internal``;
 #: in the fits of every set once the report finds them needed, never reported as an effect)
 PRETENSION = "init_pretension"
-SCALES[PRETENSION] = 1.0
+#: [N] (its finite-difference step, 0.3 N, stretches a cable about as a length offset's does)
+SCALES[PRETENSION] = 30.0
 
 #: a stiffness or EA known only to this relative standard error is called undetermined
 UNDETERMINED_REL = 0.4

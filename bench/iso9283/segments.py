@@ -6,7 +6,9 @@ poses ``x_meas..yaw_meas`` per row. The rules, also printed by ``cdpr iso9283``:
 Visits (pose figures), recordings with a ``state`` column: a visit is a run of consecutive
 rows in state ``dwell`` with one commanded pose. Without ``state`` (a real robot's log): a
 run of at least :data:`MIN_DWELL_ROWS` consecutive rows with one commanded pose, except the
-initialisation rows. The attained pose of a visit is the mean measured pose over the rows of
+initialisation rows, or a single row of a table of poses logged one row per pose
+(:meth:`bench.recording.Recording.table_rows`: rows seconds apart). The attained pose of a
+visit is the mean measured pose over the rows of
 the dwell's last ``1 − settle`` part by time (default: its second half), so that the
 platform has come to rest as ISO 9283 requires. A dwell that lasts k times (k ≥ 2, within a
 quarter) the recording's median dwell is taken as k back-to-back visits of the same pose
@@ -39,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.iso9283.figures import resample_path, wrap_angle
-from bench.recording import POSE_AXES, Recording, RecordingError
+from bench.recording import POSE_AXES, TABLE_GAP_S, Recording, RecordingError
 
 #: no state column: a dwell is a run of at least this many rows with one commanded pose
 MIN_DWELL_ROWS = 3
@@ -208,19 +210,24 @@ def segment(rec: Recording, settle: float = SETTLE) -> Segments:
     else:
         init[rec.init_rows] = True
         runs = [r for a, b in _runs(has_des) for r in _split_on_change(a, b, key)]
-        dwell_runs = [(a, b) for a, b in runs if b - a >= MIN_DWELL_ROWS and not init[a:b].any()]
-        rest = np.zeros(N, dtype=bool)
+        table = rec.table_rows() & has_des
+        dwell_runs = sorted([(a, b) for a, b in runs if b - a >= MIN_DWELL_ROWS
+                             and not init[a:b].any()]
+                            + [(int(i), int(i) + 1) for i in np.flatnonzero(table & ~init)])
+        rest = table.copy()
         for a, b in runs:
             if b - a >= MIN_DWELL_ROWS:
                 rest[a:b] = True
         rest |= init
         move_runs = _runs(~rest & has_des)
         visit_rule = (f"visits (no 'state' column): runs of at least {MIN_DWELL_ROWS} rows with "
-                      f"one commanded pose, after the initialisation rows")
+                      f"one commanded pose, after the initialisation rows, and rows of a table "
+                      f"of poses (more than {TABLE_GAP_S:g} s from both neighbours, the "
+                      f"commanded pose changing on both sides)")
         pass_rule = ("passes (no 'state' column): runs of rows whose commanded pose changes from "
                      "row to row, plus the rest row before and after")
         no_visit = (f"no run of {MIN_DWELL_ROWS} or more rows with one commanded pose after the "
-                    f"initialisation")
+                    f"initialisation, and no row of a table of poses")
         no_pass = "no rows where the commanded pose changes from row to row"
     visit_rule += (f"; attained pose = mean measured pose over the last {100 * (1 - settle):.0f} "
                    f"% of each dwell (by time)")
