@@ -866,6 +866,11 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                      + leftover["summary"]
                      + (f"; the effects named ({', '.join(names)}) take what they can and are "
                         f"provisional" if names else ""))
+    elif not sel.effects and rm.model.init_internal is not None:
+        parts.append(f"with the tensions at initialisation fitted (below), the model explains "
+                     f"the data within the noise (reduced chi-square {red:.2f}; under the "
+                     f"tension distribution's" + (f": {what} {r * 1e3:.2f} mm RMS" if r else "")
+                     + ")")
     elif not sel.effects:
         parts.append(f"the model explains the data within the noise (reduced chi-square "
                      f"{red:.2f}" + (f", {what} {r * 1e3:.2f} mm RMS" if r else "") + ")")
