@@ -28,7 +28,7 @@ demo: $(STAMP)
 	$(VENV)/bin/cdpr diagnose examples/paper_tables --plots $(DEMO)/paper_plots
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 # The property-based tests with many more examples (tests/conftest.py, profile "deep").
 test-deep: $(STAMP)

@@ -9,6 +9,7 @@ find nothing."""
 from __future__ import annotations
 
 import copy
+import json
 
 import numpy as np
 import pytest
@@ -55,6 +56,22 @@ def test_a_thermal_drift_on_a_continuous_recording_is_declared(diagnosed):
     # 6e-3 per hour over the recording's minutes: the strain's sign and order are right
     assert th["value"] > 0 and th["delta_bic"] < -probes.PROBE_BIC
     assert "does not explain" in rep["mismatch"]["summary"]
+    # the report with a finding goes to JSON as it is (a numpy bool once broke --json)
+    assert json.loads(json.dumps(rep))["unexplained"]["probes"] == un["probes"]
+
+
+def test_a_probe_result_and_the_report_are_plain_json():
+    from bench.diagnosis.report import plain
+
+    r = probes.ProbeResult("drift", "11", np.float64(1e-3), np.float64(-12.0),
+                           np.float64(4.0), np.bool_(True))
+    d = r.as_dict()
+    assert type(d["finding"]) is bool and json.loads(json.dumps(d))["finding"] is True
+    out = plain({"a": [np.bool_(False), np.int64(3), (np.float32(0.5),)],
+                 "b": np.arange(2.0), "c": None, "d": "x"})
+    assert out == {"a": [False, 3, [0.5]], "b": [0.0, 1.0], "c": None, "d": "x"}
+    assert type(out["a"][0]) is bool and type(out["a"][1]) is int
+    json.dumps(out)
 
 
 def test_nothing_without_the_drift(diagnosed):

@@ -372,3 +372,67 @@ def test_held_parameters_the_data_cannot_fix_are_those_the_report_calls_undeterm
     assert u[keys.index("mass")] and not u[keys.index("offset_11")]
     se[keys.index("mass")] = 0.5
     assert not unfixed(sp, se).any()
+
+
+def _full_fit(cov: np.ndarray, phi: np.ndarray, effects: list[str]):
+    """A full fit (no data behind it) with covariance ``cov`` at ``phi``, the model at 0."""
+    from types import SimpleNamespace
+
+    from bench.diagnosis.fit import FitResult
+
+    space = SimpleNamespace(params=[SimpleNamespace(effect=e) for e in effects],
+                            neutral=np.zeros(len(phi)))
+    return FitResult(space, np.asarray(phi, float), 0.0, 100, 0.0, np.sqrt(np.diag(cov)), cov,
+                     True, "", curvature_cov=cov)
+
+
+def test_a_parameter_another_effect_stands_in_for_is_not_held():
+    """A pulley's radius within two standard errors of the model's and its cable's exit
+    point, correlated -0.98: holding either costs about the same, so the radius is not
+    held (its part would go to the exit point at the error of a fit that knows the radius).
+    Not so within one effect, for loosely correlated parameters, or where holding the
+    other would cost far more (the data say which moved)."""
+    from bench.diagnosis.fit import traded_parameters
+
+    sd = np.array([0.011, 0.0062])
+
+    def cov(rho: float) -> np.ndarray:
+        return np.outer(sd, sd) * np.array([[1.0, rho], [rho, 1.0]])
+
+    weak = np.array([True, False])
+    assert traded_parameters(_full_fit(cov(-0.98), [-0.014, -0.0145], ["pulley", "exit"]),
+                             weak).tolist() == [True, False]
+    assert not traded_parameters(_full_fit(cov(-0.98), [-0.014, -0.0145], ["exit", "exit"]),
+                                 weak).any()
+    assert not traded_parameters(_full_fit(cov(-0.3), [-0.014, -0.0145], ["pulley", "exit"]),
+                                 weak).any()
+    assert not traded_parameters(_full_fit(cov(-0.98), [-0.014, -0.06], ["pulley", "exit"]),
+                                 weak).any()
+
+
+def test_gains_sharing_a_common_mode_with_the_mass_are_not_stand_ins_for_it():
+    """Eight load-cell gains and the platform's mass: the mass is the gains' common mode up to
+    the cables' stretch (each gain correlated -1.0 with the mass marginally), yet no single
+    gain can stand in for it: the gains are held, the mass kept."""
+    from bench.diagnosis.fit import traded_parameters
+
+    rng = np.random.default_rng(3)
+    poses, cells = 20, 8
+    tau = rng.uniform(500.0, 1500.0, size=(poses, cells))
+    rows = []
+    for p in range(poses):
+        for c in range(cells):  # a tension reading: its cell's gain, and the mass
+            r = np.zeros(cells + 1)
+            r[c] = tau[p, c]
+            r[-1] = tau[p, c]
+            rows.append(r)
+            s = np.zeros(cells + 1)  # the cable's stretch: the mass alone, weakly
+            s[-1] = 1e-3 * tau[p, c]
+            rows.append(s)
+    J = np.array(rows)
+    C = np.linalg.inv(J.T @ J)
+    phi = np.zeros(cells + 1)
+    phi[-1] = 4.0 * np.sqrt(C[-1, -1])
+    full = _full_fit(C, phi, ["load_cell_calibration"] * cells + ["platform_mass"])
+    weak = np.array([True] * cells + [False])
+    assert not traded_parameters(full, weak).any()

@@ -249,38 +249,53 @@ def pruning_cost(full: FitResult, weak: np.ndarray) -> float:
 
 #: a parameter to be held at the model's value whose part a kept parameter of another
 #: effect can play, the linearised chi-square rising by less than this when that one is held
-#: instead, is not held (2 ln of a likelihood ratio of 20: strong evidence)
+#: instead, is not held (2 ln of a likelihood ratio of 20: strong evidence) ...
 TRADE_TIE = 6.0
-#: ... tested only for pairs correlated at least this much in the full fit
-TRADE_CORRELATION = 0.5
+#: ... when the two are this correlated with each other in the fit that frees it beside the
+#: kept ones (one stands in for the other; a gain among eight that share a common mode with
+#: the mass is not one: -1.0 marginally, far less on its own)
+TRADE_CORRELATION = 0.9
 
 
 def traded_parameters(full: FitResult, weak: np.ndarray) -> np.ndarray:
     """Of the ``weak`` parameters (to be held at the model's values), those that a kept
-    parameter of another effect trades with: holding that one instead (it at the model's
-    value, the weak one free) raises :func:`pruning_cost` by less than ``TRADE_TIE``.
+    parameter of another effect stands in for: the two correlated by at least
+    ``TRADE_CORRELATION`` in the fit that frees the weak one beside the kept ones (the
+    full fit's curvature, linearised), and holding the kept one instead (it at the model's
+    value, the weak one free) raising :func:`pruning_cost` by less than ``TRADE_TIE``.
 
     Which of two physics moved is then the data's to say, not the pruning's. Held, the weak
-    one hands its part to the kept one with the kept one's error conditional on the holding:
-    a swivel pulley's radius 40 mm off (0.036 +/- 0.011 m against a model of 0.05 in the
-    full fit) held at the model's and its cable's exit point moved 22 mm down at +/- 0.4 mm
-    in its place (z -49; the full fit: -14 +/- 6 mm). Both free, each keeps its full error."""
+    one hands its part to the kept one, with the kept one's error conditional on the
+    holding: a swivel pulley's radius 40 mm off (0.036 +/- 0.011 m against a model of 0.05
+    in the full fit) held at the model's, and its cable's exit point moved 22 mm down at
+    +/- 0.4 mm in its place (z -49; the full fit: -14 +/- 6 mm, correlation -0.98). Both
+    free, each keeps its full error."""
     out = np.zeros(len(full.phi), dtype=bool)
     if full.curvature_cov is None or not weak.any():
         return out
     C = full.curvature_cov
-    d = np.sqrt(np.clip(np.diag(C), 0.0, None))
-    kept = np.isfinite(full.stderr) & ~weak & (d > 0)
+    movable = np.diag(C) > 0
+    kept = np.isfinite(full.stderr) & ~weak & movable
     if not kept.any():
         return out
+    info = np.zeros_like(C)
+    info[np.ix_(movable, movable)] = np.linalg.pinv(C[np.ix_(movable, movable)],
+                                                    rcond=1e-12, hermitian=True)
     base = pruning_cost(full, weak)
     effect = [p.effect for p in full.space.params]
-    for h in np.flatnonzero(weak & (d > 0)):
-        for k in np.flatnonzero(kept):
-            if effect[h] == effect[k] or abs(C[h, k]) < TRADE_CORRELATION * d[h] * d[k]:
+    ks = np.flatnonzero(kept)
+    for h in np.flatnonzero(weak & movable):
+        others = [i for i, k in enumerate(ks) if effect[k] != effect[h]]
+        if not others:
+            continue
+        F = np.append(ks, h)
+        cov = np.linalg.pinv(info[np.ix_(F, F)], rcond=1e-12, hermitian=True)
+        sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+        for i in others:
+            if abs(cov[i, -1]) < TRADE_CORRELATION * sd[i] * sd[-1]:
                 continue
             swap = weak.copy()
-            swap[h], swap[k] = False, True
+            swap[h], swap[ks[i]] = False, True
             if pruning_cost(full, swap) - base < TRADE_TIE:
                 out[h] = True
                 break

@@ -76,7 +76,7 @@ class ProbeResult:
     def as_dict(self) -> dict:
         return {"probe": self.name, "cable": self.cable, "value": _r(self.value),
                 "delta_bic": _r(self.delta_bic), "size_over_noise": _r(self.size_over_noise),
-                "finding": self.finding}
+                "finding": bool(self.finding)}
 
 
 def columns(rm: ResidualModel) -> list[tuple[str, str | None, np.ndarray]]:
@@ -215,7 +215,7 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         # residuals' two-group test reports it)
         res = ProbeResult(name, cid, value, -value ** 2 / var + log_n,
                           abs(value) * sizes[j] / noise)
-        res.finding = res.delta_bic < -PROBE_BIC and res.size_over_noise > PROBE_SIZE
+        res.finding = bool(res.delta_bic < -PROBE_BIC and res.size_over_noise > PROBE_SIZE)
         out.append(res)
     # a direction-dependent error common to the cables is the winches' hysteresis, which the
     # noise model holds (its direction component): one cable's is a finding when it also

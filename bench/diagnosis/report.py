@@ -701,7 +701,23 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         "fitted": fitted_out,
         "model": model_path,
     }
-    return Diagnosis(report, rec, s, rm, sel, fitted, base_fw, fit_fw, test, write_error)
+    return Diagnosis(plain(report), rec, s, rm, sel, fitted, base_fw, fit_fw, test,
+                     write_error)
+
+
+def plain(obj):
+    """``obj`` (the report) with numpy scalars and arrays made Python numbers and lists,
+    so that ``json.dumps`` takes it as it is (a numpy bool in a probe's finding once cost a
+    user the whole report at the last step)."""
+    if isinstance(obj, dict):
+        return {k: plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
 
 
 def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progress) -> FitResult:
