@@ -164,7 +164,8 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     got = memo.get(key)
     if got is not None:
         return _copy(got[-1])
-    res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune)
+    with rm.cold():  # the same fit whatever was evaluated before it
+        res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune)
     if len(memo) >= MEMO_SIZE:
         memo.pop(next(iter(memo)))
     # (the model, the samples and the functions named by id in the key are kept alive with

@@ -430,6 +430,35 @@ class ResidualModel:
             self._pose_est[idx] = p
         return p
 
+    #: the evaluations' warm starts (:meth:`cold`)
+    _WARM = ("_warm_exits", "_pose_est", "_warm_tau", "_warm_face", "_warm_drop")
+
+    @contextmanager
+    def cold(self) -> Iterator[None]:
+        """Evaluations inside start as the first one did (no warm starts: unmeasured
+        tensions, estimated poses, deflected exits, catenaries), and those after find the
+        warm starts as they were before. A fit made inside is then the same whatever was
+        evaluated before it, in this process or in a worker that got a copy of this model
+        (the selection's fits on a process pool): ``cdpr diagnose --jobs 1`` and
+        ``--jobs 2`` gave two answers to one recording of nine samples, the fits' paths
+        apart by the warm starts' tolerance."""
+        saved = {k: getattr(self, k) for k in self._WARM}
+        memo, at_zero = self._cat_memo, self._at_zero
+        for k, v in saved.items():
+            setattr(self, k, np.full_like(v, np.nan) if v.dtype.kind == "f"
+                    else np.zeros_like(v))
+        self._cat_memo, self._at_zero = {}, None
+        try:
+            if self.rows is not None:
+                with self.rows.cold():
+                    yield
+            else:
+                yield
+        finally:
+            for k, v in saved.items():
+                setattr(self, k, v)
+            self._cat_memo, self._at_zero = memo, at_zero
+
     @contextmanager
     def frozen(self) -> Iterator[None]:
         """Evaluations inside start each sample from the last evaluation before (its
