@@ -154,3 +154,40 @@ def test_a_pruning_the_bic_takes_is_still_made(problem, monkeypatch):
     res = fit_effects(space, rm, train, hold=np.zeros(len(space), dtype=bool))
     assert len(calls) >= 2 and res.n_free < len(space)
     assert res.phi[space.params.index(next(p for p in space.params if p.key == "s_21"))] != 0
+
+
+@pytest.fixture(scope="module")
+def no_tensions(tmp_path_factory):
+    """A recording without load cells (the fits' evaluations warm-start the unmeasured
+    tensions of every sample) on masts that bend (and the deflected exits)."""
+    sc = parse_scenario({
+        "format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 6,
+        "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
+        "truth": {"exit_point_offset": {"dz_21": 0.02}}, "nuisance": {},
+        "poses": {"kind": "grid", "n": [3, 2, 1], "rpy_deg": 1.0, "visits": 2},
+        "recording": {"load_cells": False}})
+    rec = read_recording(run_campaign(sc, tmp_path_factory.mktemp("cold") / "rec"))
+    check_values(rec)
+    s = prepare(rec)
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
+    rm.estimate_noise(rec.robot)
+    return rm, split_samples(s, rec.init_pose)[0]
+
+
+def test_a_fit_is_the_same_whatever_was_evaluated_before_it(no_tensions):
+    """Each fit starts cold (:meth:`ResidualModel.cold`): after evaluations of another
+    robot (other warm starts left behind) the same fit, made anew, gives the same result
+    to the last bit, as a worker given a copy of the model would; the warm starts found
+    before the fit are there after it."""
+    rm, train = no_tensions
+    space = ParamSpace(rm.model, ("exit_point_offset",))
+    first = fit_effects(space, rm, train, max_nfev=7)
+    other = rm.model.replace(mass=rm.model.mass * 1.3)
+    rm.whitened(other, train)
+    before = rm._warm_tau.copy()
+    assert np.isfinite(before[train]).all()
+    fit_module._MEMO.clear()
+    again = fit_effects(space, rm, train, max_nfev=7)
+    np.testing.assert_array_equal(again.phi, first.phi)
+    assert again.chi2 == first.chi2
+    np.testing.assert_array_equal(rm._warm_tau, before)
