@@ -63,3 +63,21 @@ def test_an_offset_there_from_the_start_is_no_later_slip():
     assert later_starts(rm, fit, np.arange(20), 31.0) != {}
     rm.slip_times[1] = t[5] + 1.0  # seen as a step already: not asked again
     assert later_starts(rm, fit, np.arange(20), 31.0) == {}
+
+
+def test_a_step_beats_a_drift_but_a_drift_is_no_step():
+    """With ``over_drift`` (a length offset asked for beside effects that chose none), a
+    step is a later slip only where it fits better than the same change growing with time
+    since the initialisation. A slow drift (no slip, out of the vocabulary) must give
+    nothing, though a step half-way fits it far better than an offset from the start."""
+    rng = np.random.default_rng(5)
+    t = np.arange(40) * 10.0
+    step = rng.normal(0.0, 1.0, 40)
+    step[25:] += 15.0
+    rm, fit = _case(step, t)
+    got = later_starts(rm, fit, np.arange(40), 31.0, over_drift=25.0)
+    assert list(got) == [1] and got[1][0] == 0.5 * (t[24] + t[25])
+    drift = rng.normal(0.0, 1.0, 40) + 30.0 * (t - t[0]) / (t[-1] - t[0])
+    rm, fit = _case(drift, t)
+    assert later_starts(rm, fit, np.arange(40), 31.0) != {}  # the step alone: "a slip"
+    assert later_starts(rm, fit, np.arange(40), 31.0, over_drift=25.0) == {}

@@ -146,26 +146,30 @@ def _copy(res: FitResult) -> FitResult:
 
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
                 phi0: np.ndarray | None = None, max_nfev: int = MAX_NFEV,
-                hold: np.ndarray | None = None, prune: bool = True) -> FitResult:
+                hold: np.ndarray | None = None, prune: bool = True,
+                free_traded: bool = False) -> FitResult:
     """Fit the parameters of ``space`` to the samples ``idx`` (whitened inverse residuals).
 
     ``hold`` marks parameters kept at the model's values. With ``prune``, parameters
     that come out within two standard errors of the model's value are then held there
     and the rest refitted, when that lowers the BIC: an effect counts only the
-    parameters the data need (three offset cables, not twenty-four).
+    parameters the data need (three offset cables, not twenty-four). With ``free_traded``
+    (the report's final fit, not the selection's: a parameter freed charges the BIC of
+    every set it is in), a weak parameter that a kept one of another effect stands in for
+    (:func:`traded_parameters`) is not held.
 
     A fit asked for again with the same inputs (the selection reaches one set from one
     start on several paths: a backward step and a held-out check, a gauge start equal to
     the warm one) is the one made before (a copy), not made again: run again, it would
     only move within the fit's tolerance with the residual model's warm starts.
     """
-    key = _memo_key(space, rm, idx, phi0, max_nfev, hold, prune)
+    key = _memo_key(space, rm, idx, phi0, max_nfev, hold, prune) + (free_traded,)
     memo = _MEMO.setdefault(rm, {})
     got = memo.get(key)
     if got is not None:
         return _copy(got[-1])
     with rm.cold():  # the same fit whatever was evaluated before it
-        res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune)
+        res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune, free_traded)
     if len(memo) >= MEMO_SIZE:
         memo.pop(next(iter(memo)))
     # (the model, the samples and the functions named by id in the key are kept alive with
@@ -176,7 +180,7 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
 
 def _fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
                  phi0: np.ndarray | None, max_nfev: int, hold: np.ndarray | None,
-                 prune: bool) -> FitResult:
+                 prune: bool, free_traded: bool = False) -> FitResult:
     """:func:`fit_effects` made anew."""
     full = _fit(space, rm, idx, phi0, max_nfev, hold)
     if len(space) == 0 or not prune:
@@ -195,10 +199,10 @@ def _fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             weak = pruning_set(full, weak, space.neutral)
             if not weak.any() or np.array_equal(weak, tried):
                 break
-        # a weak parameter that a kept one of another effect can stand in for is not held
-        weak = weak & ~traded_parameters(full, weak)
-        if not weak.any():
-            break
+        if free_traded:  # (the report's fit: its errors are the ones printed)
+            weak = weak & ~traded_parameters(full, weak)
+            if not weak.any():
+                break
         tried = weak
         held = weak | ~np.isfinite(full.stderr)
         if hold is not None:
@@ -269,8 +273,11 @@ def traded_parameters(full: FitResult, weak: np.ndarray) -> np.ndarray:
     one hands its part to the kept one, with the kept one's error conditional on the
     holding: a swivel pulley's radius 40 mm off (0.036 +/- 0.011 m against a model of 0.05
     in the full fit) held at the model's, and its cable's exit point moved 22 mm down at
-    +/- 0.4 mm in its place (z -49; the full fit: -14 +/- 6 mm, correlation -0.98). Both
-    free, each keeps its full error."""
+    +/- 0.4 mm in its place (z -49; the full fit: -14 +/- 6 mm, correlation -0.98). The
+    holding stands (the selection's BIC is the pruned fit's: freed, such a parameter
+    charged every set it is in; a softer cable lost its tie with length offsets), and the
+    kept one's error is widened by all the held one moved into it
+    (:func:`pruning_bias_var` with the held one as unfixed)."""
     out = np.zeros(len(full.phi), dtype=bool)
     if full.curvature_cov is None or not weak.any():
         return out
@@ -434,7 +441,8 @@ def parameter_groups(fit: FitResult) -> list[np.ndarray]:
 
 
 def profile_pruning(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
-                    say: Callable[[str], None] | None = None) -> FitResult:
+                    say: Callable[[str], None] | None = None,
+                    free_traded: bool = False) -> FitResult:
     """``fit`` checked against the fits that hold each group of its free parameters
     (:func:`parameter_groups`) at the model's values, the others refitted: the likelihood
     ratio, where pruning (:func:`fit_effects`) judged by the curvature at the minimum.
@@ -499,13 +507,12 @@ def profile_pruning(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
         rises.append(r.chi2 - fit.chi2)
         deltas.append(r.bic - fit.bic if r.success else np.inf)
     deltas_a = np.asarray(deltas)
-    # a group that a kept parameter of another effect can stand in for is not held
-    # (:func:`traded_parameters`)
-    for i, g in enumerate(groups):
-        mask = np.zeros(len(space), dtype=bool)
-        mask[g] = True
-        if deltas_a[i] < 0.0 and traded_parameters(fit, mask)[g].any():
-            deltas_a[i] = np.inf
+    if free_traded:  # a group a kept parameter of another effect stands in for stays free
+        for i, g in enumerate(groups):
+            mask = np.zeros(len(space), dtype=bool)
+            mask[g] = True
+            if deltas_a[i] < 0.0 and traded_parameters(fit, mask)[g].any():
+                deltas_a[i] = np.inf
     # each effect keeps its most needed group
     effect_of = [space.params[int(g[0])].effect for g in groups]
     drop = deltas_a < 0.0

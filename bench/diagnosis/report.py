@@ -349,14 +349,28 @@ def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
     the model). Kept where its BIC, charged one parameter per slip time, is
     lower than the first selection's by :data:`BIC_ENTER` (the same noise, so the two
     compare); else the first selection stands and the slip times are as they were."""
-    if "cable_length_offset" not in sel.effects:
-        return selector, sel
     charge = float(np.log(max(sel.fit.n_eff or 2.0, 2.0)))
     later: dict[int, tuple[float, float, float]] = {}
-    # (the cables whose offsets the selection named: the offset alone moves every cable)
-    named = set(slips.offset_cables(sel.fit, rm.model.cable_ids).values())
-    for f in (sel.fit, selector.fit(("cable_length_offset",), sel.fit)):
-        for c, got in slips.later_starts(rm, f, train, BIC_ENTER + charge).items():
+    if "cable_length_offset" in sel.effects:
+        fits = (sel.fit, selector.fit(("cable_length_offset",), sel.fit))
+        over_drift = None
+    else:
+        # no offset chosen: one beside the chosen effects, starting later, may be a slip
+        # they took up in another form (a drum scale, a softer cable; without a tracker, a
+        # drift on the slipped cable) where it beats a drift of that cable too
+        # (every cable's offset free: a slip's constant part can be too small to keep)
+        from bench.diagnosis.fit import fit_effects
+        from bench.diagnosis.select import _warm
+
+        key = tuple(sorted((*sel.effects, "cable_length_offset")))
+        fits = (fit_effects(ParamSpace(selector.model, key), rm, train, _warm(key, sel.fit),
+                            prune=False),)
+        over_drift = BIC_ENTER
+    # (the cables whose offsets the set named: the offset alone moves every cable)
+    named = set(slips.offset_cables(fits[0], rm.model.cable_ids).values())
+    for f in fits:
+        for c, got in slips.later_starts(rm, f, train, BIC_ENTER + charge,
+                                         over_drift).items():
             if c in named and (c not in later or got[2] > later[c][2]):
                 later[c] = got
     if not later:
@@ -732,19 +746,26 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
     if start is None:
         start = selector.fit(key)
     if np.array_equal(np.sort(idx), np.sort(selector.train)):
-        # nothing held out for validation: the selection's fit is the final one
-        return profile_pruning(start, selector.rm, idx, say)
+        # nothing held out for validation: the selection's fit is the final one, with
+        # the parameters that others stand in for freed (their errors are the report's)
+        if len(start.space):
+            res = fit_effects(start.space, selector.rm, idx, start.phi,
+                              hold=~np.isfinite(start.stderr), free_traded=True)
+            if res.success and res.chi2 <= start.chi2 + 1e-6 * max(start.chi2, 1.0) \
+                    and res.n_free > start.n_free:
+                start = selector.gauge_floor(res, idx)
+        return profile_pruning(start, selector.rm, idx, say, free_traded=True)
     space = ParamSpace(selector.model, key)
     say(f"final fit of {' + '.join(report_name(e) for e in key) or 'the model as it is'} on "
         f"{len(idx)} samples")
     # what the selection's fit held (the data cannot fix it) stays held
     held = ~np.isfinite(start.stderr) if len(space) else None
     res = selector.gauge_floor(fit_effects(space, selector.rm, idx, _warm(key, start),
-                                           hold=held), idx)
+                                           hold=held, free_traded=True), idx)
     if not res.success:
         say(f"the final fit did not converge: {res.message}")
         return res
-    return profile_pruning(res, selector.rm, idx, say)
+    return profile_pruning(res, selector.rm, idx, say, free_traded=True)
 
 
 def _pose_noise(s: Samples, fw: Forward) -> float | None:

@@ -37,13 +37,17 @@ def offset_cables(fit: FitResult, ids: tuple[str, ...] | None = None) -> dict[in
     return out
 
 
-def later_starts(rm: ResidualModel, fit: FitResult, idx: np.ndarray, bar: float
-                 ) -> dict[int, tuple[float, float, float]]:
+def later_starts(rm: ResidualModel, fit: FitResult, idx: np.ndarray, bar: float,
+                 over_drift: float | None = None) -> dict[int, tuple[float, float, float]]:
     """For each cable whose length offset ``fit`` names (free, away from zero) and whose
     slip time is still the end of the initialisation: where a later start of the offset
     lowers the chi-square of the samples ``idx`` by more than ``bar``, ``{cable index: (t
     [s], offset [m], chi-square drop)}`` (the time half-way between the last sample without
-    the offset and the first with it)."""
+    the offset and the first with it).
+
+    With ``over_drift``, only where the step's chi-square is also lower by that much than
+    a drift's: the same change growing in proportion to the time since the initialisation
+    (a slow creep or a drum slipping slowly is no slip, and a step half-way fits it too)."""
     space = fit.space
     if OFFSET not in space.effects:
         return {}
@@ -85,6 +89,12 @@ def later_starts(rm: ResidualModel, fit: FitResult, idx: np.ndarray, bar: float
         chi = a.sum() - after_b ** 2 / after_c
         gain = chi_all - chi
         best = int(np.argmax(gain))
+        if over_drift is not None:
+            w = np.clip((t - rm.init_end) / max(t[-1] - rm.init_end, 1e-9), 0.0, 1.0)
+            ww = float(w * w @ cc)
+            chi_drift = a.sum() - (float(w @ b) ** 2 / ww if ww > 0 else 0.0)
+            if chi[best] > chi_drift - over_drift:
+                continue
         if gain[best] > bar:
             jj = j[best]
             size = float(-after_b[best] / after_c[best]) * (fit.phi[k] - space.neutral[k])
