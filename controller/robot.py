@@ -195,7 +195,10 @@ class _Reader:
         return v
 
     def vector(self, d: dict, key: str, table: str | None, index: int | None,
-               required: bool = True, default: Any = None, positive: bool = False) -> Any:
+               required: bool = True, default: Any = None, positive: bool = False,
+               rigid_inf: bool = False) -> Any:
+        """A list of 3 finite numbers; ``rigid_inf``: ``inf`` is also allowed (a stiffness
+        axis that is rigid)."""
         if key not in d:
             if required:
                 raise self.fail("missing field", table, index, key)
@@ -209,8 +212,9 @@ class _Reader:
         for x in v:
             if isinstance(x, bool) or not isinstance(x, (int, float)):
                 raise self.fail(f"must hold numbers, got {x!r}", table, index, key)
-            if not math.isfinite(float(x)):
-                raise self.fail(f"must be finite, got {x!r}", table, index, key)
+            if not math.isfinite(float(x)) and not (rigid_inf and float(x) == math.inf):
+                raise self.fail(f"must be finite{' (or inf: rigid)' if rigid_inf else ''}, "
+                                f"got {x!r}", table, index, key)
             if positive and float(x) <= 0:
                 raise self.fail(f"must be > 0, got {x!r}", table, index, key)
             out.append(float(x))
@@ -271,7 +275,7 @@ def parse_robot(data: dict[str, Any], path: str = "<memory>", text: str = "") ->
         mast_ids.append(mid)
         pivots.append(r.vector(mt, "pivot", "mast", k))
         stiff.append(r.vector(mt, "stiffness", "mast", k, required=False,
-                              default=[math.inf] * 3, positive=True))
+                              default=[math.inf] * 3, positive=True, rigid_inf=True))
         tilt.append(r.vector(mt, "tilt", "mast", k, required=False, default=[0.0] * 3))
 
     cables = data.get("cable", [])
@@ -381,11 +385,9 @@ def robot_to_dict(robot: Robot) -> dict[str, Any]:
     masts = []
     for i, mid in enumerate(robot.mast_ids):
         mt: dict[str, Any] = {"id": mid, "pivot": [_num(v) for v in robot.pivots[i]]}
-        if np.all(np.isfinite(robot.stiffness[i])):
+        if np.any(np.isfinite(robot.stiffness[i])):
+            # an axis without a stiffness is rigid: TOML's inf (never a large stand-in number)
             mt["stiffness"] = [_num(v) for v in robot.stiffness[i]]
-        elif np.any(np.isfinite(robot.stiffness[i])):
-            # TOML has no inf in our format: a very stiff axis stands for a rigid one
-            mt["stiffness"] = [_num(v) if np.isfinite(v) else 1e15 for v in robot.stiffness[i]]
         if np.any(robot.tilt[i] != 0):
             mt["tilt"] = [_num(v) for v in robot.tilt[i]]
         masts.append(mt)

@@ -327,7 +327,7 @@ def test_corrected_model_writes_only_what_the_report_names(tmp_path):
     out = tmp_path / "corrected.toml"
     dg = diagnose(rec, write_model=out)
     text = out.read_text()
-    assert "1e+15" not in text and "1e15" not in text and "inf" not in text
+    assert "1e+15" not in text and "1e15" not in text
     from controller.robot import load_robot
 
     robot = load_robot(out)
@@ -337,3 +337,25 @@ def test_corrected_model_writes_only_what_the_report_names(tmp_path):
             key = f"k{ax}_{m}"
             if key in comp["params"]:
                 assert robot.stiffness[i, a] == pytest.approx(comp["params"][key])
+            else:  # not named (undetermined or the model's): rigid as in the model, inf
+                assert robot.stiffness[i, a] == np.inf, key
+
+
+def test_a_rigid_axis_beside_named_stiffness_is_written_as_inf(tmp_path):
+    """A mast with kx and ky named and kz left as the model had it (rigid) is written as
+    ``[kx, ky, inf]`` (TOML's inf), read back as rigid about z, never a large stand-in."""
+    from controller.robot import dumps_robot, load_robot, save_robot, shipped_robot_path
+
+    model = load_robot(shipped_robot_path("rocaspect"))
+    stiff = np.full((model.n_masts, 3), np.inf)
+    stiff[0, :2] = [2.0e5, 5.0e5]
+    text = dumps_robot(model.replace(stiffness=stiff))
+    assert "1e+15" not in text and "inf" in text
+    back = load_robot(save_robot(model.replace(stiffness=stiff), tmp_path / "r.toml"))
+    assert back.stiffness[0].tolist() == [2.0e5, 5.0e5, np.inf]
+    assert np.all(np.isinf(back.stiffness[1:]))
+    # -inf or nan stays an error that names the field
+    bad = (tmp_path / "r.toml").read_text().replace("inf", "nan", 1)
+    (tmp_path / "bad.toml").write_text(bad)
+    with pytest.raises(Exception, match="stiffness"):
+        load_robot(tmp_path / "bad.toml")

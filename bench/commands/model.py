@@ -123,7 +123,11 @@ def check(robot: Robot, height: float, step: float, method: str) -> dict:
                       "feasible_area_m2": grid.area, "points": int(grid.feasible.size),
                       "feasible_points": int(grid.feasible.sum()),
                       "tension_range_n": [lo, hi]},
-        "mast_stiffness_used": shown.stiffness[0].tolist() if shown.compliant else None,
+        # per mast, [kx, ky, kz] [N m/rad]; null for a rigid axis
+        "mast_stiffness_used": ({m: [float(k) if np.isfinite(k) else None
+                                     for k in shown.stiffness[i]]
+                                 for i, m in enumerate(robot.mast_ids)}
+                                if shown.compliant else None),
         "mast_stiffness_source": stiffness_source,
         "poses": poses,
         "_grid": grid,
@@ -238,9 +242,11 @@ def run(args: argparse.Namespace) -> int:
           f"({grid.feasible.sum()}/{grid.feasible.size} points)")
     print(f"  tension range over it: {lo:.1f} .. {hi:.1f} N "
           f"(limits {robot.tension_min:g} .. {robot.tension_max:g} N)")
-    ks = report["mast_stiffness_used"]
-    print(f"  exit-point displacement under load, mast stiffness "
-          f"{', '.join(f'{k:.3g}' for k in ks)} N·m/rad ({report['mast_stiffness_source']}):")
+    ks = report["mast_stiffness_used"] or {}
+    per_mast = "; ".join(f"{m}: " + ", ".join("rigid" if k is None else f"{k:.3g}" for k in v)
+                         for m, v in ks.items())
+    print(f"  exit-point displacement under load, mast stiffness kx, ky, kz [N·m/rad] "
+          f"({report['mast_stiffness_source']}): {per_mast}")
     print("    platform at [m]          " + "  ".join(f"mast {m:>2}" for m in robot.mast_ids)
           + "   rank  min stiffness")
     for p in report["poses"]:
