@@ -125,6 +125,10 @@ def test_a_slip_in_the_middle_is_located_in_time(diagnosed):
     steps = dg.report["mismatch"]["steps"]
     assert [s["cable"] for s in steps] == ["31"]
     assert abs(steps[0]["t_s"] - 300.0) < 40.0
+    # step_m is the change of dl_31 (+5 mm): the reading itself jumped by -5 mm, and the
+    # summary says so in the reading's sign
+    assert abs(steps[0]["step_m"] - 0.005) < 5e-4
+    assert "cable 31's length reading jumps by about -5." in dg.report["mismatch"]["summary"]
     named = [e["name"] for e in dg.report["effects"]]
     assert named == ["cable_length_offset"]
     e = dg.report["effects"][0]

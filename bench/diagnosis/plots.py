@@ -29,34 +29,10 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
     written = []
     pos = np.where(np.isfinite(s.pose_meas[:, :3]), s.pose_meas[:, :3], s.pose_des[:, :3])
 
-    # 1. residual map before / after, one arrow scale and one colour scale
+    # 1. residual map before / after: one arrow scale and one colour scale on both panels
     if np.isfinite(dg.baseline_forward.pose_err).any():
-        errs = [dg.baseline_forward.pose_err, dg.fitted_forward.pose_err]
-        mags = [np.linalg.norm(e[:, :3], axis=1) * 1e3 for e in errs]
-        top = max(float(np.nanmax(m)) if np.isfinite(m).any() else 0.0 for m in mags) or 1.0
-        span = float(np.nanmax(np.ptp(pos[:, :2], axis=0))) or 1.0
-        # arrows: the largest error over both panels is drawn as a tenth of the workspace
-        scale = top / (0.1 * span)  # mm per metre of plot
-        key = 10 ** np.floor(np.log10(top)) if top > 0 else 1.0
-        fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharex=True, sharey=True)
-        for ax, e, mag, title in zip(axes, errs, mags, ("recording's model", "corrected model"),
-                                     strict=True):
-            ok = np.isfinite(e[:, :3]).all(axis=1)
-            q = ax.quiver(pos[ok, 0], pos[ok, 1], e[ok, 0] * 1e3, e[ok, 1] * 1e3, mag[ok],
-                          cmap="viridis", angles="xy", scale_units="xy", scale=scale,
-                          clim=(0.0, top))
-            ax.quiverkey(q, 0.82, 1.03, key, f"{key:g} mm", labelpos="E", coordinates="axes")
-            ax.plot(model.exits[:, 0], model.exits[:, 1], "r^")
-            ax.plot(*dg.recording.init_pose[:2], "k*", ms=14, label="initialisation pose")
-            rms = np.sqrt(np.nanmean(mag[ok] ** 2)) if ok.any() else float("nan")
-            ax.set_title(f"{title}: RMS {rms:.2f} mm")
-            ax.set_xlabel("x [m]")
-            ax.set_aspect("equal")
-        fig.colorbar(q, ax=list(axes), label="3-D pose error [mm] (same scale on both)")
-        axes[0].set_ylabel("y [m]")
-        axes[0].legend(loc="lower left")
-        fig.suptitle("measured minus predicted platform position (arrows: xy, one scale for "
-                     "both panels; colour: 3-D)")
+        errs = [dg.baseline_forward.pose_err[:, :3] * 1e3, dg.fitted_forward.pose_err[:, :3] * 1e3]
+        fig = residual_map(errs, pos, model.exits, dg.recording.init_pose[:3], plt)
         written.append(_save(fig, d / "residual_map.png", plt))
 
     # 2. per-cable bars
@@ -75,7 +51,7 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
         ax.set_yscale("log")
         ax.set_xlabel("cable")
         ax.set_ylabel("length residual RMS [mm]")
-        ax.legend()
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=3, frameon=False)
         ax.set_title("per-cable length residuals")
         written.append(_save(fig, d / "cables.png", plt))
 
@@ -100,8 +76,8 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
         for k in np.flatnonzero(single):
             ax.text(x[k] + 0.2, max(float(np.nan_to_num(rb[k])) * 0.05, 0.1), "1 pose",
                     ha="center", va="bottom", fontsize=7, rotation=90, color="grey")
-        ax.set_xticks(x, [f"{c}\n({n} poses)" for c, n in zip(model.cable_ids, seen,
-                                                                strict=True)])
+        ax.set_xticks(x, [f"{c}\n({n} pose{'' if n == 1 else 's'})"
+                          for c, n in zip(model.cable_ids, seen, strict=True)])
         ax.set_xlabel("cable (poses where its exit point was measured)")
         ax.set_ylabel("exit point error RMS [mm]")
         ax.legend(fontsize=8)
@@ -148,7 +124,7 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
             for st in steps:
                 if st["cable"] == cid:
                     ax.axvline(st["t_s"], color="r", ls=":")
-                    ax.text(st["t_s"], ax.get_ylim()[1], f" step {st['step_m'] * 1e3:+.1f} mm",
+                    ax.text(st["t_s"], ax.get_ylim()[1], f" reading {-st['step_m'] * 1e3:+.1f} mm",
                             color="r", fontsize=7, va="top")
             ax.set_ylabel(f"{cid} [mm]", fontsize=8)
         axes[0][0].legend(fontsize=7, loc="upper left")
@@ -158,6 +134,63 @@ def write_plots(dg: Diagnosis, out: str | Path) -> list[Path]:
                      "a slip or an encoder jump)")
         written.append(_save(fig, d / "lengths_over_time.png", plt))
     return written
+
+
+def _key_length(top: float) -> float:
+    """A round arrow-key length [mm] (1, 2 or 5 times a power of ten) near half of ``top``."""
+    if not (np.isfinite(top) and top > 0):
+        return 1.0
+    p = 10 ** np.floor(np.log10(top / 2))
+    return float(max(m * p for m in (1, 2, 5) if m * p <= max(top / 2, p)))
+
+
+def residual_map(errs: list[np.ndarray], pos: np.ndarray, exits: np.ndarray,
+                 init: np.ndarray, plt):
+    """Measured minus predicted platform position, before and after, seen from above.
+
+    ``errs``: two (n, 3) arrays [mm] in F_b; ``pos`` (n, 3) [m] where each was measured;
+    ``exits`` (c, 3) [m]; ``init`` the initialisation position [m]. Arrows are the xy
+    error on one scale for both panels (the largest drawn an eighth of the plot wide, a
+    key arrow in mm below each panel); colour is the vertical error z, signed, on one
+    colour scale for both panels; grey dots mark every measured position, so a panel whose
+    errors are too small to draw still shows where it was measured.
+    """
+    xy = np.vstack([pos[:, :2], exits[:, :2], init[None, :2]])
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    extent = float(np.max(np.ptp(xy, axis=0))) or 1.0
+    top = max((float(np.nanmax(np.linalg.norm(e[:, :2], axis=1)))
+               if np.isfinite(e).all(axis=1).any() else 0.0) for e in errs) or 1.0
+    zmax = max((float(np.nanmax(np.abs(e[:, 2]))) if np.isfinite(e).all(axis=1).any()
+                else 0.0) for e in errs) or 1.0
+    scale = top / (extent / 8)  # mm of error per metre of plot
+    key = _key_length(top)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2), sharex=True, sharey=True)
+    q = None
+    for ax, e, title in zip(axes, errs, ("recording's model", "corrected model"), strict=True):
+        ok = np.isfinite(e).all(axis=1) & np.isfinite(pos[:, :2]).all(axis=1)
+        ax.plot(pos[ok, 0], pos[ok, 1], ".", color="0.55", ms=3, label="measured positions")
+        q = ax.quiver(pos[ok, 0], pos[ok, 1], e[ok, 0], e[ok, 1], e[ok, 2], cmap="coolwarm",
+                      angles="xy", scale_units="xy", scale=scale, clim=(-zmax, zmax),
+                      width=0.005, headwidth=3.5, headlength=4, headaxislength=3.5,
+                      minlength=0.0, edgecolor="k", linewidth=0.3)
+        ax.quiverkey(q, 0.03, -0.2, key, f"arrow key: {key:g} mm (xy)", labelpos="E",
+                     coordinates="axes", color="k")
+        ax.plot(exits[:, 0], exits[:, 1], "r^", label="exit points")
+        ax.plot(init[0], init[1], "k*", ms=14, label="initialisation pose")
+        mag = np.linalg.norm(e[ok], axis=1)
+        rms = np.sqrt(np.mean(mag ** 2)) if ok.any() else float("nan")
+        big = float(mag.max()) if ok.any() else float("nan")
+        ax.set_title(f"{title}\n3-D error RMS {rms:.2f} mm, largest {big:.2f} mm")
+        ax.set_xlabel("x [m]")
+        ax.set_aspect("equal")
+    fig.colorbar(q, ax=list(axes), label="vertical error z [mm] (one scale on both panels)",
+                 shrink=0.85)
+    axes[0].set_ylabel("y [m]")
+    axes[0].legend(loc="upper center", bbox_to_anchor=(1.1, -0.25), ncol=3, fontsize=8,
+                   frameon=False)
+    fig.suptitle("measured minus predicted platform position, seen from above\n"
+                 "arrows: the xy error (one scale on both panels); colour: the z error")
+    return fig
 
 
 def _save(fig, path: Path, plt) -> Path:

@@ -931,9 +931,11 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                          f"{', '.join(model.cable_ids[k] for k in worst)} "
                          f"(mast{'s' if len(masts) > 1 else ''} {', '.join(masts)})")
     for st in steps:
-        parts.append(f"cable {st['cable']}'s length reading steps by about "
-                     f"{st['step_m'] * 1e3:.1f} mm at t = {st['t_s']:.0f} s (a slip or an "
-                     f"encoder jump)")
+        # step_m is the change of the cable's length offset dl (added to the unstretched
+        # length): the reading itself jumped the other way
+        parts.append(f"cable {st['cable']}'s length reading jumps by about "
+                     f"{-st['step_m'] * 1e3:+.1f} mm at t = {st['t_s']:.0f} s (a slip or an "
+                     f"encoder jump: dl_{st['cable']} {st['step_m'] * 1e3:+.1f} mm from then on)")
     sig = _explained(sel)
     if sel.effects and sig:
         top = [f"{report_name(e)} ({v:.0%})" for e, v in list(sig.items())[:3] if v > 0.05]
