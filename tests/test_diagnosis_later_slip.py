@@ -36,3 +36,31 @@ def test_the_slip_is_placed_after_the_first_visit(tmp_path):
     assert [st["cable"] for st in fit_steps] == ["22"]
     # between the last sample before the slip and the first after it
     assert 45.0 < fit_steps[0]["t_s"] < 62.0  # (the slip at 50.7 s)
+
+
+SCENARIO_NO_TRACKER = (Path(__file__).parent / "data" / "scenarios"
+                       / "later_slip_no_tracker_rocaspect_12450.json")
+
+
+def test_a_slip_the_chosen_set_held_is_found_from_the_offset_alone(tmp_path):
+    """ROCASPECT dwell campaign without a tracker (case 12450 of `cdpr evaluate --seed
+    12400`): cable 41 slips 6.3 mm at 79 s, and the cables are softer (E*A 886 kN). The
+    first selection held cable 41's offset and fitted offsets on the seven others and two
+    cables' E*A (the right names, every parameter wrong, z up to 8); the offset alone
+    starts later on cable 41 (its neighbours' later starts at the same time are its smear
+    through the estimated poses): the slip, and the common E*A."""
+    one_blas_thread()
+    scenario = json.loads(SCENARIO_NO_TRACKER.read_text())
+    rep = diagnose(run_campaign(parse_scenario(scenario), tmp_path / "rec")).report
+    named = {e["name"]: e for e in rep["effects"]}
+    assert set(named) == {"cable_length_offset", "cable_elasticity"}, \
+        rep["mismatch"]["summary"]
+    off = named["cable_length_offset"]
+    assert set(off["params"]) == {"dl_41"}
+    truth = scenario["truth"]
+    assert abs(off["params"]["dl_41"] - truth["cable_length_offset"]["dl_41"]) < 5e-4
+    assert set(named["cable_elasticity"]["params"]) == {"ea"}
+    ea = truth["cable_elasticity"]["ea"]
+    assert abs(named["cable_elasticity"]["params"]["ea"] - ea) < 0.05 * ea
+    fit_steps = [st for st in rep["mismatch"]["steps"] if st.get("source") == "fit"]
+    assert [st["cable"] for st in fit_steps] == ["41"]

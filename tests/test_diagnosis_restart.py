@@ -281,7 +281,8 @@ def test_a_swap_at_equal_cost_needs_a_tie_a_wider_one_the_entry_bar():
 def test_a_lookalike_that_beats_the_chosen_effect_is_swapped_in():
     """Pulley radii refitted as a look-alike of exit offsets (case 12079: the linearised
     swap screen predicted +228, the refit -11.4 at fewer free parameters): the swap the
-    screen missed; at a BIC within the tie, or at more parameters short of the entry bar,
+    screen missed; at a BIC lower within the tie too (the report prefers what the data
+    favour); at an equal or higher BIC, or at more parameters short of the entry bar,
     none."""
     sel, _ = _selector(([], BASE))
     cur = _fit({"mast_compliance": 12, "exit_point_offset": 24}, 213.0)
@@ -295,7 +296,11 @@ def test_a_lookalike_that_beats_the_chosen_effect_is_swapped_in():
     e, a, chosen, fit = sel._missed_swap(record)
     assert (e, a, fit) == ("exit_point_offset", "pulley_kinematics", pulleys)
     assert chosen == ["mast_compliance", "pulley_kinematics"]
-    pulleys.bic = 213.0 - 8.0  # within the tie
+    pulleys.bic = 213.0 - 2.5  # within the tie, lower: preferred
+    assert sel._missed_swap(record)[1] == "pulley_kinematics"
+    pulleys.bic = 213.0  # equal: the chosen one stays
+    assert sel._missed_swap(record) is None
+    pulleys.bic = 213.0 + 3.0
     assert sel._missed_swap(record) is None
     pulleys.bic, pulleys.n_free = 213.0 - 20.0, 18  # more parameters: the entry bar
     assert sel._missed_swap(record) is None
@@ -357,6 +362,33 @@ def test_an_imitation_the_refit_does_not_bear_out_is_no_alternative():
         record = Selection(["mast_compliance"], cur, BASE)
         sel._lookalikes(record, ["mast_compliance", "exit_point_offset"])
         assert bool(record.alternatives["mast_compliance"]) == listed
+
+
+def test_a_swap_the_search_fitted_already_is_an_alternative_and_the_better_one_preferred():
+    """The mass chosen by the greedy order, a sag fitted in its place on the way (a
+    displaced effect) 2.5 lower in BIC, which the screen did not predict as a look-alike
+    (case 12435): listed as the alternative, and then preferred at no more free
+    parameters; a cached swap beyond the tie is not listed."""
+    for sag_bic, listed in ((890.7, True), (893.2 + 30.0, False)):
+        sel, _ = _selector(([], BASE))
+        cur = _fit({"platform_mass": 4}, 893.2)
+        cur.chi2, cur.n_free = 886.7, 1
+        sag = _fit({"cable_sag": 1}, sag_bic)
+        sag.n_free = 1
+        sel.cache = {("platform_mass",): cur, ("cable_sag",): sag, (): BASE}
+        sel._signal = {}
+        sel.swap_screen = lambda *a: {("platform_mass", "cable_sag"): 400.0}
+        sel.fit_many = lambda sets, start: [SimpleNamespace(bic=start.bic + 500.0)
+                                            for _ in sets]
+        sel.imitation = lambda *a: {}
+        sel.fit = lambda effects, start, sag=sag: sag
+        record = Selection(["platform_mass"], cur, BASE)
+        sel._lookalikes(record, ["platform_mass", "cable_sag"])
+        alts = record.alternatives["platform_mass"]
+        assert [a for a, _ in alts] == (["cable_sag"] if listed else [])
+        if listed:
+            assert alts[0][1] == sag_bic - 893.2
+            assert sel._missed_swap(record)[1] == "cable_sag"
 
 
 def _far(sizes: dict[str, int], bic: float, red: float, z: float) -> SimpleNamespace:
