@@ -3,12 +3,17 @@
 Each command module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``. Every command accepts ``--json`` (machine-readable output
 on stdout; human output, progress and warnings go to stderr).
+
+Under ``--json`` stdout carries one JSON object whatever happens: a usage error (an
+unknown command or option, a missing argument) prints ``{"error", "usage"}`` there (the
+usual message on stderr, exit status 2).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import sys
 
 # Command modules, in the order `cdpr --help` lists them. Add one line per command.
@@ -35,11 +40,34 @@ def _version() -> str:
         return "unknown (cdpr-bench, not installed)"
 
 
-def build_parser(only: str | None = "") -> argparse.ArgumentParser:
+class JsonErrorParser(argparse.ArgumentParser):
+    """A parser whose usage errors also print ``{"error": message, "usage": usage}`` on
+    stdout (for ``--json``); the sub-command parsers are of the same class."""
+
+    def error(self, message: str):
+        usage = " ".join(self.format_usage().split())  # one line, not wrapped
+        print(json.dumps({"error": message, "usage": usage}), flush=True)
+        super().error(message)  # the usual usage and message on stderr, exit status 2
+
+
+def json_requested(argv: list[str]) -> bool:
+    """Whether ``--json`` (or an abbreviation argparse would take) is on the command line
+    (before ``--``)."""
+    for a in argv:
+        if a == "--":
+            return False
+        if a == "--json" or (len(a) >= 4 and "--json".startswith(a)):
+            return True
+    return False
+
+
+def build_parser(only: str | None = "", json_errors: bool = False) -> argparse.ArgumentParser:
     """The ``cdpr`` parser. ``only``: build the options of that command alone (the others
     are listed with their help; a command's options may import heavy modules); ``""`` all of
-    them; ``None`` none (``cdpr --help``)."""
-    parser = argparse.ArgumentParser(
+    them; ``None`` none (``cdpr --help``). ``json_errors``: usage errors also print a JSON
+    object on stdout (:class:`JsonErrorParser`)."""
+    cls = JsonErrorParser if json_errors else argparse.ArgumentParser
+    parser = cls(
         prog="cdpr",
         description="Commission, run and check a large cable-driven parallel robot (ROCASPECT).",
     )
@@ -62,7 +90,7 @@ def _command(argv: list[str]) -> str | None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(_command(argv))
+    parser = build_parser(_command(argv), json_errors=json_requested(argv))
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)
