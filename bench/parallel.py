@@ -18,7 +18,9 @@ makes pools whose workers ask the kernel for SIGKILL when their parent dies (Lin
 went before they asked); :func:`ending_workers` terminates them when the parent leaves
 a ``with`` block by an exception (Ctrl-C), and :func:`interrupt_on_term` turns SIGTERM
 (and SIGHUP) into that exception, so that ``timeout``, CI and schedulers end the
-workers too.
+workers too. Workers take SIGTERM and SIGHUP with the default action (a worker told to
+stop ends at once, without a traceback) and ignore SIGINT (Ctrl-C reaches the whole
+process group: the parent decides).
 """
 
 from __future__ import annotations
@@ -91,10 +93,15 @@ def _die_with_parent(parent: int) -> None:
             pass
     if os.getppid() != parent:  # the parent is already gone
         os._exit(1)
-    single_blas_thread()
     # Ctrl-C goes to the whole process group: the parent decides, the workers carry on
-    # until it ends them (no traceback per worker)
+    # until it ends them (no traceback per worker). SIGTERM (terminate_workers, or sent to
+    # the group) ends a worker at once and quietly: a fork inherits the parent's handlers,
+    # and interrupt_on_term's would raise Terminated here, a traceback per worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is not None:
+            signal.signal(sig, signal.SIG_DFL)
+    single_blas_thread()
 
     def watch() -> None:
         while True:
