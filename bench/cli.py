@@ -7,6 +7,13 @@ on stdout; human output, progress and warnings go to stderr).
 Under ``--json`` stdout carries one JSON object whatever happens: a usage error (an
 unknown command or option, a missing argument) prints ``{"error", "usage"}`` there (the
 usual message on stderr, exit status 2).
+
+Signals: SIGTERM and SIGHUP raise :class:`bench.parallel.Terminated` (a KeyboardInterrupt)
+in every command, so that its ``finally`` blocks run and its worker processes end. An
+interruption a command does not handle itself ends it with one line on stderr, ``cdpr
+COMMAND: interrupted`` (Ctrl-C, exit status 130) or ``terminated (SIGTERM)`` (143: 128 +
+the signal), and under ``--json`` ``{"error": "interrupted"}`` (or the SIGTERM message) on
+stdout unless the command printed its own object.
 """
 
 from __future__ import annotations
@@ -88,17 +95,49 @@ def _command(argv: list[str]) -> str | None:
     return next((a for a in argv if not a.startswith("-")), None)
 
 
+class _Watched:
+    """A text stream that notes whether anything was written through it."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self.written = False
+
+    def write(self, text: str) -> int:
+        if text:
+            self.written = True
+        return self._stream.write(text)
+
+    def writelines(self, lines) -> None:
+        for line in lines:
+            self.write(line)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(_command(argv), json_errors=json_requested(argv))
+    as_json = json_requested(argv)
+    parser = build_parser(_command(argv), json_errors=as_json)
     args = parser.parse_args(argv)
+    from bench.parallel import interrupt_on_term, interruption
+
+    stdout = sys.stdout
+    out = sys.stdout = _Watched(stdout)
     try:
-        return int(args._run(args) or 0)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+        with interrupt_on_term():
+            return int(args._run(args) or 0)
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP the command did not handle
+        code, msg = interruption(e)
+        print(f"cdpr {args.command}: {msg}", file=sys.stderr, flush=True)
+        if as_json and not out.written:
+            print(json.dumps({"error": msg}), file=stdout, flush=True)
+        return code
     except BrokenPipeError:
         return 0
+    finally:
+        if sys.stdout is out:
+            sys.stdout = stdout
 
 
 if __name__ == "__main__":

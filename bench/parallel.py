@@ -20,7 +20,8 @@ a ``with`` block by an exception (Ctrl-C), and :func:`interrupt_on_term` turns S
 (and SIGHUP) into that exception, so that ``timeout``, CI and schedulers end the
 workers too. Workers take SIGTERM and SIGHUP with the default action (a worker told to
 stop ends at once, without a traceback) and ignore SIGINT (Ctrl-C reaches the whole
-process group: the parent decides).
+process group: the parent decides); :func:`interruption` gives the exit status and the
+one line the parent reports.
 """
 
 from __future__ import annotations
@@ -146,7 +147,28 @@ def ending_workers(pool: ProcessPoolExecutor | None):
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP arrived (raised in the main thread by :func:`interrupt_on_term`)."""
+    """SIGTERM or SIGHUP arrived (raised in the main thread by :func:`interrupt_on_term`);
+    ``signum`` is the signal's number."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
+
+    def __str__(self) -> str:
+        return f"signal {self.signum}"
+
+
+def interruption(exc: BaseException) -> tuple[int, str]:
+    """The exit status and the message of an interruption: ``(130, "interrupted")`` for
+    Ctrl-C (KeyboardInterrupt), ``(143, "terminated (SIGTERM)")`` for SIGTERM (128 + the
+    signal's number, as a shell reports a process the signal killed)."""
+    if isinstance(exc, Terminated):
+        try:
+            name = signal.Signals(exc.signum).name
+        except ValueError:
+            name = f"signal {exc.signum}"
+        return 128 + exc.signum, f"terminated ({name})"
+    return 130, "interrupted"
 
 
 @contextlib.contextmanager
@@ -158,7 +180,7 @@ def interrupt_on_term():
         return
 
     def handler(signum, frame):
-        raise Terminated(f"signal {signum}")
+        raise Terminated(signum)
 
     old = {}
     for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):

@@ -6,7 +6,7 @@ fit starts. Under ``--json`` stdout carries one JSON object: the report, or
 command, whatever ends it (Ctrl-C, SIGTERM, SIGKILL).
 
 Exit status: 0 diagnosed, 1 the diagnosis failed, 2 bad recording or arguments,
-130 interrupted.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -96,7 +96,13 @@ def _write_json(path: Path, obj: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.diagnosis.report import diagnose, prepare_outputs
-    from bench.parallel import ending_workers, interrupt_on_term, single_blas_thread, worker_pool
+    from bench.parallel import (
+        ending_workers,
+        interrupt_on_term,
+        interruption,
+        single_blas_thread,
+        worker_pool,
+    )
     from bench.recording import RecordingError
 
     single_blas_thread()
@@ -125,11 +131,12 @@ def run(args: argparse.Namespace) -> int:
                 dg = diagnose(args.recording, progress, pool, args.write_model)
     except RecordingError as e:
         return _fail(args, 2, str(e))
-    except KeyboardInterrupt:
-        print("cdpr diagnose: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: one line, the workers are ended
+        code, msg = interruption(e)
+        print(f"cdpr diagnose: {msg}", file=sys.stderr)
         if args.json:
-            print(json.dumps({"error": "interrupted", "recording": args.recording}))
-        return 130
+            print(json.dumps({"error": msg, "recording": args.recording}))
+        return code
     except Exception as e:  # noqa: BLE001 - reported, with the trace on stderr
         traceback.print_exc(file=sys.stderr)
         return _fail(args, 1, f"the diagnosis failed: {type(e).__name__}: {e}")

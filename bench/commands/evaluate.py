@@ -15,7 +15,9 @@ go on. A case that kills its worker process is an error too (``BrokenProcessPool
 cases that ran beside it run again (see :mod:`bench.parallel`).
 
 Exit status: 0 all cases scored, 1 some case raised, 2 bad arguments or FILE, or the
-scheduler cannot be reached.
+scheduler cannot be reached, 130 interrupted (Ctrl-C), 143 terminated (SIGTERM): under
+``--json`` the object then holds ``"error"`` and the cases finished so far (``summary`` with
+``not_run``).
 """
 
 from __future__ import annotations
@@ -320,7 +322,13 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from bench import evaluate
-    from bench.parallel import SchedulerError, interrupt_on_term, run_each, single_blas_thread
+    from bench.parallel import (
+        SchedulerError,
+        interrupt_on_term,
+        interruption,
+        run_each,
+        single_blas_thread,
+    )
 
     single_blas_thread()
     if args.cases < 1:
@@ -373,6 +381,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"[{o.elapsed_s:6.1f} s] case {done}/{len(todo)} seed {o.item}: {what}; "
               f"exact detection {rate}; ETA {math.ceil(eta)} s", file=sys.stderr, flush=True)
 
+    interrupted: KeyboardInterrupt | None = None
     try:
         if todo:
             outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
@@ -390,17 +399,32 @@ def run(args: argparse.Namespace) -> int:
                     say(o, done)
     except SchedulerError as e:
         return _fail(args, 2, str(e))
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: the cases finished so far, then out
+        interrupted = e
     finally:
         if out is not None:
             out.close()
 
-    cases = [results[s] for s in seeds if "error" not in results[s]]
+    cases = [results[s] for s in seeds if s in results and "error" not in results[s]]
     errors = [{"seed": s, "error": results[s]["error"], "trace": results[s].get("trace")}
-              for s in seeds if "error" in results[s]]
+              for s in seeds if s in results and "error" in results[s]]
     summary = evaluate.summarise(cases) | {"errors": len(errors), "requested": len(seeds)}
+    report = {"summary": summary, "cases": cases, "errors": errors, "config": config,
+              "seeds": [seeds.start, seeds.stop - 1]}
+    if interrupted is not None:
+        # the cases finished so far; bench.cli reports the interruption on stderr and
+        # exits with its status
+        msg = interruption(interrupted)[1]
+        summary["not_run"] = len(seeds) - len(results)
+        if args.json:
+            print(_dumps({"error": msg} | report), flush=True)
+        elif results:
+            print(f"{msg} with {summary['not_run']} of {len(seeds)} cases not run: the cases "
+                  f"finished so far")
+            print(human(summary, errors, seeds), flush=True)
+        raise interrupted
     if args.json:
-        print(_dumps({"summary": summary, "cases": cases, "errors": errors, "config": config,
-                      "seeds": [seeds.start, seeds.stop - 1]}))
+        print(_dumps(report))
     else:
         print(human(summary, errors, seeds))
     return 1 if errors else 0
