@@ -231,12 +231,16 @@ def _trace(exc: BaseException) -> str:
 
 def run_each(fn: Callable[..., Any], items: Iterable[Any], *, jobs: int = 2,
              scheduler: str | None = None, connect_timeout_s: float = 10.0,
+             on_start: Callable[[Any], None] | None = None,
              **kw: Any) -> Iterator[Outcome]:
     """Yield the :class:`Outcome` of ``fn(item, **kw)`` for each item, as they complete.
 
     Closing the iterator early (or an exception in the consumer, such as
     KeyboardInterrupt) cancels the items not yet started and releases the pool or the
     cluster connection. :class:`SchedulerError` if the Dask scheduler cannot be reached.
+    ``on_start(item)`` is called in the consumer's thread when an item starts in this
+    process or is handed to a local worker (again if it runs again after a worker died);
+    not on Dask, whose scheduler decides when an item starts.
     """
     items = list(items)
     if jobs < 1:
@@ -244,13 +248,15 @@ def run_each(fn: Callable[..., Any], items: Iterable[Any], *, jobs: int = 2,
     if scheduler:
         return _run_dask(fn, items, scheduler, connect_timeout_s, kw)
     if jobs == 1:
-        return _run_serial(fn, items, kw)
-    return _run_pool(fn, items, jobs, kw)
+        return _run_serial(fn, items, kw, on_start)
+    return _run_pool(fn, items, jobs, kw, on_start)
 
 
-def _run_serial(fn, items, kw) -> Iterator[Outcome]:
+def _run_serial(fn, items, kw, on_start=None) -> Iterator[Outcome]:
     t0 = time.perf_counter()
     for item in items:
+        if on_start is not None:
+            on_start(item)
         try:
             value = fn(item, **kw)
         except Exception as e:  # noqa: BLE001 - reported in the outcome
@@ -260,7 +266,7 @@ def _run_serial(fn, items, kw) -> Iterator[Outcome]:
             yield Outcome(item, value=value, elapsed_s=time.perf_counter() - t0)
 
 
-def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
+def _run_pool(fn, items, jobs, kw, on_start=None) -> Iterator[Outcome]:
     """At most ``jobs`` items in flight. If a worker process dies (the pool breaks), the
     items then in flight run again one at a time in a fresh pool: the one that kills its
     worker alone is reported (``BrokenProcessPool``), the others are not lost."""
@@ -270,15 +276,22 @@ def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
     pool = worker_pool(workers)
     t0 = time.perf_counter()
     finished = False
+
+    def submit(item):
+        fut = pool.submit(fn, item, **kw)
+        if on_start is not None:
+            on_start(item)
+        return fut
+
     try:
         while queue or suspects or inflight:
             if suspects and not inflight:
                 item = suspects.popleft()
-                inflight[pool.submit(fn, item, **kw)] = (item, True)
+                inflight[submit(item)] = (item, True)
             elif not suspects:
                 while queue and len(inflight) < workers:
                     item = queue.popleft()
-                    inflight[pool.submit(fn, item, **kw)] = (item, False)
+                    inflight[submit(item)] = (item, False)
             done, _ = wait(inflight, return_when=FIRST_COMPLETED)
             broken = False
             for fut in done:

@@ -329,6 +329,7 @@ def run(args: argparse.Namespace) -> int:
         run_each,
         single_blas_thread,
     )
+    from bench.progress import Progress
 
     single_blas_thread()
     if args.cases < 1:
@@ -367,9 +368,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"cdpr evaluate: {len(results)} of {len(seeds)} seeds already in {out_path}, "
               f"{len(todo)} to run", file=sys.stderr)
 
+    # progress on stderr: a line at start, one per case started and finished, and the
+    # progress line (cases done, those running) every 15 s (every second on a terminal)
+    prog = Progress("evaluate", len(todo), args.quiet, unit="cases")
+    started = [0]
+
+    def on_start(seed: int) -> None:
+        started[0] += 1
+        prog.running[f"seed {seed}"] = None
+        prog.say(f"[{prog.elapsed_s():6.1f} s] seed {seed} started "
+                 f"({started[0]}/{len(todo)})")
+
     def say(o, done: int) -> None:
-        if args.quiet:
-            return
+        prog.running.pop(f"seed {o.item}", None)
+        prog.done = done
         scored = [r for r in results.values() if "error" not in r]
         exact = sum(bool(r["exact"]) for r in scored)
         rate = f"{exact}/{len(scored)} = {_pct(exact / len(scored))}" if scored else "n/a"
@@ -378,8 +390,15 @@ def run(args: argparse.Namespace) -> int:
                 ("exact" if o.value["exact"] else
                  f"named {','.join(o.value['named']) or 'none'} "
                  f"(concealed {','.join(o.value['truth']) or 'none'})"))
-        print(f"[{o.elapsed_s:6.1f} s] case {done}/{len(todo)} seed {o.item}: {what}; "
-              f"exact detection {rate}; ETA {math.ceil(eta)} s", file=sys.stderr, flush=True)
+        prog.say(f"[{o.elapsed_s:6.1f} s] case {done}/{len(todo)} seed {o.item}: {what}; "
+                 f"exact detection {rate}; ETA {math.ceil(eta)} s")
+
+    if todo:
+        where = (f"on the Dask cluster at {args.scheduler}" if args.scheduler else
+                 "in this process (--jobs 1)" if args.jobs == 1 else
+                 f"on {min(args.jobs, len(todo))} local worker processes (--jobs {args.jobs})")
+        prog.say(f"cdpr evaluate: {len(todo)} cases (seeds {todo[0]}..{todo[-1]}, --seed "
+                 f"{args.seed}) {where}")
 
     interrupted: KeyboardInterrupt | None = None
     try:
@@ -387,8 +406,8 @@ def run(args: argparse.Namespace) -> int:
             outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
                                 scheduler=args.scheduler,
                                 connect_timeout_s=args.connect_timeout, keep=args.keep,
-                                **case_kwargs(config))
-            with interrupt_on_term(), closing(outcomes):
+                                on_start=on_start, **case_kwargs(config))
+            with interrupt_on_term(), closing(outcomes), prog:
                 for done, o in enumerate(outcomes, 1):
                     rec = (o.value if o.ok else
                            {"seed": o.item, "error": o.error, "trace": o.trace})
