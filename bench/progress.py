@@ -15,10 +15,11 @@ from pathlib import Path
 class Progress:
     """The progress line on stderr: ``title: done/total <unit> done, M:SS elapsed; running
     a 40%, b``. ``running`` maps an item's label to its progress file (a fraction as the
-    first word) or None (the label alone). Nothing is printed with ``quiet``. ``period_s``:
-    seconds between progress lines [1 on a terminal, 15 otherwise]."""
+    first word) or None (the label alone). ``total`` None: one job, no count (``title: M:SS
+    elapsed``). Nothing is printed with ``quiet``. ``period_s``: seconds between progress
+    lines [1 on a terminal, 15 otherwise]."""
 
-    def __init__(self, title: str, total: int, quiet: bool = False, unit: str = "runs",
+    def __init__(self, title: str, total: int | None, quiet: bool = False, unit: str = "runs",
                  period_s: float | None = None) -> None:
         self.title, self.total, self.quiet, self.unit = title, total, quiet, unit
         self.done = 0
@@ -61,9 +62,9 @@ class Progress:
             f = self._fraction(p)
             if f is not None and 0.0 < f < 1.0:
                 parts.append(f"{label} {100 * f:.0f}%")
-        return (f"{self.title}: {self.done}/{self.total} {self.unit} done, {int(el // 60)}:"
-                f"{int(el % 60):02d} elapsed" + (f"; running {', '.join(parts)}" if parts
-                                                 else ""))
+        count = "" if self.total is None else f"{self.done}/{self.total} {self.unit} done, "
+        return (f"{self.title}: {count}{int(el // 60)}:{int(el % 60):02d} elapsed"
+                + (f"; running {', '.join(parts)}" if parts else ""))
 
     def say(self, msg: str) -> None:
         if self.quiet:

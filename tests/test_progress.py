@@ -38,3 +38,7 @@ def test_say_and_heartbeat_go_to_stderr_unless_quiet(capsys):
     with Progress("job", 1, quiet=True, period_s=0.01) as q:
         q.say("nothing")
     assert capsys.readouterr().err == ""
+
+
+def test_one_job_without_a_count():
+    assert Progress("workspace sweep", None).line() == "workspace sweep: 0:00 elapsed"
