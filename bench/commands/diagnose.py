@@ -141,6 +141,8 @@ def run(args: argparse.Namespace) -> int:
         traceback.print_exc(file=sys.stderr)
         return _fail(args, 1, f"the diagnosis failed: {type(e).__name__}: {e}")
     if args.plots:
+        # seconds of drawing (matplotlib's start-up, the residual maps): said first
+        progress(f"drawing the plots (residual maps, per-cable bars) into {args.plots}")
         try:
             from bench.diagnosis.plots import write_plots
 
