@@ -123,16 +123,19 @@ def _progress_printer(quiet: bool, duration_s: float | None = None):
     def show(res, t_traj: float) -> None:
         if quiet:
             return
+        # the bar, the percentage and the time are all trajectory time against where the
+        # run ends: the path's end, or --duration when that comes first (the loop's end);
+        # the initialisation before the path starts reads 0 %
         total = res.path_s or 1.0
-        frac = min(1.0, t_traj / total)
-        if duration_s:  # --duration ends the run first when it is shorter than the path
-            frac = max(frac, min(1.0, res.simulated_s / duration_s))
+        end = min(total, duration_s) if duration_s else total
+        frac = min(1.0, max(0.0, t_traj / end))
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
         wall = time.perf_counter() - t0
         speed = res.simulated_s / wall if wall > 0 else 0.0
         rate = res.cycles / wall if wall > 0 else 0.0
         err = res.pose_error_rms_m
-        line = (f"[{bar}] {100 * frac:5.1f}%  t {t_traj:7.1f}/{total:.1f} s  "
+        of = f" (--duration, path {total:.1f} s)" if end < total else ""
+        line = (f"[{bar}] {100 * frac:5.1f}%  t {t_traj:7.1f}/{end:.1f} s{of}  "
                 f"{rate:6.0f} cycles/s (x{speed:4.1f})  overruns {res.overruns}  "
                 f"events {sum(1 for e in res.events if e['reaction'] != 'event')}  "
                 f"pose error {'-' if err is None else f'{1e3 * err:.1f} mm rms'}")
