@@ -1,7 +1,8 @@
 """``cdpr diagnose RECORDING_DIR``: locate the mismatch, name the physics left out, fit it.
 
 Outputs (``--plots DIR``, ``--write-model PATH``, ``--out FILE``) are checked before the
-fit starts. Under ``--json`` stdout carries one JSON object: the report, or
+fit starts; the directories made for them are removed again (when still empty) if the
+command then fails. Under ``--json`` stdout carries one JSON object: the report, or
 ``{"error": ...}`` when the diagnosis fails. Worker processes (``--jobs``) end with the
 command, whatever ends it (Ctrl-C, SIGTERM, SIGKILL).
 
@@ -95,6 +96,19 @@ def _write_json(path: Path, obj: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.outputs import remove_created
+
+    created: list[Path] = []  # directories made for the outputs
+    code = 1
+    try:
+        code = _run(args, created)
+    finally:  # failed before writing there (a bad recording, Ctrl-C): no directory left
+        if code != 0:
+            remove_created(created)
+    return code
+
+
+def _run(args: argparse.Namespace, created: list[Path]) -> int:
     from bench.diagnosis.report import diagnose, prepare_outputs
     from bench.parallel import (
         ending_workers,
@@ -115,11 +129,11 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         return _fail(args, 2, f"--jobs {args.jobs}: must be >= 1")
     try:
-        prepare_outputs(args.write_model, args.plots)
+        prepare_outputs(args.write_model, args.plots, created)
         if args.out:
             from bench.outputs import output_file_problem
 
-            problem = output_file_problem(args.out, "--out")
+            problem = output_file_problem(args.out, "--out", created)
             if problem:
                 raise OSError(problem)
     except OSError as e:
