@@ -7,14 +7,16 @@ be written, else the message; they create missing parent directories (as the wri
 would) and leave nothing else behind.
 
 The directories they create are appended to ``created`` when the caller passes a list: a
-command that then fails before writing into them calls :func:`remove_created` and leaves
-no trace of them (only empty directories are removed, deepest first).
+command that then fails before writing into them calls :func:`remove_created` (or runs in
+:func:`removing_created`) and leaves no trace of them (only empty directories are removed,
+deepest first).
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -45,6 +47,20 @@ def remove_created(created: list[Path]) -> None:
             d.rmdir()  # only an empty directory
         except OSError:
             pass
+
+
+def removing_created(run: Callable[[list[Path]], int]) -> int:
+    """``run(created)`` (a command that appends the directories it makes for its outputs to
+    ``created``), then, unless it returned 0, :func:`remove_created` (also when it raised,
+    Ctrl-C included); returns its exit status."""
+    created: list[Path] = []
+    code = 1
+    try:
+        code = run(created)
+    finally:
+        if code != 0:
+            remove_created(created)
+    return code
 
 
 def _parent_problem(parent: Path, what: str, created: list[Path] | None = None) -> str | None:
@@ -120,4 +136,4 @@ def write_text_file(path: str | Path, text: str) -> None:
 
 
 __all__ = ["make_dirs", "output_dir_problem", "output_file_problem", "remove_created",
-           "write_text_file"]
+           "removing_created", "write_text_file"]

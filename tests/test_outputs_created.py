@@ -59,3 +59,51 @@ def test_diagnose_keeps_the_directories_it_wrote_into(tmp_path, capsys):
     assert main(["diagnose", str(EXAMPLE), "--quiet", "--jobs", "1", "--write-model",
                  str(tmp_path / "m" / "x.toml")]) == 0
     assert (tmp_path / "m" / "x.toml").is_file()
+
+
+def _left(tmp_path: Path) -> list[str]:
+    return sorted(p.name for p in tmp_path.iterdir())
+
+
+def test_campaign_refused_or_failed_leaves_no_directory(tmp_path, capsys, monkeypatch):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('format = "cdpr-scenario/1"\nrobot = "no-such-robot"\n')
+    assert main(["campaign", str(bad), str(tmp_path / "new" / "rec"), "--quiet"]) == 2
+    assert _left(tmp_path) == ["bad.toml"]
+    import bench.campaign
+
+    def fails(*a, **kw):
+        raise ValueError("a pose the model cannot reach")
+
+    monkeypatch.setattr(bench.campaign, "run_campaign", fails)
+    scenario = Path(__file__).parent / "data" / "scenarios" / "paper.toml"
+    assert main(["campaign", str(scenario), str(tmp_path / "new" / "rec"), "--quiet"]) == 1
+    assert "cannot reach" in capsys.readouterr().err
+    assert _left(tmp_path) == ["bad.toml"]
+
+
+def test_model_check_refused_leaves_no_directory(tmp_path, capsys):
+    assert main(["model", "check", "rocaspect", "--step", "0.001", "--plot",
+                 str(tmp_path / "new" / "ws.png")]) == 2
+    assert "grid points" in capsys.readouterr().err
+    assert _left(tmp_path) == []
+
+
+def test_dry_run_refused_leaves_no_directory(tmp_path, capsys):
+    assert main(["dry-run", "paper-centre", "--quiet", "--faults",
+                 str(tmp_path / "absent.toml"), "--record", str(tmp_path / "new" / "rec"),
+                 "--plots", str(tmp_path / "p" / "plots")]) == 2
+    assert "absent.toml" in capsys.readouterr().err
+    assert _left(tmp_path) == []
+
+
+def test_evaluate_refused_leaves_no_directory(tmp_path, capsys):
+    from bench.commands.evaluate import OUT_FORMAT
+
+    out_file = tmp_path / "cases.jsonl"
+    out_file.write_text(json.dumps({"format": OUT_FORMAT, "config": {"robot": "other"}})
+                        + "\n", encoding="utf-8")
+    assert main(["evaluate", "--cases", "1", "--keep", str(tmp_path / "new" / "kept"),
+                 "--out", str(out_file)]) == 2
+    assert "another case configuration" in capsys.readouterr().err
+    assert _left(tmp_path) == ["cases.jsonl"]

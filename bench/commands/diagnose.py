@@ -96,16 +96,10 @@ def _write_json(path: Path, obj: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.outputs import remove_created
+    from bench.outputs import removing_created
 
-    created: list[Path] = []  # directories made for the outputs
-    code = 1
-    try:
-        code = _run(args, created)
-    finally:  # failed before writing there (a bad recording, Ctrl-C): no directory left
-        if code != 0:
-            remove_created(created)
-    return code
+    # failed before writing there (a bad recording, Ctrl-C): no directory made for it left
+    return removing_created(lambda created: _run(args, created))
 
 
 def _run(args: argparse.Namespace, created: list[Path]) -> int:

@@ -105,7 +105,7 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
     return code
 
 
-def _check_dir(path: str, force: bool, what: str) -> str | None:
+def _check_dir(path: str, force: bool, what: str, created: list | None = None) -> str | None:
     """Why ``path`` cannot take the output, or None (checked before anything runs, by
     creating the missing parents and writing a probe file)."""
     from bench.outputs import output_dir_problem
@@ -113,7 +113,7 @@ def _check_dir(path: str, force: bool, what: str) -> str | None:
     p = Path(path)
     if p.is_dir() and any(p.iterdir()) and not force:
         return f"{what} {p}: not empty (use --force to overwrite)"
-    return output_dir_problem(p, what)
+    return output_dir_problem(p, what, created)
 
 
 def _progress_printer(quiet: bool, duration_s: float | None = None):
@@ -150,6 +150,14 @@ def run(args: argparse.Namespace) -> int:
         from bench.dryrun import paper_command
 
         return paper_command.run(args)
+    from bench.outputs import removing_created
+
+    # refused or failed before recording (a bad fault file, Ctrl-C): no directory made
+    # for --record or --plots left
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list) -> int:
     import dataclasses
 
     import numpy as np
@@ -196,7 +204,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.plant_rate > 0:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
     for d, what in ((args.record, "--record"), (args.plots, "--plots")):
-        if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what)):
+        if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what,
+                                                created)):
             return _fail(args, 2, msg)
     # --plots without --record: the plots are drawn from a recording in a scratch directory
     scratch = None

@@ -184,13 +184,16 @@ def read_results(path: Path) -> tuple[dict | None, dict[int, dict]]:
     return header, records
 
 
-def _open_out(path: Path, config: dict, header: dict | None) -> TextIO:
+def _open_out(path: Path, config: dict, header: dict | None,
+              created: list[Path] | None = None) -> TextIO:
+    from bench.outputs import make_dirs
+
     if header is not None and header.get("config") != config:
         raise UsageError(f"{path}: made with another case configuration "
                          f"{_dumps(header.get('config'))}; this run: {_dumps(config)} "
                          f"(use another --out FILE)")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(path.parent, created)
         f = path.open("a+", encoding="utf-8")
     except OSError as e:
         raise UsageError(f"{path}: cannot write: {e.strerror or e}") from e
@@ -321,6 +324,14 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.outputs import removing_created
+
+    # refused (another configuration in --out) or failed: no directory made for --keep or
+    # --out left unless something was written there
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list[Path]) -> int:
     from bench import evaluate
     from bench.parallel import (
         SchedulerError,
@@ -352,11 +363,13 @@ def run(args: argparse.Namespace) -> int:
         out_path = Path(args.out) if args.out else None
         header, previous = read_results(out_path) if out_path else (None, {})
         if args.keep is not None:
+            from bench.outputs import make_dirs
+
             try:
-                Path(args.keep).mkdir(parents=True, exist_ok=True)
+                make_dirs(args.keep, created)
             except OSError as e:
                 raise UsageError(f"--keep {args.keep}: cannot make the folder: {e}") from e
-        out = _open_out(out_path, config, header) if out_path else None
+        out = _open_out(out_path, config, header, created) if out_path else None
     except UsageError as e:
         return _fail(args, 2, str(e))
 

@@ -208,7 +208,7 @@ def _usage_error(args: argparse.Namespace, msg: str) -> int:
     return 2
 
 
-def _option_problem(args: argparse.Namespace) -> str | None:
+def _option_problem(args: argparse.Namespace, created: list | None = None) -> str | None:
     import math
 
     if not (math.isfinite(args.step) and args.step > 0):
@@ -218,11 +218,18 @@ def _option_problem(args: argparse.Namespace) -> str | None:
     if args.plot:
         from bench.outputs import output_file_problem
 
-        return output_file_problem(args.plot, "--plot")
+        return output_file_problem(args.plot, "--plot", created)
     return None
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.outputs import removing_created
+
+    # refused (a grid too fine) or interrupted: no directory made for --plot left
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list) -> int:
     from controller.robot import RobotFileError, resolve_robot
     from controller.workspace import footprint_bounds
 
@@ -236,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             _print_show(robot)
         return 0
-    if (problem := _option_problem(args)) is not None:
+    if (problem := _option_problem(args, created)) is not None:
         return _usage_error(args, problem)
     x0, x1, y0, y1 = footprint_bounds(robot)
     points = ((x1 - x0) / args.step) * ((y1 - y0) / args.step)
