@@ -18,7 +18,10 @@ makes pools whose workers ask the kernel for SIGKILL when their parent dies (Lin
 went before they asked); :func:`ending_workers` terminates them when the parent leaves
 a ``with`` block by an exception (Ctrl-C), and :func:`interrupt_on_term` turns SIGTERM
 (and SIGHUP) into that exception, so that ``timeout``, CI and schedulers end the
-workers too.
+workers too. Workers take SIGTERM and SIGHUP with the default action (a worker told to
+stop ends at once, without a traceback) and ignore SIGINT (Ctrl-C reaches the whole
+process group: the parent decides); :func:`interruption` gives the exit status and the
+one line the parent reports.
 """
 
 from __future__ import annotations
@@ -91,10 +94,15 @@ def _die_with_parent(parent: int) -> None:
             pass
     if os.getppid() != parent:  # the parent is already gone
         os._exit(1)
-    single_blas_thread()
     # Ctrl-C goes to the whole process group: the parent decides, the workers carry on
-    # until it ends them (no traceback per worker)
+    # until it ends them (no traceback per worker). SIGTERM (terminate_workers, or sent to
+    # the group) ends a worker at once and quietly: a fork inherits the parent's handlers,
+    # and interrupt_on_term's would raise Terminated here, a traceback per worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is not None:
+            signal.signal(sig, signal.SIG_DFL)
+    single_blas_thread()
 
     def watch() -> None:
         while True:
@@ -139,7 +147,28 @@ def ending_workers(pool: ProcessPoolExecutor | None):
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP arrived (raised in the main thread by :func:`interrupt_on_term`)."""
+    """SIGTERM or SIGHUP arrived (raised in the main thread by :func:`interrupt_on_term`);
+    ``signum`` is the signal's number."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
+
+    def __str__(self) -> str:
+        return f"signal {self.signum}"
+
+
+def interruption(exc: BaseException) -> tuple[int, str]:
+    """The exit status and the message of an interruption: ``(130, "interrupted")`` for
+    Ctrl-C (KeyboardInterrupt), ``(143, "terminated (SIGTERM)")`` for SIGTERM (128 + the
+    signal's number, as a shell reports a process the signal killed)."""
+    if isinstance(exc, Terminated):
+        try:
+            name = signal.Signals(exc.signum).name
+        except ValueError:
+            name = f"signal {exc.signum}"
+        return 128 + exc.signum, f"terminated ({name})"
+    return 130, "interrupted"
 
 
 @contextlib.contextmanager
@@ -151,7 +180,7 @@ def interrupt_on_term():
         return
 
     def handler(signum, frame):
-        raise Terminated(f"signal {signum}")
+        raise Terminated(signum)
 
     old = {}
     for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
@@ -202,12 +231,16 @@ def _trace(exc: BaseException) -> str:
 
 def run_each(fn: Callable[..., Any], items: Iterable[Any], *, jobs: int = 2,
              scheduler: str | None = None, connect_timeout_s: float = 10.0,
+             on_start: Callable[[Any], None] | None = None,
              **kw: Any) -> Iterator[Outcome]:
     """Yield the :class:`Outcome` of ``fn(item, **kw)`` for each item, as they complete.
 
     Closing the iterator early (or an exception in the consumer, such as
     KeyboardInterrupt) cancels the items not yet started and releases the pool or the
     cluster connection. :class:`SchedulerError` if the Dask scheduler cannot be reached.
+    ``on_start(item)`` is called in the consumer's thread when an item starts in this
+    process or is handed to a local worker (again if it runs again after a worker died);
+    not on Dask, whose scheduler decides when an item starts.
     """
     items = list(items)
     if jobs < 1:
@@ -215,13 +248,15 @@ def run_each(fn: Callable[..., Any], items: Iterable[Any], *, jobs: int = 2,
     if scheduler:
         return _run_dask(fn, items, scheduler, connect_timeout_s, kw)
     if jobs == 1:
-        return _run_serial(fn, items, kw)
-    return _run_pool(fn, items, jobs, kw)
+        return _run_serial(fn, items, kw, on_start)
+    return _run_pool(fn, items, jobs, kw, on_start)
 
 
-def _run_serial(fn, items, kw) -> Iterator[Outcome]:
+def _run_serial(fn, items, kw, on_start=None) -> Iterator[Outcome]:
     t0 = time.perf_counter()
     for item in items:
+        if on_start is not None:
+            on_start(item)
         try:
             value = fn(item, **kw)
         except Exception as e:  # noqa: BLE001 - reported in the outcome
@@ -231,7 +266,7 @@ def _run_serial(fn, items, kw) -> Iterator[Outcome]:
             yield Outcome(item, value=value, elapsed_s=time.perf_counter() - t0)
 
 
-def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
+def _run_pool(fn, items, jobs, kw, on_start=None) -> Iterator[Outcome]:
     """At most ``jobs`` items in flight. If a worker process dies (the pool breaks), the
     items then in flight run again one at a time in a fresh pool: the one that kills its
     worker alone is reported (``BrokenProcessPool``), the others are not lost."""
@@ -241,15 +276,22 @@ def _run_pool(fn, items, jobs, kw) -> Iterator[Outcome]:
     pool = worker_pool(workers)
     t0 = time.perf_counter()
     finished = False
+
+    def submit(item):
+        fut = pool.submit(fn, item, **kw)
+        if on_start is not None:
+            on_start(item)
+        return fut
+
     try:
         while queue or suspects or inflight:
             if suspects and not inflight:
                 item = suspects.popleft()
-                inflight[pool.submit(fn, item, **kw)] = (item, True)
+                inflight[submit(item)] = (item, True)
             elif not suspects:
                 while queue and len(inflight) < workers:
                     item = queue.popleft()
-                    inflight[pool.submit(fn, item, **kw)] = (item, False)
+                    inflight[submit(item)] = (item, False)
             done, _ = wait(inflight, return_when=FIRST_COMPLETED)
             broken = False
             for fut in done:

@@ -59,3 +59,26 @@ def test_bad_recording_exits_2_naming_the_file(capsys, tmp_path):
     assert "recording.csv:1" in json.loads(captured.out)["error"]
     assert "recording.csv:1" in captured.err
     assert main(["diagnose", str(tmp_path / "missing"), "--quiet"]) == 2
+
+
+def test_progress_says_the_plots_are_being_drawn_before_they_are(capsys, monkeypatch,
+                                                                  tmp_path):
+    from bench.diagnosis import plots
+
+    real, seen = plots.write_plots, []
+
+    def spy(*a, **kw):
+        seen.append(capsys.readouterr().err)  # stderr before the drawing starts
+        return real(*a, **kw)
+
+    monkeypatch.setattr(plots, "write_plots", spy)
+    assert main(["diagnose", str(EXAMPLE), "--jobs", "1", "--plots", str(tmp_path / "p")]) == 0
+    assert len(seen) == 1
+    last = seen[0].strip().splitlines()[-1]
+    assert last.endswith(f"drawing the plots (residual maps, per-cable bars) into "
+                         f"{tmp_path / 'p'}")
+    assert "plot " in capsys.readouterr().err
+    # --quiet: no progress at all
+    assert main(["diagnose", str(EXAMPLE), "--jobs", "1", "--quiet", "--plots",
+                 str(tmp_path / "q")]) == 0
+    assert seen[1] == "" and capsys.readouterr().err == ""

@@ -395,3 +395,32 @@ def test_score_counts_every_parameter_of_an_effect_named_right():
     report["effects"][0]["params"].pop(f"s_{c[1]}")
     s = score(report, truth, model)
     assert s.params_total == 1 and [round(z, 6) for z in s.z] == [1.0]
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_progress_says_what_starts_before_any_case_finishes(capsys, jobs):
+    rc, out, err = run_json(capsys, "--cases", "2", "--seed", "5", "--jobs", jobs,
+                            *SMALL, *ONE)
+    assert rc == 0
+    lines = err.splitlines()
+    where = "in this process (--jobs 1)" if jobs == "1" else \
+        "on 2 local worker processes (--jobs 2)"
+    assert lines[0] == f"cdpr evaluate: 2 cases (seeds 5..6, --seed 5) {where}"
+    started = [i for i, ln in enumerate(lines) if " started (" in ln]
+    first_done = next(i for i, ln in enumerate(lines) if "case 1/2 seed" in ln)
+    assert len(started) == 2 and started[0] < first_done
+    assert "seed 5 started" in lines[started[0]]
+    # --quiet: nothing
+    rc, _, err = run_json(capsys, "--cases", "1", "--seed", "5", "--jobs", jobs, "--quiet",
+                          *SMALL, *ONE)
+    assert rc == 0 and err == ""
+
+
+def test_run_each_says_when_each_item_starts():
+    started: list[int] = []
+    outcomes = list(run_each(abs, [-1, -2, -3], jobs=2, on_start=started.append))
+    assert sorted(started) == [-3, -2, -1]
+    assert sorted(o.value for o in outcomes) == [1, 2, 3]
+    started.clear()
+    assert [o.value for o in run_each(abs, [-4], jobs=1, on_start=started.append)] == [4]
+    assert started == [-4]

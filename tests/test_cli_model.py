@@ -43,3 +43,21 @@ def test_model_show(capsys):
     assert [c["id"] for c in d["cables"]] == ["11", "12", "21", "22", "31", "32", "41", "42"]
     assert main(["model", "show", "rocaspect"]) == 0
     assert "pivot" in capsys.readouterr().out
+
+
+def test_model_check_says_how_big_the_sweep_is_before_it(capsys, monkeypatch):
+    from bench.commands import model
+
+    real, seen = model.check, []
+
+    def spy(*a, **kw):
+        seen.append(capsys.readouterr().err)  # stderr before the sweep
+        return real(*a, **kw)
+
+    monkeypatch.setattr(model, "check", spy)
+    assert main(["model", "check", "rocaspect", "--step", "1.5", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["valid"]
+    assert len(seen) == 1 and seen[0].startswith("cdpr model: workspace sweep of about ")
+    assert "points at z = 1 m (1.5 m grid, closed_form): " in seen[0]
+    assert cap.err.startswith("cdpr model: workspace sweep done in ")

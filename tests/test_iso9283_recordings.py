@@ -417,3 +417,30 @@ def test_cli_on_a_campaign_recording(tmp_path, capsys):
     # merged back-to-back visits are split again: 3 visits of each pose
     assert sorted(p["n"] for p in a["poses"]) == [3, 3, 3]
     assert all(p["rp_m"] is not None and p["rp_m"] < 0.01 for p in a["poses"])
+
+
+def test_cli_plots_say_what_comes_then_each_plot_as_it_is_written(tmp_path, capsys,
+                                                                   monkeypatch):
+    from bench.iso9283 import plots as iso_plots
+
+    dirs = [str(path_rows(dxs=(dx,)).write(tmp_path / f"r{i}")) for i, dx in enumerate(PASS_DX)]
+    plots = tmp_path / "p"
+    seen = []  # stderr so far, each time a figure is about to be drawn
+    real = iso_plots.plot_path_cases
+
+    def spy(*a, **kw):
+        seen.append(capsys.readouterr().err)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(iso_plots, "plot_path_cases", spy)
+    assert main(["iso9283", *dirs[:2], "--path-points", "50", "--plots", str(plots)]) == 0
+    assert seen == [f"cdpr iso9283: writing 3 plots into {plots}\n",
+                    f"plot {plots}/01_r0_path1.png\n", f"plot {plots}/02_r1_path1.png\n"]
+    assert capsys.readouterr().err == f"plot {plots}/paths.png\n"
+    # a pose analysis: bars and scatter
+    monkeypatch.undo()
+    d = pose_rows().write(tmp_path / "pose")
+    assert main(["iso9283", str(d), "--plots", str(tmp_path / "pp")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == f"cdpr iso9283: writing 2 plots into {tmp_path / 'pp'}"
+    assert len(err) == 3 and all(ln.startswith("plot ") for ln in err[1:])

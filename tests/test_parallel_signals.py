@@ -107,3 +107,60 @@ def test_workers_end_with_their_parent(tmp_path, script, sig):
         for w in workers:
             if _alive(w):
                 os.kill(w, signal.SIGKILL)
+
+
+IDLE = '''
+import os, sys
+from bench.parallel import ending_workers, interrupt_on_term, worker_pool
+
+def pid(_):
+    return os.getpid()
+
+def main():
+    with interrupt_on_term():
+        pool = worker_pool(2)
+        with ending_workers(pool):
+            pool.submit(pid, 0).result()
+            for p in pool._processes:  # every worker started, now waiting for work
+                open(os.path.join(sys.argv[1], f"w{p}"), "w").close()
+            print("idle", file=sys.stderr, flush=True)
+            while True:
+                pool.submit(pid, 0).result()  # the workers stay in the pool's hands
+
+if __name__ == "__main__":
+    try:
+        main()
+    except KeyboardInterrupt:  # the parent's own report is bench.cli's business
+        sys.exit(130)
+'''
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to watch processes")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_workers_told_to_stop_end_quietly(tmp_path, sig):
+    """The parent ends its workers (SIGTERM) when it is interrupted: no worker prints a
+    traceback (a fork inherits the parent's SIGTERM handler, which raises Terminated)."""
+    src = tmp_path / "parent.py"
+    src.write_text(textwrap.dedent(IDLE))
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, str(src), str(tmp_path)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_signals)
+    workers: list[int] = []
+    try:
+        assert proc.stderr.readline() == "idle\n"
+        workers = [int(p.name[1:]) for p in tmp_path.glob("w*")]
+        assert len(workers) == 2
+        os.kill(proc.pid, sig)
+        err = proc.stderr.read()  # until the parent and every worker closed it
+        proc.wait(timeout=60)
+        assert "Traceback" not in err and "Terminated" not in err, err
+        assert proc.returncode != 0
+        assert _wait(lambda: not any(_alive(w) for w in workers), 30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for w in workers:
+            if _alive(w):
+                os.kill(w, signal.SIGKILL)

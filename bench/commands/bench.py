@@ -1,4 +1,6 @@
-"""``cdpr bench``: speed benchmarks (medians on this machine), one JSON object with ``--json``."""
+"""``cdpr bench``: speed benchmarks (medians on this machine), one JSON object with ``--json``
+(``--list --json``: ``{"groups": [...]}``; an unknown group: ``{"error", "unknown", "groups"}``,
+exit status 2)."""
 
 from __future__ import annotations
 
@@ -33,14 +35,19 @@ def run(args: argparse.Namespace) -> int:
 
     reg = registry()
     if args.list:
-        for name in reg:
-            print(name)
+        if args.json:
+            print(json.dumps({"groups": list(reg)}))
+        else:
+            for name in reg:
+                print(name)
         return 0
     names = list(reg) if not args.only else args.only
     unknown = [n for n in names if n not in reg]
     if unknown:
-        print(f"cdpr bench: unknown group(s) {', '.join(unknown)} (known: {', '.join(reg)})",
-              file=sys.stderr)
+        msg = f"unknown group(s) {', '.join(unknown)} (known: {', '.join(reg)})"
+        print(f"cdpr bench: {msg}", file=sys.stderr)
+        if args.json:
+            print(json.dumps({"error": msg, "unknown": unknown, "groups": list(reg)}))
         return 2
     out: dict[str, object] = {}
     failed = 0

@@ -103,6 +103,13 @@ def _place(tmp: Path, out: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.outputs import removing_created
+
+    # refused or failed (a bad scenario, Ctrl-C): no directory made for OUT_DIR left
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list[Path]) -> int:
     import numpy as np
 
     from bench.campaign import run_campaign
@@ -120,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(args, 2, f"{out}: not empty (use --force to replace the recording there)")
     from bench.outputs import output_dir_problem
 
-    if (problem := output_dir_problem(out, "OUT_DIR")) is not None:
+    if (problem := output_dir_problem(out, "OUT_DIR", created)) is not None:
         return _fail(args, 2, problem)
     try:
         sc, subset = _adjust(load_scenario(args.scenario), args)

@@ -1,12 +1,13 @@
 """``cdpr diagnose RECORDING_DIR``: locate the mismatch, name the physics left out, fit it.
 
 Outputs (``--plots DIR``, ``--write-model PATH``, ``--out FILE``) are checked before the
-fit starts. Under ``--json`` stdout carries one JSON object: the report, or
+fit starts; the directories made for them are removed again (when still empty) if the
+command then fails. Under ``--json`` stdout carries one JSON object: the report, or
 ``{"error": ...}`` when the diagnosis fails. Worker processes (``--jobs``) end with the
 command, whatever ends it (Ctrl-C, SIGTERM, SIGKILL).
 
 Exit status: 0 diagnosed, 1 the diagnosis failed, 2 bad recording or arguments,
-130 interrupted.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -95,8 +96,21 @@ def _write_json(path: Path, obj: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.outputs import removing_created
+
+    # failed before writing there (a bad recording, Ctrl-C): no directory made for it left
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list[Path]) -> int:
     from bench.diagnosis.report import diagnose, prepare_outputs
-    from bench.parallel import ending_workers, interrupt_on_term, single_blas_thread, worker_pool
+    from bench.parallel import (
+        ending_workers,
+        interrupt_on_term,
+        interruption,
+        single_blas_thread,
+        worker_pool,
+    )
     from bench.recording import RecordingError
 
     single_blas_thread()
@@ -109,11 +123,11 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         return _fail(args, 2, f"--jobs {args.jobs}: must be >= 1")
     try:
-        prepare_outputs(args.write_model, args.plots)
+        prepare_outputs(args.write_model, args.plots, created)
         if args.out:
             from bench.outputs import output_file_problem
 
-            problem = output_file_problem(args.out, "--out")
+            problem = output_file_problem(args.out, "--out", created)
             if problem:
                 raise OSError(problem)
     except OSError as e:
@@ -125,15 +139,18 @@ def run(args: argparse.Namespace) -> int:
                 dg = diagnose(args.recording, progress, pool, args.write_model)
     except RecordingError as e:
         return _fail(args, 2, str(e))
-    except KeyboardInterrupt:
-        print("cdpr diagnose: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: one line, the workers are ended
+        code, msg = interruption(e)
+        print(f"cdpr diagnose: {msg}", file=sys.stderr)
         if args.json:
-            print(json.dumps({"error": "interrupted", "recording": args.recording}))
-        return 130
+            print(json.dumps({"error": msg, "recording": args.recording}))
+        return code
     except Exception as e:  # noqa: BLE001 - reported, with the trace on stderr
         traceback.print_exc(file=sys.stderr)
         return _fail(args, 1, f"the diagnosis failed: {type(e).__name__}: {e}")
     if args.plots:
+        # seconds of drawing (matplotlib's start-up, the residual maps): said first
+        progress(f"drawing the plots (residual maps, per-cable bars) into {args.plots}")
         try:
             from bench.diagnosis.plots import write_plots
 

@@ -105,7 +105,7 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
     return code
 
 
-def _check_dir(path: str, force: bool, what: str) -> str | None:
+def _check_dir(path: str, force: bool, what: str, created: list | None = None) -> str | None:
     """Why ``path`` cannot take the output, or None (checked before anything runs, by
     creating the missing parents and writing a probe file)."""
     from bench.outputs import output_dir_problem
@@ -113,7 +113,7 @@ def _check_dir(path: str, force: bool, what: str) -> str | None:
     p = Path(path)
     if p.is_dir() and any(p.iterdir()) and not force:
         return f"{what} {p}: not empty (use --force to overwrite)"
-    return output_dir_problem(p, what)
+    return output_dir_problem(p, what, created)
 
 
 def _progress_printer(quiet: bool, duration_s: float | None = None):
@@ -123,16 +123,19 @@ def _progress_printer(quiet: bool, duration_s: float | None = None):
     def show(res, t_traj: float) -> None:
         if quiet:
             return
+        # the bar, the percentage and the time are all trajectory time against where the
+        # run ends: the path's end, or --duration when that comes first (the loop's end);
+        # the initialisation before the path starts reads 0 %
         total = res.path_s or 1.0
-        frac = min(1.0, t_traj / total)
-        if duration_s:  # --duration ends the run first when it is shorter than the path
-            frac = max(frac, min(1.0, res.simulated_s / duration_s))
+        end = min(total, duration_s) if duration_s else total
+        frac = min(1.0, max(0.0, t_traj / end))
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
         wall = time.perf_counter() - t0
         speed = res.simulated_s / wall if wall > 0 else 0.0
         rate = res.cycles / wall if wall > 0 else 0.0
         err = res.pose_error_rms_m
-        line = (f"[{bar}] {100 * frac:5.1f}%  t {t_traj:7.1f}/{total:.1f} s  "
+        of = f" (--duration, path {total:.1f} s)" if end < total else ""
+        line = (f"[{bar}] {100 * frac:5.1f}%  t {t_traj:7.1f}/{end:.1f} s{of}  "
                 f"{rate:6.0f} cycles/s (x{speed:4.1f})  overruns {res.overruns}  "
                 f"events {sum(1 for e in res.events if e['reaction'] != 'event')}  "
                 f"pose error {'-' if err is None else f'{1e3 * err:.1f} mm rms'}")
@@ -147,6 +150,14 @@ def run(args: argparse.Namespace) -> int:
         from bench.dryrun import paper_command
 
         return paper_command.run(args)
+    from bench.outputs import removing_created
+
+    # refused or failed before recording (a bad fault file, Ctrl-C): no directory made
+    # for --record or --plots left
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list) -> int:
     import dataclasses
 
     import numpy as np
@@ -193,7 +204,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.plant_rate > 0:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
     for d, what in ((args.record, "--record"), (args.plots, "--plots")):
-        if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what)):
+        if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what,
+                                                created)):
             return _fail(args, 2, msg)
     # --plots without --record: the plots are drawn from a recording in a scratch directory
     scratch = None

@@ -15,7 +15,9 @@ go on. A case that kills its worker process is an error too (``BrokenProcessPool
 cases that ran beside it run again (see :mod:`bench.parallel`).
 
 Exit status: 0 all cases scored, 1 some case raised, 2 bad arguments or FILE, or the
-scheduler cannot be reached.
+scheduler cannot be reached, 130 interrupted (Ctrl-C), 143 terminated (SIGTERM): under
+``--json`` the object then holds ``"error"`` and the cases finished so far (``summary`` with
+``not_run``).
 """
 
 from __future__ import annotations
@@ -182,13 +184,16 @@ def read_results(path: Path) -> tuple[dict | None, dict[int, dict]]:
     return header, records
 
 
-def _open_out(path: Path, config: dict, header: dict | None) -> TextIO:
+def _open_out(path: Path, config: dict, header: dict | None,
+              created: list[Path] | None = None) -> TextIO:
+    from bench.outputs import make_dirs
+
     if header is not None and header.get("config") != config:
         raise UsageError(f"{path}: made with another case configuration "
                          f"{_dumps(header.get('config'))}; this run: {_dumps(config)} "
                          f"(use another --out FILE)")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(path.parent, created)
         f = path.open("a+", encoding="utf-8")
     except OSError as e:
         raise UsageError(f"{path}: cannot write: {e.strerror or e}") from e
@@ -319,8 +324,23 @@ def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.outputs import removing_created
+
+    # refused (another configuration in --out) or failed: no directory made for --keep or
+    # --out left unless something was written there
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list[Path]) -> int:
     from bench import evaluate
-    from bench.parallel import SchedulerError, interrupt_on_term, run_each, single_blas_thread
+    from bench.parallel import (
+        SchedulerError,
+        interrupt_on_term,
+        interruption,
+        run_each,
+        single_blas_thread,
+    )
+    from bench.progress import Progress
 
     single_blas_thread()
     if args.cases < 1:
@@ -343,11 +363,13 @@ def run(args: argparse.Namespace) -> int:
         out_path = Path(args.out) if args.out else None
         header, previous = read_results(out_path) if out_path else (None, {})
         if args.keep is not None:
+            from bench.outputs import make_dirs
+
             try:
-                Path(args.keep).mkdir(parents=True, exist_ok=True)
+                make_dirs(args.keep, created)
             except OSError as e:
                 raise UsageError(f"--keep {args.keep}: cannot make the folder: {e}") from e
-        out = _open_out(out_path, config, header) if out_path else None
+        out = _open_out(out_path, config, header, created) if out_path else None
     except UsageError as e:
         return _fail(args, 2, str(e))
 
@@ -359,9 +381,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"cdpr evaluate: {len(results)} of {len(seeds)} seeds already in {out_path}, "
               f"{len(todo)} to run", file=sys.stderr)
 
+    # progress on stderr: a line at start, one per case started and finished, and the
+    # progress line (cases done, those running) every 15 s (every second on a terminal)
+    prog = Progress("evaluate", len(todo), args.quiet, unit="cases")
+    started = [0]
+
+    def on_start(seed: int) -> None:
+        started[0] += 1
+        prog.running[f"seed {seed}"] = None
+        prog.say(f"[{prog.elapsed_s():6.1f} s] seed {seed} started "
+                 f"({started[0]}/{len(todo)})")
+
     def say(o, done: int) -> None:
-        if args.quiet:
-            return
+        prog.running.pop(f"seed {o.item}", None)
+        prog.done = done
         scored = [r for r in results.values() if "error" not in r]
         exact = sum(bool(r["exact"]) for r in scored)
         rate = f"{exact}/{len(scored)} = {_pct(exact / len(scored))}" if scored else "n/a"
@@ -370,16 +403,24 @@ def run(args: argparse.Namespace) -> int:
                 ("exact" if o.value["exact"] else
                  f"named {','.join(o.value['named']) or 'none'} "
                  f"(concealed {','.join(o.value['truth']) or 'none'})"))
-        print(f"[{o.elapsed_s:6.1f} s] case {done}/{len(todo)} seed {o.item}: {what}; "
-              f"exact detection {rate}; ETA {math.ceil(eta)} s", file=sys.stderr, flush=True)
+        prog.say(f"[{o.elapsed_s:6.1f} s] case {done}/{len(todo)} seed {o.item}: {what}; "
+                 f"exact detection {rate}; ETA {math.ceil(eta)} s")
 
+    if todo:
+        where = (f"on the Dask cluster at {args.scheduler}" if args.scheduler else
+                 "in this process (--jobs 1)" if args.jobs == 1 else
+                 f"on {min(args.jobs, len(todo))} local worker processes (--jobs {args.jobs})")
+        prog.say(f"cdpr evaluate: {len(todo)} cases (seeds {todo[0]}..{todo[-1]}, --seed "
+                 f"{args.seed}) {where}")
+
+    interrupted: KeyboardInterrupt | None = None
     try:
         if todo:
             outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
                                 scheduler=args.scheduler,
                                 connect_timeout_s=args.connect_timeout, keep=args.keep,
-                                **case_kwargs(config))
-            with interrupt_on_term(), closing(outcomes):
+                                on_start=on_start, **case_kwargs(config))
+            with interrupt_on_term(), closing(outcomes), prog:
                 for done, o in enumerate(outcomes, 1):
                     rec = (o.value if o.ok else
                            {"seed": o.item, "error": o.error, "trace": o.trace})
@@ -390,17 +431,32 @@ def run(args: argparse.Namespace) -> int:
                     say(o, done)
     except SchedulerError as e:
         return _fail(args, 2, str(e))
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: the cases finished so far, then out
+        interrupted = e
     finally:
         if out is not None:
             out.close()
 
-    cases = [results[s] for s in seeds if "error" not in results[s]]
+    cases = [results[s] for s in seeds if s in results and "error" not in results[s]]
     errors = [{"seed": s, "error": results[s]["error"], "trace": results[s].get("trace")}
-              for s in seeds if "error" in results[s]]
+              for s in seeds if s in results and "error" in results[s]]
     summary = evaluate.summarise(cases) | {"errors": len(errors), "requested": len(seeds)}
+    report = {"summary": summary, "cases": cases, "errors": errors, "config": config,
+              "seeds": [seeds.start, seeds.stop - 1]}
+    if interrupted is not None:
+        # the cases finished so far; bench.cli reports the interruption on stderr and
+        # exits with its status
+        msg = interruption(interrupted)[1]
+        summary["not_run"] = len(seeds) - len(results)
+        if args.json:
+            print(_dumps({"error": msg} | report), flush=True)
+        elif results:
+            print(f"{msg} with {summary['not_run']} of {len(seeds)} cases not run: the cases "
+                  f"finished so far")
+            print(human(summary, errors, seeds), flush=True)
+        raise interrupted
     if args.json:
-        print(_dumps({"summary": summary, "cases": cases, "errors": errors, "config": config,
-                      "seeds": [seeds.start, seeds.stop - 1]}))
+        print(_dumps(report))
     else:
         print(human(summary, errors, seeds))
     return 1 if errors else 0

@@ -81,29 +81,43 @@ def _fail(args: argparse.Namespace, msg: str) -> int:
     return 2
 
 
-def write_plots(analyses, out) -> list:
-    """The ``--plots`` files of analyses (see the module docstring); returns their paths."""
+def plot_count(analyses) -> int:
+    """How many files :func:`write_plots` writes for these analyses."""
+    poses = sum(an.kind == "pose" for an in analyses)
+    paths = [an for an in analyses if an.kind != "pose"]
+    return (2 * poses + sum(len(an.paths) for an in paths) + (poses > 1)
+            + (sum(1 for an in paths if an.main_path() is not None) > 1))
+
+
+def write_plots(analyses, out, on_plot=None) -> list:
+    """The ``--plots`` files of analyses (see the module docstring); returns their paths.
+    ``on_plot(path)`` is called as each one is written."""
     import numpy as np
 
     from bench.iso9283.analysis import path_run
     from bench.iso9283.plots import plot_path_cases, plot_pose_bars, plot_pose_scatter, safe_name
 
     written = []
+
+    def add(path) -> None:
+        written.append(path)
+        if on_plot is not None:
+            on_plot(path)
     worst_runs, path_cases = [], []
     for i, an in enumerate(analyses, start=1):
         stem = f"{i:02d}_{safe_name(an.label)}"
         if an.kind == "pose":
             runs = [dict(r.figures.to_dict(), label=f"P{j}") for j, r in enumerate(an.poses, 1)]
             runs.append(dict(an.worst(), label="worst", color="red"))
-            written.append(plot_pose_bars(runs, f"{out}/{stem}_pose_bars.png",
-                                          f"{an.label}: ISO 9283 pose figures per commanded "
-                                          f"pose (bars: absolute values in 'worst')"))
+            add(plot_pose_bars(runs, f"{out}/{stem}_pose_bars.png",
+                               f"{an.label}: ISO 9283 pose figures per commanded "
+                               f"pose (bars: absolute values in 'worst')"))
             scat = [{"label": f"P{j}", "command": r.figures.command,
                      "attained": np.array([v.attained for v in r.visits]),
                      "rp_m": r.figures.rp} for j, r in enumerate(an.poses, 1)]
-            written.append(plot_pose_scatter(scat, f"{out}/{stem}_pose_scatter.png",
-                                             f"{an.label}: attained positions (x-y deviation "
-                                             f"from the commanded pose)"))
+            add(plot_pose_scatter(scat, f"{out}/{stem}_pose_scatter.png",
+                                  f"{an.label}: attained positions (x-y deviation "
+                                  f"from the commanded pose)"))
             worst_runs.append(dict(an.worst(), label=an.label))
         else:
             for k, r in enumerate(an.paths, start=1):
@@ -113,20 +127,20 @@ def write_plots(analyses, out) -> list:
                         "runs": {an.label: path_run(f)}}
                 span = np.ptp(f.command[:, :3], axis=0)
                 plane = "".join(sorted("xyz"[j] for j in np.argsort(span)[-2:]))
-                written.append(plot_path_cases([case], f"{out}/{stem}_path{k}.png",
-                                               f"{an.label}: ISO 9283 path accuracy, path {k}: "
-                                               f"AT max {f.at * 1e3:.1f} mm, mean "
-                                               f"{f.at_mean * 1e3:.1f} mm", plane))
+                add(plot_path_cases([case], f"{out}/{stem}_path{k}.png",
+                                    f"{an.label}: ISO 9283 path accuracy, path {k}: "
+                                    f"AT max {f.at * 1e3:.1f} mm, mean "
+                                    f"{f.at_mean * 1e3:.1f} mm", plane))
                 if r is an.main_path():
                     path_cases.append((case, plane))
     if len(worst_runs) > 1:
-        written.append(plot_pose_bars(worst_runs, f"{out}/pose_worst.png",
-                                      "ISO 9283 pose figures, worst pose of each recording"))
+        add(plot_pose_bars(worst_runs, f"{out}/pose_worst.png",
+                           "ISO 9283 pose figures, worst pose of each recording"))
     if len(path_cases) > 1:
         planes = {p for _, p in path_cases}
-        written.append(plot_path_cases([c for c, _ in path_cases], f"{out}/paths.png",
-                                       "ISO 9283 path accuracy of each recording",
-                                       planes.pop() if len(planes) == 1 else "yz"))
+        add(plot_path_cases([c for c, _ in path_cases], f"{out}/paths.png",
+                            "ISO 9283 path accuracy of each recording",
+                            planes.pop() if len(planes) == 1 else "yz"))
     return written
 
 
@@ -145,9 +159,20 @@ def run(args: argparse.Namespace) -> int:
     except RecordingError as e:
         return _fail(args, str(e))
     if args.plots:
+        from bench.progress import Progress
+
+        # a figure of many poses takes seconds: say what is coming, each plot as it is
+        # written, and the progress line between them
+        prog = Progress("cdpr iso9283 --plots", plot_count(analyses), unit="plots")
+        prog.say(f"cdpr iso9283: writing {prog.total} plots into {args.plots}")
+
+        def on_plot(p) -> None:
+            prog.done += 1
+            prog.say(f"plot {p}")
+
         try:
-            for p in write_plots(analyses, args.plots):
-                print(f"plot {p}", file=sys.stderr)
+            with prog:
+                write_plots(analyses, args.plots, on_plot)
         except OSError as e:
             return _fail(args, f"--plots {args.plots}: {e}")
     if args.json:

@@ -184,6 +184,27 @@ def _print_show(robot: Robot) -> None:
               f"{robot.pulley_radius[k]:.3f}")
 
 
+def _seconds_per_pose(robot: Robot, height: float, method: str, n: int = 16) -> float:
+    """Wall time of one pose of the workspace sweep [s]: the median of ``n`` poses drawn
+    over the footprint, after a first one (for the sweep's announced duration)."""
+    import statistics
+    import time
+
+    import numpy as np
+
+    from controller.statics import pose_statics
+    from controller.workspace import footprint_bounds
+
+    x0, x1, y0, y1 = footprint_bounds(robot)
+    rng = np.random.default_rng(0)
+    times = []
+    for x, y in zip(rng.uniform(x0, x1, n + 1), rng.uniform(y0, y1, n + 1), strict=True):
+        t0 = time.perf_counter()
+        pose_statics(robot, np.array([x, y, height, 0.0, 0.0, 0.0]), method=method)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times[1:])
+
+
 def _usage_error(args: argparse.Namespace, msg: str) -> int:
     if args.json:
         print(json.dumps({"robot": args.robot, "valid": False, "error": msg}))
@@ -191,7 +212,7 @@ def _usage_error(args: argparse.Namespace, msg: str) -> int:
     return 2
 
 
-def _option_problem(args: argparse.Namespace) -> str | None:
+def _option_problem(args: argparse.Namespace, created: list | None = None) -> str | None:
     import math
 
     if not (math.isfinite(args.step) and args.step > 0):
@@ -201,11 +222,18 @@ def _option_problem(args: argparse.Namespace) -> str | None:
     if args.plot:
         from bench.outputs import output_file_problem
 
-        return output_file_problem(args.plot, "--plot")
+        return output_file_problem(args.plot, "--plot", created)
     return None
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.outputs import removing_created
+
+    # refused (a grid too fine) or interrupted: no directory made for --plot left
+    return removing_created(lambda created: _run(args, created))
+
+
+def _run(args: argparse.Namespace, created: list) -> int:
     from controller.robot import RobotFileError, resolve_robot
     from controller.workspace import footprint_bounds
 
@@ -219,7 +247,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             _print_show(robot)
         return 0
-    if (problem := _option_problem(args)) is not None:
+    if (problem := _option_problem(args, created)) is not None:
         return _usage_error(args, problem)
     x0, x1, y0, y1 = footprint_bounds(robot)
     points = ((x1 - x0) / args.step) * ((y1 - y0) / args.step)
@@ -227,7 +255,19 @@ def run(args: argparse.Namespace) -> int:
         return _usage_error(args, f"--step {args.step}: {points:.3g} grid points over the "
                             f"{x1 - x0:.1f} x {y1 - y0:.1f} m footprint (at most "
                             f"{MAX_GRID_POINTS:.0e}); take a coarser step")
-    report = check(robot, args.height, args.step, args.method)
+    from bench.progress import Progress
+
+    # the sweep takes seconds on a fine grid: say how big it is and about how long it takes
+    # (from a few poses timed here), then the progress line every second on a terminal
+    est = _seconds_per_pose(robot, args.height, args.method) * points
+    print(f"cdpr model: workspace sweep of about {points:,.0f} points at z = {args.height:g} m "
+          f"({args.step:g} m grid, {args.method}): "
+          + (f"about {est:.0f} s" if est >= 1 else "under a second"), file=sys.stderr,
+          flush=True)
+    with Progress("cdpr model: workspace sweep", None) as prog:
+        report = check(robot, args.height, args.step, args.method)
+    print(f"cdpr model: workspace sweep done in {prog.elapsed_s():.1f} s", file=sys.stderr,
+          flush=True)
     if args.plot:
         _plot(report, robot, args.plot)
     grid = report.pop("_grid")

@@ -228,11 +228,14 @@ def dispatch(args: argparse.Namespace, func: Callable[[argparse.Namespace, Ui, S
     try:
         with sigint_raises():
             code = func(args, ui, section)
-    except KeyboardInterrupt:
-        section.write("interrupted (Ctrl-C)")
-        print(f"{name}: interrupted", file=sys.stderr)
-        ui.emit({"error": "interrupted", **section.json_extra})
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (bench.cli)
+        from bench.parallel import interruption
+
+        code, msg = interruption(exc)
+        section.write("interrupted (Ctrl-C)" if code == 130 else msg)
+        print(f"{name}: {msg}", file=sys.stderr)
+        ui.emit({"error": msg, **section.json_extra})
+        return code
     except CommissionError as exc:
         return fail(exc.code, str(exc))
     except (WinchConfigError, RegisterMapError, CalibrationError) as exc:

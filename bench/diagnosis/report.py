@@ -323,18 +323,26 @@ def split_heldout(s: Samples, init_pose: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.union1d(train, valid), test, region
 
 
-def prepare_outputs(write_model: str | Path | None, plots: str | Path | None = None) -> None:
+def prepare_outputs(write_model: str | Path | None, plots: str | Path | None = None,
+                    created: list[Path] | None = None) -> None:
     """Check before the fit that the outputs can be written (raises OSError naming them):
-    a real write in their directory (:mod:`bench.outputs`), not the permission bits."""
-    from bench.outputs import output_dir_problem, output_file_problem
+    a real write in their directory (:mod:`bench.outputs`), not the permission bits. The
+    directories made for them are appended to ``created`` (to remove them, with
+    :func:`bench.outputs.remove_created`, if the diagnosis then fails); on an OSError
+    none is left."""
+    from bench.outputs import output_dir_problem, output_file_problem, remove_created
 
+    made: list[Path] = []
     problem = None
     if write_model is not None:
-        problem = output_file_problem(write_model, "--write-model")
+        problem = output_file_problem(write_model, "--write-model", made)
     if problem is None and plots is not None:
-        problem = output_dir_problem(plots, "--plots")
+        problem = output_dir_problem(plots, "--plots", made)
     if problem is not None:
+        remove_created(made)
         raise OSError(problem)
+    if created is not None:
+        created.extend(made)
 
 
 def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,

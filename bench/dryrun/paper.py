@@ -40,7 +40,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -50,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.progress import Progress
 from controller.robot import Robot
 from firmware_sim.scenario import Scenario
 
@@ -570,67 +570,6 @@ def poses_plan(opt: PosesOptions) -> list[RunSpec]:
 
 
 # --------------------------------------------------------------------------- running
-
-
-class Progress:
-    """The progress line on stderr: runs done, the runs in flight with their fraction done,
-    elapsed time (every second on a terminal, every 15 s otherwise)."""
-
-    def __init__(self, title: str, total: int, quiet: bool = False) -> None:
-        self.title, self.total, self.quiet = title, total, quiet
-        self.done = 0
-        self.running: dict[str, str] = {}  # label -> progress file
-        self.t0 = time.perf_counter()
-        self.tty = sys.stderr.isatty()
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> Progress:
-        if not self.quiet:
-            self._thread = threading.Thread(target=self._run, name="progress", daemon=True)
-            self._thread.start()
-        return self
-
-    def _fraction(self, path: str) -> float | None:
-        try:
-            return float(Path(path).read_text().split()[0])
-        except (OSError, ValueError, IndexError):
-            return None
-
-    def line(self) -> str:
-        el = time.perf_counter() - self.t0
-        parts = []
-        for label, p in list(self.running.items()):
-            f = self._fraction(p)
-            if f is not None and 0.0 < f < 1.0:
-                parts.append(f"{label} {100 * f:.0f}%")
-        return (f"{self.title}: {self.done}/{self.total} runs done, {int(el // 60)}:"
-                f"{int(el % 60):02d} elapsed" + (f"; running {', '.join(parts)}" if parts
-                                                 else ""))
-
-    def say(self, msg: str) -> None:
-        if self.quiet:
-            return
-        with self._lock:
-            print(("\r\033[K" if self.tty else "") + msg, file=sys.stderr, flush=True)
-
-    def _run(self) -> None:
-        period = 1.0 if self.tty else 15.0
-        while not self._stop.wait(period):
-            with self._lock:
-                text = self.line()
-                if self.tty:
-                    print("\r\033[K" + text[:200], end="", file=sys.stderr, flush=True)
-                else:
-                    print(text, file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            if self.tty:
-                print("\r\033[K", end="", file=sys.stderr, flush=True)
 
 
 def run_campaign(phases: Sequence[Sequence[RunSpec | DiagnoseSpec]], jobs: int,

@@ -1,0 +1,146 @@
+"""Ctrl-C and SIGTERM at the top level (bench/cli.py): one line on stderr, exit status 130
+(interrupted) or 143 (terminated, 128 + 15), and under ``--json`` one JSON object on stdout
+for any command (``cdpr evaluate``: with the cases finished so far).
+
+The commands run in a separate Python process that replaces their long work by a wait
+(module-level functions that the worker processes, forked, find by name); the test waits
+for a line on stderr, never for a time, then sends the signal to that process alone.
+Timeouts are generous and only keep a broken test from hanging.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from bench.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "paper_tables"
+SCENARIO = ROOT / "bench" / "data" / "paper_scenario.toml"
+SMALL = ["--grid", "3,2,1", "--visits", "2", "--robot", "rocaspect", "--kind", "dwell",
+         "--sensors", "all", "--oov", "none", "--effects", "drum_scale"]
+
+EVALUATE = '''
+import sys, time
+from bench import evaluate
+from bench.cli import main
+
+REAL = evaluate.run_case
+
+def case(seed, **kw):
+    if seed == 0:
+        return REAL(seed, **kw)
+    time.sleep(600)
+
+evaluate.run_case = case
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
+'''
+
+CAMPAIGN = '''
+import sys, time
+import bench.campaign
+from bench.cli import main
+
+def run_campaign(sc, out, progress=None, poses=None):
+    print("campaign: waiting", file=sys.stderr, flush=True)
+    time.sleep(600)
+
+bench.campaign.run_campaign = run_campaign
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
+'''
+
+MESSAGE = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated (SIGTERM)")}
+
+
+def _default_signals() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def run_until(tmp_path: Path, script: str, argv: list[str], marker: str,
+              sig: int) -> tuple[int, str, str]:
+    """Run ``script argv``, wait for ``marker`` on its stderr, send it ``sig``; returns the
+    exit status, stdout and stderr."""
+    src = tmp_path / "driver.py"
+    src.write_text(textwrap.dedent(script))
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    # default signal dispositions: a shell running the tests in the background leaves
+    # SIGINT ignored, and Python then keeps ignoring it
+    proc = subprocess.Popen([sys.executable, str(src), *argv], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=_default_signals)
+    err = ""
+    try:
+        while marker not in err:
+            line = proc.stderr.readline()
+            if not line:  # ended before the marker
+                break
+            err += line
+        assert marker in err, err
+        proc.send_signal(sig)
+        out, rest = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    return proc.returncode, out, err + rest
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_evaluate_interrupted_prints_the_cases_finished_so_far(tmp_path, sig):
+    code, msg = MESSAGE[sig]
+    rc, out, err = run_until(tmp_path, EVALUATE, ["evaluate", "--cases", "4", "--jobs", "2",
+                                                  "--json", *SMALL], "seed 0:", sig)
+    assert rc == code, err
+    obj = json.loads(out)  # one object
+    assert obj["error"] == msg
+    assert [c["seed"] for c in obj["cases"]] == [0]
+    assert obj["summary"]["cases"] == 1 and obj["summary"]["not_run"] == 3
+    assert f"cdpr evaluate: {msg}" in err
+    assert "Traceback" not in err and "Terminated" not in err  # the workers end quietly
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_any_command_interrupted_under_json_prints_an_error_object(tmp_path, sig):
+    code, msg = MESSAGE[sig]
+    out_dir = tmp_path / "rec"
+    rc, out, err = run_until(tmp_path, CAMPAIGN, ["campaign", str(SCENARIO), str(out_dir),
+                                                  "--json"], "campaign: waiting", sig)
+    assert rc == code, err
+    assert json.loads(out) == {"error": msg}
+    assert err.strip().splitlines()[-1] == f"cdpr campaign: {msg}"
+    assert "Traceback" not in err
+    # the scratch recording beside OUT_DIR is removed (the finally blocks ran)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["driver.py"]
+
+
+def test_interrupted_without_json_prints_nothing_on_stdout(tmp_path):
+    rc, out, err = run_until(tmp_path, CAMPAIGN, ["campaign", str(SCENARIO),
+                                                  str(tmp_path / "rec")], "campaign: waiting",
+                             signal.SIGTERM)
+    assert rc == 143 and out == ""
+    assert "cdpr campaign: terminated (SIGTERM)" in err
+
+
+def test_diagnose_terminated_reports_one_line(capsys, monkeypatch):
+    from bench.diagnosis import report
+    from bench.parallel import Terminated
+
+    def terminated(*a, **kw):
+        raise Terminated(signal.SIGTERM)
+
+    monkeypatch.setattr(report, "diagnose", terminated)
+    assert main(["diagnose", str(EXAMPLE), "--json", "--jobs", "1", "--quiet"]) == 143
+    cap = capsys.readouterr()
+    assert json.loads(cap.out) == {"error": "terminated (SIGTERM)", "recording": str(EXAMPLE)}
+    assert cap.err == "cdpr diagnose: terminated (SIGTERM)\n"
