@@ -31,6 +31,9 @@ POSE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 INIT_TOL_DES = 1e-6
 #: same for a measured pose (tracker noise) when there is no desired pose
 INIT_TOL_MEAS = 2e-3
+#: a first desired pose within this of init_pose [m, rad] is the pose of the initialisation
+#: (the nominal target the platform stood at, init_pose what the tracker measured there)
+INIT_NEAR = 0.05
 
 
 class RecordingError(ValueError):
@@ -251,9 +254,23 @@ def _read_csv_rows(d: Path, p: Path, robot: Robot, meta: dict,
 
 def _init_rows(rec: Recording) -> np.ndarray:
     """Rows taken at initialisation: those before the first row where the platform leaves
-    init_pose (by the desired pose if recorded, else the measured one)."""
+    init_pose (by the desired pose if recorded, else the measured one).
+
+    ``init_pose`` is the *measured* pose; a controller may log as its desired pose at
+    initialisation the nominal target it stands at (7.5 m where the tracker read 7.50002):
+    where the first row's desired pose is within :data:`INIT_NEAR` of ``init_pose``, the
+    platform leaves when the desired pose leaves that first row's."""
     if rec.has("pose_des"):
         pose, tol = rec.pose_des, INIT_TOL_DES
+        first = pose[0]
+        seen = np.isfinite(first)  # (columns a recording leaves out are nan)
+        if seen.any() and np.all(np.abs(first - rec.init_pose)[seen] <= INIT_NEAR):
+            with np.errstate(invalid="ignore"):
+                off = np.nanmax(np.abs(pose - first), axis=1) > tol
+            leave = np.flatnonzero(off)
+            if not len(leave):
+                return np.arange(rec.n_samples)
+            return np.flatnonzero(rec.t < rec.t[leave[0]])
     elif rec.has("pose_meas"):
         pose, tol = rec.pose_meas, INIT_TOL_MEAS
     else:

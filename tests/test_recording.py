@@ -103,6 +103,52 @@ def test_initialisation_rows_and_dwells(tmp_path):
     assert list(s.is_init) == [True, False, False, False]
 
 
+def test_initialisation_rows_where_the_desired_pose_is_the_nominal_target(tmp_path):
+    """init_pose is what the tracker measured (10.00002); the controller logged its nominal
+    target (10.0) as the desired pose at initialisation: the platform leaves when the
+    desired pose leaves its first row's, not at row 0 (a recording by other hands lost its
+    initialisation tensions so). A first desired pose far from init_pose keeps the rule."""
+    robot = resolve_robot("rocaspect")
+    x = np.array([10, 10, 10, 12, 12, 12, 10.5, 10.5])
+    cols = {"t": 86.4 + np.arange(8.0), "x_des": x, "y_des": np.full(8, 8.0),
+            "z_des": np.ones(8), "x_meas": x + 2e-5,
+            **{f"tau_{c}": np.full(8, 300.0) for c in robot.cable_ids}}
+    rec = read_recording(write_recording(tmp_path / "r", robot,
+                                         [10.00002, 7.99997, 1.00001, 0, 0, 1e-5], cols))
+    assert list(rec.init_rows) == [0, 1, 2]
+    assert rec.init_tensions is not None
+    far = read_recording(write_recording(tmp_path / "far", robot, [10.3, 8, 1, 0, 0, 0],
+                                         cols))
+    assert list(far.init_rows) == []
+
+
+def test_unknown_state_names_are_read_from_the_data(tmp_path):
+    """State names are free: another controller's ``track`` rows along a path are rows of
+    moves, its ``measure`` rows standing measurements; a reaction (``feed_hold``) counts
+    only while the platform stands."""
+    from bench.diagnosis.samples import prepare, reaction_state
+
+    robot = resolve_robot("rocaspect")
+    n = 60
+    t = np.arange(n) * 0.1
+    x = np.concatenate([np.full(5, 10.0), 10.0 + 0.02 * np.arange(1, n - 4)])
+    ls = {f"l_meas_{c}": 10.0 + 0.01 * x for c in robot.cable_ids}
+    cols = {"t": t, "x_des": x, "y_des": np.full(n, 8.0), "z_des": np.ones(n),
+            "x_meas": x, "y_meas": np.full(n, 8.0), "z_meas": np.ones(n), **ls}
+    named = {}
+    for word in ("move", "track", "feed_hold"):
+        states = ["init"] * 5 + [word] * (n - 5)
+        rec = read_recording(write_recording(tmp_path / word, robot, [10, 8, 1, 0, 0, 0],
+                                             cols, states=states))
+        named[word] = prepare(rec).info
+    assert named["track"]["path_samples"] == named["move"]["path_samples"] > 0
+    assert named["track"]["rows_in_other_states"] == 0
+    assert named["feed_hold"]["path_samples"] == 0
+    assert named["feed_hold"]["rows_in_other_states"] == n - 5
+    assert reaction_state("quick_stop") and reaction_state("FAULT")
+    assert not reaction_state("track") and not reaction_state("measure")
+
+
 def test_streaming_writer_is_readable_while_it_runs(tmp_path):
     """Rows flushed so far form a valid recording before close(); close() writes the rest."""
     robot = resolve_robot("rocaspect")

@@ -13,8 +13,11 @@ the static samples the diagnosis fits:
   dwells) are quasi-static where the commanded motion does not accelerate
   (inertial forces below a few percent of the weight); they are kept as single
   rows, spread evenly in time, up to a budget.
-- rows in other states (``hold``, ``quick_stop``, ``fault``, ...) count only while
-  the platform stands still (encoders and pose do not move).
+- rows in a state that names a reaction or a fault (``hold``, ``quick_stop``,
+  ``fault``, ...: :func:`reaction_state`) count only while the platform stands still
+  (encoders and pose do not move). The format leaves state names free: rows in a state
+  this reader does not know (another controller's ``track``, ``measure``, ``approach``)
+  are read as rows without a state column, the data deciding whether they stand.
 
 Replicate groups (``target``) gather visits of one commanded pose, and path
 rows that pass within a few millimetres of each other on different moves:
@@ -38,6 +41,16 @@ from bench.recording import Recording, RecordingError
 STILL_STATES = {"init", "dwell"}
 #: states of the commanded motion
 MOVE_STATES = {"move"}
+#: words in a state name that say the platform is not following its commanded motion (a
+#: supervisor's reaction, a fault): such rows count only while the platform stands still
+REACTION_WORDS = ("hold", "stop", "fault", "halt", "error", "abort", "emergency", "disable",
+                  "alarm", "pause")
+
+
+def reaction_state(name: str) -> bool:
+    """Whether the state ``name`` is a reaction or a fault (:data:`REACTION_WORDS`)."""
+    low = name.lower()
+    return any(w in low for w in REACTION_WORDS)
 #: commanded acceleration [m/s^2] above which a moving row is not quasi-static
 ACCEL_MAX = 0.2
 #: angular acceleration [rad/s^2] above which a moving row is not quasi-static
@@ -401,6 +414,8 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     dropped_states = 0
     for a, b in runs:
         st = states[a] if states is not None else None
+        if st is not None and st not in STILL_STATES | MOVE_STATES and not reaction_state(st):
+            st = None  # a state this reader does not know: the data decide
         if st is not None and st not in STILL_STATES | MOVE_STATES:
             # supervisor reactions: only where the platform stands still
             if b - a >= 2 and _standing(rec, a, b):
