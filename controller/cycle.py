@@ -65,6 +65,21 @@ def reference_lengths(robot: Robot, init_pose: np.ndarray) -> np.ndarray:
                          robot.pulley_radius)
 
 
+def deflected_reference_lengths(robot: Robot, init_pose: np.ndarray,
+                                tensions: np.ndarray | None = None) -> np.ndarray:
+    """The other reading of ``d_model(p0)`` for a model with compliant masts (n,) [m]: the
+    geometric lengths to the exit points the model's masts take under the tensions at
+    initialisation (the load cells' readings ``tensions`` through the model's calibration,
+    or its tension distribution's without them), still without stretch. The conventions
+    say "the model's geometric length" and are silent on the deflection: a controller that
+    models its masts' compliance may reference its encoders so. Equal to
+    :func:`reference_lengths` for rigid masts and no settled tilt."""
+    p0 = np.asarray(init_pose, float)
+    tau = None if tensions is None else true_tensions(robot, np.asarray(tensions, float))
+    ps = pose_statics(robot, p0, tensions=tau)
+    return cable_lengths(p0, robot.anchors, ps.exits, robot.pulley_radius)
+
+
 class LengthController:
     """Cable length setpoints for desired poses, for one robot model.
 

@@ -153,3 +153,39 @@ def test_forward_figures_converge_by_newton_under_a_model_far_from_the_truth(dia
     stats = equilibrium.STATS.as_dict()
     assert fw.ok.all() and stats["calls"] == dg.samples.n
     assert stats["fallbacks"] == 0 and stats["failures"] == 0, stats
+
+
+def test_encoders_referenced_to_the_deflected_exits_are_read_so(diagnosed, tmp_path):
+    """The conventions' d_model(p0), "the model's geometric length", is silent on a model
+    with compliant masts: this project's controller measures it to the description's exit
+    points, another may to the exits its masts take under the tensions at initialisation
+    (centimetres apart on a large robot). The same null recording with its encoders
+    referenced the other way (every reading shifted by the difference) is read the other
+    way and names nothing; the recording as it is keeps this project's reading."""
+    import csv
+    import shutil
+
+    from bench.recording import read_recording
+    from controller.cycle import deflected_reference_lengths, reference_lengths
+
+    sc, rec, dg = diagnosed("model_has_compliance.toml")
+    assert dg.report["mismatch"]["encoder_reference"]["reading"] == "description"
+    r = read_recording(rec)
+    shift = deflected_reference_lengths(r.robot, r.init_pose, r.init_tensions) \
+        - reference_lengths(r.robot, r.init_pose)
+    assert np.abs(shift).max() > 5e-3  # (the masts bend by centimetres under 35 kg)
+    other = tmp_path / "other"
+    shutil.copytree(rec, other)
+    rows = list(csv.reader((other / "recording.csv").open()))
+    head = rows[0]
+    for k, c in enumerate(r.robot.cable_ids):
+        for col in (f"l_meas_{c}", f"l_cmd_{c}"):
+            if col in head:
+                j = head.index(col)
+                for row in rows[1:]:
+                    row[j] = repr(float(float(row[j]) + shift[k]))
+    with (other / "recording.csv").open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    rep = diagnose(other).report
+    assert rep["mismatch"]["encoder_reference"]["reading"] == "deflected"
+    assert rep["effects"] == [], rep["mismatch"]["summary"]

@@ -345,6 +345,52 @@ def prepare_outputs(write_model: str | Path | None, plots: str | Path | None = N
         created.extend(made)
 
 
+#: what ``mismatch.encoder_reference`` says of each reading of d_model(p0)
+REFERENCES = {
+    "description": "the model's geometric lengths to the exit points of the description",
+    "deflected": "the model's geometric lengths to the exit points its compliant masts "
+                 "take under the tensions at initialisation",
+}
+
+
+def _encoder_reference(rec: Recording, rm: ResidualModel, say: Progress) -> str:
+    """Which reading of d_model(p0) the recording's controller referenced its encoders to
+    (a key of :data:`REFERENCES`), ``rm`` set to it. For a model with compliant masts the
+    conventions' "geometric length" is either to the description's exit points (this
+    project's controller) or to those its masts take under the tensions at initialisation
+    (a controller that models the deflection everywhere): centimetres apart on a large
+    robot, read as length offsets on every cable if taken the wrong way. The model as it
+    is decides, without a parameter: the other reading where its chi-square is lower by
+    :data:`BIC_TIE`."""
+    from controller.cycle import deflected_reference_lengths
+
+    model = rec.robot
+    if not model.compliant or not rm.has_len.any():
+        return "description"
+    try:
+        alt = deflected_reference_lengths(model, rec.init_pose, rec.init_tensions)
+    except ValueError:
+        return "description"
+    if not np.isfinite(alt).all() or np.abs(alt - rm.reference).max() < 1e-6:
+        return "description"
+    idx = np.flatnonzero(rm.has_len)
+
+    def chi2() -> float:
+        w = rm.whitened(model, idx)
+        return float(np.sum(np.nan_to_num(w) ** 2))
+
+    plain = rm.reference
+    c0 = chi2()
+    rm.set_reference(alt)
+    c1 = chi2()
+    if c1 < c0 - BIC_TIE:
+        say(f"encoders referenced to the exit points the model's masts take at "
+            f"initialisation (chi-square {c1:.4g} against {c0:.4g} to the description's)")
+        return "deflected"
+    rm.set_reference(plain)
+    return "description"
+
+
 def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
                  candidates: list[str], train: np.ndarray, holdouts: list[np.ndarray],
                  steps: list[dict], say: Progress, pool: Executor | None
@@ -563,6 +609,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         f"{inf['path_samples']} rows of moves) in {s.n_targets} replicate groups")
     rm = ResidualModel(s, model, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.estimate_noise(model)
+    reference = _encoder_reference(rec, rm, say)
     nz = rm.noise_summary()
     say(f"noise ({rm.sigma_source}): lengths {nz['length'] * 1e3:.3f} mm, forces "
         f"{nz['force']:.2f} N, exit points {nz['exit'] * 1e3:.2f} mm")
@@ -574,7 +621,8 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
                                  nz["length"], model.cable_ids,
                                  t_after=rm.init_end) if rm.has_len.any() else []
     if s.stream is not None and rm.has_len.any():
-        stream_rm = ResidualModel(s.stream, model, rec.init_pose, rec.init_tensions)
+        stream_rm = ResidualModel(s.stream, model, rec.init_pose, rec.init_tensions,
+                                  reference=rm.reference)
         stream_rm.keep_absorbed = True
         sb = stream_rm.blocks(model)
         jumps = locate.row_jumps(s.stream, np.where(sb.slack, np.nan, sb.length),
@@ -722,6 +770,10 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
 
     mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
                          pose_noise, excluded, effects)
+    mismatch["encoder_reference"] = {"reading": reference, "means": REFERENCES[reference]}
+    if reference != "description":
+        mismatch["summary"] += (f"; the encoders were referenced to {REFERENCES[reference]}"
+                                " (the reading of d_model(p0) that fits the recording)")
     model_path = write_error = None
     if write_model is not None:
         named = ", ".join(f"{e['name']} ({', '.join(e['params'])})" for e in effects) or "none"

@@ -119,12 +119,15 @@ class ResidualModel:
 
     def __init__(self, samples: Samples, model: Robot, init_pose: np.ndarray,
                  tau0: np.ndarray | None, slip_times: np.ndarray | None = None,
-                 rows: Samples | None = None) -> None:
+                 rows: Samples | None = None, reference: np.ndarray | None = None) -> None:
         self.s = samples
         self.model = model
         self.init_pose = np.asarray(init_pose, dtype=float)
         self.tau0 = tau0
-        self.reference = reference_lengths(model, self.init_pose)
+        #: (n,) [m] the encoders' reference d_model(p0) (default: :func:`reference_lengths`;
+        #: see :meth:`set_reference`)
+        self.reference = reference_lengths(model, self.init_pose) if reference is None \
+            else np.asarray(reference, dtype=float)
         n = model.n_cables
         s = samples
         init_t = s.t[s.is_init] if s.is_init.any() else s.t[:0]
@@ -185,8 +188,16 @@ class ResidualModel:
         self.tau_noise = tau_noise / np.sqrt(np.maximum(s.count, 1))  # per sample [N]
         self.rows = None
         if rows is not None and rows.n >= 3:
-            self.rows = ResidualModel(rows, model, init_pose, tau0, self.slip_times)
+            self.rows = ResidualModel(rows, model, init_pose, tau0, self.slip_times,
+                                      reference=self.reference)
         self._update_sd()
+
+    def set_reference(self, reference: np.ndarray) -> None:
+        """Read the encoders against another reference ``reference`` (n,) [m] (here and in
+        the raw rows' model)."""
+        self.reference = np.asarray(reference, dtype=float)
+        if self.rows is not None:
+            self.rows.reference = self.reference
 
     def _slipped(self) -> np.ndarray:
         """(N,n) where a cable's length offset applies: from its slip time on, never to a
