@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.diagnosis import gauge, locate, probes, slips, unexplained
+from bench.diagnosis import frame, gauge, locate, probes, slips, unexplained
 from bench.diagnosis.fit import FitResult, fit_effects
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
@@ -707,6 +707,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         say("unexplained: " + leftover["summary"])
 
     effects = []
+    notes: list[str] = []  # said at the end of the summary
     names = [report_name(e) for e in sel.effects]
     for e in sel.effects:
         name = report_name(e)
@@ -729,6 +730,11 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
                              for a, d in sel.alternatives.get(e, [])
                              if report_name(a) != name],
         }
+        if name == "exit_point_offset":
+            motion = frame.frame_motion(model, params[e])
+            if motion is not None:
+                entry["frame_motion"] = motion
+                notes.append(frame.sentence(motion))
         if rm.any_tau and ((name == "platform_mass" and "mass" in params[e]) or (
                 name == "load_cell_calibration" and "platform_mass" not in names
                 and any(k.startswith("gain_") for k in params[e]))):
@@ -772,8 +778,10 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
                          pose_noise, excluded, effects)
     mismatch["encoder_reference"] = {"reading": reference, "means": REFERENCES[reference]}
     if reference != "description":
-        mismatch["summary"] += (f"; the encoders were referenced to {REFERENCES[reference]}"
-                                " (the reading of d_model(p0) that fits the recording)")
+        notes.insert(0, f"the encoders were referenced to {REFERENCES[reference]} (the "
+                        "reading of d_model(p0) that fits the recording)")
+    if notes:
+        mismatch["summary"] = "; ".join([mismatch["summary"].rstrip(". "), *notes]) + "."
     model_path = write_error = None
     if write_model is not None:
         named = ", ".join(f"{e['name']} ({', '.join(e['params'])})" for e in effects) or "none"

@@ -1,0 +1,81 @@
+"""Exit-point offsets that are one rigid motion of the whole frame.
+
+The platform's pose is measured in the tracker's frame. A tracker registered to the base
+frame with a small rotation and translation off (a misregistered frame, a moved tracker
+between the survey and the campaign) reads every pose through that motion: the robot, seen
+from the tracker, has every exit point moved by it. The fitted exit-point offsets then
+form a rigid motion ``d_ij = omega x a_ij + t`` (small angles), which the vocabulary's
+``exit_point_offset`` reproduces exactly (the only other trace, gravity tilted by the
+rotation, is below a milliradian). Where the offsets are such a motion, the report says
+so: the exit points may be where the description puts them and the tracker's registration
+off. A measurement of the exit points (or of fixed targets on the base) with the tracker
+tells the two apart.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: the rigid motion must take at least this share of the offsets' sum of squares ...
+SHARE = 0.9
+#: ... on at least this many cables (over at least three masts)
+MIN_CABLES = 4
+
+
+def rigid_part(exits: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The rigid motion closest to exit-point offsets (small angles, least squares).
+
+    ``exits`` (n, 3) [m] exit points in F_b, ``offsets`` (n, 3) [m]. Returns the rotation
+    vector ``omega`` (3,) [rad] about the exits' centroid, the translation ``t`` (3,) [m] of
+    the centroid, and the share (0..1) of the offsets' sum of squares the motion takes."""
+    a = np.asarray(exits, float)
+    d = np.asarray(offsets, float)
+    c = a.mean(axis=0)
+    r = a - c
+    # d_k = omega x r_k + t = -[r_k]x omega + t
+    rows = []
+    for rk in r:
+        rx = np.array([[0.0, -rk[2], rk[1]], [rk[2], 0.0, -rk[0]], [-rk[1], rk[0], 0.0]])
+        rows.append(np.hstack([-rx, np.eye(3)]))
+    A = np.vstack(rows)
+    x, *_ = np.linalg.lstsq(A, d.ravel(), rcond=None)
+    total = float(d.ravel() @ d.ravel())
+    left = d.ravel() - A @ x
+    share = 1.0 - float(left @ left) / total if total > 0 else 0.0
+    return x[:3], x[3:], share
+
+
+def frame_motion(model, params: dict[str, float]) -> dict | None:
+    """Where the named exit-point offsets ``params`` (``dx_ij`` ... [m]) of ``model`` are one
+    rigid motion of the frame (:data:`SHARE` of them, on :data:`MIN_CABLES` cables or more of
+    three masts or more), what it is: ``rotation_rad`` (3,) about the exits' centroid,
+    ``translation_m`` (3,), ``share``; else None. Offsets the report did not name are zero."""
+    n = model.n_cables
+    d = np.zeros((n, 3))
+    moved = np.zeros(n, dtype=bool)
+    for key, v in params.items():
+        axis, cid = key[1], key[3:]
+        if key[0] != "d" or axis not in "xyz" or cid not in model.cable_ids:
+            continue
+        k = model.cable_ids.index(cid)
+        d[k, "xyz".index(axis)] = v
+        moved[k] = True
+    masts = {model.mast_index[k] for k in np.flatnonzero(moved)}
+    if moved.sum() < MIN_CABLES or len(masts) < 3:
+        return None
+    omega, t, share = rigid_part(model.exits, d)
+    if share < SHARE:
+        return None
+    return {"rotation_rad": [float(v) for v in omega], "translation_m": [float(v) for v in t],
+            "share": round(share, 4)}
+
+
+def sentence(motion: dict) -> str:
+    """The summary's words for a frame motion."""
+    rot = float(np.linalg.norm(motion["rotation_rad"])) * 1e3
+    tr = float(np.linalg.norm(motion["translation_m"])) * 1e3
+    return (f"the exit-point offsets move the exit points together as one rigid body "
+            f"(a rotation of {rot:.2f} mrad and a translation of {tr:.1f} mm take "
+            f"{100 * motion['share']:.0f} % of them): a laser tracker whose frame is "
+            f"registered that far off would read the same; measuring exit points or fixed "
+            f"targets on the base with the tracker would tell them apart")
