@@ -18,7 +18,7 @@ from controller import cables
 from controller.cables import CableForces
 from controller.kinematics import CableState, cable_state, gravity_wrench, wrench_matrix
 from controller.masts import deflect, lever_arms, mast_rotations, settle
-from controller.pose import cross
+from controller.pose import cross, rotation
 from controller.robot import Robot
 from controller.tension import TensionResult, closed_form, distribute
 
@@ -181,6 +181,20 @@ def true_tensions(robot: Robot, measured: np.ndarray) -> np.ndarray:
     """Tensions [N] a load cell reading means under ``robot``'s calibration
     (measured = gain * true + offset)."""
     return (np.asarray(measured, dtype=float) - robot.load_cell_offset) / robot.load_cell_gain
+
+
+def weight_between_ends(robot: Robot, poses: np.ndarray) -> np.ndarray:
+    """(..., n) [N] how much more a sagging cable pulls at its exit point than at its
+    platform anchor at ``poses`` (..., 6): along a catenary the tension grows with height by
+    the cable's weight per length, ``T_A - T_B = rho g (z_A - z_B)`` exactly (elastic or
+    not). Exit heights are the settled ones (a mast's deflection moves them by centimetres:
+    a fraction of a newton); zero without sag. For load cells at the platform end."""
+    poses = np.asarray(poses, dtype=float)
+    if robot.rho <= 0:
+        return np.zeros(poses.shape[:-1] + (robot.n_cables,))
+    R = rotation(poses[..., 3:])
+    zb = poses[..., 2:3] + np.einsum("...j,nj->...n", R[..., 2, :], robot.anchors)
+    return robot.rho * robot.gravity * (settled_exits(robot)[:, 2] - zb)
 
 
 def init_unstretched(robot: Robot, init_pose: np.ndarray,

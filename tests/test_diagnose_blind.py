@@ -189,3 +189,40 @@ def test_encoders_referenced_to_the_deflected_exits_are_read_so(diagnosed, tmp_p
     rep = diagnose(other).report
     assert rep["mismatch"]["encoder_reference"]["reading"] == "deflected"
     assert rep["effects"] == [], rep["mismatch"]["summary"]
+
+
+def test_load_cells_at_the_platform_anchors_are_read_so(diagnosed, tmp_path):
+    """Where a load cell sits along a sagging cable the format does not say: at the platform
+    anchor it reads the tension at the exit point less the cable's weight between the ends
+    (rho g dz, a few newtons that change with the pose). The sag recording (cells at the
+    exit points, this project's plant) keeps its reading and names the sag alone; the same
+    recording with every reading moved to the anchor is read there and names the sag alone
+    too, not offsets on every cell beside it."""
+    import csv
+    import shutil
+
+    from bench.recording import read_recording
+    from controller.statics import weight_between_ends
+
+    sc, rec, dg = diagnosed("cable_sag.toml")
+    assert dg.report["mismatch"]["load_cells"] == {"at": "exit"}
+    r = read_recording(rec)
+    truth = r.robot.replace(rho=sc.effects["cable_sag"]["rho"])
+    pose = np.where(np.isfinite(r.pose_meas), r.pose_meas, r.pose_des)
+    drop = weight_between_ends(truth, pose)  # (rows, n) [N]
+    assert 1.0 < np.nanmax(drop) < 30.0
+    other = tmp_path / "other"
+    shutil.copytree(rec, other)
+    rows = list(csv.reader((other / "recording.csv").open()))
+    head = rows[0]
+    for k, c in enumerate(r.robot.cable_ids):
+        j = head.index(f"tau_{c}")
+        for i, row in enumerate(rows[1:]):
+            row[j] = repr(float(float(row[j]) - drop[i, k]))
+    with (other / "recording.csv").open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    rep = diagnose(other).report
+    assert rep["mismatch"]["load_cells"] == {"at": "anchor"}
+    assert [e["name"] for e in rep["effects"]] == ["cable_sag"], rep["mismatch"]["summary"]
+    rho = rep["effects"][0]["params"]["rho"]
+    assert abs(rho - 0.06) < 0.006

@@ -121,7 +121,7 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     start, what is held, the budget, the residual model's noise (its whitening) and this
     module's settings. Not the residual model's warm starts: they only shorten the path."""
     h = hashlib.blake2b(digest_size=20)
-    for a in (idx, phi0, hold, rm.slip_times, rm.sqrt_w, rm.len_rank,
+    for a in (idx, phi0, hold, rm.slip_times, rm.sqrt_w, rm.len_rank, rm.reference,
               *(rm.sd[k] for k in sorted(rm.sd))):
         if a is None:
             h.update(b"-")
@@ -129,7 +129,7 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             a = np.ascontiguousarray(a)
             h.update(str((a.dtype, a.shape)).encode())
             h.update(a.tobytes())
-    h.update(repr((rm.visit_sd, rm.slack_threshold)).encode())
+    h.update(repr((rm.visit_sd, rm.slack_threshold, rm.cells_at)).encode())
     settings = (MAX_NFEV, RETRIES, FIT_TOL, SECANT_MIN, SECANT_RATIO, SECANT_STEPS, SETTLED,
                 PRUNE_HOPELESS,
                 id(least_squares), id(fd_jacobian))

@@ -70,6 +70,7 @@ from controller.statics import (
     settled_exits,
     true_tensions,
     unstretched_from_readings,
+    weight_between_ends,
 )
 
 #: per-sample noise floors [m, N, N m, m]
@@ -128,6 +129,9 @@ class ResidualModel:
         #: see :meth:`set_reference`)
         self.reference = reference_lengths(model, self.init_pose) if reference is None \
             else np.asarray(reference, dtype=float)
+        #: where the load cells sit along a sagging cable: "exit" (at the winch side, the
+        #: tension at the exit point) or "anchor" (at the platform)
+        self.cells_at = "exit"
         n = model.n_cables
         s = samples
         init_t = s.t[s.is_init] if s.is_init.any() else s.t[:0]
@@ -192,6 +196,15 @@ class ResidualModel:
                                       reference=self.reference)
         self._update_sd()
 
+    def cell_tensions(self, H: Robot, readings: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """True tensions at the exit ends [N] under ``H`` for load-cell ``readings`` taken
+        at ``poses``: through ``H``'s calibration, and, with the cells at the platform
+        anchors (:attr:`cells_at`), the cable's weight between the ends added."""
+        tau = true_tensions(H, readings)
+        if self.cells_at == "anchor" and H.rho > 0:
+            tau = tau + weight_between_ends(H, poses)
+        return tau
+
     def set_reference(self, reference: np.ndarray) -> None:
         """Read the encoders against another reference ``reference`` (n,) [m] (here and in
         the raw rows' model)."""
@@ -217,7 +230,7 @@ class ResidualModel:
         sig = (self.s.tau_row_sd if self.s.tau_row_sd else 0.5) / np.sqrt(rows)
         dT = max(10.0 * sig, 0.1)
         try:
-            tau0 = true_tensions(H, self.tau0)
+            tau0 = self.cell_tensions(H, self.tau0, self.init_pose)
             u_a = init_unstretched(H, self.init_pose, tau0)[0]
             u_b = init_unstretched(H, self.init_pose, tau0 + dT)[0]
         except ValueError:
@@ -269,7 +282,7 @@ class ResidualModel:
         # samples with measured tensions
         m = np.flatnonzero(np.isfinite(poses).all(axis=1) & self.has_tau & sel)
         if len(m):
-            tau = true_tensions(H, s.tau[m])
+            tau = self.cell_tensions(H, s.tau[m], poses[m])
             warm = self._warm_exits[m]
             warm = warm if np.isfinite(warm).all() else None
             key = m.tobytes()
@@ -358,7 +371,7 @@ class ResidualModel:
         :attr:`~controller.robot.Robot.init_internal` forces in :attr:`init_basis`.
         Raises ValueError if the initialisation pose is infeasible under ``H``."""
         if self.tau0 is not None:
-            return true_tensions(H, self.tau0)
+            return self.cell_tensions(H, self.tau0, self.init_pose)
         if H.init_internal is None or not np.any(H.init_internal):
             return None
         return pretensioned(H, self.init_pose, H.init_internal, self.init_basis)
@@ -413,7 +426,7 @@ class ResidualModel:
         near = np.isfinite(last).all(axis=1) & \
             (np.abs(last[:, :3] - start[:, :3]).max(axis=1) < 0.2)
         p[near] = last[near]
-        tau = true_tensions(H, s.tau[idx])
+        tau = self.cell_tensions(H, s.tau[idx], p)
         ea = np.where(np.isfinite(H.ea), H.ea, np.inf)
         # a slack cable only says it is at least as long as the straight line: it does not
         # place the platform
@@ -988,7 +1001,7 @@ class ResidualModel:
                 guess = cands[0]
             else:
                 guess = min(cands, key=lambda g: scaled_residual(H, l0, g, theta))
-            tau_meas = true_tensions(H, s.tau[i]) if self.has_tau[i] else None
+            tau_meas = self.cell_tensions(H, s.tau[i], guess) if self.has_tau[i] else None
             res = forward_pose(H, l0, guess, tensions=tau_meas, theta=theta)
             if not res.success:
                 continue
@@ -997,8 +1010,9 @@ class ResidualModel:
             if self.has_pose[i]:
                 pose_err[i] = s.pose_meas[i] - res.pose
             if self.has_tau[i] and np.all(np.isfinite(res.tensions)) and H.elastic:
-                tension_err[i] = s.tau[i] - (H.load_cell_gain * res.tensions
-                                             + H.load_cell_offset)
+                at_cells = res.tensions - (weight_between_ends(H, res.pose)
+                                           if self.cells_at == "anchor" else 0.0)
+                tension_err[i] = s.tau[i] - (H.load_cell_gain * at_cells + H.load_cell_offset)
             if self.has_exit[i].any():
                 e = s.exit_meas[i] - res.exits
                 e[~self.has_exit[i]] = np.nan
