@@ -41,7 +41,7 @@ def test_masts_tilted_each_their_own_way_are_no_frame_motion():
         inward = centre - model.exits[k, :2]
         d[k, :2] = 0.015 * inward / np.linalg.norm(inward)
     assert frame_motion(model, _params(model, d)) is None
-    _, _, share = rigid_part(model.exits, d)
+    _, _, _, share = rigid_part(model.exits, d)
     assert share < 0.5
 
 
@@ -54,3 +54,22 @@ def test_few_cables_or_random_offsets_say_nothing():
     d = np.cross(omega, model.exits)
     assert frame_motion(model, _params(model, d, cables={"11", "12", "21"})) is None
     assert frame_motion(model, {}) is None
+
+
+def test_a_tracker_scale_is_told_by_a_similarity_and_the_drum_scales():
+    """A tracker whose length scale is 2e-4 off about its station reads the exit points
+    moved by that similarity and every length change 1 + 2e-4 times short: exit offsets
+    and drum scales near 1.0002 on every cable (an independent recording gave them back so).
+    Drum scales on a few cables only, or far from the similarity's scale, are no tracker."""
+    model = rocaspect()
+    sigma, station = 2e-4, np.array([-4.0, -3.0, 1.2])
+    d = sigma * (model.exits - station)
+    drums = {f"s_{c}": 1.0 + sigma + 1e-5 * (-1) ** k for k, c in enumerate(model.cable_ids)}
+    got = frame_motion(model, _params(model, d), drums)
+    assert got is not None and abs(got["scale"] - sigma) < 2e-5
+    assert "length scale" in sentence(got)
+    assert frame_motion(model, _params(model, d)) is None  # no drums: a scale is no motion
+    few = dict(list(drums.items())[:3])
+    assert frame_motion(model, _params(model, d), few) is None
+    far = {k: 1.0 + 3 * sigma for k in drums}
+    assert frame_motion(model, _params(model, d), far) is None

@@ -22,34 +22,45 @@ SHARE = 0.9
 MIN_CABLES = 4
 
 
-def rigid_part(exits: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The rigid motion closest to exit-point offsets (small angles, least squares).
+def rigid_part(exits: np.ndarray, offsets: np.ndarray, scale: bool = False
+               ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The rigid motion (with ``scale``: the similarity) closest to exit-point offsets
+    (small angles and scale change, least squares).
 
     ``exits`` (n, 3) [m] exit points in F_b, ``offsets`` (n, 3) [m]. Returns the rotation
     vector ``omega`` (3,) [rad] about the exits' centroid, the translation ``t`` (3,) [m] of
-    the centroid, and the share (0..1) of the offsets' sum of squares the motion takes."""
+    the centroid, the scale change ``sigma`` [-] about it (0 without ``scale``), and the
+    share (0..1) of the offsets' sum of squares the motion takes."""
     a = np.asarray(exits, float)
     d = np.asarray(offsets, float)
     c = a.mean(axis=0)
     r = a - c
-    # d_k = omega x r_k + t = -[r_k]x omega + t
+    # d_k = omega x r_k + sigma r_k + t = -[r_k]x omega + sigma r_k + t
     rows = []
     for rk in r:
         rx = np.array([[0.0, -rk[2], rk[1]], [rk[2], 0.0, -rk[0]], [-rk[1], rk[0], 0.0]])
-        rows.append(np.hstack([-rx, np.eye(3)]))
+        rows.append(np.hstack([-rx, np.eye(3)] + ([rk[:, None]] if scale else [])))
     A = np.vstack(rows)
     x, *_ = np.linalg.lstsq(A, d.ravel(), rcond=None)
     total = float(d.ravel() @ d.ravel())
     left = d.ravel() - A @ x
     share = 1.0 - float(left @ left) / total if total > 0 else 0.0
-    return x[:3], x[3:], share
+    return x[:3], x[3:6], float(x[6]) if scale else 0.0, share
 
 
-def frame_motion(model, params: dict[str, float]) -> dict | None:
+def frame_motion(model, params: dict[str, float],
+                 drums: dict[str, float] | None = None) -> dict | None:
     """Where the named exit-point offsets ``params`` (``dx_ij`` ... [m]) of ``model`` are one
     rigid motion of the frame (:data:`SHARE` of them, on :data:`MIN_CABLES` cables or more of
     three masts or more), what it is: ``rotation_rad`` (3,) about the exits' centroid,
-    ``translation_m`` (3,), ``share``; else None. Offsets the report did not name are zero."""
+    ``translation_m`` (3,), ``scale`` 0, ``share``; else None. Offsets the report did not
+    name are zero.
+
+    A tracker whose length scale is off by ``sigma`` reads the robot scaled by 1 + sigma
+    about its station: every exit point moved by the similarity and every cable's length
+    change read 1 + sigma times too short. Where the named drum scales ``drums``
+    (``s_ij``) are all within a third of sigma of 1 + sigma and the similarity takes
+    :data:`SHARE` of the offsets, that is said instead (``scale`` sigma)."""
     n = model.n_cables
     d = np.zeros((n, 3))
     moved = np.zeros(n, dtype=bool)
@@ -63,17 +74,28 @@ def frame_motion(model, params: dict[str, float]) -> dict | None:
     masts = {model.mast_index[k] for k in np.flatnonzero(moved)}
     if moved.sum() < MIN_CABLES or len(masts) < 3:
         return None
-    omega, t, share = rigid_part(model.exits, d)
-    if share < SHARE:
+    omega, t, sigma, share = rigid_part(model.exits, d)
+    if share < SHARE and drums and len(drums) == n:
+        omega, t, sigma, share = rigid_part(model.exits, d, scale=True)
+        s = np.array(list(drums.values())) - 1.0
+        if not (share >= SHARE and np.all(np.abs(s - sigma) <= abs(sigma) / 3)):
+            return None
+    elif share < SHARE:
         return None
     return {"rotation_rad": [float(v) for v in omega], "translation_m": [float(v) for v in t],
-            "share": round(share, 4)}
+            "scale": float(sigma), "share": round(share, 4)}
 
 
 def sentence(motion: dict) -> str:
     """The summary's words for a frame motion."""
     rot = float(np.linalg.norm(motion["rotation_rad"])) * 1e3
     tr = float(np.linalg.norm(motion["translation_m"])) * 1e3
+    if motion.get("scale"):
+        return (f"the exit-point offsets and the drum scales are what a laser tracker whose "
+                f"length scale is off by {motion['scale']:+.1e} reads (the offsets a "
+                f"similarity of the exit points, {100 * motion['share']:.0f} % of them; every "
+                f"drum scale near 1 {motion['scale']:+.1e}): check the tracker's scale (its "
+                f"weather station, a reference length) before moving exit points or drums")
     return (f"the exit-point offsets move the exit points together as one rigid body "
             f"(a rotation of {rot:.2f} mrad and a translation of {tr:.1f} mm take "
             f"{100 * motion['share']:.0f} % of them): a laser tracker whose frame is "

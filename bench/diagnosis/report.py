@@ -759,7 +759,7 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
                              if report_name(a) != name],
         }
         if name == "exit_point_offset":
-            motion = frame.frame_motion(model, params[e])
+            motion = frame.frame_motion(model, params[e], params.get("drum_scale"))
             if motion is not None:
                 entry["frame_motion"] = motion
                 notes.append(frame.sentence(motion))
@@ -784,6 +784,14 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
         if leftover is not None:
             entry["provisional"] = True
         effects.append(entry)
+    # exit offsets (and drum scales) that a tracker's registration or scale would read are
+    # provisional: the tracker is checked before exit points or drums are moved
+    motion = next((e["frame_motion"] for e in effects if "frame_motion" in e), None)
+    if motion is not None:
+        for entry in effects:
+            if entry["name"] == "exit_point_offset" or (
+                    motion.get("scale") and entry["name"] == "drum_scale"):
+                entry["provisional"] = True
 
     baseline = pose_figures(base_fw)
     baseline["wrench_rms"] = wrench_rms(model, s, raw=True)
