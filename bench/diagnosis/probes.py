@@ -21,7 +21,12 @@ the initialisation (the encoders are referenced there):
 - ``direction``: one cable's length differs by the direction of its last move (backlash,
   friction in its winch): one parameter per cable, the difference between paying out and
   reeling in [m]; a finding only when it stands out from the other cables' (what all the
-  winches share is their hysteresis, part of the noise model).
+  winches share is their hysteresis, part of the noise model);
+- ``stretch``: one cable's stretch is not proportional to its tension (a fibre rope that
+  stiffens or softens with load, a replaced rope): one parameter per cable with measured
+  tensions, the length change at the largest tension read of a term in the square of
+  the tension's change since the initialisation [m] (the proportional part is the
+  cable's E*A, an effect of the vocabulary, and stays to the effects).
 """
 
 from __future__ import annotations
@@ -54,6 +59,8 @@ WHAT = {
     "drift": "the length drifts with time (creep, or a drum slipping slowly?)",
     "direction": "the length depends on the direction of the cable's last move "
                  "(backlash or friction in the winch?)",
+    "stretch": "the stretch is not proportional to the tension (a rope that stiffens or "
+               "softens with load?)",
 }
 
 
@@ -107,6 +114,19 @@ def columns(rm: ResidualModel) -> list[tuple[str, str | None, np.ndarray]]:
             x = np.zeros((s.n, n))
             x[:, k] = 0.5 * d[:, k]
             out.append(("direction", cid, x))
+    tau = np.asarray(s.tau, dtype=float)
+    if rm.tau0 is not None and tau.shape == (s.n, n):
+        read = np.isfinite(tau) & after[:, None]
+        for k, cid in enumerate(model.cable_ids):
+            if read[:, k].sum() < 8:
+                continue
+            dt = np.where(read[:, k], tau[:, k] - rm.tau0[k], 0.0)
+            top = float(np.max(np.abs(dt)))
+            if top <= 0:
+                continue
+            x = np.zeros((s.n, n))
+            x[:, k] = (dt / top) ** 2
+            out.append(("stretch", cid, x))
     # a column that changes no length residual tests nothing (no encoder readings there)
     return [c for c in out if np.any(c[2][rm.has_len] != 0.0)]
 
@@ -271,7 +291,7 @@ def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> l
     for r in hit:
         if r.cable is not None and (r.cable not in best or r.delta_bic < best[r.cable].delta_bic):
             best[r.cable] = r
-    for name in ("drift", "direction"):
+    for name in ("drift", "direction", "stretch"):
         got = sorted((r for r in hit if r.name == name and best.get(r.cable) is r),
                      key=lambda r: r.delta_bic)
         if th and name == "drift":
@@ -281,8 +301,10 @@ def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> l
             continue
         which = ", ".join(str(r.cable) for r in got)
         top = got[0]
-        what = (f"{top.value * 1e3:+.2f} mm over the recording" if name == "drift" else
-                f"{abs(top.value) * 1e3:.2f} mm between paying out and reeling in")
+        what = {"drift": f"{top.value * 1e3:+.2f} mm over the recording",
+                "direction": f"{abs(top.value) * 1e3:.2f} mm between paying out and reeling in",
+                "stretch": f"{top.value * 1e3:+.2f} mm beside a proportional stretch at its "
+                           f"largest tension change"}[name]
         out.append(f"cable{'s' if len(got) > 1 else ''} {which}: {WHAT[name]}: "
                    f"{what} on cable {top.cable} ({top.size_over_noise:.1f} times the "
                    f"noise), lowering the BIC by {-top.delta_bic:.0f} beside the named effects")
