@@ -431,3 +431,39 @@ def test_far_from_the_data_the_backward_step_keeps_what_the_bic_needs():
         sel.fit = lambda effects, start, without=without: without
         chosen, fit, dropped = sel._backward(["exit_point_offset", "drum_scale"], current)
         assert (not dropped) == kept
+
+
+def test_a_search_that_comes_back_to_a_set_it_left_stops_there():
+    """A swap the backward step undoes and the forward step brings back cycles (case
+    12554: the load cells swapped for a cable's E*A and E*A dropped, fourteen times over):
+    the search stops when it comes back to a set it left."""
+    sel = object.__new__(Selector)
+    sel.progress = lambda msg: None
+    sel.budget = None
+    sel.max_effects = 5
+    sel.cache = {}
+    fit = _fit({"platform_mass": 1}, 100.0)
+    calls = {"swap": 0}
+
+    def forward(current, chosen, candidates, selection):
+        if "load_cell_calibration" in chosen or "cable_elasticity" in chosen:
+            return None
+        return chosen + ["load_cell_calibration"], current
+
+    def backward(chosen, current):
+        if "cable_elasticity" in chosen:
+            return [c for c in chosen if c != "cable_elasticity"], current, True
+        return chosen, current, False
+
+    def swap(chosen, current, candidates):
+        if "load_cell_calibration" not in chosen:
+            return None
+        calls["swap"] += 1
+        return [c for c in chosen if c != "load_cell_calibration"] + ["cable_elasticity"], \
+            current
+
+    sel._forward, sel._backward, sel._swap = forward, backward, swap
+    chosen, _ = sel._search(["platform_mass"], fit, CANDIDATES + ["load_cell_calibration"],
+                            Selection([], BASE, BASE))
+    assert calls["swap"] <= 2
+    assert "platform_mass" in chosen

@@ -483,7 +483,10 @@ class Selector:
     def _search(self, chosen: list[str], current: FitResult, candidates: list[str],
                 sel: Selection) -> tuple[list[str], FitResult]:
         """Forward steps, backward drops and swaps from ``chosen`` until none changes it (or
-        the sets fitted reach :attr:`budget`)."""
+        the sets fitted reach :attr:`budget`, or it comes back to a set it left: a swap the
+        backward step undoes, and the forward step brings back, cycles until the cap; case
+        12554 swapped the load cells for a cable's E*A and dropped it fourteen times)."""
+        seen = {frozenset(chosen)}
         for _ in range(3 * len(candidates) + 3):
             if self.budget is not None and len(self.cache) >= self.budget:
                 self.progress("the search's budget of fits is spent: it stops here")
@@ -511,6 +514,10 @@ class Selector:
                 chosen, current = swapped
             if not (changed or dropped or swapped is not None):
                 break
+            if frozenset(chosen) in seen:
+                self.progress("the search comes back to a set it left: it stops there")
+                break
+            seen.add(frozenset(chosen))
         return chosen, current
 
     def _restart(self, chosen: list[str], current: FitResult, candidates: list[str],
