@@ -312,7 +312,7 @@ def parse_robot(data: dict[str, Any], path: str = "<memory>", text: str = "") ->
                                                  required=False, default=0.0))
     if len(ids) < 6:
         raise r.fail(f"a robot needs at least 6 cables for a 6-DoF platform, got {len(ids)}",
-                     "cable", None, None)
+                     "cable", len(ids) - 1 if ids else None, None)
     for k, mid in enumerate(mast_ids):
         if k not in cols["mast"]:
             raise r.fail(f"no cable uses mast {mid!r} (each [[mast]] carries at least one "

@@ -210,6 +210,23 @@ def test_an_impossible_tension_is_excluded_by_line_and_column(plain, tmp_path):
     assert np.isfinite(dg.report["mismatch"]["noise"]["force"])
 
 
+def test_a_pose_a_kilometre_away_is_excluded_and_its_other_coordinates_say_why(plain,
+                                                                              tmp_path):
+    """A tracker row with x = 1010 m: x_meas is named as the pose far from the robot; its
+    y and z go with it, said so (not "more than 225 m from the robot" of 6.5 m)."""
+    from bench.diagnosis.samples import check_values
+
+    def spoil(rows):
+        rows[40][rows[0].index("x_meas")] = "1010.0"
+
+    rec = read_recording(_edit_csv(plain, tmp_path / "far", spoil))
+    ex = {e["column"]: e for e in check_values(rec)}
+    assert set(ex) == {"x_meas", "y_meas", "z_meas"} and ex["x_meas"]["row"] == 41
+    assert "from the robot" in ex["x_meas"]["why"]
+    assert ex["y_meas"]["why"].startswith("with the rest of its row's position")
+    assert not np.isfinite(rec.pose_meas[39, :3]).any()
+
+
 def test_sagging_hypotheses_are_continuous_with_straight_cables_at_slack_ones(plain):
     """A cable read as slack (its load cell about zero) says only that it is at least as long
     as the straight line, sagging model or not: a hypothesis with nearly weightless cables

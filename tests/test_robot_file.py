@@ -99,7 +99,9 @@ def test_too_few_cables(tmp_path):
         block_start = text.rfind("[[cable]]", 0, start)
         nxt = text.find("[[cable]]", start)
         text = text[:block_start] + (text[nxt:] if nxt >= 0 else "")
-    assert "at least 6 cables" in error_of(tmp_path, text)
+    msg = error_of(tmp_path, text)
+    assert "at least 6 cables" in msg
+    assert ".toml:" in msg and "[[cable]] #5" in msg  # the line of the last cable's table
 
 
 def test_not_toml_and_missing_file(tmp_path):

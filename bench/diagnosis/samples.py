@@ -189,14 +189,20 @@ def check_values(rec: Recording, limit: int = 20) -> list[dict]:
         flag((rec.l_meas < 0) | (rec.l_meas > 10 * size), rec.l_meas,
              [f"l_meas_{c}" for c in cids], f"length outside 0 .. {10 * size:.0f} m", "lengths")
         for name, arr in (("meas", rec.pose_meas), ("des", rec.pose_des)):
+            axes = [f"{a}_{name}" for a in ("x", "y", "z", "roll", "pitch", "yaw")]
             far = np.linalg.norm(arr[:, :3] - centre, axis=1) > 10 * size
-            bad = np.zeros(arr.shape, dtype=bool)
-            bad[:, :3] = far[:, None] & np.isfinite(arr[:, :3])
-            bad[:, 3:] = np.abs(arr[:, 3:]) > 2 * np.pi
-            axes = ["x", "y", "z", "roll", "pitch", "yaw"]
-            flag(bad, arr, [f"{a}_{name}" for a in axes],
-                 f"pose more than {10 * size:.0f} m from the robot or angle beyond 2 pi",
-                 f"{name} poses")
+            # the coordinates that are themselves far named as such; the rest of such a
+            # row's position goes with it, said so (not "more than ... m" of a sane value)
+            own = np.zeros(arr.shape, dtype=bool)
+            own[:, :3] = far[:, None] & (np.abs(arr[:, :3] - centre) > 10 * size / np.sqrt(3))
+            own[:, 3:] = np.abs(arr[:, 3:]) > 2 * np.pi
+            rest = np.zeros(arr.shape, dtype=bool)
+            rest[:, :3] = far[:, None] & np.isfinite(arr[:, :3])
+            rest &= ~own
+            flag(own, arr, axes, f"pose more than {10 * size:.0f} m from the robot or angle "
+                                 f"beyond 2 pi", f"{name} poses")
+            flag(rest, arr, axes, "with the rest of its row's position, which is more than "
+                                  f"{10 * size:.0f} m from the robot", f"{name} poses")
         e = rec.exit_meas.reshape(rec.n_samples, -1)
         far = np.abs(rec.exit_meas - robot.exits[None]).max(axis=2) > size
         bad = np.repeat(far, 3, axis=1) & np.isfinite(e)
