@@ -27,8 +27,10 @@ demo: $(STAMP)
 	$(VENV)/bin/cdpr compare bench/data/paper_scenario.toml $(DEMO)/report.json
 	$(VENV)/bin/cdpr diagnose examples/paper_tables --plots $(DEMO)/paper_plots
 
+# Two test processes (this machine and CI have 2 cores), one file per process at a time so
+# that a module's fixtures are computed once.
 test: $(STAMP)
-	$(PY) -m pytest -q --durations=15
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
 # The property-based tests with many more examples (tests/conftest.py, profile "deep").
 test-deep: $(STAMP)

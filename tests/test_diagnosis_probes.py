@@ -80,8 +80,9 @@ def test_nothing_without_the_drift(diagnosed):
     assert dg.report["unexplained"] is None, dg.report["unexplained"]["summary"]
     found, stands = probes.screen(dg.rm, dg.selection.fit.space, dg.selection.fit.phi)
     assert found and not any(r.finding for r in found) and not stands
-    # each probe is there, and none fits better than chance would allow
-    assert {r.name for r in found} == {"thermal", "drift", "direction"}
+    # each probe is there (the recording has load cells, so the stretch one too), and none
+    # fits better than chance would allow
+    assert {r.name for r in found} == {"thermal", "drift", "direction", "stretch"}
     assert min(r.delta_bic for r in found) > -probes.PROBE_BIC
 
 
