@@ -174,3 +174,48 @@ def test_rounds_on_the_last_faces_end_where_searches_every_round_end(no_tensions
         full = rm.whitened(space.robot(x1))
     assert np.abs(full).max() > 1.0
     np.testing.assert_allclose(held, full, rtol=1e-7, atol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def no_tracker(tmp_path_factory):
+    """A recording without tracker poses on ROCASPECT with compliant masts: the poses are
+    estimated from the encoders and load cells (ResidualModel._estimate_poses)."""
+    sc = parse_scenario({
+        "format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 5,
+        "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
+        "truth": {"cable_length_offset": {"dl_21": 0.004},
+                  "mast_compliance": {"k": [2.0e5, 5.0e5, 3.0e5]}},
+        "nuisance": {"hysteresis_m": 5e-5},
+        "poses": copy.deepcopy({"kind": "grid", "n": [3, 3, 1], "rpy_deg": 1.0, "visits": 2}),
+        "recording": {"tracker": False}})
+    rec = read_recording(run_campaign(sc, tmp_path_factory.mktemp("rec") / "rec"))
+    s = prepare(rec)
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
+    rm.estimate_noise(rec.robot)
+    assert rm.est_pose.any()
+    return rm
+
+
+@pytest.mark.parametrize("effects", [("cable_length_offset",),
+                                     ("drum_scale", "mast_compliance")])
+def test_the_frozen_jacobian_of_estimated_poses_equals_the_full_one(no_tracker, effects):
+    """Inside frozen the poses take one Gauss-Newton step from where the evaluation before
+    took its last: the columns are those of poses estimated to convergence each time."""
+    rm = no_tracker
+    space = ParamSpace(rm.model, effects)
+    rng = np.random.default_rng(2)
+    x = np.clip(space.neutral + rng.normal(size=len(space)) * space.scale,
+                space.lo, space.hi)
+
+    def fun(phi):
+        return rm.whitened(space.robot(phi))
+
+    steps = space.scale * 1e-2
+    fun(x)
+    f0 = fun(x)  # from its own estimates: converged within a step or two
+    full = fd_jacobian(fun, x, f0, steps, space.lo, space.hi)
+    f0 = fun(x)
+    frozen = fd_jacobian(fun, x, f0, steps, space.lo, space.hi, rm.frozen)
+    assert np.abs(full).max() > 0
+    np.testing.assert_allclose(frozen, full, rtol=5e-3, atol=1e-4 * np.abs(full).max())
+    np.testing.assert_allclose(fun(x), f0, rtol=1e-6, atol=1e-6)
