@@ -82,6 +82,13 @@ WHITE_DEFAULTS = {"length": 5e-5, "force": 0.5, "moment": 0.5, "exit": 1e-4}
 BLOCKS = ("length", "force", "moment", "exit")
 
 
+def _finite(a: np.ndarray) -> np.ndarray:
+    """``a`` with its non-finite entries zero (``np.nan_to_num`` without its checks and
+    copy where all are finite: it was a tenth of a no-tracker diagnosis's time)."""
+    bad = ~np.isfinite(a)
+    return np.where(bad, 0.0, a) if bad.any() else a
+
+
 #: Gauss-Newton steps of the estimated poses inside :meth:`ResidualModel.frozen` at most
 FROZEN_STEPS = 3
 
@@ -479,15 +486,15 @@ class ResidualModel:
         (M,6) holding ``tau`` (M,n) [N] toward the unstretched ``read`` (M,n) [m] of the
         ``taut`` (M,n) cables, clipped to ``limit`` (6,); and the cables' forces there."""
         bs = batch_statics(H, p, tau, forces0=forces)
-        r = np.nan_to_num((bs.unstretched - read) * taut)
+        r = _finite((bs.unstretched - read) * taut)
         J = -np.swapaxes(wrench_matrix(bs.state), -1, -2) / (1.0 + tau / ea)[..., None]
-        J = np.nan_to_num(J * taut[..., None])
+        J = _finite(J * taut[..., None])
         J[..., 3:] = J[..., 3:] @ euler_rate_matrix(p[:, 3:])
         JtJ = np.swapaxes(J, -1, -2) @ J
         damp = 1e-9 * np.trace(JtJ, axis1=-2, axis2=-1)[:, None, None] + 1e-12
         g = np.einsum("nki,nk->ni", J, r)
         dp = -np.linalg.solve(JtJ + damp * np.eye(6), g[..., None])[..., 0]
-        dp = np.nan_to_num(dp)
+        dp = _finite(dp)
         big = np.max(np.abs(dp) / limit, axis=1, keepdims=True)
         return dp / np.maximum(big, 1.0), bs.forces
 
@@ -595,9 +602,9 @@ class ResidualModel:
             exits = bs.exits if H.compliant else None
             W = wrench_matrix(bs.state)
             wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)
-            r = np.nan_to_num(bs.unstretched - read)
-            C = np.nan_to_num(_length_sensitivity(H, bs, tau_k))
-            fit = fit_internal_forces(np.nan_to_num(W), -wg, r, C, tau_k, tm,
+            r = _finite(bs.unstretched - read)
+            C = _finite(_length_sensitivity(H, bs, tau_k))
+            fit = fit_internal_forces(_finite(W), -wg, r, C, tau_k, tm,
                                       hint=None if search else hint)
             good = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(fit.tensions).all(axis=1)
             ok = good & fit.feasible
