@@ -436,3 +436,28 @@ def test_gains_sharing_a_common_mode_with_the_mass_are_not_stand_ins_for_it():
     full = _full_fit(C, phi, ["load_cell_calibration"] * cells + ["platform_mass"])
     weak = np.array([True] * cells + [False])
     assert not traded_parameters(full, weak).any()
+
+
+def test_a_held_gain_sharing_a_poorly_known_mode_with_kept_ones_widens_them():
+    """Three load cells' gains whose common mode the data fix to 2 % (a light platform, noisy
+    cells) and each gain to 0.1 % beside the others: the first, within its marginal error of
+    one, is held, and the kept ones keep the common mode's error (it is marked as unfixed
+    for :func:`pruning_bias_var`); not so for gains known on their own, nor across effects
+    (:func:`traded_parameters` decides those)."""
+    from bench.diagnosis.fit import pruning_bias_var, shared_mode
+
+    common, own = 0.02, 0.001
+    cov = common ** 2 * np.ones((3, 3)) + own ** 2 * np.eye(3)
+    weak = np.array([True, False, False])
+    full = _full_fit(cov, [0.001, 0.035, 0.036], ["gain", "gain", "gain"])
+    got = shared_mode(full, weak)
+    assert got.tolist() == [True, False, False]
+    widened = pruning_bias_var(full, weak, np.zeros(3), weak & got)
+    assert np.all(np.sqrt(widened[1:]) > 0.9 * common)  # the common mode's error, kept
+    assert np.all(pruning_bias_var(full, weak, np.zeros(3))[1:] < own ** 2)  # without: none
+    # gains each known on their own (no common mode): nothing shared
+    alone = _full_fit(own ** 2 * np.eye(3), [0.001, 0.035, 0.036], ["gain", "gain", "gain"])
+    assert not shared_mode(alone, weak).any()
+    # the same covariance across two effects: not this rule's
+    assert not shared_mode(_full_fit(cov, [0.001, 0.035, 0.036], ["mass", "gain", "gain"]),
+                           weak).any()
