@@ -299,6 +299,7 @@ def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None =
     cf, l0 = cables.from_tensions(robot, st, tau, forces0)
     if robot.compliant:
         r = lever_arms(a_star, robot.pivots, robot.mast_index)
+        last = np.inf
         for _ in range(max_iter):
             u_exit = st.u if robot.rho <= 0 else cf.exit / cf.tension[..., None]
             theta = mast_rotations(robot.compliance, r, tau, u_exit, robot.mast_index)
@@ -307,8 +308,13 @@ def batch_statics(robot: Robot, poses: np.ndarray, tensions: np.ndarray | None =
             exits = new
             st = cable_state(poses, robot.anchors, exits, robot.pulley_radius, st)
             cf, l0 = cables.from_tensions(robot, st, tau, cf)
-            if step < tol:
+            # a contraction (the masts' rotations move the cables' directions by about a
+            # thousandth of themselves): what is left after a step is about the step times
+            # the ratio of the last two steps; stop when that is within ``tol``
+            ratio = step / last if np.isfinite(last) and last > 0 else 1.0
+            if step < tol or (ratio < 0.5 and step * ratio / (1.0 - ratio) < tol):
                 break
+            last = step
     return BatchStatics(tau, np.array(exits), st, np.isfinite(tau).all(axis=1), l0,
                         _platform_forces(st, tau, cf), cf if robot.rho > 0 else None)
 

@@ -161,6 +161,9 @@ JUMP_HOLD = 4
 HOLD_Z = 5.0
 #: rows on each side whose jumps give the local spread
 JUMP_LOCAL = 15
+#: a cable's account of a jump where the tensions or the pose are fitted leaves no more
+#: than this many standard deviations of noise (beside the directions' own count)
+FIT_Z = 5.0
 
 
 def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
@@ -201,26 +204,12 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         gone = ~np.isfinite(length)
         switch = np.any(gone[1:] != gone[:-1], axis=1) & fitted[1:] & fitted[:-1]
         same[1:] &= ~switch
-    d = np.full(length.shape, np.nan)
-    d[1:] = length[1:] - length[:-1]
-    d[~same] = np.nan
-    # the local slope: median of the changes of the two rows on each side (same block)
-    nb = []
-    for off in (-2, -1, 1, 2):
-        sh = np.full(length.shape, np.nan)
-        lo, hi = max(off, 0), R + min(off, 0)
-        sh[lo - off:hi - off] = d[lo:hi]
-        nb.append(sh)
-    with warnings.catch_warnings():  # rows without neighbours: no slope
-        warnings.simplefilter("ignore", RuntimeWarning)
-        slope = np.nanmedian(np.stack(nb), axis=0) if R else d
-    slope = np.where(np.isfinite(slope), slope, 0.0)
-    raw = d - slope
+    raw = _row_changes(length, same)
     raw[stream.t <= t_after] = np.nan
-    j, own = raw, None
+    j, own, alike = raw, None, None
     if absorbed is not None:
         # each cable's slip that accounts for the jump best, where the tensions are fitted
-        beta, own, fitted_rows = cable_accounts(raw, absorbed)
+        beta, own, fitted_rows, alike = cable_accounts(raw, absorbed)
         j = np.where(fitted_rows[:, None], beta, raw)
     found = []
     with np.errstate(invalid="ignore"):
@@ -235,6 +224,28 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         second = np.where(mag >= top2[:, 1:2], top2[:, :1], top2[:, 1:2])
         alone = mag > DOMINANT * second
         big &= alone if own is None else np.where(fitted_rows[:, None], own, alone)
+    if own is not None and tau is not None:
+        # rows whose pose was estimated (measured tensions, fitted pose): the pose takes up
+        # six of eight directions, and several cables' patterns are nearly parallel in the
+        # two left (ROCASPECT's even cables): a jump of several cables' readings at once
+        # (hysteresis at a reversal) is accounted for by one of them within the noise. A
+        # slip moves the platform: its cable's tension jumps with it (a 6 mm slip of a
+        # 15 m cable at E*A 700 kN, by a hundred newtons); a reading's error does not
+        tm = np.asarray(tau, float).reshape(R, -1)
+        posed = fitted_rows & np.isfinite(tm).all(axis=1)
+        if posed.any():
+            dtau = _row_changes(tm, same)
+            with np.errstate(invalid="ignore"):
+                zt = np.abs(dtau) / np.maximum(1.4826 * np.nanmedian(np.abs(dtau), axis=0),
+                                               1e-9)
+                # where no cable's account is its own but several account for the jump
+                # within the noise (ROCASPECT's odd cables), each is a candidate: the
+                # time is known, whose slip it is the fit tells (its offset)
+                cand = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M) & alike & posed[:, None]
+            big |= cand & (cand.sum(axis=1) > 1)[:, None]
+            big &= ~posed[:, None] | (zt > JUMP_Z)
+    else:
+        alike = None
     for k, cid in enumerate(cable_ids):
         rows = [i for i in np.flatnonzero(big[:, k])
                 if _local_z(j[:, k], int(i)) > JUMP_Z
@@ -244,16 +255,41 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         i = rows[int(np.argmax(np.abs(j[rows, k])))]
         found.append({"cable": cid, "t_s": float(0.5 * (stream.t[i - 1] + stream.t[i])),
                       "step_m": float(j[i, k]), "z": float(z[i, k]), "row": int(stream.row[i])})
+        if alike is not None and alike[i, k]:
+            found[-1]["alike"] = [c for c, a in zip(cable_ids, big[i] & alike[i], strict=True)
+                                  if a and c != cid]
     return found
 
 
+def _row_changes(x: np.ndarray, same: np.ndarray) -> np.ndarray:
+    """Changes (R, n) of ``x`` (R, n) between consecutive rows of one block (``same``: a row
+    in the block of the one before), less the local slope (the median of the changes of
+    the two rows on each side); NaN at a block's first row."""
+    R = len(x)
+    d = np.full(x.shape, np.nan)
+    d[1:] = x[1:] - x[:-1]
+    d[~same] = np.nan
+    nb = []
+    for off in (-2, -1, 1, 2):
+        sh = np.full(x.shape, np.nan)
+        lo, hi = max(off, 0), R + min(off, 0)
+        sh[lo - off:hi - off] = d[lo:hi]
+        nb.append(sh)
+    with warnings.catch_warnings():  # rows without neighbours: no slope
+        warnings.simplefilter("ignore", RuntimeWarning)
+        slope = np.nanmedian(np.stack(nb), axis=0) if R else d
+    return d - np.where(np.isfinite(slope), slope, 0.0)
+
+
 def cable_accounts(jump: np.ndarray, absorbed: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Each cable's slip (R, n) [m] that best accounts for the rows' jumps ``jump`` (R, n)
-    where the tensions are fitted, whether it is that cable's own (R, n): its account
-    leaves :data:`DOMINANT` squared times less of the jump than the next best cable's, and
-    the rows that have such accounts (R,): ``absorbed`` (R, n, k) finite and every cable's
-    jump measured.
+    where the tensions or the pose are fitted; whether it is that cable's own (R, n): its
+    account leaves :data:`DOMINANT` squared times less of the jump than the next best
+    cable's, and no more than noise (:data:`FIT_Z`); the rows that have such accounts (R,):
+    ``absorbed`` (R, n, k) finite and every cable's jump measured; and, in rows with no
+    cable's own, the cables whose accounts leave noise only, within :data:`FIT_Z` of the
+    best (R, n): candidates alike.
 
     A slip ``s`` of cable ``c`` changes a row's residual by ``s P e_c`` with ``P`` the
     projection off the absorbed directions: the least-squares slip is ``(P j)_c / P_cc``
@@ -262,8 +298,9 @@ def cable_accounts(jump: np.ndarray, absorbed: np.ndarray
     rows = np.isfinite(absorbed).all(axis=(1, 2)) & np.isfinite(jump).all(axis=1)
     beta = np.full((R, n), np.nan)
     own = np.zeros((R, n), dtype=bool)
+    alike = np.zeros((R, n), dtype=bool)
     if not rows.any():
-        return beta, own, rows
+        return beta, own, rows, alike
     A = absorbed[rows]
     P = np.eye(n) - A @ np.linalg.pinv(A, rcond=1e-10)
     jr = jump[rows]
@@ -276,8 +313,18 @@ def cable_accounts(jump: np.ndarray, absorbed: np.ndarray
     top2 = np.sort(left, axis=1)[:, :2]
     second = np.where(left <= top2[:, :1], top2[:, 1:2], top2[:, :1])
     beta[rows] = b
-    own[rows] = DOMINANT ** 2 * np.maximum(left, 0.0) < second
-    return beta, own, rows
+    # and what it leaves is noise: the rows' jumps (most without a slip) are noise in the
+    # dof directions the fit leaves, their squared size about sigma^2 chi2(dof); one
+    # cable's slip leaves sigma^2 chi2(dof - 1)
+    dof = max(int(round(float(np.median(np.trace(P, axis1=-2, axis2=-1))))), 1)
+    med = float(np.median(np.einsum("ri,ri->r", pj, pj)))
+    sigma2 = med / max(dof * (1.0 - 2.0 / (9.0 * dof)) ** 3, 1e-300)
+    fits = left <= sigma2 * (dof - 1 + FIT_Z ** 2)
+    own[rows] = (DOMINANT ** 2 * np.maximum(left, 0.0) < second) & fits
+    # no cable's own, but several account for the jump within the noise of the best
+    near = left - left.min(axis=1, keepdims=True) < sigma2 * FIT_Z ** 2
+    alike[rows] = fits & near & ~own[rows].any(axis=1, keepdims=True)
+    return beta, own, rows, alike
 
 
 def _local_z(j: np.ndarray, i: int) -> float:

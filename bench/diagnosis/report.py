@@ -26,6 +26,7 @@ from bench.diagnosis.select import (
     BIC_TIE,
     Selection,
     Selector,
+    _space_job,
     _warm,
     candidate_effects,
     untested_effects,
@@ -531,12 +532,19 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     model = rm.model
     flagged = model.replace(init_internal=np.zeros(k))
     best: tuple[float, tuple[str, ...]] | None = None
-    for e in sel.effects:
-        rest = tuple(sorted(c for c in sel.effects if c != e))
-        space = ParamSpace(flagged, rest)
+    rests = [tuple(sorted(c for c in sel.effects if c != e)) for e in sel.effects]
+    jobs = []
+    for rest in rests:
         phi0 = _warm(rest, sel.fit)
-        f = fit_effects(space, rm, train, None if phi0 is None else
-                        np.concatenate([phi0, np.zeros(k)]))
+        space = ParamSpace(flagged, rest)
+        jobs.append((space, None if phi0 is None else np.concatenate([phi0, np.zeros(k)])))
+    if pool is not None and len(jobs) > 1:
+        say(f"fitting {len(jobs)} sets with the tensions at initialisation on the process pool")
+        futs = [pool.submit(_space_job, rm, train, space, phi0) for space, phi0 in jobs]
+        fits = [fu.result() for fu in futs]
+    else:
+        fits = [fit_effects(space, rm, train, phi0) for space, phi0 in jobs]
+    for rest, f in zip(rests, fits, strict=True):
         say(f"{' + '.join(rest) or 'the model'} with the tensions at initialisation fitted: "
             f"BIC {f.bic:.1f} against {sel.fit.bic:.1f}")
         # (the nuisance enters free; an effect stays only by the selection's bar over it)
@@ -628,6 +636,22 @@ def _sparse_offsets(rm: ResidualModel, fit: FitResult, flagged: Robot, train: np
     return fit_effects(fspace, rm, train, phi0, hold=hold)
 
 
+def stream_slips(rec: Recording, s: Samples, rm: ResidualModel) -> list[dict]:
+    """Slips during moves (:func:`bench.diagnosis.locate.row_jumps`) in the raw rows of
+    ``s``'s stream, their residuals under ``rm``'s model with its encoder reference, each
+    row's pose estimated (no tracker) or tensions fitted (no load cells) as the samples'
+    are; after the initialisation."""
+    if s.stream is None:
+        return []
+    model = rm.model
+    stream_rm = ResidualModel(s.stream, model, rec.init_pose, rec.init_tensions,
+                              reference=rm.reference)
+    stream_rm.keep_absorbed = True
+    sb = stream_rm.blocks(model)
+    return locate.row_jumps(s.stream, np.where(sb.slack, np.nan, sb.length), model.cable_ids,
+                            t_after=rm.init_end, absorbed=stream_rm.absorbed)
+
+
 def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor | None = None,
              write_model: str | Path | None = None) -> Diagnosis:
     """Diagnose the recording directory ``path``."""
@@ -660,20 +684,15 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
                                  nz["length"], model.cable_ids,
                                  t_after=rm.init_end) if rm.has_len.any() else []
     if s.stream is not None and rm.has_len.any():
-        stream_rm = ResidualModel(s.stream, model, rec.init_pose, rec.init_tensions,
-                                  reference=rm.reference)
-        stream_rm.keep_absorbed = True
-        sb = stream_rm.blocks(model)
-        jumps = locate.row_jumps(s.stream, np.where(sb.slack, np.nan, sb.length),
-                                 model.cable_ids, t_after=rm.init_end,
-                                 absorbed=stream_rm.absorbed)
         seen = {st["cable"] for st in steps}
-        steps += [j for j in jumps if j["cable"] not in seen]
+        steps += [j for j in stream_slips(rec, s, rm) if j["cable"] not in seen]
     if steps:
         slip_at = np.full(model.n_cables, rm.init_end)
         for st in steps:
             slip_at[model.cable_ids.index(st["cable"])] = max(st["t_s"], rm.init_end)
-            say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s")
+            say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s"
+                + (f" (or cable {', '.join(st['alike'])}'s: alike through the estimated poses;"
+                   " the fit tells whose)" if st.get("alike") else ""))
         rm.slip_times = slip_at
         # the visits of a target on both sides of a step differ by the slip: estimate the noise
         # again (the slipped cable's replicate groups split at its step)
@@ -1080,7 +1099,9 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
         # length): the reading itself jumped the other way
         parts.append(f"cable {st['cable']}'s length reading jumps by about "
                      f"{-st['step_m'] * 1e3:+.1f} mm at t = {st['t_s']:.0f} s (a slip or an "
-                     f"encoder jump: dl_{st['cable']} {st['step_m'] * 1e3:+.1f} mm from then on)")
+                     f"encoder jump: dl_{st['cable']} {st['step_m'] * 1e3:+.1f} mm from then on"
+                     + (f"; or cable {', '.join(st['alike'])}'s, alike through the estimated "
+                        "poses" if st.get("alike") else "") + ")")
     sig = _explained(sel)
     if sel.effects and sig:
         top = [f"{report_name(e)} ({v:.0%})" for e, v in list(sig.items())[:3] if v > 0.05]

@@ -181,12 +181,14 @@ class ResidualModel:
         # per sample: the last fitted unmeasured tensions (warm start, NaN before the first)
         # and their faces (cables at zero, rows left out: a hint inside :meth:`frozen`)
         self._warm_tau = np.full((s.n, n), np.nan)
-        #: per sample without measured tensions (NaN elsewhere, and until an evaluation with
-        #: :attr:`keep_absorbed` set): the directions (n, n - 6) of its length residual that
-        #: the fitted internal forces take up, to first order (the stretch and the masts'
-        #: deflection of a tension change in the wrench matrix's null space) [m/N]
+        #: per sample without measured tensions or without a tracker pose (NaN elsewhere,
+        #: and until an evaluation with :attr:`keep_absorbed` set): the directions (n, k) of
+        #: its length residual that what is fitted per sample takes up, to first order: the
+        #: internal forces (n - 6 directions: the stretch and the masts' deflection of a
+        #: tension change in the wrench matrix's null space) [m/N], or the estimated pose (6:
+        #: the lengths' Jacobian) [m]; padded with zero columns to k = max(n - 6, 6)
         self.keep_absorbed = False
-        self.absorbed = np.full((s.n, n, max(n - 6, 0)), np.nan)
+        self.absorbed = np.full((s.n, n, max(n - 6, 6)), np.nan)
         # sagging cables: the catenaries of the last evaluation outside :meth:`frozen` (of
         # the samples with measured tensions, and at those tensions plus the step that carries
         # their noise into the lengths) and of the last initialisation: the next ones start
@@ -450,8 +452,8 @@ class ResidualModel:
             tau = self.cell_tensions(H, s.tau[idx], t0)
             p, forces = lin, None
             for _ in range(FROZEN_STEPS):
-                dp, forces = self._gauss_newton_step(H, p, tau, read[idx], taut, ea, limit,
-                                                     forces)
+                dp, forces, _ = self._gauss_newton_step(H, p, tau, read[idx], taut, ea,
+                                                        limit, forces)
                 p = p + dp
                 if np.abs(dp).max() < 1e-10:
                     break
@@ -467,10 +469,14 @@ class ResidualModel:
         p0, forces = p, None
         for _ in range(iterations):
             # sagging cables: the catenaries of the last iteration start the next one's
-            dp, forces = self._gauss_newton_step(H, p, tau, read[idx], taut, ea, limit, forces)
+            dp, forces, J = self._gauss_newton_step(H, p, tau, read[idx], taut, ea, limit,
+                                                    forces)
             p0, p = p, p + dp
             if np.abs(dp).max() < 1e-10:
                 break
+        if self.keep_absorbed and not self._frozen:
+            self.absorbed[idx] = 0.0
+            self.absorbed[idx, :, :6] = J  # (at the last step's start: first order)
         if not self._frozen:
             self._pose_est[idx] = p
             self._pose_lin[idx] = p0
@@ -481,10 +487,11 @@ class ResidualModel:
     def _gauss_newton_step(H: Robot, p: np.ndarray, tau: np.ndarray, read: np.ndarray,
                            taut: np.ndarray, ea: np.ndarray, limit: np.ndarray,
                            forces: cables.CableForces | None = None
-                           ) -> tuple[np.ndarray, cables.CableForces | None]:
+                           ) -> tuple[np.ndarray, cables.CableForces | None, np.ndarray]:
         """One damped Gauss-Newton step (M,6) of :meth:`_estimate_poses` from the poses ``p``
         (M,6) holding ``tau`` (M,n) [N] toward the unstretched ``read`` (M,n) [m] of the
-        ``taut`` (M,n) cables, clipped to ``limit`` (6,); and the cables' forces there."""
+        ``taut`` (M,n) cables, clipped to ``limit`` (6,); the cables' forces there and the
+        lengths' Jacobian (M,n,6) [m per m or rad of the Euler angles]."""
         bs = batch_statics(H, p, tau, forces0=forces)
         r = _finite((bs.unstretched - read) * taut)
         J = -np.swapaxes(wrench_matrix(bs.state), -1, -2) / (1.0 + tau / ea)[..., None]
@@ -496,7 +503,7 @@ class ResidualModel:
         dp = -np.linalg.solve(JtJ + damp * np.eye(6), g[..., None])[..., 0]
         dp = _finite(dp)
         big = np.max(np.abs(dp) / limit, axis=1, keepdims=True)
-        return dp / np.maximum(big, 1.0), bs.forces
+        return dp / np.maximum(big, 1.0), bs.forces, J
 
     #: the evaluations' warm starts (:meth:`cold`)
     _WARM = ("_warm_exits", "_pose_est", "_pose_lin", "_pose_t0", "_warm_tau", "_warm_face",
@@ -629,9 +636,10 @@ class ResidualModel:
                 search = settled or held >= rounds
         if not self._frozen:
             self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, *fit.hint()
-        if self.keep_absorbed and n > 6:
+        if self.keep_absorbed and not self._frozen:
             null = np.swapaxes(np.linalg.svd(np.nan_to_num(W))[2][:, 6:, :], -1, -2)
-            self.absorbed[u] = C @ null
+            self.absorbed[u] = 0.0
+            self.absorbed[u, :, :null.shape[-1]] = C @ null
         bs = _statics(H, poses, np.where(at_zero, 0.0, tau_k), exits, bs)
         if H.compliant and not self._frozen:
             self._warm_exits[u] = bs.exits
@@ -1170,12 +1178,14 @@ def _length_sensitivity(H: Robot, bs, tau: np.ndarray) -> np.ndarray:
     u = bs.state.u  # (M, n, 3) from the platform toward the exit
     r = lever_arms(settled_exits(H), H.pivots, H.mast_index)  # (n, 3)
     mi = H.mast_index
-    dtheta = -H.compliance[mi] * cross(r, u)  # (M, n_j, 3): mast rotation per newton on j
-    dexit = cross(dtheta[:, None, :, :], r[None, :, None, :])  # (M, n_i, n_j, 3)
+    ru = cross(r, u)  # (M, n, 3)
+    dtheta = -H.compliance[mi] * ru  # (M, n_j, 3): mast rotation per newton on j
+    # the length along u_i of the exit's move dtheta_j x r_i: u_i . (dtheta_j x r_i) =
+    # dtheta_j . (r_i x u_i)
     same = (mi[:, None] == mi[None, :]).astype(float)  # (n_i, n_j)
     ea = np.where(np.isfinite(H.ea), H.ea, np.inf)
     stretch = 1.0 / (1.0 + tau / ea)  # dL0/dL
-    return C + np.einsum("mik,mijk->mij", u, dexit) * same * stretch[:, :, None]
+    return C + (ru @ np.swapaxes(dtheta, -1, -2)) * same * stretch[:, :, None]
 
 
 def _stretch_sensitivity(H: Robot, bs, tau: np.ndarray) -> np.ndarray:

@@ -190,6 +190,34 @@ class Selector:
         self.cache[key] = res
         return res
 
+    def prefetch(self, sets: list[tuple[str, ...]], start: FitResult | None = None) -> None:
+        """Fit the sets of ``sets`` not fitted yet as :meth:`fit` would one by one (from
+        ``start``), their starts all at once on the process pool: the search asks for them
+        in turn and may drop some after the first answer, but two cores fit two for the
+        time of one. Nothing without a pool."""
+        if getattr(self, "pool", None) is None:  # (a Selector built bare in a test)
+            return
+        todo = list(dict.fromkeys(tuple(sorted(s_)) for s_ in sets))
+        todo = [k for k in todo if k not in self.cache]
+        if len(todo) < 2:
+            return
+        jobs = [(k, phi0) for k in todo
+                for phi0 in (self._starts(k, start) if start is not None
+                             else [ParamSpace(self.model, k).neutral.copy()])]
+        self.progress(f"fitting {len(todo)} sets from {len(jobs)} starts on the process pool")
+        futs = [(k, self.pool.submit(_space_job, self.rm, self.train,
+                                     ParamSpace(self.model, k), phi0)) for k, phi0 in jobs]
+        fits: dict[tuple[str, ...], list[FitResult]] = {}
+        for k, fu in futs:
+            fits.setdefault(k, []).append(fu.result())
+        for k, fs in fits.items():
+            best = min(fs, key=lambda f: f.bic)
+            self.cache[k] = self.gauge_floor(min([best] + self._pinned(best),
+                                                 key=lambda f: f.bic))
+            if start is not None:  # (fitted from it already: :meth:`fit` need not again)
+                self._refit_from.add((k, tuple(sorted(start.space.effects)),
+                                      round(float(start.chi2), 9)))
+
     def _starts(self, key: tuple[str, ...], start: FitResult | None) -> list[np.ndarray | None]:
         """Starting points of a fit of ``key`` from ``start``: its values (the others at the
         model's), and the same moved along the load cells' gauge when the change of
@@ -207,9 +235,19 @@ class Selector:
         cell (:meth:`_pinned`), and the errors of the one chosen floored by
         :meth:`gauge_floor`."""
         space = ParamSpace(self.model, key)
-        fits = [fit_effects(space, self.rm, self.train, phi0) for phi0 in phis]
+        fits = self.fit_starts(space, phis)
         best = min(fits, key=lambda f: f.bic)
         return self.gauge_floor(min([best] + self._pinned(best), key=lambda f: f.bic))
+
+    def fit_starts(self, space: ParamSpace, phis: list[np.ndarray | None]) -> list[FitResult]:
+        """Fits of ``space`` on the training samples from each start of ``phis`` (None: the
+        model's values), on the process pool when there is one and more than one start
+        (each fit starts cold: the same results in this process or a worker)."""
+        if self.pool is not None and len(phis) > 1:
+            futs = [self.pool.submit(_space_job, self.rm, self.train, space, phi0)
+                    for phi0 in phis]
+            return [f.result() for f in futs]
+        return [fit_effects(space, self.rm, self.train, phi0) for phi0 in phis]
 
     def _pinned(self, fit: FitResult) -> list[FitResult]:
         """``fit`` refitted with the load cells' gauge fixed at its median cell, for a set
@@ -447,6 +485,8 @@ class Selector:
     def _heldout_checks(self, chosen: list[str], current: FitResult, sel: Selection
                         ) -> tuple[list[str], FitResult]:
         """Held-out check of each chosen effect against the set without it."""
+        if len(chosen) > 1:
+            self.prefetch([tuple(c for c in chosen if c != e) for e in chosen], current)
         for e in list(chosen):
             rest = tuple(c for c in chosen if c != e)
             without = self.fit(rest, current)
@@ -471,6 +511,8 @@ class Selector:
         lower by 2.5 the odds are 3.5 to 1; the other stays listed as the alternative). At
         more free parameters the entry bar."""
         best = None
+        self.prefetch([tuple([c for c in sel.effects if c != e] + [a])
+                       for e, alts in sel.alternatives.items() for a, _ in alts], sel.fit)
         for e, alts in sel.alternatives.items():
             for a, _ in alts:
                 others = [c for c in sel.effects if c != e] + [a]
@@ -805,6 +847,8 @@ class Selector:
                   ) -> tuple[list[str], FitResult, bool]:
         """Drop effects the others make unnecessary."""
         dropped = False
+        if len(chosen) > 1:
+            self.prefetch([tuple(c for c in chosen if c != e) for e in chosen], current)
         for e in list(chosen):
             if len(chosen) < 2:
                 break
@@ -1108,6 +1152,11 @@ def _gauge_swaps(chosen: list[str], candidates: list[str]) -> list[tuple[str, st
 def _fit_job(rm: ResidualModel, train: np.ndarray, effects: tuple[str, ...],
              phi0: np.ndarray | None) -> FitResult:
     return fit_effects(ParamSpace(rm.model, effects), rm, train, phi0)
+
+
+def _space_job(rm: ResidualModel, train: np.ndarray, space: ParamSpace,
+               phi0: np.ndarray | None) -> FitResult:
+    return fit_effects(space, rm, train, phi0)
 
 
 def _bounded_lstsq(J: np.ndarray, b: np.ndarray, x0: np.ndarray, lo: np.ndarray,
