@@ -357,3 +357,92 @@ def _dask_outcomes(client, as_completed, fn, items, kw) -> Iterator[Outcome]:
         if futures:
             client.cancel(list(futures))
         client.close()
+
+
+@dataclass
+class Forked:
+    """A forked child computing a float64 array of ``shape`` (:func:`fork_array`)."""
+
+    pid: int
+    fd: int
+    shape: tuple[int, ...]
+
+
+def fork_array(fn: Callable[[], Any], shape: tuple[int, ...]) -> Forked | None:
+    """Compute ``fn()`` (an array of ``shape``, float64) in a forked child of this process,
+    its memory as it is now: the other core's share of work that needs this process's whole
+    state (a finite-difference Jacobian's columns). None where this system cannot fork.
+
+    The child asks the kernel for SIGKILL when this process ends, takes SIGINT and SIGTERM
+    with the default action, and ends with :func:`os._exit` (no buffers flushed twice, no
+    handler of this process run); :func:`join_array` reaps it, :func:`kill_forked` ends
+    it early."""
+    if not hasattr(os, "fork"):
+        return None
+    parent = os.getpid()
+    r, w = os.pipe()
+    try:
+        pid = os.fork()
+    except OSError:
+        os.close(r)
+        os.close(w)
+        return None
+    if pid == 0:  # the child: never returns
+        code = 1
+        try:
+            os.close(r)
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, signal.SIG_DFL)
+            if sys.platform.startswith("linux"):
+                import ctypes
+
+                ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)
+            if os.getppid() != parent:
+                os._exit(1)
+            import numpy as np
+
+            out = np.ascontiguousarray(fn(), dtype=float)
+            if out.shape != tuple(shape):
+                os._exit(1)
+            view = memoryview(out.tobytes())
+            while len(view):
+                view = view[os.write(w, view):]
+            code = 0
+        except BaseException:  # noqa: BLE001 - the parent computes it again
+            code = 1
+        finally:
+            os._exit(code)
+    os.close(w)
+    return Forked(pid, r, tuple(shape))
+
+
+def join_array(child: Forked) -> Any:
+    """The array the child computed, or None where it failed (the caller computes it
+    itself); the child reaped either way."""
+    import numpy as np
+
+    want = int(np.prod(child.shape)) * 8
+    chunks, got = [], 0
+    try:
+        while got < want:
+            b = os.read(child.fd, min(want - got, 1 << 20))
+            if not b:
+                break
+            chunks.append(b)
+            got += len(b)
+    finally:
+        os.close(child.fd)
+        _, status = os.waitpid(child.pid, 0)
+    if got != want or status != 0:
+        return None
+    return np.frombuffer(b"".join(chunks), dtype=float).reshape(child.shape).copy()
+
+
+def kill_forked(child: Forked) -> None:
+    """End the child now and reap it (the caller leaves by an exception)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(child.pid, signal.SIGKILL)
+    with contextlib.suppress(OSError):
+        os.close(child.fd)
+    with contextlib.suppress(ChildProcessError):
+        os.waitpid(child.pid, 0)

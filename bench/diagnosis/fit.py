@@ -8,9 +8,10 @@ from the whitened Jacobian at the solution.
 from __future__ import annotations
 
 import hashlib
+import os
 import weakref
-from collections.abc import Callable
-from contextlib import AbstractContextManager, nullcontext
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -20,6 +21,7 @@ from scipy.optimize import least_squares
 from bench.diagnosis.likelihood import StretchLikelihood
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import ParamSpace, undetermined
+from bench.parallel import fork_array, join_array, kill_forked
 
 #: evaluations of one least-squares run, and runs more from where it stopped if it did not
 #: converge but lowered the chi-square (a run that spent its budget without progress is not
@@ -98,15 +100,59 @@ def fd_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.n
     (e.g. :meth:`ResidualModel.frozen`) is entered around the columns when ``f0`` is the
     last evaluation ``fun`` made: the columns keep its per-sample solutions' pieces."""
     J = np.empty((len(f0), len(x)))
-    with frozen() if frozen is not None else nullcontext():
-        for k in range(len(x)):
-            h = steps[k] if x[k] + steps[k] <= hi[k] else -steps[k]
-            if x[k] + h < lo[k]:
-                h = steps[k]
+    h = np.where(x + steps <= hi, steps, -steps)
+    h = np.where(x + h < lo, steps, h)
+
+    def columns(ks: range) -> np.ndarray:
+        out = np.empty((len(f0), len(ks)))
+        for i, k in enumerate(ks):
             xp = x.copy()
-            xp[k] += h
-            J[:, k] = (fun(xp) - f0) / h
+            xp[k] += h[k]
+            out[:, i] = (fun(xp) - f0) / h[k]
+        return out
+
+    with frozen() if frozen is not None else nullcontext():
+        mine, child = range(len(x)), None
+        if _SPLIT_PID == os.getpid() and len(x) >= SPLIT_MIN:
+            half = (len(x) + 1) // 2
+            theirs = range(half, len(x))
+            child = fork_array(lambda: columns(theirs), (len(f0), len(theirs)))
+            if child is not None:
+                mine = range(half)
+        try:
+            J[:, mine] = columns(mine)
+        except BaseException:
+            if child is not None:
+                kill_forked(child)
+            raise
+        if child is not None:
+            got = join_array(child)
+            J[:, theirs] = got if got is not None else columns(theirs)
     return J
+
+
+#: the process whose finite-difference Jacobians split their columns with a forked child
+#: (:func:`split_columns`); None: none does
+_SPLIT_PID: int | None = None
+#: ... where they have at least this many columns
+SPLIT_MIN = 4
+
+
+@contextmanager
+def split_columns() -> Iterator[None]:
+    """Inside, :func:`fd_jacobian` in this process (not in workers forked from it later)
+    computes half of its columns in a forked child, on the other core: for a diagnosis
+    whose process pool sits idle while this process fits (the columns of a recording
+    without load cells or a tracker are four fifths of its time). The columns are the
+    same (each starts from the state the evaluation before them left, which the child
+    has as it is)."""
+    global _SPLIT_PID
+    before = _SPLIT_PID
+    _SPLIT_PID = os.getpid()
+    try:
+        yield
+    finally:
+        _SPLIT_PID = before
 
 
 #: fits kept per residual model (:func:`fit_effects`' memo)

@@ -12,13 +12,14 @@ import itertools
 import math
 from collections.abc import Callable
 from concurrent.futures import Executor
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from bench.diagnosis import frame, gauge, locate, probes, slips, unexplained
-from bench.diagnosis.fit import FitResult, fit_effects
+from bench.diagnosis.fit import FitResult, fit_effects, split_columns
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
 from bench.diagnosis.select import (
@@ -654,7 +655,15 @@ def stream_slips(rec: Recording, s: Samples, rm: ResidualModel) -> list[dict]:
 
 def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor | None = None,
              write_model: str | Path | None = None) -> Diagnosis:
-    """Diagnose the recording directory ``path``."""
+    """Diagnose the recording directory ``path``. With a process ``pool`` (its workers fit
+    candidate sets side by side), this process's own fits split their finite-difference
+    columns with a forked child while the pool waits (:func:`.fit.split_columns`)."""
+    with split_columns() if pool is not None else nullcontext():
+        return _diagnose(path, progress, pool, write_model)
+
+
+def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None,
+              write_model: str | Path | None) -> Diagnosis:
     say = progress or (lambda m: None)
     rec = read_recording(path)
     model = rec.robot

@@ -541,11 +541,11 @@ class ResidualModel:
         unmeasured tensions, estimated pose, deflected exits) and keep its internal-force
         face (which cables sit at zero, which read as slack:
         :mod:`bench.diagnosis.internal_forces`), searching the faces only for the samples
-        where it no longer pulls or balances, and relinearise once (twice with compliant
-        masts): for the columns of a
+        where it no longer pulls or balances, and relinearise once: for the columns of a
         finite-difference Jacobian around that evaluation (the derivative on its piece of
-        the objective to about 1e-3, at a sixth of a full evaluation's cost). They leave the
-        warm starts of the evaluations after unchanged."""
+        the objective to about 1e-3, a few per cent in rare entries with compliant masts,
+        at a sixth of a full evaluation's cost). They leave the warm starts of the
+        evaluations after unchanged."""
         self._frozen = True
         try:
             yield
@@ -565,7 +565,7 @@ class ResidualModel:
         such searches; the rounds before them keep each sample's last faces, see below);
         each sample warm-started from its last tensions and deflected exits (inside
         :meth:`frozen`: from those of the last evaluation before, on its faces, one
-        relinearisation, two with compliant masts)."""
+        relinearisation)."""
         M, n = len(poses), H.n_cables
         tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
@@ -589,11 +589,14 @@ class ResidualModel:
         if exits is not None and not np.isfinite(exits).all():
             exits = None
         # on held faces from the last evaluation's tensions, one relinearisation gives the
-        # tensions to first order in a finite-difference step (a column within 1e-3); two
-        # with compliant masts (the wrench matrix moves with the tensions)
+        # tensions to first order in a finite-difference step (a column within 1e-3). With
+        # compliant masts the wrench matrix moves with the tensions too, which the
+        # relinearisation leaves out (the length sensitivity has the masts' tilt): a few
+        # entries of a column off by up to 3 %; a second round cost a tenth of a
+        # diagnosis without load cells (12973: 138 -> 115 CPU-s with one, same answer)
         held_only = self._frozen and hint is not None
         if held_only:
-            rounds = 2 if H.compliant else 1
+            rounds = 1
         # outside frozen, the rounds relinearise on the faces of the last evaluation (one
         # KKT solve per sample) until the tensions settle, then search the faces in full:
         # where a face changes, they settle on the new faces and search again. The last
