@@ -181,12 +181,20 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
             out["effects_in_question"] = [st.as_dict() for st in probed[1]]
     # load cells reading differently by the direction of motion (pulley friction)
     if fitted is not None and rm.any_tau:
-        fr = _cell_direction(rm, b, fitted)
-        if fr is not None:
+        got = _cell_direction(rm, b, fitted)
+        if got is not None:
+            fr, joint = got
             out["load_cell_direction"] = {c: {"difference_n": _r(2 * f), "z": _r(z)}
                                           for c, f, z in fr}
+            out["load_cell_direction_joint_z"] = _r(joint)
             strong = [(c, f, z) for c, f, z in fr
                       if abs(z) > STRUCT_Z and abs(f) > STRUCT_SIZE * _force_noise(rm)]
+            # no cell alone, but most of them together, each as large as one cell's noise
+            # (the force balance's noise is the cells' summed: sqrt(n / 3) times one's)
+            cell = _force_noise(rm) * math.sqrt(3.0 / max(model.n_cables, 3))
+            big = [(c, f, z) for c, f, z in fr if abs(f) > STRUCT_SIZE * cell and abs(z) > 2.0]
+            if not strong and joint > STRUCT_Z and len(big) * 2 > len(fr):
+                strong = big
             if strong:
                 top = max(abs(f) for _, f, _ in strong)
                 which = (f"the load cell of cable {strong[0][0]} reads" if len(strong) == 1
@@ -230,9 +238,10 @@ def _force_noise(rm: ResidualModel) -> float:
     return max(min(rm.white_k[0]["force"], rm.white_k[1]["force"]), 0.1)
 
 
-def _cell_direction(rm: ResidualModel, b: Blocks, robot) -> list | None:
+def _cell_direction(rm: ResidualModel, b: Blocks, robot) -> tuple[list, float] | None:
     """Per cable, half the difference of its load cell's reading between paying out and
-    reeling in [N] and its z-value: the force balance's residuals (N, 6) regressed on
+    reeling in [N] and its z-value, and the z of all of them together (a Wald test of the
+    k differences, as a normal deviate): the force balance's residuals (N, 6) regressed on
     ``d_k (u_k; R b_k x u_k)`` (d_k the sign of cable k's last move, u_k the direction of
     its force on the platform).
 
@@ -290,16 +299,27 @@ def _cell_direction(rm: ResidualModel, b: Blocks, robot) -> list | None:
     except np.linalg.LinAlgError:
         return None
     dof = max(len(y) - k, 1)
-    var = np.diag(bread) * max(float(r @ r) / dof, 1e-12)  # classical
+    V = bread * max(float(r @ r) / dof, 1e-12)  # classical
     groups = s.cluster if s.cluster is not None and len(s.cluster) == s.n else s.block
     ug, inv = np.unique(np.repeat(groups[sel], 6), return_inverse=True)
     if len(ug) > 2 * k:  # cluster-robust (sandwich), never below the classical
         sc = np.zeros((len(ug), k))
         np.add.at(sc, inv, A * r[:, None])
-        var = np.maximum(var, np.diag(bread @ (sc.T @ sc) @ bread) * len(ug) / (len(ug) - 1))
+        Vs = bread @ (sc.T @ sc) @ bread * len(ug) / (len(ug) - 1)
+        if np.trace(Vs) > np.trace(V):
+            V = Vs
+    var = np.diag(V)
     se = np.sqrt(np.clip(var, 1e-300, None))
     ids = [c for c, kk in zip(rm.model.cable_ids, both, strict=True) if kk]
-    return [(c, float(f), float(f / e)) for c, f, e in zip(ids, coef, se, strict=True)]
+    # all the cells together (a Wald test of the k differences, as a z by Wilson-Hilferty):
+    # friction on every pulley at a few times the cells' noise each
+    try:
+        wald = float(coef @ np.linalg.solve(V, coef))
+    except np.linalg.LinAlgError:
+        wald = float(np.sum((coef / se) ** 2))
+    joint = ((max(wald, 0.0) / k) ** (1.0 / 3.0) - (1.0 - 2.0 / (9.0 * k))) / \
+        math.sqrt(2.0 / (9.0 * k))
+    return [(c, float(f), float(f / e)) for c, f, e in zip(ids, coef, se, strict=True)], joint
 
 
 def _entries_per_sample(rm: ResidualModel) -> np.ndarray:
