@@ -242,7 +242,8 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
                 # within the noise (ROCASPECT's odd cables), each is a candidate: the
                 # time is known, whose slip it is the fit tells (its offset)
                 cand = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M) & alike & posed[:, None]
-            big |= cand & (cand.sum(axis=1) > 1)[:, None]
+            cand &= (cand.sum(axis=1) > 1)[:, None] & ~big
+            big |= cand
             big &= ~posed[:, None] | (zt > JUMP_Z)
     else:
         alike = None
@@ -250,6 +251,10 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         rows = [i for i in np.flatnonzero(big[:, k])
                 if _local_z(j[:, k], int(i)) > JUMP_Z
                 and _holds(stream, length[:, k], int(i), float(raw[i, k]))]
+        if alike is not None and any(not alike[i, k] for i in rows):
+            # a jump that is the cable's own before one it is only a candidate for (a
+            # larger slip of a cable alike, whose fit will tell)
+            rows = [i for i in rows if not alike[i, k]]
         if not rows:
             continue
         i = rows[int(np.argmax(np.abs(j[rows, k])))]
@@ -258,6 +263,12 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
         if alike is not None and alike[i, k]:
             found[-1]["alike"] = [c for c, a in zip(cable_ids, big[i] & alike[i], strict=True)
                                   if a and c != cid]
+    at = {f["cable"]: f["row"] for f in found}
+    for f in found:  # (the candidates found at that row)
+        if "alike" in f:
+            f["alike"] = [c for c in f["alike"] if at.get(c) == f["row"]]
+            if not f["alike"]:
+                del f["alike"]
     return found
 
 
