@@ -19,6 +19,7 @@ from bench.campaign import run_campaign
 from bench.diagnosis.report import stream_slips
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.samples import prepare
+from bench.diagnosis.slips import choose_alike
 from bench.evaluate import one_blas_thread
 from bench.recording import read_recording
 from firmware_sim.scenario import parse_scenario
@@ -27,12 +28,16 @@ SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "slip_no_tracker_continuous_rocaspect_12935.json")
 
 
-def _slips(scenario: dict, folder: Path) -> list[dict]:
+def _slips(scenario: dict, folder: Path, choose: bool = False) -> list[dict]:
     one_blas_thread()
     rec = read_recording(run_campaign(parse_scenario(scenario), folder))
     s = prepare(rec)
     rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
-    return stream_slips(rec, s, rm)
+    found = stream_slips(rec, s, rm)
+    if choose:
+        rm.estimate_noise(rec.robot)
+        found = choose_alike(rm, found)
+    return found
 
 
 @pytest.fixture(scope="module")
@@ -51,6 +56,14 @@ def test_the_slip_is_found_at_its_row(scenario, tmp_path):
         assert abs(f["t_s"] - truth["slip_time_41"]) < 0.2
         assert set(f.get("alike", [])) == set(found) - {f["cable"]}
     assert abs(found["41"]["step_m"] - truth["dl_41"]) < 5e-4
+
+
+def test_the_candidates_offsets_over_every_sample_choose_the_slipped_cable(scenario, tmp_path):
+    """Each candidate's offset from the step on, sized to first order, over every sample
+    (each at its own pose, where the patterns differ): cable 41's fits best by far; the
+    others' steps are dropped."""
+    found = _slips(scenario, tmp_path / "rec", choose=True)
+    assert [f["cable"] for f in found] == ["41"] and "alike" not in found[0]
 
 
 def test_no_slip_no_jump(scenario, tmp_path):

@@ -101,3 +101,53 @@ def later_starts(rm: ResidualModel, fit: FitResult, idx: np.ndarray, bar: float,
             out[c] = (float(0.5 * (t[jj - 1] + t[jj])), float(space.params[k].to_value(
                 space.neutral[k] + size)), float(gain[best]))
     return out
+
+
+#: a candidate alike (:func:`choose_alike`) stays beside the best while its offset leaves a
+#: chi-square no more than this much higher (the selection's tie)
+ALIKE_TIE = 10.0
+
+
+def choose_alike(rm: ResidualModel, steps: list[dict]) -> list[dict]:
+    """Of the cables a jump is a candidate for (steps with ``alike``: their patterns nearly
+    parallel where a row's pose is estimated, :func:`bench.diagnosis.locate.row_jumps`), the
+    ones whose offset, from the step on and sized to first order, fits every sample of
+    ``rm`` (each at its own pose, where the patterns differ) within :data:`ALIKE_TIE` of the
+    best: the others' steps are dropped. Both offsets from one time fitted side by side split
+    the slip between them (12939: cable 42's 6.4 mm as 3.4 on 22 and 3.5 on 42, the rest
+    taken up by drum scales and E*A)."""
+    groups: dict[int, list[dict]] = {}
+    for st in steps:
+        if st.get("alike"):
+            groups.setdefault(st["row"], []).append(st)
+    if not groups:
+        return steps
+    model, ids = rm.model, rm.model.cable_ids
+    before = rm.slip_times.copy()
+    drop: set[str] = set()
+    try:
+        r0 = rm.whitened(model)
+        for group in groups.values():
+            chi = []
+            for st in group:
+                c = ids.index(st["cable"])
+                rm.slip_times = before.copy()
+                rm.slip_times[c] = max(st["t_s"], rm.init_end)
+                dl = model.length_offset.copy()
+                dl[c] += st["step_m"]
+                d = rm.whitened(model.replace(length_offset=dl)) - r0
+                dd = float(d @ d)
+                chi.append(float(r0 @ r0) - (float(r0 @ d) ** 2 / dd if dd > 0 else 0.0))
+                st["alike_chi2"] = chi[-1]
+            best = min(chi)
+            drop |= {st["cable"] for st, x in zip(group, chi, strict=True)
+                     if x - best > ALIKE_TIE}
+    finally:
+        rm.slip_times = before
+    out = [st for st in steps if st["cable"] not in drop]
+    for st in out:
+        if "alike" in st:
+            st["alike"] = [c for c in st["alike"] if c not in drop]
+            if not st["alike"]:
+                del st["alike"]
+    return out
