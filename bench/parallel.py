@@ -113,10 +113,110 @@ def _die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
-def worker_pool(jobs: int) -> ProcessPoolExecutor:
-    """A process pool whose workers end with this process (see the module docstring)."""
-    return ProcessPoolExecutor(max_workers=jobs, initializer=_die_with_parent,
-                               initargs=(os.getpid(),))
+def worker_pool(jobs: int, share_cores: bool = False) -> ProcessPoolExecutor:
+    """A process pool whose workers end with this process (see the module docstring).
+
+    ``share_cores``: the pool's workers, and this process inside :func:`sharing_cores`,
+    count on one shared counter which of them compute (:func:`job_running`), so that
+    one of them may hand half of its work to a forked helper on a core the others leave
+    idle (:func:`claim_core`; e.g. the one fit still running while the pool's other
+    worker waits). The counter is the pool's attribute ``busy``."""
+    if not share_cores:
+        return ProcessPoolExecutor(max_workers=jobs, initializer=_die_with_parent,
+                                   initargs=(os.getpid(),))
+    import multiprocessing
+
+    busy = multiprocessing.Value("i", 0)
+    pool = ProcessPoolExecutor(max_workers=jobs, initializer=_sharing_worker,
+                               initargs=(os.getpid(), busy))
+    pool.busy = busy  # type: ignore[attr-defined]
+    return pool
+
+
+#: processes computing now, shared by a core-sharing pool's creator and its workers (a
+#: ``multiprocessing.Value``), or a counter of this process alone; None: no sharing here
+_BUSY: Any = None
+#: this process is a worker of a core-sharing pool (counted while it runs a job)
+_WORKER = False
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - platform dependent
+        return os.cpu_count() or 1
+
+
+def _sharing_worker(parent: int, busy: Any) -> None:
+    """Worker initializer of a core-sharing pool (:func:`worker_pool`)."""
+    global _BUSY, _WORKER
+    _die_with_parent(parent)
+    _BUSY, _WORKER = busy, True
+
+
+class _Private:
+    """The counter of a process that shares its cores with no pool (``get_lock`` as a
+    ``multiprocessing.Value`` has it)."""
+
+    def __init__(self) -> None:
+        self.value = 0
+        self._lock = threading.Lock()
+
+    def get_lock(self) -> threading.Lock:
+        return self._lock
+
+
+@contextlib.contextmanager
+def sharing_cores(pool: Any = None) -> Iterator[None]:
+    """Inside, this process (the creator of ``pool``, a core-sharing :func:`worker_pool`;
+    without one, alone) may claim idle cores for forked helpers (:func:`claim_core`),
+    counting itself as computing: it computes while the pool's workers wait, and waits
+    while they compute."""
+    global _BUSY
+    before = _BUSY
+    _BUSY = getattr(pool, "busy", None) or _Private()
+    try:
+        yield
+    finally:
+        _BUSY = before
+
+
+@contextlib.contextmanager
+def job_running() -> Iterator[None]:
+    """Around a job in a core-sharing pool's worker: counted as computing (nothing
+    elsewhere)."""
+    if _BUSY is None or not _WORKER:
+        yield
+        return
+    with _BUSY.get_lock():
+        _BUSY.value += 1
+    try:
+        yield
+    finally:
+        with _BUSY.get_lock():
+            _BUSY.value -= 1
+
+
+def claim_core() -> bool:
+    """A core for a forked helper of this process, where the processes computing (the
+    pool's running jobs, the helpers, and this process itself) leave one idle: True and
+    counted until :func:`release_core`. False outside :func:`sharing_cores` and a
+    core-sharing pool's worker, and in a helper forked from either."""
+    if _BUSY is None:
+        return False
+    me = 0 if _WORKER else 1
+    with _BUSY.get_lock():
+        if _BUSY.value + me < _cores():
+            _BUSY.value += 1
+            return True
+    return False
+
+
+def release_core() -> None:
+    """Give back a core :func:`claim_core` claimed."""
+    if _BUSY is not None:
+        with _BUSY.get_lock():
+            _BUSY.value -= 1
 
 
 def terminate_workers(pool: ProcessPoolExecutor) -> None:
@@ -388,6 +488,8 @@ def fork_array(fn: Callable[[], Any], shape: tuple[int, ...]) -> Forked | None:
         os.close(w)
         return None
     if pid == 0:  # the child: never returns
+        global _BUSY
+        _BUSY = None  # (a helper claims no core of its own)
         code = 1
         try:
             os.close(r)

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from controller.masts import settle
 from controller.tomlfile import Locator as _Locator
 from controller.tomlfile import read_toml
 
@@ -127,6 +128,14 @@ class Robot:
     def compliance(self) -> np.ndarray:
         """(m, 3) joint compliance 1/k [rad/(N m)], 0 for a rigid axis."""
         return 1.0 / self.stiffness
+
+    @functools.cached_property
+    def exits_settled(self) -> np.ndarray:
+        """Exit points A* (n,3) in F_b [m] after the masts' settlement tilt (read-only; once
+        per robot: the statics ask for them at every iteration)."""
+        a = settle(self.exits, self.pivots, self.mast_index, self.tilt)
+        a.setflags(write=False)
+        return a
 
     @functools.cached_property
     def compliant(self) -> bool:

@@ -17,7 +17,7 @@ import numpy as np
 from controller import cables
 from controller.cables import CableForces
 from controller.kinematics import CableState, cable_state, gravity_wrench, wrench_matrix
-from controller.masts import deflect, lever_arms, mast_rotations, settle
+from controller.masts import deflect, lever_arms, mast_rotations
 from controller.pose import cross, rotation
 from controller.robot import Robot
 from controller.tension import TensionResult, closed_form, distribute
@@ -43,8 +43,9 @@ class PoseStatics:
 
 
 def settled_exits(robot: Robot) -> np.ndarray:
-    """Exit points A* (n,3) [m]: the surveyed exits after the masts' settlement tilt."""
-    return settle(robot.exits, robot.pivots, robot.mast_index, robot.tilt)
+    """Exit points A* (n,3) [m]: the surveyed exits after the masts' settlement tilt
+    (read-only, :attr:`~controller.robot.Robot.exits_settled`)."""
+    return robot.exits_settled
 
 
 def deflected_exits(robot: Robot, tensions: np.ndarray, u: np.ndarray,

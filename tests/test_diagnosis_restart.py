@@ -43,6 +43,7 @@ def _selector(found: tuple[list[str], SimpleNamespace]) -> tuple[Selector, list]
     sel.stalled = False
     sel.budget = None
     sel.max_effects = 5
+    sel.restarted = set()
     sel.cache = {("exit_point_offset",): None, (): None}
     calls: list = []
 
@@ -71,6 +72,29 @@ def test_the_search_without_the_widest_effect_replaces_a_worse_set():
     assert calls == [([], BASE, ["cable_elasticity", "cable_length_offset",
                                  "pulley_kinematics"])]
     assert not sel.stalled  # the new path's own state
+
+
+def test_a_selection_again_skips_the_restart_the_one_before_ran():
+    """A selection again (a nuisance fitted, slip times) gets the effects the selection
+    before ran its restart without: that second opinion was taken (12883: 8 of 77 s for the
+    same search without the exit points, which lost again); another one still runs."""
+    chosen = ["exit_point_offset", "cable_elasticity"]
+    current = _fit({"exit_point_offset": 24, "cable_elasticity": 1}, 340.0)
+    other = (["cable_elasticity", "pulley_kinematics"],
+             _fit({"cable_elasticity": 1, "pulley_kinematics": 8}, 215.0))
+    first, calls = _selector(other)
+    assert first._restart(chosen, current, CANDIDATES, BASE) == other
+    assert first.restarted == {"exit_point_offset"} and len(calls) == 1
+    again, calls = _selector(other)
+    again.restarted = set(first.restarted)
+    assert again._restart(chosen, current, CANDIDATES, BASE) is None
+    assert calls == []
+    # the restart without another wide effect is not skipped
+    wide = _fit({"pulley_kinematics": 30, "cable_elasticity": 1}, 340.0)
+    assert again._restart(["pulley_kinematics", "cable_elasticity"], wide,
+                          ["pulley_kinematics", "cable_elasticity", "drum_scale"],
+                          BASE) == other
+    assert len(calls) == 1 and again.restarted == {"exit_point_offset", "pulley_kinematics"}
 
 
 def test_an_effect_no_wider_than_another_candidate_runs_no_restart():
@@ -243,6 +267,7 @@ def test_with_the_cells_gain_shared_both_restarts_run_and_the_better_is_kept():
     current.space.robot = lambda phi: rocaspect()
     seen.clear()
     sel.stalled = True
+    sel.restarted.clear()  # (another selection: none of its restarts ran)
     sel._restart(chosen, current, CANDIDATES + ["load_cell_calibration"], BASE)
     assert seen == [(len(chosen) + 2, False)]
 
@@ -467,3 +492,47 @@ def test_a_search_that_comes_back_to_a_set_it_left_stops_there():
                             Selection([], BASE, BASE))
     assert calls["swap"] <= 2
     assert "platform_mass" in chosen
+
+
+def test_prefetch_refits_the_subsets_fit_would_refit_and_keeps_the_better(monkeypatch):
+    """``prefetch(..., refits=True)``: the sets fitted before that :meth:`Selector.fit` would
+    refit from the start (subsets of it) are refitted on the pool with the new ones, the
+    better fit kept and the refit remembered, as ``fit`` does one by one."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import bench.diagnosis.select as select
+
+    def job(rm, train, space, phi0):
+        return SimpleNamespace(space=space, bic=5.0, chi2=5.0)
+
+    monkeypatch.setattr(select, "_space_job", job)
+    sel = object.__new__(Selector)
+    sel.model = rocaspect()
+    sel.progress = lambda msg: None
+    sel.rm, sel.train = None, None
+    sel._refit_from = set()
+    sel._starts = lambda key, start: [None]
+    old = SimpleNamespace(space=SimpleNamespace(effects=("drum_scale",)), bic=10.0, chi2=10.0)
+    unrelated = SimpleNamespace(space=SimpleNamespace(effects=("pulley_kinematics",)),
+                                bic=1.0, chi2=1.0)
+    sel.cache = {("drum_scale",): old, ("pulley_kinematics",): unrelated}
+    start = SimpleNamespace(space=SimpleNamespace(effects=("drum_scale", "exit_point_offset")),
+                            chi2=3.0)
+    with ThreadPoolExecutor(2) as pool:
+        sel.pool = pool
+        sel.prefetch([("drum_scale",), ("exit_point_offset",), ("pulley_kinematics",)], start,
+                     refits=True)
+    assert sel.cache[("drum_scale",)].bic == 5.0  # the refit, better, kept
+    assert sel.cache[("exit_point_offset",)].bic == 5.0  # the new set
+    assert sel.cache[("pulley_kinematics",)] is unrelated  # not a subset of the start
+    assert sel._tag(("drum_scale",), start) in sel._refit_from
+    # fit() now returns the kept refit without fitting again
+    assert sel.fit(("drum_scale",), start).bic == 5.0
+    # without refits, a set fitted before stays as it is
+    sel.cache[("drum_scale",)] = old
+    sel._refit_from.clear()
+    with ThreadPoolExecutor(2) as pool:
+        sel.pool = pool
+        sel.prefetch([("drum_scale",), ("cable_length_offset",), ("exit_point_offset",)],
+                     start)
+    assert sel.cache[("drum_scale",)] is old

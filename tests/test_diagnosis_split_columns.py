@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 import bench.diagnosis.fit as fit
+import bench.parallel as parallel
 from bench.diagnosis.fit import fd_jacobian, split_columns
 
 
@@ -58,21 +59,68 @@ def test_a_child_that_fails_leaves_its_columns_to_the_parent():
     assert _children() == []
 
 
-def test_no_split_outside_the_context_or_in_another_process(monkeypatch):
-    """Must fork nothing: outside :func:`split_columns`, in a process other than the one that
-    entered it (a pool worker forked later), and for fewer columns than SPLIT_MIN."""
+def test_no_split_outside_the_context_with_no_idle_core_or_few_columns(monkeypatch):
+    """Must fork nothing: outside :func:`split_columns`, where every core computes already
+    (the pool's jobs, other helpers), and for fewer columns than SPLIT_MIN."""
     forks = []
     monkeypatch.setattr(fit, "fork_array", lambda fn, shape: forks.append(shape))
+    monkeypatch.setattr(parallel, "_cores", lambda: 2)
     fun, x, f0, steps, lo, hi, _ = _problem()
     fd_jacobian(fun, x, f0, steps, lo, hi)
-    monkeypatch.setattr(fit, "_SPLIT_PID", os.getpid() + 1)
-    fd_jacobian(fun, x, f0, steps, lo, hi)
-    monkeypatch.setattr(fit, "_SPLIT_PID", os.getpid())
-    small = _problem(fit.SPLIT_MIN - 1)
-    fd_jacobian(*small[:6])
     assert forks == []
-    fd_jacobian(fun, x, f0, steps, lo, hi)  # (fork_array stubbed: None, all columns here)
-    assert len(forks) == 1
+    with split_columns():
+        parallel._BUSY.value = 1  # (a pool's job runs: with this process, both cores)
+        fd_jacobian(fun, x, f0, steps, lo, hi)
+        assert forks == [] and parallel._BUSY.value == 1
+        parallel._BUSY.value = 0
+        fd_jacobian(*_problem(fit.SPLIT_MIN - 1)[:6])
+        assert forks == []
+        fd_jacobian(fun, x, f0, steps, lo, hi)  # (fork_array stubbed: None, all columns here)
+        assert len(forks) == 1 and parallel._BUSY.value == 0  # the core given back
+
+
+def test_cores_claimed_and_given_back(monkeypatch):
+    """The pool's creator counts itself; a worker is counted while its job runs; a helper
+    forked from either claims nothing."""
+    monkeypatch.setattr(parallel, "_cores", lambda: 2)
+    assert not parallel.claim_core()  # no sharing here
+    with split_columns():
+        assert parallel.claim_core()  # this process and one helper: both cores
+        assert not parallel.claim_core()
+        parallel.release_core()
+        assert parallel.claim_core()
+        parallel.release_core()
+        child = parallel.fork_array(lambda: [float(parallel.claim_core())], (1,))
+        assert parallel.join_array(child)[0] == 0.0
+    assert parallel._BUSY is None
+    monkeypatch.setattr(parallel, "_BUSY", parallel._Private())
+    monkeypatch.setattr(parallel, "_WORKER", True)
+    with parallel.job_running():  # a worker's job: itself counted, one core left
+        assert parallel._BUSY.value == 1
+        assert parallel.claim_core()
+        assert not parallel.claim_core()
+        parallel.release_core()
+    assert parallel._BUSY.value == 0
+
+
+def _worker_view(_):
+    with parallel.job_running():
+        busy = parallel._BUSY
+        return (None if busy is None else busy.value), parallel._WORKER
+
+
+def test_a_core_sharing_pool_counts_its_running_jobs():
+    pool = parallel.worker_pool(1, share_cores=True)
+    try:
+        assert pool.submit(_worker_view, 0).result() == (1, True)
+        assert pool.busy.value == 0  # the job ended
+    finally:
+        parallel.terminate_workers(pool)
+    plain = parallel.worker_pool(1)
+    try:  # a plain pool's workers count nothing
+        assert plain.submit(_worker_view, 0).result() == (None, False)
+    finally:
+        parallel.terminate_workers(plain)
 
 
 def test_an_interrupted_parent_ends_its_child():

@@ -2,7 +2,8 @@
 
 A separate Python process runs two long worker tasks (through ``run_each``, as
 ``cdpr evaluate`` does, or through ``worker_pool`` + ``ending_workers``, as ``cdpr
-diagnose`` does); each worker writes its pid to a file when it starts. The parent
+diagnose`` does, its workers' jobs with forked helpers as a split Jacobian has); each
+worker (and helper) writes its pid to a file when it starts. The parent
 alone is then sent SIGTERM, SIGINT or SIGKILL, and no worker may be left after a
 generous wait.
 """
@@ -52,6 +53,32 @@ if __name__ == "__main__":
                 f.result()
 '''
 
+# a core-sharing pool (``cdpr diagnose``'s): each worker's job forks a helper
+# (``fork_array``, as a finite-difference Jacobian's split does), which must end too
+HELPERS = WORK + """
+from bench.parallel import (ending_workers, fork_array, interrupt_on_term, job_running,
+                            worker_pool)
+
+def helped(i, d):
+    with job_running():
+        def helper():
+            open(os.path.join(d, f"h{os.getpid()}"), "w").close()
+            time.sleep(600)
+            return [0.0]
+        fork_array(helper, (1,))
+        return work(i, d)
+
+if __name__ == "__main__":
+    with interrupt_on_term():
+        pool = worker_pool(2, share_cores=True)
+        with ending_workers(pool):
+            futs = [pool.submit(helped, i, sys.argv[1]) for i in range(2)]
+            for f in futs:
+                f.result()
+"""
+
+SCRIPTS = {"run_each": (RUN_EACH, 2), "pool": (POOL, 2), "pool_helpers": (HELPERS, 4)}
+
 
 def _default_signals() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -79,11 +106,12 @@ def _wait(cond, timeout: float) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to watch processes")
-@pytest.mark.parametrize("script", ["run_each", "pool"])
+@pytest.mark.parametrize("script", list(SCRIPTS))
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
 def test_workers_end_with_their_parent(tmp_path, script, sig):
     src = tmp_path / "parent.py"
-    src.write_text(textwrap.dedent(RUN_EACH if script == "run_each" else POOL))
+    text, n_procs = SCRIPTS[script]
+    src.write_text(textwrap.dedent(text))
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     # the parent starts with default signal dispositions (a shell that runs the tests in
     # the background leaves SIGINT ignored, and Python then keeps ignoring it)
@@ -92,9 +120,9 @@ def test_workers_end_with_their_parent(tmp_path, script, sig):
                             preexec_fn=_default_signals)
     workers: list[int] = []
     try:
-        assert _wait(lambda: len(list(tmp_path.glob("w*"))) == 2, 60), \
+        assert _wait(lambda: len(list(tmp_path.glob("[wh]*"))) == n_procs, 60), \
             proc.stderr.read().decode() if proc.poll() is not None else "workers did not start"
-        workers = [int(p.name[1:]) for p in tmp_path.glob("w*")]
+        workers = [int(p.name[1:]) for p in tmp_path.glob("[wh]*")]
         assert all(_alive(w) for w in workers)
         os.kill(proc.pid, sig)  # the parent alone, not its process group
         proc.wait(timeout=60)

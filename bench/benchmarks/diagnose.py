@@ -6,11 +6,11 @@ import os
 import statistics
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from importlib import resources
 from pathlib import Path
 
 from bench.benchmarks import register
+from bench.parallel import worker_pool
 
 
 def paper_campaign(out: Path, visits: int = 5) -> Path:
@@ -35,7 +35,7 @@ def bench_diagnose(quick: bool) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as d:
         rec = paper_campaign(Path(d) / "rec")
         times = []
-        with ProcessPoolExecutor(min(2, os.cpu_count() or 1)) as pool:
+        with worker_pool(min(2, os.cpu_count() or 1), share_cores=True) as pool:
             for _ in range(1 if quick else 3):
                 t0 = time.perf_counter()
                 dg = diagnose(rec, pool=pool)

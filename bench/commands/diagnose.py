@@ -134,7 +134,7 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
         return _fail(args, 2, str(e))
     try:
         with interrupt_on_term():
-            pool = worker_pool(args.jobs) if args.jobs > 1 else None
+            pool = worker_pool(args.jobs, share_cores=True) if args.jobs > 1 else None
             with ending_workers(pool):
                 dg = diagnose(args.recording, progress, pool, args.write_model)
     except RecordingError as e:

@@ -8,7 +8,6 @@ from the whitened Jacobian at the solution.
 from __future__ import annotations
 
 import hashlib
-import os
 import weakref
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
@@ -21,7 +20,14 @@ from scipy.optimize import least_squares
 from bench.diagnosis.likelihood import StretchLikelihood
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import ParamSpace, undetermined
-from bench.parallel import fork_array, join_array, kill_forked
+from bench.parallel import (
+    claim_core,
+    fork_array,
+    join_array,
+    kill_forked,
+    release_core,
+    sharing_cores,
+)
 
 #: evaluations of one least-squares run, and runs more from where it stopped if it did not
 #: converge but lowered the chi-square (a run that spent its budget without progress is not
@@ -113,46 +119,44 @@ def fd_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.n
 
     with frozen() if frozen is not None else nullcontext():
         mine, child = range(len(x)), None
-        if _SPLIT_PID == os.getpid() and len(x) >= SPLIT_MIN:
-            half = (len(x) + 1) // 2
-            theirs = range(half, len(x))
-            child = fork_array(lambda: columns(theirs), (len(f0), len(theirs)))
-            if child is not None:
-                mine = range(half)
+        claimed = len(x) >= SPLIT_MIN and claim_core()
         try:
-            J[:, mine] = columns(mine)
-        except BaseException:
+            if claimed:
+                half = (len(x) + 1) // 2
+                theirs = range(half, len(x))
+                child = fork_array(lambda: columns(theirs), (len(f0), len(theirs)))
+                if child is not None:
+                    mine = range(half)
+            try:
+                J[:, mine] = columns(mine)
+            except BaseException:
+                if child is not None:
+                    kill_forked(child)
+                raise
             if child is not None:
-                kill_forked(child)
-            raise
-        if child is not None:
-            got = join_array(child)
-            J[:, theirs] = got if got is not None else columns(theirs)
+                got = join_array(child)
+                J[:, theirs] = got if got is not None else columns(theirs)
+        finally:
+            if claimed:
+                release_core()
     return J
 
 
-#: the process whose finite-difference Jacobians split their columns with a forked child
-#: (:func:`split_columns`); None: none does
-_SPLIT_PID: int | None = None
-#: ... where they have at least this many columns
+#: Jacobians with at least this many columns split them (:func:`split_columns`)
 SPLIT_MIN = 4
 
 
 @contextmanager
-def split_columns() -> Iterator[None]:
-    """Inside, :func:`fd_jacobian` in this process (not in workers forked from it later)
-    computes half of its columns in a forked child, on the other core: for a diagnosis
+def split_columns(pool: object = None) -> Iterator[None]:
+    """Inside, :func:`fd_jacobian` in this process computes half of its columns in a
+    forked child where a core is idle (:func:`bench.parallel.claim_core`): for a diagnosis
     whose process pool sits idle while this process fits (the columns of a recording
-    without load cells or a tracker are four fifths of its time). The columns are the
-    same (each starts from the state the evaluation before them left, which the child
-    has as it is)."""
-    global _SPLIT_PID
-    before = _SPLIT_PID
-    _SPLIT_PID = os.getpid()
-    try:
+    without load cells or a tracker are four fifths of its time). With ``pool`` a
+    core-sharing :func:`bench.parallel.worker_pool`, its workers do the same when the
+    other workers wait (the last fit of a batch). The columns are the same (each starts
+    from the state the evaluation before them left, which the child has as it is)."""
+    with sharing_cores(pool):
         yield
-    finally:
-        _SPLIT_PID = before
 
 
 #: fits kept per residual model (:func:`fit_effects`' memo)

@@ -27,9 +27,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.diagnosis import gauge
-from bench.diagnosis.fit import ErrorStructure, FitResult, error_meat, fd_jacobian, fit_effects
+from bench.diagnosis.fit import (
+    MAX_NFEV,
+    ErrorStructure,
+    FitResult,
+    error_meat,
+    fd_jacobian,
+    fit_effects,
+)
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
+from bench.parallel import job_running
 from controller.effects import EFFECT_NAMES
 
 #: BIC drop an effect must bring to enter (very strong evidence: small systematic errors
@@ -130,6 +138,10 @@ class Selection:
     screening: dict[str, float] = field(default_factory=dict)
 
 
+#: evaluations a fit with the load cells' gauge pinned (:meth:`Selector._pinned`) may take
+PINNED_NFEV = MAX_NFEV // 2
+
+
 class Selector:
     """Runs the selection for one recording (train / held-out sample indices given)."""
 
@@ -155,6 +167,10 @@ class Selector:
         #: at most this many effects in the search's sets
         self.max_effects = MAX_EFFECTS
         self._floored: dict[int, FitResult] = {}
+        #: the effects a search ran again without (:meth:`_restart`); given to a selection
+        #: again (a nuisance fitted, slip times), its restarts skip them: that second
+        #: opinion was taken, and the selection again starts from the set it led to
+        self.restarted: set[str] = set()
 
     # ----- fits -----------------------------------------------------------------------
     def fit(self, effects: tuple[str, ...], start: FitResult | None = None) -> FitResult:
@@ -170,16 +186,13 @@ class Selector:
             cached = self.cache[key]
             if start is None or not set(key) < set(start.space.effects):
                 return cached
-            tag = (key, tuple(sorted(start.space.effects)), round(float(start.chi2), 9))
+            tag = self._tag(key, start)
             if tag in self._refit_from:
                 return cached
             self._refit_from.add(tag)
             res = self._best_of(key, self._starts(key, start))
             if res.bic < cached.bic - 1e-6 * max(1.0, abs(cached.bic)):
-                self.progress(f"{' + '.join(key) or 'the model as it is'}: refitted from "
-                              f"{' + '.join(start.space.effects)} (chi-square {cached.chi2:.4g}"
-                              f" -> {res.chi2:.4g})")
-                self.cache[key] = res
+                self._refitted(key, start, cached, res)
                 return res
             return cached
         space = ParamSpace(self.model, key)
@@ -190,15 +203,22 @@ class Selector:
         self.cache[key] = res
         return res
 
-    def prefetch(self, sets: list[tuple[str, ...]], start: FitResult | None = None) -> None:
+    def prefetch(self, sets: list[tuple[str, ...]], start: FitResult | None = None,
+                 refits: bool = False) -> None:
         """Fit the sets of ``sets`` not fitted yet as :meth:`fit` would one by one (from
         ``start``), their starts all at once on the process pool: the search asks for them
         in turn and may drop some after the first answer, but two cores fit two for the
-        time of one. Nothing without a pool."""
+        time of one. With ``refits``, also the sets fitted before that :meth:`fit` would
+        refit from ``start`` (subsets of it), the better fit kept as it keeps it: for
+        callers that ask for every one of them. Nothing without a pool."""
         if getattr(self, "pool", None) is None:  # (a Selector built bare in a test)
             return
         todo = list(dict.fromkeys(tuple(sorted(s_)) for s_ in sets))
-        todo = [k for k in todo if k not in self.cache]
+        again = []
+        if refits and start is not None:
+            again = [k for k in todo if k in self.cache and set(k) < set(start.space.effects)
+                     and self._tag(k, start) not in self._refit_from]
+        todo = [k for k in todo if k not in self.cache] + again
         if len(todo) < 2:
             return
         jobs = [(k, phi0) for k in todo
@@ -212,11 +232,27 @@ class Selector:
             fits.setdefault(k, []).append(fu.result())
         for k, fs in fits.items():
             best = min(fs, key=lambda f: f.bic)
-            self.cache[k] = self.gauge_floor(min([best] + self._pinned(best),
-                                                 key=lambda f: f.bic))
+            res = self.gauge_floor(min([best] + self._pinned(best), key=lambda f: f.bic))
+            cached = self.cache.get(k)
+            if cached is None:
+                self.cache[k] = res
+            elif res.bic < cached.bic - 1e-6 * max(1.0, abs(cached.bic)):
+                self._refitted(k, start, cached, res)
             if start is not None:  # (fitted from it already: :meth:`fit` need not again)
-                self._refit_from.add((k, tuple(sorted(start.space.effects)),
-                                      round(float(start.chi2), 9)))
+                self._refit_from.add(self._tag(k, start))
+
+    @staticmethod
+    def _tag(key: tuple[str, ...], start: FitResult) -> tuple:
+        """What :meth:`fit` remembers of a refit of ``key`` from ``start``."""
+        return (key, tuple(sorted(start.space.effects)), round(float(start.chi2), 9))
+
+    def _refitted(self, key: tuple[str, ...], start: FitResult, cached: FitResult,
+                  res: FitResult) -> None:
+        """Keep ``res``, the refit of ``key`` from ``start`` better than ``cached``."""
+        self.progress(f"{' + '.join(key) or 'the model as it is'}: refitted from "
+                      f"{' + '.join(start.space.effects)} (chi-square {cached.chi2:.4g}"
+                      f" -> {res.chi2:.4g})")
+        self.cache[key] = res
 
     def _starts(self, key: tuple[str, ...], start: FitResult | None) -> list[np.ndarray | None]:
         """Starting points of a fit of ``key`` from ``start``: its values (the others at the
@@ -267,7 +303,11 @@ class Selector:
             return []
         phi0, hold = pin
         other = ~np.isfinite(fit.stderr) & ~gauge.members(space)  # what the data cannot fix
-        return [fit_effects(space, self.rm, self.train, phi0, hold=hold | other)]
+        # (from a minimum moved along the gauge: where the gauge holds, a few steps; half
+        # the budget of a fit from afar. 12823: 248 evaluations, 10 of 67 s, not converged,
+        # for a reading that lost by its BIC)
+        return [fit_effects(space, self.rm, self.train, phi0, hold=hold | other,
+                            max_nfev=PINNED_NFEV)]
 
     def gauge_floor(self, fit: FitResult, idx: np.ndarray | None = None) -> FitResult:
         """``fit`` (of a set with the load cells and another effect of their gauge, on
@@ -467,6 +507,9 @@ class Selector:
             chosen, current = restart
         for attempt in range(2):
             chosen, current = self._heldout_checks(chosen, current, sel)
+            if len(chosen) > 1:  # (each effect's importance asks for the set without it)
+                self.prefetch([tuple(c for c in chosen if c != e) for e in chosen], current,
+                              refits=True)
             sel.effects = sorted(chosen, key=lambda e: -self._importance(e, chosen, current))
             sel.fit = current
             sel.alternatives = {}
@@ -485,9 +528,15 @@ class Selector:
     def _heldout_checks(self, chosen: list[str], current: FitResult, sel: Selection
                         ) -> tuple[list[str], FitResult]:
         """Held-out check of each chosen effect against the set without it."""
-        if len(chosen) > 1:
-            self.prefetch([tuple(c for c in chosen if c != e) for e in chosen], current)
-        for e in list(chosen):
+        order = list(chosen)
+        fetched = None
+        for i, e in enumerate(order):
+            if len(chosen) > 1 and fetched is not current:
+                # every check left asks for its set without the effect (refitted from the
+                # set with it), and on each held-out set but the first for both: side by
+                # side on the pool, again after a rejection (12973: 9 s in a row)
+                self._prefetch_checks(chosen, order[i:], current)
+                fetched = current
             rest = tuple(c for c in chosen if c != e)
             without = self.fit(rest, current)
             ok, info = self.heldout_improves(tuple(chosen), rest, current)
@@ -501,6 +550,40 @@ class Selector:
                 chosen.remove(e)
                 current = self.fit(tuple(chosen), current)
         return chosen, current
+
+    def _prefetch_checks(self, chosen: list[str], left: list[str], current: FitResult
+                         ) -> None:
+        """The fits the held-out checks of the effects ``left`` ask for (:meth:`fit` and
+        :meth:`fit_on` of ``chosen`` with and without each, from ``current``), on the
+        process pool all at once. Nothing without a pool."""
+        if getattr(self, "pool", None) is None:
+            return
+        rests = [tuple(sorted(c for c in chosen if c != e)) for e in left]
+        self.prefetch(rests, current, refits=True)
+        if len(self.holdouts) < 2:
+            return
+        # the other held-out sets only where the first does not decide (its predicted
+        # difference below CONCLUSIVE: :meth:`heldout_improves`)
+        idx0 = self.holdouts[0]
+        with_ = self.fit(tuple(chosen), current)
+        r_with = self.rm.whitened(with_.space.robot(with_.phi), idx0)
+        open_ = []
+        for rest in rests:
+            fw = self.fit(rest, current)
+            diff = r_with - self.rm.whitened(fw.space.robot(fw.phi), idx0)
+            if float(diff @ diff) < CONCLUSIVE:
+                open_.append(rest)
+        jobs = list(dict.fromkeys((key, k) for k in range(1, len(self.holdouts))
+                                  for key in ([tuple(sorted(chosen))] + open_ if open_ else [])
+                                  if (key, k) not in self.cache_ho))
+        if len(jobs) < 2:
+            return
+        self.progress(f"fitting {len(jobs)} sets on held-out samples on the process pool")
+        futs = [((key, k), self.pool.submit(
+            _space_job, self.rm, np.setdiff1d(self.train, self.holdouts[k]),
+            ParamSpace(self.model, key), _warm(key, current))) for key, k in jobs]
+        for jk, fu in futs:
+            self.cache_ho[jk] = fu.result()
 
     def _missed_swap(self, sel: Selection
                      ) -> tuple[str, str, list[str], FitResult] | None:
@@ -609,6 +692,12 @@ class Selector:
             n_cells = int(np.isfinite(current.stderr[current.space.indices(
                 "load_cell_calibration")]).sum())
             tries.append(("load_cell_calibration", n_cells, 3))
+        for wide, _, _ in tries:
+            if wide in self.restarted:
+                self.progress(f"no search again without {wide}: the selection before this "
+                              f"one ran it")
+        tries = [t for t in tries if t[0] not in self.restarted]
+        self.restarted.update(t[0] for t in tries)
         stalled = self.stalled
         best = None
         for wide, n_free, more in tries:
@@ -1151,12 +1240,14 @@ def _gauge_swaps(chosen: list[str], candidates: list[str]) -> list[tuple[str, st
 
 def _fit_job(rm: ResidualModel, train: np.ndarray, effects: tuple[str, ...],
              phi0: np.ndarray | None) -> FitResult:
-    return fit_effects(ParamSpace(rm.model, effects), rm, train, phi0)
+    with job_running():
+        return fit_effects(ParamSpace(rm.model, effects), rm, train, phi0)
 
 
 def _space_job(rm: ResidualModel, train: np.ndarray, space: ParamSpace,
                phi0: np.ndarray | None) -> FitResult:
-    return fit_effects(space, rm, train, phi0)
+    with job_running():
+        return fit_effects(space, rm, train, phi0)
 
 
 def _bounded_lstsq(J: np.ndarray, b: np.ndarray, x0: np.ndarray, lo: np.ndarray,
