@@ -230,9 +230,10 @@ class Selector:
         fits: dict[tuple[str, ...], list[FitResult]] = {}
         for k, fu in futs:
             fits.setdefault(k, []).append(fu.result())
-        for k, fs in fits.items():
-            best = min(fs, key=lambda f: f.bic)
-            res = self.gauge_floor(min([best] + self._pinned(best), key=lambda f: f.bic))
+        bests = {k: min(fs, key=lambda f: f.bic) for k, fs in fits.items()}
+        pins = dict(zip(bests, self._pinned_many(list(bests.values())), strict=True))
+        for k, best in bests.items():
+            res = self.gauge_floor(min([best] + pins[k], key=lambda f: f.bic))
             cached = self.cache.get(k)
             if cached is None:
                 self.cache[k] = res
@@ -295,19 +296,37 @@ class Selector:
         eight gains 7 % high at standard errors of a few thousandths in place of a mass
         change known to 12 %. Which one is held is the data's choice no more than the
         cell's; the fewer parameters decide (BIC)."""
-        space = fit.space
-        if not _on_gauge(space.effects):
-            return []
-        pin = gauge.pinned(space, fit.phi, fit.cov)
-        if pin is None:
-            return []
-        phi0, hold = pin
-        other = ~np.isfinite(fit.stderr) & ~gauge.members(space)  # what the data cannot fix
+        return self._pinned_many([fit])[0]
+
+    def _pinned_many(self, fits: list[FitResult]) -> list[list[FitResult]]:
+        """:meth:`_pinned` of each of ``fits``, on the process pool where there is one and
+        more than one such refit."""
+        jobs = []
+        for i, fit in enumerate(fits):
+            space = fit.space
+            if not _on_gauge(space.effects):
+                continue
+            pin = gauge.pinned(space, fit.phi, fit.cov)
+            if pin is None:
+                continue
+            phi0, hold = pin
+            other = ~np.isfinite(fit.stderr) & ~gauge.members(space)  # the data cannot fix
+            jobs.append((i, space, phi0, hold | other))
+        out: list[list[FitResult]] = [[] for _ in fits]
         # (from a minimum moved along the gauge: where the gauge holds, a few steps; half
         # the budget of a fit from afar. 12823: 248 evaluations, 10 of 67 s, not converged,
         # for a reading that lost by its BIC)
-        return [fit_effects(space, self.rm, self.train, phi0, hold=hold | other,
-                            max_nfev=PINNED_NFEV)]
+        if getattr(self, "pool", None) is not None and len(jobs) > 1:
+            futs = [(i, self.pool.submit(_space_job, self.rm, self.train, space, phi0,
+                                         hold=hold, max_nfev=PINNED_NFEV))
+                    for i, space, phi0, hold in jobs]
+            for i, fu in futs:
+                out[i].append(fu.result())
+            return out
+        for i, space, phi0, hold in jobs:
+            out[i].append(fit_effects(space, self.rm, self.train, phi0, hold=hold,
+                                      max_nfev=PINNED_NFEV))
+        return out
 
     def gauge_floor(self, fit: FitResult, idx: np.ndarray | None = None) -> FitResult:
         """``fit`` (of a set with the load cells and another effect of their gauge, on
@@ -373,8 +392,9 @@ class Selector:
         for s_, res in done:
             if s_ not in results or res.bic < results[s_].bic:
                 results[s_] = res
-        for s_, res in results.items():
-            results[s_] = self.gauge_floor(min([res] + self._pinned(res), key=lambda f: f.bic))
+        pins = self._pinned_many(list(results.values()))
+        for (s_, res), pin in zip(list(results.items()), pins, strict=True):
+            results[s_] = self.gauge_floor(min([res] + pin, key=lambda f: f.bic))
         self.cache.update(results)
         return [self.fit(s_, start) for s_ in sets]
 
@@ -1245,9 +1265,9 @@ def _fit_job(rm: ResidualModel, train: np.ndarray, effects: tuple[str, ...],
 
 
 def _space_job(rm: ResidualModel, train: np.ndarray, space: ParamSpace,
-               phi0: np.ndarray | None) -> FitResult:
+               phi0: np.ndarray | None, **kw) -> FitResult:
     with job_running():
-        return fit_effects(space, rm, train, phi0)
+        return fit_effects(space, rm, train, phi0, **kw)
 
 
 def _bounded_lstsq(J: np.ndarray, b: np.ndarray, x0: np.ndarray, lo: np.ndarray,
