@@ -596,6 +596,29 @@ def test_monitor_records_a_recording_and_logs_every_frame(rig, cells, capsys, tm
     assert len(frames) >= 2 * 8 * 4 * out["refreshes"]
 
 
+def test_monitor_first_row_waits_for_a_whole_sweep_of_slow_cells(rig, cells, capsys,
+                                                                  tmp_path, monkeypatch):
+    """Cells slow to connect: the recording's first row still holds every tension (it
+    once began with the cells not yet read as NaN)."""
+    from hal.loadcell_client import LoadCellClient
+
+    run = LoadCellClient._run_pipelined
+
+    def slow_start(self):  # a slow first connection
+        time.sleep(0.3)
+        return run(self)
+
+    monkeypatch.setattr(LoadCellClient, "_run_pipelined", slow_start)
+    rec = tmp_path / "rec"
+    code, out = cli(capsys, "monitor", "--can", rig.can, "--modbus", cells.spec,
+                    "--duration", "0.2", "--rate", "10", "--record", str(rec),
+                    "--init-pose", "10,8.56,1", "--no-report")
+    assert code == 0
+    r = read_recording(rec)
+    assert np.isfinite(r.tau[0]).all()
+    np.testing.assert_allclose(r.tau[0][:2], 100.0, atol=1e-3)
+
+
 def test_monitor_shows_a_drive_that_does_not_answer(rig, capsys):
     rig.bank.drive(2).set_silent(True)
     code, out = cli(capsys, "monitor", "--can", rig.can, "--duration", "0.3", "--no-report")

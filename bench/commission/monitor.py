@@ -212,6 +212,9 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                                        timeout_s=args.loadcell_timeout,
                                        stale_s=args.loadcell_stale,
                                        max_age_s=args.loadcell_max_age).start()
+                # The first row holds every cell that answers: wait for one whole sweep
+                # (a unit that does not answer shows its timeout status instead).
+                cells.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
             screen = _Screen(ui.out)
             t0 = time.monotonic()
             t_end = None if args.duration is None else t0 + args.duration
