@@ -152,8 +152,9 @@ def test_the_frozen_jacobian_equals_the_full_one(no_tensions, effects):
 def test_rounds_on_the_last_faces_end_where_searches_every_round_end(no_tensions, effects,
                                                                    monkeypatch):
     """Outside frozen(), the unmeasured tensions relinearise on the last evaluation's faces
-    and search once they settle: the same residuals as a search in every round, from the
-    same warm start."""
+    and search once they settle, each sample until its own search leaves it settled: the
+    same residuals as a search of every sample in every round, from the same warm
+    start."""
     import bench.diagnosis.residuals as residuals
 
     rm = no_tensions
@@ -164,13 +165,16 @@ def test_rounds_on_the_last_faces_end_where_searches_every_round_end(no_tensions
     rm.whitened(space.robot(x0))  # the warm start: its tensions and faces
     warm = (rm._warm_tau.copy(), rm._warm_face.copy(), rm._warm_drop.copy())
     fit = residuals.fit_internal_forces
-    hinted = []
+    hinted, sizes = [], []
     with monkeypatch.context() as mp:
         mp.setattr(residuals, "fit_internal_forces",
                    lambda *a, hint=None, **k: hinted.append(hint is not None)
-                   or fit(*a, hint=hint, **k))
+                   or sizes.append(len(a[0])) or fit(*a, hint=hint, **k))
         held = rm.whitened(space.robot(x1))
     assert any(hinted) and not hinted[-1]  # rounds on held faces, a search last
+    # the first round takes every sample; the later ones only those not yet settled
+    M = int((rm.has_pose & ~rm.has_tau).sum())
+    assert sizes[0] == M and min(sizes) < M
     rm._warm_tau[:], rm._warm_face[:], rm._warm_drop[:] = warm
     with monkeypatch.context() as mp:
         mp.setattr(residuals, "fit_internal_forces",

@@ -536,3 +536,19 @@ def test_prefetch_refits_the_subsets_fit_would_refit_and_keeps_the_better(monkey
         sel.prefetch([("drum_scale",), ("cable_length_offset",), ("exit_point_offset",)],
                      start)
     assert sel.cache[("drum_scale",)] is old
+
+
+def test_the_backward_step_asks_the_pool_for_every_set_without_one_and_its_refits():
+    """The backward step's sets (each chosen effect left out) go to the pool together,
+    with the refits from the current fit of those fitted before: ``fit`` would refit
+    each in turn (12883: five in a row)."""
+    sel, _ = _selector(([], BASE))
+    current = _far({"exit_point_offset": 24, "drum_scale": 8, "cable_elasticity": 1},
+                   100.0, 1.0, 5.0)
+    asked = []
+    sel.prefetch = lambda sets, start, refits=False: asked.append((sets, start, refits))
+    sel.fit = lambda effects, start: current
+    sel._backward(["exit_point_offset", "drum_scale", "cable_elasticity"], current)
+    assert asked == [([("drum_scale", "cable_elasticity"),
+                       ("exit_point_offset", "cable_elasticity"),
+                       ("exit_point_offset", "drum_scale")], current, True)]
