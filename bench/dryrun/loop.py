@@ -553,6 +553,7 @@ class ControlLoop:
                 last_state = state
                 tr = self.tracker.read()
                 pose_meas = nan6
+                err = math.nan  # the error counted on this row (recorded: the plots')
                 if tr.valid and np.all(np.isfinite(tr.pose)):
                     pose_meas = tr.pose
                     if tr.t_s > last_track_t and state not in (INIT, QUICK_STOP):
@@ -564,7 +565,7 @@ class ControlLoop:
                 if self.recorder is not None:
                     self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N,
                                       pose_meas, out_tensions, substituted, path_cycle,
-                                      res.overruns, state)
+                                      res.overruns, state, err)
             res.simulated_s = k * T
             res.trajectory_s = t_traj
             # ---- end conditions

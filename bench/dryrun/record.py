@@ -11,7 +11,11 @@
 - extra: ``plan_tau_{ij}`` [N] the tensions the controller planned, ``substituted`` the
   number of load cells replaced by planned tensions in the mast update, ``cycle`` the
   repetition of the path (0, 1, ...; -1 before the path starts), ``overruns`` the cycles
-  that missed their deadline so far (real time);
+  that missed their deadline so far (real time), ``pose_err`` [m] the distance from the
+  tracker's fix to the commanded path on the rows where the loop counted a new fix (the
+  numbers the summary's ``pose_error_rms_m``/``pose_error_max_m`` are made of; ``nan`` on
+  the other rows: a fix held from an earlier row, no fix, or not counted: initialisation,
+  quick stop);
 - ``state``: ``init`` (initialisation dwell), ``approach`` (the move from the init pose to
   the path's start), ``move``/``dwell`` (the trajectory's labels: a dwell stands at a
   target; replicate visits have equal ``*_des``), ``hold`` (feed hold), ``quick_stop``
@@ -43,7 +47,7 @@ def columns(robot: Robot) -> list[str]:
     return (["t"] + [f"{a}_des" for a in POSE_AXES] + [f"l_cmd_{k}" for k in c]
             + [f"l_meas_{k}" for k in c] + [f"tau_{k}" for k in c]
             + [f"{a}_meas" for a in POSE_AXES] + [f"plan_tau_{k}" for k in c]
-            + ["substituted", "cycle", "overruns"])
+            + ["substituted", "cycle", "overruns", "pose_err"])
 
 
 class DryRunRecorder:
@@ -64,7 +68,7 @@ class DryRunRecorder:
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
-            cycle: int, overruns: int, state: str) -> None:
+            cycle: int, overruns: int, state: str, pose_err: float = float("nan")) -> None:
         n, r = self.n, self._row
         r[0] = t
         r[1:7] = pose_des
@@ -76,6 +80,7 @@ class DryRunRecorder:
         r[13 + 4 * n] = substituted
         r[14 + 4 * n] = cycle
         r[15 + 4 * n] = overruns
+        r[16 + 4 * n] = pose_err
         self.writer.append(r, state)
 
     def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
