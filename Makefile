@@ -20,7 +20,7 @@ DEMO := out/demo
 demo: $(STAMP)
 	@echo "== dry run of the paper's centre path: recording in $(DEMO)/dryrun, plots in $(DEMO)/dryrun_plots"
 	$(VENV)/bin/cdpr dry-run paper-centre --record $(DEMO)/dryrun --force --plots $(DEMO)/dryrun_plots
-	$(VENV)/bin/cdpr model check rocaspect --plot $(DEMO)/workspace.png
+	$(VENV)/bin/cdpr model check rocaspect --plots $(DEMO)
 	$(VENV)/bin/cdpr campaign bench/data/paper_scenario.toml $(DEMO)/recording --force
 	$(VENV)/bin/cdpr diagnose $(DEMO)/recording --plots $(DEMO)/plots --write-model $(DEMO)/corrected.toml --out $(DEMO)/report.json
 	@echo "== the scenario's concealed truth beside what the diagnosis found (it never read the scenario)"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # heavy imports happen in the functions (cdpr --help stays fast)
@@ -34,7 +35,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step", type=float, default=0.5, help="workspace grid step [m] (default 0.5)")
     p.add_argument("--method", default="closed_form", choices=("closed_form", "qp"),
                    help="tension distribution (default closed_form)")
-    p.add_argument("--plot", metavar="PNG", help="write a map of the wrench-feasible workspace")
+    p.add_argument("--plots", metavar="DIR", default=None,
+                   help="write PNG plots into DIR: workspace.png, the map of the "
+                        "wrench-feasible workspace")
+    p.add_argument("--plot", metavar="PNG", default=None,
+                   help="deprecated spelling: the workspace map into this PNG file (use "
+                        "--plots DIR)")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
 
 
@@ -134,37 +140,6 @@ def check(robot: Robot, height: float, step: float, method: str) -> dict:
     }
 
 
-def _plot(report: dict, robot: Robot, path: str) -> None:
-    import matplotlib
-    import numpy as np
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    grid = report["_grid"]
-    fig, ax = plt.subplots(figsize=(8, 6.5))
-    data = np.where(grid.feasible, grid.tension_max, np.nan).T
-    im = ax.imshow(data, origin="lower", extent=(grid.xs[0] - grid.step / 2,
-                                                 grid.xs[-1] + grid.step / 2,
-                                                 grid.ys[0] - grid.step / 2,
-                                                 grid.ys[-1] + grid.step / 2),
-                   cmap="viridis", aspect="equal")
-    fig.colorbar(im, ax=ax, label="highest cable tension [N]")
-    ax.plot(robot.exits[:, 0], robot.exits[:, 1], "r^", label="exit points")
-    for k, c in enumerate(robot.cable_ids):
-        ax.annotate(c, robot.exits[k, :2], fontsize=8)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{robot.name}: wrench-feasible workspace at z = {grid.z} m, "
-                 f"{grid.area:.1f} m² ({grid.method})")
-    ax.legend(loc="upper right")
-    from pathlib import Path
-
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-
-
 def _print_show(robot: Robot) -> None:
     import numpy as np
 
@@ -219,9 +194,17 @@ def _option_problem(args: argparse.Namespace, created: list | None = None) -> st
         return f"--step {args.step}: the grid step must be a positive number of metres"
     if not math.isfinite(args.height):
         return f"--height {args.height}: must be a finite height [m]"
+    if args.plots and args.plot:
+        return "--plots DIR and --plot PNG: give one (--plot is the deprecated spelling)"
+    if args.plots:
+        from bench.outputs import output_dir_problem
+
+        return output_dir_problem(Path(args.plots), "--plots", created)
     if args.plot:
         from bench.outputs import output_file_problem
 
+        print("cdpr model: --plot PNG is deprecated: use --plots DIR (writes "
+              "DIR/workspace.png)", file=sys.stderr)
         return output_file_problem(args.plot, "--plot", created)
     return None
 
@@ -229,7 +212,7 @@ def _option_problem(args: argparse.Namespace, created: list | None = None) -> st
 def run(args: argparse.Namespace) -> int:
     from bench.outputs import removing_created
 
-    # refused (a grid too fine) or interrupted: no directory made for --plot left
+    # refused (a grid too fine) or interrupted: no directory made for --plot(s) left
     return removing_created(lambda created: _run(args, created))
 
 
@@ -268,9 +251,13 @@ def _run(args: argparse.Namespace, created: list) -> int:
         report = check(robot, args.height, args.step, args.method)
     print(f"cdpr model: workspace sweep done in {prog.elapsed_s():.1f} s", file=sys.stderr,
           flush=True)
-    if args.plot:
-        _plot(report, robot, args.plot)
     grid = report.pop("_grid")
+    png = Path(args.plots) / "workspace.png" if args.plots else args.plot
+    if png:
+        from bench.workspace_plot import write_workspace_plot
+
+        write_workspace_plot(grid, robot, png)
+        report["plots"] = [str(png)]
     if args.json:
         print(json.dumps(report))
         return 0
@@ -298,6 +285,6 @@ def _run(args: argparse.Namespace, created: list) -> int:
         k = p["stiffness_min_eig"]
         ktxt = f"{k:.3g} N/m" if k is not None else "n/a (inextensible)"
         print(f"    [{pos}]  {d}   {p['wrench_rank']}     {ktxt}")
-    if args.plot:
-        print(f"  workspace map: {args.plot}")
+    if png:
+        print(f"  workspace map: {png}")
     return 0

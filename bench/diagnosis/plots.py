@@ -197,14 +197,15 @@ def lengths_over_time_figure(data: dict, plt):
                     label=("recording's model" if col == 0 else "corrected model")
                     if k == 0 else None)
             v = data[key][:, k]
-            top = max(float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else 0.0,
-                      2 * noise)
-            ax.set_ylim(-1.15 * top, 1.15 * top)
+            ok = np.isfinite(v)
+            lo = min(float(v[ok].min()) if ok.any() else 0.0, -2 * noise)
+            top = max(float(v[ok].max()) if ok.any() else 0.0, 2 * noise)
+            ax.set_ylim(lo - 0.12 * (top - lo), top + 0.12 * (top - lo))
             for st in data["steps"]:
                 if st["cable"] == cid:
                     ax.axvline(st["t_s"], color="r", ls=":", gid="step")
                     if col == 0:
-                        ax.text(st["t_s"], 1.1 * top, f" reading {-st['step_m'] * 1e3:+.1f} mm",
+                        ax.text(st["t_s"], top, f" reading {-st['step_m'] * 1e3:+.1f} mm",
                                 color="r", fontsize=7, va="top")
             ax.tick_params(labelsize=7)
         axes[k][0].set_ylabel(f"{cid} [mm]", fontsize=8)
