@@ -172,7 +172,8 @@ def path_figure(rec, plt, max_points: int = 20000):
         a.set_ylabel(f"{'xyz'[j]} [m]")
         a.set_title(name)
         a.grid(True, alpha=0.3)
-        a.legend(loc="best", fontsize=8)
+        a.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8,
+                 frameon=False)  # below the view: never over the path
     t, err, st = path_errors(rec)
     rms, big = error_figures(err)
     e = ax[2]
