@@ -1,10 +1,13 @@
 """Plots of a diagnosis: residual maps before/after, per-cable bars, error vs distance, time.
 
 Read at a glance: the two panels of the residual map share one arrow scale (a key
-arrow says how long 1 mm is) and one colour scale; exit points whose fit rests on
-a single measurement (their residual is zero by construction) are marked apart
-from those checked at several poses; the residuals over time are the length
-residuals per cable, before and after the correction, with steps marked.
+arrow says how long 1 mm is) and one colour scale; the per-cable bars are linear from
+zero with the noise level as a band; exit points moved by their own fitted offset onto
+their only measurement (zero by construction) are hatched apart from those checked at
+several poses; the residuals over time are the length residuals per cable, the
+recording's model and the corrected one side by side on their own scales, the noise
+band on each, steps marked. Each figure has a ``*_data`` function returning what it
+draws (the tests check those numbers against the drawn artists).
 """
 
 from __future__ import annotations
@@ -209,10 +212,11 @@ def lengths_over_time_figure(data: dict, plt):
                                 color="r", fontsize=7, va="top")
             ax.tick_params(labelsize=7)
         axes[k][0].set_ylabel(f"{cid} [mm]", fontsize=8)
-    axes[0][0].set_title("recording's model", fontsize=10)
-    axes[0][1].set_title("corrected model", fontsize=10)
-    for ax in axes[0]:
-        ax.legend(fontsize=7, loc="upper right")
+    axes[0][0].set_title("recording's model", fontsize=10, loc="left")
+    axes[0][1].set_title("corrected model", fontsize=10, loc="left")
+    for ax in axes[0]:  # above the panel, beside its title: never over the points
+        ax.legend(fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2,
+                  frameon=False)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     fig.suptitle("length residual per cable over time (green band: noise ±1 sigma; dotted "
