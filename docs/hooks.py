@@ -7,7 +7,11 @@ argument parser (``bench.cli.build_parser``), so it cannot go stale.
 from __future__ import annotations
 
 import argparse
+import importlib
+import inspect
+import re
 import sys
+import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,13 +49,55 @@ def _help(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
     return _cell(text)
 
 
-def _section(parser: argparse.ArgumentParser, words: list[str], out: list[str]) -> None:
+_ROLE = re.compile(r":(?:mod|func|class|meth|attr|data|exc):`~?([^`]+)`")
+
+
+def _inline(line: str) -> str:
+    """RST inline markup of a docstring line as Markdown: ``code`` and roles to `code`; a
+    ``<`` outside code escaped."""
+    line = _ROLE.sub(r"``\1``", line).replace("``", "`")
+    parts = line.split("`")
+    for k in range(0, len(parts), 2):  # outside code spans
+        parts[k] = parts[k].replace("<", "&lt;")
+    return "`".join(parts)
+
+
+def docstring_markdown(doc: str) -> list[str]:
+    """A command module's docstring (RST-ish) as Markdown lines: inline code, and a
+    paragraph ending in ``::`` followed by an indented block as a code block."""
+    lines = inspect.cleandoc(doc).splitlines()
+    out: list[str] = []
+    k = 0
+    while k < len(lines):
+        line = lines[k]
+        if line.rstrip().endswith("::"):
+            out.append(_inline(line.rstrip()[:-1]))
+            k += 1
+            while k < len(lines) and not lines[k].strip():
+                k += 1
+            block = []
+            while k < len(lines) and (not lines[k].strip() or lines[k].startswith(" ")):
+                block.append(lines[k])
+                k += 1
+            while block and not block[-1].strip():
+                block.pop()
+            out += ["", "```text", *textwrap.dedent("\n".join(block)).splitlines(), "```", ""]
+            continue
+        out.append(_inline(line))
+        k += 1
+    return out
+
+
+def _section(parser: argparse.ArgumentParser, words: list[str], out: list[str],
+             doc: str | None = None) -> None:
     """One command's section, then its sub-commands' (depth first)."""
     name = " ".join(words)
     level = "#" * min(len(words), 4)
     out += [f"{level} `{name}`", ""]
     if parser.description:
         out += [parser.description.strip(), ""]
+    if doc:
+        out += docstring_markdown(doc) + [""]
     usage = " ".join(parser.format_usage().split())
     out += ["```text", usage, "```", ""]
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
@@ -70,7 +116,7 @@ def commands_page() -> str:
     """The whole reference page, Markdown."""
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
-    from bench.cli import build_parser
+    from bench.cli import COMMANDS, build_parser
 
     parser = build_parser("")
     out = ["# Commands", "",
@@ -82,8 +128,12 @@ def commands_page() -> str:
     out += ["```text", top, "```", "", "| argument | meaning |", "| --- | --- |",
             "| `--version` | the version and the git commit it was built from |", ""]
     (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    docs = {}
+    for modname in COMMANDS:
+        mod = importlib.import_module(modname)
+        docs[mod.NAME] = mod.__doc__
     for name, p in sub.choices.items():
-        _section(p, ["cdpr", name], out)
+        _section(p, ["cdpr", name], out, docs.get(name))
     # the machine's checkout path in a default is the repository's relative path
     return "\n".join(out).replace(str(ROOT) + "/", "") + "\n"
 
