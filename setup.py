@@ -17,6 +17,8 @@ HERE = Path(__file__).resolve().parent
 class BuildWithCommit(build_py):
     def run(self) -> None:
         super().run()
+        if getattr(self, "editable_mode", False):
+            return  # an editable install looks the commit up with git at run time
         sys.path.insert(0, str(HERE))
         from bench.version import git_commit
 
