@@ -62,6 +62,7 @@ def _source_copy(dest: Path) -> Path:
     return dest
 
 
+@pytest.mark.slow  # a wheel build (5 to 30 s, more on a loaded machine)
 def test_built_wheel_runs_outside_the_repository(tmp_path):
     src = _source_copy(tmp_path / "src")
     env = {**os.environ, "CDPR_BUILD_COMMIT": "feedc0ffee"}
