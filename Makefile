@@ -50,7 +50,7 @@ BENCH ?=
 benchmarks: $(STAMP)
 	@mkdir -p out
 	$(VENV)/bin/cdpr bench $(BENCH) --json > out/bench.json
-	$(PY) -m bench.benchmarks.page out/bench.json > docs/benchmarks.md
+	$(PY) -m bench.benchmarks.page out/bench.json --out docs/benchmarks.md
 
 # The documentation site (MkDocs, Material theme) in site/; warnings are errors.
 docs: $(STAMP)

@@ -1,7 +1,7 @@
 """The benchmarks page of the documentation, generated from ``cdpr bench --json``.
 
     cdpr bench --json > bench.json
-    python -m bench.benchmarks.page bench.json > docs/benchmarks.md
+    python -m bench.benchmarks.page bench.json --out docs/benchmarks.md
 
 The page says what each figure measures, and where it was measured: the date, the git
 commit, the CPU model and count, the load average of the machine when the page was made
@@ -123,9 +123,15 @@ def page(results: dict[str, object], where: dict[str, str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    """``BENCH.json [--out PAGE]``: the page on stdout, or written to PAGE once made (the
+    commit is read before the page is touched, so it is not marked dirty by it)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    out = None
+    if len(argv) == 3 and argv[1] == "--out":
+        out = Path(argv.pop(2))
+        argv.pop(1)
     if len(argv) != 1:
-        print("usage: python -m bench.benchmarks.page BENCH.json > docs/benchmarks.md",
+        print("usage: python -m bench.benchmarks.page BENCH.json [--out docs/benchmarks.md]",
               file=sys.stderr)
         return 2
     try:
@@ -136,7 +142,11 @@ def main(argv: list[str] | None = None) -> int:
     if not isinstance(results, dict) or "error" in results:
         print(f"{argv[0]}: not the output of `cdpr bench --json`", file=sys.stderr)
         return 1
-    sys.stdout.write(page(results, machine()))
+    text = page(results, machine())
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        out.write_text(text, encoding="utf-8")
     return 0
 
 
