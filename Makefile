@@ -5,7 +5,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-deep lint bench clean
+.PHONY: demo test test-deep lint bench benchmarks docs docs-images clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -44,5 +44,23 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/cdpr bench
 
+# The documentation's benchmarks page, generated (never edited by hand). BENCH picks a
+# subset, e.g. make benchmarks BENCH='--only physics'.
+BENCH ?=
+benchmarks: $(STAMP)
+	@mkdir -p out
+	$(VENV)/bin/cdpr bench $(BENCH) --json > out/bench.json
+	$(PY) -m bench.benchmarks.page out/bench.json --out docs/benchmarks.md
+
+# The documentation site (MkDocs, Material theme) in site/; warnings are errors.
+docs: $(STAMP)
+	$(PY) -m mkdocs build --strict
+
+# The documentation's pictures: a short dry run's path plot and the frames figure.
+docs-images: $(STAMP)
+	$(VENV)/bin/cdpr dry-run paper-centre --duration 20 --plots out/docs_dryrun
+	cp out/docs_dryrun/path.png docs/img/dry-run.png
+	$(PY) docs/tools/frames_figure.py docs/img/frames.png
+
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache site

@@ -38,13 +38,18 @@ COMMANDS: tuple[str, ...] = (
 )
 
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
+class _VersionAction(argparse.Action):
+    """``--version``: the version and the git commit (looked up only when asked)."""
 
-    try:
-        return f"{version('cdpr-bench')} (cdpr-bench)"
-    except PackageNotFoundError:  # running from a source tree that is not installed
-        return "unknown (cdpr-bench, not installed)"
+    def __init__(self, option_strings, dest, **kwargs) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
+                         help="print the version and the git commit, then exit")
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        from bench.version import version_string
+
+        print(version_string(), flush=True)
+        parser.exit()
 
 
 class JsonErrorParser(argparse.ArgumentParser):
@@ -78,7 +83,7 @@ def build_parser(only: str | None = "", json_errors: bool = False) -> argparse.A
         prog="cdpr",
         description="Commission, run and check a large cable-driven parallel robot (ROCASPECT).",
     )
-    parser.add_argument("--version", action="version", version=f"cdpr {_version()}")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for modname in COMMANDS:

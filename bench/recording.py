@@ -1,4 +1,4 @@
-"""Recordings in the ``cdpr-recording/1`` format (``../shared/spec/recording-format.md``).
+"""Recordings in the ``cdpr-recording/1`` format (``docs/formats/recording.md``).
 
 A recording is a directory with ``meta.toml``, ``robot.toml`` (the model the
 controller ran with) and ``recording.csv``. :func:`read_recording` validates it

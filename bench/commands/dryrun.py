@@ -75,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "drives and load cells")
     p.add_argument("--react", action="append", default=[], metavar="CONDITION=REACTION",
                    help="change a supervisor reaction, e.g. slack=log (repeatable; "
-                        "conditions and defaults in the README's reaction table)")
+                        "conditions and defaults: docs/guide/safety-reactions.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     g = p.add_argument_group("the paper's campaigns (paper-paths, paper-poses)")

@@ -2,7 +2,7 @@
 
 :func:`diagnose` prepares the samples, measures the baseline, locates the
 mismatch, selects and fits the effects, checks them on held-out samples, and
-assembles the report (``../shared/spec/diagnosis-report.md``). Figures a
+assembles the report (``docs/formats/diagnosis-report.md``). Figures a
 recording cannot give are None (JSON null), never 0.
 """
 

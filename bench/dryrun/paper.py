@@ -88,8 +88,8 @@ SCENARIO = "paper-centre"
 CALIBRATION_SCENARIO = "paper-calibration"
 CALIBRATION_PATH = "calibration-quick"
 HEAVY_SCENARIO = "paper-heavy"
-#: control rate of the campaigns [Hz] (the figures do not depend on it: README, paper
-#: section; ``--rate`` changes it)
+#: control rate of the campaigns [Hz] (the figures do not depend on it:
+#: docs/explanation/paper.md; ``--rate`` changes it)
 PATHS_RATE_HZ = 64.0
 POSES_RATE_HZ = 32.0
 CALIBRATION_RATE_HZ = 32.0

@@ -16,7 +16,7 @@ violet,pink,gold] [--json] [--plots DIR] [--record DIR] [--jobs N] [--rate HZ]``
 pose sets of Fig. 6.
 
 Both log slack cables instead of holding (``--react`` changes that or any other reaction,
-e.g. ``--react slack=hold``; the README says why).
+e.g. ``--react slack=hold``; docs/explanation/paper.md says why).
 
 ``paper-paths --json``: ``{"scenario": "paper-paths", "cases": [{"path": "centre"|"side",
 "init": "centre"|"side", "at_max_<model>_m", "at_mean_<model>_m" (every model run; nominal,
