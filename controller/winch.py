@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.ranges import check as check_range
 from controller.tomlfile import read_toml
 
 #: Cable ids in array order (cdpr-conventions.md).
@@ -291,8 +292,11 @@ def _parse_bus(table: Any, source: str) -> BusParams:
         want = type(defaults[key])
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             raise _fail(source, f"[bus] {key}", f"must be a number, got {val!r}")
+        if not math.isfinite(float(val)):
+            raise _fail(source, f"[bus] {key}", f"must be finite, got {val!r}")
         if want is int and not float(val).is_integer():
             raise _fail(source, f"[bus] {key}", f"must be an integer, got {val!r}")
+        check_range("winch", f"bus.{key}", val, f"{source}: [bus] {key}", WinchConfigError)
         vals[key] = want(val)
     bus = BusParams(**vals)
     _validate_bus(bus, source)
@@ -339,11 +343,12 @@ def _check_value(source: str, where: str, key: str, val: Any) -> Any:
         raise _fail(source, f"{where} {key}", f"must be a number, got {val!r}")
     if kind is int and not float(val).is_integer():
         raise _fail(source, f"{where} {key}", f"must be an integer, got {val!r}")
-    val = kind(val)
-    if not math.isfinite(val):
+    if not math.isfinite(float(val)):
         raise _fail(source, f"{where} {key}", f"must be finite, got {val!r}")
+    val = kind(val)
     if not check(val):
         raise _fail(source, f"{where} {key}", f"{meaning}, got {val!r}")
+    check_range("winch", key, val, f"{source}: {where} {key}", WinchConfigError)
     return val
 
 
