@@ -182,3 +182,38 @@ def test_dry_run_signal_exit_status_last_line_and_recording(tmp_path, sig):
     assert res["ended"] == "interrupted" and res["recording"] == str(rec)
     data = read_recording(rec)
     assert len(data.t) > 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_commission_monitor_signal_keeps_its_output_and_exits_130_143(capsys, tmp_path, sig):
+    """``cdpr commission monitor`` ended by SIGINT / SIGTERM (in this process, on simulated
+    drives and load cells): its JSON object and recording are kept, exit status 130 / 143,
+    and the last line on stderr says which signal."""
+    import threading
+
+    from bench.recording import read_recording
+    from tests.test_commission import Cells, Rig
+
+    code, msg = MESSAGE[sig]
+    got: list[int] = []
+    old = signal.signal(sig, lambda s, f: got.append(s))  # a late signal kills no test
+    rig, cells = Rig(), Cells()
+    rec = tmp_path / "rec"
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), sig))
+    try:
+        capsys.readouterr()
+        timer.start()
+        rc = main(["commission", "monitor", "--can", rig.can, "--modbus", cells.spec,
+                   "--duration", "20", "--rate", "10", "--record", str(rec), "--no-report",
+                   "--json"])
+    finally:
+        timer.cancel()
+        signal.signal(sig, old)
+        cells.close()
+        rig.close()
+    cap = capsys.readouterr()
+    assert rc == code, cap.err
+    out = json.loads(cap.out.strip().splitlines()[-1])
+    assert out["ended_by"] == ("Ctrl-C" if sig == signal.SIGINT else msg)
+    assert cap.err.strip().splitlines()[-1] == f"cdpr commission monitor: {msg}"
+    assert read_recording(rec).n_samples == out["rows"] > 0
