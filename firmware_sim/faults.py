@@ -129,10 +129,15 @@ def _default_ids() -> tuple[tuple[int, ...], tuple[int, ...]]:
 def _number(value: Any, where: str, key: str, integer: bool = False) -> float | int:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise FaultScheduleError(f"{where}: {key} must be a number, got {value!r}")
-    if integer and not float(value).is_integer():
+    if integer and isinstance(value, float) and not value.is_integer():
         raise FaultScheduleError(f"{where}: {key} must be an integer, got {value!r}")
-    if not math.isfinite(value):
-        raise FaultScheduleError(f"{where}: {key} must be finite, got {value!r}")
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # an integer beyond any float (the control channel reads any size)
+        finite = False
+    if not finite:
+        text = str(value) if len(str(value)) <= 24 else f"a {len(str(value))}-digit integer"
+        raise FaultScheduleError(f"{where}: {key} must be finite, got {text}")
     return int(value) if integer else float(value)
 
 
