@@ -474,7 +474,8 @@ def test_non_physical_numbers_are_refused_in_every_file_kind(tmp_path, name, dat
     doc = tomllib.loads(raw.decode())
     path, leaf = data.draw(st.sampled_from(list(_numbers(doc))), label="field")
     values = list(NON_PHYSICAL) + ([-35.0, -1e-3] if leaf in SIGNED else [])
-    value = data.draw(st.sampled_from(values).filter(lambda v: _non_physical(leaf, v)),
+    huge = st.floats(1e19, 1e308) | st.floats(-1e308, -1e19)  # beyond every field's range
+    value = data.draw((st.sampled_from(values) | huge).filter(lambda v: _non_physical(leaf, v)),
                       label="value")
     _mutate(doc, path, "replace", value)
     p = tmp_path / name
