@@ -177,6 +177,9 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             ui.say(f"written{'' if args.no_store else ' and stored'}: nodes {applied}; "
                    f"{sum(len(r['differences']) for r in before)} difference(s) before, "
                    f"{sum(len(r['differences']) for r in results)} now")
+            if args.no_store and any(r.get("safety_failures") for r in before):
+                ui.say("NOT STORED (--no-store): the safety values written return to the "
+                       "drives' power-on values at their next power cycle or node reset")
         dcf = []
         if args.dcf:
             d = Path(args.dcf)
