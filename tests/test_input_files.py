@@ -405,8 +405,25 @@ def _path_error():
     return PathFileError
 
 
+def _recording_with(name: str):
+    """A loader of a recording whose file ``name`` (meta.toml, robot.toml) is the one given:
+    the recording's other files are copied beside it, then the folder is read."""
+
+    def load(p: Path):
+        for f in ("meta.toml", "robot.toml", "recording.csv"):
+            if f != name:
+                shutil.copy(RECORDING / f, p.parent / f)
+        return read_recording(p.parent)
+
+    return load
+
+
 #: file kind -> (a valid example with every numeric field of the kind, loader, error class)
 PHYSICAL = {
+    "meta.toml": ((RECORDING / "meta.toml").read_bytes(), _recording_with("meta.toml"),
+                  RecordingError),
+    "recorded robot.toml": ((RECORDING / "robot.toml").read_bytes(),
+                            _recording_with("robot.toml"), RecordingError),
     "robot.toml": LOADERS["robot.toml"],
     "scenario.toml": LOADERS["scenario.toml"],
     "path.toml": (PATH_EXAMPLE, _load_path, _path_error()),
@@ -478,7 +495,7 @@ def test_non_physical_numbers_are_refused_in_every_file_kind(tmp_path, name, dat
     value = data.draw((st.sampled_from(values) | huge).filter(lambda v: _non_physical(leaf, v)),
                       label="value")
     _mutate(doc, path, "replace", value)
-    p = tmp_path / name
+    p = tmp_path / name.split()[-1]
     _write_doc(p, doc)
     _refused(load, error, p, f"{name}: {'.'.join(map(str, path))} = {value!r}")
 
@@ -494,7 +511,7 @@ def test_every_numeric_field_refuses_1e300_nan_and_huge_integers(tmp_path, name)
         for path, _leaf in fields:
             doc = tomllib.loads(raw.decode())
             _mutate(doc, path, "replace", value)
-            p = tmp_path / name
+            p = tmp_path / name.split()[-1]
             _write_doc(p, doc)
             _refused(load, error, p, f"{name}: {'.'.join(map(str, path))} = {value!r}")
 
