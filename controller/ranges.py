@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import fnmatch
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -103,7 +102,7 @@ RANGES: dict[str, dict[str, Range | tuple[Range, ...]]] = {
         "cables.ea": Range(0.0, 1e12, "N", "E*A of a cable up to 1e12 N", lo_open=True),
         "cables.rho": Range(0.0, 100.0, "kg/m", "a cable's linear mass"),
         "mast.pivot": POSITION,
-        "mast.stiffness": Range(0.0, 1e12, "N m/rad", "a mast's joint stiffness (inf: rigid)",
+        "mast.stiffness": Range(0.0, 1e12, "N m/rad", "a mast's joint stiffness; inf: rigid",
                                 lo_open=True, inf_ok=True),
         "mast.tilt": Range(-0.5, 0.5, "rad", "a settlement tilt below 29 degrees"),
         "cable.exit": POSITION,
@@ -261,7 +260,8 @@ def problem(kind: str, fld: str, value: Any, component: int | None = None) -> st
     if rng.contains(v):
         return None
     why = f" ({rng.why})" if rng.why else ""
-    return f"{value!r} is outside the physical range {rng.text(name)}{why}"
+    shown = repr(value) if type(value) in (int, float) else repr(v)  # numpy scalars as floats
+    return f"{shown} is outside the physical range {rng.text(name)}{why}"
 
 
 def check(kind: str, fld: str, value: Any, where: str, error: type[Exception],
@@ -272,15 +272,6 @@ def check(kind: str, fld: str, value: Any, where: str, error: type[Exception],
     why = problem(kind, fld, value, component)
     if why is not None:
         raise error(f"{where}: {why}")
-
-
-def check_vector(kind: str, fld: str, values: Sequence[Any], where: str,
-                 error: type[Exception]) -> None:
-    """:func:`check` of every component of a vector field (the component named by index)."""
-    for i, v in enumerate(values):
-        why = problem(kind, fld, v, i)
-        if why is not None:
-            raise error(f"{where}[{i}]: {why}")
 
 
 def robot_problems(robot: Any) -> list[str]:
