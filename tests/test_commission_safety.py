@@ -97,3 +97,14 @@ def test_apply_without_store_loses_the_safe_values_on_a_power_cycle(rig, capsys)
     code, out = cli(capsys, "check", "21", "--can", rig.can, "--no-report")
     assert code == 1 and {f["object"] for f in out["drives"][0]["safety_failures"]} \
         == POWER_ON_UNSAFE
+
+
+def test_the_safety_objects_are_documented():
+    from pathlib import Path
+
+    from hal.drives_config import SAFETY_OBJECTS
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "reference"
+            / "validation.md").read_text()
+    for index, sub in SAFETY_OBJECTS:
+        assert f"| 0x{index:04X}:{sub:02X} |" in page
