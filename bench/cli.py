@@ -10,10 +10,11 @@ usual message on stderr, exit status 2).
 
 Signals: SIGTERM and SIGHUP raise :class:`bench.parallel.Terminated` (a KeyboardInterrupt)
 in every command, so that its ``finally`` blocks run and its worker processes end. An
-interruption a command does not handle itself ends it with one line on stderr, ``cdpr
-COMMAND: interrupted`` (Ctrl-C, exit status 130) or ``terminated (SIGTERM)`` (143: 128 +
-the signal), and under ``--json`` ``{"error": "interrupted"}`` (or the SIGTERM message) on
-stdout unless the command printed its own object.
+interruption ends every command with a last line on stderr, ``cdpr COMMAND: interrupted
+(SIGINT)`` (Ctrl-C, exit status 130) or ``terminated (SIGTERM)`` (143: 128 + the signal),
+and under ``--json`` ``{"error": "interrupted (SIGINT)"}`` (or the SIGTERM message) on
+stdout unless the command printed its own object (commands that stop themselves on a
+signal, ``dry-run``, ``sim``, ``commission monitor``, return the same statuses).
 """
 
 from __future__ import annotations

@@ -259,8 +259,8 @@ class Terminated(KeyboardInterrupt):
 
 
 def interruption(exc: BaseException) -> tuple[int, str]:
-    """The exit status and the message of an interruption: ``(130, "interrupted")`` for
-    Ctrl-C (KeyboardInterrupt), ``(143, "terminated (SIGTERM)")`` for SIGTERM (128 + the
+    """The exit status and the message of an interruption: ``(130, "interrupted (SIGINT)")``
+    for Ctrl-C (KeyboardInterrupt), ``(143, "terminated (SIGTERM)")`` for SIGTERM (128 + the
     signal's number, as a shell reports a process the signal killed)."""
     if isinstance(exc, Terminated):
         try:
@@ -268,7 +268,15 @@ def interruption(exc: BaseException) -> tuple[int, str]:
         except ValueError:
             name = f"signal {exc.signum}"
         return 128 + exc.signum, f"terminated ({name})"
-    return 130, "interrupted"
+    return 130, "interrupted (SIGINT)"
+
+
+def signal_exit(signum: int) -> tuple[int, str]:
+    """:func:`interruption` for a command that caught signal ``signum`` itself (SIGINT:
+    ``(130, "interrupted (SIGINT)")``, SIGTERM: ``(143, "terminated (SIGTERM)")``)."""
+    if signum == signal.SIGINT:
+        return interruption(KeyboardInterrupt())
+    return interruption(Terminated(signum))
 
 
 @contextlib.contextmanager

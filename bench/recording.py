@@ -133,7 +133,7 @@ def read_recording(path: str | Path) -> Recording:
     """Read and validate a recording directory."""
     d = Path(path)
     meta_path = d / "meta.toml"
-    meta, _ = read_toml(meta_path, RecordingError)
+    meta, text = read_toml(meta_path, RecordingError)
     if meta.get("format") != FORMAT:
         raise RecordingError(f"{meta_path}: format: expected {FORMAT!r}, got "
                              f"{meta.get('format')!r}")
@@ -146,12 +146,59 @@ def read_recording(path: str | Path) -> Recording:
                        and math.isfinite(v) for v in ip)):
         raise RecordingError(f"{meta_path}: init_pose: must be 6 finite numbers "
                              f"(x, y, z, roll, pitch, yaw), got {ip!r}")
+    check_meta_numbers(meta, meta_path, text)
     try:
-        robot = load_robot(d / str(meta["robot"]))
+        robot = load_robot(inside_recording(d, meta, "robot", meta_path, text))
     except RobotFileError as e:
         raise RecordingError(str(e)) from e
-    samples_path = d / str(meta["samples"])
+    samples_path = inside_recording(d, meta, "samples", meta_path, text)
     return _read_csv(d, samples_path, robot, meta, np.array(ip, dtype=float))
+
+
+def inside_recording(d: Path, meta: dict, key: str, meta_path: Path, text: str = "") -> Path:
+    """The file that meta.toml's ``key`` names, resolved inside the recording's folder
+    ``d``; RecordingError naming the line and the reason when it is not a relative path
+    to a regular file there (an absolute path, ``..`` out of the folder, a symbolic link
+    leading out of it): a recording never makes the reader open a foreign file."""
+    from controller.tomlfile import Locator
+
+    name = meta[key]
+    line = Locator(text).line(None, None, key)
+    where = f"{meta_path}:{line}: {key}" if line else f"{meta_path}: {key}"
+    if not isinstance(name, str) or not name:
+        raise RecordingError(f"{where}: must be a file name (string) inside the recording's "
+                             f"folder, got {name!r}")
+    if Path(name).is_absolute():
+        raise RecordingError(f"{where}: {name!r} is an absolute path; a recording names its "
+                             "files relative to its own folder")
+    base = d.resolve()
+    target = (d / name).resolve()
+    if not target.is_relative_to(base):
+        raise RecordingError(f"{where}: {name!r} leads out of the recording's folder {d} "
+                             "(.. or a symbolic link); a recording's files live inside it")
+    if target.exists() and not target.is_file():
+        raise RecordingError(f"{where}: {name!r} is not a regular file")
+    return d / name
+
+
+def check_meta_numbers(meta: dict, meta_path: Path, text: str = "") -> None:
+    """meta.toml's numbers within their physical ranges (:mod:`controller.ranges`,
+    ``recording``): the init pose, and ``rate_hz`` / ``decimate`` where written."""
+    from controller.ranges import RANGES, check
+    from controller.tomlfile import Locator
+
+    loc = Locator(text)
+    for key in RANGES["recording"]:
+        if key not in meta:
+            continue
+        line = loc.line(None, None, key)
+        where = f"{meta_path}:{line}: {key}" if line else f"{meta_path}: {key}"
+        vals = meta[key] if isinstance(meta[key], list) else [meta[key]]
+        for i, v in enumerate(vals):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise RecordingError(f"{where}: must be a number, got {v!r}")
+            check("recording", key, v, where + (f"[{i}]" if len(vals) > 1 else ""),
+                  RecordingError, i)
 
 
 def _read_csv(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndarray) -> Recording:

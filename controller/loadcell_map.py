@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from controller.tomlfile import read_toml
+from controller.ranges import check
+from controller.tomlfile import Locator, read_toml
 
 #: Cable ids in array order (cdpr-conventions.md).
 CABLE_IDS: tuple[str, ...] = ("11", "12", "21", "22", "31", "32", "41", "42")
@@ -168,9 +169,15 @@ def _int(source: str, where: str, v: Any, lo: int, hi: int) -> int:
     return v
 
 
-def _float(source: str, where: str, v: Any) -> float:
+def _float(source: str, where: str, v: Any, loc: Locator | None = None) -> float:
+    """``v`` as a finite number within the physical range of field ``where``
+    (:mod:`controller.ranges`; the line from ``loc``, the file's text)."""
     if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
         raise _err(source, where, f"expected a finite number, got {v!r}")
+    table, _, key = where.rpartition(".")
+    line = loc.line(table or None, None, key) if loc is not None else None
+    check("loadcell_map", where, v, f"{source}:{line}: {where}" if line else
+          f"{source}: {where}", RegisterMapError)
     return float(v)
 
 
@@ -183,11 +190,14 @@ def _table(source: str, where: str, v: Any, keys: set[str]) -> dict[str, Any]:
     return v
 
 
-def parse_register_map(data: dict[str, Any], source: str = "<memory>") -> RegisterMap:
+def parse_register_map(data: dict[str, Any], source: str = "<memory>",
+                       text: str = "") -> RegisterMap:
     """Register map from a TOML table (the layout of ``loadcell_registers.toml``).
 
-    Errors raise :class:`RegisterMapError` naming ``source`` and the field.
+    Errors raise :class:`RegisterMapError` naming ``source`` and the field (and the line,
+    given the file's ``text``).
     """
+    loc = Locator(text)
     _table(source, "top level", data, _TOP_KEYS)
     if data.get("format", MAP_FORMAT) != MAP_FORMAT:
         raise _err(source, "format", f"expected {MAP_FORMAT!r}, got {data['format']!r}")
@@ -254,8 +264,8 @@ def parse_register_map(data: dict[str, Any], source: str = "<memory>") -> Regist
     sensor = _table(
         source, "sensor", data.get("sensor", {}), {"rated_min_N", "rated_max_N", "counter_modulo"}
     )
-    lo = _float(source, "sensor.rated_min_N", sensor.get("rated_min_N", -500.0))
-    hi = _float(source, "sensor.rated_max_N", sensor.get("rated_max_N", 5000.0))
+    lo = _float(source, "sensor.rated_min_N", sensor.get("rated_min_N", -500.0), loc)
+    hi = _float(source, "sensor.rated_max_N", sensor.get("rated_max_N", 5000.0), loc)
     if not lo < hi:
         raise _err(source, "sensor", f"rated_min_N {lo} must be < rated_max_N {hi}")
     modulo = _int(source, "sensor.counter_modulo", sensor.get("counter_modulo", 65536), 2, 65536)
@@ -279,5 +289,5 @@ def parse_register_map(data: dict[str, Any], source: str = "<memory>") -> Regist
 def load_register_map(path: str | Path) -> RegisterMap:
     """Read a register map TOML file (errors name the file, line or field)."""
     p = Path(path)
-    data, _ = read_toml(p, RegisterMapError)
-    return parse_register_map(data, str(p))
+    data, text = read_toml(p, RegisterMapError)
+    return parse_register_map(data, str(p), text)

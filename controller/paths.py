@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from controller.kinematics import cable_lengths, cable_state
+from controller.ranges import check
 from controller.robot import Robot
 from controller.statics import pose_statics
 from controller.tomlfile import Locator, read_toml
@@ -135,7 +136,15 @@ class _Reader:
             raise self.fail(f"must be > 0, got {v}", table, index, key)
         if nonneg and v < 0:
             raise self.fail(f"must be >= 0, got {v}", table, index, key)
+        self.ranged(v, table, index, key)
         return float(v)
+
+    def ranged(self, v: Any, table: str | None, index: int | None, key: str,
+               component: int | None = None) -> None:
+        """``v`` within the physical range of its field (:mod:`controller.ranges`)."""
+        where = self.where(table, index, key) + (f"[{component}]" if component is not None
+                                                 else "")
+        check("path", f"{table}.{key}" if table else key, v, where, PathFileError, component)
 
     def integer(self, d: Mapping, key: str, table: str | None, index: int | None, *,
                 default: int | None = None, minimum: int | None = None) -> int:
@@ -148,6 +157,7 @@ class _Reader:
             raise self.fail(f"must be an integer, got {v!r}", table, index, key)
         if minimum is not None and v < minimum:
             raise self.fail(f"must be >= {minimum}, got {v}", table, index, key)
+        self.ranged(v, table, index, key)
         return int(v)
 
     def vector(self, v: Any, sizes: tuple[int, ...], what: str, table: str | None,
@@ -156,9 +166,10 @@ class _Reader:
         if not isinstance(v, list) or len(v) not in sizes:
             raise self.fail(f"{what} must be a list of {want} numbers, got {v!r}",
                             table, index, key)
-        for x in v:
+        for i, x in enumerate(v):
             if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
                 raise self.fail(f"{what} must hold finite numbers, got {x!r}", table, index, key)
+            self.ranged(x, table, index, key, i)
         return tuple(float(x) for x in v)
 
     def targets(self, d: Mapping, key: str, table: str, index: int) -> tuple[tuple, ...]:
@@ -194,6 +205,8 @@ def _grid(r: _Reader, seg: Mapping, k: int) -> tuple[tuple[float, ...], ...]:
             or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in n)):
         raise r.fail(f"must be a list of 1 to 3 integers >= 1 (points along x, y, z), got {n!r}",
                      T, k, "n")
+    for i, v in enumerate(n):
+        r.ranged(v, T, k, "n", i)
     nx, ny, nz = (list(n) + [1, 1, 1])[:3]
     axes = [np.linspace(lo, hi, m) if m > 1 else np.array([0.5 * (lo + hi)])
             for (lo, hi), m in zip(ranges, (nx, ny, nz), strict=True)]

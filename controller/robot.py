@@ -17,9 +17,13 @@ none of them is a plain ``cdpr-recording/1`` robot):
 - ``[[cable]] load_cell_gain`` [-], ``load_cell_offset`` [N]: the load cell reads
   ``gain * true + offset``.
 
-Unknown keys, missing fields, wrong vector lengths, non-finite numbers,
-duplicate ids and cables naming a missing mast are errors that name the file,
-the line where it can be found, and the field.
+- ``gravity_unusual = true``: a gravity away from the Earth's surface (9.76 to
+  9.84 m/s^2 otherwise).
+
+Unknown keys, missing fields, wrong vector lengths, non-finite numbers, numbers
+outside their physical range (:mod:`controller.ranges`: a 1e300 kg platform, an exit
+point beyond 1 km), duplicate ids and cables naming a missing mast are errors that
+name the file, the line where it can be found, the field, the value and the range.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ import numpy as np
 import tomli_w
 
 from controller.masts import settle
+from controller.ranges import GRAVITY_EARTH, check
 from controller.tomlfile import Locator as _Locator
 from controller.tomlfile import read_toml
 
@@ -165,7 +170,7 @@ class Robot:
 
 # ----- TOML reading -----------------------------------------------------------
 
-_TOP_KEYS = {"name", "gravity", "platform", "cables", "mast", "cable"}
+_TOP_KEYS = {"name", "gravity", "gravity_unusual", "platform", "cables", "mast", "cable"}
 _PLATFORM_KEYS = {"mass", "com"}
 _CABLES_KEYS = {"tension_min", "tension_max", "ea", "rho"}
 _MAST_KEYS = {"id", "pivot", "stiffness", "tilt"}
@@ -186,7 +191,10 @@ class _Reader:
 
     def number(self, d: dict, key: str, table: str | None, index: int | None,
                required: bool = True, default: float | None = None,
-               positive: bool = False, nonneg: bool = False) -> float | None:
+               positive: bool = False, nonneg: bool = False,
+               fld: str | None = None) -> float | None:
+        """A finite number within the physical range of its field (:mod:`controller.ranges`,
+        ``fld`` or ``table.key``)."""
         if key not in d:
             if required:
                 raise self.fail("missing field", table, index, key)
@@ -201,6 +209,8 @@ class _Reader:
             raise self.fail(f"must be > 0, got {v}", table, index, key)
         if nonneg and v < 0:
             raise self.fail(f"must be >= 0, got {v}", table, index, key)
+        check("robot", fld or (f"{table}.{key}" if table else key), d[key],
+              self.loc.where(self.path, table, index, key), RobotFileError)
         return v
 
     def vector(self, d: dict, key: str, table: str | None, index: int | None,
@@ -226,6 +236,9 @@ class _Reader:
                                 f"got {x!r}", table, index, key)
             if positive and float(x) <= 0:
                 raise self.fail(f"must be > 0, got {x!r}", table, index, key)
+            check("robot", f"{table}.{key}" if table else key, x,
+                  f"{self.loc.where(self.path, table, index, key)}[{len(out)}]",
+                  RobotFileError, len(out))
             out.append(float(x))
         return out
 
@@ -251,7 +264,11 @@ def parse_robot(data: dict[str, Any], path: str = "<memory>", text: str = "") ->
     r = _Reader(path, text)
     r.unknown(data, _TOP_KEYS, None, None)
     name = str(data.get("name", Path(path).stem))
-    gravity = r.number(data, "gravity", None, None, required=False, default=9.81, positive=True)
+    unusual = data.get("gravity_unusual", False)
+    if not isinstance(unusual, bool):
+        raise r.fail(f"must be true or false, got {unusual!r}", None, None, "gravity_unusual")
+    gravity = r.number(data, "gravity", None, None, required=False, default=9.81, positive=True,
+                       fld="gravity (gravity_unusual = true)" if unusual else "gravity")
 
     plat = data.get("platform")
     if not isinstance(plat, dict):
@@ -381,6 +398,8 @@ def _num(x: float) -> float:
 def robot_to_dict(robot: Robot) -> dict[str, Any]:
     """The robot as a robot.toml mapping; optional keys only where not neutral."""
     d: dict[str, Any] = {"name": robot.name, "gravity": _num(robot.gravity)}
+    if not GRAVITY_EARTH.contains(robot.gravity):
+        d["gravity_unusual"] = True  # said explicitly: not the Earth's surface
     d["platform"] = {"mass": _num(robot.mass), "com": [_num(v) for v in robot.com]}
     cab: dict[str, Any] = {"tension_min": _num(robot.tension_min),
                            "tension_max": _num(robot.tension_max)}

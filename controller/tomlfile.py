@@ -30,9 +30,42 @@ def read_toml(path: str | Path, error: type[Exception]) -> tuple[dict[str, Any],
         raise error(f"{p}: cannot read: {e.strerror or e}") from e
     text = decode_utf8(data, p, error)
     try:
-        return tomllib.loads(text), text
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise error(f"{p}: TOML syntax error, not valid TOML: {e}") from e
+    big = _big_integer(data)
+    if big is not None:  # TOML 1.0: integers are 64-bit; tomllib reads any size
+        key, v = big
+        leaf = key.rsplit(".", 1)[-1].split("[")[0]
+        line = next((i + 1 for i, ln in enumerate(text.splitlines())
+                     if re.match(r"^\s*" + re.escape(leaf) + r"\s*=", ln)), None)
+        raise error(f"{p}" + (f":{line}" if line else "") + f": {key}: integer "
+                    f"{str(v)[:20]}{'...' if len(str(v)) > 20 else ''} ({len(str(abs(v)))} "
+                    "digits) is outside TOML's 64-bit range")
+    return data, text
+
+
+_INT64 = 2**63
+
+
+def _big_integer(obj: Any, key: str = "") -> tuple[str, int] | None:
+    """The first integer of a parsed TOML document outside the signed 64-bit range that
+    TOML 1.0 allows, as ``(dotted key, value)``, or None."""
+    if isinstance(obj, bool):
+        return None
+    if isinstance(obj, int):
+        return (key, obj) if not -_INT64 <= obj < _INT64 else None
+    if isinstance(obj, dict):
+        items = ((f"{key}.{k}" if key else str(k), v) for k, v in obj.items())
+    elif isinstance(obj, list):
+        items = ((f"{key}[{i}]", v) for i, v in enumerate(obj))
+    else:
+        return None
+    for k, v in items:
+        hit = _big_integer(v, k)
+        if hit is not None:
+            return hit
+    return None
 
 
 #: a table header line ([name], [[name]], ["quoted"]), not a line of a multi-line array

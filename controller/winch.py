@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from controller.tomlfile import read_toml
+from controller.ranges import check as check_range
+from controller.tomlfile import Locator, read_toml
 
 #: Cable ids in array order (cdpr-conventions.md).
 CABLE_IDS: tuple[str, ...] = ("11", "12", "21", "22", "31", "32", "41", "42")
@@ -279,7 +280,7 @@ def _fail(source: str, where: str, msg: str) -> WinchConfigError:
     return WinchConfigError(f"{source}: {where}: {msg}")
 
 
-def _parse_bus(table: Any, source: str) -> BusParams:
+def _parse_bus(table: Any, source: str, loc: Locator | None = None) -> BusParams:
     if not isinstance(table, dict):
         raise _fail(source, "[bus]", "must be a table")
     defaults = dataclasses.asdict(BusParams())
@@ -291,8 +292,13 @@ def _parse_bus(table: Any, source: str) -> BusParams:
         want = type(defaults[key])
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             raise _fail(source, f"[bus] {key}", f"must be a number, got {val!r}")
+        if not math.isfinite(float(val)):
+            raise _fail(source, f"[bus] {key}", f"must be finite, got {val!r}")
         if want is int and not float(val).is_integer():
             raise _fail(source, f"[bus] {key}", f"must be an integer, got {val!r}")
+        line = loc.line("bus", None, key) if loc is not None else None
+        check_range("winch", f"bus.{key}", val, f"{source}{f':{line}' if line else ''}: "
+                    f"[bus] {key}", WinchConfigError)
         vals[key] = want(val)
     bus = BusParams(**vals)
     _validate_bus(bus, source)
@@ -333,34 +339,40 @@ def _validate_bus(bus: BusParams, source: str) -> None:
                         f"heartbeat periods ({2 * bus.master_heartbeat_period_s:g} s)")
 
 
-def _check_value(source: str, where: str, key: str, val: Any) -> Any:
+def _check_value(source: str, where: str, key: str, val: Any, line: int | None = None) -> Any:
+    """``val`` of per-winch field ``key``: its type, its drive-object meaning and its
+    physical range (:mod:`controller.ranges`; ``line`` of the file, when known)."""
     kind, (check, meaning) = _FIELDS[key]
     if isinstance(val, bool) or not isinstance(val, (int, float)):
         raise _fail(source, f"{where} {key}", f"must be a number, got {val!r}")
     if kind is int and not float(val).is_integer():
         raise _fail(source, f"{where} {key}", f"must be an integer, got {val!r}")
-    val = kind(val)
-    if not math.isfinite(val):
+    if not math.isfinite(float(val)):
         raise _fail(source, f"{where} {key}", f"must be finite, got {val!r}")
+    val = kind(val)
     if not check(val):
         raise _fail(source, f"{where} {key}", f"{meaning}, got {val!r}")
+    check_range("winch", key, val, f"{source}{f':{line}' if line else ''}: {where} {key}",
+                WinchConfigError)
     return val
 
 
-def parse_winches(doc: dict[str, Any], source: str = "<memory>") -> WinchSet:
-    """Winch parameters from a parsed TOML document (see the default file for the format)."""
+def parse_winches(doc: dict[str, Any], source: str = "<memory>", text: str = "") -> WinchSet:
+    """Winch parameters from a parsed TOML document (see the default file for the format;
+    ``text``: the file's, for the lines of range errors)."""
+    loc = Locator(text)
     unknown = set(doc) - {"bus", "defaults", "winch"}
     if unknown:
         raise _fail(source, "top level",
                     f"unknown key(s) {sorted(unknown)}; known: bus, defaults, winch")
-    bus = _parse_bus(doc.get("bus", {}), source)
+    bus = _parse_bus(doc.get("bus", {}), source, loc)
     defaults = doc.get("defaults", {})
     if not isinstance(defaults, dict):
         raise _fail(source, "[defaults]", "must be a table")
     for key, val in defaults.items():
         if key not in _FIELDS:
             raise _fail(source, f"[defaults] {key}", f"unknown key; known: {sorted(_FIELDS)}")
-        _check_value(source, "[defaults]", key, val)
+        _check_value(source, "[defaults]", key, val, loc.line("defaults", None, key))
     entries = doc.get("winch")
     if not isinstance(entries, list) or not entries:
         raise _fail(source, "[[winch]]", "at least one [[winch]] table is required")
@@ -387,9 +399,11 @@ def parse_winches(doc: dict[str, Any], source: str = "<memory>") -> WinchSet:
                 raise _fail(source, f"{where} {key}", f"unknown key; known: {sorted(_FIELDS)}")
         for key in _FIELDS:
             if key in entry:
-                row[key] = _check_value(source, where, key, entry[key])
+                row[key] = _check_value(source, where, key, entry[key],
+                                        loc.line("winch", i, key))
             elif key in defaults:
-                row[key] = _check_value(source, "[defaults]", key, defaults[key])
+                row[key] = _check_value(source, "[defaults]", key, defaults[key],
+                                        loc.line("defaults", None, key))
             elif key in _OPTIONAL:
                 row[key] = _OPTIONAL[key]
             else:
@@ -413,8 +427,8 @@ def parse_winches(doc: dict[str, Any], source: str = "<memory>") -> WinchSet:
 def load_winches(path: str | Path | None = None) -> WinchSet:
     """Load winch parameters from a TOML file (default: the ROCASPECT file)."""
     p = Path(path) if path is not None else DEFAULT_WINCHES
-    doc, _ = read_toml(p, WinchConfigError)
-    return parse_winches(doc, source=str(p))
+    doc, text = read_toml(p, WinchConfigError)
+    return parse_winches(doc, source=str(p), text=text)
 
 
 def validate(w: WinchSet) -> None:

@@ -34,8 +34,9 @@ the rated maximum, overload bit), ``sensor_fault`` (status bit).
 
 Optional keys: ``count`` (drop_tpdo, drop_rpdo), ``code`` (exception), ``value_N``
 (out_of_range). Any other key, an unknown kind, node or unit, a kind of the wrong device,
-``clear_s`` not after ``at_s`` is a :class:`FaultScheduleError` naming the file, the line
-and the field.
+``clear_s`` not after ``at_s``, a number outside its physical range
+(:mod:`controller.ranges`: times within 1e6 s, ``count`` 1..1e6, ``value_N`` within 1 MN)
+is a :class:`FaultScheduleError` naming the file, the line, the field and the range.
 
 Time is the rig's (:meth:`firmware_sim.rig.SimRig.time_s`): the drives' SYNC clock with
 ``--clock sync``, the wall clock since the start with ``--clock wall``.
@@ -71,6 +72,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from controller.ranges import check
 from controller.tomlfile import Locator, read_toml
 
 log = logging.getLogger(__name__)
@@ -127,10 +129,15 @@ def _default_ids() -> tuple[tuple[int, ...], tuple[int, ...]]:
 def _number(value: Any, where: str, key: str, integer: bool = False) -> float | int:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise FaultScheduleError(f"{where}: {key} must be a number, got {value!r}")
-    if integer and not float(value).is_integer():
+    if integer and isinstance(value, float) and not value.is_integer():
         raise FaultScheduleError(f"{where}: {key} must be an integer, got {value!r}")
-    if not math.isfinite(value):
-        raise FaultScheduleError(f"{where}: {key} must be finite, got {value!r}")
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # an integer beyond any float (the control channel reads any size)
+        finite = False
+    if not finite:
+        text = str(value) if len(str(value)) <= 24 else f"a {len(str(value))}-digit integer"
+        raise FaultScheduleError(f"{where}: {key} must be finite, got {text}")
     return int(value) if integer else float(value)
 
 
@@ -151,6 +158,7 @@ def parse_fault(entry: Any, where: str, node_ids: tuple[int, ...],
     if "at_s" not in entry:
         raise FaultScheduleError(f"{at(None)}: at_s is missing (seconds on the sim's clock)")
     at_s = _number(entry["at_s"], at("at_s"), "value")
+    check("fault", "at_s", at_s, at("at_s"), FaultScheduleError)
     if at_s < 0:
         raise FaultScheduleError(f"{at('at_s')}: must be >= 0, got {at_s!r}")
     if ("drive" in entry) == ("cell" in entry):
@@ -173,6 +181,7 @@ def parse_fault(entry: Any, where: str, node_ids: tuple[int, ...],
     clear_s = None
     if "clear_s" in entry:
         clear_s = _number(entry["clear_s"], at("clear_s"), "value")
+        check("fault", "clear_s", clear_s, at("clear_s"), FaultScheduleError)
         if clear_s <= at_s:
             raise FaultScheduleError(f"{at('clear_s')}: {clear_s:g} s must be after at_s "
                                      f"{at_s:g} s")
@@ -185,6 +194,7 @@ def parse_fault(entry: Any, where: str, node_ids: tuple[int, ...],
         count = _number(entry["count"], at("count"), "value", integer=True)
         if count < 1:
             raise FaultScheduleError(f"{at('count')}: must be >= 1, got {count}")
+        check("fault", "count", count, at("count"), FaultScheduleError)
     if "code" in entry:
         if kind != "exception":
             raise FaultScheduleError(f"{at('code')}: only for exception")
@@ -196,6 +206,7 @@ def parse_fault(entry: Any, where: str, node_ids: tuple[int, ...],
         if kind != "out_of_range":
             raise FaultScheduleError(f"{at('value_N')}: only for out_of_range")
         value_N = _number(entry["value_N"], at("value_N"), "value")
+        check("fault", "value_N", value_N, at("value_N"), FaultScheduleError)
     return Fault(at_s, device, address, kind, clear_s, count, code, value_N,
                  where=line_of(None) if line_of is not None else where)
 

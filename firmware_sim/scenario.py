@@ -78,7 +78,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from controller.effects import EFFECT_NAMES, apply_effects
+from controller.ranges import check, robot_problems
 from controller.robot import Robot, RobotFileError, parse_robot, resolve_robot
+from controller.tomlfile import Locator
 
 if TYPE_CHECKING:
     from firmware_sim.plant import Nuisances
@@ -203,13 +205,22 @@ _NUISANCE = ("hysteresis_m", "drift_m_per_h", "backlash_m", "backlash_cables",
 _RECORDING = {"kind", "dwell_at_targets", "rate_hz", "state_column", "tracker", "load_cells"}
 
 
-def _num(path: Path, where: str, v: Any, positive: bool = False, nonneg: bool = False) -> float:
+def _num(path: Path, where: str, v: Any, positive: bool = False, nonneg: bool = False,
+         loc: Locator | None = None, component: int | None = None) -> float:
+    """``v`` as a finite number within the physical range of field ``where``
+    (:mod:`controller.ranges`; ``component``: its index in a vector field); the range
+    error names the line when ``loc`` has the file's text."""
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
         raise ScenarioError(f"{path}: {where}: must be a finite number, got {v!r}")
     if positive and v <= 0:
         raise ScenarioError(f"{path}: {where}: must be > 0, got {v}")
     if nonneg and v < 0:
         raise ScenarioError(f"{path}: {where}: must be >= 0, got {v}")
+    table, _, key = where.rpartition(".")
+    line = loc.line(table or None, None, key) if loc is not None else None
+    head = f"{path}:{line}: {where}" if line else f"{path}: {where}"
+    check("scenario", where, v, head + (f"[{component}]" if component is not None else ""),
+          ScenarioError, component)
     return float(v)
 
 
@@ -219,9 +230,16 @@ def _table(p: Path, name: str, value: Any) -> dict:
     return value
 
 
-def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scenario:
-    """Validate a parsed scenario mapping."""
+def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>",
+                   text: str = "") -> Scenario:
+    """Validate a parsed scenario mapping (``text``: the file's, for line numbers)."""
     p = Path(path)
+    loc = Locator(text)
+
+    def num(where: str, v: Any, positive: bool = False, nonneg: bool = False,
+            component: int | None = None) -> float:
+        return _num(p, where, v, positive, nonneg, loc, component)
+
     for k in data:
         if k not in _TOP:
             raise ScenarioError(f"{p}: {k}: unknown key (allowed: {', '.join(sorted(_TOP))})")
@@ -240,7 +258,7 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     ip = data.get("init_pose", [10.0, 8.56, 1.0, 0.0, 0.0, 0.0])
     if not isinstance(ip, list) or len(ip) != 6:
         raise ScenarioError(f"{p}: init_pose: must be 6 numbers")
-    init_pose = np.array([_num(p, "init_pose", v) for v in ip])
+    init_pose = np.array([num("init_pose", v, component=i) for i, v in enumerate(ip)])
 
     effects: dict[str, dict[str, float]] = {}
     slips = np.zeros(model.n_cables)
@@ -261,19 +279,23 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
                     raise ScenarioError(f"{p}: {where}: must be [kx, ky, kz]")
                 for mid in model.mast_ids:
                     for ax, kv in zip("xyz", v, strict=True):
-                        vals[f"k{ax}_{mid}"] = _num(p, where, kv, positive=True)
+                        vals[f"k{ax}_{mid}"] = num(where, kv, positive=True)
             elif eff == "cable_length_offset" and key.startswith("slip_time_"):
                 cid = key[len("slip_time_"):]
                 if cid not in model.cable_ids:
                     raise ScenarioError(f"{p}: {where}: no cable {cid!r}")
-                slips[model.cable_ids.index(cid)] = _num(p, where, v, nonneg=True)
+                slips[model.cable_ids.index(cid)] = num(where, v, nonneg=True)
             else:
-                vals[key] = _num(p, where, v)
+                vals[key] = num(where, v)
         effects[eff] = vals
     try:
         truth = apply_effects(model, effects, name=f"{model.name} (truth)")
     except (KeyError, ValueError) as e:
         raise ScenarioError(f"{p}: truth: {e.args[0] if e.args else e}") from e
+    bad = robot_problems(truth)
+    if bad:
+        raise ScenarioError(f"{p}: truth: the robot its effects describe is not physical: "
+                            f"{bad[0]}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""))
 
     noise_tab = _table(p, "noise", data.get("noise", {}))
     known = set(Noise.__dataclass_fields__)
@@ -281,20 +303,20 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
         if k not in known:
             raise ScenarioError(f"{p}: noise.{k}: unknown key "
                                 f"(allowed: {', '.join(sorted(known))})")
-    noise = Noise(**{k: _num(p, f"noise.{k}", v, nonneg=True) for k, v in noise_tab.items()})
+    noise = Noise(**{k: num(f"noise.{k}", v, nonneg=True) for k, v in noise_tab.items()})
 
     nz = _table(p, "nuisance", data.get("nuisance", {}))
     for k in nz:
         if k not in _NUISANCE:
             raise ScenarioError(f"{p}: nuisance.{k}: unknown key (allowed: "
                                 f"{', '.join(sorted(_NUISANCE))})")
-    hyst = _num(p, "nuisance.hysteresis_m", nz.get("hysteresis_m", 0.0), nonneg=True)
-    drift = _num(p, "nuisance.drift_m_per_h", nz.get("drift_m_per_h", 0.0)) / 3600.0
-    thermal = _num(p, "nuisance.thermal_strain_per_h", nz.get("thermal_strain_per_h", 0.0)) \
+    hyst = num("nuisance.hysteresis_m", nz.get("hysteresis_m", 0.0), nonneg=True)
+    drift = num("nuisance.drift_m_per_h", nz.get("drift_m_per_h", 0.0)) / 3600.0
+    thermal = num("nuisance.thermal_strain_per_h", nz.get("thermal_strain_per_h", 0.0)) \
         / 3600.0
 
     def per_cable(key: str, cables_key: str, default_all: bool) -> np.ndarray:
-        v = _num(p, f"nuisance.{key}", nz.get(key, 0.0), nonneg=True)
+        v = num(f"nuisance.{key}", nz.get(key, 0.0), nonneg=True)
         ids = nz.get(cables_key)
         if ids is None:
             ids = list(model.cable_ids) if default_all else []
@@ -328,7 +350,7 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
                 raise ScenarioError(f"{p}: recording.{k}: must be true or false")
             rkw[k] = rt[k]
     if "rate_hz" in rt:
-        rkw["rate_hz"] = _num(p, "recording.rate_hz", rt["rate_hz"], positive=True)
+        rkw["rate_hz"] = num("recording.rate_hz", rt["rate_hz"], positive=True)
     if not rkw.get("tracker", True) and not rkw.get("load_cells", True):
         raise ScenarioError(f"{p}: recording: a recording needs the tracker or the load cells")
 
@@ -345,15 +367,16 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
             v = ps[k]
             if not isinstance(v, list) or len(v) != 2:
                 raise ScenarioError(f"{p}: poses.{k}: must be [min, max]")
-            kw[k] = (_num(p, f"poses.{k}", v[0]), _num(p, f"poses.{k}", v[1]))
+            kw[k] = (num(f"poses.{k}", v[0]), num(f"poses.{k}", v[1]))
     if "n" in ps:
         n = ps["n"] if isinstance(ps["n"], list) else [ps["n"]]
-        kw["n"] = tuple(int(_num(p, "poses.n", v, positive=True)) for v in n)
+        kw["n"] = tuple(int(num("poses.n", v, positive=True)) for v in n)
     if "list" in ps:
         lst = ps["list"]
         if not isinstance(lst, list) or not all(isinstance(r, list) and len(r) == 6 for r in lst):
             raise ScenarioError(f"{p}: poses.list: must be a list of [x, y, z, roll, pitch, yaw]")
-        kw["poses"] = tuple(tuple(_num(p, "poses.list", v) for v in r) for r in lst)
+        kw["poses"] = tuple(tuple(num("poses.list", v, component=i) for i, v in enumerate(r))
+                            for r in lst)
         kw["kind"] = "list"
     if "kind" in ps:
         if ps["kind"] not in ("grid", "random", "list"):
@@ -361,9 +384,9 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
         kw["kind"] = ps["kind"]
     for k in ("rpy_deg", "dwell_s", "rate_hz", "init_s", "speed_m_s"):
         if k in ps:
-            kw[k] = _num(p, f"poses.{k}", ps[k], nonneg=True)
+            kw[k] = num(f"poses.{k}", ps[k], nonneg=True)
     if "visits" in ps:
-        kw["visits"] = int(_num(p, "poses.visits", ps["visits"], positive=True))
+        kw["visits"] = int(num("poses.visits", ps["visits"], positive=True))
     if "exit_points" in ps:
         if not isinstance(ps["exit_points"], list):
             raise ScenarioError(f"{p}: poses.exit_points: must be a list of cable ids")
@@ -378,10 +401,10 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>") -> Scena
     if run_path and p.name != "<memory>" and (p.parent / run_path).exists():
         run_path = str(p.parent / run_path)
     return Scenario(p, model, truth, effects, slips, init_pose,
-                    int(_num(p, "seed", data.get("seed", 0), nonneg=True)), noise, hyst, drift,
+                    int(num("seed", data.get("seed", 0), nonneg=True)), noise, hyst, drift,
                     PoseSet(**kw), str(data.get("notes", "")), run_path, backlash, thermal,
                     friction, RecordingSpec(**rkw), _react(p, data.get("react", {})),
-                    _num(p, "nuisance.init_pretension_n", nz.get("init_pretension_n", 0.0),
+                    num("nuisance.init_pretension_n", nz.get("init_pretension_n", 0.0),
                          nonneg=True))
 
 
@@ -407,9 +430,9 @@ def load_scenario(path: str | Path) -> Scenario:
     from controller.tomlfile import read_toml
 
     p = Path(path)
-    data, _ = read_toml(p, ScenarioError)  # errors name the file (line, column)
+    data, text = read_toml(p, ScenarioError)  # errors name the file (line, column)
     try:
-        return parse_scenario(data, p)
+        return parse_scenario(data, p, text)
     except (TypeError, ValueError, KeyError, AttributeError) as e:
         if isinstance(e, ScenarioError):
             raise

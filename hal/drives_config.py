@@ -158,6 +158,60 @@ NOT_HOLDING: tuple[tuple[str, int, str], ...] = (
 )
 
 
+#: Objects that decide whether a drive stops when its master dies (CiA 301 / CiA 402):
+#: (index, subindex) -> what a value other than the table's does. A drive that differs on
+#: one of them is a *safety failure* of ``cdpr commission check``: with the power-on values
+#: of many drives (0x1016 = 0, 0x1400:5 = 0, 0x6007 = 1, 0x605A = 2) a drive whose master
+#: was killed keeps following its last setpoint for seconds.
+SAFETY_OBJECTS: dict[tuple[int, int], str] = {
+    (0x1016, 1): "the drive must watch the master's heartbeat (node, time): otherwise it "
+                 "keeps moving after the master died",
+    (0x1017, 0): "the drive's own heartbeat: without it the master cannot see a drive die",
+    (0x1029, 1): "error behaviour on a communication error (master heartbeat lost)",
+    (0x1400, 5): "RPDO deadline: without it a drive keeps its last setpoint when the "
+                 "master's setpoints stop",
+    (0x6007, 0): "abort connection option: what the drive does when the master is lost "
+                 "(3 = quick stop; 0 = nothing, 1 = fault signal only, 2 = coasts)",
+    (0x605A, 0): "quick stop option: 6 stops on the quick-stop ramp and holds the load in "
+                 "Quick Stop Active; 0-2 drop the holding torque under a hanging load",
+    (0x605E, 0): "fault reaction option: 0 switches the power off at once (the load coasts)",
+}
+
+
+def safety_failure(index: int, subindex: int, expected: int | str,
+                   actual: int | str | None) -> str | None:
+    """Why ``actual`` (the drive's value; None: unreadable) of a safety object is a safety
+    failure against the table's safe value ``expected``, or None (not a safety object, or
+    no difference)."""
+    why = SAFETY_OBJECTS.get((index, subindex))
+    if why is None or actual == expected:
+        return None
+    if actual is None:
+        return f"cannot be read: {why}"
+    if index == 0x1016 and isinstance(actual, int):
+        node, ms = (actual >> 16) & 0x7F, actual & 0xFFFF
+        have = "not watched" if ms == 0 else f"node {node}, {ms} ms"
+        return f"master heartbeat {have}: {why}"
+    if (index, subindex) == (0x1400, 5) and actual == 0:
+        return f"no RPDO deadline (0): {why}"
+    return why
+
+
+def format_object_value(index: int, subindex: int, value: int | str | None) -> str:
+    """A value as CANopen people read it: 0x1016 as ``0x007F00FA (node 127, 250 ms)``, a
+    PDO mapping or COB-ID in hex, times in ms, small numbers in decimal."""
+    if value is None or not isinstance(value, int) or isinstance(value, bool):
+        return str(value)
+    if index == 0x1016:
+        return (f"0x{value:08X} (node {(value >> 16) & 0x7F}, {value & 0xFFFF} ms)"
+                if value & 0xFFFF else f"{value} (not watched)")
+    if index in (0x1017,) or (0x1400 <= index <= 0x15FF and subindex == 5):
+        return f"{value} ms"
+    if abs(value) >= 0x10000:
+        return f"0x{value & 0xFFFFFFFF:08X}"
+    return str(value)
+
+
 def holding_problems(w: WinchSet) -> list[str]:
     """Stop options of the winch parameters that do not end holding the load (empty: every
     stop ends in Quick Stop Active or on the quick-stop ramp), naming winch and object."""

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from controller.loadcell_map import CABLE_IDS
-from controller.tomlfile import read_toml
+from controller.ranges import check
+from controller.tomlfile import Locator, read_toml
 
 TABLE = "load_cell_calibration"
 
@@ -78,7 +79,8 @@ class LoadCellCalibration:
 
 
 def parse_calibration(
-    data: dict[str, Any], source: str = "<memory>", cables: tuple[str, ...] = CABLE_IDS
+    data: dict[str, Any], source: str = "<memory>", cables: tuple[str, ...] = CABLE_IDS,
+    text: str = "",
 ) -> LoadCellCalibration:
     """Calibration from ``{"gain_11": ..., "offset_11": ...}``.
 
@@ -93,6 +95,7 @@ def parse_calibration(
         raise CalibrationError(f"{source}: unknown top-level key(s) {sorted(extra)}")
     gain = np.ones(len(cables))
     offset = np.zeros(len(cables))
+    loc = Locator(text)  # lines for the range errors (controller.ranges)
     for key, value in table.items():
         name, _, cable = key.partition("_")
         if name not in ("gain", "offset") or cable not in cables:
@@ -101,6 +104,9 @@ def parse_calibration(
             )
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise CalibrationError(f"{source}: {key} = {value!r} is not a number")
+        line = loc.line(TABLE if TABLE in data else None, None, key)
+        check("calibration", key, value, f"{source}:{line}: {key}" if line else
+              f"{source}: {key}", CalibrationError)
         (gain if name == "gain" else offset)[cables.index(cable)] = float(value)
     return LoadCellCalibration(gain, offset, cables, source)
 
@@ -108,5 +114,5 @@ def parse_calibration(
 def load_calibration(path: str | Path, cables: tuple[str, ...] = CABLE_IDS) -> LoadCellCalibration:
     """Read a calibration TOML file (errors name the file and the key or line)."""
     p = Path(path)
-    data, _ = read_toml(p, CalibrationError)  # errors name the file (line, column)
-    return parse_calibration(data, str(p), cables)
+    data, text = read_toml(p, CalibrationError)  # errors name the file (line, column)
+    return parse_calibration(data, str(p), cables, text)

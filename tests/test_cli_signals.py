@@ -59,7 +59,8 @@ if __name__ == "__main__":
     sys.exit(main(sys.argv[1:]))
 '''
 
-MESSAGE = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated (SIGTERM)")}
+MESSAGE = {signal.SIGINT: (130, "interrupted (SIGINT)"),
+           signal.SIGTERM: (143, "terminated (SIGTERM)")}
 
 
 def _default_signals() -> None:
@@ -144,3 +145,75 @@ def test_diagnose_terminated_reports_one_line(capsys, monkeypatch):
     cap = capsys.readouterr()
     assert json.loads(cap.out) == {"error": "terminated (SIGTERM)", "recording": str(EXAMPLE)}
     assert cap.err == "cdpr diagnose: terminated (SIGTERM)\n"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_dry_run_signal_exit_status_last_line_and_recording(tmp_path, sig):
+    """``cdpr dry-run paper-centre --record DIR`` stopped mid-run by SIGINT / SIGTERM: exit
+    status 130 / 143, the last line on stderr says which, the recording is readable."""
+    from bench.recording import read_recording
+
+    code, msg = MESSAGE[sig]
+    rec = tmp_path / "rec"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "dry-run", "paper-centre",
+                             "--record", str(rec), "--json"], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=_default_signals)
+    err = ""
+    try:
+        while "cycles/s" not in err:  # a progress line: the path is being run
+            line = proc.stderr.readline()
+            if not line:
+                break
+            err += line
+        assert "cycles/s" in err, err
+        proc.send_signal(sig)
+        out, rest = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    err += rest
+    assert proc.returncode == code, err
+    assert err.strip().splitlines()[-1] == f"cdpr dry-run: {msg}"
+    assert "Traceback" not in err
+    res = json.loads(out)
+    assert res["ended"] == "interrupted" and res["recording"] == str(rec)
+    data = read_recording(rec)
+    assert len(data.t) > 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_commission_monitor_signal_keeps_its_output_and_exits_130_143(capsys, tmp_path, sig):
+    """``cdpr commission monitor`` ended by SIGINT / SIGTERM (in this process, on simulated
+    drives and load cells): its JSON object and recording are kept, exit status 130 / 143,
+    and the last line on stderr says which signal."""
+    import threading
+
+    from bench.recording import read_recording
+    from tests.test_commission import Cells, Rig
+
+    code, msg = MESSAGE[sig]
+    got: list[int] = []
+    old = signal.signal(sig, lambda s, f: got.append(s))  # a late signal kills no test
+    rig, cells = Rig(), Cells()
+    rec = tmp_path / "rec"
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), sig))
+    try:
+        capsys.readouterr()
+        timer.start()
+        rc = main(["commission", "monitor", "--can", rig.can, "--modbus", cells.spec,
+                   "--duration", "20", "--rate", "10", "--record", str(rec), "--no-report",
+                   "--json"])
+    finally:
+        timer.cancel()
+        signal.signal(sig, old)
+        cells.close()
+        rig.close()
+    cap = capsys.readouterr()
+    assert rc == code, cap.err
+    out = json.loads(cap.out.strip().splitlines()[-1])
+    assert out["ended_by"] == ("Ctrl-C" if sig == signal.SIGINT else msg)
+    assert cap.err.strip().splitlines()[-1] == f"cdpr commission monitor: {msg}"
+    assert read_recording(rec).n_samples == out["rows"] > 0

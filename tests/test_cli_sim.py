@@ -182,8 +182,9 @@ def test_hal_against_cdpr_sim_in_another_process(sims):
         assert not np.any(hw.read().enabled)
     finally:
         hw.close()
-    assert sim.stop(signal.SIGTERM) == 0, sim.stderr()
+    assert sim.stop(signal.SIGTERM) == 143, sim.stderr()
     assert "stopped" in sim.stderr()
+    assert sim.stderr().strip().splitlines()[-1] == "cdpr sim: terminated (SIGTERM)"
 
 
 def l0_tension(plant: Plant, lengths: np.ndarray) -> np.ndarray:
@@ -240,7 +241,7 @@ def test_mbpoll_reads_the_tensions_the_plant_computed(sims, tmp_path):
         client.stop()
     assert r.all_ok, r.faults()
     np.testing.assert_allclose(r.values_N, got, atol=2 * tol)
-    assert sim.stop(signal.SIGINT) == 0, sim.stderr()
+    assert sim.stop(signal.SIGINT) == 130, sim.stderr()
 
 
 # ---------------------------------------------------------------------------- CLI
@@ -261,7 +262,7 @@ def test_human_output_rtu_and_sigint(sims):
         client.stop()
     assert r.all_ok, r.faults()
     np.testing.assert_allclose(r.values_N, _local_plant().init_tensions, atol=5 * 0.5 + 0.1)
-    assert sim.stop(signal.SIGINT) == 0, sim.stderr()
+    assert sim.stop(signal.SIGINT) == 130, sim.stderr()
 
 
 def test_scenario_errors_name_file_and_field_exit_2(tmp_path, capsys):

@@ -182,7 +182,7 @@ def test_commissioning_against_cdpr_sim_in_another_process(sim, capsys, tmp_path
             out = json.loads(jog.proc.stdout.read().strip().splitlines()[-1])
         finally:
             jog.close()
-        assert out == {"error": "interrupted", "state": "SWITCH_ON_DISABLED"}
+        assert out == {"error": "interrupted (SIGINT)", "state": "SWITCH_ON_DISABLED"}
         assert state3() == "SWITCH_ON_DISABLED"
         assert length3() > l_stopped + 1e-3
     finally:

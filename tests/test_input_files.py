@@ -329,3 +329,262 @@ def test_fuzz_helpers_mutate():
     _mutate(doc, ("a", 1, "b"), "delete", None)
     assert doc == {"a": [1, {}]}
     assert math.isnan(_toml_safe(float("nan")))
+
+
+# ------------------------------------------------- non-physical numbers (issue 31, item 5)
+
+PATH_EXAMPLE = b'''format = "cdpr-path/1"
+name = "every-kind"
+start = [10.0, 8.56, 1.2, 0.0, 0.0, 0.0]
+repeat = 2
+
+[limits]
+max_speed_m_s = 0.5
+speed_pct = 40.0
+max_accel_m_s2 = 0.5
+
+[[segment]]
+kind = "move"
+to = [10.0, 8.56, 1.0, 0.0, 0.0, 0.05]
+
+[[segment]]
+kind = "line"
+through = [[10.0, 9.56, 1.0], [10.0, 9.56, 0.8]]
+
+[[segment]]
+kind = "circle"
+center = [10.0, 8.56, 0.8]
+normal = [0.0, 0.0, 1.0]
+angle_deg = 90.0
+
+[[segment]]
+kind = "dwell"
+duration_s = 1.5
+
+[[segment]]
+kind = "visits"
+x = [9.0, 11.0]
+y = [8.0, 9.0]
+z = [0.9, 1.1]
+n = [2, 2, 1]
+rpy_deg = 1.0
+visits = 2
+dwell_s = 0.5
+order = "shuffle"
+seed = 3
+
+[[segment]]
+kind = "visits"
+poses = [[10.0, 8.56, 1.0, 0.0, 0.0, 0.0]]
+'''
+FAULTS_EXAMPLE = b'''[[fault]]
+at_s = 1.0
+drive = 3
+kind = "drop_tpdo"
+count = 5
+clear_s = 4.0
+
+[[fault]]
+at_s = 2.0
+cell = 5
+kind = "out_of_range"
+value_N = 6000.0
+clear_s = 3.0
+'''
+
+
+def _load_path(p):
+    from controller.paths import load_path
+
+    return load_path(p)
+
+
+def _path_error():
+    from controller.paths import PathFileError
+
+    return PathFileError
+
+
+def _recording_with(name: str):
+    """A loader of a recording whose file ``name`` (meta.toml, robot.toml) is the one given:
+    the recording's other files are copied beside it, then the folder is read."""
+
+    def load(p: Path):
+        for f in ("meta.toml", "robot.toml", "recording.csv"):
+            if f != name:
+                shutil.copy(RECORDING / f, p.parent / f)
+        return read_recording(p.parent)
+
+    return load
+
+
+#: file kind -> (a valid example with every numeric field of the kind, loader, error class)
+PHYSICAL = {
+    "meta.toml": ((RECORDING / "meta.toml").read_bytes(), _recording_with("meta.toml"),
+                  RecordingError),
+    "recorded robot.toml": ((RECORDING / "robot.toml").read_bytes(),
+                            _recording_with("robot.toml"), RecordingError),
+    "robot.toml": LOADERS["robot.toml"],
+    "scenario.toml": LOADERS["scenario.toml"],
+    "path.toml": (PATH_EXAMPLE, _load_path, _path_error()),
+    "faults.toml": (FAULTS_EXAMPLE, FaultSchedule.load, FaultScheduleError),
+    "registers.toml": LOADERS["registers.toml"],
+    "calibration.toml": LOADERS["calibration.toml"],
+    "winches.toml": LOADERS["winches.toml"],
+}
+
+#: no physical number of any field is any of these (+inf is a rigid mast axis: allowed there)
+NON_PHYSICAL = (math.nan, math.inf, -math.inf, 1e300, -1e300, 1e30, -1e30, 10**30, -(10**30))
+
+#: fields whose sign is physics: a negative value is not a robot, a noise, a time, a count
+SIGNED = {"mass", "tension_max", "ea", "rho", "pulley_radius", "drum_scale", "load_cell_gain",
+          "tracker_m", "tracker_rad", "load_cell_n", "encoder_m", "process_m", "exit_m",
+          "hysteresis_m", "at_s", "clear_s", "count", "duration_s", "dwell_s", "visits",
+          "gear_ratio", "drum_radius_m", "max_speed_m_s", "max_accel_m_s2", "speed_pct",
+          "quick_stop_decel_m_s2", "following_error_m", "rated_torque_nm", "rated_max_N",
+          "repeat", "n", "rpy_deg"}
+
+
+def _numbers(doc, prefix=()):
+    """Every path to a number (not a bool) of a parsed TOML document, with its leaf key
+    (the table key of a vector component)."""
+    for path in _paths(doc):
+        parent = doc
+        for key in path[:-1]:
+            parent = parent[key]
+        v = parent[path[-1]]
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            leaf = next(k for k in reversed(path) if isinstance(k, str))
+            yield path, leaf
+
+
+def _non_physical(leaf: str, value) -> bool:
+    """Whether ``value`` may be refused for a field ``leaf`` (+inf of a stiffness is a
+    rigid axis, a physical value)."""
+    return not (leaf in ("stiffness", "k") and value == math.inf)
+
+
+def _write_doc(p: Path, doc) -> None:
+    p.write_text(tomli_w.dumps(doc))
+
+
+def _refused(load, error, p: Path, what: str) -> str:
+    """``load(p)`` must raise ``error`` naming the file (no traceback, no acceptance)."""
+    try:
+        load(p)
+    except error as exc:
+        msg = str(exc)
+        assert str(p) in msg, msg
+        return msg
+    raise AssertionError(f"{what}: accepted")
+
+
+@pytest.mark.parametrize("name", sorted(PHYSICAL))
+@FUZZ
+@given(data=st.data())
+def test_non_physical_numbers_are_refused_in_every_file_kind(tmp_path, name, data):
+    """A number of the valid example (any field, any vector component) replaced by a value
+    no robot, bench or schedule can mean (nan, inf, 1e300, 1e30, a 31-digit integer, a
+    negative value where the sign is physics): the loader refuses it with its own error
+    class naming the file; never a traceback, never acceptance."""
+    raw, load, error = PHYSICAL[name]
+    doc = tomllib.loads(raw.decode())
+    path, leaf = data.draw(st.sampled_from(list(_numbers(doc))), label="field")
+    values = list(NON_PHYSICAL) + ([-35.0, -1e-3] if leaf in SIGNED else [])
+    huge = st.floats(1e19, 1e308) | st.floats(-1e308, -1e19)  # beyond every field's range
+    value = data.draw((st.sampled_from(values) | huge).filter(lambda v: _non_physical(leaf, v)),
+                      label="value")
+    _mutate(doc, path, "replace", value)
+    p = tmp_path / name.split()[-1]
+    _write_doc(p, doc)
+    _refused(load, error, p, f"{name}: {'.'.join(map(str, path))} = {value!r}")
+
+
+@pytest.mark.parametrize("name", sorted(PHYSICAL))
+def test_every_numeric_field_refuses_1e300_nan_and_huge_integers(tmp_path, name):
+    """The exhaustive sweep of the property above for three values: every numeric field of
+    every file kind, one at a time."""
+    raw, load, error = PHYSICAL[name]
+    fields = list(_numbers(tomllib.loads(raw.decode())))
+    assert fields
+    for value in (1e300, math.nan, 10**30):
+        for path, _leaf in fields:
+            doc = tomllib.loads(raw.decode())
+            _mutate(doc, path, "replace", value)
+            p = tmp_path / name.split()[-1]
+            _write_doc(p, doc)
+            _refused(load, error, p, f"{name}: {'.'.join(map(str, path))} = {value!r}")
+
+
+def test_a_range_error_names_file_line_field_value_and_range(tmp_path, capsys):
+    text = ROBOT.read_text()
+    p = tmp_path / "heavy.toml"
+    p.write_text(text.replace("mass = 35.0", "mass = 1e300", 1))
+    line = p.read_text().split("\n").index("mass = 1e300") + 1
+    assert main(["model", "check", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert f"heavy.toml:{line}: [platform].mass: 1e+300" in err
+    assert "0 < mass <= 10000 kg" in err
+    # an exit point 1 Mm away: named, not a 300-digit grid count
+    p.write_text(text.replace("exit = [0.0, 0.0, 3.565]", "exit = [1e300, 0.0, 3.565]", 1))
+    assert main(["model", "check", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "[[cable]] #1.exit[0]: 1e+300 is outside the physical range" in err
+    assert len(err) < 400
+
+
+def test_gravity_off_the_earth_must_be_said(tmp_path):
+    text = ROBOT.read_text()
+    p = tmp_path / "moon.toml"
+    p.write_text(text.replace("gravity = 9.81", "gravity = 1.62", 1))
+    assert "9.76 <= gravity <= 9.84" in _refused(load_robot, RobotFileError, p, "moon")
+    p.write_text(text.replace("gravity = 9.81", "gravity = 1.62\ngravity_unusual = true", 1))
+    robot = load_robot(p)
+    assert robot.gravity == 1.62
+    from controller.robot import dumps_robot
+
+    assert "gravity_unusual = true" in dumps_robot(robot)  # written back, so it reads again
+
+
+@pytest.mark.parametrize("value", [1e300, -1e300, math.nan, 10**30])
+def test_recording_meta_and_robot_numbers_are_refused(tmp_path, value):
+    d = tmp_path / "rec"
+    shutil.copytree(RECORDING, d)
+    meta = tomllib.loads((d / "meta.toml").read_text())
+    meta["init_pose"][0] = value
+    (d / "meta.toml").write_text(tomli_w.dumps(meta))
+    assert "meta.toml" in _refused(read_recording, RecordingError, d, "init_pose")
+    shutil.copy(RECORDING / "meta.toml", d / "meta.toml")
+    robot = tomllib.loads((d / "robot.toml").read_text())
+    robot["platform"]["mass"] = value
+    (d / "robot.toml").write_text(tomli_w.dumps(robot))
+    assert "robot.toml" in _refused(read_recording, RecordingError, d, "robot mass")
+
+
+@pytest.mark.parametrize(("key", "name", "why"), [
+    ("robot", "/etc/passwd", "absolute path"),
+    ("robot", "../../../../../../etc/passwd", "leads out of the recording's folder"),
+    ("samples", "/etc/passwd", "absolute path"),
+    ("samples", "../outside.csv", "leads out of the recording's folder"),
+    ("robot", "link.toml", "leads out of the recording's folder"),
+    ("robot", 3, "must be a file name"),
+])
+def test_files_named_by_a_recording_stay_inside_its_folder(tmp_path, key, name, why):
+    d = tmp_path / "rec"
+    shutil.copytree(RECORDING, d)
+    (tmp_path / "outside.csv").write_text("secret,content\n1,2\n")
+    (d / "link.toml").symlink_to("/etc/passwd")
+    meta = tomllib.loads((d / "meta.toml").read_text())
+    meta[key] = name
+    (d / "meta.toml").write_text(tomli_w.dumps(meta))
+    msg = _refused(read_recording, RecordingError, d, f"{key} = {name!r}")
+    assert why in msg and "meta.toml:" in msg and key in msg
+    assert "root:" not in msg and "secret" not in msg  # nothing of the foreign file quoted
+
+
+def test_ranges_documentation_is_generated_from_the_table():
+    from controller.ranges import markdown
+
+    doc = (ROOT / "docs" / "reference" / "validation.md").read_text()
+    assert markdown() in doc, "docs/reference/validation.md: regenerate the ranges table " \
+        "(python -m controller.ranges > ...; see the page)"

@@ -15,7 +15,8 @@ stop, drives held), closes everything and leaves the recording readable.
 ``drive_states`` (CiA 402 states when the run ended), ``plots`` and ``rig``.
 
 Exit status: 0 when the path was completed, 1 when the run ended otherwise (quick stop,
-hold timeout, interrupted, refused path), 2 for bad input.
+hold timeout, refused path), 2 for bad input, 130 on SIGINT and 143 on SIGTERM (the last
+line on stderr says which; the recording is kept).
 """
 
 from __future__ import annotations
@@ -273,10 +274,13 @@ def _run(args: argparse.Namespace, created: list) -> int:
                    if sc.react else ""), file=sys.stderr)
     stop = threading.Event()
     previous = {}
+    caught: list[int] = []  # the signals that stopped the run (exit status 130 / 143)
 
     def on_signal(signum, frame):
         if stop.is_set():  # a second Ctrl-C: give up waiting
-            raise KeyboardInterrupt
+            from bench.parallel import Terminated
+            raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
+        caught.append(signum)
         stop.set()
 
     if threading.current_thread() is threading.main_thread():
@@ -356,4 +360,9 @@ def _run(args: argparse.Namespace, created: list) -> int:
         print(summary_text(out))
     if res.ended == "refused":
         print(f"cdpr dry-run: {res.message}", file=sys.stderr)
+    if caught:  # SIGINT 130, SIGTERM 143, the last line on stderr says which (recording kept)
+        from bench.parallel import signal_exit
+        code, msg = signal_exit(caught[0])
+        print(f"cdpr dry-run: {msg}", file=sys.stderr, flush=True)
+        return code
     return 0 if res.ended == "completed" else 1

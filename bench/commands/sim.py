@@ -10,7 +10,9 @@ prints where it listens, in the forms the HAL takes::
     --modbus 127.0.0.1:40124
     --tracker tcp:127.0.0.1:40125
 
-(one JSON object on one line with ``--json``) and runs until SIGINT or SIGTERM (exit 0).
+(one JSON object on one line with ``--json``) and runs until SIGINT (exit 130) or SIGTERM
+(143; the last line on stderr says which), or until stdin closes with
+``--exit-on-stdin-eof`` (exit 0).
 A scenario file that is not valid is reported with file and field (exit 2).
 
 Faults: ``--faults FILE`` applies a fault schedule on the sim's clock, and a control
@@ -140,9 +142,15 @@ def run(args: argparse.Namespace) -> int:
 
     stop = threading.Event()
     previous = {}
+    caught: list[int] = []  # the signal that stopped the simulator (exit status 130 / 143)
+
+    def on_signal(signum, frame) -> None:
+        caught.append(signum)
+        stop.set()
+
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+            previous[sig] = signal.signal(sig, on_signal)
     try:
         try:
             rig.start()
@@ -200,4 +208,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"cdpr sim: stopped ({rig.settles} plant settles, {len(rig.plant_errors)} without "
           f"a rest position, {sum(r.action == 'apply' for r in injector.log)} fault(s) "
           "injected)", file=sys.stderr)
+    if caught:  # stopped by SIGINT (130) or SIGTERM (143): the last line says which
+        from bench.parallel import signal_exit
+        code, msg = signal_exit(caught[0])
+        print(f"cdpr sim: {msg}", file=sys.stderr, flush=True)
+        return code
     return 0

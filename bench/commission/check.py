@@ -11,8 +11,15 @@ enabled) writes the table with the HAL's own sequence, reads it back, stores it 
 drive (0x1010 "save") and checks again. ``--dcf DIR`` writes each drive's configuration as
 ``DIR/node<N>_cable<C>.dcf`` (after ``--apply`` when both are given).
 
+Safety failures: a difference on an object that decides whether a drive stops when its
+master dies (consumer heartbeat 0x1016, producer heartbeat 0x1017, error behaviour
+0x1029, RPDO deadline 0x1400:5, abort connection 0x6007, quick stop 0x605A, fault
+reaction 0x605E; :data:`hal.drives_config.SAFETY_OBJECTS`) is also listed under
+``safety_failures`` with the safe value (the table's) and why the drive's value is unsafe.
+
 Exit status: 0 when every drive matches (after ``--apply``: when the writes fixed
-everything), 1 when a difference remains or a drive could not be read.
+everything), 1 when a difference (a safety failure among them) remains or a drive could
+not be read.
 """
 
 from __future__ import annotations
@@ -55,6 +62,7 @@ def _check_nodes(net, w, ks, eds, ui: Ui) -> tuple[list[dict], dict]:
             settings = drive_settings(w, k, node.object_dictionary)
             diffs = compare_configuration(node, settings, name)
             entry["differences"] = [d.as_dict() for d in diffs]
+            entry["safety_failures"] = _safety_failures(diffs)
             entry["objects"] = len({(s.index, s.subindex) for s in settings if s.verify})
             ui.progress(f"  {name}: {len(diffs)} difference(s) in {entry['objects']} objects")
         except DriveConfigError as exc:
@@ -62,6 +70,24 @@ def _check_nodes(net, w, ks, eds, ui: Ui) -> tuple[list[dict], dict]:
             ui.progress(f"  {name}: {exc}")
         out.append(entry)
     return out, nodes
+
+
+def _safety_failures(diffs) -> list[dict]:
+    """The differences on objects that decide whether the drive stops when its master dies
+    (:data:`hal.drives_config.SAFETY_OBJECTS`): object, name, the drive's value, the safe
+    value (the table's) and why the drive's value is unsafe."""
+    from hal.drives_config import format_object_value, safety_failure
+
+    out = []
+    for d in diffs:
+        why = safety_failure(d.index, d.subindex, d.expected, d.actual)
+        if why is not None:
+            out.append({"object": f"0x{d.index:04X}:{d.subindex:02X}", "name": d.name,
+                        "actual": d.actual, "safe_value": d.expected,
+                        "actual_text": format_object_value(d.index, d.subindex, d.actual),
+                        "safe_text": format_object_value(d.index, d.subindex, d.expected),
+                        "why": why})
+    return out
 
 
 def _print(ui: Ui, results: list[dict]) -> None:
@@ -73,6 +99,9 @@ def _print(ui: Ui, results: list[dict]) -> None:
             ui.say(f"{head}: matches the configuration ({r.get('objects', 0)} objects)")
         else:
             ui.say(f"{head}: {len(r['differences'])} difference(s)")
+            for f in r.get("safety_failures", []):
+                ui.say(f"    SAFETY FAILURE {f['object']} {f['name']}: drive has "
+                       f"{f['actual_text']}, safe value {f['safe_text']}: {f['why']}")
             for d in r["differences"]:
                 actual = d["actual"] if d["actual"] is not None else d.get("error", "unreadable")
                 ui.say(f"    {d['index']}:{d['subindex']:02X} {d['name']}: expected "
@@ -89,6 +118,13 @@ def _table(section: Section, results: list[dict], title: str) -> None:
             rows.append([r["node_id"], r["cable"], f"{d['index']}:{d['subindex']:02X}",
                          d["name"], d["expected"],
                          d["actual"] if d["actual"] is not None else d.get("error", "")])
+    safety = [[r["node_id"], r["cable"], f["object"], f["name"], f["safe_text"],
+               f["actual_text"], f["why"]] for r in results for f in r.get("safety_failures", [])]
+    if safety:
+        section.text("Safety failures (the drive would not stop safely when the master is "
+                     "lost):")
+        section.table(["node", "cable", "object", "name", "safe value", "actual", "why"],
+                      safety)
     if rows:
         section.table(["node", "cable", "object", "name", "expected", "actual"], rows)
     else:
@@ -141,6 +177,9 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             ui.say(f"written{'' if args.no_store else ' and stored'}: nodes {applied}; "
                    f"{sum(len(r['differences']) for r in before)} difference(s) before, "
                    f"{sum(len(r['differences']) for r in results)} now")
+            if args.no_store and any(r.get("safety_failures") for r in before):
+                ui.say("NOT STORED (--no-store): the safety values written return to the "
+                       "drives' power-on values at their next power cycle or node reset")
         dcf = []
         if args.dcf:
             d = Path(args.dcf)
@@ -163,7 +202,14 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     _print(ui, results)
     n_diff = sum(len(r["differences"]) for r in results)
     n_err = sum("error" in r for r in results)
-    section.fact("result", f"{n_diff} difference(s), {n_err} drive(s) not checked")
+    n_safety = sum(len(r.get("safety_failures", [])) for r in results)
+    section.fact("result", f"{n_diff} difference(s), {n_safety} safety failure(s), {n_err} "
+                 "drive(s) not checked")
+    if n_safety:
+        ui.say(f"SAFETY FAILURE: {n_safety} object(s) on "
+               f"{sum(bool(r.get('safety_failures')) for r in results)} drive(s) would let a "
+               "drive keep moving (or drop its load) when the master is lost; `check "
+               "--apply` writes and stores (0x1010) the safe values")
     ui.emit({"drives": results, "applied": applied, "dcf": dcf,
-             "ok": n_diff == 0 and n_err == 0})
+             "safety_failures": n_safety, "ok": n_diff == 0 and n_err == 0})
     return 0 if n_diff == 0 and n_err == 0 else 1

@@ -247,4 +247,7 @@ def dispatch(args: argparse.Namespace, func: Callable[[argparse.Namespace, Ui, S
     section.write()
     if section.path is not None:
         print(f"report: {section.path}", file=sys.stderr)
+    if code in (130, 143):  # a command that ended on SIGINT / SIGTERM itself: the last line
+        from bench.parallel import signal_exit
+        print(f"{name}: {signal_exit(code - 128)[1]}", file=sys.stderr, flush=True)
     return code

@@ -179,6 +179,7 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     cells = None
     polls = 0
     why = ""
+    stopped: tuple[int, str] | None = None  # (exit status, message) of a signal that ended it
     last_lines: list[str] = []
     samples = []
     reading = None
@@ -269,8 +270,10 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                                        max(0.0, t_end - time.monotonic())))
                         else:
                             next_t = time.monotonic()
-            except KeyboardInterrupt:
-                why = "Ctrl-C"
+            except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: reported, then 130 / 143
+                from bench.parallel import interruption
+                stopped = interruption(exc)
+                why = "Ctrl-C" if stopped[0] == 130 else stopped[1]
         finally:
             bus.send = send
             if cells is not None:
@@ -306,6 +309,8 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                  for j, c in enumerate(reading.cables)],
              "events": events, "record": args.record, "rows": writer.rows if writer else 0,
              "candump": args.candump})
+    if stopped is not None:  # 130 / 143: dispatch's last line on stderr says which signal
+        return stopped[0]
     return 0
 
 

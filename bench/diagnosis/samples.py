@@ -148,9 +148,10 @@ def check_values(rec: Recording, limit: int = 20) -> list[dict]:
 
     Tensions beyond 10 times the robot's ``tension_max`` (or below minus that),
     positions farther than 10 times the robot's size from its exit points, angles
-    beyond 2 pi, lengths negative or beyond 10 times the robot's size. Returns
-    ``[{"row", "column", "value", "why"}]`` (the first ``limit``; ``row`` is the
-    recording.csv line) plus a last entry ``{"more": k}`` when more were excluded.
+    beyond 2 pi, lengths negative or beyond 10 times the robot's size, or NaN in a row
+    whose other lengths are numbers (a missing encoder value, not a row without an encoder
+    sample). Returns ``[{"row", "column", "value", "why"}]`` (the first ``limit``; ``row``
+    is the recording.csv line) plus a last entry ``{"more": k}`` when more were excluded.
     Raises :class:`RecordingError` when most values of a column group are impossible
     (e.g. tensions in the wrong unit): the recording cannot be trusted.
     """
@@ -186,8 +187,16 @@ def check_values(rec: Recording, limit: int = 20) -> list[dict]:
         tmax = 10.0 * robot.tension_max
         flag(np.abs(rec.tau) > tmax, rec.tau, [f"tau_{c}" for c in cids],
              f"tension beyond 10 x tension_max = {tmax:g} N", "tensions")
+        # NaN where a length is required: the row's encoders sampled (another length of
+        # the row is a number) in a column that has numbers; a row without any length is
+        # "no sample" (a stream at its own rate), a column without any is "not measured"
+        have = np.isfinite(rec.l_meas)
+        nan_len = (np.isnan(rec.l_meas) & have.any(axis=1, keepdims=True)
+                   & have.any(axis=0, keepdims=True))
         flag((rec.l_meas < 0) | (rec.l_meas > 10 * size), rec.l_meas,
              [f"l_meas_{c}" for c in cids], f"length outside 0 .. {10 * size:.0f} m", "lengths")
+        flag(nan_len, rec.l_meas, [f"l_meas_{c}" for c in cids],
+             "length NaN where the row's other encoders sampled", "lengths")
         for name, arr in (("meas", rec.pose_meas), ("des", rec.pose_des)):
             axes = [f"{a}_{name}" for a in ("x", "y", "z", "roll", "pitch", "yaw")]
             far = np.linalg.norm(arr[:, :3] - centre, axis=1) > 10 * size

@@ -157,8 +157,9 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {}
 
-    def on_term(signum, frame):
-        raise KeyboardInterrupt
+    def on_term(signum, frame):  # SIGTERM: bench.cli's line and exit status 143
+        from bench.parallel import Terminated
+        raise Terminated(signum)
 
     if threading.current_thread() is threading.main_thread():
         previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, on_term)
