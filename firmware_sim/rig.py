@@ -15,13 +15,13 @@
 
 The drums' positions are the cable lengths (:meth:`SimulatedWinchBank.drum_lengths_m`): a
 CiA 402 homing moves a drive's count (0x6064), never its drum, so the plant keeps the
-physical cable apart from the encoder reading, as a real winch does. They start at the plant's encoder
-reference ``d_model(p0)``, so the platform stands at the scenario's init pose. The plant
-settles for the current readings at ``plant_rate_hz`` at most (only when they changed,
-or when the scenario has time-dependent effects: drift, a slip due), in the rig's thread;
-the true tensions go to the drives (torque actual), the tensions the cells measure
-(truth's gain/offset, :meth:`Plant.measured_tensions`) to the load-cell bank, which adds
-the scenario's load-cell noise at each sample (``cell_rate_hz``, always running: real
+physical cable apart from the encoder reading, as a real winch does. They start at the
+plant's encoder reference ``d_model(p0)``, so the platform stands at the scenario's init
+pose. The plant settles for the current readings at ``plant_rate_hz`` at most (only when
+they changed, or when the scenario has time-dependent effects: drift, a slip due), in the
+rig's thread; the true tensions go to the drives (torque actual), the tensions the cells
+measure (truth's gain/offset, :meth:`Plant.measured_tensions`) to the load-cell bank, which
+adds the scenario's load-cell noise at each sample (``cell_rate_hz``, always running: real
 cells sample on their own).
 
 Of the scenario's noise the rig uses ``load_cell_n``, the tracker's and ``process_m``: a

@@ -38,6 +38,12 @@ def _common(json_help: str) -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(add_help=False)
     add_hardware_arguments(p, eds_default=_default_eds())
+    g = p.add_argument_group("tensions")
+    g.add_argument("--robot", default="rocaspect", metavar="NAME|PATH",
+                   help="robot description: tension limits, model [rocaspect]")
+    g.add_argument("--tension-window", metavar="LO,HI",
+                   help="tensions a cable may carry [N]: below LO is slack, above HI "
+                        "overload [the supervisor's: tension_min/5, tension_max of --robot]")
     g = p.add_argument_group("report and output")
     g.add_argument("--report", metavar="PATH",
                    help="commissioning report to append to [commissioning-report.md]")
@@ -174,14 +180,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q = add("monitor", "live table of drive states, positions, velocities, torques, tensions, "
             "bus load and the last errors",
             'print {"refreshes", "ended_by", "frames", "drives", "load_cells", "events", '
-            '"record", "rows", "candump"} at the end')
+            '"events_by_severity", "events_dropped", "tension_window_n", "record", "rows", '
+            '"candump"} at the end')
     q.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="refreshes per second")
     q.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     q.add_argument("--record", metavar="DIR", help="write a cdpr-recording/1 directory")
-    q.add_argument("--robot", default="rocaspect", metavar="NAME|PATH",
-                   help="robot description for --record [rocaspect]")
     q.add_argument("--init-pose", metavar="X,Y,Z[,R,P,Y]",
                    help="init_pose of --record [forward kinematics of the first sample]")
+    q.add_argument("--json-lines", action="store_true",
+                   help="one JSON object per refresh on stdout (the table goes to stderr)")
     q.add_argument("--candump", metavar="FILE",
                    help="log every CAN frame (.asc, .blf, .log or .csv: python-can's Logger)")
 
