@@ -120,7 +120,7 @@ def decide(tensions: np.ndarray, rates_n_s: np.ndarray, window: TensionWindow,
         if pred[k] < window.low_n or pred[k] > window.high_n:
             s = SLACK if pred[k] < window.low_n else OVERLOAD
             return Verdict(False, f"cable {cables[k]}: {tau[k]:.1f} N changing at "
-                           f"{rate[k]:+.1f} N/s would be {s} within {horizon_s:g} s "
+                           f"{rate[k]:+.1f} N/s would be {s} within {horizon_s:.2f} s "
                            f"(window {window})", tuple(status), pred, cables[k],
                            "predicted_" + s)
     return Verdict(True, "", tuple(status), pred)
