@@ -40,7 +40,9 @@ class Ui:
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.json = bool(getattr(args, "json", False))
-        self.out = sys.stderr if self.json else sys.stdout
+        # --json-lines (monitor): stdout carries the JSON stream only
+        lines = bool(getattr(args, "json_lines", False))
+        self.out = sys.stderr if self.json or lines else sys.stdout
 
     def say(self, text: str = "") -> None:
         print(text, file=self.out, flush=True)

@@ -103,8 +103,9 @@ def run_platform_jog(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     try:
         hw.start()
         r = hw.read()
-        from bench.commission.reference import read_state
+        from bench.commission.reference import check_readings, read_state
 
+        check_readings(w, r.lengths_m)
         st = read_state(path)
         p_now = current_pose(robot, r.lengths_m + offsets, np.asarray(st["pose"], float))
         target = target_pose(args, p_now)

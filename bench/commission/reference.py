@@ -164,6 +164,24 @@ def read_positions(net, w, eds: str) -> np.ndarray:
     return np.array(out)
 
 
+def check_readings(w, reading: np.ndarray, model: np.ndarray | None = None) -> None:
+    """CommissionError when a drive's reading [m] is outside its winch range: its count was
+    homed (or the winch file's ``length_at_zero_m`` is wrong), so the drive's position
+    limits and every setpoint through the winch file would be wrong too. Names the fix."""
+    bad = (reading < w.min_length_m) | (reading > w.max_length_m)
+    if not bad.any():
+        return
+    k = int(np.flatnonzero(bad)[0])
+    c = w.cables[k]
+    fix = (f"cdpr commission home {c} --length {model[k]:.4f}" if model is not None
+           else f"cdpr commission home {c} --length L")
+    raise CommissionError(
+        f"cable {c} (CAN node {int(w.node_id[k])}) reads {reading[k]:.4f} m, outside "
+        f"[{w.min_length_m[k]:g}, {w.max_length_m[k]:g}] m of {w.source}: its count was homed "
+        f"or length_at_zero_m is wrong; set the winch's length first ({fix}"
+        + (", the model's length at this pose)" if model is not None else ")"), 1)
+
+
 def _measured_pose(args: argparse.Namespace, ui: Ui) -> tuple[np.ndarray, str]:
     if args.pose:
         return parse_pose(args.pose), "--pose (known pose on the stand)"
@@ -199,6 +217,7 @@ def run_reference(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     with network_of(args) as net:
         counts = read_positions(net, w, args.eds)
     reading = np.array([w.axis(k).counts_to_m(int(c)) for k, c in enumerate(counts)])
+    check_readings(w, reading, model)
     offset = model - reading
     bad = (model < w.min_length_m) | (model > w.max_length_m)
     if bad.any():
@@ -230,5 +249,6 @@ def run_reference(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     return 0
 
 
-__all__ = ["DEFAULT_STATE", "FORMAT", "dumps_state", "mark_lost", "parse_pose", "read_state",
-           "require_reference", "run_reference", "state_path", "write_state"]
+__all__ = ["DEFAULT_STATE", "FORMAT", "check_readings", "dumps_state", "mark_lost",
+           "parse_pose", "read_state", "require_reference", "run_reference",
+           "state_path", "write_state"]

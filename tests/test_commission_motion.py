@@ -1,0 +1,352 @@
+"""Commissioning motion that watches every cable, Cartesian jog, referencing, homing that
+moves the count and never the cable, tensions classified against the window, the monitor's
+history by severity.
+
+The robot is the whole simulated rig in this process (:class:`firmware_sim.rig.SimRig`:
+drives on a python-can virtual channel, load cells on Modbus/TCP at 127.0.0.1 port 0, the
+plant settling in the rig's thread); the commands run through ``bench.cli.main``. The rig's
+own record of every plant state it served (:attr:`SimRig.history`) is the truth the tests
+hold the motion to.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from bench.cli import main
+from controller.cable_watch import (
+    INVALID,
+    OK,
+    OVERLOAD,
+    SLACK,
+    CableWatch,
+    TensionWindow,
+    classify_tensions,
+    decide,
+)
+from controller.robot import resolve_robot
+from controller.supervisor import SupervisorLimits
+from firmware_sim.rig import SimRig
+from hal.event_log import FAULT, NMT, WARNING, SeverityLog, emcy_severity
+
+ROBOT = resolve_robot("rocaspect")
+WINDOW = TensionWindow.for_robot(ROBOT.tension_min, ROBOT.tension_max)
+CABLES = tuple(ROBOT.cable_ids)
+
+
+class Keys:
+    """An operator holding one key: a key every 20 ms (a terminal's repeat) for
+    ``seconds``, then the end of the input."""
+
+    def __init__(self, key: str = "+", seconds: float = 3.0) -> None:
+        self.key, self.end = key, time.monotonic() + seconds
+
+    def read(self, n: int = 1) -> str:
+        time.sleep(0.02)
+        return self.key if time.monotonic() < self.end else ""
+
+
+def cli(*argv: str, stdin=None) -> tuple[int, dict]:
+    """``cdpr commission ARGV --json --no-report``: exit status and the last JSON line."""
+    old_in, old_out = sys.stdin, sys.stdout
+    buf = io.StringIO()
+    if stdin is not None:
+        sys.stdin = stdin
+    sys.stdout = buf
+    try:
+        code = main(["commission", *argv, "--json", "--no-report"])
+    finally:
+        sys.stdin, sys.stdout = old_in, old_out
+    lines = buf.getvalue().strip().splitlines()
+    return code, json.loads(lines[-1]) if lines else {}
+
+
+@pytest.fixture
+def rig():
+    r = SimRig().start()
+    yield r
+    r.close()
+
+
+def _bus(rig) -> list[str]:
+    return ["--can", rig.can_spec, "--modbus", rig.modbus_spec]
+
+
+def _served_since(rig, t0_wall: float, n_before: int) -> np.ndarray:
+    """True tensions (m, 8) [N] of every plant state served after ``n_before`` states."""
+    hist = list(rig.history)[n_before:] if n_before < len(rig.history) else [rig.last]
+    return np.array([h.tensions_N for h in hist])
+
+
+# ---------------------------------------------------------------------------- pure decisions
+
+
+def test_window_is_the_supervisors_thresholds():
+    lim = SupervisorLimits.for_robot(ROBOT.tension_min, ROBOT.tension_max, 0.0)
+    assert (WINDOW.low_n, WINDOW.high_n) == (lim.slack_n, lim.overload_n)
+    with pytest.raises(ValueError):
+        TensionWindow(5.0, 5.0)
+
+
+def test_classification_flags_slack_overload_and_invalid_and_nothing_in_the_window():
+    inside = np.linspace(WINDOW.low_n, WINDOW.high_n, 8)  # edges included: inside
+    assert classify_tensions(inside, WINDOW) == [OK] * 8
+    tau = np.array([0.7, 430.0, 3000.5, np.nan, 200.0, 1.0, 0.0, 5000.0])
+    assert classify_tensions(tau, WINDOW) == [SLACK, OK, OVERLOAD, INVALID, OK, OK, SLACK,
+                                              OVERLOAD]
+    valid = np.ones(8, bool)
+    valid[4] = False  # a stale cell: not watched
+    assert classify_tensions(tau, WINDOW, valid)[4] == INVALID
+
+
+def test_decide_goes_on_when_all_in_the_window_and_steady():
+    v = decide(np.full(8, 200.0), np.zeros(8), WINDOW, 0.25, CABLES)
+    assert v.go and v.reason == "" and v.statuses == (OK,) * 8
+
+
+def test_decide_stops_before_a_falling_tension_leaves_and_names_the_cable():
+    tau = np.full(8, 200.0)
+    rate = np.zeros(8)
+    rate[6] = -900.0  # cable 41 falling fast: 200 - 900 * 0.25 < 1 N
+    v = decide(tau, rate, WINDOW, 0.25, CABLES)
+    assert not v.go and v.cable == "41" and v.kind == "predicted_slack"
+    assert "cable 41" in v.reason and "[1, 3000] N" in v.reason
+    rate[6] = -500.0  # would still be 75 N: go on
+    assert decide(tau, rate, WINDOW, 0.25, CABLES).go
+    tau[2] = 3100.0
+    v = decide(tau, np.zeros(8), WINDOW, 0.25, CABLES)
+    assert not v.go and v.cable == "21" and v.kind == OVERLOAD
+    tau[2] = np.nan
+    v = decide(tau, np.zeros(8), WINDOW, 0.25, CABLES)
+    assert not v.go and v.kind == INVALID and "not watched" in v.reason
+
+
+def test_cable_watch_fits_the_rate_over_its_span_and_noise_alone_never_stops_it():
+    rng = np.random.default_rng(3)
+    w = CableWatch(WINDOW, CABLES, horizon_s=0.25)
+    for i in range(200):  # 4 s of 50 Hz samples with 0.5 N noise around 20 N
+        v = w.step(i * 0.02, 20.0 + rng.normal(0.0, 0.5, 8))
+        assert v.go, v.reason
+    w.reset()
+    stopped = None
+    for i in range(100):  # cable 11 falls at 400 N/s from 200 N
+        tau = np.full(8, 200.0)
+        tau[0] = 200.0 - 400.0 * i * 0.02
+        v = w.step(i * 0.02, tau)
+        if not v.go:
+            stopped = tau[0]
+            break
+    assert stopped is not None and stopped > WINDOW.low_n  # before it left the window
+    assert stopped == pytest.approx(400.0 * 0.25, abs=10.0)  # at about rate x horizon
+
+
+# ---------------------------------------------------------------------------- history by severity
+
+
+def test_severity_log_keeps_faults_and_boot_ups_through_a_warning_flood():
+    class E:
+        def __init__(self, t, sev, code):
+            self.wall_time, self.severity, self.code = t, sev, code
+
+    log = SeverityLog(max_per_class=50)
+    log.append(E(0.0, FAULT, 0x2310))
+    log.append(E(0.1, NMT, 0))
+    log.append(E(0.2, FAULT, 0x7305))
+    for i in range(60):
+        log.append(E(1.0 + i, WARNING, 0x8250))
+    codes = [e.code for e in log.items(FAULT)]
+    assert codes == [0x2310, 0x7305] and len(log.items(NMT)) == 1
+    assert log.dropped() == {FAULT: 0, NMT: 0, WARNING: 10}
+    assert len(log.items(WARNING)) == 50 and log.items()[0].code == 0x2310  # time order
+    for i in range(55):
+        log.append(E(100.0 + i, FAULT, 0x1000 + i))
+    assert log.dropped()[FAULT] == 7 and log.dropped()[WARNING] == 10
+    assert emcy_severity(0x2310) == FAULT and emcy_severity(0x8250) == WARNING
+    assert emcy_severity(0x8130) == WARNING and emcy_severity(0) == WARNING
+
+
+def test_monitor_keeps_the_fault_and_counts_the_boot_up_under_a_warning_flood(rig):
+    import canopen
+
+    from firmware_sim.cia402_drive import EDS_PATH
+    from hal.can_bus import open_bus
+    from hal.drive_monitor import DriveMonitor
+
+    net = canopen.Network(open_bus(rig.can_spec))
+    net.connect()
+    try:
+        mon = DriveMonitor(net, rig.winches, EDS_PATH, max_events=50)
+        drv = rig.bank.drive(4)
+        drv._emcy(0x2310)  # a fault, then 60 warnings
+        for _ in range(60):
+            drv._emcy(0x8250)
+        rig.bank.drive(3).reset_node()  # a node reset is an event
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and (
+                len(mon.events.items(WARNING)) < 50 or not mon.events.items(NMT)):
+            time.sleep(0.02)
+        faults = mon.events.items(FAULT)
+        assert [e.code for e in faults] == [0x2310] and faults[0].node_id == 4
+        assert [e.node_id for e in mon.events.items(NMT)] == [3]
+        assert mon.events.dropped()[WARNING] == 10 + 0  # 60 warnings, 50 kept
+        assert any(e.severity == FAULT for e in mon.last_events(4))
+        mon.close()
+    finally:
+        net.disconnect()
+
+
+# ---------------------------------------------------------------------------- scan and monitor
+
+
+def test_scan_and_monitor_call_out_of_window_readings_slack_and_overload(rig):
+    code, out = cli("scan", *_bus(rig))
+    assert code == 0 and [c["status"] for c in out["load_cells"]] == ["ok"] * 8
+    # the same readings judged against a window that the rig's ~215 N leave
+    code, out = cli("scan", *_bus(rig), "--tension-window", "220,3000")
+    st = {c["cable"]: (c["status"], c["tension_n"]) for c in out["load_cells"]}
+    assert code == 1
+    for s, t in st.values():
+        assert s == ("slack" if t < 220 else "ok")
+    code, out = cli("monitor", *_bus(rig), "--duration", "0.3", "--rate", "10",
+                    "--tension-window", "1,215")
+    for c in out["load_cells"]:
+        assert c["status"] == ("overload" if c["tension_n"] > 215 else "ok")
+    assert out["events_dropped"] == {"fault": 0, "nmt": 0, "warning": 0}
+
+
+def test_monitor_json_lines_streams_one_object_per_refresh(rig):
+    code = 0
+    old = sys.stdout
+    buf = io.StringIO()
+    sys.stdout = buf
+    try:
+        code = main(["commission", "monitor", *_bus(rig), "--duration", "0.45", "--rate", "10",
+                     "--json-lines", "--no-report"])
+    finally:
+        sys.stdout = old
+    rows = [json.loads(x) for x in buf.getvalue().splitlines() if x.strip()]
+    assert code == 0 and len(rows) >= 3
+    for r in rows:
+        assert set(r) >= {"t_s", "drives", "load_cells", "bus_load", "frames", "events_new"}
+        assert len(r["drives"]) == 8 and [c["status"] for c in r["load_cells"]] == ["ok"] * 8
+    assert [r["t_s"] for r in rows] == sorted(r["t_s"] for r in rows)
+
+
+# ---------------------------------------------------------------------------- single-winch jog
+
+
+def test_a_long_single_winch_jog_needs_the_platform_supported_and_stops_in_the_window(rig):
+    code, out = cli("jog", "21", *_bus(rig), "--travel", "0.083", "--yes", "--listen", "0")
+    assert code == 2 and "--platform-supported" in out["error"]
+    assert rig.bank.drive(3).state.name == "SWITCH_ON_DISABLED"  # never enabled
+    n0 = len(rig.history)
+    code, out = cli("jog", "21", *_bus(rig), "--travel", "0.083", "--platform-supported",
+                    "--yes", "--listen", "0", stdin=Keys("+", 4.0))
+    assert code == 1 and out["guard_stop"].startswith("cable ")
+    assert "window [1, 3000] N" in out["guard_stop"]
+    assert out["state"] == "SWITCH_ON_DISABLED"
+    assert 0.005 < out["end_m"] - out["start_m"] < 0.083  # moved, and was stopped early
+    rig.wait_settled()
+    time.sleep(0.2)
+    served = _served_since(rig, 0.0, n0)
+    assert served.min() > WINDOW.low_n and served.max() < WINDOW.high_n
+    assert not rig.plant_errors
+
+
+def test_the_default_single_winch_jog_is_5_mm_on_a_loaded_robot_and_shows_every_cable(rig):
+    code, out = cli("jog", "21", *_bus(rig), "--yes", "--listen", "0", stdin=Keys("-", 1.5))
+    assert code == 0 and out["travel_m"] == pytest.approx(0.005)
+    assert out["start_m"] - out["min_m"] <= 0.005 + 2e-4  # the motor lags its demand
+    assert set(out["cable_watch"]["min_n"]) == set(CABLES)
+    code, out = cli("jog", "21", "--can", rig.can_spec, "--yes", "--listen", "0")
+    assert code == 2 and "--modbus" in out["error"]  # no cells, no --platform-supported
+
+
+# ---------------------------------------------------------------------------- Cartesian jog
+
+
+def test_a_5_cm_cartesian_jog_in_z_keeps_every_cable_in_the_window(rig, tmp_path):
+    state = str(tmp_path / "state.toml")
+    code, out = cli("jog", "--platform", "--step", "0,0,0.05", *_bus(rig), "--yes",
+                    "--listen", "0", "--state", state)
+    assert code == 1 and "reference" in out["error"]  # not referenced yet
+    p0 = rig.last.pose
+    code, out = cli("reference", "--pose", ",".join(f"{x:.9f}" for x in p0[:3]),
+                    "--can", rig.can_spec, "--state", state)
+    assert code == 0 and max(abs(v) for v in out["offsets_m"].values()) < 1e-5
+    n0 = len(rig.history)
+    code, out = cli("jog", "--platform", "--step", "0,0,0.05", *_bus(rig), "--yes",
+                    "--listen", "0", "--state", state)
+    assert code == 0 and out["ended_by"] == "target reached", out
+    rig.wait_settled()
+    assert rig.last.pose[2] - p0[2] == pytest.approx(0.05, abs=2e-3)
+    np.testing.assert_allclose(rig.last.pose[:2], p0[:2], atol=2e-3)
+    served = _served_since(rig, 0.0, n0)
+    assert len(served) > 10
+    assert served.min() > WINDOW.low_n and served.max() < WINDOW.high_n
+    assert out["cable_watch"]["stopped"] == ""
+
+
+def test_an_infeasible_cartesian_target_is_refused_before_anything_moves(rig, tmp_path):
+    state = str(tmp_path / "state.toml")
+    p0 = rig.last.pose
+    cli("reference", "--pose", ",".join(f"{x:.9f}" for x in p0[:3]), "--can", rig.can_spec,
+        "--state", state)
+    before = rig.bank.positions_counts()
+    code, out = cli("jog", "--platform", "--step", "0,0,-2", *_bus(rig), "--yes", "--listen",
+                    "0", "--state", state, "--max-step", "5")
+    assert code == 1 and "refused before any motion" in out["error"]
+    np.testing.assert_array_equal(rig.bank.positions_counts(), before)
+
+
+# ---------------------------------------------------------------------------- homing
+
+
+def test_homing_moves_the_count_not_the_cable_and_loses_the_reference(rig, tmp_path):
+    state = str(tmp_path / "state.toml")
+    p0 = rig.last.pose
+    code, out = cli("reference", "--pose", ",".join(f"{x:.9f}" for x in p0[:3]),
+                    "--can", rig.can_spec, "--state", state)
+    assert code == 0
+    code, scan0 = cli("scan", *_bus(rig))
+    tau0 = np.array([c["tension_n"] for c in scan0["load_cells"]])
+    code, out = cli("home", "21", "--method", "35", "--yes", "--listen", "0",
+                    "--can", rig.can_spec, "--state", state)
+    assert code == 0 and out["position_after_counts"] == 0
+    assert out["position_before_counts"] != 0
+    time.sleep(0.3)
+    rig.wait_settled()
+    assert not rig.plant_errors  # the plant still finds its rest pose
+    np.testing.assert_allclose(rig.last.pose, p0, atol=1e-6)
+    code, scan1 = cli("scan", *_bus(rig))
+    tau1 = np.array([c["tension_n"] for c in scan1["load_cells"]])
+    assert code == 0 and [c["status"] for c in scan1["load_cells"]] == ["ok"] * 8
+    np.testing.assert_allclose(tau1, tau0, atol=3.0)  # the cells' noise
+    text = open(state).read()
+    assert "referenced = false" in text and "--method 35" in text
+    code, out = cli("jog", "--platform", "--step", "0,0,0.01", *_bus(rig), "--yes",
+                    "--listen", "0", "--state", state)
+    assert code == 1 and "not referenced" in out["error"] and "reference" in out["error"]
+    # the count of 21 reads ~0 m now: reference names the fix (the model's length there)
+    pose = ",".join(f"{x:.9f}" for x in p0[:3])
+    code, out = cli("reference", "--pose", pose, "--can", rig.can_spec, "--state", state)
+    assert code == 1 and "cdpr commission home 21 --length 13.64" in out["error"]
+    wfile = tmp_path / "winches.toml"
+    wfile.write_text(open(rig.winches.source).read())
+    code, out = cli("home", "21", "--length", "13.6409", "--yes", "--listen", "0",
+                    "--can", rig.can_spec, "--winches", str(wfile), "--state", state)
+    assert code == 0
+    code, out = cli("reference", "--pose", pose, "--can", rig.can_spec, "--state", state,
+                    "--winches", str(wfile))
+    assert code == 0 and max(abs(v) for v in out["offsets_m"].values()) < 1e-4
+    code, out = cli("jog", "--platform", "--step", "0,0,0.01", *_bus(rig), "--yes",
+                    "--listen", "0", "--state", state, "--winches", str(wfile))
+    assert code == 0 and out["ended_by"] == "target reached"
+    rig.wait_settled()
+    assert rig.last.pose[2] - p0[2] == pytest.approx(0.01, abs=2e-3)
