@@ -75,7 +75,10 @@ def rig():
 
 
 def _bus(rig) -> list[str]:
-    return ["--can", rig.can_spec, "--modbus", rig.modbus_spec]
+    # a shared, loaded test machine may starve the simulated cells' thread for a while:
+    # the cells' staleness limits are widened so that the watch stops for the physics only
+    return ["--can", rig.can_spec, "--modbus", rig.modbus_spec, "--loadcell-stale", "1.0",
+            "--loadcell-timeout", "0.5"]
 
 
 def _served_since(rig, t0_wall: float, n_before: int) -> np.ndarray:
@@ -283,7 +286,7 @@ def test_a_5_cm_cartesian_jog_in_z_keeps_every_cable_in_the_window(rig, tmp_path
     n0 = len(rig.history)
     code, out = cli("jog", "--platform", "--step", "0,0,0.05", *_bus(rig), "--yes",
                     "--listen", "0", "--state", state)
-    assert code == 0 and out["ended_by"] == "target reached", out
+    assert code == 0 and out["ended_by"] == "target reached", out["ended_by"]
     rig.wait_settled()
     assert rig.last.pose[2] - p0[2] == pytest.approx(0.05, abs=2e-3)
     np.testing.assert_allclose(rig.last.pose[:2], p0[:2], atol=2e-3)
