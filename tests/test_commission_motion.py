@@ -353,3 +353,15 @@ def test_homing_moves_the_count_not_the_cable_and_loses_the_reference(rig, tmp_p
     assert code == 0 and out["ended_by"] == "target reached"
     rig.wait_settled()
     assert rig.last.pose[2] - p0[2] == pytest.approx(0.01, abs=2e-3)
+
+
+def test_enable_is_stopped_and_disabled_when_any_cable_is_out_of_the_window(rig):
+    code, out = cli("enable", "41", *_bus(rig), "--yes", "--listen", "0", "--duration", "2",
+                    "--tension-window", "1,215", stdin=io.StringIO(""))
+    assert code == 1 and "overload" in out["ended_by"] and "above 215 N" in out["ended_by"]
+    assert out["state"] == "SWITCH_ON_DISABLED" and rig.bank.drive(7).state.name == \
+        "SWITCH_ON_DISABLED"
+    code, out = cli("enable", "41", *_bus(rig), "--yes", "--listen", "0", "--duration", "0.3",
+                    stdin=io.StringIO(""))  # all in the window: held to the end
+    assert code == 0 and out["ended_by"] == "--duration 0.3 s"
+    assert out["cable_watch"]["stopped"] == ""
