@@ -365,3 +365,52 @@ def test_enable_is_stopped_and_disabled_when_any_cable_is_out_of_the_window(rig)
                     stdin=io.StringIO(""))  # all in the window: held to the end
     assert code == 0 and out["ended_by"] == "--duration 0.3 s"
     assert out["cable_watch"]["stopped"] == ""
+
+
+def test_reference_from_the_tracker_records_the_pose_offsets_and_model(tmp_path):
+    from bench.commission.reference import read_state
+
+    with SimRig(tracker_port=0) as rig:
+        state = tmp_path / "state.toml"
+        code, out = cli("reference", "--can", rig.can_spec, "--tracker", rig.tracker_spec,
+                        "--samples", "5", "--state", str(state))
+        assert code == 0 and out["pose_source"] == "tracker, mean of 5 samples"
+        np.testing.assert_allclose(out["pose"], rig.last.pose, atol=1e-3)  # tracker noise
+        st = read_state(state)
+        assert st["referenced"] and st["robot"] == "rocaspect" and len(st["winch"]) == 8
+        assert [w["cable"] for w in st["winch"]] == list(CABLES)
+        for w in st["winch"]:
+            assert w["offset_m"] == pytest.approx(w["model_m"] - w["reading_m"])
+            assert abs(w["offset_m"]) < 5e-3
+    code, out = cli("reference", "--can", "virtual:nobody", "--tracker", "nonsense",
+                    "--state", str(state))
+    assert code == 2 and "--tracker" in out["error"]
+    code, out = cli("reference", "--can", "virtual:nobody", "--pose", "1,2",
+                    "--state", str(state))
+    assert code == 2 and "x,y,z" in out["error"]
+
+
+def test_a_bad_state_file_is_refused_naming_the_file_and_field(tmp_path):
+    from bench.commission.common import CommissionError
+    from bench.commission.reference import dumps_state, read_state, require_reference
+    from controller.winch import load_winches
+
+    w = load_winches()
+    p = tmp_path / "s.toml"
+    p.write_text('format = "cdpr-commission-state/9"\n')
+    with pytest.raises(CommissionError, match="s.toml: format"):
+        read_state(p)
+    p.write_text('format = "cdpr-commission-state/1"\nreferenced = "yes"\n')
+    with pytest.raises(CommissionError, match="'referenced'"):
+        read_state(p)
+    good = {"referenced": True, "time": "t", "robot": "rocaspect", "pose": [0.0] * 6,
+            "pose_source": "x", "winch": [
+                {"cable": c, "node_id": k + 1, "position_counts": 0, "reading_m": 1.0,
+                 "model_m": 1.5, "offset_m": 0.5} for k, c in enumerate(w.cables[:7])]}
+    p.write_text(dumps_state(good))
+    with pytest.raises(CommissionError, match="no reference for cable"):
+        require_reference(p, w)  # cable 42 missing
+    good["winch"].append({"cable": "42", "node_id": 8, "position_counts": 0,
+                          "reading_m": 1.0, "model_m": 1.5, "offset_m": 0.5})
+    p.write_text(dumps_state(good))
+    np.testing.assert_allclose(require_reference(p, w), 0.5)

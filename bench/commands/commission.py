@@ -189,9 +189,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             "drives. A CiA 402 homing (home --method) marks the reference lost.")
     q.add_argument("--pose", metavar="X,Y,Z[,R,P,Y]",
                    help="the platform's known pose on its stand [m, deg]")
-    from hal.tracker import add_tracker_argument
-
-    add_tracker_argument(q)
+    q.add_argument("--tracker", metavar="SPEC",
+                   help="laser tracker measuring the platform's pose: tcp:HOST:PORT "
+                        "(cdpr sim prints its own)")
     q.add_argument("--samples", type=int, default=20, metavar="N",
                    help="tracker poses averaged [20]")
     _state(q)

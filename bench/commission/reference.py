@@ -186,9 +186,12 @@ def _measured_pose(args: argparse.Namespace, ui: Ui) -> tuple[np.ndarray, str]:
     if args.pose:
         return parse_pose(args.pose), "--pose (known pose on the stand)"
     from bench.dryrun.loop import measure_init_pose
-    from hal.tracker import TrackerError, open_tracker
+    from hal.tracker import TrackerError, TrackerSpecError, open_tracker
 
-    tracker = open_tracker(args.tracker)
+    try:
+        tracker = open_tracker(args.tracker)
+    except TrackerSpecError as exc:
+        raise CommissionError(f"--tracker {args.tracker!r}: {exc}", 2) from None
     if tracker is None:
         raise CommissionError("no pose: give --tracker SPEC (the laser tracker on the "
                               "platform) or --pose x,y,z[,r,p,y] (a known pose on the stand)", 2)
