@@ -321,7 +321,7 @@ def test_homing_moves_the_count_not_the_cable_and_loses_the_reference(rig, tmp_p
     tau0 = np.array([c["tension_n"] for c in scan0["load_cells"]])
     code, out = cli("home", "21", "--method", "35", "--yes", "--listen", "0",
                     "--can", rig.can_spec, "--state", state)
-    assert code == 0 and out["position_after_counts"] == 0
+    assert code == 0 and out["position_after_counts"] == 0 and out["reference_lost"]
     assert out["position_before_counts"] != 0
     time.sleep(0.3)
     rig.wait_settled()
@@ -414,3 +414,19 @@ def test_a_bad_state_file_is_refused_naming_the_file_and_field(tmp_path):
                           "reading_m": 1.0, "model_m": 1.5, "offset_m": 0.5})
     p.write_text(dumps_state(good))
     np.testing.assert_allclose(require_reference(p, w), 0.5)
+
+
+def test_a_cartesian_jog_quick_stops_every_drive_when_a_cable_would_leave_the_window(rig,
+                                                                                    tmp_path):
+    state = str(tmp_path / "state.toml")
+    p0 = rig.last.pose
+    cli("reference", "--pose", ",".join(f"{x:.9f}" for x in p0[:3]), "--can", rig.can_spec,
+        "--state", state)
+    top = float(rig.last.tensions_N.max()) + 4.0  # up by 5 cm loads the cables by ~8 N
+    code, out = cli("jog", "--platform", "--step", "0,0,0.05", *_bus(rig), "--yes",
+                    "--listen", "0", "--state", state, "--tension-window", f"1,{top:.1f}")
+    assert code == 1 and "overload" in out["guard_stop"], out
+    assert out["end_pose"][2] - p0[2] < 0.045  # stopped on the way
+    rig.wait_settled()
+    assert all(d.state.name in ("SWITCH_ON_DISABLED", "READY_TO_SWITCH_ON")
+               for d in rig.bank.drives)

@@ -3,7 +3,8 @@
 Commissioning the real winches (CiA 402 drives on CAN, ``--can socketcan:can0`` or any
 python-can interface) and load cells (Modbus, ``--modbus HOST:PORT`` or
 ``rtu:/dev/ttyUSB0:19200``); the same against ``cdpr sim`` (``--can socketcand:...``).
-The order on site: scan -> check (--apply) -> home -> tare / calibrate -> monitor.
+The order on site: scan -> check (--apply) -> reference -> tare / calibrate -> enable -> jog
+(one winch with the platform on its stand, or --platform) -> monitor.
 
 The sub-commands live in :mod:`bench.commission`; this module is the argparse front (heavy
 imports happen when a sub-command runs). Every sub-command appends a section to the
@@ -164,11 +165,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     q = add("home", "home a winch (CiA 402 homing) and/or reference it (length_at_zero_m)",
             'print {"winch", "node_id", "method", "position_before_counts", '
-            '"position_after_counts", "length_m", "length_at_zero_m", "winch_file", "backup"}',
+            '"position_after_counts", "length_m", "length_at_zero_m", "winch_file", "backup", '
+            '"reference_lost"}',
             "--method 35|37: the drive's position becomes --offset counts (homing on the "
             "current position, no motion). --length L: the current position reads L metres: "
             "length_at_zero_m of the winch parameter file (--winches, default the shipped "
-            "file) is rewritten, the old file kept as NAME.DATE.bak.")
+            "file) is rewritten, the old file kept as NAME.DATE.bak. A homing changes the "
+            "count, never the cable: the platform reference (cdpr commission reference) is "
+            "lost and jog --platform refused until it has run again.")
     q.add_argument("winch", help="cable id (21) or node:N")
     q.add_argument("--method", type=int, choices=(35, 37),
                    help="CiA 402 homing method on the current position")

@@ -16,11 +16,20 @@ left in is printed and reported.
   the input coming); when no key comes for ``--deadman`` seconds the winch halts, then is
   disabled; the next key enables it again. Space stops, ``q`` quits. Speed ``--speed``
   (refused beyond the winch file's ``max_speed_m_s``), travel at most ``--travel`` from where
-  the jog started and never beyond ``[min_length_m, max_length_m]``.
+  the jog started and never beyond ``[min_length_m, max_length_m]``; more than
+  :data:`LOADED_JOG_MAX_M` only with ``--platform-supported`` (default travel
+  :data:`DEFAULT_TRAVEL_M`, capped without it). ``--platform``: the Cartesian jog
+  (:mod:`bench.commission.platform`).
+
+``enable``, ``jog`` and ``home`` watch every cable (``--modbus``,
+:mod:`bench.commission.watch`): all tensions are shown live, and when one leaves the
+tension window, or is about to, the drive quick-stops, holds, and is disabled.
 - ``home``: ``--method 35|37`` runs CiA 402 homing on the current position (the position
   becomes ``--offset`` counts); ``--length L`` references the winch: the current position
   reads L metres, i.e. ``length_at_zero_m`` of the winch parameter file is rewritten (the
-  old file is kept as a timestamped backup). Both together: home, then reference.
+  old file is kept as a timestamped backup). Both together: home, then reference. A homing
+  that changed the count marks the platform reference lost (the state file of
+  :mod:`bench.commission.reference`).
 """
 
 from __future__ import annotations
@@ -366,7 +375,8 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     if args.length is not None and not ax.min_length_m <= args.length <= ax.max_length_m:
         raise CommissionError(f"--length {args.length:g} m: outside [{ax.min_length_m:g}, "
                               f"{ax.max_length_m:g}] m of cable {ax.cable} in {w.source}", 2)
-    out: dict = {"winch": ax.cable, "node_id": ax.node_id, "method": args.method}
+    out: dict = {"winch": ax.cable, "node_id": ax.node_id, "method": args.method,
+                 "reference_lost": False}
     with network_of(args) as net:
         master = _master(args, net, w, k)
         try:
@@ -400,6 +410,7 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                 if started and (not done or after != before):  # the count may have moved
                     _reference_lost(args, ui, section, mark_lost, state_path, ax.cable,
                                     args.method)
+                    out["reference_lost"] = True
             out["state"] = state
             ui.say(f"{who(w, k)}: homed (method {args.method}): position {before} -> {after} "
                    "counts")
