@@ -430,3 +430,43 @@ def test_a_cartesian_jog_quick_stops_every_drive_when_a_cable_would_leave_the_wi
     rig.wait_settled()
     assert all(d.state.name in ("SWITCH_ON_DISABLED", "READY_TO_SWITCH_ON")
                for d in rig.bank.drives)
+
+
+def test_monitor_output_keeps_the_faults_of_a_warning_flood_and_counts_the_dropped(
+        rig, tmp_path, capsys, monkeypatch):
+    import threading
+
+    from hal.drive_monitor import DriveMonitor
+
+    polling = threading.Event()
+    poll = DriveMonitor.poll
+
+    def poll_and_tell(self):
+        polling.set()
+        return poll(self)
+
+    monkeypatch.setattr(DriveMonitor, "poll", poll_and_tell)
+
+    def flood():
+        polling.wait(30)  # the monitor is up
+        drv = rig.bank.drive(5)
+        drv._emcy(0x2310)
+        drv._emcy(0x7305)
+        for _ in range(60):
+            drv._emcy(0x8250)
+
+    th = threading.Thread(target=flood)
+    th.start()
+    rep = tmp_path / "r.md"
+    capsys.readouterr()
+    code = main(["commission", "monitor", *_bus(rig), "--duration", "2.0", "--rate", "5",
+                 "--json", "--report", str(rep)])
+    th.join()
+    cap = capsys.readouterr()
+    out = json.loads(cap.out.strip().splitlines()[-1])
+    assert code == 0
+    assert [e["code"] for e in out["events_by_severity"]["fault"]] == [0x2310, 0x7305]
+    assert out["events_dropped"] == {"fault": 0, "nmt": 0, "warning": 10}
+    assert len(out["events_by_severity"]["warning"]) == 50
+    assert "events dropped (oldest first, by severity): 0 fault, 0 nmt, 10 warning" in cap.err
+    assert "events dropped: 0 fault, 0 nmt, 10 warning" in rep.read_text()
