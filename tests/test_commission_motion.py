@@ -470,3 +470,17 @@ def test_monitor_output_keeps_the_faults_of_a_warning_flood_and_counts_the_dropp
     assert len(out["events_by_severity"]["warning"]) == 50
     assert "events dropped (oldest first, by severity): 0 fault, 0 nmt, 10 warning" in cap.err
     assert "events dropped: 0 fault, 0 nmt, 10 warning" in rep.read_text()
+
+
+def test_a_cartesian_jog_turns_the_platform_by_a_step_in_degrees(rig, tmp_path):
+    state = str(tmp_path / "state.toml")
+    p0 = rig.last.pose
+    cli("reference", "--pose", ",".join(f"{x:.9f}" for x in p0[:3]), "--can", rig.can_spec,
+        "--state", state)
+    code, out = cli("jog", "--platform", "--step", "0.02,0,0,0,0,2", *_bus(rig), "--yes",
+                    "--listen", "0", "--state", state)
+    assert code == 0 and out["ended_by"] == "target reached"
+    rig.wait_settled()
+    d = rig.last.pose - p0
+    assert d[0] == pytest.approx(0.02, abs=1e-3) and np.degrees(d[5]) == pytest.approx(2, abs=0.05)
+    np.testing.assert_allclose(d[1:5], 0.0, atol=1e-3)

@@ -162,30 +162,37 @@ def _run(hw, robot, r, p_now, traj, guard: CableGuard, ui: Ui, controller_cls) -
     n_cycles = int(np.ceil(traj.duration_s / period)) + SETTLE_CYCLES
     ended, why, guard_stop = "target reached", "", ""
     tty_line = 0.0
-    for i in range(n_cycles + 1):
-        r = hw.read()
-        if r.faults:
-            ended = why = f"fault: {r.faults[0]}"
-            hw.quick_stop()
-            break
-        stop = guard(r)
-        if stop:
-            ended, why, guard_stop = f"stopped: {stop}", stop, stop
-            hw.quick_stop()
-            break
-        pose = traj.sample(min(i * period, traj.duration_s)).pose
-        out, reason = _cycle(hw, ctrl, pose, r)
-        if out is None:
-            ended = why = f"infeasible setpoint: {reason}"
-            hw.quick_stop()
-            break
-        if time.monotonic() - tty_line > 0.5:
-            ui.progress(f"platform z {pose[2]:.4f} m  | {guard.line()}")
-            tty_line = time.monotonic()
-        t_next += period
-        delay = t_next - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+    try:
+        for i in range(n_cycles + 1):
+            r = hw.read()
+            if r.faults:
+                ended = why = f"fault: {r.faults[0]}"
+                hw.quick_stop()
+                break
+            stop = guard(r)
+            if stop:
+                ended, why, guard_stop = f"stopped: {stop}", stop, stop
+                hw.quick_stop()
+                break
+            pose = traj.sample(min(i * period, traj.duration_s)).pose
+            out, reason = _cycle(hw, ctrl, pose, r)
+            if out is None:
+                ended = why = f"infeasible setpoint: {reason}"
+                hw.quick_stop()
+                break
+            if time.monotonic() - tty_line > 0.5:
+                ui.progress(f"platform {np.round(pose[:3], 4).tolist()} m  | {guard.line()}")
+                tty_line = time.monotonic()
+            t_next += period
+            delay = t_next - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+    except KeyboardInterrupt:  # Ctrl-C: stop on the ramp and hold, then disable
+        hw.quick_stop()
+        for _ in range(SETTLE_CYCLES):
+            hw.write_lengths(None)
+            time.sleep(period)
+        raise
     for _ in range(SETTLE_CYCLES if why else 0):  # the quick stop's ramp, then holding
         hw.write_lengths(None)
         time.sleep(period)
