@@ -484,3 +484,55 @@ def test_a_cartesian_jog_turns_the_platform_by_a_step_in_degrees(rig, tmp_path):
     d = rig.last.pose - p0
     assert d[0] == pytest.approx(0.02, abs=1e-3) and np.degrees(d[5]) == pytest.approx(2, abs=0.05)
     np.testing.assert_allclose(d[1:5], 0.0, atol=1e-3)
+
+
+def test_the_hal_jog_quick_stops_holds_and_disables_when_its_guard_says_so():
+    """Lock-step (the drives on the SYNC clock, the master unpaced): the guard's reason
+    ends the jog through Quick Stop Active, the drive disabled and still."""
+    import can
+    import canopen
+
+    from controller.winch import load_winches
+    from firmware_sim.cia402_drive import EDS_PATH
+    from firmware_sim.drive_bank import SimulatedWinchBank
+    from hal.drives_cia402 import DriveState
+    from hal.motion import AxisMaster, JogInput, run_jog
+
+    w = load_winches()
+    ch = f"motion-guard-{time.monotonic_ns()}"
+    bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=ch), w)
+    bank.set_positions_m(np.full(8, 12.0))
+    bank.start()
+    net = canopen.Network(can.Bus(interface="virtual", channel=ch))
+    net.NOTIFIER_CYCLE = 0.05
+    net.connect()
+    try:
+        m = AxisMaster(net, w, 2, EDS_PATH, clock="sync", pace=False)
+        ax = w.axis(2)
+        m.start(1)
+        m.set_profile(int(round(0.2 / ax.metres_per_count)))
+        seen: list = []
+        calls = {"n": 0}
+
+        def guard(fb):
+            calls["n"] += 1
+            return "cable 41: slack, 0.7 N below 1 N" if calls["n"] == 120 else None
+
+        try:
+            res = run_jog(m, lambda: JogInput.OUT, int(round(ax.m_to_counts(12.5))),
+                          int(round(ax.m_to_counts(11.5))), 0.5, guard=guard,
+                          on_cycle=lambda fb, ph: seen.append((fb.length_m, ph, fb.state)),
+                          max_cycles=2000)
+        finally:
+            state, problems = m.finish()
+            m.close()
+        assert res.guard_stop == "cable 41: slack, 0.7 N below 1 N"
+        assert res.reason.startswith("stopped: cable 41")
+        assert res.cycles == 120  # ended at the guard's cycle, not by the input
+        assert DriveState.QUICK_STOP_ACTIVE in [s for _, ph, s in seen if ph == "stopping"]
+        assert state == "SWITCH_ON_DISABLED" and problems == []
+        assert res.end_m > 12.0 + 1e-3  # it moved, then stood
+        assert any("stop: cable 41" in text for _, text in m.log)
+    finally:
+        net.disconnect()
+        bank.close()
