@@ -228,6 +228,9 @@ class SimulatedDrive:
         self.network: canopen.Network | None = None
         self.now_us = int(round(clock() * 1e6)) if clock else 0
         self.axis = Axis()
+        #: the count minus the drum: homing moves the count (0x6064), never the drum
+        #: (:meth:`drum_counts`, the cable's physical position) [counts]
+        self.count_offset = 0.0
         self._saved: dict[tuple[int, int], bytes] = {}
         self._params: dict[tuple[int, int], object] = {}
         self._subscribed: dict[str, int | None] = {"sync": None, "rpdo": None}
@@ -1175,6 +1178,7 @@ class SimulatedDrive:
                 self.dem += delta
                 self._csp_from += delta
                 self._csp_to += delta
+                self.count_offset += delta  # the reading moves, the drum does not
                 self._homing_done = True
             else:
                 self._homing_error = True
@@ -1338,6 +1342,11 @@ class SimulatedDrive:
 
     def position_actual(self) -> int:
         return int(round(self.axis.pos))
+
+    def drum_counts(self) -> float:
+        """The drum's physical position [counts of the power-on reading]: the position
+        actual less what homings added to the count (the plant's cable length)."""
+        return self.axis.pos - self.count_offset
 
     def torque_actual(self) -> int:
         rated_mnm = int(self.param(0x6076)) or 1

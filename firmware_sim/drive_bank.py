@@ -134,6 +134,17 @@ class SimulatedWinchBank:
         with self.lock:
             return np.array([d.axis.pos for d in self.drives])
 
+    def drum_counts(self) -> np.ndarray:
+        """The drums' physical positions [counts], shape (n,): the actual positions less
+        what a homing changed in the count (:meth:`SimulatedDrive.drum_counts`)."""
+        with self.lock:
+            return np.array([d.drum_counts() for d in self.drives])
+
+    def drum_lengths_m(self) -> np.ndarray:
+        """The physical cable lengths [m] of the drums (what the plant sees), through the
+        winch parameters; equal to :meth:`positions_m` until a homing moves a count."""
+        return counts_to_m(self.drum_counts(), self.winches)
+
     def velocities_counts(self) -> np.ndarray:
         """Actual velocities [counts/s], shape (n,)."""
         with self.lock:

@@ -13,13 +13,15 @@
   :meth:`SimRig.measure_pose`, and over TCP (``tracker_port``) with the ``cdpr-tracker/1``
   protocol (:attr:`SimRig.tracker_spec`, the HAL's ``--tracker`` form).
 
-The drives' positions are the cable length readings. They start at the plant's encoder
-reference ``d_model(p0)``, so the platform stands at the scenario's init pose. The plant
-settles for the current readings at ``plant_rate_hz`` at most (only when they changed,
-or when the scenario has time-dependent effects: drift, a slip due), in the rig's thread;
-the true tensions go to the drives (torque actual), the tensions the cells measure
-(truth's gain/offset, :meth:`Plant.measured_tensions`) to the load-cell bank, which adds
-the scenario's load-cell noise at each sample (``cell_rate_hz``, always running: real
+The drums' positions are the cable lengths (:meth:`SimulatedWinchBank.drum_lengths_m`): a
+CiA 402 homing moves a drive's count (0x6064), never its drum, so the plant keeps the
+physical cable apart from the encoder reading, as a real winch does. They start at the
+plant's encoder reference ``d_model(p0)``, so the platform stands at the scenario's init
+pose. The plant settles for the current readings at ``plant_rate_hz`` at most (only when
+they changed, or when the scenario has time-dependent effects: drift, a slip due), in the
+rig's thread; the true tensions go to the drives (torque actual), the tensions the cells
+measure (truth's gain/offset, :meth:`Plant.measured_tensions`) to the load-cell bank, which
+adds the scenario's load-cell noise at each sample (``cell_rate_hz``, always running: real
 cells sample on their own).
 
 Of the scenario's noise the rig uses ``load_cell_n``, the tracker's and ``process_m``: a
@@ -204,7 +206,7 @@ class SimRig:
         self.history: deque[RigRecord] = deque(maxlen=HISTORY)
         self._settle_lock = threading.Lock()  # the plant is not thread-safe
         # the drives' quantised readings, so that the first settle is not a move (no visit)
-        self._publish(0.0, self.bank.positions_m(), st)
+        self._publish(0.0, self.bank.drum_lengths_m(), st)
         self.settles = 0  #: plant settles so far
         self.plant_errors: list[str] = []  #: why the plant found no rest position
         self.late_settles = 0  #: wall clock: settles that took longer than the plant period
@@ -330,7 +332,7 @@ class SimRig:
             return self._settle(force)
 
     def _settle(self, force: bool) -> RigRecord:
-        readings = self.bank.positions_m()
+        readings = self.bank.drum_lengths_m()
         t = self.time_s()
         last = self.last
         moved = float(np.max(np.abs(readings - last.readings_m))) > SETTLE_TOL_M
@@ -361,7 +363,7 @@ class SimRig:
             return self.settle_now()
         deadline = time.monotonic() + timeout_s
         while True:
-            readings = self.bank.positions_m()
+            readings = self.bank.drum_lengths_m()
             rec = self.last
             if float(np.max(np.abs(readings - rec.readings_m))) <= SETTLE_TOL_M:
                 return rec

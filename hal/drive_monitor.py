@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import canopen
 from controller.winch import WinchSet
 from hal.drives_cia402 import DriveState, decode_states, emcy_text
 from hal.drives_config import DriveConfigError, sdo_read
+from hal.event_log import FAULT, NMT, WARNING, SeverityLog, emcy_severity
 from hal.scan import NMT_STATE_NAMES
 
 
@@ -55,17 +55,23 @@ class DriveSample:
 
 @dataclass(frozen=True)
 class MonitorEvent:
-    """An EMCY (or a drive that stopped answering), with the wall time it was seen."""
+    """An EMCY, a boot-up (node reset) or a drive that stopped answering, with the wall
+    time it was seen and its severity (:mod:`hal.event_log`: fault, nmt, warning)."""
 
     wall_time: float
     node_id: int
     cable: str
     code: int
     text: str
+    severity: str = WARNING
 
     def __str__(self) -> str:
         stamp = time.strftime("%H:%M:%S", time.localtime(self.wall_time))
-        return f"{stamp} node {self.node_id} (cable {self.cable}) 0x{self.code:04X} {self.text}"
+        return (f"{stamp} node {self.node_id} (cable {self.cable}) 0x{self.code:04X} "
+                f"{self.severity}: {self.text}")
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
 class DriveMonitor:
@@ -81,7 +87,8 @@ class DriveMonitor:
         self._hb: dict[int, tuple[int, float]] = {}
         self._skip_until = [0.0] * len(winches)
         self._answered = [True] * len(winches)
-        self.events: deque[MonitorEvent] = deque(maxlen=max_events)
+        #: kept by severity, ``max_events`` of each: warnings never evict faults
+        self.events = SeverityLog(max_events)
         self._subs = []
         for k, nid in enumerate(int(x) for x in winches.node_id):
             node = canopen.RemoteNode(nid, canopen.import_od(str(eds), nid))
@@ -100,19 +107,23 @@ class DriveMonitor:
             if data:
                 with self._lock:
                     self._hb[nid] = (data[0] & 0x7F, time.monotonic())
+                if data[0] & 0x7F == 0:
+                    k = [int(x) for x in self.winches.node_id].index(nid)
+                    self._event(k, 0, "boot-up: the node was reset or powered on (its "
+                                "configuration is the stored one)", NMT)
         return cb
 
     def _emcy_cb(self, k: int):
         def cb(err: canopen.emcy.EmcyError) -> None:
             code = int(err.code)
             text = emcy_text(code) if code else "error reset / no error"
-            self._event(k, code, f"EMCY: {text} (error register 0x{int(err.register):02X})")
+            self._event(k, code, f"EMCY: {text} (error register 0x{int(err.register):02X})",
+                        emcy_severity(code))
         return cb
 
-    def _event(self, k: int, code: int, text: str) -> None:
-        with self._lock:
-            self.events.append(MonitorEvent(time.time(), int(self.winches.node_id[k]),
-                                            self.winches.cables[k], code, text))
+    def _event(self, k: int, code: int, text: str, severity: str = WARNING) -> None:
+        self.events.append(MonitorEvent(time.time(), int(self.winches.node_id[k]),
+                                        self.winches.cables[k], code, text, severity))
 
     def close(self) -> None:
         for cob, cb in self._subs:
@@ -123,8 +134,13 @@ class DriveMonitor:
                 del self.network[node.id]
 
     def last_events(self, n: int = 5) -> list[MonitorEvent]:
-        with self._lock:
-            return list(self.events)[-n:]
+        """The last ``n`` events, faults and boot-ups first kept (a warning flood does not
+        hide them): the newest faults/boot-ups, then the newest warnings, in time order."""
+        serious = self.events.items(FAULT) + self.events.items(NMT)
+        serious.sort(key=lambda e: e.wall_time)
+        serious = serious[-n:]
+        warn = self.events.items(WARNING)[-(n - len(serious)):] if n > len(serious) else []
+        return sorted(serious + warn, key=lambda e: e.wall_time)
 
     def poll(self) -> list[DriveSample]:
         """One SDO read of every drive (skipping, for a while, those that did not answer)."""
@@ -154,7 +170,7 @@ class DriveMonitor:
                 DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE) else 0
         except DriveConfigError as exc:
             if self._answered[k]:
-                self._event(k, 0, f"stopped answering SDO: {exc}")
+                self._event(k, 0, f"stopped answering SDO: {exc}", FAULT)
             self._answered[k] = False
             self._skip_until[k] = now + self.skip_s
             return DriveSample(t=now, answered=False, state="UNKNOWN",

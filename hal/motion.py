@@ -24,6 +24,12 @@ the drive halts (bit 8), and once stopped it is disabled. :func:`run_homing` is 
 homing on the current position (methods 35 and 37). :func:`hold_enabled` keeps the drive
 enabled and still until told to stop.
 
+All three take a ``guard``: called every cycle with the feedback, it returns None to go on
+or the reason to stop (the commissioning commands watch every cable's tension with
+:class:`controller.cable_watch.CableWatch`). On a reason the drive quick-stops and holds
+(:func:`quick_stop_hold`: Quick Stop Active on the quick-stop ramp, 0x605A option 6, then
+disabled: the brake holds), the motion ends, and the reason is in the result.
+
 The session widens the drive's RPDO deadline (0x1400 sub 5) to ``session_rpdo_timeout_s``:
 a commissioning laptop is no real-time controller. What the session changes beyond the
 table (deadline, mode, profile velocity) is written back at :meth:`AxisMaster.finish`.
@@ -581,19 +587,53 @@ class JogResult:
     moves: int = 0
     cycles: int = 0
     reason: str = ""
+    guard_stop: str = ""  #: why the guard stopped the motion ("" if it did not)
+
+
+#: a guard: feedback -> None (go on) or the reason to stop
+Guard = Callable[[AxisFeedback], "str | None"]
+
+
+def quick_stop_hold(master: AxisMaster, reason: str, max_cycles: int = 200,
+                    on_cycle: Callable[[AxisFeedback, str], None] | None = None
+                    ) -> AxisFeedback:
+    """Quick stop (controlword: Quick Stop Active, the drive's ramp 0x6085, holding with
+    0x605A option 6), wait for standstill, then disable (the brake holds). Notes
+    ``reason``. Returns the last feedback."""
+    master.note(f"{master.who()}: stop: {reason}")
+    master.halt = False
+    fb = master.feedback()
+    if fb.state in (DriveState.OPERATION_ENABLED, DriveState.QUICK_STOP_ACTIVE):
+        master.request = Request.QUICK_STOP
+        for _ in range(max_cycles):
+            fb = master.step()
+            if on_cycle is not None:
+                on_cycle(fb, "stopping")
+            if fb.state != DriveState.QUICK_STOP_ACTIVE or fb.statusword & SW_TARGET_REACHED:
+                break
+    master.request = Request.DISABLE
+    for _ in range(max_cycles):
+        fb = master.step()
+        if fb.state in (DriveState.READY_TO_SWITCH_ON, DriveState.SWITCH_ON_DISABLED,
+                        DriveState.FAULT):
+            break
+    master.note(f"{master.who()}: stopped and disabled at {fb.length_m:.4f} m "
+                f"({fb.state.name})")
+    return fb
 
 
 def run_jog(master: AxisMaster, read_input: Callable[[], JogInput | None], out_counts: int,
             in_counts: int, deadman_s: float,
             on_cycle: Callable[[AxisFeedback, str], None] | None = None,
-            max_cycles: int | None = None) -> JogResult:
+            max_cycles: int | None = None, guard: Guard | None = None) -> JogResult:
     """Jog ``master``'s drive while the operator's input keeps coming (see module docstring).
 
     ``read_input()`` is called once per cycle: the latest input since the last call or
     None. ``out_counts``/``in_counts``: the targets [counts] of the travel window's ends;
     ``deadman_s``: input silence [s, master clock] after which the drive halts, then is
-    disabled. Ends on QUIT/EOF (once disabled) or after ``max_cycles``; the drive is left
-    disabled (the caller's ``finally`` calls :meth:`AxisMaster.finish`).
+    disabled. Ends on QUIT/EOF (once disabled), after ``max_cycles``, or when ``guard``
+    gives a reason to stop (quick stop and hold, :func:`quick_stop_hold`); the drive is
+    left disabled (the caller's ``finally`` calls :meth:`AxisMaster.finish`).
     """
     fb = master.feedback()
     res = JogResult(fb.length_m, fb.length_m, fb.length_m, fb.length_m)
@@ -637,6 +677,14 @@ def run_jog(master: AxisMaster, read_input: Callable[[], JogInput | None], out_c
         res.cycles += 1
         res.min_m = min(res.min_m, fb.length_m)
         res.max_m = max(res.max_m, fb.length_m)
+        why = guard(fb) if guard is not None else None
+        if why:
+            res.guard_stop = why
+            res.reason = f"stopped: {why}"
+            fb = quick_stop_hold(master, why, on_cycle=on_cycle)
+            res.min_m = min(res.min_m, fb.length_m)
+            res.max_m = max(res.max_m, fb.length_m)
+            break
         if phase == "enabling" and fb.enabled:
             go(direction)
             phase = "moving"
@@ -665,14 +713,31 @@ def run_jog(master: AxisMaster, read_input: Callable[[], JogInput | None], out_c
     return res
 
 
-def run_homing(master: AxisMaster, max_cycles: int = 500) -> AxisFeedback:
+class GuardStop(MotionError):
+    """The guard stopped the motion (the drive quick-stopped and was disabled)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, "guard")
+
+
+def _guarded(master: AxisMaster, guard: Guard | None, fb: AxisFeedback) -> None:
+    why = guard(fb) if guard is not None else None
+    if why:
+        quick_stop_hold(master, why)
+        raise GuardStop(f"{master.who()}: stopped: {why}")
+
+
+def run_homing(master: AxisMaster, max_cycles: int = 500,
+               guard: Guard | None = None) -> AxisFeedback:
     """CiA 402 homing (mode 6, method and offset set with :meth:`AxisMaster.set_homing`):
     enable, start (bit 4), wait for homing attained (statusword bits 12 and 10), disable.
-    Returns the feedback after homing; MotionError on a homing error (bit 13)."""
+    Returns the feedback after homing; MotionError on a homing error (bit 13),
+    :class:`GuardStop` when ``guard`` gives a reason to stop."""
     master.enable()
     master.move_to(master.feedback().position_counts)  # bit 4 rising edge starts homing
     for _ in range(max_cycles):
         fb = master.step()
+        _guarded(master, guard, fb)
         if master._sw & SW_OMS13:
             raise MotionError(f"{master.who()}: homing error (statusword 0x{master._sw:04X})")
         if not master._bit4 and master._pending is None and master._sw & SW_OMS12 \
@@ -684,15 +749,19 @@ def run_homing(master: AxisMaster, max_cycles: int = 500) -> AxisFeedback:
 
 
 def hold_enabled(master: AxisMaster, keep_going: Callable[[AxisFeedback], bool],
-                 on_cycle: Callable[[AxisFeedback, str], None] | None = None) -> AxisFeedback:
-    """Enable and hold the actual position while ``keep_going(feedback)``; then disable."""
+                 on_cycle: Callable[[AxisFeedback, str], None] | None = None,
+                 guard: Guard | None = None) -> AxisFeedback:
+    """Enable and hold the actual position while ``keep_going(feedback)``; then disable.
+    :class:`GuardStop` when ``guard`` gives a reason to stop (quick stop, then disabled)."""
     fb = master.enable()
     while keep_going(fb):
         fb = master.step()
         if on_cycle is not None:
             on_cycle(fb, "enabled")
+        _guarded(master, guard, fb)
     return master.disable()
 
 
-__all__ = ["AxisFeedback", "AxisMaster", "JogInput", "JogResult", "MotionError",
-           "hold_enabled", "master_heartbeat", "run_homing", "run_jog"]
+__all__ = ["AxisFeedback", "AxisMaster", "Guard", "GuardStop", "JogInput", "JogResult",
+           "MotionError", "hold_enabled", "master_heartbeat", "quick_stop_hold", "run_homing",
+           "run_jog"]

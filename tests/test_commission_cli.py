@@ -156,8 +156,10 @@ def test_commissioning_against_cdpr_sim_in_another_process(sim, capsys, tmp_path
             return W.axis(2).counts_to_m(pos)
 
         l_start = length3()
+        # no --modbus: the cables are not watched, allowed only with the platform on its
+        # stand (--platform-supported), which also allows the long travel
         jog = Jog("21", "--can", can_, "--yes", "--deadman", "0.4", "--speed", "0.2",
-                  "--report", rep)
+                  "--platform-supported", "--travel", "0.5", "--report", rep)
         try:
             jog.wait_for("Hold +")
             jog.pressing.set()

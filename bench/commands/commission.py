@@ -3,7 +3,8 @@
 Commissioning the real winches (CiA 402 drives on CAN, ``--can socketcan:can0`` or any
 python-can interface) and load cells (Modbus, ``--modbus HOST:PORT`` or
 ``rtu:/dev/ttyUSB0:19200``); the same against ``cdpr sim`` (``--can socketcand:...``).
-The order on site: scan -> check (--apply) -> home -> tare / calibrate -> monitor.
+The order on site: scan -> check (--apply) -> reference -> tare / calibrate -> enable -> jog
+(one winch with the platform on its stand, or --platform) -> monitor.
 
 The sub-commands live in :mod:`bench.commission`; this module is the argparse front (heavy
 imports happen when a sub-command runs). Every sub-command appends a section to the
@@ -17,13 +18,15 @@ import argparse
 from pathlib import Path
 
 NAME = "commission"
-HELP = ("commission the winches and load cells: scan, check, enable, disable, jog, home, "
-        "tare, calibrate, monitor")
+HELP = ("commission the winches and load cells: scan, check, reference, enable, disable, "
+        "jog, home, tare, calibrate, monitor")
 
-ORDER = """order on site: scan -> check [--apply] -> home -> tare / calibrate -> monitor.
+ORDER = """order on site: scan -> check [--apply] -> reference -> tare / calibrate -> enable ->
+jog (one winch, platform on its stand; or --platform) -> monitor.
 WINCH is a cable id (21) or node:N; SENSOR a cable id or unit:N. Everything that can move a
-winch listens --listen seconds for another master first, asks for confirmation (--yes) and
-leaves the drive disabled on any error, timeout or Ctrl-C. Every sub-command appends a
+winch listens --listen seconds for another master first, asks for confirmation (--yes),
+watches every cable's tension (--modbus) and stops when one leaves the tension window, and
+leaves the drives disabled on any error, timeout or Ctrl-C. Every sub-command appends a
 section to the commissioning report (commissioning-report.md here, or --report PATH)."""
 
 
@@ -38,12 +41,24 @@ def _common(json_help: str) -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(add_help=False)
     add_hardware_arguments(p, eds_default=_default_eds())
+    g = p.add_argument_group("tensions")
+    g.add_argument("--robot", default="rocaspect", metavar="NAME|PATH",
+                   help="robot description: tension limits, model [rocaspect]")
+    g.add_argument("--tension-window", metavar="LO,HI",
+                   help="tensions a cable may carry [N]: below LO is slack, above HI "
+                        "overload [the supervisor's: tension_min/5, tension_max of --robot]")
     g = p.add_argument_group("report and output")
     g.add_argument("--report", metavar="PATH",
                    help="commissioning report to append to [commissioning-report.md]")
     g.add_argument("--no-report", action="store_true", help="write no report section")
     g.add_argument("--json", action="store_true", help=json_help)
     return p
+
+
+def _state(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--state", metavar="FILE",
+                   help="commissioning state (the winches' reference, cdpr-commission-state/1 "
+                        "TOML) [commissioning-state.toml beside the report]")
 
 
 def _moving(p: argparse.ArgumentParser) -> None:
@@ -107,31 +122,57 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--fault-reset", action="store_true",
                    help="reset a fault first (rising edge of controlword bit 7)")
 
-    q = add("jog", "jog one winch in profile position with a dead-man input",
+    q = add("jog", "jog one winch with a dead-man input, or the platform (--platform) through "
+            "the model",
             'print {"winch", "node_id", "start_m", "end_m", "min_m", "max_m", "moves", '
-            '"deadman_stops", "ended_by", "state", "window_m", "speed_m_s"}',
-            "Hold + to pay cable out, - to reel it in: the terminal's key repeat keeps the "
-            "winch moving; release the key and it halts after --deadman seconds, then is "
-            "disabled (the next key enables it again). Space stops, q quits. From a pipe "
-            "every character is a key and the end of the input quits.")
-    q.add_argument("winch", help="cable id (21) or node:N")
+            '"deadman_stops", "ended_by", "state", "window_m", "speed_m_s", "travel_m", '
+            '"guard_stop", "cable_watch"}; with --platform {"start_pose", "target_pose", '
+            '"end_pose", "duration_s", "ended_by", "guard_stop", "cable_watch", "state"}',
+            "One winch: hold + to pay cable out, - to reel it in: the terminal's key repeat "
+            "keeps the winch moving; release the key and it halts after --deadman seconds, "
+            "then is disabled (the next key enables it again). Space stops, q quits. From a "
+            "pipe every character is a key and the end of the input quits. A loaded robot's "
+            "winch moves at most 5 mm without --platform-supported (the platform resting on "
+            "its stand). --platform: all winches move together along a jerk-limited straight "
+            "line from the referenced pose (cdpr commission reference) by --step or to --to, "
+            "checked before it starts as the dry run checks its path. Every cable's tension is "
+            "watched (--modbus): a tension leaving the window, or about to, quick-stops the "
+            "motion and the drives are disabled.")
+    q.add_argument("winch", nargs="?", help="cable id (21) or node:N (not with --platform)")
     q.add_argument("--speed", type=float, metavar="M/S",
-                   help="jog speed, at most max_speed_m_s of the winch file "
-                        "[min(0.05, profile_speed_m_s)]")
-    q.add_argument("--travel", type=float, default=0.5, metavar="M",
-                   help="farthest from the start position, within [min_length_m, "
-                        "max_length_m] [0.5 m]")
+                   help="one winch: jog speed, at most max_speed_m_s of the winch file "
+                        "[min(0.05, profile_speed_m_s)]; --platform: the platform's speed "
+                        "[0.02 m/s]")
+    q.add_argument("--travel", type=float, metavar="M",
+                   help="one winch: farthest from the start position, within "
+                        "[min_length_m, max_length_m]; more than 0.005 m needs "
+                        "--platform-supported [0.01 m; 0.005 m without --platform-supported]")
     q.add_argument("--deadman", type=float, default=0.6, metavar="S",
-                   help="halt after S seconds without a key [0.6]")
+                   help="one winch: halt after S seconds without a key [0.6]")
+    q.add_argument("--platform-supported", action="store_true",
+                   help="the platform rests on its stand: a single winch may move more than "
+                        "5 mm (the cables are still watched)")
+    q.add_argument("--platform", action="store_true",
+                   help="Cartesian jog: move the platform (all winches) by --step or to --to")
+    q.add_argument("--step", metavar="DX,DY,DZ[,DR,DP,DY]",
+                   help="--platform: the step from the referenced pose [m, deg]")
+    q.add_argument("--to", metavar="X,Y,Z[,R,P,Y]",
+                   help="--platform: the target pose [m, deg]")
+    q.add_argument("--max-step", type=float, default=0.10, metavar="M",
+                   help="--platform: refuse steps longer than M metres [0.10]")
+    _state(q)
     _moving(q)
 
     q = add("home", "home a winch (CiA 402 homing) and/or reference it (length_at_zero_m)",
             'print {"winch", "node_id", "method", "position_before_counts", '
-            '"position_after_counts", "length_m", "length_at_zero_m", "winch_file", "backup"}',
+            '"position_after_counts", "length_m", "length_at_zero_m", "winch_file", "backup", '
+            '"reference_lost"}',
             "--method 35|37: the drive's position becomes --offset counts (homing on the "
             "current position, no motion). --length L: the current position reads L metres: "
             "length_at_zero_m of the winch parameter file (--winches, default the shipped "
-            "file) is rewritten, the old file kept as NAME.DATE.bak.")
+            "file) is rewritten, the old file kept as NAME.DATE.bak. A homing changes the "
+            "count, never the cable: the platform reference (cdpr commission reference) is "
+            "lost and jog --platform refused until it has run again.")
     q.add_argument("winch", help="cable id (21) or node:N")
     q.add_argument("--method", type=int, choices=(35, 37),
                    help="CiA 402 homing method on the current position")
@@ -139,7 +180,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="home offset 0x607C: the position after homing [0]")
     q.add_argument("--length", type=float, metavar="M",
                    help="the cable length at the current (homed) position [m]")
+    _state(q)
     _moving(q)
+
+    q = add("reference", "reference every winch at a measured platform pose (tracker, or "
+            "--pose on the stand)",
+            'print {"pose", "pose_source", "robot", "state", "offsets_m", "model_m", '
+            '"reading_m"}',
+            "Each encoder's reading becomes the model's cable length at the pose "
+            "(d_model(p0), the controller's initialisation); the offsets, pose, time and "
+            "model go to the state file (--state). Nothing moves, nothing is written to the "
+            "drives. A CiA 402 homing (home --method) marks the reference lost.")
+    q.add_argument("--pose", metavar="X,Y,Z[,R,P,Y]",
+                   help="the platform's known pose on its stand [m, deg]")
+    q.add_argument("--tracker", metavar="SPEC",
+                   help="laser tracker measuring the platform's pose: tcp:HOST:PORT "
+                        "(cdpr sim prints its own)")
+    q.add_argument("--samples", type=int, default=20, metavar="N",
+                   help="tracker poses averaged [20]")
+    _state(q)
 
     cal_doc = ("The calibration file is --loadcell-calibration (default "
                "loadcell_calibration.toml here); the old one is kept as NAME.DATE.bak. "
@@ -174,24 +233,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q = add("monitor", "live table of drive states, positions, velocities, torques, tensions, "
             "bus load and the last errors",
             'print {"refreshes", "ended_by", "frames", "drives", "load_cells", "events", '
-            '"record", "rows", "candump"} at the end')
+            '"events_by_severity", "events_dropped", "tension_window_n", "record", "rows", '
+            '"candump"} at the end')
     q.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="refreshes per second")
     q.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     q.add_argument("--record", metavar="DIR", help="write a cdpr-recording/1 directory")
-    q.add_argument("--robot", default="rocaspect", metavar="NAME|PATH",
-                   help="robot description for --record [rocaspect]")
     q.add_argument("--init-pose", metavar="X,Y,Z[,R,P,Y]",
                    help="init_pose of --record [forward kinematics of the first sample]")
+    q.add_argument("--json-lines", action="store_true",
+                   help="one JSON object per refresh on stdout (the table goes to stderr)")
     q.add_argument("--candump", metavar="FILE",
                    help="log every CAN frame (.asc, .blf, .log or .csv: python-can's Logger)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.commission import check, loadcells, monitor, motion, scan
+    from bench.commission import check, loadcells, monitor, motion, reference, scan
     from bench.commission.common import dispatch
 
     funcs = {"scan": scan.run, "check": check.run, "enable": motion.run_enable,
              "disable": motion.run_disable, "jog": motion.run_jog, "home": motion.run_home,
              "tare": loadcells.run_tare, "calibrate": loadcells.run_calibrate,
-             "monitor": monitor.run}
+             "monitor": monitor.run, "reference": reference.run_reference}
     return dispatch(args, funcs[args.sub])

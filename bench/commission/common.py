@@ -40,7 +40,9 @@ class Ui:
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.json = bool(getattr(args, "json", False))
-        self.out = sys.stderr if self.json else sys.stdout
+        # --json-lines (monitor): stdout carries the JSON stream only
+        lines = bool(getattr(args, "json_lines", False))
+        self.out = sys.stderr if self.json or lines else sys.stdout
 
     def say(self, text: str = "") -> None:
         print(text, file=self.out, flush=True)
@@ -61,6 +63,28 @@ def winch_file(args: argparse.Namespace) -> Path:
     from controller.winch import DEFAULT_WINCHES
 
     return Path(args.winches) if args.winches else DEFAULT_WINCHES
+
+
+def tension_window_of(args: argparse.Namespace):
+    """The tension window [N] of ``--tension-window LO,HI``, else the supervisor's for the
+    robot of ``--robot`` (slack below a fifth of tension_min, overload above tension_max):
+    a :class:`controller.cable_watch.TensionWindow`."""
+    from controller.cable_watch import TensionWindow
+    from controller.robot import RobotFileError, resolve_robot
+
+    spec = getattr(args, "tension_window", None)
+    if spec:
+        try:
+            lo, hi = (float(x) for x in spec.split(","))
+            return TensionWindow(lo, hi)
+        except ValueError as exc:
+            raise CommissionError(f"--tension-window {spec!r}: expected LO,HI in N with "
+                                  f"0 <= LO < HI ({exc})", 2) from None
+    try:
+        robot = resolve_robot(getattr(args, "robot", None) or "rocaspect")
+    except (RobotFileError, OSError, ValueError) as exc:
+        raise CommissionError(f"--robot: {exc}", 2) from None
+    return TensionWindow.for_robot(robot.tension_min, robot.tension_max)
 
 
 def register_map_of(args: argparse.Namespace) -> RegisterMap:

@@ -15,11 +15,20 @@ block of plain lines per refresh.
 kinematics of the first sample (said in its notes). ``--candump FILE`` logs every CAN frame,
 heard and sent, with python-can's Logger (.asc, .blf, .log, .csv by the suffix).
 ``--duration S`` ends it; else Ctrl-C or ``q`` (exit status 0, files closed).
+
+A valid tension outside the window (``--tension-window``, else the supervisor's) shows as
+``slack`` or ``overload``, never ``ok`` (:func:`controller.cable_watch.classify_tensions`).
+``--json-lines`` writes one JSON object per refresh on stdout (the table then goes to
+stderr): ``t_s``, ``drives``, ``load_cells``, ``bus_load``, ``frames``, ``events_new``.
+The events (EMCYs, boot-ups, drives that stop answering) are kept by severity
+(:class:`hal.event_log.SeverityLog`): a flood of warnings never evicts a fault or a
+boot-up; what was dropped is counted.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import threading
 import time
@@ -32,9 +41,11 @@ from bench.commission.common import (
     Ui,
     network_of,
     register_map_of,
+    tension_window_of,
     winches_of,
 )
 from bench.commission.report import Section
+from hal.event_log import SEVERITIES
 
 STATE_SHORT = {"NOT_READY_TO_SWITCH_ON": "not ready", "SWITCH_ON_DISABLED": "disabled",
                "READY_TO_SWITCH_ON": "ready", "SWITCHED_ON": "switched on",
@@ -70,9 +81,33 @@ def _fmt(v, spec: str, none: str = "-") -> str:
     return format(v, spec)
 
 
+def cell_status(reading, j: int, cable: str, window) -> str:
+    """A load cell's status: the client's (timeout, stale, ...) or, for a valid reading,
+    ``ok`` / ``slack`` / ``overload`` against the tension window."""
+    from controller.cable_watch import classify_tensions
+
+    st = reading.status_of(cable).name.lower()
+    if st != "ok":
+        return st
+    return classify_tensions([reading.values_N[j]], window)[0]
+
+
+def cells_json(reading, window) -> list[dict]:
+    """The load cells as JSON rows."""
+    if reading is None:
+        return []
+    return [{"device_id": int(reading.unit_ids[j]), "cable": c,
+             "tension_n": None if not np.isfinite(reading.values_N[j])
+             else float(reading.values_N[j]),
+             "status": cell_status(reading, j, c, window),
+             "age_s": float(reading.age_s[j]) if np.isfinite(reading.age_s[j]) else None}
+            for j, c in enumerate(reading.cables)]
+
+
 def render(samples, reading, rmap, load: float, frames: int, events, header: str,
-           has_current: bool) -> list[str]:
-    """The table's lines."""
+           has_current: bool, window=None) -> list[str]:
+    """The table's lines (``window``: the tension window the cells' status is judged by;
+    None: the client's status only)."""
     lines = [header + f"  bus load {load * 100:5.1f} %  frames {frames}"]
     cur = f" {'current‰':>8}" if has_current else ""
     lines.append(f"{'cable':>5} {'node':>4} {'NMT':<8} {'state':<11} {'length [m]':>10} "
@@ -88,7 +123,8 @@ def render(samples, reading, rmap, load: float, frames: int, events, header: str
             j = rmap.index_of(s.cable) if s.cable in rmap.cables else None
             if j is not None:
                 tension = _fmt(float(reading.values_N[j]), "11.1f")
-                status = reading.status_of(s.cable).name.lower()
+                status = (reading.status_of(s.cable).name.lower() if window is None
+                          else cell_status(reading, j, s.cable, window))
                 age = _fmt(float(reading.age_s[j]), "7.2f")
         cur = f" {_fmt(s.current_permille, '8d')}" if has_current else ""
         lines.append(f"{s.cable:>5} {s.node_id:>4} {nmt:<8} {state:<11} "
@@ -172,6 +208,8 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
         if rec_dir.exists() and any(rec_dir.iterdir()):
             raise CommissionError(f"--record {rec_dir}: not empty; choose a new directory", 2)
     section.fact("winch file", w.source)
+    window = tension_window_of(args)
+    section.fact("tension window", str(window))
     period = 1.0 / args.rate
     counter = FrameCounter(window_s=1.0)
     writer = None
@@ -216,7 +254,8 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                 # The first row holds every cell that answers: wait for one whole sweep
                 # (a unit that does not answer shows its timeout status instead).
                 cells.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
-            screen = _Screen(ui.out)
+            screen = _Screen(sys.stderr if args.json_lines else ui.out)
+            n_seen = 0
             t0 = time.monotonic()
             t_end = None if args.duration is None else t0 + args.duration
             keys = None
@@ -255,8 +294,18 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                                   f"{args.can}")
                         last_lines = render(samples, reading, rmap,
                                             counter.load(w.bus.bitrate, now), counter.frames,
-                                            mon.last_events(4), header, mon.has_current)
+                                            mon.last_events(4), header, mon.has_current,
+                                            window)
                         screen.show(last_lines)
+                        if args.json_lines:
+                            new, n_seen = _new_events(mon, n_seen)
+                            print(json.dumps({
+                                "t_s": round(now - t0, 4), "drives": [x.as_dict()
+                                                                       for x in samples],
+                                "load_cells": cells_json(reading, window),
+                                "bus_load": counter.load(w.bus.bitrate, now),
+                                "frames": counter.frames,
+                                "events_new": [e.as_dict() for e in new]}), flush=True)
                         if t_end is not None and now >= t_end:
                             why = f"--duration {args.duration:g} s"
                             break
@@ -286,8 +335,11 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                 net.notifier.remove_listener(logger)
                 logger.stop()
     events = [str(e) for e in mon.events]
+    dropped = mon.events.dropped()
     section.fact("result", f"{polls} refreshes, ended by {why}, {counter.frames} frames, "
                  f"{len(events)} event(s)")
+    if any(dropped.values()):
+        section.fact("events dropped", ", ".join(f"{v} {k}" for k, v in dropped.items()))
     if args.record:
         section.fact("recording", f"{args.record} ({writer.rows if writer else 0} rows)")
     if args.candump:
@@ -298,20 +350,29 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     ui.say(f"monitor: {polls} refreshes, ended by {why}"
            + (f"; recording {args.record} ({writer.rows} rows)" if writer else "")
            + (f"; CAN log {args.candump}" if args.candump else ""))
+    if any(dropped.values()):
+        ui.say("events dropped (oldest first, by severity): "
+               + ", ".join(f"{v} {k}" for k, v in dropped.items()))
     ui.emit({"refreshes": polls, "ended_by": why, "frames": counter.frames,
              "drives": [s.as_dict() for s in samples],
-             "load_cells": [] if reading is None else [
-                 {"device_id": int(reading.unit_ids[j]), "cable": c,
-                  "tension_n": None if not np.isfinite(reading.values_N[j])
-                  else float(reading.values_N[j]),
-                  "status": reading.status_of(c).name.lower(), "age_s": float(reading.age_s[j])
-                  if np.isfinite(reading.age_s[j]) else None}
-                 for j, c in enumerate(reading.cables)],
-             "events": events, "record": args.record, "rows": writer.rows if writer else 0,
+             "load_cells": cells_json(reading, window),
+             "events": events,
+             "events_by_severity": {sev: [e.as_dict() for e in mon.events.items(sev)]
+                                    for sev in SEVERITIES},
+             "events_dropped": dropped, "tension_window_n": [window.low_n, window.high_n],
+             "record": args.record, "rows": writer.rows if writer else 0,
              "candump": args.candump})
     if stopped is not None:  # 130 / 143: dispatch's last line on stderr says which signal
         return stopped[0]
     return 0
+
+
+def _new_events(mon, n_seen: int) -> tuple[list, int]:
+    """The events that came since ``n_seen`` events had come (those still kept) and the
+    running count now."""
+    total = len(mon.events) + sum(mon.events.dropped().values())
+    fresh = total - n_seen
+    return (mon.events.items()[-fresh:] if fresh > 0 else []), total
 
 
 class _Null:

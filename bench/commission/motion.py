@@ -16,11 +16,20 @@ left in is printed and reported.
   the input coming); when no key comes for ``--deadman`` seconds the winch halts, then is
   disabled; the next key enables it again. Space stops, ``q`` quits. Speed ``--speed``
   (refused beyond the winch file's ``max_speed_m_s``), travel at most ``--travel`` from where
-  the jog started and never beyond ``[min_length_m, max_length_m]``.
+  the jog started and never beyond ``[min_length_m, max_length_m]``; more than
+  :data:`LOADED_JOG_MAX_M` only with ``--platform-supported`` (default travel
+  :data:`DEFAULT_TRAVEL_M`, capped without it). ``--platform``: the Cartesian jog
+  (:mod:`bench.commission.platform`).
+
+``enable``, ``jog`` and ``home`` watch every cable (``--modbus``,
+:mod:`bench.commission.watch`): all tensions are shown live, and when one leaves the
+tension window, or is about to, the drive quick-stops, holds, and is disabled.
 - ``home``: ``--method 35|37`` runs CiA 402 homing on the current position (the position
   becomes ``--offset`` counts); ``--length L`` references the winch: the current position
   reads L metres, i.e. ``length_at_zero_m`` of the winch parameter file is rewritten (the
-  old file is kept as a timestamped backup). Both together: home, then reference.
+  old file is kept as a timestamped backup). Both together: home, then reference. A homing
+  that changed the count marks the platform reference lost (the state file of
+  :mod:`bench.commission.reference`).
 """
 
 from __future__ import annotations
@@ -43,14 +52,30 @@ from bench.commission.common import (
 )
 from bench.commission.keys import KeyReader, cbreak
 from bench.commission.report import Section
+from bench.commission.watch import horizon_s, open_guard
+
+#: the farthest a single-winch jog may go on a loaded robot without --platform-supported [m]
+LOADED_JOG_MAX_M = 0.005
+#: the default single-winch jog travel [m]
+DEFAULT_TRAVEL_M = 0.010
+
+
+def _close_guard(guard, section: Section) -> None:
+    if guard is None:
+        return
+    guard.close()
+    sm = guard.summary()
+    lo = ", ".join(f"{c} {v if v is not None else '-'}" for c, v in sm["min_n"].items())
+    section.fact("lowest tensions [N]", lo)
 
 
 class _Status:
     """Progress of a motion on stderr: one line refreshed in place on a terminal, else a
     line per phase change (and every few seconds)."""
 
-    def __init__(self, label: str) -> None:
+    def __init__(self, label: str, guard=None) -> None:
         self.label = label
+        self.guard = guard
         self.tty = sys.stderr.isatty()
         self.phase = ""
         self.last = 0.0
@@ -58,6 +83,8 @@ class _Status:
     def __call__(self, fb, phase: str) -> None:
         now = time.monotonic()
         line = f"{self.label}: {fb.length_m:9.4f} m  {phase:<10} {fb.state.name}"
+        if self.guard is not None:
+            line += "  | " + self.guard.line()
         if self.tty:
             if now - self.last > 0.1 or phase != self.phase:
                 print("\r" + line + "\x1b[K", end="", file=sys.stderr, flush=True)
@@ -105,7 +132,7 @@ def _prepare(args, ui: Ui, section: Section, net, w, k, what: str) -> None:
 
 
 def run_enable(args: argparse.Namespace, ui: Ui, section: Section) -> int:
-    from hal.motion import MODE_PP, hold_enabled
+    from hal.motion import MODE_PP, GuardStop, hold_enabled
 
     w = winches_of(args)
     k = resolve_winch(w, args.winch)
@@ -113,10 +140,13 @@ def run_enable(args: argparse.Namespace, ui: Ui, section: Section) -> int:
         raise CommissionError(f"--duration {args.duration}: must be > 0", 2)
     with network_of(args) as net:
         _prepare(args, ui, section, net, w, k, "Enable")
+        guard = open_guard(args, ui, section, w.cables, horizon_s(0.0, 1.0), required=False)
         master = _master(args, net, w, k)
-        status = _Status(f"winch {w.cables[k]}")
+        status = _Status(f"winch {w.cables[k]}", guard)
         keys = KeyReader(enter_quits=True)
         reason = ""
+        stop = ""
+        fb0 = fb = None
         try:
             fb0 = master.start(MODE_PP)
             t_end = None if args.duration is None else master.now() + args.duration
@@ -138,16 +168,25 @@ def run_enable(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                         return False
                     return True
 
-                fb = hold_enabled(master, keep, status)
+                try:
+                    fb = hold_enabled(master, keep, status, guard=guard)
+                except GuardStop as exc:
+                    stop = reason = str(exc)
+                    fb = master.feedback()
         finally:
             state = _finish(master, ui, section, status)
+            _close_guard(guard, section)
+    if stop:
+        ui.say(f"STOPPED by the cable watch: {stop}")
+        section.fact("cable watch stop", stop)
     drift = fb.length_m - fb0.length_m
     section.fact("result", f"held at {fb0.length_m:.4f} m, moved {drift * 1e3:+.3f} mm, "
                  f"ended by {reason}")
     ui.say(f"held at {fb0.length_m:.4f} m; moved {drift * 1e3:+.3f} mm while enabled")
     ui.emit({"winch": w.cables[k], "node_id": int(w.node_id[k]), "length_m": fb.length_m,
-             "moved_m": drift, "ended_by": reason, "state": state})
-    return 0
+             "moved_m": drift, "ended_by": reason, "state": state,
+             "cable_watch": guard.summary() if guard else None})
+    return 1 if stop else 0
 
 
 # ---------------------------------------------------------------------------- disable
@@ -210,7 +249,33 @@ def jog_window(w, k: int, start_m: float, travel_m: float) -> tuple[float, float
     return max(lo, start_m - travel_m), min(hi, start_m + travel_m)
 
 
+def jog_travel(args: argparse.Namespace, span_m: float) -> float:
+    """The jog's travel [m]: ``--travel`` or the default; more than
+    :data:`LOADED_JOG_MAX_M` only with ``--platform-supported`` (a single winch moved on a
+    robot whose platform hangs from its cables slackens or overloads the others)."""
+    travel = DEFAULT_TRAVEL_M if args.travel is None else args.travel
+    if not 0 < travel <= span_m:
+        raise CommissionError(f"--travel {travel:g} m: must be in (0, {span_m:g}] (the length "
+                              "range of the cable in the winch file)", 2)
+    if travel > LOADED_JOG_MAX_M and not args.platform_supported:
+        if args.travel is not None:
+            raise CommissionError(
+                f"--travel {travel * 1e3:g} mm: a single winch moved more than "
+                f"{LOADED_JOG_MAX_M * 1e3:g} mm slackens or overloads the other cables of a "
+                "loaded robot; rest the platform on its stand and give --platform-supported, "
+                "or jog the platform (cdpr commission jog --platform --step ...)", 2)
+        travel = LOADED_JOG_MAX_M
+    return travel
+
+
 def run_jog(args: argparse.Namespace, ui: Ui, section: Section) -> int:
+    if args.platform:
+        from bench.commission.platform import run_platform_jog
+
+        return run_platform_jog(args, ui, section)
+    if args.winch is None:
+        raise CommissionError("give a WINCH (cable id or node:N), or --platform for a "
+                              "Cartesian jog", 2)
     from hal.motion import MODE_PP
     from hal.motion import run_jog as jog
 
@@ -221,55 +286,81 @@ def run_jog(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     if not 0 < speed <= ax.max_speed_m_s:
         raise CommissionError(f"--speed {speed:g} m/s: must be in (0, {ax.max_speed_m_s:g}] "
                               f"(max_speed_m_s of cable {ax.cable} in {w.source})", 2)
-    span = ax.max_length_m - ax.min_length_m
-    if not 0 < args.travel <= span:
-        raise CommissionError(f"--travel {args.travel:g} m: must be in (0, {span:g}] (the "
-                              f"length range of cable {ax.cable} in {w.source})", 2)
+    travel = jog_travel(args, ax.max_length_m - ax.min_length_m)
     if not 0 < args.deadman <= 5:
         raise CommissionError(f"--deadman {args.deadman:g} s: must be in (0, 5]", 2)
+    guard = None
     with network_of(args) as net:
         master = _master(args, net, w, k)
         try:
             start_m = ax.counts_to_m(master.read_position())
-            lo, hi = jog_window(w, k, start_m, args.travel)
+            lo, hi = jog_window(w, k, start_m, travel)
             section.fact("jog", f"speed {speed:g} m/s, window [{lo:.4f}, {hi:.4f}] m, "
-                         f"dead-man {args.deadman:g} s")
+                         f"dead-man {args.deadman:g} s"
+                         + (", platform supported" if args.platform_supported else ""))
             _prepare(args, ui, section, net, w, k, "Jog")
+            guard = open_guard(args, ui, section, w.cables,
+                               horizon_s(speed, ax.quick_stop_decel_m_s2),
+                               required=not args.platform_supported)
         except BaseException:
             master.close()
+            if guard is not None:
+                guard.close()
             raise
-        status = _Status(f"winch {w.cables[k]}")
+        status = _Status(f"winch {w.cables[k]}", guard)
         keys = KeyReader()
         res = None
         try:
             master.start(MODE_PP)
             master.set_profile(int(round(speed / ax.metres_per_count)))
-            ui.progress(f"{master.who()}: jog at {speed:g} m/s within [{lo:.4f}, {hi:.4f}] m. "
-                        f"Hold + (out) or - (in); release: stop after {args.deadman:g} s; "
-                        "space stops, q quits")
+            ui.progress(f"{master.who()}: jog at {speed:g} m/s within [{lo:.4f}, {hi:.4f}] m "
+                        f"(travel {travel * 1e3:g} mm). Hold + (out) or - (in); release: stop "
+                        f"after {args.deadman:g} s; space stops, q quits"
+                        + (f"; stops when a tension leaves {guard.window}" if guard else ""))
             with cbreak():
                 keys.start()
                 res = jog(master, keys.poll, int(round(ax.m_to_counts(hi))),
-                          int(round(ax.m_to_counts(lo))), args.deadman, on_cycle=status)
+                          int(round(ax.m_to_counts(lo))), args.deadman, on_cycle=status,
+                          guard=guard)
         finally:
             state = _finish(master, ui, section, status)
+            _close_guard(guard, section)
     section.fact("result", f"from {res.start_m:.4f} m to {res.end_m:.4f} m "
                  f"(range {res.min_m:.4f}..{res.max_m:.4f} m), {res.moves} move(s), "
                  f"{res.deadman_stops} dead-man stop(s), ended by {res.reason}")
+    if res.guard_stop:
+        ui.say(f"STOPPED by the cable watch: {res.guard_stop}")
     ui.say(f"jog: {res.start_m:.4f} m -> {res.end_m:.4f} m, {res.deadman_stops} dead-man "
            f"stop(s), ended by {res.reason}")
     ui.emit({"winch": w.cables[k], "node_id": int(w.node_id[k]), "start_m": res.start_m,
              "end_m": res.end_m, "min_m": res.min_m, "max_m": res.max_m, "moves": res.moves,
              "deadman_stops": res.deadman_stops, "ended_by": res.reason, "state": state,
-             "window_m": [lo, hi], "speed_m_s": speed})
-    return 0
+             "window_m": [lo, hi], "speed_m_s": speed, "travel_m": travel,
+             "guard_stop": res.guard_stop,
+             "cable_watch": guard.summary() if guard else None})
+    return 1 if res.guard_stop else 0
 
 
 # ---------------------------------------------------------------------------- home
 
 
+def _reference_lost(args, ui: Ui, section: Section, mark_lost, state_path, cable: str,
+                    method: int) -> None:
+    """A homing changed a count: the platform reference is lost (said, and recorded)."""
+    path = state_path(args)
+    why = (f"cdpr commission home {cable} --method {method} changed the count of cable "
+           f"{cable} at {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}")
+    was = mark_lost(path, why)
+    msg = ("the winches' reference is lost: the count of cable " + cable + " changed; "
+           "Cartesian motion (jog --platform) is refused until `cdpr commission reference` "
+           "has run again" + (f" ({path} marked referenced = false)" if was else ""))
+    ui.say(msg)
+    section.fact("reference", msg)
+
+
 def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     from bench.commission.files import set_length_at_zero
+    from bench.commission.reference import mark_lost, state_path
     from hal.motion import MODE_HOMING, run_homing
 
     if args.method is None and args.length is None:
@@ -284,7 +375,8 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     if args.length is not None and not ax.min_length_m <= args.length <= ax.max_length_m:
         raise CommissionError(f"--length {args.length:g} m: outside [{ax.min_length_m:g}, "
                               f"{ax.max_length_m:g}] m of cable {ax.cable} in {w.source}", 2)
-    out: dict = {"winch": ax.cable, "node_id": ax.node_id, "method": args.method}
+    out: dict = {"winch": ax.cable, "node_id": ax.node_id, "method": args.method,
+                 "reference_lost": False}
     with network_of(args) as net:
         master = _master(args, net, w, k)
         try:
@@ -301,13 +393,24 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             except BaseException:
                 master.close()
                 raise
+            guard = None
+            started = done = False
             try:
+                guard = open_guard(args, ui, section, w.cables, horizon_s(0.0, 1.0),
+                                   required=False)
                 master.start(MODE_HOMING)
                 master.set_homing(args.method, args.offset)
-                fb = run_homing(master)
+                started = True
+                fb = run_homing(master, guard=guard)
                 after = fb.position_counts
+                done = True
             finally:
                 state = _finish(master, ui, section)
+                _close_guard(guard, section)
+                if started and (not done or after != before):  # the count may have moved
+                    _reference_lost(args, ui, section, mark_lost, state_path, ax.cable,
+                                    args.method)
+                    out["reference_lost"] = True
             out["state"] = state
             ui.say(f"{who(w, k)}: homed (method {args.method}): position {before} -> {after} "
                    "counts")

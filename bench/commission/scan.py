@@ -15,7 +15,14 @@ from __future__ import annotations
 import argparse
 import time
 
-from bench.commission.common import CommissionError, Ui, network_of, register_map_of, winches_of
+from bench.commission.common import (
+    CommissionError,
+    Ui,
+    network_of,
+    register_map_of,
+    tension_window_of,
+    winches_of,
+)
 from bench.commission.report import Section
 
 
@@ -108,6 +115,7 @@ def _units(text: str | None) -> list[int]:
 
 def loadcell_rows(args: argparse.Namespace, ui: Ui) -> list[dict]:
     """One read of every load cell of the map (and of the ``--probe-units`` outside it)."""
+    from controller.cable_watch import classify_tensions
     from hal.loadcell_calibration import load_calibration
     from hal.loadcell_client import LoadCellClient
 
@@ -121,13 +129,19 @@ def loadcell_rows(args: argparse.Namespace, ui: Ui) -> list[dict]:
         time.sleep(max(0.05, 2.0 / max(args.loadcell_rate, 1e-3)))
         client.poll_once()  # a second read: does the counter advance?
         r = client.read()
+        window = tension_window_of(args)
         rows = []
         for k, cable in enumerate(rmap.cables):
             st = r.status_of(cable)
+            status = "missing" if st.name in ("TIMEOUT", "COMM_ERROR") else st.name.lower()
+            msg = r.messages[k]
+            if st.name == "OK":  # a valid reading outside the window is no "ok"
+                status = classify_tensions([r.values_N[k]], window)[0]
+                if status != "ok":
+                    msg = (msg + "; " if msg else "") + f"outside the window {window}"
             rows.append({"device_id": int(rmap.unit_ids[k]), "cable": cable,
                          "tension_n": None if st.name != "OK" else float(r.values_N[k]),
-                         "status": "missing" if st.name in ("TIMEOUT", "COMM_ERROR")
-                         else st.name.lower(), "message": r.messages[k], "expected": True})
+                         "status": status, "message": msg, "expected": True})
         extra = [u for u in _units(args.probe_units) if u not in rmap.unit_ids]
         if extra:
             ui.progress(f"probing Modbus units {extra[0]}..{extra[-1]} outside the map "
