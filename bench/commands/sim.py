@@ -11,6 +11,10 @@ prints where it listens, in the forms the HAL takes::
     --tracker tcp:127.0.0.1:40125
 
 (one JSON object on one line with ``--json``) and runs until SIGINT or SIGTERM (exit 0).
+``--write-site FILE`` also writes the site of the robot it serves (``cdpr-site/1``: its
+endpoints, its clock, the robot, winch, EDS and register-map files it uses; the robot
+description beside it, ``FILE`` with the suffix ``.robot.toml``) before it prints the endpoints,
+so that ``cdpr dry-run ... --site FILE`` reaches it like a real robot.
 A scenario file that is not valid is reported with file and field (exit 2).
 
 Faults: ``--faults FILE`` applies a fault schedule on the sim's clock, and a control
@@ -62,7 +66,55 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "[0]")
     p.add_argument("--exit-on-stdin-eof", action="store_true",
                    help="also stop when stdin closes (the parent process went away)")
+    p.add_argument("--write-site", metavar="FILE", default=None,
+                   help="write the site file (cdpr-site/1) of the robot served, and its robot "
+                        "description beside it (FILE with suffix .robot.toml)")
     p.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
+
+
+def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | None,
+                   control: str) -> str:
+    """Write the site of the simulated robot ``rig`` serves to ``path``; returns its path.
+
+    The tension window is the controller's (the supervisor's slack threshold to the robot's
+    tension_max), the workspace box the exit points' bounding box; the simulated drives
+    ship with their EDS values, so the stored safety parameters are not required."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from controller.robot import save_robot
+    from controller.supervisor import SLACK_FRACTION
+    from firmware_sim.cia402_drive import EDS_PATH
+    from hal.can_bus import parse_can_spec
+    from hal.modbus_config import parse_modbus_spec
+    from hal.site import Site, SiteLimits, write_site
+    from hal.tracker import parse_tracker_spec
+
+    p = Path(path).resolve()
+    model = rig.scenario.model
+    robot_file = save_robot(model, p.with_suffix(".robot.toml"),
+                            header=f"the model of the robot cdpr sim serves ({model.name})")
+    exits = np.asarray(model.exits, float)
+    box_min, box_max = exits.min(axis=0), exits.max(axis=0)
+    box_min[2] = min(0.0, box_min[2])  # from the floor up to the highest exit point
+    tmax = float(model.tension_max) if np.isfinite(model.tension_max) else 1e4
+    src = getattr(rig.cells.map, "source", "")
+    sim = {"pid": os.getpid(), "control": control, "clock": clock}
+    if scenario:
+        sim["scenario"] = str(Path(scenario).resolve())
+    site = Site(
+        path=p, name=f"cdpr sim ({model.name})", robot=str(robot_file), eds=Path(EDS_PATH),
+        limits=SiteLimits(SLACK_FRACTION * float(model.tension_min), tmax, 100.0,
+                          tuple(float(v) for v in box_min), tuple(float(v) for v in box_max)),
+        winches=Path(rig.winches.source) if Path(rig.winches.source).is_file() else None,
+        loadcell_map=Path(src) if src and Path(src).is_file() else None,
+        can=parse_can_spec(can_spec), modbus=parse_modbus_spec(rig.modbus_spec),
+        tracker=parse_tracker_spec(rig.tracker_spec) if rig.tracker_spec else None,
+        clock=clock, require_stored_safety=False, require_tracker=rig.tracker_spec is not None,
+        sim=sim)
+    return str(write_site(site, p, header="written by cdpr sim --write-site: the simulated "
+                                          "robot's endpoints live as long as that process"))
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -152,6 +204,13 @@ def run(args: argparse.Namespace) -> int:
         control.start()
         can_spec = rig.can_spec if bus is None else str(parse_can_spec(args.can))
         sc = rig.scenario
+        site_file = None
+        if args.write_site:
+            try:
+                site_file = write_sim_site(args.write_site, rig, can_spec, args.clock,
+                                           args.scenario, control.endpoint)
+            except (OSError, ValueError) as exc:
+                return _fail(args, 2, f"--write-site {args.write_site}: {exc}")
         info = {
             "can": can_spec,
             "modbus": rig.modbus_spec,
@@ -167,6 +226,7 @@ def run(args: argparse.Namespace) -> int:
             "pid": os.getpid(),
             "control": control.endpoint,
             "faults": str(args.faults) if args.faults else None,
+            "site": site_file,
         }
         if args.json:
             print(json.dumps(info), flush=True)
@@ -178,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"  --modbus {rig.modbus_spec}")
             print(f"  --tracker {rig.tracker_spec}")
             print(f"  --control {control.endpoint}   (faults: one request per line; 'help')")
+            if site_file:
+                print(f"  --site {site_file}")
             if schedule is not None:
                 print(f"  {len(schedule.faults)} scheduled fault(s) from {args.faults}")
             print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)
