@@ -83,6 +83,7 @@ def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | No
 
     import numpy as np
 
+    from controller.paths import frame_box
     from controller.robot import save_robot
     from controller.supervisor import SLACK_FRACTION
     from firmware_sim.cia402_drive import EDS_PATH
@@ -95,9 +96,7 @@ def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | No
     model = rig.scenario.model
     robot_file = save_robot(model, p.with_suffix(".robot.toml"),
                             header=f"the model of the robot cdpr sim serves ({model.name})")
-    exits = np.asarray(model.exits, float)
-    box_min, box_max = exits.min(axis=0), exits.max(axis=0)
-    box_min[2] = min(0.0, box_min[2])  # from the floor up to the highest exit point
+    box_min, box_max = frame_box(model)  # the check of the path's own frame box
     tmax = float(model.tension_max) if np.isfinite(model.tension_max) else 1e4
     src = getattr(rig.cells.map, "source", "")
     sim = {"pid": os.getpid(), "control": control, "clock": clock}
