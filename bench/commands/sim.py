@@ -39,8 +39,9 @@ HELP = "run the simulated robot (drives on CAN, load cells on Modbus, plant) unt
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", nargs="?", default=None,
-                   help="scenario file (cdpr-scenario/1); default: the rocaspect model as the "
-                        "truth, init pose [10, 8.56, 1, 0, 0, 0]")
+                   help="scenario file (cdpr-scenario/1) or shipped name (paper-centre); "
+                        "default: the rocaspect model as the truth, init pose "
+                        "[10, 8.56, 1, 0, 0, 0]")
     p.add_argument("--host", default="127.0.0.1",
                    help="address the hub and the load cells bind [127.0.0.1]")
     p.add_argument("--can-port", type=int, default=0, metavar="P",
@@ -138,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
     import numpy as np
 
+    from bench.dryrun.scenarios import resolve_scenario
     from firmware_sim.faults import (
         FaultControlServer,
         FaultInjector,
@@ -148,9 +150,9 @@ def run(args: argparse.Namespace) -> int:
     from firmware_sim.scenario import ScenarioError, load_scenario
     from hal.can_bus import CanSpecError, open_bus, parse_can_spec
 
-    try:
-        scenario = load_scenario(args.scenario) if args.scenario else None
-    except ScenarioError as exc:
+    try:  # a file, or a shipped scenario's name (paper-centre)
+        scenario = load_scenario(resolve_scenario(args.scenario)) if args.scenario else None
+    except (ScenarioError, FileNotFoundError) as exc:
         return _fail(args, 2, str(exc))
     bus = None
     if args.can:
