@@ -21,6 +21,7 @@ library is imported until an endpoint is parsed.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -206,9 +207,9 @@ _MISSING = object()
 def _endpoint(r: _Reader, table: str, key: str, text: str, parse, error) -> Any:
     try:
         return parse(text)
-    except error as exc:
-        raise r.fail(table, key, text, str(exc).replace("--can ", "").replace(
-            "--modbus ", "").replace("--tracker ", "")) from None
+    except error as exc:  # the parser's "--can 'SPEC': why" without the option's name
+        why = re.sub(r"^--\w+:? ('[^']*': )?", "", str(exc))
+        raise r.fail(table, key, text, why) from None
 
 
 def _can(r: _Reader, t: dict | None) -> tuple[CanSpec | None, int | None]:
@@ -255,8 +256,8 @@ def _modbus(r: _Reader, t: dict | None) -> ModbusEndpoint | None:
         return parse_modbus_spec(spec)
     except ModbusSpecError as exc:
         key = "framing" if "framing" in str(exc) else "baudrate"
-        raise r.fail("modbus", key, t.get(key, framing), str(exc).replace("--modbus ", "")
-                     ) from None
+        raise r.fail("modbus", key, t.get(key, framing),
+                     re.sub(r"^--\w+:? ('[^']*': )?", "", str(exc))) from None
 
 
 def _tracker(r: _Reader, t: dict | None) -> TrackerSpec | None:

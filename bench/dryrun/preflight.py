@@ -6,12 +6,13 @@ Two stages, both read-only:
    again): every drive of the winch file answers with the identity the EDS describes
    (``cdpr commission scan``'s :func:`~bench.commission.scan.drive_rows`), no other master
    is heard (``cdpr commission check``'s listening, :func:`hal.scan.other_master_activity`),
-   and the safety parameters stored in each drive (consumer heartbeat 0x1016, abort
-   connection option 0x6007, quick-stop option 0x605A) are the HAL's configuration table's
+   and the safety parameters each drive holds before this master configures it (consumer
+   heartbeat 0x1016, abort connection option 0x6007, quick-stop option 0x605A; after a
+   power cycle the stored ones) are the HAL's configuration table's
    (:func:`hal.drives_config.drive_settings`, compared as ``commission check`` does). The
-   HAL writes and reads back that table at every start, so a stored value that differs
-   only matters without this master (after a power cycle, for another tool): a problem
-   when the site says ``require_stored_safety``, else a warning.
+   HAL writes and reads back that table at every start, so a value that differs only
+   matters without this master (after a power cycle, for another tool): a problem when
+   the site says ``require_stored_safety``, else a warning.
 2. :func:`check_readings`, after the HAL started (drives configured, NMT operational,
    disabled) and before the path is checked: every load cell answers, every tension lies
    in the site's window [N], the tracker is locked (a fresh valid fix).
@@ -125,8 +126,9 @@ def _check_safety(net, w: WinchSet, k: int, eds, timeout_s: float, required: boo
     for d in diffs:
         entry = {"node_id": nid, "cable": w.cables[k], **d.as_dict()}
         pf.safety.append(entry)
-        text = (f"{who}: {d} ({SAFETY_OBJECTS[d.index]}): the HAL writes it at start; "
-                "`cdpr commission check --apply` stores it in the drive")
+        text = (f"{who}: {d} ({SAFETY_OBJECTS[d.index]}) before this master configured "
+                "it: the HAL writes it at start; `cdpr commission check --apply` stores it "
+                "in the drive")
         (pf.problems if required else pf.warnings).append(text)
 
 
