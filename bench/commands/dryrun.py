@@ -591,7 +591,13 @@ def _open_buses(args: argparse.Namespace, settings, winches):
                       require_stored_safety=site.require_stored_safety if site else True)
     if pf.problems:
         raise _PreflightRefused(pf)
-    return pf, HardwareWorld(settings, winches, args.realtime)
+    cells = None  # lock-step: patient timing (bench.dryrun.hardware.cell_timing)
+    if args.realtime or settings.hal_clock == "wall":
+        cells = {"loadcell_rate_hz": args.loadcell_rate,
+                 "loadcell_timeout_s": args.loadcell_timeout,
+                 "loadcell_stale_s": args.loadcell_stale,
+                 "loadcell_max_age_s": args.loadcell_max_age}
+    return pf, HardwareWorld(settings, winches, args.realtime, cells)
 
 
 def _refused(args: argparse.Namespace, pf) -> int:
