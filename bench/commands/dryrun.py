@@ -24,7 +24,8 @@ identities, stored safety parameters, another master, load cells, tension window
 tracker), the referencing, the check of the whole path (and of the site's workspace box),
 and a confirmation (``--yes`` skips it; without a terminal on stdin the run is refused,
 nothing opened). The speed is capped at the site's ``first_run_speed_pct`` unless
-``--speed-pct`` is given. ``--rig process`` is exactly this path on the site a ``cdpr sim``
+``--speed-pct`` is given; drives on the wall clock (the site's ``clock``, ``--hal-clock``)
+always get a real-time run. ``--rig process`` is exactly this path on the site a ``cdpr sim``
 child process wrote (no confirmation: the robot is simulated and started by the command).
 The ``--json`` object then also has ``site`` and ``preflight``.
 
@@ -280,6 +281,13 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         except (ValueError, FileNotFoundError) as exc:
             return _fail(args, 2, str(exc))
         sc_path = Path(sc_label)
+        if settings.hal_clock == "wall" and not args.realtime:
+            # drives on the wall clock take each SYNC as one period: a loop as fast as
+            # possible would move them faster than planned
+            args.realtime = True
+            if not args.quiet:
+                print("cdpr dry-run: the drives run on the wall clock (the site's clock, or "
+                      "--hal-clock wall): the dry run runs in real time", file=sys.stderr)
     else:
         from bench.dryrun.scenarios import resolve_scenario
         from controller.robot import resolve_robot
@@ -557,7 +565,7 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         "ended": res.ended, "message": res.message, "trajectory_s": res.trajectory_s,
         "path_s": res.path_s, "init_pose": res.init_pose,
         "reference_offset_m": res.reference_offset_m, "drive_states": res.drive_states,
-        "plots": plots, "rig": "site" if on_buses else args.rig,
+        "plots": plots, "rig": "site" if on_buses else args.rig, "realtime": args.realtime,
         "scheduling": res.scheduling,
         "site": (str(settings.site.path) if on_buses and settings is not None
                  and settings.site is not None else None),
