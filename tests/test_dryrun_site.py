@@ -10,6 +10,7 @@ bad site file, a preflight that finds a problem (nothing moves).
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import os
 import queue
@@ -146,7 +147,14 @@ def test_bad_site_and_bad_combinations_open_nothing(tmp_path, capsys):
     assert "--site FILE or --can" in json.loads(capsys.readouterr().out)["error"]
 
 
-def test_preflight_refuses_before_anything_moves(tmp_path, capsys):
+class _Tty(io.StringIO):
+    """stdin as a terminal that answers ``text``."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+def test_preflight_refuses_before_anything_moves(tmp_path, capsys, monkeypatch):
     """A site whose tension window the hanging platform is not in: refused after the
     read-only checks, the drives never enabled; a site requiring the safety parameters
     stored refuses the simulated drives (their EDS values at power-on) before the HAL opens
@@ -172,6 +180,17 @@ def test_preflight_refuses_before_anything_moves(tmp_path, capsys):
         assert "outside the site's window [1, 100] N (overload)" in res["message"]
         assert all(s in ("SWITCH_ON_DISABLED", "READY_TO_SWITCH_ON", "SWITCHED_ON")
                    for s in res["drive_states"]), res["drive_states"]
+        # on a terminal: asked after the checks, before the drives are enabled
+        for answer, ended in (("no\n", "refused"), ("yes\n", "completed")):
+            monkeypatch.setattr(sys, "stdin", _Tty(answer))
+            code = main(["dry-run", "paper-centre", "--site", str(sim.site), "--json",
+                         "--quiet", "--duration", "0.5"])
+            out = capsys.readouterr()
+            res = json.loads(out.out.strip().splitlines()[-1])
+            assert res["ended"] == ended and code == (ended != "completed"), res
+            assert "Type 'yes' to go on" in out.err
+            if ended == "refused":
+                assert res["message"] == "not confirmed: nothing moved" and res["cycles"] == 0
         # the path leaves the site's workspace box: refused at the path check
         site = load_site(sim.site)
         lim = dataclasses.replace(site.limits, workspace_max_m=(10.05, 8.65, 1.5))
