@@ -145,6 +145,9 @@ def test_bad_site_and_bad_combinations_open_nothing(tmp_path, capsys):
     assert "one or the other" in json.loads(capsys.readouterr().out)["error"]
     assert main(["dry-run", "paper-centre", "--modbus", "127.0.0.1:5020", "--json"]) == 2
     assert "--site FILE or --can" in json.loads(capsys.readouterr().out)["error"]
+    assert main(["dry-run", "paper-centre", "--site", str(site), "--tracker", "none",
+                 "--yes", "--json"]) == 2
+    assert "no tracker" in json.loads(capsys.readouterr().out)["error"]
 
 
 class _Tty(io.StringIO):

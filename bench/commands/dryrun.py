@@ -207,6 +207,10 @@ def _bus_inputs(args: argparse.Namespace):
         raise ValueError("no CAN bus: give --can SPEC or a --site with [can] interface")
     if "hal_clock" not in given and settings.site is None:
         settings = dataclasses.replace(settings, hal_clock="wall")
+    if settings.tracker is None:
+        raise ValueError("no tracker: the dry run measures the initial pose and the pose "
+                         "error with one: give --tracker tcp:HOST:PORT or a --site with "
+                         "[tracker] endpoint")
     robot_ref = args.robot or (settings.site.robot if settings.site else None)
     if robot_ref is None:
         raise ValueError("no robot description: give --robot or a --site with [robot]")

@@ -166,7 +166,8 @@ def check_readings(hw, tracker, tension_window_N: tuple[float, float] | None,
     pf.tracker = {"locked": locked, "age_s": float(rd.age_s),
                   "pose": [float(v) for v in rd.pose] if locked else None}
     if not locked:
-        pf.problems.append(f"tracker not locked: no valid fix within {fresh_s:g} s")
+        (pf.problems if require_tracker else pf.warnings).append(
+            f"tracker not locked: no valid fix within {fresh_s:g} s")
     return pf
 
 
