@@ -179,3 +179,55 @@ def test_write_site_round_trip(tmp_path):
                  "state_file"):
         assert getattr(back, name) == getattr(s, name), name
     assert "format = \"cdpr-site/1\"" in dumps_site(s)
+
+
+# ---------------------------------------------------------------------------- preflight
+
+
+class _Tracker:
+    """A tracker that gives one reading (``valid``)."""
+
+    def __init__(self, valid: bool) -> None:
+        self.valid = valid
+
+    def wait_fresh(self, timeout_s: float):
+        import numpy as np
+
+        from hal.tracker import TrackerReading
+
+        pose = np.array([10.0, 8.5, 1.2, 0, 0, 0]) if self.valid else np.full(6, np.nan)
+        return TrackerReading(0.0, pose, self.valid, 0.0)
+
+
+def _readings(tensions, window=(20.0, 2500.0), tracker=True, require_tracker=True,
+              fault=None):
+    from bench.dryrun.preflight import check_readings
+    from hal.fake import FakeHardware
+
+    hw = FakeHardware(tensions_N=tensions)
+    hw.start()
+    if fault is not None:
+        hw.inject_loadcell_fault(*fault)
+    return check_readings(hw, _Tracker(tracker) if tracker is not None else None, window,
+                          require_tracker=require_tracker)
+
+
+def test_preflight_readings_find_nothing_on_a_healthy_robot():
+    pf = _readings([200.0, 210, 190, 205, 220, 180, 200, 199])
+    assert pf.ok and not pf.problems and not pf.warnings, pf.problems
+    assert [c["status"] for c in pf.load_cells] == ["ok"] * 8 and pf.tracker["locked"]
+    assert _readings(20.0).ok and _readings(2500.0).ok  # the window's edges are in it
+
+
+def test_preflight_readings_name_slack_overload_silent_cells_and_the_tracker():
+    pf = _readings([200.0, 5.0, 200, 200, 200, 3000.0, 200, 200])
+    assert [c["status"] for c in pf.load_cells] == ["ok", "slack", "ok", "ok", "ok",
+                                                    "overload", "ok", "ok"]
+    assert any("cable 12: tension 5.0 N outside the site's window [20, 2500] N (slack)" in p
+               for p in pf.problems) and len(pf.problems) == 2
+    pf = _readings(200.0, fault=("31", "timeout"))
+    assert pf.problems == ["load cell Modbus unit 5 (cable 31): timeout"]
+    assert "no valid fix" in _readings(200.0, tracker=False).problems[0]
+    pf = _readings(200.0, tracker=False, require_tracker=False)
+    assert pf.ok and "no valid fix" in pf.warnings[0]
+    assert "no tracker" in _readings(200.0, tracker=None).problems[0]
