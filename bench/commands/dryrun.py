@@ -27,10 +27,11 @@ nothing opened). The speed is capped at the site's ``first_run_speed_pct`` unles
 ``--speed-pct`` is given; drives on the wall clock (the site's ``clock``, ``--hal-clock``)
 always get a real-time run. ``--rig process`` is exactly this path on the site a ``cdpr sim``
 child process wrote (no confirmation: the robot is simulated and started by the command).
-The ``--json`` object then also has ``site`` and ``preflight``.
+The ``--json`` object then also has ``site`` and ``preflight``; a refusal by the preflight
+ends the run like a refused path.
 
 Exit status: 0 when the path was completed, 1 when the run ended otherwise (quick stop,
-hold timeout, interrupted, refused path or preflight), 2 for bad input.
+hold timeout, interrupted, refused path), 2 for bad input.
 """
 
 from __future__ import annotations
@@ -95,14 +96,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--react", action="append", default=[], metavar="CONDITION=REACTION",
                    help="change a supervisor reaction, e.g. slack=log (repeatable; "
                         "conditions and defaults in the README's reaction table)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.add_argument("--yes", action="store_true",
                    help="on given buses (--site, --can): do not ask for confirmation before "
                         "the drives are enabled")
     from hal.cli_args import add_hardware_arguments
 
     add_hardware_arguments(p, tracker=True)
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     g = p.add_argument_group("the paper's campaigns (paper-paths, paper-poses)")
     g.add_argument("--jobs", type=int, default=2, metavar="N",
                    help="runs in parallel processes [2]")

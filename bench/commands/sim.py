@@ -11,11 +11,12 @@ prints where it listens, in the forms the HAL takes::
     --tracker tcp:127.0.0.1:40125
 
 (one JSON object on one line with ``--json``) and runs until SIGINT or SIGTERM (exit 0).
+A scenario file that is not valid is reported with file and field (exit 2).
+
 ``--write-site FILE`` also writes the site of the robot it serves (``cdpr-site/1``: its
 endpoints, its clock, the robot, winch, EDS and register-map files it uses; the robot
-description beside it, ``FILE`` with the suffix ``.robot.toml``) before it prints the endpoints,
-so that ``cdpr dry-run ... --site FILE`` reaches it like a real robot.
-A scenario file that is not valid is reported with file and field (exit 2).
+description beside it, ``FILE`` with the suffix ``.robot.toml``) before it prints the
+endpoints, so that ``cdpr dry-run ... --site FILE`` reaches it like a real robot.
 
 Faults: ``--faults FILE`` applies a fault schedule on the sim's clock, and a control
 channel on loopback (``--control-port``, 0 = any free port; printed as
