@@ -553,7 +553,11 @@ def open_hardware(
 
 
 def hardware_from_args(args: argparse.Namespace, poll: str = "thread") -> CanModbusHardware:
-    """:func:`open_hardware` from the options of :func:`add_hardware_arguments`."""
+    """:func:`open_hardware` from the options of :func:`add_hardware_arguments` (``--site``
+    filled in first with :func:`hal.cli_args.apply_site`)."""
+    from hal.cli_args import apply_site
+
+    apply_site(args)
     if args.can is None:
         raise ValueError("no CAN bus: give --can SPEC (e.g. socketcand:127.0.0.1:PORT)")
     return open_hardware(

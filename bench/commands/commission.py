@@ -249,6 +249,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.commission import check, loadcells, monitor, motion, reference, scan
     from bench.commission.common import dispatch
+    from hal.cli_args import apply_site
+    from hal.site import SiteError
+
+    try:  # --site: its values where the command line gives none (nothing opened yet)
+        apply_site(args)
+    except (SiteError, ValueError) as exc:
+        import sys
+
+        print(f"cdpr commission {args.sub}: {exc}", file=sys.stderr)
+        if args.json:
+            import json
+
+            print(json.dumps({"error": str(exc)}))
+        return 2
 
     funcs = {"scan": scan.run, "check": check.run, "enable": motion.run_enable,
              "disable": motion.run_disable, "jog": motion.run_jog, "home": motion.run_home,

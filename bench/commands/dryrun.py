@@ -14,6 +14,22 @@ stop, drives held), closes everything and leaves the recording readable.
 ``message``, ``trajectory_s``, ``path_s``, ``init_pose``, ``reference_offset_m``,
 ``drive_states`` (CiA 402 states when the run ended), ``plots`` and ``rig``.
 
+On given buses (``--site FILE``, or ``--can``/``--modbus``/``--tracker`` over a site's or
+alone) the same loop runs against whatever is behind them, the real winches or a ``cdpr
+sim`` started apart, and starts nothing (:class:`bench.dryrun.hardware.HardwareWorld`).
+The positional argument is then a path file or a scenario whose ``path`` is run (its
+truth is not used: nothing is simulated); the controller's model is ``--robot`` or the
+site's robot. Before anything moves: the read-only preflight (:mod:`bench.dryrun.preflight`:
+identities, stored safety parameters, another master, load cells, tension window,
+tracker), the referencing, the check of the whole path (and of the site's workspace box),
+and a confirmation (``--yes`` skips it; without a terminal on stdin the run is refused,
+nothing opened). The speed is capped at the site's ``first_run_speed_pct`` unless
+``--speed-pct`` is given; drives on the wall clock (the site's ``clock``, ``--hal-clock``)
+always get a real-time run. ``--rig process`` is exactly this path on the site a ``cdpr sim``
+child process wrote (no confirmation: the robot is simulated and started by the command).
+The ``--json`` object then also has ``site`` and ``preflight``; a refusal by the preflight
+ends the run like a refused path.
+
 Exit status: 0 when the path was completed, 1 when the run ended otherwise (quick stop,
 hold timeout, refused path), 2 for bad input, 130 on SIGINT and 143 on SIGTERM (the last
 line on stderr says which; the recording is kept).
@@ -22,6 +38,7 @@ line on stderr says which; the recording is kept).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import signal
 import sys
@@ -36,10 +53,12 @@ HELP = "run the controller in the loop with the simulated robot along a path"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", help="scenario file (cdpr-scenario/1) or shipped name "
-                                    "(paper-centre, paper-calibration, paper-heavy); or a "
-                                    "campaign of the paper: paper-paths (Table 3, Fig. 7), "
-                                    "paper-poses (Fig. 6)")
+    p.add_argument("scenario", metavar="PATH_OR_SCENARIO",
+                   help="scenario file (cdpr-scenario/1) or shipped name "
+                        "(paper-centre, paper-calibration, paper-heavy); or a "
+                        "campaign of the paper: paper-paths (Table 3, Fig. 7), "
+                        "paper-poses (Fig. 6); with --site or --can: a path file "
+                        "(cdpr-path/1, name or file) or a scenario whose path is run")
     p.add_argument("--robot", metavar="PATH", default=None,
                    help="robot.toml the controller runs with (name or file) [the scenario's "
                         "robot]")
@@ -47,7 +66,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="path file (cdpr-path/1, name or file) [the scenario's path]")
     p.add_argument("--rig", choices=("inprocess", "process"), default="inprocess",
                    help="simulated robot in this process (virtual bus) or as a `cdpr sim` "
-                        "process (socketcand hub, Modbus/TCP) [inprocess]")
+                        "process reached through the site it writes, as real hardware is "
+                        "(socketcand hub, Modbus/TCP) [inprocess]; not with --site/--can")
     p.add_argument("--realtime", action="store_true",
                    help="run on the wall clock (default: lock-step, as fast as possible)")
     p.add_argument("--rt-priority", type=int, default=DEFAULT_RT_PRIORITY, metavar="P",
@@ -79,6 +99,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "conditions and defaults: docs/guide/safety-reactions.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    p.add_argument("--yes", action="store_true",
+                   help="on given buses (--site, --can): do not ask for confirmation before "
+                        "the drives are enabled")
+    from hal.cli_args import add_hardware_arguments
+
+    add_hardware_arguments(p, tracker=True)
     g = p.add_argument_group("the paper's campaigns (paper-paths, paper-poses)")
     g.add_argument("--jobs", type=int, default=2, metavar="N",
                    help="runs in parallel processes [2]")
@@ -158,32 +184,147 @@ def run(args: argparse.Namespace) -> int:
     return removing_created(lambda created: _run(args, created))
 
 
-def _run(args: argparse.Namespace, created: list) -> int:
-    import dataclasses
+def _on_buses(args: argparse.Namespace) -> bool:
+    """Whether the run goes to given buses (``--site`` or ``--can`` on the command line)."""
+    from hal.cli_args import GIVEN
 
-    import numpy as np
+    return bool(args.site) or "can" in (getattr(args, GIVEN, None) or ())
 
-    from bench.dryrun.scenarios import max_rate_hz, resolve_scenario, sync_period_us
-    from controller.robot import RobotFileError, resolve_robot
-    from controller.winch import load_winches
-    from firmware_sim.scenario import ScenarioError, load_scenario
 
+def _bus_inputs(args: argparse.Namespace):
+    """On given buses: ``(settings, label, path_ref, model, scenario_react)`` from the site
+    and the command line, read without the simulation (a scenario only names the path).
+    Raises ValueError (SiteError, RobotFileError, ...) for bad input; nothing opened."""
+    from bench.dryrun.scenarios import resolve_scenario
+    from controller.robot import resolve_robot
+    from controller.tomlfile import read_toml
+    from hal.cli_args import GIVEN, apply_site
+    from hal.site import check_site_files
+
+    given = set(getattr(args, GIVEN, None) or ())
+    settings = apply_site(args)
+    if settings.site is not None:
+        check_site_files(settings.site)
+    if settings.can is None:
+        raise ValueError("no CAN bus: give --can SPEC or a --site with [can] interface")
+    if "hal_clock" not in given and settings.site is None:
+        settings = dataclasses.replace(settings, hal_clock="wall")
+    if settings.tracker is None:
+        raise ValueError("no tracker: the dry run measures the initial pose and the pose "
+                         "error with one: give --tracker tcp:HOST:PORT or a --site with "
+                         "[tracker] endpoint")
+    robot_ref = args.robot or (settings.site.robot if settings.site else None)
+    if robot_ref is None:
+        raise ValueError("no robot description: give --robot or a --site with [robot]")
+    model = resolve_robot(robot_ref)
+    label, path_ref, react = str(args.scenario), args.scenario, {}
     try:
         sc_path = resolve_scenario(args.scenario)
-        sc = load_scenario(sc_path)
-        model = resolve_robot(args.robot) if args.robot else sc.model
-    except (FileNotFoundError, ScenarioError, RobotFileError) as exc:
-        return _fail(args, 2, str(exc))
-    path_ref = args.path or sc.run_path
-    if not path_ref:
-        return _fail(args, 2, f"{sc_path}: the scenario names no path (path = ...): give "
-                              f"--path FILE")
-    from controller.paths import PathFileError, build_trajectory, check_trajectory, load_path
+    except FileNotFoundError:
+        sc_path = None  # a path file or a shipped path's name
+    if sc_path is not None:
+        data, _ = read_toml(sc_path, ValueError)
+        if str(data.get("format", "")).startswith("cdpr-scenario/"):
+            label, react = sc_path.name, dict(data.get("react", {}) or {})
+            run = data.get("path", "")
+            if not run:
+                raise ValueError(f"{sc_path}: the scenario names no path (path = ...): "
+                                 "give --path FILE")
+            path_ref = str(sc_path.parent / run) if (sc_path.parent / run).exists() else run
+    return settings, label, args.path or path_ref, model, react
+
+
+def _preflight_text(pf) -> list[str]:
+    lines = [f"preflight: {'ok' if pf.ok else 'REFUSED'}: "
+             f"{sum(d['status'] == 'ok' for d in pf.drives)}/{len(pf.drives)} drives, "
+             f"{sum(c['status'] == 'ok' for c in pf.load_cells)}/{len(pf.load_cells)} "
+             f"load cells, tracker "
+             f"{'locked' if (pf.tracker or {}).get('locked') else 'not locked'}"]
+    lines += [f"preflight: problem: {p}" for p in pf.problems]
+    lines += [f"preflight: warning: {w}" for w in pf.warnings]
+    return lines
+
+
+def _confirm(question: str) -> bool:
+    """Ask on the terminal; True for 'yes'."""
+    print(f"{question} Type 'yes' to go on: ", end="", file=sys.stderr, flush=True)
+    answer = sys.stdin.readline()
+    return answer.strip().lower() == "yes"
+
+
+def _run(args: argparse.Namespace, created: list) -> int:
+    from hal.cli_args import GIVEN
+
+    on_buses = _on_buses(args)
+    given = set(getattr(args, GIVEN, None) or ()) - {"can"}
+    if on_buses and args.rig != "inprocess":
+        return _fail(args, 2, "--rig process starts its own simulated robot; --site/--can "
+                              "reach one that runs already: give one or the other")
+    if not on_buses and given:
+        return _fail(args, 2, f"--{sorted(given)[0].replace('_', '-')} is for given buses: "
+                              "give --site FILE or --can SPEC")
+    if on_buses and args.faults:
+        return _fail(args, 2, "--faults acts on a simulated robot this command starts; on "
+                              "given buses use `cdpr sim --faults` (or its control channel)")
+    if on_buses and not args.yes and not sys.stdin.isatty():
+        return _fail(args, 2, "a dry run on given buses needs confirmation before the drives "
+                              "are enabled: stdin is not a terminal, give --yes "
+                              "(nothing was opened)")
+    return _run_checked(args, created, on_buses)
+
+
+def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int:
+    import numpy as np
+
+    from bench.dryrun.scenarios import max_rate_hz, sync_period_us
+    from controller.robot import RobotFileError
+    from controller.winch import load_winches
+
+    sc = settings = None
+    if on_buses:
+        try:
+            settings, sc_label, path_ref, model, sc_react = _bus_inputs(args)
+        except (ValueError, FileNotFoundError) as exc:
+            return _fail(args, 2, str(exc))
+        sc_path = Path(sc_label)
+        if settings.hal_clock == "wall" and not args.realtime:
+            # drives on the wall clock take each SYNC as one period: a loop as fast as
+            # possible would move them faster than planned
+            args.realtime = True
+            if not args.quiet:
+                print("cdpr dry-run: the drives run on the wall clock (the site's clock, or "
+                      "--hal-clock wall): the dry run runs in real time", file=sys.stderr)
+    else:
+        from bench.dryrun.scenarios import resolve_scenario
+        from controller.robot import resolve_robot
+        from firmware_sim.scenario import ScenarioError, load_scenario
+
+        try:
+            sc_path = resolve_scenario(args.scenario)
+            sc = load_scenario(sc_path)
+            model = resolve_robot(args.robot) if args.robot else sc.model
+        except (FileNotFoundError, ScenarioError, RobotFileError) as exc:
+            return _fail(args, 2, str(exc))
+        sc_react = dict(sc.react)
+        path_ref = args.path or sc.run_path
+        if not path_ref:
+            return _fail(args, 2, f"{sc_path}: the scenario names no path (path = ...): give "
+                                  f"--path FILE")
+    from controller.paths import (
+        PathFileError,
+        build_trajectory,
+        check_times,
+        check_trajectory,
+        load_path,
+    )
     try:
         spec = load_path(path_ref)
     except (FileNotFoundError, PathFileError) as exc:
         return _fail(args, 2, str(exc))
-    winches = load_winches()
+    try:
+        winches = load_winches(settings.winches if settings is not None else None)
+    except ValueError as exc:
+        return _fail(args, 2, str(exc))
     top = max_rate_hz(winches)
     rate = top if args.rate is None else float(args.rate)
     if not (rate > 0 and np.isfinite(rate)):
@@ -196,7 +337,7 @@ def _run(args: argparse.Namespace, created: list) -> int:
         return _fail(args, 2, f"--speed-pct {args.speed_pct}: must be in (0, 100]")
     from controller.supervisor import parse_reactions
     try:  # the scenario's own (its ``react`` table), then the command line's
-        reactions = parse_reactions([f"{k}={v}" for k, v in sc.react.items()])
+        reactions = parse_reactions([f"{k}={v}" for k, v in sc_react.items()])
         reactions.update(parse_reactions(args.react))
     except ValueError as exc:
         return _fail(args, 2, f"--react {exc}")
@@ -227,26 +368,72 @@ def _run(args: argparse.Namespace, created: list) -> int:
         except (OSError, FaultScheduleError) as exc:
             return _fail(args, 2, str(exc))
 
+    from bench.dryrun.hardware import with_rate
     from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
     from bench.dryrun.record import DryRunRecorder
-    from bench.dryrun.world import start_world, with_rate
 
     winches = with_rate(winches, sync_period_us(rate) * 1e-6)
     period = winches.bus.sync_period_s
     rate = 1.0 / period
     decimate = args.decimate or max(1, int(round(rate / 50.0)))
+    speed_pct = args.speed_pct
+
+    def site_of():
+        return settings.site if settings is not None else None
+
+    if speed_pct is None and on_buses and settings.site is not None:
+        # a first run on a site: at most the site's speed (unless --speed-pct says)
+        speed_pct = min(spec.limits.speed_pct, settings.site.limits.first_run_speed_pct)
     limits = None
-    if args.speed_pct is not None:
-        limits = dataclasses.replace(spec.limits, speed_pct=float(args.speed_pct))
+    if speed_pct is not None:
+        limits = dataclasses.replace(spec.limits, speed_pct=float(speed_pct))
+    preflight = None  # the run on buses: its checks (bench.dryrun.preflight.Preflight)
+    ask = on_buses and not args.yes
 
     def plan(p0):
+        if preflight is not None:
+            _stage_two(preflight)
         traj = build_trajectory(spec, p0, limits)
         chk = check_trajectory(model, traj, winches)
         if not chk.ok:
             raise PathRefused(f"path {spec.name or path_ref} refused before moving: at "
                               f"t = {chk.t_s:.2f} s, pose {np.round(chk.pose, 3).tolist()}: "
                               f"{chk.reason}")
+        site = site_of()
+        if site is not None:
+            ts = check_times(traj)
+            poses = traj.sample(ts).pose
+            out = [k for k in range(len(ts)) if site.limits.outside_box(poses[k, :3])]
+            if out:
+                k = out[0]
+                raise PathRefused(
+                    f"path {spec.name or path_ref} refused before moving: at t = {ts[k]:.2f} "
+                    f"s, position {np.round(poses[k, :3], 3).tolist()} m is outside the "
+                    f"site's workspace box {list(site.limits.workspace_min_m)} .. "
+                    f"{list(site.limits.workspace_max_m)} ({site.path})")
+        if ask and not _confirm(
+                f"cdpr dry-run: move the robot on {settings.can} along "
+                f"{spec.name or path_ref} ({traj.duration_s:.1f} s at "
+                f"{limits.speed_pct if limits else spec.limits.speed_pct:g} % speed) from "
+                f"p0 {np.round(p0, 3).tolist()}?"):
+            raise PathRefused("not confirmed: nothing moved")
         return traj
+
+    def _stage_two(pf) -> None:
+        from bench.dryrun.preflight import check_readings
+
+        site = site_of()
+        window = ((site.limits.tension_min_N, site.limits.tension_max_N)
+                  if site is not None else None)
+        check_readings(world.hw, world.tracker, window,
+                       require_tracker=site.require_tracker if site is not None else True,
+                       out=pf)
+        if not args.quiet:
+            for line in _preflight_text(pf):
+                print(line, file=sys.stderr)
+        if pf.problems:
+            raise PathRefused("preflight refused the run before anything moved: "
+                              + "; ".join(pf.problems))
 
     def open_recorder(p0):
         if record_dir is None:
@@ -256,22 +443,31 @@ def _run(args: argparse.Namespace, created: list) -> int:
         rec = Path(record_dir)
         if rec.exists() and args.force:
             shutil.rmtree(rec)
-        meta = {"pose_source": "simulated laser tracker", "tension_source": "simulated load "
-                "cells", "notes": "dry run in progress", "scenario": str(sc_path),
+        if on_buses or args.rig == "process":
+            src = {"pose_source": "laser tracker " + str(world.info.get("tracker")),
+                   "tension_source": "load cells " + str(world.info.get("modbus"))}
+        else:
+            src = {"pose_source": "simulated laser tracker",
+                   "tension_source": "simulated load cells"}
+        meta = {**src, "notes": "dry run in progress", "scenario": str(sc_path),
                 "path": str(path_ref), "rate_hz": rate, "decimate": decimate}
         return DryRunRecorder(rec, model, p0, meta,
                               robot_header=f"model the controller ran with ({model.name})")
 
+    where = (f"site {settings.site.path}" if on_buses and settings.site is not None
+             else f"--can {settings.can}" if on_buses else f"rig {args.rig}")
     if not args.quiet:
         print(f"cdpr dry-run: {sc_path.name} with model {model.name}, path "
               f"{spec.name or path_ref}, {rate:.1f} Hz (bus limit {top:.1f} Hz), "
               f"{'real time' if args.realtime else 'lock-step, as fast as possible'}, "
-              f"rig {args.rig}", file=sys.stderr)
+              f"{where}" + (f", speed {speed_pct:g} % (the site's first-run limit; "
+                            f"--speed-pct to change)" if args.speed_pct is None
+                            and speed_pct is not None else ""), file=sys.stderr)
         if reactions:
             print("cdpr dry-run: supervisor reactions changed: " + ", ".join(
                 f"{k}={r.label}" for k, r in reactions.items())
-                + (f" (scenario: {', '.join(f'{k}={v}' for k, v in sc.react.items())})"
-                   if sc.react else ""), file=sys.stderr)
+                + (f" (scenario: {', '.join(f'{k}={v}' for k, v in sc_react.items())})"
+                   if sc_react else ""), file=sys.stderr)
     stop = threading.Event()
     previous = {}
     caught: list[int] = []  # the signals that stopped the run (exit status 130 / 143)
@@ -297,12 +493,34 @@ def _run(args: argparse.Namespace, created: list) -> int:
     sim_args: tuple[str, ...] = ()
     if faults is not None and args.rig == "process":
         sim_args = ("--faults", str(args.faults))
+    sim = None
     try:
         try:
-            world = start_world(sc, winches, args.rig, args.realtime, args.plant_rate,
-                                sim_args=sim_args)
+            if args.rig == "process" and not on_buses:
+                from bench.dryrun.world import SimProcess
+                from hal.site import load_site, merge_site
+
+                # exactly the hardware path, on the site the simulated robot wrote
+                sim = SimProcess(sc.path if sc.path.name != "<memory>" else None,
+                                 args.realtime, args.plant_rate, sim_args)
+                settings = merge_site(load_site(sim.site))
+            if settings is not None:
+                preflight, world = _open_buses(args, settings, winches)
+            else:
+                from bench.dryrun.world import start_world
+
+                world = start_world(sc, winches, args.rig, args.realtime, args.plant_rate,
+                                    sim_args=sim_args)
+        except _PreflightRefused as exc:
+            if sim is not None:
+                sim.stop()
+            return _refused(args, exc.preflight)
         except Exception as exc:
-            return _fail(args, 1, f"cannot start the simulated robot: {exc}")
+            if sim is not None:
+                sim.stop()
+            what = "the simulated robot" if settings is None or sim is not None else \
+                "the buses"
+            return _fail(args, 1, f"cannot start {what}: {exc}")
         injector = None
         try:
             tick = world.tick if (world.rig is not None and not args.realtime) else None
@@ -318,7 +536,8 @@ def _run(args: argparse.Namespace, created: list) -> int:
                 else:
                     injector.start()
             opts = LoopOptions(realtime=args.realtime, decimate=decimate,
-                               init_pose=sc.init_pose if args.init_pose == "given" else None,
+                               init_pose=(sc.init_pose if sc is not None
+                                          and args.init_pose == "given" else None),
                                max_duration_s=args.duration, reactions=reactions,
                                rt_priority=args.rt_priority)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
@@ -328,7 +547,11 @@ def _run(args: argparse.Namespace, created: list) -> int:
         finally:
             if injector is not None:
                 injector.stop()
-            world.close()
+            try:
+                world.close()
+            finally:
+                if sim is not None:
+                    sim.stop()
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
@@ -351,7 +574,12 @@ def _run(args: argparse.Namespace, created: list) -> int:
         "ended": res.ended, "message": res.message, "trajectory_s": res.trajectory_s,
         "path_s": res.path_s, "init_pose": res.init_pose,
         "reference_offset_m": res.reference_offset_m, "drive_states": res.drive_states,
-        "plots": plots, "rig": args.rig, "scheduling": res.scheduling,
+        "plots": plots, "rig": "site" if on_buses else args.rig, "realtime": args.realtime,
+        "scheduling": res.scheduling,
+        "site": (str(settings.site.path) if on_buses and settings is not None
+                 and settings.site is not None else None),
+        "speed_pct": speed_pct,
+        "preflight": preflight.as_dict() if preflight is not None else None,
     }
     if args.json:
         print(json.dumps(out))
@@ -366,3 +594,39 @@ def _run(args: argparse.Namespace, created: list) -> int:
         print(f"cdpr dry-run: {msg}", file=sys.stderr, flush=True)
         return code
     return 0 if res.ended == "completed" else 1
+
+
+class _PreflightRefused(Exception):
+    def __init__(self, preflight) -> None:
+        super().__init__("; ".join(preflight.problems))
+        self.preflight = preflight
+
+
+def _open_buses(args: argparse.Namespace, settings, winches):
+    """The preflight's first stage on the bus, then the :class:`HardwareWorld` (raises
+    :class:`_PreflightRefused` before opening it when the drives are not as configured)."""
+    from bench.dryrun.hardware import HardwareWorld
+    from bench.dryrun.preflight import check_drives
+
+    site = settings.site
+    pf = check_drives(settings.can, winches, settings.eds,
+                      require_stored_safety=site.require_stored_safety if site else True)
+    if pf.problems:
+        raise _PreflightRefused(pf)
+    cells = None  # lock-step: patient timing (bench.dryrun.hardware.cell_timing)
+    if args.realtime or settings.hal_clock == "wall":
+        cells = {"loadcell_rate_hz": args.loadcell_rate,
+                 "loadcell_timeout_s": args.loadcell_timeout,
+                 "loadcell_stale_s": args.loadcell_stale,
+                 "loadcell_max_age_s": args.loadcell_max_age}
+    return pf, HardwareWorld(settings, winches, args.realtime, cells)
+
+
+def _refused(args: argparse.Namespace, pf) -> int:
+    for line in _preflight_text(pf):
+        print(f"cdpr dry-run: {line}", file=sys.stderr)
+    msg = "preflight refused the run before anything moved: " + "; ".join(pf.problems)
+    print(f"cdpr dry-run: {msg}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"error": msg, "ended": "refused", "preflight": pf.as_dict()}))
+    return 1

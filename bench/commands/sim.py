@@ -15,6 +15,11 @@ prints where it listens, in the forms the HAL takes::
 ``--exit-on-stdin-eof`` (exit 0).
 A scenario file that is not valid is reported with file and field (exit 2).
 
+``--write-site FILE`` also writes the site of the robot it serves (``cdpr-site/1``: its
+endpoints, its clock, the robot, winch, EDS and register-map files it uses; the robot
+description beside it, ``FILE`` with the suffix ``.robot.toml``) before it prints the
+endpoints, so that ``cdpr dry-run ... --site FILE`` reaches it like a real robot.
+
 Faults: ``--faults FILE`` applies a fault schedule on the sim's clock, and a control
 channel on loopback (``--control-port``, 0 = any free port; printed as
 ``--control 127.0.0.1:R``) takes faults from tests and tools, one line per request
@@ -37,8 +42,9 @@ HELP = "run the simulated robot (drives on CAN, load cells on Modbus, plant) unt
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", nargs="?", default=None,
-                   help="scenario file (cdpr-scenario/1); default: the rocaspect model as the "
-                        "truth, init pose [10, 8.56, 1, 0, 0, 0]")
+                   help="scenario file (cdpr-scenario/1) or shipped name (paper-centre); "
+                        "default: the rocaspect model as the truth, init pose "
+                        "[10, 8.56, 1, 0, 0, 0]")
     p.add_argument("--host", default="127.0.0.1",
                    help="address the hub and the load cells bind [127.0.0.1]")
     p.add_argument("--can-port", type=int, default=0, metavar="P",
@@ -64,7 +70,54 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "[0]")
     p.add_argument("--exit-on-stdin-eof", action="store_true",
                    help="also stop when stdin closes (the parent process went away)")
+    p.add_argument("--write-site", metavar="FILE", default=None,
+                   help="write the site file (cdpr-site/1) of the robot served, and its robot "
+                        "description beside it (FILE with suffix .robot.toml)")
     p.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
+
+
+def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | None,
+                   control: str) -> str:
+    """Write the site of the simulated robot ``rig`` serves to ``path``; returns its path.
+
+    The tension window is the controller's (the supervisor's slack threshold to the robot's
+    tension_max), the workspace box the exit points' bounding box; the simulated drives
+    ship with their EDS values, so the stored safety parameters are not required."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from controller.paths import frame_box
+    from controller.robot import save_robot
+    from controller.supervisor import SLACK_FRACTION
+    from firmware_sim.cia402_drive import EDS_PATH
+    from hal.can_bus import parse_can_spec
+    from hal.modbus_config import parse_modbus_spec
+    from hal.site import Site, SiteLimits, write_site
+    from hal.tracker import parse_tracker_spec
+
+    p = Path(path).resolve()
+    model = rig.scenario.model
+    robot_file = save_robot(model, p.with_suffix(".robot.toml"),
+                            header=f"the model of the robot cdpr sim serves ({model.name})")
+    box_min, box_max = frame_box(model)  # the check of the path's own frame box
+    tmax = float(model.tension_max) if np.isfinite(model.tension_max) else 1e4
+    src = getattr(rig.cells.map, "source", "")
+    sim = {"pid": os.getpid(), "control": control, "clock": clock}
+    if scenario:
+        sim["scenario"] = str(Path(scenario).resolve())
+    site = Site(
+        path=p, name=f"cdpr sim ({model.name})", robot=str(robot_file), eds=Path(EDS_PATH),
+        limits=SiteLimits(SLACK_FRACTION * float(model.tension_min), tmax, 100.0,
+                          tuple(float(v) for v in box_min), tuple(float(v) for v in box_max)),
+        winches=Path(rig.winches.source) if Path(rig.winches.source).is_file() else None,
+        loadcell_map=Path(src) if src and Path(src).is_file() else None,
+        can=parse_can_spec(can_spec), modbus=parse_modbus_spec(rig.modbus_spec),
+        tracker=parse_tracker_spec(rig.tracker_spec) if rig.tracker_spec else None,
+        clock=clock, require_stored_safety=False, require_tracker=rig.tracker_spec is not None,
+        sim=sim)
+    return str(write_site(site, p, header="written by cdpr sim --write-site: the simulated "
+                                          "robot's endpoints live as long as that process"))
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -89,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
     import numpy as np
 
+    from bench.dryrun.scenarios import resolve_scenario
     from firmware_sim.faults import (
         FaultControlServer,
         FaultInjector,
@@ -99,9 +153,9 @@ def run(args: argparse.Namespace) -> int:
     from firmware_sim.scenario import ScenarioError, load_scenario
     from hal.can_bus import CanSpecError, open_bus, parse_can_spec
 
-    try:
-        scenario = load_scenario(args.scenario) if args.scenario else None
-    except ScenarioError as exc:
+    try:  # a file, or a shipped scenario's name (paper-centre)
+        scenario = load_scenario(resolve_scenario(args.scenario)) if args.scenario else None
+    except (ScenarioError, FileNotFoundError) as exc:
         return _fail(args, 2, str(exc))
     bus = None
     if args.can:
@@ -160,6 +214,13 @@ def run(args: argparse.Namespace) -> int:
         control.start()
         can_spec = rig.can_spec if bus is None else str(parse_can_spec(args.can))
         sc = rig.scenario
+        site_file = None
+        if args.write_site:
+            try:
+                site_file = write_sim_site(args.write_site, rig, can_spec, args.clock,
+                                           args.scenario, control.endpoint)
+            except (OSError, ValueError) as exc:
+                return _fail(args, 2, f"--write-site {args.write_site}: {exc}")
         info = {
             "can": can_spec,
             "modbus": rig.modbus_spec,
@@ -175,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
             "pid": os.getpid(),
             "control": control.endpoint,
             "faults": str(args.faults) if args.faults else None,
+            "site": site_file,
         }
         if args.json:
             print(json.dumps(info), flush=True)
@@ -186,6 +248,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"  --modbus {rig.modbus_spec}")
             print(f"  --tracker {rig.tracker_spec}")
             print(f"  --control {control.endpoint}   (faults: one request per line; 'help')")
+            if site_file:
+                print(f"  --site {site_file}")
             if schedule is not None:
                 print(f"  {len(schedule.faults)} scheduled fault(s) from {args.faults}")
             print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)

@@ -8,7 +8,8 @@ load cells every ``1/plant_rate_hz`` seconds of simulated time (deterministic, a
 the machine allows). In real time the rig's own threads do it on the wall clock.
 
 ``kind="process"``: ``cdpr sim`` in another process (socketcand hub, Modbus/TCP, tracker
-over TCP); the loop reaches it only through the wire protocols, as it would reach real
+over TCP) that writes its site (``--write-site``); the loop reaches it through
+:class:`bench.dryrun.hardware.HardwareWorld` on that site, exactly as it reaches real
 drives. The process ends with this one (stdin closes when we die, whatever the signal).
 
 The scenario is the truth: the world reads it, the controller never does.
@@ -16,7 +17,6 @@ The scenario is the truth: the world reads it, the controller never does.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import queue
@@ -27,6 +27,14 @@ import threading
 import time
 from pathlib import Path
 
+from bench.dryrun.hardware import (  # noqa: F401  (re-exported for the worlds' users)
+    LOCKSTEP_CELL_TIMEOUT_S,
+    PROCESS_CELL_MAX_AGE_S,
+    HardwareWorld,
+    World,
+    cell_timing,
+    with_rate,
+)
 from bench.dryrun.lockstep_bus import deliver_in_sender_thread
 from controller.winch import WinchSet
 from firmware_sim.cia402_drive import EDS_PATH
@@ -34,41 +42,13 @@ from firmware_sim.rig import SimRig
 from firmware_sim.scenario import Scenario
 from hal.can_bus import open_bus
 from hal.interface import CanModbusHardware, open_hardware
-from hal.tracker import CallableTracker, Tracker, open_tracker
+from hal.site import load_site, merge_site
+from hal.tracker import CallableTracker, Tracker
+
+_cell_timing = cell_timing  # the name the simulated worlds used
 
 
-def with_rate(winches: WinchSet, period_s: float) -> WinchSet:
-    """The winch set with its SYNC period (control cycle) set to ``period_s`` [s]; the
-    drives' RPDO deadline follows (1.5 periods, as the shipped file has it)."""
-    bus = winches.bus
-    ratio = bus.rpdo_timeout_s / bus.sync_period_s if bus.sync_period_s else 1.5
-    period_s = round(period_s * 1e6) * 1e-6
-    rpdo = 0.0 if bus.rpdo_timeout_s == 0 else max(1e-3, round(ratio * period_s, 3))
-    return dataclasses.replace(winches, bus=dataclasses.replace(
-        bus, sync_period_s=period_s, rpdo_timeout_s=rpdo))
-
-
-#: the HAL's load-cell answer timeout [s, wall clock] in lock-step: the simulation waits
-#: for its answers, so a slow answer means a busy host, not a slow cell
-LOCKSTEP_CELL_TIMEOUT_S = 0.5
-#: lock-step with ``cdpr sim`` in another process: the HAL polls the cells from a thread on
-#: the wall clock while the simulation runs at its own pace; a reading older than this
-#: [s, wall] is a timeout
-PROCESS_CELL_MAX_AGE_S = 1.0
-
-
-def _cell_timing(realtime: bool, in_process: bool) -> dict:
-    """open_hardware's load-cell timing: the defaults in real time; in lock-step a patient
-    answer timeout and, in process (polled by the world, aged on the simulated clock), the
-    default age limit; across processes (aged on the wall clock) a patient one."""
-    if realtime:
-        return {}
-    rate = 50.0
-    return {"loadcell_rate_hz": rate, "loadcell_timeout_s": LOCKSTEP_CELL_TIMEOUT_S,
-            "loadcell_max_age_s": 0.1 + 3.0 / rate if in_process else PROCESS_CELL_MAX_AGE_S}
-
-
-class SimWorld:
+class SimWorld(World):
     """The simulated robot: ``hw`` (the hardware interface), ``tracker``, ``tick`` (lock-step
     hook or None), ``rig`` (in-process only), ``close()``."""
 
@@ -76,28 +56,6 @@ class SimWorld:
     tracker: Tracker
     rig: SimRig | None = None
     info: dict
-
-    def tick(self) -> None:  # lock-step hook, per kind
-        return None
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-    def _close_all(self, stop_sim) -> None:
-        """Tracker, then the HAL, then the simulation, each even when the one before fails."""
-        try:
-            try:
-                self.tracker.close()
-            finally:
-                self.hw.close()
-        finally:
-            stop_sim()
-
-    def __enter__(self) -> SimWorld:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 class InProcessWorld(SimWorld):
@@ -150,33 +108,30 @@ class InProcessWorld(SimWorld):
         self._close_all(self.rig.close)
 
 
-class ProcessWorld(SimWorld):
-    """``cdpr sim`` in a child process; ``args`` extra command-line options for it."""
+class SimProcess:
+    """``cdpr sim`` in a child process that wrote its site (``--write-site``) to a private
+    temporary folder: :attr:`site` (the file), :attr:`info` (its endpoints line). The
+    process ends with :meth:`stop` or with this one (stdin closes when we die, whatever the
+    signal). ``args``: extra command-line options for it."""
 
-    def __init__(self, scenario_path: str | Path | None, winches: WinchSet, realtime: bool,
-                 plant_rate_hz: float, eds: str | Path = EDS_PATH,
+    def __init__(self, scenario_path: str | Path | None, realtime: bool, plant_rate_hz: float,
                  args: tuple[str, ...] = (), startup_s: float = 60.0) -> None:
         self._err = tempfile.TemporaryFile(mode="w+")
+        self._dir = tempfile.TemporaryDirectory(prefix="cdpr-sim-site-")
+        self.site = Path(self._dir.name) / "sim.toml"
         cmd = [sys.executable, "-m", "bench.cli", "sim", "--json", "--exit-on-stdin-eof",
                "--clock", "wall" if realtime else "sync", "--plant-rate", str(plant_rate_hz),
-               *args]
+               "--write-site", str(self.site), *args]
         if scenario_path is not None:
             cmd.insert(4, str(scenario_path))
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=self._err, text=True, env=env)
-        self.rig = None
         try:
             self.info = self._endpoints(startup_s)
-            clock = "wall" if realtime else "sync"
-            self.hw = open_hardware(self.info["can"], self.info["modbus"], eds=eds,
-                                    winches=winches, clock=clock, poll="thread",
-                                    **_cell_timing(realtime, False))
-            self.tracker = open_tracker(self.info["tracker"])
         except BaseException:
-            self._stop()
+            self.stop()
             raise
-        self.info["kind"] = "process"
 
     def _endpoints(self, timeout_s: float) -> dict:
         lines: queue.Queue[str | None] = queue.Queue()
@@ -211,7 +166,8 @@ class ProcessWorld(SimWorld):
         text = self._err.read().strip()
         return text[-2000:] if text else "(nothing on stderr)"
 
-    def _stop(self) -> None:
+    def stop(self) -> None:
+        """End the process (stdin closed, then SIGTERM, then SIGKILL) and remove its site."""
         p = self.proc
         if p.poll() is None:
             try:
@@ -229,9 +185,37 @@ class ProcessWorld(SimWorld):
                     p.kill()
                     p.wait()
         self._err.close()
+        self._dir.cleanup()
+
+
+class ProcessWorld(SimWorld):
+    """``cdpr sim`` in a child process (:class:`SimProcess`), reached exactly as real
+    hardware is: a :class:`HardwareWorld` on the site it wrote (``eds`` overrides the
+    site's EDS)."""
+
+    def __init__(self, scenario_path: str | Path | None, winches: WinchSet, realtime: bool,
+                 plant_rate_hz: float, eds: str | Path | None = None,
+                 args: tuple[str, ...] = (), startup_s: float = 60.0) -> None:
+        self.sim = SimProcess(scenario_path, realtime, plant_rate_hz, args, startup_s)
+        self.rig = None
+        try:
+            settings = merge_site(load_site(self.sim.site), eds=eds)
+            self._hardware = HardwareWorld(settings, winches, realtime)
+        except BaseException:
+            self.sim.stop()
+            raise
+        self.hw, self.tracker = self._hardware.hw, self._hardware.tracker
+        self.info = dict(self.sim.info, kind="process")
+
+    @property
+    def proc(self) -> subprocess.Popen:
+        return self.sim.proc
 
     def close(self) -> None:
-        self._close_all(self._stop)
+        try:
+            self._hardware.close()
+        finally:
+            self.sim.stop()
 
 
 def start_world(scenario: Scenario, winches: WinchSet, kind: str = "inprocess",
@@ -242,5 +226,6 @@ def start_world(scenario: Scenario, winches: WinchSet, kind: str = "inprocess",
         return InProcessWorld(scenario, winches, realtime, plant_rate_hz, eds)
     if kind == "process":
         path = scenario.path if scenario.path.name != "<memory>" else None
-        return ProcessWorld(path, winches, realtime, plant_rate_hz, eds, sim_args)
+        return ProcessWorld(path, winches, realtime, plant_rate_hz,
+                            None if eds == EDS_PATH else eds, sim_args)
     raise ValueError(f"rig must be 'inprocess' or 'process', got {kind!r}")
