@@ -42,11 +42,13 @@ def _common(json_help: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
     add_hardware_arguments(p, eds_default=_default_eds())
     g = p.add_argument_group("tensions")
-    g.add_argument("--robot", default="rocaspect", metavar="NAME|PATH",
-                   help="robot description: tension limits, model [rocaspect]")
+    g.add_argument("--robot", default=None, metavar="NAME|PATH",
+                   help="robot description: tension limits, model [the site's, else "
+                        "rocaspect]")
     g.add_argument("--tension-window", metavar="LO,HI",
                    help="tensions a cable may carry [N]: below LO is slack, above HI "
-                        "overload [the supervisor's: tension_min/5, tension_max of --robot]")
+                        "overload [the site's limits, else the supervisor's: tension_min/5, "
+                        "tension_max of --robot]")
     g = p.add_argument_group("report and output")
     g.add_argument("--report", metavar="PATH",
                    help="commissioning report to append to [commissioning-report.md]")
@@ -69,6 +71,8 @@ def _moving(p: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from hal.cli_args import add_tracker_argument
+
     p.description = HELP + ".\n\n" + ORDER
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = p.add_subparsers(dest="sub", metavar="SUBCOMMAND")
@@ -193,9 +197,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             "drives. A CiA 402 homing (home --method) marks the reference lost.")
     q.add_argument("--pose", metavar="X,Y,Z[,R,P,Y]",
                    help="the platform's known pose on its stand [m, deg]")
-    q.add_argument("--tracker", metavar="SPEC",
-                   help="laser tracker measuring the platform's pose: tcp:HOST:PORT "
-                        "(cdpr sim prints its own)")
+    add_tracker_argument(q)
     q.add_argument("--samples", type=int, default=20, metavar="N",
                    help="tracker poses averaged [20]")
     _state(q)
@@ -246,6 +248,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="log every CAN frame (.asc, .blf, .log or .csv: python-can's Logger)")
 
 
+def _site_defaults(args: argparse.Namespace, site) -> None:
+    """The robot, tension window and state file of ``site`` (a :class:`hal.site.Site`, or
+    None) where the command line gave none; then the shipped robot."""
+    if site is not None:
+        if args.robot is None:
+            args.robot = site.robot
+        if not args.tension_window:
+            lim = site.limits
+            args.tension_window = f"{lim.tension_min_N!r},{lim.tension_max_N!r}"
+        if getattr(args, "state", "absent") is None and site.state_file is not None:
+            args.state = str(site.state_file)
+    if args.robot is None:
+        args.robot = "rocaspect"
+
+
 def run(args: argparse.Namespace) -> int:
     from bench.commission import check, loadcells, monitor, motion, reference, scan
     from bench.commission.common import dispatch
@@ -253,7 +270,7 @@ def run(args: argparse.Namespace) -> int:
     from hal.site import SiteError
 
     try:  # --site: its values where the command line gives none (nothing opened yet)
-        apply_site(args)
+        _site_defaults(args, apply_site(args).site)
     except (SiteError, ValueError) as exc:
         import sys
 
