@@ -69,8 +69,9 @@ class HardwareConfigError(ValueError):
 class HardwareFault:
     """An active fault: ``device`` is "drive" (``address`` = CAN node id), "loadcell"
     (``address`` = Modbus unit id) or "bus" (address 0); ``kind`` what is wrong
-    (drive: drive_fault, quick_stop (stopped on its own), heartbeat_lost, boot_up,
-    nmt_state, link_lost; load cell: the
+    (drive: drive_fault, quick_stop (stopped on its own), heartbeat_lost, drive_lost (its
+    TPDOs stopped: state unknown), boot_up, nmt_state, link_lost, foreign_master (a frame
+    another master sent to it; device "bus" for NMT to all nodes and SYNC); load cell: the
     :class:`~hal.loadcell_client.CableStatus` name in lower case); ``code`` see the module
     docstring."""
 
@@ -197,7 +198,8 @@ class LoadCellStatusTracker:
 
 
 def drive_fault(f: DriveFault) -> HardwareFault:
-    return HardwareFault(DRIVE, f.node_id, f.cable, f.kind, f.code, f.text)
+    device = BUS if f.node_id == 0 else DRIVE  # foreign_master: a frame to the whole bus
+    return HardwareFault(device, f.node_id, f.cable, f.kind, f.code, f.text)
 
 
 def drive_event(e: DriveEvent) -> HardwareEvent:
