@@ -133,6 +133,8 @@ SDO_TIMEOUT_S = 1.0
 #: a foreign master's frame is an active fault for this long after the last one [s, master
 #: clock] (the supervisor latches its quick stop)
 FOREIGN_HOLD_S = 0.5
+#: lock-step: wall time [s] waited for the TPDOs of drives that missed the SYNC before
+MISSING_WAIT_S = 0.05
 
 log = logging.getLogger(__name__)
 
@@ -293,6 +295,8 @@ class WinchDrives:
         self._hb_lost = np.zeros(n, bool)
         self._nmt = np.full(n, -1, np.int64)
         self._miss_streak = np.zeros(n, np.int64)
+        self._syncs_seen = 0  # SYNCs sent at the last receive()
+        self._no_one = np.zeros(n, bool)
         self._lost = np.zeros(n, bool)  # TPDOs overdue: drive_lost
         self._last_tpdo_t = np.zeros(n)  # master clock of the last TPDO (or of arming)
         self._foreign_until = np.full(n, -np.inf)  # foreign_master active until (clock)
@@ -537,7 +541,9 @@ class WinchDrives:
         if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
             if state != NMT_OPERATIONAL:
                 # no PDO leaves a node outside OPERATIONAL: the statusword we hold is old,
-                # its power state unknown until a TPDO comes again (or recover())
+                # its power state unknown until a TPDO comes again (or recover()); the NMT
+                # state is the fault (no TPDO is owed: not drive_lost)
+                self._lost[k] = False
                 self._have[k] = False
                 self._setpoint_ok[k] = False
                 self._event(k, "nmt_state", CODE_HEARTBEAT,
@@ -888,8 +894,11 @@ class WinchDrives:
     # ------------------------------------------------------------------ the cycle
 
     def _expected(self) -> np.ndarray:
+        """Drives that owe a TPDO per SYNC (started by us, operational as far as we know,
+        not lost)."""
+        op = (self._nmt == NMT_OPERATIONAL) | (self._nmt == -1)
         return (self._started & self._armed & ~self._rebooted & ~self._hb_lost & ~self._relink
-                & ~self._lost)
+                & ~self._lost & op)
 
     def exchange(self) -> None:
         """One control cycle: process what arrived, run the state machine, send RPDOs + SYNC.
@@ -913,7 +922,9 @@ class WinchDrives:
         fresh = counts > self._seen
         n_new = counts - self._seen
         self._seen = counts
-        expected = self._expected()
+        # an answer is owed per SYNC sent since the last receive (none: nothing is missing)
+        expected = self._expected() if self._syncs != self._syncs_seen else self._no_one
+        self._syncs_seen = self._syncs
         self._check_pdos(fresh, n_new, expected)
         self._sw = np.where(fresh, sw, self._sw)
         self._pos = np.where(fresh, pos, self._pos)
@@ -1124,17 +1135,27 @@ class WinchDrives:
         self._syncs += 1
         self._armed |= send
 
-    def wait_feedback(self, timeout: float = 0.5) -> bool:
+    def wait_feedback(self, timeout: float = 0.5, missing_timeout: float = MISSING_WAIT_S
+                      ) -> bool:
         """Wait until every expected drive answered the last SYNC (lock-step; blocks at most
-        ``timeout`` [s, wall]). A drive that missed the SYNC before is not waited for: its
-        silence counts towards the TPDO deadline, and the cycles go on at the master's pace."""
-        mask = self._expected() & (self._miss_streak == 0)
-        n_mask = np.count_nonzero(mask)
+        ``timeout`` [s, wall], or ``missing_timeout`` when every drive not yet answered
+        missed the SYNC before too). A miss counts towards the TPDO deadline, after which
+        the drive is lost and no longer waited for: the cycles go on at the master's pace."""
+        mask = self._expected()
+        if not np.count_nonzero(mask):
+            return True
+        missed_before = self._miss_streak != 0
         deadline = time.monotonic() + timeout
+        short = False  # the short bound is set
         with self._rx:
             while True:
-                if np.count_nonzero(self._rx_count[mask] > self._expect[mask]) == n_mask:
+                pending = mask & (self._rx_count <= self._expect)
+                if not np.count_nonzero(pending):
                     return True
+                if not short and not np.count_nonzero(pending & ~missed_before):
+                    # only drives that missed the SYNC before: a short wait more
+                    deadline = min(deadline, time.monotonic() + missing_timeout)
+                    short = True
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
