@@ -339,3 +339,56 @@ def test_dry_run_without_faults_reports_neither():
     assert res.ended == "completed", res.message
     kinds = {e["kind"] for e in res.events}
     assert not kinds & {DRIVE_LOST, FOREIGN_MASTER, "tpdo_missing", "heartbeat_lost"}, kinds
+
+
+# ---------------------------------------------------------------------------- commissioning
+
+
+@pytest.mark.parametrize("foreign", [True, False])
+def test_commission_jog_stops_on_another_masters_frame(foreign):
+    """The commissioning master (hal.motion.AxisMaster) watches the same frames: an SDO
+    write from a second client ends the jog (MotionError naming the COB-ID) and the drive
+    is left disabled; without it the jog runs to its end."""
+    from hal.motion import AxisMaster, JogInput, MotionError, run_jog
+
+    ch = f"feedback-jog-{uuid.uuid4().hex}"
+    bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=ch), W)
+    bank.set_positions_m(np.linspace(9.0, 12.5, 8))
+    bank.start()
+    net = canopen.Network(can.Bus(interface="virtual", channel=ch))
+    net.connect()
+    try:
+        m = AxisMaster(net, W, 3, EDS_PATH, clock="sync", pace=False)
+        ax = W.axis(3)
+        m.start(1)
+        n = [0]
+
+        def read():
+            n[0] += 1
+            if n[0] == 40 and foreign:
+                other = can.Bus(interface="virtual", channel=ch)
+                try:
+                    other.send(can.Message(arbitration_id=SDO_OFF_4[0], data=SDO_OFF_4[1],
+                                           is_extended_id=False))
+                finally:
+                    other.shutdown()
+                time.sleep(0.1)  # the notifier thread delivers it
+            return JogInput.OUT if n[0] < 120 else JogInput.QUIT
+
+        try:
+            if foreign:
+                with pytest.raises(MotionError, match="COB-ID 0x604 SDO request") as exc:
+                    run_jog(m, read, int(ax.m_to_counts(20.0)), int(ax.m_to_counts(5.0)), 0.5)
+                assert exc.value.kind == FOREIGN_MASTER
+                assert n[0] <= 41
+            else:
+                res = run_jog(m, read, int(ax.m_to_counts(20.0)), int(ax.m_to_counts(5.0)),
+                              0.5)
+                assert res.reason == "operator quit" and n[0] >= 120
+        finally:
+            state, problems = m.finish()
+            m.close()
+        assert state == "SWITCH_ON_DISABLED", (state, problems)
+    finally:
+        net.disconnect()
+        bank.close()
