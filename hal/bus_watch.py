@@ -93,9 +93,10 @@ def master_frame(cob_id: int, data: bytes, node_ids: Iterable[int],
     nodes = set(node_ids)
     data = bytes(data)
     if cob_id == COB_NMT:
-        cmd = data[0] if data else -1
-        target = data[1] if len(data) > 1 else 0
-        what = NMT_COMMANDS.get(cmd, f"command 0x{cmd:02X}" if cmd >= 0 else "empty")
+        if len(data) != 2:
+            return 0, f"COB-ID 0x000 NMT frame of {len(data)} bytes not ours"
+        cmd, target = data[0], data[1]
+        what = NMT_COMMANDS.get(cmd, f"command 0x{cmd:02X}")
         to = "all nodes" if target == 0 else f"node {target}"
         return (target if target in nodes else 0,
                 f"COB-ID 0x000 NMT {what} to {to} not ours")
