@@ -961,7 +961,8 @@ class WinchDrives:
 
     def _lost_text(self, k: int, now: float) -> str:
         return (f"no TPDO for {self._miss_streak[k]} SYNCs ({now - self._last_tpdo_t[k]:.3f} "
-                f"s; deadline {self.tpdo_deadline_cycles} SYNCs): state unknown")
+                f"s; deadline {self.tpdo_deadline_cycles} SYNCs and "
+                f"{self.tpdo_deadline_min_s:.3f} s): state unknown")
 
     def _check_foreign(self) -> None:
         """Frames another master sent (queued by :attr:`foreign`): an event when the
