@@ -1136,12 +1136,15 @@ class WinchDrives:
         self._syncs += 1
         self._armed |= send
 
-    def wait_feedback(self, timeout: float = 0.5, missing_timeout: float = MISSING_WAIT_S
+    def wait_feedback(self, timeout: float = 0.5, missing_timeout: float | None = None
                       ) -> bool:
         """Wait until every expected drive answered the last SYNC (lock-step; blocks at most
         ``timeout`` [s, wall], or ``missing_timeout`` when every drive not yet answered
-        missed the SYNC before too). A miss counts towards the TPDO deadline, after which
-        the drive is lost and no longer waited for: the cycles go on at the master's pace."""
+        missed the SYNC before too: default :data:`MISSING_WAIT_S`, one SYNC period on the
+        wall clock). A miss counts towards the TPDO deadline, after which the drive is lost
+        and no longer waited for: the cycles go on at the master's pace."""
+        if missing_timeout is None:
+            missing_timeout = self.period_s if self._wall_clock else MISSING_WAIT_S
         mask = self._expected()
         if not np.count_nonzero(mask):
             return True

@@ -394,8 +394,12 @@ class CanModbusHardware(WinchHardware):
         if self._owes_receive:
             self.drives.receive()
             self._owes_receive = False
-        self.drives.enable_and_wait(max_cycles)  # lock-step cycles, ends after a SYNC
-        self._owes_receive = True
+        try:
+            self.drives.enable_and_wait(max_cycles)  # lock-step cycles, ends after a SYNC
+        finally:
+            # also after a failure (e.g. a drive lost while enabling): the last SYNC's
+            # answers are read by the next read() (a receive without a SYNC counts nothing)
+            self._owes_receive = True
 
     def recover(self, timeout_s: float = 3.0) -> list[int]:
         if self._owes_receive:
