@@ -34,7 +34,7 @@ import numpy as np
 TPDO_DEADLINE_CYCLES = 5
 #: ... and at least this long [s, master clock] without one (a host's scheduling hiccup
 #: at a high cycle rate is no lost drive)
-TPDO_DEADLINE_MIN_S = 0.05
+TPDO_DEADLINE_MIN_S = 0.08
 #: the event / fault kind of a drive whose feedback stopped (also the supervisor's condition)
 DRIVE_LOST = "drive_lost"
 #: the event / fault kind of a frame another master sent (also the supervisor's condition)
