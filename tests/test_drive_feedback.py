@@ -393,3 +393,32 @@ def test_commission_jog_stops_on_another_masters_frame(foreign):
     finally:
         net.disconnect()
         bank.close()
+
+
+def test_dry_run_against_cdpr_sim_second_client_on_the_hub_quick_stops():
+    """`cdpr sim` in another process, lock-step; a second socketcand client on its hub
+    writes 0x6040 = 0 to node 4: foreign_master naming COB-ID 0x604, a quick stop."""
+    with start_world(SC, WINCHES, "process") as world:
+        other = open_bus(world.info["can"])
+        sent: list[tuple[float, int]] = []
+        holder: list[ControlLoop] = []
+
+        def tick():
+            loop = holder[0]
+            if not sent and loop.result.cycles == 150:
+                other.send(can.Message(arbitration_id=SDO_OFF_4[0], data=SDO_OFF_4[1],
+                                       is_extended_id=False))
+                sent.append((world.hw.drives.now() - loop._t0, loop.result.cycles))
+
+        try:
+            loop = _loop_with(world, tick, 2.0)
+            holder.append(loop)
+            res = loop.run()
+        finally:
+            other.shutdown()
+    assert sent
+    ev = [e for e in res.events if e["kind"] == FOREIGN_MASTER and e["active"]]
+    assert ev and ev[0]["reaction"] == "quick_stop" and ev[0]["address"] == 4, res.events
+    assert "COB-ID 0x604" in ev[0]["text"]
+    assert ev[0]["t"] - sent[0][0] <= 3 * WINCHES.bus.sync_period_s + 1e-6, (ev[0], sent)
+    assert res.ended == "quick_stop"
