@@ -106,8 +106,9 @@ class LoopOptions:
 class LoopResult:
     """What a run did (plain data; :meth:`summary` is the ``--json`` object's core)."""
 
-    ended: str = "not started"  #: completed, quick_stop, interrupted, hold_timeout, refused,
-    #: error
+    ended: str = "not started"  #: completed, quick_stop (also: the drives could not all be
+    #: enabled, e.g. one lost while enabling: an ``enable_failed`` event), interrupted,
+    #: hold_timeout, refused, error
     message: str = ""
     cycles: int = 0
     period_s: float = 0.0
