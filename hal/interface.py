@@ -314,7 +314,10 @@ class WinchHardware(ABC):
     # ---- lock-step helpers (block) --------------------------------------------------
     @abstractmethod
     def wait_feedback(self, timeout_s: float = 0.5) -> bool:
-        """Wait until every drive answered the last SYNC (lock-step with a simulator)."""
+        """Wait until every drive answered the last SYNC (lock-step with a simulator), at
+        most ``timeout_s`` [s, wall] (a short wait for a drive that missed the SYNC before,
+        none for a lost one): a miss counts towards the drives' TPDO deadline
+        (``drive_lost``), the cycles never wait longer."""
 
     @abstractmethod
     def sample_tensions(self, timeout_s: float = 2.0) -> bool:
