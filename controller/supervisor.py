@@ -35,7 +35,11 @@ condition             detected when                                       reacti
                       winch length limits)
 ``following_error``   |commanded - measured| length > the winch window    quick_stop
 ``drive_fault``       a drive is in Fault / Fault Reaction Active          quick_stop
-``drive_lost``        heartbeat lost, node reset (boot-up), NMT state      quick_stop
+``drive_lost``        heartbeat lost, TPDOs lost (no TPDO for the HAL's     quick_stop
+                      deadline of SYNCs), node reset (boot-up), NMT state
+                      other than OPERATIONAL, CAN link lost
+``foreign_master``    a frame only a master sends, not sent by this one     quick_stop
+                      (SDO request or RPDO to a drive, NMT, SYNC)
 ``drive_disabled``    a drive left Operation Enabled without being told    quick_stop
 ``bus``               the CAN bus refuses frames                           quick_stop
 ``loadcell``          a load cell is stale, timed out, faulted, NaN,       substitute
@@ -90,6 +94,7 @@ REACTIONS: dict[str, Reaction] = {
     "following_error": Reaction.QUICK_STOP,
     "drive_fault": Reaction.QUICK_STOP,
     "drive_lost": Reaction.QUICK_STOP,
+    "foreign_master": Reaction.QUICK_STOP,
     "drive_disabled": Reaction.QUICK_STOP,
     "bus": Reaction.QUICK_STOP,
     "loadcell": Reaction.SUBSTITUTE,
@@ -107,10 +112,10 @@ LATCHED = (Reaction.QUICK_STOP, Reaction.DISABLE)
 _PERSIST = ("slack", "overload")
 
 #: conditions confirmed on the first cycle that shows them
-_IMMEDIATE = ("drive_fault", "drive_lost", "bus", "loadcell")
+_IMMEDIATE = ("drive_fault", "drive_lost", "foreign_master", "bus", "loadcell")
 
 #: HAL fault kinds of a drive that mean the drive is lost to the master
-_LOST_KINDS = ("heartbeat_lost", "boot_up", "nmt_state", "link_lost")
+_LOST_KINDS = ("heartbeat_lost", "drive_lost", "boot_up", "nmt_state", "link_lost")
 
 
 def _all(mask: np.ndarray) -> bool:
@@ -328,7 +333,10 @@ class Supervisor:
                                  f"{1e3 * window[k]:.1f} mm)"))
         faulted_nodes = set()
         for f in obs.faults:
-            if f.device == "drive":
+            if f.kind == "foreign_master" and f.device in ("drive", "bus"):
+                out.append(_Cond("foreign_master", f.device, f.address,
+                                 f.cable if f.device == "drive" else "", f.code, f.text))
+            elif f.device == "drive":
                 kind = "drive_fault" if f.kind == "drive_fault" else (
                     "drive_lost" if f.kind in _LOST_KINDS else "drive_fault")
                 faulted_nodes.add(f.address)

@@ -44,6 +44,17 @@ Detection (reported by :meth:`faults` while active and as :class:`DriveEvent` hi
   state is unknown, the master asks it to quick stop (in case it still listens);
 - unexpected boot-up (node reset; code 0x8130) or NMT state other than OPERATIONAL;
 - TPDO missing for a SYNC or arriving late (code 0x8250 from the master's side);
+- TPDOs lost: no TPDO for ``tpdo_deadline_cycles`` SYNCs in a row (and at least
+  ``tpdo_deadline_min_s`` of the master clock; :func:`hal.bus_watch.feedback_lost`): the
+  drive is lost (``drive_lost``, code 0x8250), its state UNKNOWN (never its last live
+  state) until its TPDOs come back (``tpdo_resumed``); the master asks it to quick stop
+  (in case it still listens). :meth:`enable_and_wait` raises :class:`DriveLostError` when a
+  drive is lost while it enables;
+- another master on the bus (``foreign_master``, :class:`hal.bus_watch.ForeignFrameWatch`):
+  an SDO request to one of our drives, an NMT command, an RPDO of one of our drives or a
+  SYNC that this master did not send; the event names the COB-ID and what the frame does
+  (node id 0 for NMT to all nodes and SYNC); active as a fault for ``FOREIGN_HOLD_S`` of
+  the master clock after the last such frame;
 - internal limit active (software position limit reached, statusword bit 11);
 - the bus refusing frames (node id 0, code 0x8100), without raising out of the cycle;
 - the link lost (node id 0, ``link_lost``; a :class:`~hal.socketcand_link.SocketcandLink`
@@ -83,6 +94,14 @@ import canopen
 import numpy as np
 
 from controller.winch import WinchSet, counts_to_m, m_to_counts
+from hal.bus_watch import (
+    DRIVE_LOST,
+    FOREIGN_MASTER,
+    TPDO_DEADLINE_CYCLES,
+    TPDO_DEADLINE_MIN_S,
+    ForeignFrameWatch,
+    feedback_lost,
+)
 from hal.can_bus import CanSpec, open_bus, send_frames
 from hal.drives_cia402 import (
     CW_FAULT_RESET,
@@ -111,6 +130,11 @@ from hal.drives_config import (
 
 #: SDO answer timeout of the HAL's nodes [s] (start-up, recovery, fault-code reads)
 SDO_TIMEOUT_S = 1.0
+#: a foreign master's frame is an active fault for this long after the last one [s, master
+#: clock] (the supervisor latches its quick stop)
+FOREIGN_HOLD_S = 0.5
+#: lock-step: wall time [s] waited for the TPDOs of drives that missed the SYNC before
+MISSING_WAIT_S = 0.05
 
 log = logging.getLogger(__name__)
 
@@ -131,6 +155,15 @@ class DriveStartupError(RuntimeError):
     """Drives did not come up (missing boot-up, no answer); the message names the nodes."""
 
 
+class DriveLostError(DriveStartupError):
+    """Drives lost while they were being enabled (their TPDOs stopped: ``drive_lost``);
+    ``node_ids`` names them. Their faults stay in :meth:`WinchDrives.faults`."""
+
+    def __init__(self, message: str, node_ids: tuple[int, ...]) -> None:
+        super().__init__(message)
+        self.node_ids = node_ids
+
+
 class BusLinkError(DriveStartupError):
     """The CAN link is down (the socketcand server or the adapter went away, the bus refuses
     frames): raised by the blocking calls, the message names the bus."""
@@ -144,8 +177,9 @@ class DriveEvent:
     cable: str
     kind: str  #: emcy, emcy_malformed, emcy_overflow, fault, fault_code, fault_cleared,
     #: quick_stop, heartbeat_lost, heartbeat_resumed, heartbeat_malformed, boot_up, nmt_state,
-    #: tpdo_missing, tpdo_late, tpdo_short, internal_limit, fault_reset_failed, recovered,
-    #: sdo_error; node_id 0 (the bus): bus_error, link_lost, link_back
+    #: tpdo_missing, tpdo_late, tpdo_short, drive_lost, tpdo_resumed, foreign_master,
+    #: internal_limit, fault_reset_failed, recovered, sdo_error; node_id 0 (the bus):
+    #: bus_error, link_lost, link_back, foreign_master (NMT to all nodes, SYNC)
     code: int  #: EMCY / error code (0 when none applies)
     text: str
     source: str  #: "drive" (EMCY it sent) or "hal" (detected by the master)
@@ -163,7 +197,8 @@ class DriveFault:
 
     node_id: int
     cable: str
-    kind: str  #: drive_fault, quick_stop, heartbeat_lost, boot_up, nmt_state, link_lost
+    kind: str  #: drive_fault, quick_stop, heartbeat_lost, drive_lost, boot_up, nmt_state,
+    #: link_lost, foreign_master (node_id 0: a frame to the whole bus)
     code: int
     text: str
 
@@ -177,7 +212,9 @@ class WinchDrives:
 
     ``network`` is a connected :class:`canopen.Network`; ``winches`` the winch parameters
     (node ids, units, limits, bus timing); ``eds`` the drives' EDS file or object dictionary;
-    ``bus_name`` how messages name the bus (default: the bus's channel info).
+    ``bus_name`` how messages name the bus (default: the bus's channel info);
+    ``tpdo_deadline_cycles``/``tpdo_deadline_min_s``: a drive is lost after this many SYNCs
+    in a row without its TPDO, silent for at least this long [s, master clock].
     """
 
     def __init__(
@@ -188,7 +225,14 @@ class WinchDrives:
         clock: str | Callable[[], float] = "wall",
         own_network: bool = False,
         bus_name: str | None = None,
+        tpdo_deadline_cycles: int = TPDO_DEADLINE_CYCLES,
+        tpdo_deadline_min_s: float = TPDO_DEADLINE_MIN_S,
     ) -> None:
+        if tpdo_deadline_cycles < 1 or not tpdo_deadline_min_s >= 0:
+            raise ValueError(f"tpdo_deadline_cycles {tpdo_deadline_cycles} must be >= 1 and "
+                             f"tpdo_deadline_min_s {tpdo_deadline_min_s} >= 0")
+        self.tpdo_deadline_cycles = int(tpdo_deadline_cycles)
+        self.tpdo_deadline_min_s = float(tpdo_deadline_min_s)
         self.network = network
         self.winches = winches
         self.n = len(winches)
@@ -251,6 +295,14 @@ class WinchDrives:
         self._hb_lost = np.zeros(n, bool)
         self._nmt = np.full(n, -1, np.int64)
         self._miss_streak = np.zeros(n, np.int64)
+        self._syncs_seen = 0  # SYNCs sent at the last receive()
+        self._no_one = np.zeros(n, bool)
+        self._lost = np.zeros(n, bool)  # TPDOs overdue: drive_lost
+        self._last_tpdo_t = np.zeros(n)  # master clock of the last TPDO (or of arming)
+        self._foreign_until = np.full(n, -np.inf)  # foreign_master active until (clock)
+        self._foreign_text = [""] * n
+        self._foreign_bus_until = -np.inf
+        self._foreign_bus_text = ""
         self._limit = np.zeros(n, bool)
         self._code = np.zeros(n, np.int64)  # last EMCY code (0 = none or reset)
         self._fault_code = np.zeros(n, np.int64)  # cause of the present Fault
@@ -288,6 +340,15 @@ class WinchDrives:
             self._subs.append((0x80 + node.id, self._emcy_cb(k)))
         for cob, cb in self._subs:
             network.subscribe(cob, cb)
+        rpdo_cobs = {}
+        for node in self.nodes:
+            try:
+                cob = int(node.object_dictionary[0x1400][1].default) & 0x7FF
+            except (KeyError, TypeError, ValueError):
+                cob = 0x200 + node.id
+            rpdo_cobs[cob or 0x200 + node.id] = node.id
+        #: frames only another master sends (see :mod:`hal.bus_watch`)
+        self.foreign = ForeignFrameWatch(network, self.node_ids, rpdo_cobs)
 
     # ------------------------------------------------------------------ construction
 
@@ -322,6 +383,7 @@ class WinchDrives:
             if cb in self.network.subscribers.get(cob, []):
                 self.network.unsubscribe(cob, cb)
         self._subs = []
+        self.foreign.close()
         for node in self.nodes:
             if node.id in self.network:
                 # canopen's own handlers back, so that it can remove them with the node
@@ -479,7 +541,9 @@ class WinchDrives:
         if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
             if state != NMT_OPERATIONAL:
                 # no PDO leaves a node outside OPERATIONAL: the statusword we hold is old,
-                # its power state unknown until a TPDO comes again (or recover())
+                # its power state unknown until a TPDO comes again (or recover()); the NMT
+                # state is the fault (no TPDO is owed: not drive_lost)
+                self._lost[k] = False
                 self._have[k] = False
                 self._setpoint_ok[k] = False
                 self._event(k, "nmt_state", CODE_HEARTBEAT,
@@ -681,6 +745,8 @@ class WinchDrives:
             self._nmt[k] = NMT_OPERATIONAL
             self._nmt_wait[k] = now + max(self.hb_timeout_s, self.period_s)
             self._miss_streak[k] = 0
+            self._lost[k] = False
+            self._last_tpdo_t[k] = now
             # a drive holding in Quick Stop Active (it lost its master) keeps holding
             held = states[k] == ST.QUICK_STOP_ACTIVE
             self._request[k] = RQ.QUICK_STOP if held else RQ.DISABLE
@@ -828,7 +894,11 @@ class WinchDrives:
     # ------------------------------------------------------------------ the cycle
 
     def _expected(self) -> np.ndarray:
-        return self._started & self._armed & ~self._rebooted & ~self._hb_lost & ~self._relink
+        """Drives that owe a TPDO per SYNC (started by us, operational as far as we know,
+        not lost)."""
+        op = (self._nmt == NMT_OPERATIONAL) | (self._nmt == -1)
+        return (self._started & self._armed & ~self._rebooted & ~self._hb_lost & ~self._relink
+                & ~self._lost & op)
 
     def exchange(self) -> None:
         """One control cycle: process what arrived, run the state machine, send RPDOs + SYNC.
@@ -852,7 +922,9 @@ class WinchDrives:
         fresh = counts > self._seen
         n_new = counts - self._seen
         self._seen = counts
-        expected = self._expected()
+        # an answer is owed per SYNC sent since the last receive (none: nothing is missing)
+        expected = self._expected() if self._syncs != self._syncs_seen else self._no_one
+        self._syncs_seen = self._syncs
         self._check_pdos(fresh, n_new, expected)
         self._sw = np.where(fresh, sw, self._sw)
         self._pos = np.where(fresh, pos, self._pos)
@@ -861,8 +933,56 @@ class WinchDrives:
         out_of_op = (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
         self._have |= fresh & ~self._relink & ~out_of_op
         self._nmt_wait[fresh] = -np.inf  # PDOs only flow in OPERATIONAL
+        self._check_feedback(fresh, expected)
         self._update_states(expected)
         self._check_heartbeats()
+        self._check_foreign()
+
+    def _check_feedback(self, fresh: np.ndarray, expected: np.ndarray) -> None:
+        """TPDO deadline: a drive silent for the deadline is lost (state unknown, asked to
+        quick stop); its TPDOs back end it."""
+        now = self._clock()
+        if np.count_nonzero(fresh):
+            self._last_tpdo_t[fresh] = now
+        back = self._lost & fresh
+        for k in np.flatnonzero(back) if np.count_nonzero(back) else ():
+            self._lost[k] = False
+            self._event(k, "tpdo_resumed", CODE_PDO_TIMEOUT, "TPDOs back: state known again")
+        if not np.count_nonzero(self._miss_streak):
+            return
+        lost = feedback_lost(np.where(expected, self._miss_streak, 0), now - self._last_tpdo_t,
+                             self.tpdo_deadline_cycles, self.tpdo_deadline_min_s)
+        for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():
+            self._lost[k] = True
+            self._have[k] = False  # its state is unknown now, never its last live one
+            self._setpoint_ok[k] = False
+            self._request[k] = RQ.QUICK_STOP  # hold, if it still hears us
+            self._event(k, DRIVE_LOST, CODE_PDO_TIMEOUT, self._lost_text(k, now))
+
+    def _lost_text(self, k: int, now: float) -> str:
+        return (f"no TPDO for {self._miss_streak[k]} SYNCs ({now - self._last_tpdo_t[k]:.3f} "
+                f"s; deadline {self.tpdo_deadline_cycles} SYNCs and "
+                f"{self.tpdo_deadline_min_s:.3f} s): state unknown")
+
+    def _check_foreign(self) -> None:
+        """Frames another master sent (queued by :attr:`foreign`): an event when the
+        condition starts, a fault while it lasts."""
+        frames = self.foreign.take()
+        if not frames:
+            return
+        now = self._clock()
+        for f in frames:
+            if f.node_id in self.node_ids:
+                k = self.node_ids.index(f.node_id)
+                if now > self._foreign_until[k]:
+                    self._event(k, FOREIGN_MASTER, 0, f"{f.text} (another master on the bus)")
+                self._foreign_until[k] = now + FOREIGN_HOLD_S
+                self._foreign_text[k] = f.text
+            else:
+                if now > self._foreign_bus_until:
+                    self._bus_event(f"{f.text} (another master on the bus)", FOREIGN_MASTER, 0)
+                self._foreign_bus_until = now + FOREIGN_HOLD_S
+                self._foreign_bus_text = f.text
 
     def transmit(self) -> None:
         """Second half of a cycle: state machine requests, RPDOs (setpoints) + SYNC out.
@@ -1016,15 +1136,30 @@ class WinchDrives:
         self._syncs += 1
         self._armed |= send
 
-    def wait_feedback(self, timeout: float = 0.5) -> bool:
-        """Wait until every expected drive answered the last SYNC (lock-step; blocks)."""
+    def wait_feedback(self, timeout: float = 0.5, missing_timeout: float | None = None
+                      ) -> bool:
+        """Wait until every expected drive answered the last SYNC (lock-step; blocks at most
+        ``timeout`` [s, wall], or ``missing_timeout`` when every drive not yet answered
+        missed the SYNC before too: default :data:`MISSING_WAIT_S`, one SYNC period on the
+        wall clock). A miss counts towards the TPDO deadline, after which the drive is lost
+        and no longer waited for: the cycles go on at the master's pace."""
+        if missing_timeout is None:
+            missing_timeout = self.period_s if self._wall_clock else MISSING_WAIT_S
         mask = self._expected()
-        n_mask = np.count_nonzero(mask)
+        if not np.count_nonzero(mask):
+            return True
+        missed_before = self._miss_streak != 0
         deadline = time.monotonic() + timeout
+        short = False  # the short bound is set
         with self._rx:
             while True:
-                if np.count_nonzero(self._rx_count[mask] > self._expect[mask]) == n_mask:
+                pending = mask & (self._rx_count <= self._expect)
+                if not np.count_nonzero(pending):
                     return True
+                if not short and not np.count_nonzero(pending & ~missed_before):
+                    # only drives that missed the SYNC before: a short wait more
+                    deadline = min(deadline, time.monotonic() + missing_timeout)
+                    short = True
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
@@ -1061,7 +1196,18 @@ class WinchDrives:
             raise DriveStartupError(f"enable refused: {'; '.join(bad)}")
         self.enable()
         ok = self._blocking("enable", lambda: self.run_until(
-            lambda d: bool(np.all(d.states() == ST.OPERATION_ENABLED)), max_cycles))
+            lambda d: bool(np.all(d.states() == ST.OPERATION_ENABLED) or d._lost.any()),
+            max_cycles))
+        if self._lost.any():
+            ks = np.flatnonzero(self._lost)
+            # the others: no pending enable; those already enabled quick-stop
+            oe = self._states == ST.OPERATION_ENABLED
+            self._request[~self._lost & ~oe & (self._request == RQ.ENABLE)] = RQ.DISABLE
+            self._request[~self._lost & oe] = RQ.QUICK_STOP
+            raise DriveLostError(
+                f"{DRIVE_LOST} while enabling: " + "; ".join(
+                    f"{self.who(k)}: {self._lost_text(k, self._clock())}" for k in ks),
+                tuple(self.node_ids[k] for k in ks))
         if not ok:
             bad = [f"{self.who(k)}: {DriveState(s).name}" for k, s in enumerate(self._states)
                    if s != ST.OPERATION_ENABLED]
@@ -1085,6 +1231,8 @@ class WinchDrives:
             return "was reset (boot-up): recover() it first"
         if self._hb_lost[k]:
             return "heartbeat lost: recover() it once it is back"
+        if self._lost[k]:
+            return "TPDOs lost (drive_lost): its state is unknown"
         if self._nmt[k] not in (NMT_OPERATIONAL, -1):
             return f"NMT {NMT_NAMES.get(int(self._nmt[k]), '?')}: recover() it first"
         return ""
@@ -1140,8 +1288,13 @@ class WinchDrives:
         wrong NMT state, link lost)."""
         out: list[DriveFault] = []
         nmt_bad = self._started & (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
+        now = self._clock()
+        foreign = self._foreign_until >= now
         anything = (self._relink | faulted(self._states) | self._self_stopped | self._hb_lost
-                    | self._rebooted | nmt_bad)
+                    | self._rebooted | nmt_bad | self._lost | foreign)
+        if self._foreign_bus_until >= now:
+            out.append(DriveFault(0, "-", FOREIGN_MASTER, 0, f"{self.bus_name}: "
+                                  f"{self._foreign_bus_text} (another master on the bus)"))
         if not np.count_nonzero(anything):
             return out  # none of the conditions below holds for any drive
         for k in range(self.n):
@@ -1162,6 +1315,12 @@ class WinchDrives:
             if self._hb_lost[k]:
                 out.append(DriveFault(nid, cable, "heartbeat_lost", CODE_HEARTBEAT,
                                       "heartbeat lost"))
+            if self._lost[k]:
+                out.append(DriveFault(nid, cable, DRIVE_LOST, CODE_PDO_TIMEOUT,
+                                      f"TPDOs lost: {self._lost_text(k, now)}"))
+            if foreign[k]:
+                out.append(DriveFault(nid, cable, FOREIGN_MASTER, 0, f"{self._foreign_text[k]} "
+                                      "(another master on the bus)"))
             if self._rebooted[k]:
                 out.append(DriveFault(nid, cable, "boot_up", CODE_HEARTBEAT,
                                       "node was reset (boot-up); recover() it"))
@@ -1177,6 +1336,7 @@ __all__ = [
     "DriveConfigError",
     "DriveEvent",
     "DriveFault",
+    "DriveLostError",
     "DriveStartupError",
     "DriveState",
     "WinchDrives",

@@ -69,8 +69,9 @@ class HardwareConfigError(ValueError):
 class HardwareFault:
     """An active fault: ``device`` is "drive" (``address`` = CAN node id), "loadcell"
     (``address`` = Modbus unit id) or "bus" (address 0); ``kind`` what is wrong
-    (drive: drive_fault, quick_stop (stopped on its own), heartbeat_lost, boot_up,
-    nmt_state, link_lost; load cell: the
+    (drive: drive_fault, quick_stop (stopped on its own), heartbeat_lost, drive_lost (its
+    TPDOs stopped: state unknown), boot_up, nmt_state, link_lost, foreign_master (a frame
+    another master sent to it; device "bus" for NMT to all nodes and SYNC); load cell: the
     :class:`~hal.loadcell_client.CableStatus` name in lower case); ``code`` see the module
     docstring."""
 
@@ -197,7 +198,8 @@ class LoadCellStatusTracker:
 
 
 def drive_fault(f: DriveFault) -> HardwareFault:
-    return HardwareFault(DRIVE, f.node_id, f.cable, f.kind, f.code, f.text)
+    device = BUS if f.node_id == 0 else DRIVE  # foreign_master: a frame to the whole bus
+    return HardwareFault(device, f.node_id, f.cable, f.kind, f.code, f.text)
 
 
 def drive_event(e: DriveEvent) -> HardwareEvent:
@@ -312,7 +314,10 @@ class WinchHardware(ABC):
     # ---- lock-step helpers (block) --------------------------------------------------
     @abstractmethod
     def wait_feedback(self, timeout_s: float = 0.5) -> bool:
-        """Wait until every drive answered the last SYNC (lock-step with a simulator)."""
+        """Wait until every drive answered the last SYNC (lock-step with a simulator), at
+        most ``timeout_s`` [s, wall] (a short wait for a drive that missed the SYNC before,
+        none for a lost one): a miss counts towards the drives' TPDO deadline
+        (``drive_lost``), the cycles never wait longer."""
 
     @abstractmethod
     def sample_tensions(self, timeout_s: float = 2.0) -> bool:
@@ -392,8 +397,12 @@ class CanModbusHardware(WinchHardware):
         if self._owes_receive:
             self.drives.receive()
             self._owes_receive = False
-        self.drives.enable_and_wait(max_cycles)  # lock-step cycles, ends after a SYNC
-        self._owes_receive = True
+        try:
+            self.drives.enable_and_wait(max_cycles)  # lock-step cycles, ends after a SYNC
+        finally:
+            # also after a failure (e.g. a drive lost while enabling): the last SYNC's
+            # answers are read by the next read() (a receive without a SYNC counts nothing)
+            self._owes_receive = True
 
     def recover(self, timeout_s: float = 3.0) -> list[int]:
         if self._owes_receive:

@@ -50,6 +50,7 @@ import canopen
 import numpy as np
 
 from controller.winch import WinchSet
+from hal.bus_watch import FOREIGN_MASTER, ForeignFrameWatch
 from hal.drives_cia402 import (
     CW_DISABLE_VOLTAGE,
     DriveState,
@@ -92,7 +93,9 @@ NMT_PRE_OPERATIONAL = 0x80
 class MotionError(RuntimeError):
     """The motion could not go on; names the node. ``kind``: "fault" (the drive faulted),
     "silent" (TPDOs or heartbeats stopped), "reset" (the node booted), "bus" (sending
-    failed) or "other"."""
+    failed), "foreign_master" (another master sent an SDO request or RPDO to the drive, an
+    NMT command or a SYNC: :mod:`hal.bus_watch`; the message names the COB-ID) or
+    "other"."""
 
     def __init__(self, message: str, kind: str = "other") -> None:
         super().__init__(message)
@@ -204,6 +207,8 @@ class AxisMaster:
         for cob, cb in self._subs:
             network.subscribe(cob, cb)
         self.node.emcy.add_callback(self._on_emcy)
+        #: frames only another master sends (checked every cycle, as the HAL does)
+        self.foreign = ForeignFrameWatch(network, [self.node_id], {self._rpdo_cob: self.node_id})
 
     # ------------------------------------------------------------------ plumbing
 
@@ -245,6 +250,7 @@ class AxisMaster:
             if cb in self.network.subscribers.get(cob, []):
                 self.network.unsubscribe(cob, cb)
         self._subs = []
+        self.foreign.close()
         if self.node_id in self.network:
             del self.network[self.node_id]
 
@@ -392,6 +398,10 @@ class AxisMaster:
                 self._last_code = code
             self.note(f"{self.who()}: EMCY 0x{code:04X} {emcy_text(code)} "
                       f"(error register 0x{reg:02X})")
+        foreign = self.foreign.take()
+        if foreign and self._started:
+            raise MotionError(f"{self.who()}: {FOREIGN_MASTER}: {foreign[0].text} (another "
+                              "master on the bus)", FOREIGN_MASTER)
         if boots > self._boots_at_start:
             self._started = False
             raise MotionError(f"{self.who()}: the node was reset (boot-up) during the motion",

@@ -54,6 +54,7 @@ from controller.supervisor import (
     SupervisorLimits,
 )
 from controller.trajectory import Trajectory
+from hal.drives import DriveStartupError
 from hal.drives_cia402 import ST
 from hal.interface import Readings, WinchHardware
 from hal.tracker import Tracker
@@ -105,8 +106,9 @@ class LoopOptions:
 class LoopResult:
     """What a run did (plain data; :meth:`summary` is the ``--json`` object's core)."""
 
-    ended: str = "not started"  #: completed, quick_stop, interrupted, hold_timeout, refused,
-    #: error
+    ended: str = "not started"  #: completed, quick_stop (also: the drives could not all be
+    #: enabled, e.g. one lost while enabling: an ``enable_failed`` event), interrupted,
+    #: hold_timeout, refused, error
     message: str = ""
     cycles: int = 0
     period_s: float = 0.0
@@ -297,6 +299,7 @@ class ControlLoop:
         self.controller: LengthController | None = None
         self.trajectory: Trajectory | None = None
         self._finished = False
+        self._enable_failed_seen = False  #: enabling the drives failed (see _enable_failed)
         self._t0 = 0.0  #: hardware time at start-up [s]
 
     # ------------------------------------------------------------------ events
@@ -351,8 +354,38 @@ class ControlLoop:
         self._event(t, "controller", 0, "", "initialised", 0, "none", True,
                     f"p0 {np.round(p0, 4).tolist()} ({how}); referenced: offsets "
                     f"{np.round(1e3 * off, 2).tolist()} mm")
-        hw.enable()
+        try:
+            hw.enable()
+        except DriveStartupError as exc:
+            self._enable_failed(exc)
+            raise
         return p0, traj
+
+    def _supervisor(self) -> Supervisor:
+        """The supervisor of this run (the robot's tension limits, the winches' windows,
+        the options' overrides)."""
+        lim = SupervisorLimits.for_robot(self.model.tension_min, self.model.tension_max,
+                                         self.hw.winches.following_error_m,
+                                         **self.opt.supervisor)
+        return Supervisor(lim, dict(self.opt.reactions))
+
+    def _enable_failed(self, exc: DriveStartupError) -> None:
+        """The drives did not all come to Operation Enabled (e.g. one lost while it
+        enabled): what the HAL reports goes through the supervisor as in the cycle (the
+        same events, e.g. ``drive_lost`` naming the node), then the HAL's events."""
+        self._enable_failed_seen = True
+        r = self.hw.read()
+        ob = Observation(r.t_s - self._t0, r.tensions_N, r.tensions_ok, r.lengths_m, None,
+                         r.enabled, expect_enabled=False, faults=_faults(r),
+                         cables=self.hw.cables, node_ids=self.hw.node_ids,
+                         unit_ids=self.hw.unit_ids)
+        for e in self._supervisor().step(ob).events:
+            if e.kind != "loadcell":
+                self._event(e.t_s, e.device, e.address, e.cable, e.kind, e.code,
+                            e.reaction.label, e.active, e.text)
+        self._event(r.t_s - self._t0, "controller", 0, "", "enable_failed", 0, "quick_stop",
+                    True, str(exc))
+        self._hw_events()
 
     # ------------------------------------------------------------------ the run
     def run(self) -> LoopResult:
@@ -368,6 +401,12 @@ class ControlLoop:
                     p0, traj = self._initialise()
                 except PathRefused as exc:
                     res.ended, res.message = "refused", str(exc)
+                    return res
+                except DriveStartupError as exc:
+                    if not self._enable_failed_seen:
+                        raise  # start-up: not one of the supervisor's conditions
+                    res.ended, res.message = "quick_stop", str(exc)  # events: _enable_failed
+                    self._emergency_stop()
                     return res
                 if self.opt.realtime:
                     sched = rt.enter_context(realtime_scheduling(self.opt.rt_priority))
@@ -424,9 +463,7 @@ class ControlLoop:
         assert ctl is not None
         T = hw.period_s
         w = hw.winches
-        lim = SupervisorLimits.for_robot(self.model.tension_min, self.model.tension_max,
-                                         w.following_error_m, **opt.supervisor)
-        sup = Supervisor(lim, dict(opt.reactions))
+        sup = self._supervisor()
         for kind, reaction in opt.reactions.items():
             self._event(0.0, "controller", 0, "", "reaction_override", 0, reaction.label, True,
                         f"supervisor: {kind} -> {reaction.label} (default "
