@@ -64,6 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="plant settles per second of simulated time [20]")
     p.add_argument("--record", metavar="DIR", default=None,
                    help="write the run as a cdpr-recording/1 directory (with events.csv)")
+    p.add_argument("--format", choices=("csv", "mcap", "both"), default="csv",
+                   help="--record as the CSV directory, as DIR/recording.mcap (MCAP, zstd; "
+                        "docs/guide/mcap-and-replay.md), or both [csv]")
     p.add_argument("--decimate", type=int, default=None, metavar="N",
                    help="record every N-th cycle [about 50 rows per second]")
     p.add_argument("--force", action="store_true", help="overwrite a non-empty --record DIR")
@@ -227,7 +230,7 @@ def _run(args: argparse.Namespace, created: list) -> int:
             return _fail(args, 2, str(exc))
 
     from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
-    from bench.dryrun.record import DryRunRecorder
+    from bench.dryrun.record import open_recorder as open_record_format
     from bench.dryrun.world import start_world, with_rate
 
     winches = with_rate(winches, sync_period_us(rate) * 1e-6)
@@ -258,8 +261,9 @@ def _run(args: argparse.Namespace, created: list) -> int:
         meta = {"pose_source": "simulated laser tracker", "tension_source": "simulated load "
                 "cells", "notes": "dry run in progress", "scenario": str(sc_path),
                 "path": str(path_ref), "rate_hz": rate, "decimate": decimate}
-        return DryRunRecorder(rec, model, p0, meta,
-                              robot_header=f"model the controller ran with ({model.name})")
+        return open_record_format(rec, model, p0, meta,
+                                  robot_header=f"model the controller ran with ({model.name})",
+                                  fmt=args.format)
 
     if not args.quiet:
         print(f"cdpr dry-run: {sc_path.name} with model {model.name}, path "
