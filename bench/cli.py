@@ -35,6 +35,7 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.iso9283",
     "bench.commands.commission",
     "bench.commands.compare",
+    "bench.commands.recording",
 )
 
 

@@ -118,9 +118,13 @@ def _num(v: float) -> float | None:
 
 
 def _ns(t: float) -> int:
-    """MCAP log time [ns] of a recording time ``t`` [s] (0 before 0: MCAP times are
-    unsigned; the message's own ``t`` keeps the value)."""
-    return max(0, int(round(float(t) * 1e9)))
+    """MCAP log time [ns] of a recording time ``t`` [s], clamped to what MCAP's unsigned
+    64-bit times hold (0 before 0, the largest after 584 years); the message's own ``t``
+    keeps the value."""
+    t = float(t)
+    if not t > 0:
+        return 0
+    return min(int(round(t * 1e9)), 2**64 - 1) if t < 1.8e10 else 2**64 - 1
 
 
 class _Scene:
@@ -161,8 +165,8 @@ class _Scene:
         if p is None:
             return []
         fm, r = self.fm, self.robot
-        t = float(row[0])
-        stamp = fm.Timestamp(sec=int(math.floor(t)), nsec=int((t - math.floor(t)) * 1e9))
+        ns = _ns(float(row[0]))  # (unsigned, as the log time)
+        stamp = fm.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
         qx, qy, qz, qw = Rotation.from_matrix(rotation(p[3:6])).as_quat()
         q = fm.Quaternion(x=qx, y=qy, z=qz, w=qw)
         tf = fm.FrameTransform(timestamp=stamp, parent_frame_id="world",
@@ -632,24 +636,73 @@ def read_recording_mcap(path: str | Path):
     return rec
 
 
-def convert(src: str | Path, out: str | Path) -> dict[str, Any]:
-    """``cdpr recording convert``: an MCAP recording to a CSV directory or a CSV directory
-    to an MCAP file (by what ``src`` is). Returns a summary (``from``, ``to``, ``rows``,
-    ``events``, ``truncated``)."""
+def convert_target(src: str | Path, out: str | Path) -> tuple[str, Path]:
+    """What ``convert`` makes of ``src``: ``("csv", OUT)`` (a CSV directory of an MCAP
+    recording) or ``("mcap", file)`` (``OUT`` when it ends in ``.mcap``, else
+    ``OUT/recording.mcap``). Raises :class:`RecordingError` when ``src`` is neither."""
     src, out = Path(src), Path(out)
     if mcap_file(src) is not None:
-        c = mcap_to_csv(src, out)
-        return {"from": "mcap", "to": "csv", "input": str(src), "output": str(out),
-                "rows": len(c.data), "events": len(c.events), "truncated": c.truncated}
+        return "csv", out
     if not (src / "meta.toml").is_file():
-        raise RecordingError(f"{src}: neither an MCAP file nor a recording directory "
+        raise RecordingError(f"{src}: neither an MCAP recording nor a recording directory "
                              f"(no meta.toml, no {MCAP_NAME})")
-    target = out / MCAP_NAME if out.is_dir() else out
-    csv_to_mcap(src, target)
-    c = read_mcap(target)
-    return {"from": "csv", "to": "mcap", "input": str(src), "output": str(target),
-            "rows": len(c.data), "events": len(c.events), "truncated": c.truncated}
+    return "mcap", out if out.suffix == ".mcap" else out / MCAP_NAME
 
+
+def convert(src: str | Path, out: str | Path) -> dict[str, Any]:
+    """``cdpr recording convert``: an MCAP recording to a CSV directory, or a CSV directory
+    to an MCAP file (:func:`convert_target`). Returns a summary (``from``, ``to``,
+    ``input``, ``output``, ``rows``, ``events``, ``truncated``)."""
+    to, target = convert_target(src, out)
+    if to == "csv":
+        c = mcap_to_csv(src, target)
+    else:
+        csv_to_mcap(src, target)
+        c = read_mcap(target)
+    return {"from": "mcap" if to == "csv" else "csv", "to": to, "input": str(src),
+            "output": str(target), "rows": len(c.data), "events": len(c.events),
+            "truncated": c.truncated}
+
+
+def info(path: str | Path) -> dict[str, Any]:
+    """``cdpr recording info``: an MCAP recording's channels (topic, schema, encoding,
+    messages), rows, events, time span, chunks and compression, whether it is whole."""
+    from mcap.records import Channel, Chunk, Footer, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    p = mcap_file(path)
+    if p is None:
+        raise RecordingError(f"{path}: not an MCAP recording")
+    schemas: dict[int, Schema] = {}
+    chans: dict[int, Channel] = {}
+    counts: dict[int, int] = {}
+    chunks, compression, whole = 0, set(), False
+    with p.open("rb") as f:
+        try:
+            for r in StreamReader(f, emit_chunks=True, validate_crcs=True).records:
+                if isinstance(r, Chunk):
+                    chunks += 1
+                    compression.add(r.compression or "none")
+                    from mcap.stream_reader import breakup_chunk
+                    for x in breakup_chunk(r, validate_crc=True):
+                        if isinstance(x, Message):
+                            counts[x.channel_id] = counts.get(x.channel_id, 0) + 1
+                        elif isinstance(x, Schema):
+                            schemas[x.id] = x
+                        elif isinstance(x, Channel):
+                            chans[x.id] = x
+                elif isinstance(r, Footer):
+                    whole = True
+        except Exception:  # cut short: what came before
+            pass
+    c = read_mcap(p)
+    return {"file": str(p), "whole": whole, "chunks": chunks,
+            "compression": sorted(compression), "rows": len(c.data),
+            "events": len(c.events),
+            "t_s": [float(c.data[0, 0]), float(c.data[-1, 0])] if len(c.data) else None,
+            "channels": [{"topic": ch.topic, "schema": schemas[ch.schema_id].name
+                          if ch.schema_id in schemas else "", "encoding": ch.message_encoding,
+                          "messages": counts.get(i, 0)} for i, ch in sorted(chans.items())]}
 
 
 # ------------------------------------------------------------------- the dry run's recorder
