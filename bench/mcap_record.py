@@ -44,6 +44,7 @@ MCAP_NAME = "recording.mcap"
 MAGIC = b"\x89MCAP0\r\n"
 META_NAME = "cdpr-recording"
 EVENTS_TOPIC = "/supervisor/events"
+CAN_TOPIC = "/can"
 EVENT_FIELDS = ("device", "address", "cable", "kind", "code", "reaction", "active", "text")
 
 #: topic -> (schema name, column pattern -> field path); the first match wins, in order
@@ -111,6 +112,14 @@ _EVENT_SCHEMA = json.dumps({
         "kind": {"type": "string"}, "code": {"type": "integer"},
         "reaction": {"type": "string"}, "active": {"type": "boolean"},
         "text": {"type": "string"}}}).encode()
+
+
+_CAN_SCHEMA = json.dumps({
+    "title": "cdpr.CanFrame", "type": "object", "properties": {
+        "t": {"type": "number", "description": "the frame's timestamp [s] (bus clock)"},
+        "id": {"type": "integer", "description": "arbitration id"},
+        "extended": {"type": "boolean"}, "dlc": {"type": "integer"},
+        "data": {"type": "string", "description": "payload, hex"}}}).encode()
 
 
 def _num(v: float) -> float | None:
@@ -273,6 +282,9 @@ class McapRecordingWriter:
             self._ch[topic] = self._w.register_channel(topic, "json", sid)
         sid = self._w.register_schema("cdpr.SupervisorEvent", "jsonschema", _EVENT_SCHEMA)
         self._ch[EVENTS_TOPIC] = self._w.register_channel(EVENTS_TOPIC, "json", sid)
+        sid = self._w.register_schema("cdpr.CanFrame", "jsonschema", _CAN_SCHEMA)
+        self._ch[CAN_TOPIC] = self._w.register_channel(CAN_TOPIC, "json", sid)
+        self._can_frames = 0
         self._scene = _Scene(robot, self.columns) if scene else None
         if self._scene is not None:
             for topic, sc in self._scene.schemas().items():
@@ -320,6 +332,14 @@ class McapRecordingWriter:
             self._queue.append(("event", ev, None))
             self._appended += 1
 
+    def can_frame(self, msg) -> None:
+        """One CAN frame (a ``can.Message``) for the ``/can`` channel; cheap, any thread."""
+        item = ("can", (float(msg.timestamp), int(msg.arbitration_id),
+                        bool(msg.is_extended_id), int(msg.dlc), bytes(msg.data)), None)
+        with self._lock:
+            self._queue.append(item)
+            self._appended += 1
+
     def update_meta(self, **fields: Any) -> None:
         """A new ``meta.toml`` attachment (readers take the last)."""
         self._check()
@@ -350,6 +370,14 @@ class McapRecordingWriter:
             if kind == "row":
                 self._write_row(a, b, self.rows)
                 self.rows += 1
+            elif kind == "can":
+                t, cid, ext, dlc, data = a
+                ns = _ns(t)
+                self._w.add_message(self._ch[CAN_TOPIC], ns, json.dumps(
+                    {"t": t, "id": cid, "extended": ext, "dlc": dlc, "data": data.hex()}
+                ).encode(), ns, self._can_frames)
+                self._can_frames += 1
+                continue  # (many: no pause per frame)
             elif kind == "event":
                 ns = _ns(a["t"])
                 self._w.add_message(self._ch[EVENTS_TOPIC], ns, json.dumps(a).encode(), ns,
@@ -527,6 +555,60 @@ def read_mcap(path: str | Path) -> McapContent:
     return McapContent(p, header, data, states, events, texts["meta.toml"],
                        texts["robot.toml"], truncated,
                        {t: len(v) for t, v in msgs.items()})
+
+
+def read_can_frames(path: str | Path):
+    """The ``/can`` channel of an MCAP recording as ``can.Message`` objects, in order
+    (a file cut short: up to its last whole chunk)."""
+    import can
+    from mcap.records import Channel, Message
+
+    p = mcap_file(path) or Path(path)
+    recs, _ = _records(p)
+    chan = None
+    for r in recs:
+        if isinstance(r, Channel) and r.topic == CAN_TOPIC:
+            chan = r.id
+        elif isinstance(r, Message) and r.channel_id == chan:
+            m = json.loads(r.data)
+            yield can.Message(timestamp=m["t"], arbitration_id=m["id"],
+                              is_extended_id=m["extended"], dlc=m["dlc"],
+                              data=bytes.fromhex(m["data"]), check=False)
+
+
+class CanTap:
+    """Every frame of a CAN bus to ``on_frame(msg)``: on a ``virtual:CHANNEL`` in the
+    sending thread as it is sent (the order of the bus, lock-step included); another bus
+    (e.g. the socketcand hub of ``--rig process``) through a second connection and a
+    python-can notifier. :meth:`close` detaches."""
+
+    def __init__(self, spec: str, on_frame) -> None:
+        import can
+
+        from hal.can_bus import open_bus, parse_can_spec
+
+        self.spec = spec
+        self._notifier = None
+        s = parse_can_spec(spec)
+        if s.interface == "virtual":
+            from can.interfaces import virtual
+
+            from bench.dryrun.lockstep_bus import _DirectQueue
+
+            self.bus = virtual.VirtualBus(channel=s.channel)
+            direct = _DirectQueue([on_frame])
+            with virtual.channels_lock:
+                i = next(i for i, q in enumerate(self.bus.channel) if q is self.bus.queue)
+                self.bus.channel[i] = direct
+                self.bus.queue = direct
+        else:
+            self.bus = open_bus(spec)
+            self._notifier = can.Notifier(self.bus, [on_frame], timeout=0.05)
+
+    def close(self) -> None:
+        if self._notifier is not None:
+            self._notifier.stop()
+        self.bus.shutdown()
 
 
 # ------------------------------------------------------------------------ conversion
@@ -709,10 +791,12 @@ def info(path: str | Path) -> dict[str, Any]:
 
 
 def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
-                     robot_header: str = "", flush_s: float = 1.0, fmt: str = "mcap"):
+                     robot_header: str = "", flush_s: float = 1.0, fmt: str = "mcap",
+                     can: str | None = None):
     """A :class:`bench.dryrun.record.DryRunRecorder` whose rows and events go to
     ``path/recording.mcap`` (the same columns and events as the CSV directory); with
-    ``fmt`` ``both`` also the CSV directory (the MCAP file beside its files)."""
+    ``fmt`` ``both`` also the CSV directory (the MCAP file beside its files). ``can``: the
+    ``--can`` spec of the drives' bus, whose every frame from now on goes to ``/can``."""
     from bench.dryrun.record import DryRunRecorder, columns
 
     class McapDryRunRecorder(DryRunRecorder):
@@ -723,12 +807,17 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
                                               columns(robot), meta, robot_header,
                                               states=True, flush_s=flush_s)
             self._row = np.empty(len(self.writer.columns))
+            self.tap = CanTap(can, self.writer.can_frame) if can else None
 
         def event(self, t, device, address, cable, kind, code, reaction, active, text):
             self.writer.event(t, device, address, cable, kind, code, reaction, active, text)
 
         def close(self) -> None:
-            self.writer.close()
+            try:
+                if self.tap is not None:
+                    self.tap.close()
+            finally:
+                self.writer.close()
 
     if fmt == "both":
         csv_rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)

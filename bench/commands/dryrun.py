@@ -263,7 +263,7 @@ def _run(args: argparse.Namespace, created: list) -> int:
                 "path": str(path_ref), "rate_hz": rate, "decimate": decimate}
         return open_record_format(rec, model, p0, meta,
                                   robot_header=f"model the controller ran with ({model.name})",
-                                  fmt=args.format)
+                                  fmt=args.format, can=world.info.get("can"))
 
     if not args.quiet:
         print(f"cdpr dry-run: {sc_path.name} with model {model.name}, path "

@@ -59,15 +59,17 @@ FORMATS = ("csv", "mcap", "both")
 
 
 def open_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
-                  robot_header: str = "", fmt: str = "csv", flush_s: float = 1.0):
-    """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: bench/mcap_record.py)."""
+                  robot_header: str = "", fmt: str = "csv", flush_s: float = 1.0,
+                  can: str | None = None):
+    """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: bench/mcap_record.py, which
+    also records every frame of the ``can`` bus, a ``--can`` spec, when given)."""
     if fmt == "csv":
         return DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
     if fmt not in FORMATS:
         raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
     from bench.mcap_record import dry_run_recorder
 
-    return dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt)
+    return dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt, can)
 
 
 class DryRunRecorder:
