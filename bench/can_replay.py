@@ -69,11 +69,16 @@ class ReplayResult:
     SYNC], ``node``, ``cable``, ``kind``, ``code``, ``text``, ``source``, ``cycle``);
     ``states``: each drive's CiA 402 state changes (``t``, ``node``, ``cable``, ``state``);
     ``final_states`` the states at the end; counts of ``frames`` and ``syncs``; ``log_s``
-    the log's span [s, its timestamps], ``wall_s`` the replay's."""
+    the log's span [s, its timestamps], ``wall_s`` the replay's. ``supervisor``: the
+    supervisor's events on the drive conditions (``drive_fault``, ``drive_lost``,
+    ``drive_disabled``, ``bus``: ``t``, ``device``, ``address``, ``cable``, ``kind``,
+    ``code``, ``reaction``, ``active``, ``text``); the log has no tensions nor poses, so
+    the load-cell, slack/overload and following-error conditions are not looked at."""
 
     frames: int = 0
     syncs: int = 0
     events: list[dict[str, Any]] = field(default_factory=list)
+    supervisor: list[dict[str, Any]] = field(default_factory=list)
     states: list[dict[str, Any]] = field(default_factory=list)
     final_states: list[str] = field(default_factory=list)
     log_s: float = 0.0
@@ -109,6 +114,7 @@ class _Player:
         d._nmt[:] = NMT_OPERATIONAL
         d._nmt_wait[:] = now + max(d.hb_timeout_s, d.period_s)
         self.rq = RQ
+        self.master_enabled = np.zeros(d.n, bool)  #: the master asks Operation Enabled
         self.index = {nid: k for k, nid in enumerate(d.node_ids)}
         self.rpdo = d._rpdo
 
@@ -119,14 +125,15 @@ class _Player:
             return
         fn, node = cid & 0x780, cid & 0x7F
         k = self.index.get(node)
-        if cid == 0x80 and not msg.data:  # SYNC: the master's cycle
-            self.cycle()
+        if cid == 0x80 and not msg.data:  # SYNC: the master's cycle (replay() runs it)
+            return
         elif k is None:
             return
         elif fn in (0x180, 0x080, 0x700):  # TPDO, EMCY, heartbeat of a drive
             self.sender.send(msg)
         elif fn == 0x200 and len(msg.data) >= self.rpdo.size:  # the master's RPDO
             cw = self.rpdo.unpack_from(bytes(msg.data))[0]
+            self.master_enabled[k] = cw & 0x8F == 0x0F
             if cw & 0x8F == 0x0F:
                 d._request[k] = self.rq.ENABLE
             elif cw & 0x87 == 0x02:
@@ -141,8 +148,9 @@ class _Player:
                     abort = struct.unpack_from("<I", msg.data, 4)[0]
                     d._queue.append(("603f", k, None, f"SDO abort 0x{abort:08X}"))
 
-    def cycle(self) -> None:
-        self.drives.receive()
+    def transmit(self) -> None:
+        """The second half of the HAL's cycle (after :meth:`WinchDrives.receive` and what
+        looks at its result): its clock advances one SYNC."""
         self.drives.transmit()
         while self.sender.recv(0) is not None:  # the HAL's own RPDOs and SYNC: dropped
             pass
@@ -155,21 +163,46 @@ class _Player:
             self.sender.shutdown()
 
 
+def _supervise(sup, pl: _Player, res: ReplayResult,
+               on_event: Callable[[dict], None] | None) -> None:
+    """One supervisor step on what the drives say (no tensions, no setpoints)."""
+    from controller.supervisor import DeviceFault, Observation
+    from hal.drives_cia402 import ST
+
+    d = pl.drives
+    faults = tuple(DeviceFault("drive", f.node_id, f.cable, f.kind, f.code, f.text)
+                   for f in d.faults())
+    n = d.n
+    ob = Observation(d.now(), np.zeros(n), np.ones(n, bool), np.zeros(n), None,
+                     d.states() == ST.OPERATION_ENABLED,
+                     expect_enabled=bool(pl.master_enabled.all()), faults=faults,
+                     cables=tuple(d.winches.cables), node_ids=tuple(d.node_ids))
+    for e in sup.step(ob).events:
+        ev = {"t": round(e.t_s, 6), "device": e.device, "address": e.address,
+              "cable": e.cable, "kind": e.kind, "code": e.code, "reaction": e.reaction.label,
+              "active": e.active, "text": e.text}
+        res.supervisor.append(ev)
+        if on_event is not None:
+            on_event(ev)
+
+
 def replay(frames: Iterable[can.Message], winches: WinchSet, eds: str | Path | None = None,
            fast: bool = True, on_event: Callable[[dict], None] | None = None,
-           stop: Callable[[], bool] | None = None) -> ReplayResult:
+           stop: Callable[[], bool] | None = None,
+           reactions: dict | None = None) -> ReplayResult:
     """Play ``frames`` into the HAL (see the module docstring): as fast as possible, or
-    with ``fast=False`` at the pace of their timestamps. ``on_event`` gets each drive event
-    and state change as it is derived; ``stop()`` true ends the replay early."""
+    with ``fast=False`` at the pace of their timestamps. ``on_event`` gets each drive event,
+    state change and supervisor event as it is derived; ``stop()`` true ends the replay
+    early; ``reactions`` the supervisor's overrides (``--react``)."""
+    from controller.supervisor import Supervisor, SupervisorLimits
     from firmware_sim.cia402_drive import EDS_PATH  # the drives' object dictionary
 
     pl = _Player(winches, eds or EDS_PATH)
-    d = pl.drives
+    sup = Supervisor(SupervisorLimits.for_robot(0.0, np.inf, np.inf), dict(reactions or {}))
     res = ReplayResult()
+    res.final_states = pl.drives.state_names()
     wall0 = time.perf_counter()
     t_first = t_last = None
-    last_states = d.state_names()
-    syncs0 = None
     try:
         for msg in frames:
             if stop is not None and stop():
@@ -183,31 +216,13 @@ def replay(frames: Iterable[can.Message], winches: WinchSet, eds: str | Path | N
                 if lag > 0:
                     time.sleep(lag)
             res.frames += 1
-            is_sync = msg.arbitration_id == 0x80 and not msg.data and not msg.is_extended_id
-            if is_sync and syncs0 is None:
-                syncs0 = d._syncs
             pl.frame(msg)
-            if not is_sync:
-                continue
-            res.syncs += 1
-            t = d.now()
-            for e in d.events():
-                ev = {"t": round(e.time_s, 6), "node": e.node_id, "cable": e.cable,
-                      "kind": e.kind, "code": e.code, "text": e.text, "source": e.source,
-                      "cycle": e.cycle}
-                res.events.append(ev)
-                if on_event is not None:
-                    on_event(ev)
-            names = d.state_names()
-            for k, (a, b) in enumerate(zip(last_states, names, strict=True)):
-                if a != b:
-                    st = {"t": round(t, 6), "node": d.node_ids[k],
-                          "cable": d.winches.cables[k], "state": b}
-                    res.states.append(st)
-                    if on_event is not None:
-                        on_event(st)
-            last_states = names
-        res.final_states = last_states
+            if msg.arbitration_id == 0x80 and not msg.data and not msg.is_extended_id:
+                res.syncs += 1
+                _take_cycle(pl, sup, res, on_event)
+                pl.transmit()
+        if res.syncs:  # what answered the last SYNC
+            _take_cycle(pl, sup, res, on_event)
     finally:
         pl.close()
     res.wall_s = time.perf_counter() - wall0
@@ -215,11 +230,36 @@ def replay(frames: Iterable[can.Message], winches: WinchSet, eds: str | Path | N
     return res
 
 
+def _take_cycle(pl: _Player, sup, res: ReplayResult,
+                on_event: Callable[[dict], None] | None) -> None:
+    """The first half of the HAL's cycle: what arrived, the events and state changes it
+    gives, the supervisor's step on them (into ``res``)."""
+    d = pl.drives
+    d.receive()
+    t = d.now()
+    for e in d.events():
+        ev = {"t": round(e.time_s, 6), "node": e.node_id, "cable": e.cable, "kind": e.kind,
+              "code": e.code, "text": e.text, "source": e.source, "cycle": e.cycle}
+        res.events.append(ev)
+        if on_event is not None:
+            on_event(ev)
+    _supervise(sup, pl, res, on_event)
+    names = d.state_names()
+    for k, (a, b) in enumerate(zip(res.final_states, names, strict=True)):
+        if a != b:
+            st = {"t": round(t, 6), "node": d.node_ids[k], "cable": d.winches.cables[k],
+                  "state": b}
+            res.states.append(st)
+            if on_event is not None:
+                on_event(st)
+    res.final_states = names
+
+
 def drive_events_of_recording(events: Iterable[dict]) -> list[tuple[int, str, int]]:
     """(node, kind, code) of the drives' events of a run's events (``device`` "drive"),
     in order: what a replay of its CAN log must derive again."""
     return [(int(e["address"]), str(e["kind"]), int(e["code"])) for e in events
-            if e["device"] == "drive"]
+            if e["device"] == "drive" and e["reaction"] == "event"]
 
 
 def replay_keys(result: ReplayResult) -> list[tuple[int, str, int]]:
@@ -227,6 +267,9 @@ def replay_keys(result: ReplayResult) -> list[tuple[int, str, int]]:
     return [(int(e["node"]), str(e["kind"]), int(e["code"])) for e in result.events]
 
 
-def states_array(result: ReplayResult) -> np.ndarray:
-    """The final states as an array of names (for comparisons)."""
-    return np.array(result.final_states)
+def supervisor_keys(events: Iterable[dict]) -> list[tuple[int, str, int, str, bool]]:
+    """(address, kind, code, reaction, active) of the supervisor's drive events (a run's
+    or a replay's), in order."""
+    return [(int(e["address"]), str(e["kind"]), int(e["code"]), str(e["reaction"]),
+             bool(e["active"])) for e in events
+            if e["device"] in ("drive", "bus") and e["reaction"] != "event"]

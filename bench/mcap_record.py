@@ -597,9 +597,10 @@ class CanTap:
 
             self.bus = virtual.VirtualBus(channel=s.channel)
             direct = _DirectQueue([on_frame])
-            with virtual.channels_lock:
-                i = next(i for i, q in enumerate(self.bus.channel) if q is self.bus.queue)
-                self.bus.channel[i] = direct
+            with virtual.channels_lock:  # first of the receivers: a frame is logged
+                # before any receiver answers it (a SYNC before its TPDOs, as on a wire)
+                self.bus.channel.remove(self.bus.queue)
+                self.bus.channel.insert(0, direct)
                 self.bus.queue = direct
         else:
             self.bus = open_bus(spec)
