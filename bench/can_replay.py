@@ -63,6 +63,33 @@ def read_log(path: str | Path) -> Iterator[can.Message]:
         raise ReplayError(f"{p}: {exc}") from None
 
 
+def sync_period_of(path: str | Path, syncs: int = 200) -> float | None:
+    """The SYNC period [s] of a log: the ``rate_hz`` of an MCAP recording's meta (a dry run
+    writes it; its frames carry wall-clock stamps of a lock-step run), else the median
+    interval of the first ``syncs`` SYNC frames; None when it has fewer than two."""
+    from bench.mcap_record import mcap_file, read_mcap
+
+    p = Path(path)
+    if mcap_file(p) is not None:
+        import tomllib
+
+        try:
+            rate = tomllib.loads(read_mcap(p).meta_text).get("rate_hz")
+        except Exception:  # a /can channel without the recording's rows: by the stamps
+            rate = None
+        if isinstance(rate, (int, float)) and rate > 0:
+            return 1.0 / float(rate)
+    stamps = []
+    for m in read_log(p):
+        if m.arbitration_id == 0x80 and not m.data and not m.is_extended_id:
+            stamps.append(float(m.timestamp))
+            if len(stamps) > syncs:
+                break
+    if len(stamps) < 2:
+        return None
+    return float(np.median(np.diff(stamps)))
+
+
 @dataclass
 class ReplayResult:
     """``events``: the HAL's drive events (dicts: ``t`` [s, SYNC clock from the log's first
@@ -189,14 +216,19 @@ def _supervise(sup, pl: _Player, res: ReplayResult,
 def replay(frames: Iterable[can.Message], winches: WinchSet, eds: str | Path | None = None,
            fast: bool = True, on_event: Callable[[dict], None] | None = None,
            stop: Callable[[], bool] | None = None,
-           reactions: dict | None = None) -> ReplayResult:
+           reactions: dict | None = None, period_s: float | None = None) -> ReplayResult:
     """Play ``frames`` into the HAL (see the module docstring): as fast as possible, or
     with ``fast=False`` at the pace of their timestamps. ``on_event`` gets each drive event,
     state change and supervisor event as it is derived; ``stop()`` true ends the replay
-    early; ``reactions`` the supervisor's overrides (``--react``)."""
+    early; ``reactions`` the supervisor's overrides (``--react``); ``period_s`` the SYNC
+    period of the log (:func:`sync_period_of`; default the winch file's)."""
     from controller.supervisor import Supervisor, SupervisorLimits
     from firmware_sim.cia402_drive import EDS_PATH  # the drives' object dictionary
 
+    if period_s is not None:
+        from bench.dryrun.world import with_rate
+
+        winches = with_rate(winches, period_s)
     pl = _Player(winches, eds or EDS_PATH)
     sup = Supervisor(SupervisorLimits.for_robot(0.0, np.inf, np.inf), dict(reactions or {}))
     res = ReplayResult()

@@ -36,6 +36,7 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.commission",
     "bench.commands.compare",
     "bench.commands.recording",
+    "bench.commands.replay",
 )
 
 
