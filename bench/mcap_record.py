@@ -231,6 +231,35 @@ class _Scene:
         return fm.SceneEntity(timestamp=stamp, frame_id="world", id="masts", lines=lines)
 
 
+def row_messages(lay: dict, idx: dict[str, int], scene: _Scene | None, row: np.ndarray,
+                 state: str, first: bool) -> list[tuple[str, bytes]]:
+    """``(topic, data)`` of one row: the JSON messages of :func:`layout` (``idx``: column
+    name -> index in ``row``), then the Foxglove ones of ``scene``."""
+    t = float(row[0])
+    out = []
+    for topic, cols in lay.items():
+        msg: dict[str, Any] = {"t": t}
+        for name, p in cols:
+            v: Any = state if name == "state" else _num(row[idx[name]])
+            cur = msg
+            for k in p[:-1]:
+                cur = cur.setdefault(k, {})
+            cur[p[-1]] = v
+        out.append((topic, json.dumps(msg).encode()))
+    if scene is not None:
+        out += scene.messages(row, first)
+    return out
+
+
+def row_schemas(lay: dict) -> dict[str, tuple[str, bytes]]:
+    """Topic -> (schema name, JSON schema) of the row channels of :func:`layout`."""
+    out = {}
+    for topic, cols in lay.items():
+        title = next(g[1] for g in _GROUPS if g[0] == topic)
+        out[topic] = (title, _json_schema(title, [p for _, p in cols]))
+    return out
+
+
 class McapRecordingWriter:
     """A recording written as one MCAP file while the run goes (the interface of
     :class:`bench.recording.RecordingWriter`: :meth:`append`, :meth:`event`,
@@ -275,10 +304,8 @@ class McapRecordingWriter:
         self._attach("meta.toml", tomli_w.dumps(self.meta))
         self._layout = layout(header)
         self._ch: dict[str, int] = {}
-        for topic, cols in self._layout.items():
-            title = next(g[1] for g in _GROUPS if g[0] == topic)
-            sid = self._w.register_schema(title, "jsonschema",
-                                          _json_schema(title, [p for _, p in cols]))
+        for topic, (title, schema) in row_schemas(self._layout).items():
+            sid = self._w.register_schema(title, "jsonschema", schema)
             self._ch[topic] = self._w.register_channel(topic, "json", sid)
         sid = self._w.register_schema("cdpr.SupervisorEvent", "jsonschema", _EVENT_SCHEMA)
         self._ch[EVENTS_TOPIC] = self._w.register_channel(EVENTS_TOPIC, "json", sid)
@@ -349,21 +376,10 @@ class McapRecordingWriter:
             self._appended += 1
 
     def _write_row(self, row: np.ndarray, state: str, seq: int) -> None:
-        t = float(row[0])
-        ns = _ns(t)
-        idx = self._idx
-        for topic, cols in self._layout.items():
-            msg: dict[str, Any] = {"t": t}
-            for name, p in cols:
-                v: Any = state if name == "state" else _num(row[idx[name]])
-                cur = msg
-                for k in p[:-1]:
-                    cur = cur.setdefault(k, {})
-                cur[p[-1]] = v
-            self._w.add_message(self._ch[topic], ns, json.dumps(msg).encode(), ns, seq)
-        if self._scene is not None:
-            for topic, data in self._scene.messages(row, seq == 0):
-                self._w.add_message(self._ch[topic], ns, data, ns, seq)
+        ns = _ns(float(row[0]))
+        for topic, data in row_messages(self._layout, self._idx, self._scene, row, state,
+                                        seq == 0):
+            self._w.add_message(self._ch[topic], ns, data, ns, seq)
 
     def _write(self, items: list[tuple]) -> None:
         for kind, a, b in items:

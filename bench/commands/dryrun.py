@@ -67,6 +67,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", choices=("csv", "mcap", "both"), default="csv",
                    help="--record as the CSV directory, as DIR/recording.mcap (MCAP, zstd; "
                         "docs/guide/mcap-and-replay.md), or both [csv]")
+    p.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
+                   metavar="HOST:PORT",
+                   help="show the run live in Foxglove: a WebSocket server on HOST:PORT "
+                        "[127.0.0.1:8765]")
     p.add_argument("--decimate", type=int, default=None, metavar="N",
                    help="record every N-th cycle [about 50 rows per second]")
     p.add_argument("--force", action="store_true", help="overwrite a non-empty --record DIR")
@@ -202,6 +206,12 @@ def _run(args: argparse.Namespace, created: list) -> int:
         reactions.update(parse_reactions(args.react))
     except ValueError as exc:
         return _fail(args, 2, f"--react {exc}")
+    if args.live is not None:
+        from bench.foxglove_live import parse_address
+        try:
+            parse_address(args.live)
+        except ValueError as exc:
+            return _fail(args, 2, str(exc))
     if args.decimate is not None and args.decimate < 1:
         return _fail(args, 2, f"--decimate {args.decimate}: must be >= 1")
     if not args.plant_rate > 0:
@@ -251,19 +261,20 @@ def _run(args: argparse.Namespace, created: list) -> int:
         return traj
 
     def open_recorder(p0):
-        if record_dir is None:
+        if record_dir is None and args.live is None:
             return None
         import shutil
 
-        rec = Path(record_dir)
-        if rec.exists() and args.force:
+        rec = Path(record_dir) if record_dir is not None else None
+        if rec is not None and rec.exists() and args.force:
             shutil.rmtree(rec)
         meta = {"pose_source": "simulated laser tracker", "tension_source": "simulated load "
                 "cells", "notes": "dry run in progress", "scenario": str(sc_path),
                 "path": str(path_ref), "rate_hz": rate, "decimate": decimate}
         return open_record_format(rec, model, p0, meta,
                                   robot_header=f"model the controller ran with ({model.name})",
-                                  fmt=args.format, can=world.info.get("can"))
+                                  fmt=args.format, can=world.info.get("can"),
+                                  live=args.live)
 
     if not args.quiet:
         print(f"cdpr dry-run: {sc_path.name} with model {model.name}, path "

@@ -58,18 +58,29 @@ def event_cells(t: float, device: str, address: int, cable: str, kind: str, code
 FORMATS = ("csv", "mcap", "both")
 
 
-def open_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
+def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, meta: dict,
                   robot_header: str = "", fmt: str = "csv", flush_s: float = 1.0,
-                  can: str | None = None):
+                  can: str | None = None, live: str | None = None):
     """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: bench/mcap_record.py, which
-    also records every frame of the ``can`` bus, a ``--can`` spec, when given)."""
-    if fmt == "csv":
-        return DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
+    also records every frame of the ``can`` bus, a ``--can`` spec, when given); with
+    ``live`` (``HOST:PORT``) also shown live in Foxglove (bench/foxglove_live.py), and only
+    that when ``path`` is None."""
     if fmt not in FORMATS:
         raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
-    from bench.mcap_record import dry_run_recorder
+    rec = None
+    if path is not None and fmt == "csv":
+        rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
+    elif path is not None:
+        from bench.mcap_record import dry_run_recorder
 
-    return dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt, can)
+        rec = dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt, can)
+    if live is None:
+        return rec
+    from bench.foxglove_live import live_recorder
+    from bench.mcap_record import TeeRecorder
+
+    view = live_recorder(live, robot, init_pose)
+    return view if rec is None else TeeRecorder(rec, view)
 
 
 class DryRunRecorder:
