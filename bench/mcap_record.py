@@ -45,6 +45,7 @@ MAGIC = b"\x89MCAP0\r\n"
 META_NAME = "cdpr-recording"
 EVENTS_TOPIC = "/supervisor/events"
 CAN_TOPIC = "/can"
+CAN_LOG = "can.log"  #: the CAN frames beside a CSV recording (candump format)
 EVENT_FIELDS = ("device", "address", "cable", "kind", "code", "reaction", "active", "text")
 
 #: topic -> (schema name, column pattern -> field path); the first match wins, in order
@@ -304,9 +305,11 @@ class McapRecordingWriter:
         self._attach("meta.toml", tomli_w.dumps(self.meta))
         self._layout = layout(header)
         self._ch: dict[str, int] = {}
+        sids: dict[tuple[str, bytes], int] = {}
         for topic, (title, schema) in row_schemas(self._layout).items():
-            sid = self._w.register_schema(title, "jsonschema", schema)
-            self._ch[topic] = self._w.register_channel(topic, "json", sid)
+            if (title, schema) not in sids:  # /pose/desired and /pose/measured: one
+                sids[title, schema] = self._w.register_schema(title, "jsonschema", schema)
+            self._ch[topic] = self._w.register_channel(topic, "json", sids[title, schema])
         sid = self._w.register_schema("cdpr.SupervisorEvent", "jsonschema", _EVENT_SCHEMA)
         self._ch[EVENTS_TOPIC] = self._w.register_channel(EVENTS_TOPIC, "json", sid)
         sid = self._w.register_schema("cdpr.CanFrame", "jsonschema", _CAN_SCHEMA)
@@ -638,10 +641,11 @@ def _event_cells(ev: dict) -> tuple[str, ...]:
                        ev["code"], ev["reaction"], ev["active"], ev["text"])
 
 
-def mcap_to_csv(src: str | Path, out_dir: str | Path) -> McapContent:
+def mcap_to_csv(src: str | Path, out_dir: str | Path, can_log: bool = True) -> McapContent:
     """Write the ``cdpr-recording/1`` directory ``out_dir`` (created) of an MCAP recording:
     ``meta.toml``, ``robot.toml`` (the texts it holds), ``recording.csv`` (the columns in
-    their order), ``events.csv`` when it has events. Returns what was read."""
+    their order), ``events.csv`` when it has events, and with ``can_log`` ``can.log``
+    (candump) when it has CAN frames. Returns what was read."""
     from bench.dryrun.record import EVENT_COLUMNS
     from bench.recording import _cell, _write_atomic
 
@@ -664,6 +668,16 @@ def mcap_to_csv(src: str | Path, out_dir: str | Path) -> McapContent:
             f.write(",".join(EVENT_COLUMNS) + "\n")
             for ev in c.events:
                 f.write(",".join(_event_cells(ev)) + "\n")
+    if can_log:
+        frames = read_can_frames(src)
+        first = next(frames, None)
+        if first is not None:
+            import can
+
+            with can.Logger(str(d / CAN_LOG)) as log:
+                log.on_message_received(first)
+                for m in frames:
+                    log.on_message_received(m)
     return c
 
 
@@ -718,6 +732,11 @@ def csv_to_mcap(src_dir: str | Path, out: str | Path, scene: bool = True) -> Pat
         if ev.is_file():
             for e in _read_events_csv(ev):
                 w.event(**e)
+        if (d / CAN_LOG).is_file():
+            import can
+
+            for m in can.LogReader(str(d / CAN_LOG)):
+                w.can_frame(m)
     finally:
         w.close()
     return Path(out)
@@ -729,7 +748,7 @@ def read_recording_mcap(path: str | Path):
     from bench.recording import read_recording
 
     with tempfile.TemporaryDirectory(prefix="cdpr-mcap-") as tmp:
-        mcap_to_csv(path, Path(tmp) / "rec")
+        mcap_to_csv(path, Path(tmp) / "rec", can_log=False)
         rec = read_recording(Path(tmp) / "rec")
     rec.path = Path(path)
     return rec

@@ -306,3 +306,24 @@ def test_write_recording_then_mcap_round_trip(tmp_path):
     a, b = read_recording(tmp_path / "w"), read_recording(tmp_path / "w.mcap")
     _same(a.tau, b.tau)
     _same(a.pose_des, b.pose_des)
+
+
+def test_can_frames_round_trip_through_can_log(tmp_path):
+    import can
+
+    src = _odd_recording(tmp_path / "src")
+    frames = [can.Message(timestamp=100.0 + 0.001 * i, arbitration_id=0x181 + i % 8,
+                          data=bytes([i % 256, 1, 2, 3, 4, 5]), is_extended_id=False)
+              for i in range(40)]
+    with can.Logger(str(src / "can.log")) as log:
+        for m in frames:
+            log.on_message_received(m)
+    csv_to_mcap(src, tmp_path / "r.mcap")
+    from bench.mcap_record import read_can_frames
+
+    got = list(read_can_frames(tmp_path / "r.mcap"))
+    assert [(m.arbitration_id, bytes(m.data)) for m in got] == [
+        (m.arbitration_id, bytes(m.data)) for m in frames]
+    assert [m.timestamp for m in got] == pytest.approx([m.timestamp for m in frames], abs=1e-6)
+    mcap_to_csv(tmp_path / "r.mcap", tmp_path / "back")
+    assert (tmp_path / "back" / "can.log").read_text() == (src / "can.log").read_text()
