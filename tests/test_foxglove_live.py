@@ -18,6 +18,7 @@ from controller.robot import resolve_robot
 def _client(port: int, want_topics: set[str], timeout_s: float = 10.0):
     """Connect (subprotocol foxglove.sdk.v1), take the advertised channels, subscribe to all,
     return (advertised topics -> schema name, topics with a message received)."""
+    pytest.importorskip("tornado")  # (dev extras: dask[distributed] brings it)
     from tornado import ioloop, websocket
 
     async def go():
