@@ -137,6 +137,26 @@ def _ns(t: float) -> int:
     return min(int(round(t * 1e9)), 2**64 - 1) if t < 1.8e10 else 2**64 - 1
 
 
+def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
+    """``(x, y, z, w)`` of a rotation matrix ``R`` (3, 3) (Shepperd's method, w >= 0); the
+    rotation's convention stays :func:`controller.pose.rotation`'s."""
+    m = [[float(v) for v in r] for r in R]
+    tr = m[0][0] + m[1][1] + m[2][2]
+    if tr > 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = ((m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s, s / 4)
+    elif m[0][0] >= m[1][1] and m[0][0] >= m[2][2]:
+        s = 2.0 * math.sqrt(1.0 + m[0][0] - m[1][1] - m[2][2])
+        q = (s / 4, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s, (m[2][1] - m[1][2]) / s)
+    elif m[1][1] >= m[2][2]:
+        s = 2.0 * math.sqrt(1.0 + m[1][1] - m[0][0] - m[2][2])
+        q = ((m[0][1] + m[1][0]) / s, s / 4, (m[1][2] + m[2][1]) / s, (m[0][2] - m[2][0]) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2][2] - m[0][0] - m[1][1])
+        q = ((m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, s / 4, (m[1][0] - m[0][1]) / s)
+    return q if q[3] >= 0 else (-q[0], -q[1], -q[2], -q[3])
+
+
 class _Scene:
     """The Foxglove messages of a row: the platform's frame and the 3D scene (protobuf,
     encoded by the foxglove SDK)."""
@@ -164,10 +184,12 @@ class _Scene:
                     return p
         return None
 
-    def messages(self, row: np.ndarray, first: bool) -> list[tuple[str, bytes]]:
-        """``(topic, data)`` of the row (none without a pose)."""
-        from scipy.spatial.transform import Rotation
+    #: the 3D scene at most this often [s of recording time]; the frame every row
+    SCENE_PERIOD_S = 0.1
 
+    def messages(self, row: np.ndarray, first: bool) -> list[tuple[str, bytes]]:
+        """``(topic, data)`` of the row (none without a pose): ``/tf`` every row, ``/scene``
+        in the first row and then at most every :attr:`SCENE_PERIOD_S` of ``t``."""
         from controller.kinematics import cable_state
         from controller.pose import rotation
 
@@ -177,11 +199,16 @@ class _Scene:
         fm, r = self.fm, self.robot
         ns = _ns(float(row[0]))  # (unsigned, as the log time)
         stamp = fm.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
-        qx, qy, qz, qw = Rotation.from_matrix(rotation(p[3:6])).as_quat()
+        qx, qy, qz, qw = quaternion(rotation(p[3:6]))
         q = fm.Quaternion(x=qx, y=qy, z=qz, w=qw)
         tf = fm.FrameTransform(timestamp=stamp, parent_frame_id="world",
                                child_frame_id="platform",
                                translation=fm.Vector3(x=p[0], y=p[1], z=p[2]), rotation=q)
+        t = float(row[0])
+        last = getattr(self, "_scene_t", None)
+        if not first and last is not None and last <= t < last + self.SCENE_PERIOD_S:
+            return [("/tf", tf.encode())]
+        self._scene_t = t
         st = cable_state(p, r.anchors, r.exits, r.pulley_radius)
         entities = [self._cables(stamp, st, row),
                     fm.SceneEntity(timestamp=stamp, frame_id="world", id="platform",

@@ -62,8 +62,10 @@ def test_dry_run_format_both_mcap_equals_csv(tmp_path, capsys):
     csv_rec = read_recording(rec)
     n = csv_rec.n_samples
     for topic in ("/pose/desired", "/pose/measured", "/cables/lengths", "/cables/tensions",
-                  "/loop", "/tf", "/scene"):
+                  "/loop", "/tf"):
         assert counts[topic] == n, topic
+    span = csv_rec.t[-1] - csv_rec.t[0]  # the scene at most every 0.1 s, the first row too
+    assert max(2, span / 0.2) <= counts["/scene"] <= 2 + span / 0.1
     assert counts["/supervisor/events"] >= 1
     out = tmp_path / "back"
     mcap_to_csv(rec / MCAP_NAME, out)
@@ -327,3 +329,18 @@ def test_can_frames_round_trip_through_can_log(tmp_path):
     assert [m.timestamp for m in got] == pytest.approx([m.timestamp for m in frames], abs=1e-6)
     mcap_to_csv(tmp_path / "r.mcap", tmp_path / "back")
     assert (tmp_path / "back" / "can.log").read_text() == (src / "can.log").read_text()
+
+
+@given(rpy=st.tuples(*[st.floats(-3.14159, 3.14159)] * 3))
+def test_property_quaternion_is_scipys(rpy):
+    from scipy.spatial.transform import Rotation
+
+    from bench.mcap_record import quaternion
+    from controller.pose import rotation
+
+    R = rotation(np.array(rpy))
+    q = np.array(quaternion(R))
+    ref = Rotation.from_matrix(R).as_quat()
+    ref = ref if ref[3] >= 0 else -ref
+    assert np.allclose(q, ref, atol=1e-9) or (abs(ref[3]) < 1e-9 and np.allclose(q, -ref,
+                                                                               atol=1e-9))
