@@ -120,3 +120,7 @@ def test_bad_logs_are_refused_naming_the_file(tmp_path, capsys):
     assert "no such file" in json.loads(capsys.readouterr().out)["error"]
     assert main(["replay", str(bad), "--rate", "-1", "--json"]) == 2
     assert "--rate" in json.loads(capsys.readouterr().out)["error"]
+    empty = tmp_path / "empty.log"
+    empty.write_text("")
+    assert main(["replay", str(empty), "--json"]) == 2
+    assert "no CAN frames" in json.loads(capsys.readouterr().out)["error"]

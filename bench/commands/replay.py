@@ -11,7 +11,7 @@ the live run derived them (bench/can_replay.py; docs/guide/mcap-and-replay.md).
 ``--json``: ``{"log", "frames", "syncs", "sync_period_s", "log_s", "wall_s", "events",
 "supervisor", "states", "final_states"}``.
 
-Exit status: 0 replayed, 2 bad log or arguments.
+Exit status: 0 replayed, 2 bad log (or one without CAN frames) or arguments.
 """
 
 from __future__ import annotations
@@ -79,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
                      reactions=reactions, period_s=period)
     except (ReplayError, RecordingError, WinchConfigError, OSError) as exc:
         return _fail(args, str(exc))
+    if res.frames == 0:
+        return _fail(args, f"{args.log}: no CAN frames (an MCAP recording has them when "
+                           f"written by cdpr dry-run --format mcap)")
     out = {"log": args.log, "frames": res.frames, "syncs": res.syncs,
            "sync_period_s": period, "log_s": res.log_s, "wall_s": res.wall_s,
            "events": res.events, "supervisor": res.supervisor, "states": res.states,
