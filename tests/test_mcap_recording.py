@@ -214,7 +214,7 @@ KILLED_WRITER = textwrap.dedent("""
 """)
 
 
-def test_a_writer_killed_mid_way_leaves_a_readable_file(tmp_path):
+def test_a_writer_killed_mid_way_leaves_a_readable_file(tmp_path, capsys):
     path = tmp_path / "killed.mcap"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen([sys.executable, "-c", KILLED_WRITER, str(path)], env=env)
@@ -236,6 +236,10 @@ def test_a_writer_killed_mid_way_leaves_a_readable_file(tmp_path):
     assert [e["text"] for e in c.events] == [f"row {k}" for k in range(0, 7 * len(c.events), 7)]
     rec = read_recording(path)  # and as a recording, the rows up to the last chunk
     assert rec.n_samples == len(c.data)
+    assert main(["recording", "info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert not info["whole"] and info["rows"] == len(c.data) and info["chunks"] >= 2
+    assert info["compression"] == ["zstd"]
 
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
