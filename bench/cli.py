@@ -36,6 +36,8 @@ COMMANDS: tuple[str, ...] = (
     "bench.commands.iso9283",
     "bench.commands.commission",
     "bench.commands.compare",
+    "bench.commands.recording",
+    "bench.commands.replay",
 )
 
 

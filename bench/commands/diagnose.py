@@ -25,7 +25,8 @@ HELP = "find which physics the model left out of a recording, fit it, show the f
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recording", help="recording directory (cdpr-recording/1)")
+    p.add_argument("recording", help="recording directory (cdpr-recording/1) or MCAP "
+                                     "recording (.mcap, docs/guide/mcap-and-replay.md)")
     p.add_argument("--json", action="store_true",
                    help="print the cdpr-diagnosis/1 report object on stdout")
     p.add_argument("--out", metavar="FILE", help="also write the report (JSON) to FILE")

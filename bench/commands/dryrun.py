@@ -85,6 +85,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="plant settles per second of simulated time [20]")
     p.add_argument("--record", metavar="DIR", default=None,
                    help="write the run as a cdpr-recording/1 directory (with events.csv)")
+    p.add_argument("--format", choices=("csv", "mcap", "both"), default="csv",
+                   help="--record as the CSV directory, as DIR/recording.mcap (MCAP, zstd; "
+                        "docs/guide/mcap-and-replay.md), or both [csv]")
+    p.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
+                   metavar="HOST:PORT",
+                   help="show the run live in Foxglove: a WebSocket server on HOST:PORT "
+                        "[127.0.0.1:8765]")
     p.add_argument("--decimate", type=int, default=None, metavar="N",
                    help="record every N-th cycle [about 50 rows per second]")
     p.add_argument("--force", action="store_true", help="overwrite a non-empty --record DIR")
@@ -341,6 +348,12 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         reactions.update(parse_reactions(args.react))
     except ValueError as exc:
         return _fail(args, 2, f"--react {exc}")
+    if args.live is not None:
+        from bench.foxglove_live import parse_address
+        try:
+            parse_address(args.live)
+        except ValueError as exc:
+            return _fail(args, 2, str(exc))
     if args.decimate is not None and args.decimate < 1:
         return _fail(args, 2, f"--decimate {args.decimate}: must be >= 1")
     if not args.plant_rate > 0:
@@ -370,7 +383,7 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
 
     from bench.dryrun.hardware import with_rate
     from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
-    from bench.dryrun.record import DryRunRecorder
+    from bench.dryrun.record import open_recorder as open_record_format
 
     winches = with_rate(winches, sync_period_us(rate) * 1e-6)
     period = winches.bus.sync_period_s
@@ -436,12 +449,12 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                               + "; ".join(pf.problems))
 
     def open_recorder(p0):
-        if record_dir is None:
+        if record_dir is None and args.live is None:
             return None
         import shutil
 
-        rec = Path(record_dir)
-        if rec.exists() and args.force:
+        rec = Path(record_dir) if record_dir is not None else None
+        if rec is not None and rec.exists() and args.force:
             shutil.rmtree(rec)
         if on_buses or args.rig == "process":
             src = {"pose_source": "laser tracker " + str(world.info.get("tracker")),
@@ -451,8 +464,10 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                    "tension_source": "simulated load cells"}
         meta = {**src, "notes": "dry run in progress", "scenario": str(sc_path),
                 "path": str(path_ref), "rate_hz": rate, "decimate": decimate}
-        return DryRunRecorder(rec, model, p0, meta,
-                              robot_header=f"model the controller ran with ({model.name})")
+        return open_record_format(rec, model, p0, meta,
+                                  robot_header=f"model the controller ran with ({model.name})",
+                                  fmt=args.format, can=world.info.get("can"),
+                                  live=args.live)
 
     where = (f"site {settings.site.path}" if on_buses and settings.site is not None
              else f"--can {settings.can}" if on_buses else f"rig {args.rig}")

@@ -50,6 +50,43 @@ def columns(robot: Robot) -> list[str]:
             + ["substituted", "cycle", "overruns", "pose_err"])
 
 
+def event_cells(t: float, device: str, address: int, cable: str, kind: str, code: int,
+                reaction: str, active: bool, text: str) -> tuple[str, ...]:
+    """The fields of an ``events.csv`` row, as written."""
+    t_txt = f"{float(t):.6f}".rstrip("0").rstrip(".")  # microseconds, no float noise
+    return (t_txt, device, str(int(address)), cable, kind, f"0x{int(code):04X}",
+            reaction, "1" if active else "0", '"' + text.replace('"', "'") + '"')
+
+
+#: what ``--record DIR`` writes: the CSV directory, ``DIR/recording.mcap``, or both
+FORMATS = ("csv", "mcap", "both")
+
+
+def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, meta: dict,
+                  robot_header: str = "", fmt: str = "csv", flush_s: float = 1.0,
+                  can: str | None = None, live: str | None = None):
+    """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: bench/mcap_record.py, which
+    also records every frame of the ``can`` bus, a ``--can`` spec, when given); with
+    ``live`` (``HOST:PORT``) also shown live in Foxglove (bench/foxglove_live.py), and only
+    that when ``path`` is None."""
+    if fmt not in FORMATS:
+        raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
+    rec = None
+    if path is not None and fmt == "csv":
+        rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
+    elif path is not None:
+        from bench.mcap_record import dry_run_recorder
+
+        rec = dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt, can)
+    if live is None:
+        return rec
+    from bench.foxglove_live import live_recorder
+    from bench.mcap_record import TeeRecorder
+
+    view = live_recorder(live, robot, init_pose)
+    return view if rec is None else TeeRecorder(rec, view)
+
+
 class DryRunRecorder:
     """Rows and events of a run into ``path`` (created; must be empty or absent)."""
 
@@ -85,9 +122,8 @@ class DryRunRecorder:
 
     def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
               reaction: str, active: bool, text: str) -> None:
-        t_txt = f"{float(t):.6f}".rstrip("0").rstrip(".")  # microseconds, no float noise
-        self.events.append((t_txt, device, str(int(address)), cable, kind, f"0x{int(code):04X}",
-                            reaction, "1" if active else "0", '"' + text.replace('"', "'") + '"'))
+        self.events.append(event_cells(t, device, address, cable, kind, code, reaction, active,
+                                       text))
 
     def update_meta(self, **fields) -> None:
         self.writer.update_meta(**fields)

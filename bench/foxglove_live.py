@@ -1,0 +1,159 @@
+"""A run shown live in Foxglove: the recording's channels on a Foxglove WebSocket server.
+
+``cdpr dry-run ... --live [HOST:PORT]`` starts a server (foxglove-sdk) with the channels of
+an MCAP recording (bench/mcap_record.py: the JSON row channels, ``/supervisor/events``,
+``/tf``, ``/scene``); Foxglove connects to ``ws://HOST:PORT``. The control loop only
+queues its rows (:meth:`LiveWriter.append`, cheap); a thread of its own publishes, at most
+``rate_hz`` times a second, the newest row (a view, not a record: rows in between are not
+sent; ``--record`` keeps them) and every event. Port 0 takes a free port
+(:attr:`LiveWriter.port`).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from typing import Any
+
+import numpy as np
+
+from bench.mcap_record import (
+    _EVENT_SCHEMA,
+    EVENTS_TOPIC,
+    _ns,
+    _Scene,
+    layout,
+    row_messages,
+    row_schemas,
+)
+from controller.robot import Robot
+
+DEFAULT_ADDRESS = "127.0.0.1:8765"
+
+
+def parse_address(address: str) -> tuple[str, int]:
+    """``HOST:PORT`` (or ``:PORT``, ``HOST``) -> (host, port); ValueError naming it."""
+    host, sep, port = address.rpartition(":")
+    if not sep:
+        host, port = address, "8765"
+    try:
+        p = int(port)
+    except ValueError:
+        raise ValueError(f"--live {address}: the port must be a number 0..65535") from None
+    if not 0 <= p <= 65535:
+        raise ValueError(f"--live {address}: the port must be in 0..65535")
+    return host or "127.0.0.1", p
+
+
+class LiveWriter:
+    """The recording writer's interface (:meth:`append`, :meth:`event`, :meth:`update_meta`,
+    :meth:`close`, :attr:`rows`) publishing on a Foxglove WebSocket server."""
+
+    def __init__(self, address: str, robot: Robot, columns: list[str], states: bool = True,
+                 rate_hz: float = 30.0) -> None:
+        import foxglove
+
+        host, port = parse_address(address)
+        self.columns = list(columns)
+        self.rows = 0  #: rows published so far
+        self._ctx = foxglove.Context()
+        self.server = foxglove.start_server(name="cdpr-bench", host=host, port=port,
+                                            context=self._ctx)
+        self.port: int = self.server.port
+        header = self.columns + (["state"] if states else [])
+        self._layout = layout(header)
+        self._idx = {name: i for i, name in enumerate(self.columns)}
+        self._scene = _Scene(robot, self.columns)
+        self._ch: dict[str, Any] = {}
+        for topic, (title, schema) in row_schemas(self._layout).items():
+            self._ch[topic] = foxglove.Channel(
+                topic, message_encoding="json", context=self._ctx,
+                schema=foxglove.Schema(name=title, encoding="jsonschema", data=schema))
+        self._ch[EVENTS_TOPIC] = foxglove.Channel(
+            EVENTS_TOPIC, message_encoding="json", context=self._ctx,
+            schema=foxglove.Schema(name="cdpr.SupervisorEvent", encoding="jsonschema",
+                                   data=_EVENT_SCHEMA))
+        for topic, sc in self._scene.schemas().items():
+            self._ch[topic] = foxglove.Channel(
+                topic, message_encoding="protobuf", context=self._ctx,
+                schema=foxglove.Schema(name=sc.name, encoding=sc.encoding, data=sc.data))
+        self._period = 1.0 / float(rate_hz)
+        self._lock = threading.Lock()
+        self._latest: tuple[np.ndarray, str] | None = None
+        self._events: list[dict] = []
+        self._first = True
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
+        self._thread.start()
+
+    def append(self, values, state: str | None = None) -> None:
+        with self._lock:
+            self._latest = (np.array(values, dtype=float), state or "")
+
+    def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
+              reaction: str, active: bool, text: str) -> None:
+        ev = {"t": float(t), "device": str(device), "address": int(address),
+              "cable": str(cable), "kind": str(kind), "code": int(code),
+              "reaction": str(reaction), "active": bool(active), "text": str(text)}
+        with self._lock:
+            self._events.append(ev)
+
+    def update_meta(self, **fields: Any) -> None:
+        """(The live view has no meta.)"""
+
+    def publish(self) -> None:
+        """Publish the newest row and the events queued (the thread does it; also at close)."""
+        with self._lock:
+            latest, self._latest = self._latest, None
+            events, self._events = self._events, []
+        for ev in events:
+            self._ch[EVENTS_TOPIC].log(json.dumps(ev).encode(), log_time=_ns(ev["t"]))
+        if latest is not None:
+            row, state = latest
+            ns = _ns(float(row[0]))
+            for topic, data in row_messages(self._layout, self._idx, self._scene, row, state,
+                                            self._first):
+                self._ch[topic].log(data, log_time=ns)
+            self._first = False
+            self.rows += 1
+
+    def _run(self) -> None:
+        while not self._closed.wait(self._period):
+            self.publish()
+
+    def close(self) -> None:
+        """Publish the rest, stop the server (idempotent)."""
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        self._thread.join()
+        try:
+            self.publish()
+        finally:
+            self.server.stop()
+
+
+def live_recorder(address: str, robot: Robot, init_pose: np.ndarray, rate_hz: float = 30.0):
+    """A :class:`bench.dryrun.record.DryRunRecorder` whose rows and events go live to
+    Foxglove (its packing of the loop's row, a :class:`LiveWriter` sink)."""
+    from bench.dryrun.record import DryRunRecorder, columns
+
+    class LiveRecorder(DryRunRecorder):
+        def __init__(self) -> None:
+            self.n = robot.n_cables
+            self.writer = LiveWriter(address, robot, columns(robot), rate_hz=rate_hz)
+            self._row = np.empty(len(self.writer.columns))
+            self.port = self.writer.port
+
+        def event(self, *args) -> None:
+            self.writer.event(*args)
+
+        def close(self) -> None:
+            self.writer.close()
+
+    rec = LiveRecorder()
+    import sys
+
+    host, _ = parse_address(address)
+    print(f"Foxglove live view: ws://{host}:{rec.port}", file=sys.stderr, flush=True)
+    return rec
