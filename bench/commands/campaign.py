@@ -136,17 +136,14 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
 
     n_poses = len(subset) if subset is not None else len(sc.poses.generate(
         np.random.default_rng(sc.seed)))
+    from bench.progress import Progress
+
     t0 = time.perf_counter()
-    last = [0.0]
+    prog = Progress("campaign", None, args.quiet, unit="visits")
 
     def progress(done: int, total: int) -> None:
-        now = time.perf_counter() - t0
-        if args.quiet or (done < total and now - last[0] < 1.0):
-            return
-        last[0] = now
-        eta = now / done * (total - done)
-        print(f"[{now:6.1f} s] visit {done}/{total}, ETA {eta:.0f} s", file=sys.stderr,
-              flush=True)
+        prog.total = total
+        prog.update(done=done)
 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
