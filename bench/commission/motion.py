@@ -376,6 +376,7 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             master.close()
             raise
         out["position_before_counts"] = before
+        out["position_before_m"] = float(ax.counts_to_m(before))
         section.fact("position before", f"{before} counts = {ax.counts_to_m(before):.4f} m")
         after = before
         if args.method is not None:
@@ -403,13 +404,15 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                                     args.method)
                     out["reference_lost"] = True
             out["state"] = state
-            ui.say(f"{who(w, k)}: homed (method {args.method}): position {before} -> {after} "
-                   "counts")
+            ui.say(f"{who(w, k)}: homed (method {args.method}): reading "
+                   f"{ax.counts_to_m(before):.4f} m ({before} counts) -> "
+                   f"{ax.counts_to_m(after):.4f} m ({after} counts)")
             section.fact("homing", f"method {args.method}, offset {args.offset}: position "
                          f"{before} -> {after} counts")
         else:
             master.close()
     out["position_after_counts"] = after
+    out["position_after_m"] = float(ax.counts_to_m(after))
     if args.length is not None:
         l0_old = ax.length_at_zero_m
         l0 = float(args.length - ax.direction * after * ax.metres_per_count)
