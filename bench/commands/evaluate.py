@@ -31,6 +31,8 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any, TextIO
 
+from bench.commands.argtypes import positive_float
+
 NAME = "evaluate"
 HELP = "blind evaluation of the diagnosis on N generated cases (process pool or Dask)"
 
@@ -46,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="local worker processes (1: in this process) [2]")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask scheduler, e.g. tcp://127.0.0.1:8786 (then --jobs is unused)")
-    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
+    p.add_argument("--connect-timeout", type=positive_float, default=10.0, metavar="SECONDS",
                    help="time allowed to reach the scheduler [10]")
     p.add_argument("--effects", metavar="A,B",
                    help="conceal exactly these effects in every case ('none': no effect); "
