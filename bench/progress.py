@@ -20,6 +20,7 @@ tearing the progress line. Nothing is printed with ``quiet``.
 
 from __future__ import annotations
 
+import shutil
 import sys
 import threading
 import time
@@ -130,8 +131,9 @@ class Progress:
 
     def _emit(self, text: str) -> None:
         """Print the progress line (the lock held): in place on a terminal."""
-        if self.tty:
-            print("\r\033[K" + text[:200], end="", file=sys.stderr, flush=True)
+        if self.tty:  # cut to the terminal's width: a wrapped line cannot be redrawn
+            width = max(20, shutil.get_terminal_size((200, 24)).columns - 1)
+            print("\r\033[K" + text[:width], end="", file=sys.stderr, flush=True)
             self._live = True
         else:
             print(text, file=sys.stderr, flush=True)
