@@ -160,3 +160,24 @@ def test_commission_check_text_in_a_pipe_prints_canopen_forms(capsys):
     assert "1618608160" not in out and "8323322" not in out
     assert re.search(r"0x607D:02 software position limit max: expected \d+\.\d{4} m "
                      r"\(\d+ counts\)", out), out
+
+
+# ---------------------------------------------------------------------------- properties
+
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@given(index=st.integers(0x1000, 0xFFFF), sub=st.integers(0, 0xFF),
+       bits=st.sampled_from([8, 16, 32, 64]))
+def test_a_mapping_entry_reads_back_as_the_object_it_maps(index, sub, bits):
+    value = index << 16 | sub << 8 | bits
+    text = describe(0x1A00, 1, value)[0]
+    m = re.fullmatch(r"0x([0-9A-F]{8}) \(0x([0-9A-F]{4}):([0-9A-F]{2}), (\d+) bit\)", text)
+    assert m, text
+    assert (int(m[1], 16), int(m[2], 16), int(m[3], 16), int(m[4])) == (value, index, sub, bits)
+
+
+@given(node=st.integers(1, 127), ms=st.integers(1, 0xFFFF))
+def test_a_heartbeat_entry_names_its_node_and_time(node, ms):
+    assert describe(0x1016, 1, node << 16 | ms)[0] == f"node {node}, {ms} ms"
