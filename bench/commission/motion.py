@@ -80,7 +80,7 @@ class _Status:
         self.prog = Progress(label, None)
 
     def __call__(self, fb, phase: str) -> None:
-        line = f"{fb.length_m:.4f} m, {phase}, {fb.state.name}"
+        line = f"{fb.length_m:.4f} m  {phase:<10} {fb.state.name}"
         if self.guard is not None:
             line += " | " + self.guard.line()
         self.prog.update(detail=line, force=phase != self.phase)
