@@ -119,6 +119,8 @@ def test_positions_in_metres_with_the_counts_kept_under_their_unit():
     (["commission", "tare", "21", "--modbus", "127.0.0.1:1", "--load", "-3"], "--load: -3"),
     (["evaluate", "--cases", "1", "--connect-timeout", "-1"], "--connect-timeout: -1"),
     (["sim", "--can-port", "-1"], "--can-port: -1"),
+    (["evaluate", "--cases", "1", "--seed", "-3"], "--seed: -3"),
+    (["campaign", "s.toml", "out", "--seed", "-1"], "--seed: -1"),
 ])
 def test_non_physical_values_are_refused_with_exit_2_and_the_range(capsys, argv, words):
     with pytest.raises(SystemExit) as e:

@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from bench.commands.argtypes import nonnegative_int
+
 if TYPE_CHECKING:
     from firmware_sim.scenario import Scenario
 
@@ -44,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "list: N of them, chosen with the scenario's seed)")
     p.add_argument("--visits", type=int, metavar="V",
                    help="visits of each pose (default: the scenario's poses.visits)")
-    p.add_argument("--seed", type=int, metavar="S",
+    p.add_argument("--seed", type=nonnegative_int, metavar="S",
                    help="random seed of the campaign and its noise (default: the scenario's)")
     p.add_argument("--force", action="store_true",
                    help="write into a non-empty OUT_DIR (replaces the recording's files)")

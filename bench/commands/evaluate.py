@@ -31,7 +31,7 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any, TextIO
 
-from bench.commands.argtypes import positive_float
+from bench.commands.argtypes import nonnegative_int, positive_float
 
 NAME = "evaluate"
 HELP = "blind evaluation of the diagnosis on N generated cases (process pool or Dask)"
@@ -42,7 +42,7 @@ OUT_FORMAT = "cdpr-evaluation/1"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cases", type=int, required=True, metavar="N", help="number of cases")
-    p.add_argument("--seed", type=int, default=0, metavar="S",
+    p.add_argument("--seed", type=nonnegative_int, default=0, metavar="S",
                    help="seed of the first case; case k has seed S + k [0]")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="local worker processes (1: in this process) [2]")
