@@ -39,7 +39,7 @@ def render(columns: Sequence[Column], rows: Iterable[Sequence[Any]], title: str 
     tty = _is_tty(stream if stream is not None else sys.stdout)
     t = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD if tty else None,
               show_edge=False, pad_edge=False, header_style="bold" if tty else "",
-              title_style="" , collapse_padding=False)
+              title_style="", collapse_padding=False)
     for header, unit, justify in columns:
         t.add_column(f"{header} [{unit}]" if unit else header, justify=justify,  # type: ignore[arg-type]
                      no_wrap=True)
