@@ -64,7 +64,7 @@ def test_campaign_writes_a_recording_the_reader_takes(scenario, tmp_path, capsys
     assert info["visits"] == 6 and info["poses"] == 3 and info["samples"] == 7
     assert info["rows"] == INIT_ROWS + 6 * DWELL_ROWS
     assert info["seconds"] >= 0
-    assert "visit 6/6" in err and "ETA" in err
+    assert "campaign: 1/6 visits done" in err and "campaign: 6/6 visits done" in err
     rec = read_recording(out)
     assert rec.n_samples == info["rows"]
     assert sorted(p.name for p in out.iterdir()) == ["meta.toml", "recording.csv", "robot.toml"]

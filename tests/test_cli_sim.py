@@ -248,7 +248,8 @@ def test_mbpoll_reads_the_tensions_the_plant_computed(sims, tmp_path):
 
 
 def test_human_output_rtu_and_sigint(sims):
-    sim = sims("--rtu", json_line=False)
+    sim = sims("--can", "socketcand:127.0.0.1:0", "--modbus", "rtu-tcp:127.0.0.1:0",
+               json_line=False)
     text = "".join(sim.lines)
     can = re.search(r"^  --can (socketcand:127\.0\.0\.1:\d+)$", text, re.M)
     mb = re.search(r"^  --modbus (rtu-tcp:127\.0\.0\.1:\d+)$", text, re.M)
@@ -277,8 +278,13 @@ def test_scenario_errors_name_file_and_field_exit_2(tmp_path, capsys):
     assert str(bad) in out["error"] and "dx_99" in out["error"]
     assert main(["sim", str(tmp_path / "missing.toml")]) == 2
     assert "missing.toml" in capsys.readouterr().err
-    assert main(["sim", "--can-port", "70000"]) == 2
-    assert "--can-port 70000" in capsys.readouterr().err
+    assert main(["sim", "--can", "socketcand:127.0.0.1:70000"]) == 2
+    assert "--can 'socketcand:127.0.0.1:70000'" in capsys.readouterr().err
+    assert main(["sim", "--modbus", "127.0.0.1"]) == 2
+    assert "--modbus '127.0.0.1'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:  # the deprecated alias: still a port, 0..65535
+        main(["sim", "--can-port", "70000"])
+    assert e.value.code == 2 and "70000" in capsys.readouterr().err
     assert main(["sim", "--can", "nonsense"]) == 2
     assert "--can 'nonsense'" in capsys.readouterr().err
 
@@ -286,8 +292,15 @@ def test_scenario_errors_name_file_and_field_exit_2(tmp_path, capsys):
 def test_ports_in_use_exit_1(capsys):
     with socket.create_server(("127.0.0.1", 0)) as busy:
         port = str(busy.getsockname()[1])
-        assert main(["sim", "--can-port", port]) == 1
+        assert main(["sim", "--can", f"socketcand:127.0.0.1:{port}"]) == 1
         assert f"127.0.0.1:{port}" in capsys.readouterr().err
+        assert main(["sim", "--modbus", f"127.0.0.1:{port}", "--json"]) == 1
+        out = json.loads(capsys.readouterr().out)
+        assert port in out["error"]
+        # the deprecated spellings still work, and say so
+        assert main(["sim", "--can-port", port]) == 1
+        err = capsys.readouterr().err
+        assert f"127.0.0.1:{port}" in err and "--can-port is deprecated" in err
         assert main(["sim", "--modbus-port", port, "--json"]) == 1
         out = json.loads(capsys.readouterr().out)
         assert port in out["error"]

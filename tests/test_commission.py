@@ -204,8 +204,15 @@ def test_check_finds_a_wrong_parameter_and_apply_fixes_and_stores_it(rig, capsys
     assert code == 1
     bad = {d["node_id"]: d["differences"] for d in out["drives"] if d["differences"]}
     expected = int(round(W.following_error_m[2] / W.metres_per_count[2]))
-    assert bad == {3: [{"index": "0x6065", "subindex": 0, "name": "following error window",
-                        "expected": expected, "actual": 12345}]}
+    base = ("index", "subindex", "name", "expected", "actual")
+    assert {n: [{k: d[k] for k in base} for d in ds] for n, ds in bad.items()} == {
+        3: [{"index": "0x6065", "subindex": 0, "name": "following error window",
+             "expected": expected, "actual": 12345}]}
+    # a distance in metres, the counts kept with the unit in the key
+    d = bad[3][0]
+    assert d["actual_counts"] == 12345 and d["expected_counts"] == expected
+    assert d["actual_m"] == pytest.approx(12345 * W.metres_per_count[2], rel=1e-12)
+    assert d["actual_text"] == f"{12345e3 * W.metres_per_count[2]:.2f} mm (12345 counts)"
     code, out = cli(capsys, "check", "3", "--can", rig.can, "--report", rep)
     assert code == 2 and "node:N" in out["error"]  # "3" is no cable id
     code, out = cli(capsys, "check", "21", "--can", rig.can, "--apply", "--yes",

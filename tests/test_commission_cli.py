@@ -137,8 +137,10 @@ def test_commissioning_against_cdpr_sim_in_another_process(sim, capsys, tmp_path
         code, out = cli(capsys, "check", "--can", can_, "--report", rep)
         assert code == 1
         diffs = {d["node_id"]: d["differences"] for d in out["drives"] if d["differences"]}
+        q = int(W.quick_stop_option[5])
         assert diffs == {6: [{"index": "0x605A", "subindex": 0, "name": "quick stop option code",
-                              "expected": int(W.quick_stop_option[5]), "actual": 0}]}
+                              "expected": q, "actual": 0, "expected_text": str(q),
+                              "actual_text": "0"}]}
         code, out = cli(capsys, "check", "32", "--can", can_, "--apply", "--yes",
                         "--report", rep)
         assert code == 0 and out["drives"][0]["differences"] == []

@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from bench.commands.argtypes import nonnegative_int
+
 if TYPE_CHECKING:
     from firmware_sim.scenario import Scenario
 
@@ -44,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "list: N of them, chosen with the scenario's seed)")
     p.add_argument("--visits", type=int, metavar="V",
                    help="visits of each pose (default: the scenario's poses.visits)")
-    p.add_argument("--seed", type=int, metavar="S",
+    p.add_argument("--seed", type=nonnegative_int, metavar="S",
                    help="random seed of the campaign and its noise (default: the scenario's)")
     p.add_argument("--force", action="store_true",
                    help="write into a non-empty OUT_DIR (replaces the recording's files)")
@@ -136,17 +138,14 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
 
     n_poses = len(subset) if subset is not None else len(sc.poses.generate(
         np.random.default_rng(sc.seed)))
+    from bench.progress import Progress
+
     t0 = time.perf_counter()
-    last = [0.0]
+    prog = Progress("campaign", None, args.quiet, unit="visits")
 
     def progress(done: int, total: int) -> None:
-        now = time.perf_counter() - t0
-        if args.quiet or (done < total and now - last[0] < 1.0):
-            return
-        last[0] = now
-        eta = now / done * (total - done)
-        print(f"[{now:6.1f} s] visit {done}/{total}, ETA {eta:.0f} s", file=sys.stderr,
-              flush=True)
+        prog.total = total
+        prog.update(done=done)
 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))

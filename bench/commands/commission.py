@@ -17,6 +17,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from bench.commands.argtypes import nonnegative_float, positive_float, positive_int
+
 NAME = "commission"
 HELP = ("commission the winches and load cells: scan, check, reference, enable, disable, "
         "jog, home, tare, calibrate, monitor")
@@ -65,7 +67,7 @@ def _state(p: argparse.ArgumentParser) -> None:
 
 def _moving(p: argparse.ArgumentParser) -> None:
     p.add_argument("--yes", action="store_true", help="do not ask for confirmation")
-    p.add_argument("--listen", type=float, default=0.5, metavar="S",
+    p.add_argument("--listen", type=nonnegative_float, default=0.5, metavar="S",
                    help="listen S seconds for another master (SYNC, RPDOs, NMT, SDO to the "
                         "drives) and refuse if one is active; 0 skips [0.5]")
 
@@ -94,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             "wrong_device_type, no_sdo. Read-only; exit status 1 when anything is not ok.")
     q.add_argument("--window", type=float, default=0.3, metavar="S",
                    help="how long to listen for answers to the node probe [0.3 s]")
-    q.add_argument("--sdo-timeout", type=float, default=0.3, metavar="S",
+    q.add_argument("--sdo-timeout", type=positive_float, default=0.3, metavar="S",
                    help="SDO answer timeout for the identity reads [0.3 s]")
     q.add_argument("--probe-units", metavar="IDS",
                    help="also probe these Modbus unit ids for devices outside the map "
@@ -162,7 +164,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="--platform: the step from the referenced pose [m, deg]")
     q.add_argument("--to", metavar="X,Y,Z[,R,P,Y]",
                    help="--platform: the target pose [m, deg]")
-    q.add_argument("--max-step", type=float, default=0.10, metavar="M",
+    q.add_argument("--max-step", type=positive_float, default=0.10, metavar="M",
                    help="--platform: refuse steps longer than M metres [0.10]")
     _state(q)
     _moving(q)
@@ -182,7 +184,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="CiA 402 homing method on the current position")
     q.add_argument("--offset", type=int, default=0, metavar="COUNTS",
                    help="home offset 0x607C: the position after homing [0]")
-    q.add_argument("--length", type=float, metavar="M",
+    q.add_argument("--length", type=positive_float, metavar="M",
                    help="the cable length at the current (homed) position [m]")
     _state(q)
     _moving(q)
@@ -198,7 +200,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--pose", metavar="X,Y,Z[,R,P,Y]",
                    help="the platform's known pose on its stand [m, deg]")
     add_tracker_argument(q)
-    q.add_argument("--samples", type=int, default=20, metavar="N",
+    q.add_argument("--samples", type=positive_int, default=20, metavar="N",
                    help="tracker poses averaged [20]")
     _state(q)
 
@@ -209,7 +211,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             'print {"sensor", "device_id", "raw_N", "offset_old_N", "offset_N", "gain", '
             '"file", "backup"}', cal_doc)
     q.add_argument("sensor", help="cable id (21) or unit:N")
-    q.add_argument("--load", type=float, default=0.0, metavar="N",
+    q.add_argument("--load", type=nonnegative_float, default=0.0, metavar="N",
                    help="known load on the cell while taring [0 N: unloaded]")
     q.add_argument("--samples", type=int, default=20, metavar="N",
                    help="fresh samples averaged [20]")

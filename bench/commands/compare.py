@@ -115,6 +115,8 @@ def _fmt(x) -> str:
 
 
 def human(c: dict) -> str:
+    from bench.tables import col, render
+
     lines = [f"scenario {c['scenario']} (concealed truth) beside the diagnosis of "
              f"{c['report']}:"]
     for e in c["effects"]:
@@ -123,16 +125,18 @@ def human(c: dict) -> str:
         lines.append(f"  {e['name']}: {status}"
                      + (f" (alternatives: {', '.join(e['alternatives'])})"
                         if e["alternatives"] else ""))
-        if e["params"]:
-            lines.append(f"    {'parameter':<12} {'truth':>12} {'found':>12} {'± stderr':>10} "
-                         f"{'z':>6}  within tolerance")
+        rows = []
         for k, p in e["params"].items():
             tol = ("undetermined" if p.get("undetermined") else
                    "-" if "within_tolerance" not in p else
                    f"{'yes' if p['within_tolerance'] else 'NO'} ({p['tolerance']})")
-            z = f"{p['z']:+.1f}" if "z" in p else "-"
-            lines.append(f"    {k:<12} {_fmt(p['truth']):>12} {_fmt(p['found']):>12} "
-                         f"{_fmt(p['stderr']):>10} {z:>6}  {tol}")
+            rows.append([k, _fmt(p["truth"]), _fmt(p["found"]), _fmt(p["stderr"]),
+                         f"{p['z']:+.1f}" if "z" in p else "-", tol])
+        if rows:  # each parameter in its own unit (the effect's, docs/reference/effects.md)
+            lines.append(render([col("parameter", justify="left"), col("truth"),
+                                 col("found"), col("± stderr"), col("z"),
+                                 col("within tolerance", justify="left")],
+                                rows, stream=sys.stdout, indent=4))
     if not c["effects"]:
         lines.append("  no effect concealed, none named")
     for k, v in c["outside_vocabulary"].items():

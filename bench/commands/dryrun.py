@@ -43,9 +43,9 @@ import json
 import signal
 import sys
 import threading
-import time
 from pathlib import Path
 
+from bench.commands.argtypes import positive_float
 from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
 
 NAME = "dry-run"
@@ -96,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="record every N-th cycle [about 50 rows per second]")
     p.add_argument("--force", action="store_true", help="overwrite a non-empty --record DIR")
     p.add_argument("--plots", metavar="DIR", default=None, help="write PNG plots of the run")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds of trajectory time")
     p.add_argument("--faults", metavar="FILE", default=None,
                    help="fault schedule (TOML, [[fault]] tables) applied to the simulated "
@@ -151,30 +151,25 @@ def _check_dir(path: str, force: bool, what: str, created: list | None = None) -
 
 
 def _progress_printer(quiet: bool, duration_s: float | None = None):
-    t0 = time.perf_counter()
-    tty = sys.stderr.isatty()
+    """The run's progress (:class:`bench.progress.Progress`): the fraction is trajectory
+    time against where the run ends (the path's end, or --duration when that comes first);
+    the initialisation before the path starts reads 0 %."""
+    from bench.progress import Progress
+
+    prog = Progress("dry-run", None, quiet)
 
     def show(res, t_traj: float) -> None:
-        if quiet:
-            return
-        # the bar, the percentage and the time are all trajectory time against where the
-        # run ends: the path's end, or --duration when that comes first (the loop's end);
-        # the initialisation before the path starts reads 0 %
         total = res.path_s or 1.0
         end = min(total, duration_s) if duration_s else total
-        frac = min(1.0, max(0.0, t_traj / end))
-        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
-        wall = time.perf_counter() - t0
+        wall = prog.elapsed_s()
         speed = res.simulated_s / wall if wall > 0 else 0.0
-        rate = res.cycles / wall if wall > 0 else 0.0
         err = res.pose_error_rms_m
         of = f" (--duration, path {total:.1f} s)" if end < total else ""
-        line = (f"[{bar}] {100 * frac:5.1f}%  t {t_traj:7.1f}/{end:.1f} s{of}  "
-                f"{rate:6.0f} cycles/s (x{speed:4.1f})  overruns {res.overruns}  "
-                f"events {sum(1 for e in res.events if e['reaction'] != 'event')}  "
-                f"pose error {'-' if err is None else f'{1e3 * err:.1f} mm rms'}")
-        print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr,
-              flush=True)
+        prog.update(min(1.0, max(0.0, t_traj / end)), (
+            f"t {t_traj:.1f}/{end:.1f} s{of}, {res.cycles / wall if wall > 0 else 0.0:.0f} "
+            f"cycles/s (x{speed:.1f}), overruns {res.overruns}, "
+            f"events {sum(1 for e in res.events if e['reaction'] != 'event')}, pose error "
+            f"{'-' if err is None else f'{1e3 * err:.1f} mm rms'}"))
 
     return show
 

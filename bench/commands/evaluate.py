@@ -31,6 +31,8 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any, TextIO
 
+from bench.commands.argtypes import nonnegative_int, positive_float
+
 NAME = "evaluate"
 HELP = "blind evaluation of the diagnosis on N generated cases (process pool or Dask)"
 
@@ -40,13 +42,13 @@ OUT_FORMAT = "cdpr-evaluation/1"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cases", type=int, required=True, metavar="N", help="number of cases")
-    p.add_argument("--seed", type=int, default=0, metavar="S",
+    p.add_argument("--seed", type=nonnegative_int, default=0, metavar="S",
                    help="seed of the first case; case k has seed S + k [0]")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="local worker processes (1: in this process) [2]")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask scheduler, e.g. tcp://127.0.0.1:8786 (then --jobs is unused)")
-    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
+    p.add_argument("--connect-timeout", type=positive_float, default=10.0, metavar="SECONDS",
                    help="time allowed to reach the scheduler [10]")
     p.add_argument("--effects", metavar="A,B",
                    help="conceal exactly these effects in every case ('none': no effect); "

@@ -2,8 +2,10 @@
 
 Eight simulated CiA 402 drives, eight Modbus load cells and the plant
 (:class:`firmware_sim.rig.SimRig`). The CAN bus is served on TCP by a socketcand hub
-(``--can-port``, 0 = any free port) bridged to the rig's in-process bus, or the drives sit
-on a real bus given with ``--can`` (e.g. ``socketcan:can0``; then no hub). The command
+(``--can socketcand:HOST:PORT``, PORT 0 = any free port) bridged to the rig's in-process
+bus, or the drives sit on another bus given with ``--can`` (e.g. ``socketcan:can0``; then no
+hub); the load cells listen at ``--modbus [rtu-tcp:]HOST:PORT``. ``--can-port`` and
+``--modbus-port`` are deprecated aliases (still taken, with a warning). The command
 prints where it listens, in the forms the HAL takes::
 
     --can socketcand:127.0.0.1:40123
@@ -36,6 +38,8 @@ import signal
 import sys
 import threading
 
+from bench.commands.argtypes import tcp_port
+
 NAME = "sim"
 HELP = "run the simulated robot (drives on CAN, load cells on Modbus, plant) until interrupted"
 
@@ -46,18 +50,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "default: the rocaspect model as the truth, init pose "
                         "[10, 8.56, 1, 0, 0, 0]")
     p.add_argument("--host", default="127.0.0.1",
-                   help="address the hub and the load cells bind [127.0.0.1]")
-    p.add_argument("--can-port", type=int, default=0, metavar="P",
-                   help="TCP port of the socketcand hub (0: any free one) [0]")
-    p.add_argument("--modbus-port", type=int, default=0, metavar="Q",
-                   help="TCP port of the load cells (0: any free one) [0]")
+                   help="address the tracker, the control channel and (without --can / "
+                        "--modbus) the hub and the load cells bind [127.0.0.1]")
+    p.add_argument("--can-port", type=tcp_port, default=None, metavar="P",
+                   help="deprecated: --can socketcand:HOST:P")
+    p.add_argument("--modbus-port", type=tcp_port, default=None, metavar="Q",
+                   help="deprecated: --modbus HOST:Q")
+    p.add_argument("--modbus", metavar="[rtu-tcp:]HOST:PORT", default=None,
+                   help="where the load cells listen (PORT 0: any free one; rtu-tcp: RTU "
+                        "framing) [HOST of --host, any free port]")
     p.add_argument("--tracker-port", type=int, default=0, metavar="T",
                    help="TCP port of the simulated laser tracker, cdpr-tracker/1 protocol "
                         "(0: any free one) [0]")
     p.add_argument("--rtu", action="store_true",
                    help="load cells with RTU framing over TCP (--modbus rtu-tcp:HOST:PORT)")
     p.add_argument("--can", metavar="SPEC", default=None,
-                   help="put the drives on this bus instead of a hub, e.g. socketcan:can0")
+                   help="socketcand:HOST:PORT: serve the drives on a socketcand hub there "
+                        "(PORT 0: any free one); any other bus (e.g. socketcan:can0): put the "
+                        "drives on it, no hub [socketcand:HOST of --host:0]")
     p.add_argument("--clock", choices=("sync", "wall"), default="sync",
                    help="sync: drive and plant time advance by the SYNC period per SYNC "
                         "(deterministic; the HAL's --hal-clock sync); wall: real time [sync]")
@@ -134,10 +144,40 @@ def _port(args: argparse.Namespace, name: str) -> str | None:
     return None
 
 
+def _endpoints(args: argparse.Namespace) -> str | None:
+    """Resolve ``--can``/``--modbus`` (and the deprecated ``--can-port``/``--modbus-port``)
+    into ``args.hub_host``, ``args.hub_port``, ``args.modbus_host``, ``args.modbus_port``,
+    ``args.rtu``; ``args.can`` stays set only for a bus that is not a hub. The problem as
+    text, or None."""
+    from bench.commands.argtypes import listen_endpoint
+
+    args.hub_host = args.modbus_host = args.host
+    args.hub_port = 0 if args.can_port is None else args.can_port
+    for old, new in (("can-port", "--can socketcand:HOST:P"), ("modbus-port",
+                                                               "--modbus HOST:Q")):
+        if getattr(args, old.replace("-", "_")) is not None:
+            print(f"cdpr sim: --{old} is deprecated and will go; use {new}", file=sys.stderr)
+    try:
+        if args.can and args.can.startswith("socketcand:"):
+            _, args.hub_host, args.hub_port = listen_endpoint("--can", args.can,
+                                                              ("socketcand",))
+            args.can = None
+        args.modbus_port = 0 if args.modbus_port is None else args.modbus_port
+        if args.modbus:
+            scheme, args.modbus_host, args.modbus_port = listen_endpoint(
+                "--modbus", args.modbus, ("tcp", "rtu-tcp"))
+            args.rtu = args.rtu or scheme == "rtu-tcp"
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
-    for name in ("can-port", "modbus-port", "tracker-port", "control-port"):
+    for name in ("tracker-port", "control-port"):
         if (msg := _port(args, name)) is not None:
             return _fail(args, 2, msg)
+    if (msg := _endpoints(args)) is not None:
+        return _fail(args, 2, msg)
     if not args.plant_rate > 0:
         return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
     import numpy as np
@@ -168,14 +208,16 @@ def run(args: argparse.Namespace) -> int:
             return _fail(args, 1, str(exc))
     try:
         rig = SimRig(scenario, clock=args.clock, bus=bus,
-                     hub_port=None if bus is not None else args.can_port, hub_host=args.host,
-                     modbus_host=args.host, modbus_port=args.modbus_port, rtu=args.rtu,
+                     hub_port=None if bus is not None else args.hub_port,
+                     hub_host=args.hub_host, modbus_host=args.modbus_host,
+                     modbus_port=args.modbus_port, rtu=args.rtu,
                      plant_rate_hz=args.plant_rate, tracker_port=args.tracker_port,
                      tracker_host=args.host)
     except OSError as exc:
         if bus is not None:
             bus.shutdown()
-        return _fail(args, 1, f"cannot listen on {args.host}:{args.can_port}: {exc}")
+        return _fail(args, 1, f"cannot listen on {args.hub_host}:{args.hub_port} or "
+                     f"{args.modbus_host}:{args.modbus_port}: {exc}")
     except ValueError as exc:
         if bus is not None:
             bus.shutdown()

@@ -38,6 +38,7 @@ from bench.commission.common import (
     winches_of,
 )
 from bench.commission.report import Section
+from bench.commission.values import annotate, describe
 
 
 def _check_nodes(net, w, ks, eds, ui: Ui) -> tuple[list[dict], dict]:
@@ -61,8 +62,8 @@ def _check_nodes(net, w, ks, eds, ui: Ui) -> tuple[list[dict], dict]:
             verify_identity(node, name)
             settings = drive_settings(w, k, node.object_dictionary)
             diffs = compare_configuration(node, settings, name)
-            entry["differences"] = [d.as_dict() for d in diffs]
-            entry["safety_failures"] = _safety_failures(diffs)
+            entry["differences"] = [annotate(d.as_dict(), d.index, w, k) for d in diffs]
+            entry["safety_failures"] = _safety_failures(diffs, w, k)
             entry["objects"] = len({(s.index, s.subindex) for s in settings if s.verify})
             ui.progress(f"  {name}: {len(diffs)} difference(s) in {entry['objects']} objects")
         except DriveConfigError as exc:
@@ -72,11 +73,11 @@ def _check_nodes(net, w, ks, eds, ui: Ui) -> tuple[list[dict], dict]:
     return out, nodes
 
 
-def _safety_failures(diffs) -> list[dict]:
+def _safety_failures(diffs, w, k: int) -> list[dict]:
     """The differences on objects that decide whether the drive stops when its master dies
     (:data:`hal.drives_config.SAFETY_OBJECTS`): object, name, the drive's value, the safe
     value (the table's) and why the drive's value is unsafe."""
-    from hal.drives_config import format_object_value, safety_failure
+    from hal.drives_config import safety_failure
 
     out = []
     for d in diffs:
@@ -84,8 +85,8 @@ def _safety_failures(diffs) -> list[dict]:
         if why is not None:
             out.append({"object": f"0x{d.index:04X}:{d.subindex:02X}", "name": d.name,
                         "actual": d.actual, "safe_value": d.expected,
-                        "actual_text": format_object_value(d.index, d.subindex, d.actual),
-                        "safe_text": format_object_value(d.index, d.subindex, d.expected),
+                        "actual_text": describe(d.index, d.subindex, d.actual, w, k)[0],
+                        "safe_text": describe(d.index, d.subindex, d.expected, w, k)[0],
                         "why": why})
     return out
 
@@ -103,9 +104,8 @@ def _print(ui: Ui, results: list[dict]) -> None:
                 ui.say(f"    SAFETY FAILURE {f['object']} {f['name']}: drive has "
                        f"{f['actual_text']}, safe value {f['safe_text']}: {f['why']}")
             for d in r["differences"]:
-                actual = d["actual"] if d["actual"] is not None else d.get("error", "unreadable")
                 ui.say(f"    {d['index']}:{d['subindex']:02X} {d['name']}: expected "
-                       f"{d['expected']}, drive has {actual}")
+                       f"{d['expected_text']}, drive has {d['actual_text']}")
 
 
 def _table(section: Section, results: list[dict], title: str) -> None:
@@ -116,8 +116,7 @@ def _table(section: Section, results: list[dict], title: str) -> None:
             rows.append([r["node_id"], r["cable"], "-", "not checked", "", r["error"]])
         for d in r["differences"]:
             rows.append([r["node_id"], r["cable"], f"{d['index']}:{d['subindex']:02X}",
-                         d["name"], d["expected"],
-                         d["actual"] if d["actual"] is not None else d.get("error", "")])
+                         d["name"], d["expected_text"], d["actual_text"]])
     safety = [[r["node_id"], r["cable"], f["object"], f["name"], f["safe_text"],
                f["actual_text"], f["why"]] for r in results for f in r.get("safety_failures", [])]
     if safety:

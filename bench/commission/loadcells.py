@@ -245,12 +245,13 @@ def run_calibrate(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     m = np.array([p[1].mean_N for p in points])
     fit = fit_gain(F, m, float(cal.offset_N[k]))
     c = rmap.cables[k]
+    from bench.tables import col, render
+
     rows = [[f"{Fi:.3f}", f"{mi:.4f}", f"{p[1].std_N:.4f}", f"{r:+.4f}"]
             for Fi, mi, p, r in zip(F, m, points, fit.residuals_N, strict=True)]
     ui.say(f"{who}: {fit.method}")
-    ui.say(f"  {'load [N]':>10} {'raw [N]':>12} {'std [N]':>9} {'residual [N]':>13}")
-    for row in rows:
-        ui.say(f"  {row[0]:>10} {row[1]:>12} {row[2]:>9} {row[3]:>13}")
+    ui.say(render([col("load", "N"), col("raw", "N"), col("std", "N"), col("residual", "N")],
+                  rows, stream=ui.out))
     old_g, old_o = float(cal.gain[k]), float(cal.offset_N[k])
     new = _replace(cal, k, fit.gain, fit.offset_N, str(path))
     saved = write_calibration(path, new, f"calibration of cable {c} from {len(points)} "

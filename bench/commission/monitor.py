@@ -105,16 +105,19 @@ def cells_json(reading, window) -> list[dict]:
 
 
 def render(samples, reading, rmap, load: float, frames: int, events, header: str,
-           has_current: bool, window=None) -> list[str]:
+           has_current: bool, window=None, stream=None) -> list[str]:
     """The table's lines (``window``: the tension window the cells' status is judged by;
-    None: the client's status only)."""
+    None: the client's status only; ``stream``: where they go, styled if a terminal)."""
+    from bench.tables import col
+    from bench.tables import render as table
+
     lines = [header + f"  bus load {load * 100:5.1f} %  frames {frames}"]
-    cur = f" {'current‰':>8}" if has_current else ""
-    lines.append(f"{'cable':>5} {'node':>4} {'NMT':<8} {'state':<11} {'length [m]':>10} "
-                 f"{'v [m/s]':>8} {'torque‰':>8}{cur} {'tension [N]':>11} {'status':<12} "
-                 f"{'age [s]':>7}")
+    cols = [col("cable"), col("node"), col("NMT", justify="left"), col("state", justify="left"),
+            col("length", "m"), col("v", "m/s"), col("torque", "‰")]
+    cols += [col("current", "‰")] if has_current else []
+    cols += [col("tension", "N"), col("status", justify="left"), col("age", "s")]
+    rows = []
     for s in samples:
-        nmt = (s.nmt_state or "-")[:8]
         state = STATE_SHORT.get(s.state, s.state)
         if s.error_code:
             state += f" {s.error_code:04X}"
@@ -122,15 +125,16 @@ def render(samples, reading, rmap, load: float, frames: int, events, header: str
         if reading is not None:
             j = rmap.index_of(s.cable) if s.cable in rmap.cables else None
             if j is not None:
-                tension = _fmt(float(reading.values_N[j]), "11.1f")
+                tension = _fmt(float(reading.values_N[j]), ".1f")
                 status = (reading.status_of(s.cable).name.lower() if window is None
                           else cell_status(reading, j, s.cable, window))
-                age = _fmt(float(reading.age_s[j]), "7.2f")
-        cur = f" {_fmt(s.current_permille, '8d')}" if has_current else ""
-        lines.append(f"{s.cable:>5} {s.node_id:>4} {nmt:<8} {state:<11} "
-                     f"{_fmt(s.length_m, '10.4f'):>10} {_fmt(s.velocity_m_s, '8.4f'):>8} "
-                     f"{_fmt(s.torque_permille, '8d'):>8}{cur} {tension:>11} {status:<12} "
-                     f"{age:>7}")
+                age = _fmt(float(reading.age_s[j]), ".2f")
+        rows.append([s.cable, s.node_id, (s.nmt_state or "-")[:8], state,
+                     _fmt(s.length_m, ".4f"), _fmt(s.velocity_m_s, ".4f"),
+                     _fmt(s.torque_permille, "d")]
+                    + ([_fmt(s.current_permille, "d")] if has_current else [])
+                    + [tension, status, age])
+    lines += table(cols, rows, stream=stream, indent=0).split("\n")
     notes = [str(e) for e in events]
     if reading is not None:
         notes += reading.faults()[:3]
@@ -295,7 +299,7 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                         last_lines = render(samples, reading, rmap,
                                             counter.load(w.bus.bitrate, now), counter.frames,
                                             mon.last_events(4), header, mon.has_current,
-                                            window)
+                                            window, screen.out)
                         screen.show(last_lines)
                         if args.json_lines:
                             new, n_seen = _new_events(mon, n_seen)

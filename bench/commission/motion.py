@@ -35,7 +35,6 @@ tension window, or is about to, the drive quick-stops, holds, and is disabled.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 
 from bench.commission.common import (
@@ -70,33 +69,25 @@ def _close_guard(guard, section: Section) -> None:
 
 
 class _Status:
-    """Progress of a motion on stderr: one line refreshed in place on a terminal, else a
-    line per phase change (and every few seconds)."""
+    """Progress of a motion on stderr (:class:`bench.progress.Progress`): one live line on
+    a terminal, else a line per phase change and every few seconds."""
 
     def __init__(self, label: str, guard=None) -> None:
-        self.label = label
+        from bench.progress import Progress
+
         self.guard = guard
-        self.tty = sys.stderr.isatty()
         self.phase = ""
-        self.last = 0.0
+        self.prog = Progress(label, None)
 
     def __call__(self, fb, phase: str) -> None:
-        now = time.monotonic()
-        line = f"{self.label}: {fb.length_m:9.4f} m  {phase:<10} {fb.state.name}"
+        line = f"{fb.length_m:.4f} m  {phase:<10} {fb.state.name}"
         if self.guard is not None:
-            line += "  | " + self.guard.line()
-        if self.tty:
-            if now - self.last > 0.1 or phase != self.phase:
-                print("\r" + line + "\x1b[K", end="", file=sys.stderr, flush=True)
-                self.last = now
-        elif phase != self.phase or now - self.last > 2.0:
-            print(line, file=sys.stderr, flush=True)
-            self.last = now
+            line += " | " + self.guard.line()
+        self.prog.update(detail=line, force=phase != self.phase)
         self.phase = phase
 
     def end(self) -> None:
-        if self.tty:
-            print(file=sys.stderr)
+        self.prog.close()
 
 
 def _master(args, net, w, k):
@@ -385,6 +376,7 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             master.close()
             raise
         out["position_before_counts"] = before
+        out["position_before_m"] = float(ax.counts_to_m(before))
         section.fact("position before", f"{before} counts = {ax.counts_to_m(before):.4f} m")
         after = before
         if args.method is not None:
@@ -412,13 +404,15 @@ def run_home(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                                     args.method)
                     out["reference_lost"] = True
             out["state"] = state
-            ui.say(f"{who(w, k)}: homed (method {args.method}): position {before} -> {after} "
-                   "counts")
+            ui.say(f"{who(w, k)}: homed (method {args.method}): reading "
+                   f"{ax.counts_to_m(before):.4f} m ({before} counts) -> "
+                   f"{ax.counts_to_m(after):.4f} m ({after} counts)")
             section.fact("homing", f"method {args.method}, offset {args.offset}: position "
                          f"{before} -> {after} counts")
         else:
             master.close()
     out["position_after_counts"] = after
+    out["position_after_m"] = float(ax.counts_to_m(after))
     if args.length is not None:
         l0_old = ax.length_at_zero_m
         l0 = float(args.length - ax.direction * after * ax.metres_per_count)

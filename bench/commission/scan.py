@@ -172,6 +172,7 @@ def _probe_unit(client, uid: int, rmap) -> bool:
 
 
 def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
+    from bench.tables import col, render
     from hal.scan import scan_nodes
 
     w = winches_of(args)
@@ -192,19 +193,20 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     bad = [d for d in drives if d["status"] != "ok"] + [c for c in cells if c["status"] != "ok"]
 
     ui.say(f"drives on {args.can} (expected: {w.source}, {args.eds}):")
-    ui.say(f"  {'node':>4} {'cable':>5} {'status':<17} {'vendor':>10} {'product':>10} "
-           f"{'revision':>10} {'serial':>10}  notes")
-    for d in drives:
-        cable = d["expected"]["cable"] if d["expected"] else "-"
-        ui.say(f"  {d['node_id']:>4} {cable:>5} {d['status']:<17} {_hex(d['vendor_id']):>10} "
-               f"{_hex(d['product_code']):>10} {_hex(d['revision']):>10} "
-               f"{_hex(d['serial']):>10}  {'; '.join(d['problems'])}")
+    ui.say(render([col("node"), col("cable"), col("status", justify="left"), col("vendor"),
+                   col("product"), col("revision"), col("serial"),
+                   col("notes", justify="left")],
+                  [[d["node_id"], d["expected"]["cable"] if d["expected"] else "-",
+                    d["status"], _hex(d["vendor_id"]), _hex(d["product_code"]),
+                    _hex(d["revision"]), _hex(d["serial"]), "; ".join(d["problems"])]
+                   for d in drives], stream=ui.out))
     if args.modbus is not None:
         ui.say(f"load cells at {args.modbus}:")
-        for c in cells:
-            t = "-" if c["tension_n"] is None else f"{c['tension_n']:.1f} N"
-            ui.say(f"  unit {c['device_id']:>3} cable {c['cable'] or '-':>4} {c['status']:<13} "
-                   f"{t:>10}  {c['message']}")
+        ui.say(render([col("unit"), col("cable"), col("status", justify="left"),
+                       col("tension", "N"), col("message", justify="left")],
+                      [[c["device_id"], c["cable"] or "-", c["status"],
+                        "-" if c["tension_n"] is None else f"{c['tension_n']:.1f}",
+                        c["message"]] for c in cells], stream=ui.out))
     else:
         ui.say("load cells: not scanned (no --modbus)")
     ui.say(f"{len(drives) - sum(d['status'] != 'ok' for d in drives)} of {len(drives)} drive "
