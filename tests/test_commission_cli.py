@@ -149,12 +149,33 @@ def test_commissioning_against_cdpr_sim_in_another_process(sim, capsys, tmp_path
         node3 = canopen.RemoteNode(3, canopen.import_od(str(EDS_PATH), 3))
         net.add_node(node3)
 
+        # while the jog runs it is the only master: its TPDOs (statusword, position) are
+        # read passively; an SDO request of ours would be another master's (foreign_master)
+        tpdos: queue.Queue[tuple[int, int]] = queue.Queue()
+        tpdo_cob = int(node3.object_dictionary[0x1800][1].default) & 0x7FF
+        net.subscribe(tpdo_cob, lambda _c, data, _t: tpdos.put(
+            (int.from_bytes(data[:2], "little"), int.from_bytes(data[2:6], "little",
+                                                                 signed=True))))
+        jogging = [False]
+
+        def fresh_tpdo() -> tuple[int, int]:
+            while not tpdos.empty():
+                tpdos.get_nowait()
+            return tpdos.get(timeout=5.0)
+
         def state3() -> str:
-            sw = int.from_bytes(bytes(node3.sdo.upload(0x6041, 0))[:2], "little")
+            if jogging[0]:
+                sw = fresh_tpdo()[0]
+            else:
+                sw = int.from_bytes(bytes(node3.sdo.upload(0x6041, 0))[:2], "little")
             return DriveState(int(decode_states([sw])[0])).name
 
         def length3() -> float:
-            pos = int.from_bytes(bytes(node3.sdo.upload(0x6064, 0))[:4], "little", signed=True)
+            if jogging[0]:
+                pos = fresh_tpdo()[1]
+            else:
+                pos = int.from_bytes(bytes(node3.sdo.upload(0x6064, 0))[:4], "little",
+                                     signed=True)
             return W.axis(2).counts_to_m(pos)
 
         l_start = length3()
@@ -164,6 +185,7 @@ def test_commissioning_against_cdpr_sim_in_another_process(sim, capsys, tmp_path
                   "--platform-supported", "--travel", "0.5", "--report", rep)
         try:
             jog.wait_for("Hold +")
+            jogging[0] = True
             jog.pressing.set()
             jog.wait_for(" moving ")
             time.sleep(0.3)
@@ -183,6 +205,7 @@ def test_commissioning_against_cdpr_sim_in_another_process(sim, capsys, tmp_path
             jog.proc.send_signal(signal.SIGINT)
             jog.pressing.clear()
             assert jog.proc.wait(30) == 130  # (a jog that ignored it fails here, not hangs)
+            jogging[0] = False
             out = json.loads(jog.proc.stdout.read().strip().splitlines()[-1])
         finally:
             jog.close()
