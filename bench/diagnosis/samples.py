@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.recording import Recording, RecordingError
+from bench.streams import measured_acceleration, still_rows
 
 #: states in which the platform stands by design
 STILL_STATES = {"init", "dwell"}
@@ -224,10 +225,20 @@ def _keys(rec: Recording) -> np.ndarray:
             k = np.round(np.nan_to_num(arr[:, cols], nan=1e9) * scale)
             return k.reshape(len(k), -1)
     cols = np.isfinite(rec.pose_meas).any(axis=0)
+    key = np.arange(rec.n_samples)[:, None].astype(float)
     if cols.any():
         # no commanded values: rows whose measured pose stays within 2 mm / 2 mrad
-        return np.round(np.nan_to_num(rec.pose_meas[:, cols], nan=1e9) / 2e-3)
-    return np.arange(rec.n_samples)[:, None].astype(float)
+        key = np.round(np.nan_to_num(rec.pose_meas[:, cols], nan=1e9) / 2e-3)
+    judged = still_rows(rec)
+    if judged is None:
+        return key
+    # where the measured motion can be judged (stretches of rows without gaps): a run of
+    # standing rows is one key, a moving row its own (-(row + 1)), whatever the noise
+    still, known = judged
+    run = np.cumsum(np.r_[True, still[1:] != still[:-1]]).astype(float)
+    by_motion = np.where(still, run, -(np.arange(rec.n_samples) + 1.0))
+    width = key.shape[1]
+    return np.where(known[:, None], np.repeat(by_motion[:, None], width, axis=1) + 0.5, key)
 
 
 def _runs(keys: np.ndarray, states: list[str] | None) -> list[tuple[int, int]]:
@@ -271,6 +282,11 @@ def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
     accelerate around them."""
     if len(rows) < 3:
         return np.ones(len(rows), dtype=bool)
+    if not np.isfinite(rec.pose_des[rows, :3]).all():
+        # measured poses only: accelerations of a filter that tracker noise cannot fool
+        acc = measured_acceleration(rec, rows)
+        if acc is not None:
+            return (acc[0] <= ACCEL_MAX) & (acc[1] <= ANG_ACCEL_MAX)
     src = rec.pose_des if np.isfinite(rec.pose_des[rows, :3]).all() else rec.pose_meas
     p = src[rows]
     t = rec.t[rows]
