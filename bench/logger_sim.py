@@ -231,18 +231,11 @@ def write_log(out: str | Path, sc: Scenario, spec: LoggerSpec,
 
 
 def _write_csv(path: Path, cols: dict[str, np.ndarray], empty: str) -> None:
-    """Write columns as CSV (floats in full precision; NaN as ``empty``)."""
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
+    """Write columns as CSV (floats in full precision; NaN written as ``empty``)."""
+    import polars as pl
 
-    arrays, names = [], []
-    for name, v in cols.items():
-        if v.dtype.kind in "US":
-            arrays.append(pa.array(v.astype(str)))
-        else:
-            arrays.append(pa.array(v, mask=np.isnan(v)) if empty == "" else pa.array(v))
-        names.append(name)
-    table = pa.table(arrays, names=names)
+    series = [pl.Series(name, v.astype(str)) if v.dtype.kind in "USO"
+              else pl.Series(name, v, nan_to_null=True) for name, v in cols.items()]
     tmp = path.with_name(f".{path.name}.tmp")
-    pacsv.write_csv(table, tmp, pacsv.WriteOptions(quoting_style="none"))
+    pl.DataFrame(series).write_csv(tmp, null_value=empty)
     tmp.replace(path)

@@ -327,8 +327,8 @@ def _init_rows(rec: Recording) -> np.ndarray:
         pose, tol = rec.pose_meas, INIT_TOL_MEAS
     else:
         return np.zeros(0, dtype=int)
-    with np.errstate(invalid="ignore"):
-        off = np.nanmax(np.abs(pose - rec.init_pose), axis=1) > tol
+    with np.errstate(invalid="ignore"):  # rows without a fix (NaN): no sign of leaving
+        off = np.max(np.nan_to_num(np.abs(pose - rec.init_pose), nan=0.0), axis=1) > tol
     leave = np.flatnonzero(off)
     if not len(leave):
         return np.arange(rec.n_samples)

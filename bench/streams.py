@@ -1,6 +1,6 @@
 """A recording as the sensor streams it holds: a columnar reader, rates and gaps, alignment.
 
-- :func:`read_columns` reads a ``recording.csv`` with pyarrow's columnar CSV reader (millions
+- :func:`read_columns` reads a ``recording.csv`` with polars' columnar CSV reader (millions
   of rows per second); on anything it cannot take as is it returns None and the caller's
   row-by-row reader gives the message that names the line and column.
 - :func:`describe` finds the streams of a :class:`~bench.recording.Recording`: for each
@@ -449,7 +449,7 @@ def summary_line(report: dict) -> str:
     parts = []
     for name, s in report["streams"].items():
         txt = f"{name} {s['rate_hz']:.4g} Hz"
-        if s["jitter_s"] > 0:
+        if s["jitter_s"] > 1e-6:
             txt += f" (jitter {s['jitter_s'] * 1e3:.2g} ms)"
         if s["gaps"]:
             txt += f", {s['gaps']} gaps ({s['gap_total_s']:.3g} s)"
