@@ -343,8 +343,8 @@ def _held(rec, g: str, s: Stream, ref: np.ndarray) -> np.ndarray:
 
 def events(rec, still_m: float = 2e-5) -> np.ndarray:
     """(N,) bool: rows where something happens: a cable's reading reverses direction, starts
-    or stops moving, or jumps (a step far beyond its neighbours' motion); a state changes;
-    a stream's gap begins or ends."""
+    or stops moving; a cable's reading or the measured position jumps (a step 20 times the
+    median step); the state changes; the first and last rows."""
     N = rec.n_samples
     ev = np.zeros(N, dtype=bool)
     ev[[0, -1]] = True
@@ -355,10 +355,14 @@ def events(rec, still_m: float = 2e-5) -> np.ndarray:
         sgn = np.nan_to_num(sgn)
         change = np.any(sgn[1:] != sgn[:-1], axis=1)
         ev[1:-1] |= change
-        with np.errstate(invalid="ignore"):
-            ad = np.abs(np.nan_to_num(d))
-            med = np.median(ad, axis=0) + still_m
-            ev[1:] |= np.any(ad > 20 * med, axis=1)
+    for arr in (src, rec.pose_meas[:, :3]):  # jumps far beyond the steps around
+        ok = np.isfinite(arr).all(axis=1)
+        idx = np.flatnonzero(ok)
+        if len(idx) < 4:
+            continue
+        ad = np.abs(np.diff(arr[idx], axis=0))
+        med = np.median(ad, axis=0) + still_m
+        ev[idx[1:]] |= np.any(ad > 20 * med, axis=1)
     if rec.state is not None:
         st = np.asarray(rec.state, dtype=object)
         ev[1:] |= st[1:] != st[:-1]
@@ -439,7 +443,7 @@ def condition(rec):
     report = {"streams": {k: v.report(rec.n_samples) for k, v in streams.items()}}
     rec, al = align(rec, streams)
     report["alignment"] = al.report() if al is not None else None
-    rec, info = condense(rec)
+    rec, info = condense(rec, ROW_BUDGET)
     report["condensed"] = info
     return rec, report
 

@@ -241,6 +241,21 @@ def _keys(rec: Recording) -> np.ndarray:
     return np.where(known[:, None], np.repeat(by_motion[:, None], width, axis=1) + 0.5, key)
 
 
+def _commanded(rec: Recording) -> bool:
+    """Whether the recording holds what the controller aimed at (commanded pose or lengths)."""
+    return bool(np.isfinite(rec.pose_des).any() or np.isfinite(rec.l_cmd).any())
+
+
+def _moving(rec: Recording) -> np.ndarray:
+    """(N,) bool: rows that measurements alone show moving, in a recording without the
+    controller's columns (:func:`bench.streams.still_rows`); none otherwise."""
+    judged = None if _commanded(rec) else still_rows(rec)
+    if judged is None:
+        return np.zeros(rec.n_samples, dtype=bool)
+    still, known = judged
+    return known & ~still
+
+
 def _runs(keys: np.ndarray, states: list[str] | None) -> list[tuple[int, int]]:
     N = len(keys)
     change = np.ones(N, dtype=bool)
@@ -434,6 +449,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     dwell_runs: list[np.ndarray] = []
     path_rows: list[int] = []
     dropped_states = 0
+    moving = _moving(rec)
     for a, b in runs:
         st = states[a] if states is not None else None
         if st is not None and st not in STILL_STATES | MOVE_STATES and not reaction_state(st):
@@ -446,7 +462,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
                 dropped_states += b - a
             continue
         still = (st in STILL_STATES) if st is not None else (b - a >= 2 and _standing(rec, a, b))
-        if still or (st is None and init[a]):
+        if still or (st is None and init[a] and not moving[a]):
             dwell_runs.append(_settled(rec, a, b))
         else:
             path_rows.extend(range(a, b))
@@ -514,7 +530,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     s = Samples(t[order], pose_des[order], pose_meas[order], l_meas[order], tau[order],
                 exit_meas[order], count[order], target[order], is_init[order],
                 _tau_row_sd(rec, dwell_runs, path, seg_all), kind[order], block[order],
-                direction[order], first[order] + 2)
+                direction[order], _lines(rec, first[order]))
     # rows of one move: together they count as MOVE_INDEPENDENT independent samples
     w = np.ones(len(t))
     for g in np.unique(seg_all):
@@ -567,7 +583,8 @@ def _triples(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
     return Samples(rec.t[rows], rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows],
                    rec.tau[rows], rec.exit_meas[rows], np.ones(len(rows), dtype=int),
                    np.arange(len(rows)), np.isin(rows, rec.init_rows),
-                   kind=np.repeat(kinds, 3), direction=np.zeros((len(rows), n)), row=rows + 2)
+                   kind=np.repeat(kinds, 3), direction=np.zeros((len(rows), n)),
+                   row=_lines(rec, rows))
 
 
 #: at most this many raw rows are scanned for jumps in time
@@ -590,9 +607,16 @@ def _stream(rec: Recording) -> Samples | None:
     out = Samples(t, rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows], rec.tau[rows],
                   rec.exit_meas[rows], np.ones(len(rows), dtype=int), np.arange(len(rows)),
                   np.isin(rows, rec.init_rows), direction=np.zeros((len(rows), n)),
-                  row=rows + 2)
+                  row=_lines(rec, rows))
     out.block = np.cumsum(new)
     return out
+
+
+def _lines(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """The recording.csv lines of ``rows`` (rows aligned or condensed by :mod:`bench.streams`
+    keep the rows of the file they come from)."""
+    src = rec.source_rows
+    return (np.asarray(rows) if src is None else src[np.asarray(rows, dtype=int)]) + 2
 
 
 def _mean(arr: np.ndarray, idx: np.ndarray) -> np.ndarray:
