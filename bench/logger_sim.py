@@ -119,8 +119,7 @@ def sample_log(sc: Scenario, truth: Truth, spec: LoggerSpec) -> dict[str, np.nda
     t[0] = truth.t[0]  # the log starts with the first cycle at the initialisation
     cols: dict[str, np.ndarray] = {"t": t}
     if spec.controller_columns:
-        k = np.clip(np.searchsorted(truth.t, t, side="right") - 1, 0, len(truth.t) - 1)
-        p_des, l_cmd = truth.pose_des[k], truth.l_cmd[k]  # the controller holds its set point
+        p_des, l_cmd = _at(truth.t, truth.pose_des, t), _at(truth.t, truth.l_cmd, t)
         for a, ax in enumerate(POSE_AXES):
             cols[f"{ax}_des"] = p_des[:, a]
         for j, c in enumerate(ids):

@@ -343,26 +343,32 @@ def _held(rec, g: str, s: Stream, ref: np.ndarray) -> np.ndarray:
 
 def events(rec, still_m: float = 2e-5) -> np.ndarray:
     """(N,) bool: rows where something happens: a cable's reading reverses direction, starts
-    or stops moving; a cable's reading or the measured position jumps (a step 20 times the
-    median step); the state changes; the first and last rows."""
+    or stops moving; a cable's reading or the measured position jumps (a step beyond 10
+    times both neighbouring steps and 10 times the noise); the state changes; the first
+    and last rows."""
     N = rec.n_samples
     ev = np.zeros(N, dtype=bool)
     ev[[0, -1]] = True
     src = rec.l_meas if np.isfinite(rec.l_meas).any() else rec.l_cmd
     if np.isfinite(src).any() and N > 3:
-        d = np.diff(src, axis=0)
-        sgn = np.where(np.abs(d) > still_m / 4, np.sign(d), 0.0)
-        sgn = np.nan_to_num(sgn)
-        change = np.any(sgn[1:] != sgn[:-1], axis=1)
-        ev[1:-1] |= change
-    for arr in (src, rec.pose_meas[:, :3]):  # jumps far beyond the steps around
+        d = np.nan_to_num(np.diff(src, axis=0))
+        step = np.abs(d) > still_m
+        moving = step.any(axis=1)  # between row k and k+1
+        ev[1:-1] |= moving[1:] != moving[:-1]  # starts and stops
+        # reversals: the sign of each cable's last real step flips
+        sgn = np.where(step, np.sign(d), 0.0)
+        last = np.take_along_axis(sgn, np.maximum.accumulate(
+            np.where(step, np.arange(N - 1)[:, None], 0), axis=0), axis=0)
+        ev[1:-1] |= np.any((last[1:] * last[:-1]) < 0, axis=1)
+    for arr in (src, rec.pose_meas[:, :3]):  # a step 10 times both neighbouring steps
         ok = np.isfinite(arr).all(axis=1)
         idx = np.flatnonzero(ok)
         if len(idx) < 4:
             continue
         ad = np.abs(np.diff(arr[idx], axis=0))
-        med = np.median(ad, axis=0) + still_m
-        ev[idx[1:]] |= np.any(ad > 20 * med, axis=1)
+        nb = np.maximum(np.r_[ad[:1], ad[:-1]], np.r_[ad[1:], ad[-1:]])
+        floor = np.maximum(10 * _noise(arr[idx]), still_m)
+        ev[idx[1:]] |= np.any(ad > 10 * nb + floor, axis=1)
     if rec.state is not None:
         st = np.asarray(rec.state, dtype=object)
         ev[1:] |= st[1:] != st[:-1]
@@ -544,11 +550,24 @@ def still_rows(rec) -> tuple[np.ndarray, np.ndarray] | None:
     return None
 
 
-def measured_acceleration(rec, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Linear [m/s^2] and angular [rad/s^2] acceleration magnitudes of the measured pose at
-    ``rows``, filtered (:func:`local_derivative`) so that tracker noise at any rate stays
-    far below the limits it is compared with; None without a measured pose."""
-    p = rec.pose_meas
+def jittered(t: np.ndarray) -> bool:
+    """Whether time stamps ``t`` jitter (their intervals spread by more than 1 % of the
+    median interval): finite differences of even a noise-free signal then scatter by
+    (speed x jitter / interval^2)."""
+    dt = np.diff(t)
+    if len(dt) < 3:
+        return False
+    med = float(np.median(dt))
+    return bool(1.4826 * np.median(np.abs(dt - med)) > 0.01 * med)
+
+
+def measured_acceleration(rec, rows: np.ndarray, pose: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Linear [m/s^2] and angular [rad/s^2] acceleration magnitudes of the measured pose
+    (or of ``pose`` (N,6), e.g. the commanded one under jittered time stamps) at ``rows``,
+    filtered (:func:`local_derivative`) so that tracker noise and time-stamp jitter at any
+    rate stay far below the limits it is compared with; None without such a pose."""
+    p = rec.pose_meas if pose is None else pose
     cols = np.isfinite(p).any(axis=0)
     if not cols[:3].all():
         return None
@@ -557,4 +576,4 @@ def measured_acceleration(rec, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray
     a = a[rows]
     lin = np.linalg.norm(a[:, :3], axis=1)
     ang = np.abs(a[:, 3:]).max(axis=1)
-    return np.nan_to_num(lin, nan=np.inf), np.nan_to_num(ang, nan=np.inf)
+    return lin, ang  # NaN where the filter has no value (too few rows around)

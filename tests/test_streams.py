@@ -212,3 +212,33 @@ def test_condensing_keeps_every_row_where_something_happens(tmp_path, small):
     kept = set(out.source_rows.tolist())
     assert all(s in kept for s in starts)
     assert out.t[0] == rec.t[0] and out.t[-1] == rec.t[-1]
+
+
+def test_a_jump_is_an_event_and_kept(tmp_path, small):
+    rec = read_recording(_log(tmp_path, small, "one", rows_hz=25.0, encoders_hz=25.0,
+                              load_cells_hz=25.0, tracker_hz=25.0))
+    moving = np.any(np.abs(np.diff(rec.l_meas, axis=0)) > 1e-6, axis=1)
+    k = int(np.flatnonzero(~moving[100:])[20]) + 101  # a row within a dwell
+    before = streams.events(rec)[k]
+    rec.l_meas[k:, 3] += 1e-3  # cable 22 slips 1 mm on its drum
+    assert not before and streams.events(rec)[k]
+    out, _ = streams.condense(rec, budget=len(rec.t) // 10)
+    assert k in set(out.source_rows.tolist()) and k - 1 in set(out.source_rows.tolist())
+
+
+def test_commanded_motion_under_jittered_time_stamps_is_not_called_accelerating():
+    # a controller logging its set point at 200 Hz with 0.3 ms jitter in the time stamps:
+    # finite differences scatter by metres per second squared; the filter does not
+    rng = np.random.default_rng(3)
+    t = np.sort(np.arange(0.0, 6.0, 0.005) + rng.normal(0, 3e-4, 1200))
+    x = 5.0 + 0.25 * np.arange(1200) * 0.005  # the set point at its nominal instants
+    pose = np.zeros((1200, 6))
+    pose[:, 0] = x
+    rec = _bare(t, pose + rng.normal(0, 5e-5, pose.shape))
+    rec.pose_des = pose
+    from bench.diagnosis.samples import _quasi_static, _quasi_static_rows
+
+    rows = np.arange(100, 1100)
+    assert streams.jittered(rec.t)
+    assert _quasi_static(rec, rows).all()
+    assert _quasi_static_rows(rec, rows).mean() < 0.5  # what finite differences say

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.recording import Recording, RecordingError
-from bench.streams import measured_acceleration, still_rows
+from bench.streams import jittered, measured_acceleration, still_rows
 
 #: states in which the platform stands by design
 STILL_STATES = {"init", "dwell"}
@@ -294,14 +294,26 @@ def _settled(rec: Recording, a: int, b: int) -> np.ndarray:
 
 def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which path ``rows`` are quasi-static: the commanded (or measured) motion does not
-    accelerate around them."""
+    accelerate around them. Measured poses only, or jittered time stamps: the acceleration
+    of a filter that tracker noise and jitter cannot fool (of the commanded pose where
+    there is one; :func:`bench.streams.measured_acceleration`), finite differences of
+    consecutive rows only where the rows are too sparse for the filter."""
     if len(rows) < 3:
         return np.ones(len(rows), dtype=bool)
-    if not np.isfinite(rec.pose_des[rows, :3]).all():
-        # measured poses only: accelerations of a filter that tracker noise cannot fool
-        acc = measured_acceleration(rec, rows)
+    ok = _quasi_static_rows(rec, rows)
+    des = bool(np.isfinite(rec.pose_des[rows, :3]).all())
+    if not des or jittered(rec.t):
+        acc = measured_acceleration(rec, rows, rec.pose_des if des else None)
         if acc is not None:
-            return (acc[0] <= ACCEL_MAX) & (acc[1] <= ANG_ACCEL_MAX)
+            judged = np.isfinite(acc[0]) & np.isfinite(acc[1])
+            with np.errstate(invalid="ignore"):
+                filt = (acc[0] <= ACCEL_MAX) & (acc[1] <= ANG_ACCEL_MAX)
+            ok = np.where(judged, filt, ok)
+    return ok
+
+
+def _quasi_static_rows(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """:func:`_quasi_static` by finite differences of consecutive ``rows``."""
     src = rec.pose_des if np.isfinite(rec.pose_des[rows, :3]).all() else rec.pose_meas
     p = src[rows]
     t = rec.t[rows]
