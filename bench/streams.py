@@ -70,7 +70,7 @@ def read_columns(p: Path, header: list[str]) -> tuple[dict[str, np.ndarray],
                          raise_if_empty=False)
     except (pl.exceptions.PolarsError, OSError, ValueError):
         return None
-    if df.height == 0:
+    if df.height == 0 or not _whole_rows(p, df.height, len(header)):
         return None
     cols: dict[str, np.ndarray] = {}
     states = None
@@ -86,6 +86,24 @@ def read_columns(p: Path, header: list[str]) -> tuple[dict[str, np.ndarray],
     if np.isnan(cols["t"]).any():
         return None
     return cols, states
+
+
+def _whole_rows(p: Path, rows: int, ncols: int) -> bool:
+    """Whether every one of the ``rows`` data rows of ``p`` has ``ncols`` fields: the file
+    holds exactly rows x (ncols - 1) commas after its header (a short row, which a
+    columnar reader fills with nulls, or a quoted comma fails this and the file is read
+    row by row)."""
+    commas, header_done = 0, False
+    with p.open("rb") as f:
+        while chunk := f.read(1 << 26):  # 64 MB at a time
+            data = np.frombuffer(chunk, dtype=np.uint8)
+            if not header_done:
+                nl = np.flatnonzero(data == 10)
+                if not len(nl):
+                    continue
+                data, header_done = data[int(nl[0]) + 1:], True
+            commas += int(np.count_nonzero(data == 44))
+    return commas == rows * (ncols - 1)
 
 
 # ----- streams ---------------------------------------------------------------------------

@@ -65,6 +65,11 @@ def test_errors_still_name_the_line_and_column(tmp_path, small):
                                                    + lines[41:]) + "\n")
         with pytest.raises(RecordingError, match=rf"recording.csv:41: column 4 .*{msg}"):
             read_recording(d)
+    # a short row (a columnar reader would fill it with nulls) is refused as before
+    (d / "recording.csv").write_text("\n".join(lines[:40] + [lines[40].rsplit(",", 1)[0]]
+                                               + lines[41:]) + "\n")
+    with pytest.raises(RecordingError, match=r"recording.csv:41: \d+ fields, the header has"):
+        read_recording(d)
 
 
 @pytest.mark.parametrize("split", ["time", "sensor"])
