@@ -247,3 +247,16 @@ def test_commanded_motion_under_jittered_time_stamps_is_not_called_accelerating(
     assert streams.jittered(rec.t)
     assert _quasi_static(rec, rows).all()
     assert _quasi_static_rows(rec, rows).mean() < 0.5  # what finite differences say
+
+
+def test_the_tracker_s_gap_keeps_the_other_streams_at_its_rate(tmp_path, small):
+    rec = read_recording(_log(tmp_path, small, "three", **THREE))
+    cut = (rec.t > 20.0) & (rec.t < 22.0)
+    rec.pose_meas[cut] = np.nan
+    out, al = streams.align(rec)
+    inside = (out.t > 20.1) & (out.t < 21.9)
+    # rows at about the tracker's 25 Hz inside its gap, with encoders, without a pose
+    assert 35 <= inside.sum() <= 55
+    assert np.isnan(out.pose_meas[inside]).all() and np.isfinite(out.l_meas[inside]).all()
+    assert np.isfinite(out.tau[inside]).all(axis=1).mean() > 0.9
+    assert al.reference == "tracker"
