@@ -93,16 +93,11 @@ def _whole_rows(p: Path, rows: int, ncols: int) -> bool:
     holds exactly rows x (ncols - 1) commas after its header (a short row, which a
     columnar reader fills with nulls, or a quoted comma fails this and the file is read
     row by row)."""
-    commas, header_done = 0, False
     with p.open("rb") as f:
+        f.readline()  # the header
+        commas = 0
         while chunk := f.read(1 << 26):  # 64 MB at a time
-            data = np.frombuffer(chunk, dtype=np.uint8)
-            if not header_done:
-                nl = np.flatnonzero(data == 10)
-                if not len(nl):
-                    continue
-                data, header_done = data[int(nl[0]) + 1:], True
-            commas += int(np.count_nonzero(data == 44))
+            commas += chunk.count(b",")
     return commas == rows * (ncols - 1)
 
 
@@ -518,11 +513,10 @@ def local_derivative(t: np.ndarray, x: np.ndarray, order: int,
     """The ``order``-th time derivative (1 speed, 2 acceleration) of the measured signal
     ``x`` (N, d) at every row, from a least-squares polynomial of degree 2 over the rows
     within ``window_s`` [s] (a Savitzky-Golay filter on each stretch of rows without
-    gaps, spaced as their median step). Returns (N, d) derivatives (NaN where a row has no
-    value or its stretch is shorter than 5 rows) and (d,) the standard deviation of the
-    derivative's noise per unit noise of ``x`` (to compare with the signal's noise)."""
-    from scipy.signal import savgol_filter
-
+    gaps, spaced as their median step; the first and last rows of a stretch from its
+    first and last window). Returns (N, d) derivatives (NaN where a row has no value or
+    its stretch is shorter than 5 rows) and (d,) the standard deviation of the
+    derivative's noise per unit white noise of ``x`` (to compare with the signal's noise)."""
     N, d = x.shape
     out = np.full((N, d), np.nan)
     gain = np.full(d, np.inf)
@@ -533,13 +527,26 @@ def local_derivative(t: np.ndarray, x: np.ndarray, order: int,
         h = float(np.median(np.diff(t[seg])))
         w = int(round(window_s / max(h, 1e-9))) | 1
         w = max(5, min(w, len(seg) - (1 - len(seg) % 2)))
-        out[seg] = savgol_filter(x[seg], w, 2, deriv=order, delta=h, axis=0, mode="interp")
-        imp = np.zeros(w)
-        imp[w // 2] = 1.0
-        coef = savgol_filter(np.eye(w), w, 2, deriv=order, delta=h, axis=0,
-                             mode="interp")[w // 2]
-        gain = np.minimum(gain, float(np.sqrt(np.sum(coef ** 2))))
+        xs = x[seg]
+        m = w // 2
+        win = np.lib.stride_tricks.sliding_window_view(xs, w, axis=0)  # (K-w+1, d, w)
+        c = _poly_coeffs(w, m, order, h)
+        res = np.empty_like(xs)
+        res[m:len(seg) - m] = win @ c
+        for i in range(m):  # the ends: the first and last windows' polynomials
+            res[i] = xs[:w].T @ _poly_coeffs(w, i, order, h)
+            res[len(seg) - 1 - i] = xs[-w:].T @ _poly_coeffs(w, w - 1 - i, order, h)
+        out[seg] = res
+        gain = np.minimum(gain, float(np.sqrt(np.sum(c ** 2))))
     return out, gain
+
+
+def _poly_coeffs(w: int, pos: int, order: int, h: float) -> np.ndarray:
+    """(w,) weights giving the ``order``-th derivative, at sample ``pos`` of a window of
+    ``w`` samples ``h`` [s] apart, of the least-squares polynomial of degree 2."""
+    z = (np.arange(w) - pos) * h
+    pinv = np.linalg.pinv(np.vander(z, 3, increasing=True))
+    return pinv[order] * (1.0 if order < 2 else 2.0)
 
 
 def signal_noise(t: np.ndarray, x: np.ndarray) -> np.ndarray:
