@@ -163,6 +163,9 @@ def _read_csv(d: Path, p: Path | list[Path], robot: Robot, meta: dict,
               init_pose: np.ndarray) -> Recording:
     """The samples file ``p`` (or the files of a split recording, merged in time order)."""
     paths = p if isinstance(p, list) else [p]
+    if not paths:
+        raise RecordingError(f"{d / 'meta.toml'}: samples: an empty list (one file name, or "
+                             f"a list of the files of a split recording)")
     parts = [_read_columns(q, robot) for q in paths]
     if len(parts) == 1:
         header, col, states = parts[0]
