@@ -260,3 +260,19 @@ def test_the_tracker_s_gap_keeps_the_other_streams_at_its_rate(tmp_path, small):
     assert np.isnan(out.pose_meas[inside]).all() and np.isfinite(out.l_meas[inside]).all()
     assert np.isfinite(out.tau[inside]).all(axis=1).mean() > 0.9
     assert al.reference == "tracker"
+
+
+def test_an_error_in_a_split_recording_names_its_file(tmp_path, small):
+    d = _log(tmp_path, small, "split", **THREE, split="sensor")
+    lines = (d / "tracker.csv").read_text().splitlines()
+    row = lines[5].split(",")
+    row[2] = "n/a"
+    (d / "tracker.csv").write_text("\n".join(lines[:5] + [",".join(row)] + lines[6:]) + "\n")
+    with pytest.raises(RecordingError, match=r"tracker.csv:6: column 3 .*not a number"):
+        read_recording(d)
+    meta = (d / "meta.toml").read_text()
+    (d / "meta.toml").write_text(meta.replace(
+        'samples = [\n    "encoders.csv",\n    "load_cells.csv",\n    "tracker.csv",\n]',
+        "samples = []"))
+    with pytest.raises(RecordingError, match=r"meta.toml: samples: an empty list"):
+        read_recording(d)
