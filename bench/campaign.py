@@ -45,10 +45,16 @@ def campaign_targets(sc: Scenario, poses: np.ndarray | None = None) -> tuple[np.
     return targets, rng
 
 
-def run_campaign(sc: Scenario, out: str | Path,
+def run_campaign(sc: Scenario, out: str | Path | None,
                  progress: Callable[[int, int], None] | None = None,
-                 poses: np.ndarray | None = None) -> Path:
-    """Simulate the scenario's campaign and write the recording directory ``out``."""
+                 poses: np.ndarray | None = None, sink: Callable[..., None] | None = None
+                 ) -> Path | None:
+    """Simulate the scenario's campaign and write the recording directory ``out``.
+
+    With ``sink``, nothing is written and no measurement noise is drawn: every row's truth is
+    handed to ``sink(t, pose_des, l_cmd, l_meas, state, tau_read, label)`` instead (``state``
+    the plant's :class:`~firmware_sim.plant.PlantState`, ``tau_read`` what noise-free load
+    cells read [N]), for a logger that samples it its own way (:mod:`bench.logger_sim`)."""
     model, n = sc.model, sc.model.n_cables
     nz = sc.noise
     ps = sc.poses
@@ -80,6 +86,9 @@ def run_campaign(sc: Scenario, out: str | Path,
 
     def row(t: float, p_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray, state,
             label: str) -> None:
+        if sink is not None:
+            sink(t, p_des, l_cmd, l_meas, state, plant.measured_tensions(state.tensions), label)
+            return
         rows["t"].append(t)
         for a, ax in enumerate(POSE_AXES):
             rows[f"{ax}_des"].append(p_des[a])
@@ -147,6 +156,8 @@ def run_campaign(sc: Scenario, out: str | Path,
             done += 1
             if progress:
                 progress(done, total)
+    if sink is not None or out is None:
+        return None
     arrays = {c: np.array(v) for c, v in rows.items()}
     what = "continuous recording" if continuous else "simulated campaign"
     meta = {"notes": f"{what} ({total} visits of {len(targets)} poses)",

@@ -63,6 +63,9 @@ class Recording:
     state: list[str] | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     init_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    #: rows of the file(s) each row comes from, when the rows were aligned or condensed
+    #: (:mod:`bench.streams`); None: row k is the k-th row of the file
+    source_rows: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -154,7 +157,12 @@ def read_recording(path: str | Path) -> Recording:
         robot = load_robot(inside_recording(d, meta, "robot", meta_path, text))
     except RobotFileError as e:
         raise RecordingError(str(e)) from e
-    samples_path = inside_recording(d, meta, "samples", meta_path, text)
+    samples = meta["samples"]  # one file, or the files of a split recording
+    if isinstance(samples, list):
+        samples_path: Path | list[Path] = [
+            inside_recording(d, {"samples": q}, "samples", meta_path, text) for q in samples]
+    else:
+        samples_path = inside_recording(d, meta, "samples", meta_path, text)
     return _read_csv(d, samples_path, robot, meta, np.array(ip, dtype=float))
 
 
@@ -204,9 +212,35 @@ def check_meta_numbers(meta: dict, meta_path: Path, text: str = "") -> None:
                   RecordingError, i)
 
 
-def _read_csv(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndarray) -> Recording:
+def _read_csv(d: Path, p: Path | list[Path], robot: Robot, meta: dict,
+              init_pose: np.ndarray) -> Recording:
+    """The samples file ``p`` (or the files of a split recording, merged in time order)."""
+    paths = p if isinstance(p, list) else [p]
+    if not paths:
+        raise RecordingError(f"{d / 'meta.toml'}: samples: an empty list (one file name, or "
+                             f"a list of the files of a split recording)")
+    parts = [_read_columns(q, robot) for q in paths]
+    if len(parts) == 1:
+        header, col, states = parts[0]
+    else:
+        from bench.streams import merge_parts
+
+        header, col, states = merge_parts(parts)
+    return _from_columns(d, paths[0], robot, meta, init_pose, header, col, states)
+
+
+def _read_columns(p: Path, robot: Robot) -> tuple[list[str], dict[str, np.ndarray],
+                                                  list[str] | None]:
+    """Header, numeric columns and ``state`` of one samples file: the columnar reader
+    (:func:`bench.streams.read_columns`), else row by row (whose errors name the line)."""
+    from bench.streams import read_columns
+
+    header = _read_header(p, robot)
+    fast = read_columns(p, header)
+    if fast is not None:
+        return header, *fast
     try:
-        return _read_csv_rows(d, p, robot, meta, init_pose)
+        return _read_csv_rows(p, header)
     except UnicodeDecodeError:
         decode_utf8(p.read_bytes(), p, RecordingError)  # raises, naming line and column
         raise
@@ -214,32 +248,45 @@ def _read_csv(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndarray)
         raise RecordingError(f"{p}: not readable as CSV: {e}") from None
 
 
-def _read_csv_rows(d: Path, p: Path, robot: Robot, meta: dict,
-                   init_pose: np.ndarray) -> Recording:
+def _read_header(p: Path, robot: Robot) -> list[str]:
+    """The validated header row of ``p`` (names stripped)."""
     try:
         f = p.open(newline="", encoding="utf-8")
     except OSError as e:
         raise RecordingError(f"{p}: cannot read: {e.strerror or e}") from e
     with f:
-        reader = csv.reader(f)
         try:
-            header = [h.strip() for h in next(reader)]
+            header = [h.strip() for h in next(csv.reader(f))]
         except StopIteration:
             raise RecordingError(f"{p}:1: empty file (no header)") from None
-        if "t" not in header:
-            raise RecordingError(f"{p}:1: column 't' (time) is missing")
-        seen = set()
-        for c, name in enumerate(header):
-            if name in seen:
-                raise RecordingError(f"{p}:1: column {c + 1} '{name}': duplicate column")
-            seen.add(name)
-        known = _column_groups(robot)
-        for c, name in enumerate(header):
-            m = _CABLE_COL.match(name)
-            if m and name not in known and m.group(2) not in robot.cable_ids:
-                raise RecordingError(
-                    f"{p}:1: column {c + 1} '{name}': cable {m.group(2)!r} is not in the robot "
-                    f"(cables: {', '.join(robot.cable_ids)})")
+        except UnicodeDecodeError:
+            decode_utf8(p.read_bytes(), p, RecordingError)
+            raise
+        except csv.Error as e:
+            raise RecordingError(f"{p}: not readable as CSV: {e}") from None
+    if "t" not in header:
+        raise RecordingError(f"{p}:1: column 't' (time) is missing")
+    seen = set()
+    for c, name in enumerate(header):
+        if name in seen:
+            raise RecordingError(f"{p}:1: column {c + 1} '{name}': duplicate column")
+        seen.add(name)
+    known = _column_groups(robot)
+    for c, name in enumerate(header):
+        m = _CABLE_COL.match(name)
+        if m and name not in known and m.group(2) not in robot.cable_ids:
+            raise RecordingError(
+                f"{p}:1: column {c + 1} '{name}': cable {m.group(2)!r} is not in the robot "
+                f"(cables: {', '.join(robot.cable_ids)})")
+    return header
+
+
+def _read_csv_rows(p: Path, header: list[str]) -> tuple[list[str], dict[str, np.ndarray],
+                                                        list[str] | None]:
+    """Row by row (errors name the line and column): header, columns, states."""
+    with p.open(newline="", encoding="utf-8") as f:
+        reader = csv.reader(f)
+        next(reader)
         rows: list[list[float]] = []
         states: list[str] = []
         state_col = header.index("state") if "state" in header else -1
@@ -270,14 +317,25 @@ def _read_csv_rows(d: Path, p: Path, robot: Robot, meta: dict,
                 states.append(row[state_col].strip())
     names = [header[c] for c in numeric]
     data = np.array(rows, dtype=float).reshape(len(rows), len(names))
-    N, n = len(rows), robot.n_cables
-    if N == 0:
+    if not len(rows):
         raise RecordingError(f"{p}: no samples")
-    col = {name: data[:, k] for k, name in enumerate(names)}
-    t = col["t"]
+    t = data[:, names.index("t")]
     if np.isnan(t).any():
         line = int(np.flatnonzero(np.isnan(t))[0]) + 2
         raise RecordingError(f"{p}:{line}: column {header.index('t') + 1} 't': time missing")
+    return header, {name: data[:, k] for k, name in enumerate(names)}, \
+        (states if state_col >= 0 else None)
+
+
+def _from_columns(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndarray,
+                  header: list[str], col: dict[str, np.ndarray],
+                  states: list[str] | None) -> Recording:
+    """The Recording of parsed columns (name -> (N,) floats, NaN = no value)."""
+    N, n = len(col["t"]), robot.n_cables
+    if N == 0:
+        raise RecordingError(f"{p}: no samples")
+    known = _column_groups(robot)
+    t = col["t"]
     groups = {
         "pose_des": np.full((N, 6), np.nan), "pose_meas": np.full((N, 6), np.nan),
         "l_cmd": np.full((N, n), np.nan), "l_meas": np.full((N, n), np.nan),
@@ -297,7 +355,7 @@ def _read_csv_rows(d: Path, p: Path, robot: Robot, meta: dict,
             extra[name] = values
     rec = Recording(d, robot, meta, init_pose, t, groups["pose_des"], groups["pose_meas"],
                     groups["l_cmd"], groups["l_meas"], groups["tau"], groups["exit_meas"],
-                    states if state_col >= 0 else None, extra)
+                    states, extra)
     rec.init_rows = _init_rows(rec)
     return rec
 
@@ -325,8 +383,8 @@ def _init_rows(rec: Recording) -> np.ndarray:
         pose, tol = rec.pose_meas, INIT_TOL_MEAS
     else:
         return np.zeros(0, dtype=int)
-    with np.errstate(invalid="ignore"):
-        off = np.nanmax(np.abs(pose - rec.init_pose), axis=1) > tol
+    with np.errstate(invalid="ignore"):  # rows without a fix (NaN): no sign of leaving
+        off = np.max(np.nan_to_num(np.abs(pose - rec.init_pose), nan=0.0), axis=1) > tol
     leave = np.flatnonzero(off)
     if not len(leave):
         return np.arange(rec.n_samples)

@@ -100,3 +100,66 @@ def bench_diagnose_hour(quick: bool) -> dict[str, float]:
         t = read_recording(rec).t
         return {"diagnose_hour_s": wall, "diagnose_hour_cpu_s": cpu,
                 "diagnose_hour_rows": rows, "diagnose_hour_recorded_s": float(t[-1] - t[0])}
+
+
+#: the three-rate log of ``diagnose_300k``: rows at the encoders' 250 Hz, load cells at
+#: 50 Hz and the tracker at 25 Hz in the rows nearest their instants, empty fields where a
+#: sensor had no sample, no controller columns
+LOG_300K = {"rows_hz": 250.0, "encoders_hz": 250.0, "load_cells_hz": 50.0,
+            "tracker_hz": 25.0, "empty": "", "controller_columns": False}
+
+
+def three_rate_log(out: Path, targets: int = 16, visits: int = 2, physics_hz: float = 25.0
+                   ) -> Path:
+    """A 20-minute three-rate log (:data:`LOG_300K`, about 280,000 rows) of the ROCASPECT
+    with nothing concealed: ``targets`` poses of the paper's grid visited ``visits`` times
+    with 3 s dwells (:mod:`bench.logger_sim`)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from bench.logger_sim import LoggerSpec, write_log
+    from firmware_sim.scenario import load_scenario
+
+    path = Path(str(resources.files("bench") / "data" / "paper_scenario.toml"))
+    sc = load_scenario(path)
+    chosen = sc.poses.generate(np.random.default_rng(sc.seed))[:targets]
+    sc = replace(sc, truth=sc.model, effects={},
+                 poses=replace(sc.poses, kind="list", poses=tuple(map(tuple, chosen)),
+                               visits=visits))
+    return write_log(out, sc, LoggerSpec(**LOG_300K, physics_hz=physics_hz))
+
+
+@register("diagnose_300k")
+def bench_diagnose_300k(quick: bool) -> dict[str, float]:
+    """``diagnose_300k_rows_s``: wall time of ``cdpr diagnose`` (2 processes) on a 20-minute
+    three-rate log (:func:`three_rate_log`, ``diagnose_300k_rows`` rows, nothing concealed:
+    the diagnosis must name nothing); ``read_csv_rows_per_s``: rows per second of the
+    columnar CSV reader on that file (median of 3). Writing the log (the plant settles
+    28,000 times) takes minutes and is not timed; ``--quick``: 4 targets."""
+    from bench.diagnosis.report import diagnose
+    from bench.recording import _read_header
+    from bench.streams import read_columns
+
+    with tempfile.TemporaryDirectory() as d:
+        rec = three_rate_log(Path(d) / "rec", targets=4 if quick else 16)
+        dg0 = None
+        csv = rec / "recording.csv"
+        from controller.robot import load_robot
+
+        header = _read_header(csv, load_robot(rec / "robot.toml"))
+        rates = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            cols, _ = read_columns(csv, header)
+            rates.append(len(cols["t"]) / (time.perf_counter() - t0))
+        with worker_pool(min(2, os.cpu_count() or 1), share_cores=True) as pool:
+            t0 = time.perf_counter()
+            dg0 = diagnose(rec, pool=pool)
+            wall = time.perf_counter() - t0
+        named = sorted(e["name"] for e in dg0.report["effects"])
+        if named or dg0.report["unexplained"]:
+            raise RuntimeError(f"the three-rate log with nothing concealed: named {named}, "
+                               f"unexplained {bool(dg0.report['unexplained'])}")
+        return {"diagnose_300k_rows_s": wall, "diagnose_300k_rows": float(len(cols["t"])),
+                "read_csv_rows_per_s": statistics.median(rates)}

@@ -50,6 +50,10 @@ def _human(rep: dict) -> str:
              + ", force balance "
              + ("n/a" if b["wrench_rms"] is None else f"{b['wrench_rms']:.2f} N"),
              "  mismatch: " + rep["mismatch"]["summary"]]
+    if rep["mismatch"].get("streams"):
+        from bench.streams import summary_line
+
+        lines.insert(1, "  streams: " + summary_line(rep["mismatch"]["streams"]))
     un = rep.get("unexplained")
     if un:
         lines.append("  UNEXPLAINED: " + un["summary"])

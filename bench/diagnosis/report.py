@@ -40,6 +40,7 @@ from bench.diagnosis.space import (
     undetermined,
 )
 from bench.recording import Recording, RecordingError, read_recording
+from bench.streams import condition, summary_line
 from controller.kinematics import gravity_wrench
 from controller.robot import Robot, save_robot
 from controller.statics import batch_statics
@@ -678,6 +679,8 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         if "row" in e:
             say(f"excluded: recording.csv line {e['row']}, column {e['column']}: "
                 f"{e['value']:g} ({e['why']})")
+    rec, streams = condition(rec)
+    say("streams: " + summary_line(streams))
     s = prepare(rec)
     if s.n == 0:
         raise RecordingError(f"{rec.path / 'recording.csv'}: no static samples (every row "
@@ -864,6 +867,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
                          pose_noise, excluded, effects)
     mismatch["encoder_reference"] = {"reading": reference, "means": REFERENCES[reference]}
+    mismatch["streams"] = streams
     if rm.any_tau:
         mismatch["load_cells"] = {"at": rm.cells_at}
         if rm.cells_at == "anchor":

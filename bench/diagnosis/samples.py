@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.recording import Recording, RecordingError
+from bench.streams import jittered, measured_acceleration, still_rows
 
 #: states in which the platform stands by design
 STILL_STATES = {"init", "dwell"}
@@ -233,10 +234,35 @@ def _keys(rec: Recording) -> np.ndarray:
             k = np.round(np.nan_to_num(arr[:, cols], nan=1e9) * scale)
             return k.reshape(len(k), -1)
     cols = np.isfinite(rec.pose_meas).any(axis=0)
+    key = np.arange(rec.n_samples)[:, None].astype(float)
     if cols.any():
         # no commanded values: rows whose measured pose stays within 2 mm / 2 mrad
-        return np.round(np.nan_to_num(rec.pose_meas[:, cols], nan=1e9) / 2e-3)
-    return np.arange(rec.n_samples)[:, None].astype(float)
+        key = np.round(np.nan_to_num(rec.pose_meas[:, cols], nan=1e9) / 2e-3)
+    judged = still_rows(rec)
+    if judged is None:
+        return key
+    # where the measured motion can be judged (stretches of rows without gaps): a run of
+    # standing rows is one key, a moving row its own (-(row + 1)), whatever the noise
+    still, known = judged
+    run = np.cumsum(np.r_[True, still[1:] != still[:-1]]).astype(float)
+    by_motion = np.where(still, run, -(np.arange(rec.n_samples) + 1.0))
+    width = key.shape[1]
+    return np.where(known[:, None], np.repeat(by_motion[:, None], width, axis=1) + 0.5, key)
+
+
+def _commanded(rec: Recording) -> bool:
+    """Whether the recording holds what the controller aimed at (commanded pose or lengths)."""
+    return bool(np.isfinite(rec.pose_des).any() or np.isfinite(rec.l_cmd).any())
+
+
+def _moving(rec: Recording) -> np.ndarray:
+    """(N,) bool: rows that measurements alone show moving, in a recording without the
+    controller's columns (:func:`bench.streams.still_rows`); none otherwise."""
+    judged = None if _commanded(rec) else still_rows(rec)
+    if judged is None:
+        return np.zeros(rec.n_samples, dtype=bool)
+    still, known = judged
+    return known & ~still
 
 
 def _runs(keys: np.ndarray, states: list[str] | None) -> list[tuple[int, int]]:
@@ -277,9 +303,26 @@ def _settled(rec: Recording, a: int, b: int) -> np.ndarray:
 
 def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which path ``rows`` are quasi-static: the commanded (or measured) motion does not
-    accelerate around them."""
+    accelerate around them. Measured poses only, or jittered time stamps: the acceleration
+    of a filter that tracker noise and jitter cannot fool (of the commanded pose where
+    there is one; :func:`bench.streams.measured_acceleration`), finite differences of
+    consecutive rows only where the rows are too sparse for the filter."""
     if len(rows) < 3:
         return np.ones(len(rows), dtype=bool)
+    ok = _quasi_static_rows(rec, rows)
+    des = bool(np.isfinite(rec.pose_des[rows, :3]).all())
+    if not des or jittered(rec.t):
+        acc = measured_acceleration(rec, rows, rec.pose_des if des else None)
+        if acc is not None:
+            judged = np.isfinite(acc[0]) & np.isfinite(acc[1])
+            with np.errstate(invalid="ignore"):
+                filt = (acc[0] <= ACCEL_MAX) & (acc[1] <= ANG_ACCEL_MAX)
+            ok = np.where(judged, filt, ok)
+    return ok
+
+
+def _quasi_static_rows(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """:func:`_quasi_static` by finite differences of consecutive ``rows``."""
     src = rec.pose_des if np.isfinite(rec.pose_des[rows, :3]).all() else rec.pose_meas
     p = src[rows]
     t = rec.t[rows]
@@ -427,6 +470,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     dwell_runs: list[np.ndarray] = []
     path_rows: list[int] = []
     dropped_states = 0
+    moving = _moving(rec)
     for a, b in runs:
         st = states[a] if states is not None else None
         if st is not None and st not in STILL_STATES | MOVE_STATES and not reaction_state(st):
@@ -439,7 +483,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
                 dropped_states += b - a
             continue
         still = (st in STILL_STATES) if st is not None else (b - a >= 2 and _standing(rec, a, b))
-        if still or (st is None and init[a]):
+        if still or (st is None and init[a] and not moving[a]):
             dwell_runs.append(_settled(rec, a, b))
         else:
             path_rows.extend(range(a, b))
@@ -507,7 +551,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     s = Samples(t[order], pose_des[order], pose_meas[order], l_meas[order], tau[order],
                 exit_meas[order], count[order], target[order], is_init[order],
                 _tau_row_sd(rec, dwell_runs, path, seg_all), kind[order], block[order],
-                direction[order], first[order] + 2)
+                direction[order], _lines(rec, first[order]))
     # rows of one move: together they count as MOVE_INDEPENDENT independent samples
     w = np.ones(len(t))
     for g in np.unique(seg_all):
@@ -560,7 +604,8 @@ def _triples(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
     return Samples(rec.t[rows], rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows],
                    rec.tau[rows], rec.exit_meas[rows], np.ones(len(rows), dtype=int),
                    np.arange(len(rows)), np.isin(rows, rec.init_rows),
-                   kind=np.repeat(kinds, 3), direction=np.zeros((len(rows), n)), row=rows + 2)
+                   kind=np.repeat(kinds, 3), direction=np.zeros((len(rows), n)),
+                   row=_lines(rec, rows))
 
 
 #: at most this many raw rows are scanned for jumps in time
@@ -583,9 +628,16 @@ def _stream(rec: Recording) -> Samples | None:
     out = Samples(t, rec.pose_des[rows], rec.pose_meas[rows], rec.l_meas[rows], rec.tau[rows],
                   rec.exit_meas[rows], np.ones(len(rows), dtype=int), np.arange(len(rows)),
                   np.isin(rows, rec.init_rows), direction=np.zeros((len(rows), n)),
-                  row=rows + 2)
+                  row=_lines(rec, rows))
     out.block = np.cumsum(new)
     return out
+
+
+def _lines(rec: Recording, rows: np.ndarray) -> np.ndarray:
+    """The recording.csv lines of ``rows`` (rows aligned or condensed by :mod:`bench.streams`
+    keep the rows of the file they come from)."""
+    src = rec.source_rows
+    return (np.asarray(rows) if src is None else src[np.asarray(rows, dtype=int)]) + 2
 
 
 def _mean(arr: np.ndarray, idx: np.ndarray) -> np.ndarray:
