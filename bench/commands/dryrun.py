@@ -300,7 +300,7 @@ def _run(args: argparse.Namespace, created: list) -> int:
     try:
         try:
             world = start_world(sc, winches, args.rig, args.realtime, args.plant_rate,
-                                sim_args=sim_args)
+                                sim_args=sim_args, rt_priority=args.rt_priority)
         except Exception as exc:
             return _fail(args, 1, f"cannot start the simulated robot: {exc}")
         injector = None

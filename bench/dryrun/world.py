@@ -10,6 +10,10 @@ the machine allows). In real time the rig's own threads do it on the wall clock.
 ``kind="process"``: ``cdpr sim`` in another process (socketcand hub, Modbus/TCP, tracker
 over TCP); the loop reaches it only through the wire protocols, as it would reach real
 drives. The process ends with this one (stdin closes when we die, whatever the signal).
+Its drives follow the master's SYNC (``--clock sync``) in real time too, as a HIL
+simulator does: a SYNC the starved simulator handles late delays the simulated world
+instead of tripping a drive deadline; in real time its threads run in ``SCHED_FIFO`` one
+priority below the loop's when permitted (:mod:`bench.dryrun.realtime`).
 
 The scenario is the truth: the world reads it, the controller never does.
 """
@@ -28,6 +32,7 @@ import time
 from pathlib import Path
 
 from bench.dryrun.lockstep_bus import deliver_in_sender_thread
+from bench.dryrun.realtime import DEFAULT_RT_PRIORITY, helper_priority
 from controller.winch import WinchSet
 from firmware_sim.cia402_drive import EDS_PATH
 from firmware_sim.rig import SimRig
@@ -151,15 +156,18 @@ class InProcessWorld(SimWorld):
 
 
 class ProcessWorld(SimWorld):
-    """``cdpr sim`` in a child process; ``args`` extra command-line options for it."""
+    """``cdpr sim`` in a child process; ``args`` extra command-line options for it;
+    ``rt_priority`` the loop's real-time priority (the simulator's threads one below)."""
 
     def __init__(self, scenario_path: str | Path | None, winches: WinchSet, realtime: bool,
                  plant_rate_hz: float, eds: str | Path = EDS_PATH,
-                 args: tuple[str, ...] = (), startup_s: float = 60.0) -> None:
+                 args: tuple[str, ...] = (), startup_s: float = 60.0,
+                 rt_priority: int = DEFAULT_RT_PRIORITY) -> None:
         self._err = tempfile.TemporaryFile(mode="w+")
+        sim_priority = helper_priority(rt_priority) if realtime else 0
         cmd = [sys.executable, "-m", "bench.cli", "sim", "--json", "--exit-on-stdin-eof",
-               "--clock", "wall" if realtime else "sync", "--plant-rate", str(plant_rate_hz),
-               *args]
+               "--clock", "sync", "--rt-priority", str(sim_priority),
+               "--plant-rate", str(plant_rate_hz), *args]
         if scenario_path is not None:
             cmd.insert(4, str(scenario_path))
         env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -236,11 +244,14 @@ class ProcessWorld(SimWorld):
 
 def start_world(scenario: Scenario, winches: WinchSet, kind: str = "inprocess",
                 realtime: bool = False, plant_rate_hz: float = 20.0,
-                eds: str | Path = EDS_PATH, sim_args: tuple[str, ...] = ()) -> SimWorld:
-    """The simulated robot for a dry run (see the module docstring)."""
+                eds: str | Path = EDS_PATH, sim_args: tuple[str, ...] = (),
+                rt_priority: int = DEFAULT_RT_PRIORITY) -> SimWorld:
+    """The simulated robot for a dry run (see the module docstring); ``rt_priority``: the
+    loop's real-time priority (a ``process`` simulator's threads run one below)."""
     if kind == "inprocess":
         return InProcessWorld(scenario, winches, realtime, plant_rate_hz, eds)
     if kind == "process":
         path = scenario.path if scenario.path.name != "<memory>" else None
-        return ProcessWorld(path, winches, realtime, plant_rate_hz, eds, sim_args)
+        return ProcessWorld(path, winches, realtime, plant_rate_hz, eds, sim_args,
+                            rt_priority=rt_priority)
     raise ValueError(f"rig must be 'inprocess' or 'process', got {kind!r}")
