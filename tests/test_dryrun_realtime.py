@@ -47,6 +47,7 @@ def _policy(tid: int) -> tuple[int, int]:
 def test_fifo_for_the_loop_and_one_below_for_the_threads_it_waits_for_restored_after():
     before = _policy(0)
     ready, ask, answered = threading.Event(), threading.Event(), threading.Event()
+    release = threading.Event()
     seen: dict = {}
 
     def other() -> None:  # a HAL thread made before the loop starts (CAN receive, poller)
@@ -56,6 +57,7 @@ def test_fifo_for_the_loop_and_one_below_for_the_threads_it_waits_for_restored_a
         ask.wait(5)
         seen["inside"] = _policy(0)
         answered.set()
+        release.wait(5)  # still running when the loop's scheduling ends
 
     t = threading.Thread(target=other)
     t.start()
@@ -72,6 +74,7 @@ def test_fifo_for_the_loop_and_one_below_for_the_threads_it_waits_for_restored_a
         assert _policy(seen["tid"]) == seen["before"]  # restored while it still runs
     finally:
         ask.set()
+        release.set()
         t.join(5)
     assert _policy(0) == before
 
