@@ -9,7 +9,12 @@ import threading
 
 import pytest
 
-from bench.dryrun.realtime import realtime_interpreter, realtime_scheduling
+from bench.dryrun.realtime import (
+    helper_priority,
+    realtime_interpreter,
+    realtime_scheduling,
+    simulator_scheduling,
+)
 
 needs_sched = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"),
                                  reason="no POSIX scheduling on this system")
@@ -34,33 +39,99 @@ def test_a_refused_real_time_policy_runs_normally_and_says_why(monkeypatch):
         assert os.sched_getscheduler(0) == before
 
 
-@needs_sched
-def test_fifo_for_the_calling_thread_only_and_restored_after():
-    before = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
-    ask, seen = threading.Event(), {}
-    answered = threading.Event()
+def _policy(tid: int) -> tuple[int, int]:
+    return os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority
 
-    def other() -> None:  # a HAL thread made before the loop starts
+
+@needs_sched
+def test_fifo_for_the_loop_and_one_below_for_the_threads_it_waits_for_restored_after():
+    before = _policy(0)
+    ready, ask, answered = threading.Event(), threading.Event(), threading.Event()
+    release = threading.Event()
+    seen: dict = {}
+
+    def other() -> None:  # a HAL thread made before the loop starts (CAN receive, poller)
+        seen["tid"] = threading.get_native_id()
+        seen["before"] = _policy(0)
+        ready.set()
         ask.wait(5)
-        seen["policy"] = os.sched_getscheduler(0)
+        seen["inside"] = _policy(0)
         answered.set()
+        release.wait(5)  # still running when the loop's scheduling ends
 
     t = threading.Thread(target=other)
     t.start()
+    assert ready.wait(5)
     try:
         with realtime_scheduling(10) as got:
             if not got.startswith("SCHED_FIFO"):
                 pytest.skip(f"real-time scheduling not permitted here: {got}")
             assert got == "SCHED_FIFO 10"
-            assert os.sched_getscheduler(0) == os.SCHED_FIFO
-            assert os.sched_getparam(0).sched_priority == 10
+            assert _policy(0) == (os.SCHED_FIFO, 10)
             ask.set()
             assert answered.wait(5)
-            assert seen["policy"] == before[0]
+            assert seen["inside"] == (os.SCHED_FIFO, 9)
+        assert _policy(seen["tid"]) == seen["before"]  # restored while it still runs
     finally:
         ask.set()
+        release.set()
         t.join(5)
-    assert (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) == before
+    assert _policy(0) == before
+
+
+def test_helper_priority_is_one_below_and_never_below_one():
+    assert [helper_priority(p) for p in (0, -3, 1, 2, 50, 99)] == [0, 0, 1, 1, 49, 98]
+
+
+@needs_sched
+def test_simulator_scheduling_every_thread_and_the_switch_interval_restored_after():
+    before, interval = _policy(0), sys.getswitchinterval()
+    ready, done = threading.Event(), threading.Event()
+    seen: dict = {}
+
+    def other() -> None:  # a thread already running when the simulator asks
+        seen["tid"] = threading.get_native_id()
+        seen["before"] = _policy(0)
+        ready.set()
+        done.wait(5)
+
+    t = threading.Thread(target=other)
+    t.start()
+    assert ready.wait(5)
+    try:
+        with simulator_scheduling(7) as got:
+            if not got.startswith("SCHED_FIFO"):
+                pytest.skip(f"real-time scheduling not permitted here: {got}")
+            assert got == "SCHED_FIFO 7"
+            assert _policy(0) == (os.SCHED_FIFO, 7)
+            assert _policy(seen["tid"]) == (os.SCHED_FIFO, 7)
+            assert sys.getswitchinterval() == pytest.approx(5e-4)
+            child: dict = {}
+            c = threading.Thread(target=lambda: child.update(p=_policy(0)))  # made inside
+            c.start()
+            c.join(5)
+            assert child["p"] == (os.SCHED_FIFO, 7)
+        assert _policy(seen["tid"]) == seen["before"]
+    finally:
+        done.set()
+        t.join(5)
+    assert _policy(0) == before and sys.getswitchinterval() == interval
+
+
+def test_simulator_scheduling_zero_and_refused(monkeypatch):
+    with simulator_scheduling(0) as got:
+        assert got.startswith("normal (real-time priority not requested")
+    if not hasattr(os, "sched_setscheduler"):
+        return
+
+    def refuse(*_):
+        raise PermissionError(1, "Operation not permitted")
+
+    interval = sys.getswitchinterval()
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with simulator_scheduling(20) as got:
+        assert got.startswith("normal (SCHED_FIFO 20 not permitted") and "CAP_SYS_NICE" in got
+        assert sys.getswitchinterval() == interval
 
 
 @needs_sched

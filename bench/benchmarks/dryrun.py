@@ -44,7 +44,7 @@ def _run(kind: str, realtime: bool, rate_hz: float, seconds: float,
     sc = load_scenario(resolve_scenario("paper-centre"))
     spec = load_path(sc.run_path)
     winches = with_rate(load_winches(), sync_period_us(rate_hz) * 1e-6)
-    with start_world(sc, winches, kind, realtime) as world:
+    with start_world(sc, winches, kind, realtime, rt_priority=rt_priority) as world:
         tick = world.tick if (world.rig is not None and not realtime) else None
         loop = ControlLoop(world.hw, world.tracker, sc.model,
                            lambda p0: build_trajectory(spec, p0),

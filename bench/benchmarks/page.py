@@ -31,6 +31,10 @@ WHAT: dict[str, str] = {
     "deadline_miss_ratio": "deadline misses at that rate, loop thread in SCHED_FIFO",
     "deadline_miss_ratio_normal_sched": "the same rate under the normal scheduler",
     "jitter_p99_ms": "99th percentile of the cycle start jitter at that rate",
+    "realtime_process_completion": "real-time `--rig process` dry runs (10 s of path) that "
+                                   "completed while another process kept one core busy",
+    "realtime_process_runs": "how many such runs",
+    "realtime_process_sched_fifo": "1 when their loop's thread ran under SCHED_FIFO",
     "diagnose_s": "`cdpr diagnose` of 201 samples (the paper's 36-parameter answer), "
                   "2 processes",
     "diagnose_hour_s": "`cdpr diagnose` (one process) of a continuous dry-run log of at "

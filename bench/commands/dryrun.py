@@ -512,7 +512,8 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
 
                 # exactly the hardware path, on the site the simulated robot wrote
                 sim = SimProcess(sc.path if sc.path.name != "<memory>" else None,
-                                 args.realtime, args.plant_rate, sim_args)
+                                 args.realtime, args.plant_rate, sim_args,
+                                 rt_priority=args.rt_priority)
                 settings = merge_site(load_site(sim.site))
             if settings is not None:
                 preflight, world = _open_buses(args, settings, winches)
@@ -520,7 +521,7 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                 from bench.dryrun.world import start_world
 
                 world = start_world(sc, winches, args.rig, args.realtime, args.plant_rate,
-                                    sim_args=sim_args)
+                                    sim_args=sim_args, rt_priority=args.rt_priority)
         except _PreflightRefused as exc:
             if sim is not None:
                 sim.stop()

@@ -69,8 +69,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(PORT 0: any free one); any other bus (e.g. socketcan:can0): put the "
                         "drives on it, no hub [socketcand:HOST of --host:0]")
     p.add_argument("--clock", choices=("sync", "wall"), default="sync",
-                   help="sync: drive and plant time advance by the SYNC period per SYNC "
-                        "(deterministic; the HAL's --hal-clock sync); wall: real time [sync]")
+                   help="sync: drive and plant time advance by the SYNC period per SYNC, as "
+                        "a HIL simulator follows its master, in lock-step or real time "
+                        "(deadlines in SYNC periods; master loss still watched on wall "
+                        "time); wall: the drives' own wall clock [sync]")
+    p.add_argument("--rt-priority", type=int, default=0, metavar="P",
+                   help="the simulator's threads in SCHED_FIFO at this priority when the "
+                        "system permits it, else normal scheduling, said at start (0: "
+                        "normal) [0]")
     p.add_argument("--plant-rate", type=float, default=20.0, metavar="HZ",
                    help="plant settles per second at most [20]")
     p.add_argument("--faults", metavar="FILE", default=None,
@@ -173,6 +179,17 @@ def _endpoints(args: argparse.Namespace) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.dryrun.realtime import simulator_scheduling
+
+    top = (os.sched_get_priority_max(os.SCHED_FIFO)
+           if hasattr(os, "sched_get_priority_max") else 99)
+    if not 0 <= args.rt_priority <= top:
+        return _fail(args, 2, f"--rt-priority {args.rt_priority}: must be 0 (normal) to {top}")
+    with simulator_scheduling(args.rt_priority) as scheduling:
+        return _serve(args, scheduling)
+
+
+def _serve(args: argparse.Namespace, scheduling: str) -> int:
     for name in ("tracker-port", "control-port"):
         if (msg := _port(args, name)) is not None:
             return _fail(args, 2, msg)
@@ -271,6 +288,7 @@ def run(args: argparse.Namespace) -> int:
             "unit_ids": list(rig.cells.map.unit_ids),
             "cables": list(rig.winches.cables),
             "clock": args.clock,
+            "scheduling": scheduling,
             "scenario": str(args.scenario) if args.scenario else None,
             "robot": sc.model.name,
             "init_pose": [float(v) for v in sc.init_pose],
@@ -285,7 +303,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             where = args.scenario or "default: rocaspect as the truth"
             print(f"simulated robot {sc.model.name} (scenario {where}), {args.clock} clock, "
-                  f"init pose {np.round(sc.init_pose, 4).tolist()}")
+                  f"init pose {np.round(sc.init_pose, 4).tolist()}; threads {scheduling}")
             print(f"  --can {can_spec}")
             print(f"  --modbus {rig.modbus_spec}")
             print(f"  --tracker {rig.tracker_spec}")

@@ -11,6 +11,10 @@ the machine allows). In real time the rig's own threads do it on the wall clock.
 over TCP) that writes its site (``--write-site``); the loop reaches it through
 :class:`bench.dryrun.hardware.HardwareWorld` on that site, exactly as it reaches real
 drives. The process ends with this one (stdin closes when we die, whatever the signal).
+Its drives follow the master's SYNC (``--clock sync``) in real time too, as a HIL
+simulator does: a SYNC the starved simulator handles late delays the simulated world
+instead of tripping a drive deadline; in real time its threads run in ``SCHED_FIFO`` one
+priority below the loop's when permitted (:mod:`bench.dryrun.realtime`).
 
 The scenario is the truth: the world reads it, the controller never does.
 """
@@ -36,6 +40,7 @@ from bench.dryrun.hardware import (  # noqa: F401  (re-exported for the worlds' 
     with_rate,
 )
 from bench.dryrun.lockstep_bus import deliver_in_sender_thread
+from bench.dryrun.realtime import DEFAULT_RT_PRIORITY, helper_priority
 from controller.winch import WinchSet
 from firmware_sim.cia402_drive import EDS_PATH
 from firmware_sim.rig import SimRig
@@ -112,16 +117,20 @@ class SimProcess:
     """``cdpr sim`` in a child process that wrote its site (``--write-site``) to a private
     temporary folder: :attr:`site` (the file), :attr:`info` (its endpoints line). The
     process ends with :meth:`stop` or with this one (stdin closes when we die, whatever the
-    signal). ``args``: extra command-line options for it."""
+    signal). ``args``: extra command-line options for it. The simulator follows the
+    master's SYNC (``--clock sync``) in lock-step and in real time, as a HIL simulator does;
+    in real time its threads run in SCHED_FIFO one below the loop's ``rt_priority``."""
 
     def __init__(self, scenario_path: str | Path | None, realtime: bool, plant_rate_hz: float,
-                 args: tuple[str, ...] = (), startup_s: float = 60.0) -> None:
+                 args: tuple[str, ...] = (), startup_s: float = 60.0,
+                 rt_priority: int = DEFAULT_RT_PRIORITY) -> None:
         self._err = tempfile.TemporaryFile(mode="w+")
         self._dir = tempfile.TemporaryDirectory(prefix="cdpr-sim-site-")
         self.site = Path(self._dir.name) / "sim.toml"
+        sim_priority = helper_priority(rt_priority) if realtime else 0
         cmd = [sys.executable, "-m", "bench.cli", "sim", "--json", "--exit-on-stdin-eof",
-               "--clock", "wall" if realtime else "sync", "--plant-rate", str(plant_rate_hz),
-               "--write-site", str(self.site), *args]
+               "--clock", "sync", "--rt-priority", str(sim_priority),
+               "--plant-rate", str(plant_rate_hz), "--write-site", str(self.site), *args]
         if scenario_path is not None:
             cmd.insert(4, str(scenario_path))
         env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -195,8 +204,10 @@ class ProcessWorld(SimWorld):
 
     def __init__(self, scenario_path: str | Path | None, winches: WinchSet, realtime: bool,
                  plant_rate_hz: float, eds: str | Path | None = None,
-                 args: tuple[str, ...] = (), startup_s: float = 60.0) -> None:
-        self.sim = SimProcess(scenario_path, realtime, plant_rate_hz, args, startup_s)
+                 args: tuple[str, ...] = (), startup_s: float = 60.0,
+                 rt_priority: int = DEFAULT_RT_PRIORITY) -> None:
+        self.sim = SimProcess(scenario_path, realtime, plant_rate_hz, args, startup_s,
+                              rt_priority)
         self.rig = None
         try:
             settings = merge_site(load_site(self.sim.site), eds=eds)
@@ -220,12 +231,15 @@ class ProcessWorld(SimWorld):
 
 def start_world(scenario: Scenario, winches: WinchSet, kind: str = "inprocess",
                 realtime: bool = False, plant_rate_hz: float = 20.0,
-                eds: str | Path = EDS_PATH, sim_args: tuple[str, ...] = ()) -> SimWorld:
-    """The simulated robot for a dry run (see the module docstring)."""
+                eds: str | Path = EDS_PATH, sim_args: tuple[str, ...] = (),
+                rt_priority: int = DEFAULT_RT_PRIORITY) -> SimWorld:
+    """The simulated robot for a dry run (see the module docstring); ``rt_priority``: the
+    loop's real-time priority (a ``process`` simulator's threads run one below)."""
     if kind == "inprocess":
         return InProcessWorld(scenario, winches, realtime, plant_rate_hz, eds)
     if kind == "process":
         path = scenario.path if scenario.path.name != "<memory>" else None
         return ProcessWorld(path, winches, realtime, plant_rate_hz,
-                            None if eds == EDS_PATH else eds, sim_args)
+                            None if eds == EDS_PATH else eds, sim_args,
+                            rt_priority=rt_priority)
     raise ValueError(f"rig must be 'inprocess' or 'process', got {kind!r}")
