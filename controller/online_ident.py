@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from controller.cycle import reference_lengths
 from controller.effects import effect_params
 from controller.robot import Robot
 from controller.statics import (
@@ -50,7 +51,6 @@ from controller.statics import (
     true_tensions,
     unstretched_from_readings,
 )
-from controller.cycle import reference_lengths
 
 #: finite-difference steps: exit offsets [m], compliance [rad/(N m)], pose [m, rad], tension [N]
 FD_OFFSET = 1e-4
@@ -75,7 +75,8 @@ class Measurement:
 @dataclass(frozen=True)
 class Event:
     """Something the operator must see: ``kind`` one of ``sudden_change``,
-    ``large_correction``, ``bound``, ``covariance_growing``; ``t`` [s]; ``detail``."""
+    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``; ``t`` [s];
+    ``detail``."""
 
     kind: str
     t: float
@@ -90,10 +91,12 @@ class IdentOptions:
     ``walk_offset`` [m/sqrt(s)] / ``walk_compliance`` random walk of the parameters;
     ``max_step_offset`` [m] / ``max_step_compliance`` largest correction per update;
     ``prior_length`` [m]: a cable length offset expected beyond the encoder reference's
-    uncertainty (0: none);
+    uncertainty (0: none); ``stiffness_min`` [N m/rad]: the stiffest bound on a joint's
+    compliance (1/it; the masts' fixed-point iteration diverges near 1e3 for ROCASPECT);
     ``alarm_p`` false-alarm probability of the innovation test per update;
     ``grow_updates``: covariance growing over this many updates in a row is an event;
-    ``iterations``: linearisations per update (iterated EKF; 1 = plain EKF)."""
+    ``iterations``: linearisations per update (iterated EKF; 1 = plain EKF); ``gate``: a
+    batch that fails the innovation test is not learnt from (only its event is kept)."""
 
     sigma_length: float = 5e-5
     sigma_tension: float = 0.5
@@ -105,20 +108,24 @@ class IdentOptions:
     max_step_offset: float = 0.05
     max_step_compliance: float = 1e-4
     prior_length: float = 0.0
+    stiffness_min: float = 1e4
     alarm_p: float = 1e-6
     grow_updates: int = 20
     iterations: int = 2
+    gate: bool = True
 
 
 @dataclass
 class UpdateResult:
     """One update: ``nis`` normalised innovation squared, ``dof`` its degrees of freedom,
-    ``events`` raised by it, ``used`` the number of samples used."""
+    ``events`` raised by it, ``used`` the number of samples used, ``rejected`` whether the
+    batch failed the innovation test and was not learnt from."""
 
     nis: float
     dof: int
     events: list[Event] = field(default_factory=list)
     used: int = 0
+    rejected: bool = False
 
 
 class OnlineIdentifier:
@@ -147,7 +154,8 @@ class OnlineIdentifier:
             [s.key for s in effect_params("cable_length_offset", model)]
         lo_l, hi_l = effect_params("cable_length_offset", model)[0].bounds
         lo_o, hi_o = effect_params("exit_point_offset", model)[0].bounds
-        k_lo, _ = effect_params("mast_compliance", model)[0].bounds if m else (1e3, 1e12)
+        k_lo = max(effect_params("mast_compliance", model)[0].bounds[0] if m else 0.0,
+                   self.opt.stiffness_min)
         #: physical bounds of each parameter (lower, upper) (p,)
         self.lower = np.r_[np.full(3 * n, lo_o), np.zeros(3 * m), np.full(n, lo_l)]
         self.upper = np.r_[np.full(3 * n, hi_o), np.full(3 * m, 1.0 / k_lo), np.full(n, hi_l)]
@@ -216,6 +224,11 @@ class OnlineIdentifier:
         return o.sigma_tension ** 2 * J @ J.T + \
             np.eye(n) * (o.sigma_length ** 2 + o.prior_length ** 2)
 
+    def to_robot(self, name: str | None = None) -> Robot:
+        """The identified robot description (write it with
+        :func:`controller.robot.save_robot`)."""
+        return self.robot_at(self.theta, name or f"{self.model.name}_identified")
+
     @property
     def sd(self) -> np.ndarray:
         """Standard deviations of the estimate (p,) in the parameters' units."""
@@ -225,9 +238,12 @@ class OnlineIdentifier:
                   lengths: np.ndarray) -> np.ndarray:
         """Length residuals (K,n) [m] of the model with ``theta`` at ``poses`` (K,6) with
         load-cell ``readings`` (K,n) [N] and encoder ``lengths`` (K,n) [m] (NaN where the
-        statics fail). Raises ValueError if the initialisation pose is infeasible."""
+        statics fail, all NaN if the initialisation pose is infeasible under ``theta``)."""
         H = self.robot_at(theta)
-        u0, _ = init_unstretched(H, self.init_pose, true_tensions(H, self.init_readings))
+        try:
+            u0, _ = init_unstretched(H, self.init_pose, true_tensions(H, self.init_readings))
+        except ValueError:
+            return np.full(np.shape(lengths), np.nan)
         read = unstretched_from_readings(H, lengths, self.reference, u0)
         bs = batch_statics(H, poses, true_tensions(H, readings))
         return np.where(bs.feasible[:, None], bs.unstretched - read, np.nan)
@@ -268,7 +284,8 @@ class OnlineIdentifier:
         for g in self._groups:
             step = self._fd[g]
             th = theta.copy()
-            th[g] = np.minimum(th[g] + step, self.upper[g])
+            up = theta[g] + step <= self.upper[g]
+            th[g] = np.where(up, theta[g] + step, theta[g] - step)  # backward at a bound
             h = th[g] - theta[g]
             dr = self.residuals(th, poses, readings, lengths) - r
             for j, hj in zip(g, h, strict=True):
@@ -335,15 +352,24 @@ class OnlineIdentifier:
         prior = self.theta
         nu, Jw, ok, nuis = self._rows(batch, prior)
         events: list[Event] = []
-        if len(nu) == 0:
-            return UpdateResult(0.0, 0, events)
+        if len(nu) == 0:  # the model fails at every sample: nothing learnt, and said
+            events.append(Event("unusable", t, f"no sample of {len(batch)} could be evaluated "
+                                "under the estimate (statics infeasible)"))
+            self.events.extend(events)
+            return UpdateResult(0.0, 0, events, 0, rejected=True)
         nis = self._innovation_test(nu, Jw, t, events)
-        th = prior
+        if events and self.opt.gate:  # not the model's noise: never learnt from
+            self.events.extend(events)
+            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+        th, K, q = prior, None, len(nu)
         for it in range(self.opt.iterations):  # iterated EKF: relinearised at the update
             if it:
-                nu, Jw, _, _ = self._rows(batch, th, nuis)
+                nu_i, Jw_i, _, _ = self._rows(batch, th, nuis)
+                if len(nu_i) != q:  # the statics fail there: keep the last linearisation
+                    break
+                nu, Jw = nu_i, Jw_i
             y = nu + Jw @ (th - prior)  # the innovation of the prior, linearised at th
-            Sc = np.linalg.cholesky(Jw @ self.P @ Jw.T + np.eye(len(nu)))
+            Sc = np.linalg.cholesky(Jw @ self.P @ Jw.T + np.eye(q))
             K = np.linalg.solve(Sc.T, np.linalg.solve(Sc, Jw @ self.P)).T
             th = prior + K @ y
         step = th - prior
@@ -359,7 +385,7 @@ class OnlineIdentifier:
         self._check_growth(t, events)
         self.updates += 1
         self.events.extend(events)
-        return UpdateResult(nis, len(nu), events, int(ok.sum()))
+        return UpdateResult(nis, q, events, int(ok.sum()))
 
     def _innovation_test(self, nu: np.ndarray, Jw: np.ndarray, t: float,
                          events: list[Event]) -> float:

@@ -1,0 +1,220 @@
+"""Online identification (controller/online_ident.py): measurements made by the controller's own
+model functions with concealed exit-point offsets and mast stiffnesses (the truth), plus noise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.cycle import reference_lengths
+from controller.effects import apply_effects
+from controller.online_ident import IdentOptions, Measurement, ModelHandover, OnlineIdentifier
+from controller.robot import dumps_robot, parse_robot
+from controller.statics import init_unstretched, pose_statics
+from tests.robots import rocaspect
+
+P0 = np.array([10.0, 8.56, 1.0, 0.0, 0.0, 0.0])
+NOISE = {"tau": 0.5, "length": 5e-5, "pos": 3e-5, "rot": 2e-5}
+
+
+class Plant:
+    """Readings of a robot ``truth`` whose encoders were referenced at P0 by the controller's
+    ``model`` (the initialisation convention); ``moved``: the truth after a sudden change
+    (its encoder reference is the old one's)."""
+
+    def __init__(self, model, truth, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.model, self.truth = model, truth
+        self.ref = reference_lengths(model, P0)
+        ps0 = pose_statics(truth, P0)
+        self.tau0, self.u0 = ps0.tensions, ps0.unstretched
+        self.init_readings = self.tau0 + self.rng.normal(0, NOISE["tau"], len(self.tau0))
+
+    def measure(self, pose: np.ndarray, t: float, tracked: bool = True) -> Measurement:
+        n = self.truth.n_cables
+        ps = pose_statics(self.truth, pose)
+        lengths = self.ref + ps.unstretched - self.u0 + self.rng.normal(0, NOISE["length"], n)
+        tau = ps.tensions + self.rng.normal(0, NOISE["tau"], n)
+        fix = pose + np.r_[self.rng.normal(0, NOISE["pos"], 3), self.rng.normal(0, NOISE["rot"], 3)]
+        return Measurement(fix if tracked else pose, tau, lengths, tracked, t)
+
+    def truth_theta(self, est: OnlineIdentifier, effects: dict) -> np.ndarray:
+        """The parameters of the truth in the estimator's order (length offsets: the reference
+        error the load cells' noise at initialisation leaves)."""
+        off = effects.get("exit_point_offset", {})
+        dl = init_unstretched(self.truth, P0, self.tau0)[0] - \
+            init_unstretched(self.truth, P0, self.init_readings)[0]
+        return np.r_[[off.get(k, 0.0) for k in est.names[:est.n_offsets]],
+                     self.truth.compliance.ravel(), dl]
+
+
+def path(seed: int, count: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [P0 + np.r_[rng.uniform(-4, 4), rng.uniform(-3, 3), rng.uniform(-0.5, 1.0),
+                       rng.normal(0, 0.05, 3)] for _ in range(count)]
+
+
+def concealed(model, seed: int = 1) -> dict:
+    rng = np.random.default_rng(seed)
+    return {"exit_point_offset": {f"d{a}_{c}": float(rng.normal(0, 0.005))
+                                  for c in model.cable_ids for a in "xyz"},
+            "mast_compliance": {f"kx_{m}": 1.2e5 for m in model.mast_ids}
+            | {f"ky_{m}": 4.0e5 for m in model.mast_ids}}
+
+
+def run(est: OnlineIdentifier, plant: Plant, poses, per: int = 3, tracked: bool = True,
+        start: float = 0.0):
+    out = []
+    for i in range(0, len(poses), per):
+        batch = [plant.measure(p, start + (i + k) * 0.1, tracked)
+                 for k, p in enumerate(poses[i:i + per])]
+        out.append(est.update(batch))
+    return out
+
+
+@pytest.fixture(scope="module")
+def model():
+    return rocaspect(compliant=True)
+
+
+def test_converges_to_truth_within_its_covariance(model):
+    eff = concealed(model)
+    plant = Plant(model, apply_effects(model, eff), seed=2)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    run(est, plant, path(3, 60))
+    truth = plant.truth_theta(est, eff)
+    z = (est.theta - truth) / est.sd
+    worst = int(np.argmax(np.abs(z)))
+    assert np.abs(z).max() < 3.0, f"{est.names[worst]}: {est.theta[worst]:.4g} vs truth " \
+        f"{truth[worst]:.4g} ({z[worst]:.1f} sigma)"
+    n = est.n_offsets
+    # it learnt something: the exit points' errors shrank well below the concealed ones
+    err = np.abs(est.theta[:n] - truth[:n])
+    assert np.sqrt(np.mean(err ** 2)) < 0.35 * np.sqrt(np.mean(truth[:n] ** 2))
+    # the masts' x and y compliance are fixed to a few per cent
+    cxy = [j for j, k in enumerate(est.names) if k[:2] in ("cx", "cy")]
+    assert np.all(np.abs(est.theta[cxy] - truth[cxy]) < 0.05 * truth[cxy])
+    assert not [e for e in est.events if e.kind == "sudden_change"], est.events
+
+
+def test_nothing_concealed_finds_nothing(model):
+    plant = Plant(model, model, seed=5)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    res = run(est, plant, path(6, 45))
+    n = est.n_offsets
+    z = est.theta[:n] / est.sd[:n]
+    assert np.abs(z).max() < 3.0, f"offsets found in noise: {np.abs(z).max():.1f} sigma"
+    nc = est.n_compliance
+    c_true = model.compliance.ravel()
+    assert np.all(np.abs(est.theta[n:n + nc] - c_true) < 3.0 * est.sd[n:n + nc])
+    assert est.events == [], est.events
+    # the innovations are as large as the noise says (mean NIS per dof near one)
+    nis = sum(r.nis for r in res) / sum(r.dof for r in res)
+    assert 0.6 < nis < 1.5, nis
+
+
+def test_sudden_change_is_an_event(model):
+    plant = Plant(model, model, seed=7)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    run(est, plant, path(8, 21))
+    assert est.events == [], est.events
+    # the exit point of cable 21 moves 5 mm (a pulley slipped); the encoders keep their reference
+    plant.truth = apply_effects(model, {"exit_point_offset": {"dx_21": 0.005}})
+    res = run(est, plant, path(9, 9), start=10.0)
+    kinds = [e.kind for r in res for e in r.events]
+    assert "sudden_change" in kinds, [r.nis for r in res]
+
+
+def test_untracked_converges_too(model):
+    """Without tracker fixes the pose is taken as commanded and its error projected out."""
+    eff = concealed(model, seed=11)
+    plant = Plant(model, apply_effects(model, eff), seed=12)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    run(est, plant, path(13, 45), tracked=False)
+    truth = plant.truth_theta(est, eff)
+    z = (est.theta - truth) / est.sd
+    assert np.abs(z).max() < 3.0, est.names[int(np.argmax(np.abs(z)))]
+
+
+def _junk(plant, rng, i, p):
+    m = plant.measure(p, 0.1 * i)
+    return Measurement(m.pose, m.tensions, m.lengths + rng.uniform(-2.0, 2.0, 8), True, m.t)
+
+
+def test_absurd_data_are_not_learnt(model):
+    plant = Plant(model, model, seed=3)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    before = est.theta.copy()
+    rng = np.random.default_rng(4)
+    for i, p in enumerate(path(4, 4)):
+        assert est.update([_junk(plant, rng, i, p)]).rejected
+    np.testing.assert_array_equal(est.theta, before)
+    assert {e.kind for e in est.events} == {"sudden_change"}
+
+
+def test_bounds_hold_on_absurd_data_learnt(model):
+    """With the gate off, junk is learnt from: still within physical bounds, with events."""
+    plant = Plant(model, model, seed=3)
+    est = OnlineIdentifier(model, P0, plant.init_readings, options=IdentOptions(gate=False))
+    rng = np.random.default_rng(4)
+    for i, p in enumerate(path(4, 8)):
+        est.update([_junk(plant, rng, i, p)])
+        assert np.all(est.theta >= est.lower) and np.all(est.theta <= est.upper)
+    kinds = {e.kind for e in est.events}
+    assert kinds & {"large_correction", "bound"}, kinds
+    assert np.all(np.isfinite(est.theta)) and np.all(np.isfinite(est.P))
+
+
+def test_growing_covariance_is_an_event(model):
+    """Nothing observed (samples only at the initialisation pose, where every model agrees)
+    while the parameters random-walk: the covariance grows."""
+    plant = Plant(model, model, seed=1)
+    opt = IdentOptions(walk_offset=1e-2, grow_updates=5)
+    est = OnlineIdentifier(model, P0, plant.init_readings, options=opt)
+    for i in range(10):
+        est.update([plant.measure(P0, float(i))])
+    assert "covariance_growing" in {e.kind for e in est.events}, est.events
+
+
+def test_identifiability_of_paths(model):
+    plant = Plant(model, model, seed=1)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    one_point = [plant.measure(P0 + np.r_[1.0, 0.5, 0, 0, 0, 0], 0.0)] * 5
+    rich = [plant.measure(p, 0.0) for p in path(3, 30)]
+    few = est.fisher(one_point)
+    many = est.fisher(rich)
+    # one pose gives 8 numbers: not 44 parameters; a varied path fixes the exit points' and
+    # the masts' x/y compliance, and still not their torsion (z)
+    assert few.rank <= 8 and len(few.undetermined()) >= len(est.names) - 8
+    assert many.rank > few.rank
+    assert all(many.determined[:est.n_offsets])
+    assert "cz_1" in many.undetermined() and "cx_1" not in many.undetermined()
+
+
+def test_identified_robot_is_the_effects_and_writes(model):
+    est = OnlineIdentifier(model, P0, pose_statics(model, P0).tensions)
+    th = est.theta.copy()
+    th[0], th[est.n_offsets + 2] = 0.003, 0.0  # dx of the first cable; a rigid z axis
+    est.theta = th
+    H = est.to_robot()
+    same = apply_effects(model, est.effects())
+    for f in ("exits", "stiffness", "length_offset"):
+        np.testing.assert_array_equal(getattr(H, f), getattr(same, f))
+    text = dumps_robot(H)
+    back = parse_robot(__import__("tomllib").loads(text))
+    np.testing.assert_allclose(back.exits, H.exits)
+    assert np.isinf(back.stiffness[0, 2])
+
+
+def test_handover_is_rate_limited(model):
+    est = OnlineIdentifier(model, P0, pose_statics(model, P0).tensions)
+    hand = ModelHandover(est, rate_offset=1e-3)
+    est.theta = est.theta + np.r_[np.full(est.n_offsets, 0.005), np.zeros(est.n_compliance),
+                                  np.zeros(model.n_cables)]
+    before = hand.theta.copy()
+    th, changed = hand.advance(0.5)
+    assert changed
+    assert np.abs(th - before).max() <= 0.5e-3 + 1e-15
+    for _ in range(20):
+        th, _ = hand.advance(0.5)
+    np.testing.assert_allclose(th, est.theta)
