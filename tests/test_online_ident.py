@@ -218,3 +218,38 @@ def test_handover_is_rate_limited(model):
     for _ in range(20):
         th, _ = hand.advance(0.5)
     np.testing.assert_allclose(th, est.theta)
+
+
+def test_controller_runs_the_identified_model(model):
+    """A controller handed the truth commands the lengths that hold the truth at the pose (its
+    encoder reference unchanged); a hand-over step moves the setpoints by about its size."""
+    from controller.cycle import LengthController
+
+    eff = concealed(model)
+    truth = apply_effects(model, eff)
+    plant = Plant(model, truth, seed=2)
+    ctl = LengthController(model, P0, plant.init_readings)
+    ref = ctl.reference.copy()
+    pose = P0 + np.r_[3.0, -2.0, 0.5, 0.0, 0.0, 0.0]
+    ps = pose_statics(truth, pose)
+    held = ref + ps.unstretched - init_unstretched(truth, P0, plant.init_readings)[0]
+    ctl.step(pose, ps.tensions)  # (the mast update takes the cables' directions of the last cycle)
+    nominal = ctl.step(pose, ps.tensions).lengths
+    ctl.set_model(truth)
+    np.testing.assert_array_equal(ctl.reference, ref)
+    ctl.step(pose, ps.tensions)
+    learned = ctl.step(pose, ps.tensions).lengths
+    assert np.abs(learned - held).max() < 2e-5, np.abs(learned - held).max()
+    assert np.abs(nominal - held).max() > 1e-3  # the nominal model was millimetres off
+    # a hand-over step of at most 0.1 mm per coordinate moves the setpoints by about that
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    hand = ModelHandover(est, rate_offset=1e-3, rate_compliance=1e-7)
+    est.theta = plant.truth_theta(est, eff)
+    ctl.set_model(hand.robot())
+    ctl.step(pose, ps.tensions)
+    a = ctl.step(pose, ps.tensions).lengths
+    hand.advance(0.1)
+    ctl.set_model(hand.robot())
+    ctl.step(pose, ps.tensions)
+    b = ctl.step(pose, ps.tensions).lengths
+    assert 0 < np.abs(b - a).max() < 5e-4, np.abs(b - a).max()
