@@ -111,7 +111,7 @@ class IdentOptions:
     stiffness_min: float = 1e4
     alarm_p: float = 1e-6
     grow_updates: int = 20
-    iterations: int = 2
+    iterations: int = 1
     gate: bool = True
 
 

@@ -26,6 +26,7 @@ MODULES: tuple[str, ...] = (
     "bench.benchmarks.paper",
     "bench.benchmarks.commission",
     "bench.benchmarks.master_loss",
+    "bench.benchmarks.learn",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}
