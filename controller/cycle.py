@@ -130,6 +130,16 @@ class LengthController:
         self.init_tensions = ps0.tensions  #: true tensions at p0 [N]
         self._planned = ps0.tensions.copy()  # substitutes for invalid readings
 
+    @property
+    def init_pose(self) -> np.ndarray:
+        """The pose p0 the encoders were referenced at (6,) [m, rad]."""
+        return self._p0.copy()
+
+    @property
+    def init_readings(self) -> np.ndarray | None:
+        """The load cells' readings at initialisation (n,) [N] (None: none were given)."""
+        return None if self._init_readings is None else self._init_readings.copy()
+
     def set_model(self, robot: Robot) -> None:
         """Run with another model of the same robot from the next cycle on (an identified one,
         handed over at a bounded rate: :class:`controller.online_ident.ModelHandover`): its

@@ -77,6 +77,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--react", action="append", default=[], metavar="CONDITION=REACTION",
                    help="change a supervisor reaction, e.g. slack=log (repeatable; "
                         "conditions and defaults: docs/guide/safety-reactions.md)")
+    p.add_argument("--learn", action="store_true",
+                   help="identify the exit points and mast stiffnesses online from the tracker's "
+                   "fixes, tensions and encoders, and run the controller with the identified "
+                   "model, handed over at a bounded rate (lock-step only; "
+                   "docs/explanation/online-identification.md)")
+    p.add_argument("--learn-period", type=float, default=0.5, metavar="S",
+                   help="seconds of loop time between two estimator updates (default 0.5)")
+    p.add_argument("--learn-sigma-length", type=float, default=5e-4, metavar="M",
+                   help="the estimator's length noise per sample [m] (default 5e-4: the "
+                   "winding repeatability of a visit, not the encoders' resolution)")
+    p.add_argument("--learn-out", metavar="ROBOT.toml", default=None,
+                   help="write the identified model as a robot.toml at the end of the run")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     g = p.add_argument_group("the paper's campaigns (paper-paths, paper-poses)")
@@ -168,6 +180,11 @@ def _run(args: argparse.Namespace, created: list) -> int:
     from controller.winch import load_winches
     from firmware_sim.scenario import ScenarioError, load_scenario
 
+    if args.learn and args.realtime:
+        return _fail(args, 2, "--learn runs the estimator inside the loop's thread: lock-step "
+                              "only (drop --realtime)")
+    if not args.learn_period > 0:
+        return _fail(args, 2, f"--learn-period: {args.learn_period} s, must be > 0")
     try:
         sc_path = resolve_scenario(args.scenario)
         sc = load_scenario(sc_path)
@@ -321,9 +338,17 @@ def _run(args: argparse.Namespace, created: list) -> int:
                                init_pose=sc.init_pose if args.init_pose == "given" else None,
                                max_duration_s=args.duration, reactions=reactions,
                                rt_priority=args.rt_priority)
+            learner = None
+            if args.learn:
+                from bench.dryrun.learn import LoopLearner
+                from controller.online_ident import IdentOptions
+                learner = LoopLearner(world.tracker, args.learn_period,
+                                      IdentOptions(sigma_length=args.learn_sigma_length,
+                                                   prior_offset=0.05))
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
-                               on_progress=_progress_printer(args.quiet, args.duration), stop=stop)
+                               on_progress=_progress_printer(args.quiet, args.duration), stop=stop,
+                               on_cycle=learner)
             res = loop.run()
         finally:
             if injector is not None:
@@ -353,6 +378,13 @@ def _run(args: argparse.Namespace, created: list) -> int:
         "reference_offset_m": res.reference_offset_m, "drive_states": res.drive_states,
         "plots": plots, "rig": args.rig, "scheduling": res.scheduling,
     }
+    if learner is not None:
+        out["learn"] = learner.report()
+        if args.learn_out and learner.identified() is not None:
+            from controller.robot import save_robot
+            out["learn"]["robot"] = str(save_robot(
+                learner.identified(), args.learn_out,
+                header=f"identified online by cdpr dry-run --learn from {model.name}"))
     if args.json:
         print(json.dumps(out))
     else:
