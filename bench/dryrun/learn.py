@@ -36,14 +36,29 @@ class LearnSummary:
 class LoopLearner:
     """Online identification for one run: ``tracker`` (``read()`` -> ``.valid``, ``.pose``,
     ``.t_s``); ``period_s`` [s] between estimator updates and hand-overs; ``options`` the
-    estimator's noise and limits; ``rate_offset`` [m/s] the hand-over's rate."""
+    estimator's noise and limits; ``rate_offset`` [m/s] the hand-over's rate; ``per_update``:
+    samples kept per update, spread over the period (the errors of one visit of the winches
+    are shared by its samples: more of them would count the same error as independent);
+    ``sync_s`` [s]: a fix is paired with the cycle's readings only when its time is within
+    this of theirs (moving at 0.1 m/s, 0.1 s between them is a centimetre of error);
+    ``still_s`` [s]: samples are kept only once the commanded pose has stood still this long
+    (the simulated plant settles at its own rate: while moving, the fix, the lengths and the
+    tensions are of different instants; measured on paper-centre, 10 to 20 mm of length
+    residual at 0.1 m/s even under the true robot)."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
-                 rate_offset: float = 2e-3) -> None:
+                 rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
+                 still_s: float = 0.3) -> None:
         self.tracker = tracker
         self.period_s = float(period_s)
         self.options = options
         self.rate_offset = rate_offset
+        self.sync_s = float(sync_s)
+        self.still_s = float(still_s)
+        self._last_des: np.ndarray | None = None
+        self._still_since = -np.inf
+        self._spacing = self.period_s / max(int(per_update), 1)
+        self._last_kept = -np.inf
         self.ident: OnlineIdentifier | None = None
         self.hand: ModelHandover | None = None
         self.summary = LearnSummary()
@@ -65,9 +80,18 @@ class LoopLearner:
             self._start(ctl)
             self._next = t + self.period_s
         tr = self.tracker.read()
-        if tr.valid and tr.t_s > self._last_fix and np.all(np.isfinite(tr.pose)) \
-                and np.all(r.tensions_ok):
+        # a fix of the plant as of this cycle's readings (the tracker measures the pose the
+        # plant settled in for these lengths and tensions: an older fix is of other lengths)
+        now = abs(tr.t_s - r.t_s) <= self.sync_s
+        moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
+        self._last_des = np.array(pose_des, float)
+        if moved:
+            self._still_since = t
+        still = t - self._still_since >= self.still_s
+        if tr.valid and now and still and tr.t_s > self._last_fix and np.all(np.isfinite(tr.pose)) \
+                and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
             self._last_fix = tr.t_s
+            self._last_kept = t
             self._batch.append(Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
                                            np.array(r.lengths_m), True, t))
         if t < self._next:
