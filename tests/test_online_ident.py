@@ -35,8 +35,12 @@ class Plant:
         ps = pose_statics(self.truth, pose)
         lengths = self.ref + ps.unstretched - self.u0 + self.rng.normal(0, NOISE["length"], n)
         tau = ps.tensions + self.rng.normal(0, NOISE["tau"], n)
-        fix = pose + np.r_[self.rng.normal(0, NOISE["pos"], 3), self.rng.normal(0, NOISE["rot"], 3)]
-        return Measurement(fix if tracked else pose, tau, lengths, tracked, t)
+        if tracked:
+            fix = pose + np.r_[self.rng.normal(0, NOISE["pos"], 3),
+                               self.rng.normal(0, NOISE["rot"], 3)]
+        else:  # the commanded pose: the platform stands millimetres away from it
+            fix = pose + np.r_[self.rng.normal(0, 5e-3, 3), self.rng.normal(0, 2e-3, 3)]
+        return Measurement(fix, tau, lengths, tracked, t)
 
     def truth_theta(self, est: OnlineIdentifier, effects: dict) -> np.ndarray:
         """The parameters of the truth in the estimator's order (length offsets: the reference
@@ -130,10 +134,15 @@ def test_untracked_converges_too(model):
     eff = concealed(model, seed=11)
     plant = Plant(model, apply_effects(model, eff), seed=12)
     est = OnlineIdentifier(model, P0, plant.init_readings)
-    run(est, plant, path(13, 45), tracked=False)
+    res = run(est, plant, path(13, 45), tracked=False)
+    assert not any(r.rejected for r in res), [e.detail for r in res for e in r.events]
     truth = plant.truth_theta(est, eff)
     z = (est.theta - truth) / est.sd
     assert np.abs(z).max() < 3.0, est.names[int(np.argmax(np.abs(z)))]
+    n = est.n_offsets  # and it learnt what 2 equations a pose can fix
+    cxy = [j for j, k in enumerate(est.names) if k[:2] in ("cx", "cy")]
+    assert np.all(np.abs(est.theta[cxy] - truth[cxy]) < 0.2 * truth[cxy])
+    assert np.mean(est.sd[:n]) < 0.6 * est.opt.prior_offset, np.mean(est.sd[:n])
 
 
 def _junk(plant, rng, i, p):
