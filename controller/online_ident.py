@@ -373,14 +373,15 @@ class OnlineIdentifier:
             K = np.linalg.solve(Sc.T, np.linalg.solve(Sc, Jw @ self.P)).T
             th = prior + K @ y
         step = th - prior
-        big = np.abs(step) > self._max_step
-        if big.any():
+        ratio = float(np.max(np.abs(step) / self._max_step))
+        if ratio > 1.0:  # the same direction, shorter: the gain scaled, the covariance with it
             worst = int(np.argmax(np.abs(step) / self._max_step))
             events.append(Event("large_correction", t, f"{self.names[worst]}: correction "
-                                f"{step[worst]:.3g} beyond {self._max_step[worst]:.3g}"))
-            step = np.clip(step, -self._max_step, self._max_step)
+                                f"{step[worst]:.3g} beyond {self._max_step[worst]:.3g} "
+                                f"(taken {1.0 / ratio:.2f} of it)"))
+            K, step = K / ratio, step / ratio
         IKH = np.eye(len(prior)) - K @ Jw
-        self.P = IKH @ self.P @ IKH.T + K @ K.T  # Joseph form
+        self.P = IKH @ self.P @ IKH.T + K @ K.T  # Joseph form: consistent for any gain
         self.theta = self._bounded(self.theta + step, t, events)
         self._check_growth(t, events)
         self.updates += 1
