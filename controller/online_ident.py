@@ -177,6 +177,9 @@ class OnlineIdentifier:
         self._fd = np.r_[np.full(3 * n, FD_OFFSET), np.full(3 * m, FD_COMPLIANCE),
                          np.full(n, FD_OFFSET)]
         self._groups = self._column_groups()
+        #: [N] a cable read below this is slack (the diagnosis's threshold: four times the
+        #: load cells' noise, at least 1 N)
+        self.slack_threshold = max(1.0, 4.0 * self.opt.sigma_tension)
         self._t_last: float | None = None
         self._grow = 0
         self._trace_last = float(np.trace(self.P))
@@ -325,12 +328,17 @@ class OnlineIdentifier:
             if not (np.isfinite(r[k]).all() and np.isfinite(J[k]).all()
                     and np.isfinite(Jp[k]).all()):
                 continue
-            R = np.diag(o.sigma_length ** 2 + (Jt[k] * o.sigma_tension) ** 2)
-            rk, Jk = r[k], J[k]
+            # a slack cable's reading says only that it is at least as long as its chord (the
+            # diagnosis's one-sided residual): no equation
+            taut = true_tensions(self.model, readings[k]) >= self.slack_threshold
+            if not b.tracked and np.count_nonzero(taut) <= 6:
+                continue
+            R = np.diag(o.sigma_length ** 2 + (Jt[k][taut] * o.sigma_tension) ** 2)
+            rk, Jk, Jpk = r[k][taut], J[k][taut], Jp[k][taut]
             if b.tracked:
-                R = R + (Jp[k] * sp) @ (Jp[k] * sp).T
-            else:  # the n - 6 directions orthogonal to the pose's
-                q, _ = np.linalg.qr(Jp[k], mode="complete")
+                R = R + (Jpk * sp) @ (Jpk * sp).T
+            else:  # the directions orthogonal to the pose's
+                q, _ = np.linalg.qr(Jpk, mode="complete")
                 Q2 = q[:, 6:]
                 rk, Jk, R = Q2.T @ rk, Q2.T @ Jk, Q2.T @ R @ Q2
             L = np.linalg.cholesky(R)

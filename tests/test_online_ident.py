@@ -129,6 +129,23 @@ def test_sudden_change_is_an_event(model):
     assert "sudden_change" in kinds, [r.nis for r in res]
 
 
+def test_slack_cable_says_nothing():
+    """A cable read at zero tension hangs longer than its chord: its length is no equation
+    (the diagnosis's one-sided residual), so neither an event nor a finding. (Rigid masts:
+    the made-up reading does not move the other cable's exit point.)"""
+    model = rocaspect()
+    plant = Plant(model, model, seed=21)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    for i, p in enumerate(path(22, 12)):
+        m = plant.measure(p, 0.1 * i)
+        tau, length = m.tensions.copy(), m.lengths.copy()
+        tau[2], length[2] = 0.3, length[2] + 0.03  # cable 21 slack, 30 mm paid out
+        est.update([Measurement(m.pose, tau, length, True, m.t)])
+    assert est.events == [], est.events
+    z = est.theta[6:9] / est.sd[6:9]
+    assert np.abs(z).max() < 3.0, z
+
+
 def test_untracked_converges_too(model):
     """Without tracker fixes the pose is taken as commanded and its error projected out."""
     eff = concealed(model, seed=11)
