@@ -472,13 +472,16 @@ class Identifiability:
 class ModelHandover:
     """The model the controller uses, moved toward the estimate at a bounded rate: at most
     ``rate_offset`` [m/s] per exit coordinate and ``rate_compliance`` [rad/(N m)/s] per joint
-    axis, so the setpoints never jump. ``advance(theta_est, dt)`` returns the new model's
-    parameters and whether they changed."""
+    axis, so the setpoints never jump; only the parameters the data determine move
+    (:meth:`target`). ``advance(dt)`` returns the new model's parameters and whether they
+    changed."""
 
     def __init__(self, ident: OnlineIdentifier, rate_offset: float = 2e-3,
-                 rate_compliance: float = 2e-6) -> None:
+                 rate_compliance: float = 2e-6, determined: float = 0.3) -> None:
         self.ident = ident
         self.theta = ident.theta.copy()
+        self._start = ident.theta.copy()
+        self.determined = float(determined)
         n, nc = ident.n_offsets, ident.n_compliance
         self._rate = np.r_[np.full(n, rate_offset), np.full(nc, rate_compliance),
                            np.full(len(self.theta) - n - nc, rate_offset)]
@@ -486,10 +489,18 @@ class ModelHandover:
     def advance(self, dt: float) -> tuple[np.ndarray, bool]:
         """Move toward the current estimate for ``dt`` [s]."""
         lim = self._rate * max(dt, 0.0)
-        delta = np.clip(self.ident.theta - self.theta, -lim, lim)
+        delta = np.clip(self.target() - self.theta, -lim, lim)
         changed = bool(np.any(delta != 0))
         self.theta = self.theta + delta
         return self.theta, changed
+
+    def target(self) -> np.ndarray:
+        """Where the hand-over heads: the estimate of each parameter the data determine (its
+        standard deviation below ``determined`` of its prior's), the starting value of the
+        others (what nothing fixes stays as the model had it, however the estimate wanders)."""
+        ident = self.ident
+        fixed = ident.sd < self.determined * np.sqrt(ident.prior)
+        return np.where(fixed, ident.theta, self._start)
 
     def robot(self) -> Robot:
         """The model the controller uses now."""

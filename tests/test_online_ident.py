@@ -232,9 +232,19 @@ def test_identified_robot_is_the_effects_and_writes(model):
     assert np.isinf(back.stiffness[0, 2])
 
 
+def test_handover_moves_determined_parameters_only(model):
+    est = OnlineIdentifier(model, P0, pose_statics(model, P0).tensions)
+    hand = ModelHandover(est)
+    est.theta = est.theta + 1e-3  # every parameter moved; only dx_11 is known well
+    est.P[0, 0] = (0.1 * est.opt.prior_offset) ** 2
+    target = hand.target()
+    assert target[0] == est.theta[0]
+    np.testing.assert_array_equal(target[1:], hand.theta[1:])
+
+
 def test_handover_is_rate_limited(model):
     est = OnlineIdentifier(model, P0, pose_statics(model, P0).tensions)
-    hand = ModelHandover(est, rate_offset=1e-3)
+    hand = ModelHandover(est, rate_offset=1e-3, determined=np.inf)
     est.theta = est.theta + np.r_[np.full(est.n_offsets, 0.005), np.zeros(est.n_compliance),
                                   np.zeros(model.n_cables)]
     before = hand.theta.copy()
@@ -269,7 +279,7 @@ def test_controller_runs_the_identified_model(model):
     assert np.abs(nominal - held).max() > 1e-3  # the nominal model was millimetres off
     # a hand-over step of at most 0.1 mm per coordinate moves the setpoints by about that
     est = OnlineIdentifier(model, P0, plant.init_readings)
-    hand = ModelHandover(est, rate_offset=1e-3, rate_compliance=1e-7)
+    hand = ModelHandover(est, rate_offset=1e-3, rate_compliance=1e-7, determined=np.inf)
     est.theta = plant.truth_theta(est, eff)
     ctl.set_model(hand.robot())
     ctl.step(pose, ps.tensions)
