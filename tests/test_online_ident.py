@@ -289,3 +289,26 @@ def test_controller_runs_the_identified_model(model):
     ctl.step(pose, ps.tensions)
     b = ctl.step(pose, ps.tensions).lengths
     assert 0 < np.abs(b - a).max() < 5e-4, np.abs(b - a).max()
+
+
+def test_same_residual_as_the_diagnosis(model):
+    """One physics: the estimator's residual is the diagnosis's inverse length residual
+    (bench/diagnosis/residuals.py) for the same hypothesis and samples."""
+    from bench.diagnosis.residuals import ResidualModel
+    from bench.diagnosis.samples import Samples
+
+    eff = concealed(model)
+    plant = Plant(model, apply_effects(model, eff), seed=2)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    ms = [plant.measure(p, 1.0 + i) for i, p in enumerate(path(3, 4))]
+    N, n = len(ms), model.n_cables
+    s = Samples(t=np.array([m.t for m in ms]), pose_des=np.array([m.pose for m in ms]),
+                pose_meas=np.array([m.pose for m in ms]),
+                l_meas=np.array([m.lengths for m in ms]),
+                tau=np.array([m.tensions for m in ms]), exit_meas=np.full((N, n, 3), np.nan),
+                count=np.ones(N), target=np.arange(N), is_init=np.zeros(N, bool))
+    rm = ResidualModel(s, model, P0, plant.init_readings, reference=est.reference)
+    theta = plant.truth_theta(est, eff) + 1e-3  # any hypothesis
+    diag = rm.blocks(est.robot_at(theta)).length
+    ours = est.residuals(theta, s.pose_meas, s.tau, s.l_meas)
+    np.testing.assert_allclose(ours, diag, atol=1e-9)
