@@ -120,8 +120,11 @@ class LoopLearner:
         return out
 
     def identified(self) -> Robot | None:
-        """The identified robot (None before the first cycle)."""
-        return None if self.ident is None else self.ident.to_robot()
+        """The identified robot: the estimate of the parameters the run determined, the
+        model's values of the others (the hand-over's target; None before the first cycle)."""
+        if self.ident is None:
+            return None
+        return self.ident.robot_at(self.hand.target(), f"{self.ident.model.name}_identified")
 
     def report(self) -> dict:
         """The summary with the estimate: exit offsets [mm] and their largest sd [mm]."""
