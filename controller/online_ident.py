@@ -48,6 +48,7 @@ from controller.robot import Robot
 from controller.statics import (
     batch_statics,
     init_unstretched,
+    pose_statics,
     true_tensions,
     unstretched_from_readings,
 )
@@ -451,6 +452,25 @@ class OnlineIdentifier:
         det = sd < ratio * np.sqrt(prior)
         ev = np.linalg.eigvalsh(F * np.sqrt(np.outer(prior, prior)))
         return Identifiability(self.names, sd, det, int(np.sum(ev > 1.0 / ratio ** 2 - 1.0)))
+
+
+def planned_samples(ident: OnlineIdentifier, poses: np.ndarray,
+                    tracked: bool = True) -> list[Measurement]:
+    """The samples a path's ``poses`` (P,6) would give if the robot were the current estimate
+    (its tension distribution, the lengths that hold it): what :meth:`OnlineIdentifier.fisher`
+    needs to say, before the path runs, which parameters it can fix. Infeasible poses are
+    left out."""
+    H = ident.robot_at()
+    u0, _ = init_unstretched(H, ident.init_pose, true_tensions(H, ident.init_readings))
+    out = []
+    for p in np.asarray(poses, float).reshape(-1, 6):
+        ps = pose_statics(H, p)
+        if not ps.feasible:
+            continue
+        lengths = ident.reference + (ps.unstretched - u0 - H.length_offset) / H.drum_scale
+        readings = H.load_cell_gain * ps.tensions + H.load_cell_offset
+        out.append(Measurement(p, readings, lengths, tracked, 0.0))
+    return out
 
 
 @dataclass(frozen=True)

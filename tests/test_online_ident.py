@@ -8,7 +8,13 @@ import pytest
 
 from controller.cycle import reference_lengths
 from controller.effects import apply_effects
-from controller.online_ident import IdentOptions, Measurement, ModelHandover, OnlineIdentifier
+from controller.online_ident import (
+    IdentOptions,
+    Measurement,
+    ModelHandover,
+    OnlineIdentifier,
+    planned_samples,
+)
 from controller.robot import dumps_robot, parse_robot
 from controller.statics import init_unstretched, pose_statics
 from tests.robots import rocaspect
@@ -215,6 +221,11 @@ def test_identifiability_of_paths(model):
     assert many.rank > few.rank
     assert all(many.determined[:est.n_offsets])
     assert "cz_1" in many.undetermined() and "cx_1" not in many.undetermined()
+    # the same answer from the path's poses alone, before it runs (planned samples)
+    planned = est.fisher(planned_samples(est, np.array(path(3, 30))))
+    assert planned.undetermined() == many.undetermined()
+    untracked = est.fisher(planned_samples(est, np.array(path(3, 30)), tracked=False))
+    assert untracked.rank < many.rank
 
 
 def test_identified_robot_is_the_effects_and_writes(model):
