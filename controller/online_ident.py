@@ -497,11 +497,13 @@ class ModelHandover:
     changed."""
 
     def __init__(self, ident: OnlineIdentifier, rate_offset: float = 2e-3,
-                 rate_compliance: float = 2e-6, determined: float = 0.3) -> None:
+                 rate_compliance: float = 2e-6, determined: float = 0.3,
+                 correlated: float = 0.5) -> None:
         self.ident = ident
         self.theta = ident.theta.copy()
         self._start = ident.theta.copy()
         self.determined = float(determined)
+        self.correlated = float(correlated)
         n, nc = ident.n_offsets, ident.n_compliance
         self._rate = np.r_[np.full(n, rate_offset), np.full(nc, rate_compliance),
                            np.full(len(self.theta) - n - nc, rate_offset)]
@@ -516,10 +518,20 @@ class ModelHandover:
 
     def target(self) -> np.ndarray:
         """Where the hand-over heads: the estimate of each parameter the data determine (its
-        standard deviation below ``determined`` of its prior's), the starting value of the
-        others (what nothing fixes stays as the model had it, however the estimate wanders)."""
+        standard deviation below ``determined`` of its prior's) and all those correlated with it
+        beyond ``correlated`` are determined too; the starting value of the others (what
+        nothing fixes stays as the model had it, however the estimate wanders)."""
         ident = self.ident
-        fixed = ident.sd < self.determined * np.sqrt(ident.prior)
+        sd = ident.sd
+        fixed = sd < self.determined * np.sqrt(ident.prior)
+        # a parameter moves with those it is correlated with, or not at all (a part of a
+        # correction can be worse than none)
+        corr = np.abs(ident.P) / np.maximum(np.outer(sd, sd), 1e-300) > self.correlated
+        for _ in range(len(fixed)):
+            keep = fixed & ~np.any(corr & ~fixed[None, :], axis=1)
+            if np.array_equal(keep, fixed):
+                break
+            fixed = keep
         return np.where(fixed, ident.theta, self._start)
 
     def robot(self) -> Robot:

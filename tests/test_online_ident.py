@@ -253,6 +253,19 @@ def test_handover_moves_determined_parameters_only(model):
     np.testing.assert_array_equal(target[1:], hand.theta[1:])
 
 
+def test_handover_moves_correlated_parameters_together(model):
+    """A determined parameter correlated with an undetermined one does not move alone."""
+    est = OnlineIdentifier(model, P0, pose_statics(model, P0).tensions)
+    hand = ModelHandover(est)
+    est.theta = est.theta + 1e-3
+    sd0 = est.opt.prior_offset
+    est.P[0, 0], est.P[1, 1] = (0.1 * sd0) ** 2, (0.1 * sd0) ** 2  # dx_11, dy_11 known
+    est.P[0, 3] = est.P[3, 0] = 0.9 * 0.1 * sd0 * sd0  # dx_11 tied to dx_12 (unknown)
+    target = hand.target()
+    assert target[1] == est.theta[1]  # dy_11 moves
+    assert target[0] == hand.theta[0] and target[3] == hand.theta[3]  # dx_11 waits for dx_12
+
+
 def test_handover_is_rate_limited(model):
     est = OnlineIdentifier(model, P0, pose_statics(model, P0).tensions)
     hand = ModelHandover(est, rate_offset=1e-3, determined=np.inf)

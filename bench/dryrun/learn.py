@@ -44,15 +44,17 @@ class LoopLearner:
     ``still_s`` [s]: samples are kept only once the commanded pose has stood still this long
     (the simulated plant settles at its own rate: while moving, the fix, the lengths and the
     tensions are of different instants; measured on paper-centre, 10 to 20 mm of length
-    residual at 0.1 m/s even under the true robot)."""
+    residual at 0.1 m/s even under the true robot); ``correlated``: the hand-over's
+    correlation limit (:meth:`~controller.online_ident.ModelHandover.target`)."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
-                 still_s: float = 0.3) -> None:
+                 still_s: float = 0.3, correlated: float = 0.5) -> None:
         self.tracker = tracker
         self.period_s = float(period_s)
         self.options = options
         self.rate_offset = rate_offset
+        self.correlated = float(correlated)
         self.sync_s = float(sync_s)
         self.still_s = float(still_s)
         self._last_des: np.ndarray | None = None
@@ -70,7 +72,8 @@ class LoopLearner:
         readings = ctl.init_readings if ctl.init_readings is not None else ctl.init_tensions
         self.ident = OnlineIdentifier(ctl.robot, ctl.init_pose, readings,
                                       reference=ctl.reference, options=self.options)
-        self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset)
+        self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
+                                  correlated=self.correlated)
 
     def __call__(self, t: float, r, pose_des: np.ndarray,
                  ctl: LengthController) -> list[tuple[str, str]]:
