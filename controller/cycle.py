@@ -91,11 +91,30 @@ class LengthController:
 
     def __init__(self, robot: Robot, init_pose: np.ndarray, init_tensions: np.ndarray | None = None,
                  method: str = "closed_form", plausible_n: float | None = None) -> None:
-        self.robot = robot
         self.method = method
         if plausible_n is None:
             plausible_n = 10.0 * robot.tension_max if np.isfinite(robot.tension_max) else 1e5
         self.plausible_n = float(plausible_n)
+        self._p0 = np.asarray(init_pose, dtype=float)
+        self._init_readings = None if init_tensions is None else np.asarray(init_tensions, float)
+        self.reference = reference_lengths(robot, self._p0)  #: d_model(p0) [m]
+        self._use(robot)
+        self._last = self.reference.copy()
+
+    def _use(self, robot: Robot) -> None:
+        """Take ``robot`` as the model: its constants, and ``u0`` at p0 with the readings at
+        initialisation (the encoder reference :attr:`reference` is kept). Raises ValueError
+        (the model in use unchanged) if the readings are not finite or p0 is infeasible."""
+        p0, tau0 = self._p0, None
+        if self._init_readings is not None:
+            tau0 = true_tensions(robot, self._init_readings)
+            if not np.all(np.isfinite(tau0)):
+                raise ValueError("initialisation tensions must all be finite (got "
+                                 f"{np.round(self._init_readings, 3).tolist()})")
+        ps0 = pose_statics(robot, p0, method=self.method, tensions=tau0)
+        if not ps0.feasible:
+            raise ValueError(f"initialisation pose {p0.tolist()} is not feasible: {ps0.reason}")
+        self.robot = robot
         self._a_star = settled_exits(robot)
         self._r = lever_arms(self._a_star, robot.pivots, robot.mast_index)
         # the model's constants, looked up once (the cycle runs hundreds of times a second)
@@ -104,25 +123,33 @@ class LengthController:
         self._gain, self._loff = robot.load_cell_gain, robot.load_cell_offset
         self._plain_cells = bool(np.all(self._gain == 1) and np.all(self._loff == 0))
         self._compliant = robot.compliant
-        p0 = np.asarray(init_pose, dtype=float)
-        tau0 = None
-        if init_tensions is not None:
-            tau0 = self.true_tensions(init_tensions)
-            if not np.all(np.isfinite(tau0)):
-                raise ValueError("initialisation tensions must all be finite (got "
-                                 f"{np.round(np.asarray(init_tensions, float), 3).tolist()})")
-        ps0 = pose_statics(robot, p0, method=method, tensions=tau0)
-        if not ps0.feasible:
-            raise ValueError(f"initialisation pose {p0.tolist()} is not feasible: {ps0.reason}")
         self._u = ps0.state.u  # cable directions of the last cycle, for the mast update
         self._exits = ps0.exits
-        self.reference = reference_lengths(robot, p0)  #: d_model(p0) [m]
         self.u0 = ps0.unstretched  #: unstretched lengths at p0 [m]
-        self._offset = self.reference - self.u0 - robot.length_offset
         self._scale = robot.drum_scale
-        self._last = self.reference.copy()
         self.init_tensions = ps0.tensions  #: true tensions at p0 [N]
         self._planned = ps0.tensions.copy()  # substitutes for invalid readings
+
+    @property
+    def init_pose(self) -> np.ndarray:
+        """The pose p0 the encoders were referenced at (6,) [m, rad]."""
+        return self._p0.copy()
+
+    @property
+    def init_readings(self) -> np.ndarray | None:
+        """The load cells' readings at initialisation (n,) [N] (None: none were given)."""
+        return None if self._init_readings is None else self._init_readings.copy()
+
+    def set_model(self, robot: Robot) -> None:
+        """Run with another model of the same robot from the next cycle on (an identified one,
+        handed over at a bounded rate: :class:`controller.online_ident.ModelHandover`): its
+        exit points, masts, cables and calibration, and its ``u0`` at p0 with the readings at
+        initialisation; the encoder reference ``d_model(p0)`` stays the one the encoders were
+        referenced by. Raises ValueError (the model in use unchanged) if p0 is infeasible."""
+        if robot.cable_ids != self.robot.cable_ids or robot.mast_ids != self.robot.mast_ids:
+            raise ValueError(f"model {robot.name!r}: cables/masts differ from "
+                             f"{self.robot.name!r}'s")
+        self._use(robot)
 
     def true_tensions(self, measured: np.ndarray) -> np.ndarray:
         """The model's true tensions [N] for load-cell readings (its gain and offset)."""

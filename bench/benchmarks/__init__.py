@@ -27,6 +27,7 @@ MODULES: tuple[str, ...] = (
     "bench.benchmarks.commission",
     "bench.benchmarks.master_loss",
     "bench.benchmarks.realtime_load",
+    "bench.benchmarks.learn",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}

@@ -22,6 +22,10 @@ from pathlib import Path
 WHAT: dict[str, str] = {
     "control_cycle_us": "IK + wrench matrix + tension distribution + mast update, 8 cables",
     "control_cycle_pulley_us": "the same with swivel pulleys of 0.1 m on every cable",
+    "control_cycle_learn_us": "the control cycle with the identified model handed over "
+                              "every 128 cycles (online identification)",
+    "learn_handover_us": "one hand-over of the identified model to the controller",
+    "ident_update_ms": "one online-identification update, 4 tracked samples",
     "equilibrium_ms": "warm-started elasto-static equilibrium, compliant masts",
     "dryrun_speedup": "lock-step dry run in one process: simulated time over wall time",
     "dryrun_cpu_speedup": "the same, simulated time over processor time",

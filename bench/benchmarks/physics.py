@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from bench.benchmarks import median_time, register
@@ -23,13 +25,16 @@ def _robot():
     return r.replace(stiffness=np.tile(PAPER_STIFFNESS, (r.n_masts, 1)))
 
 
-def cycle_time(robot: Robot, reps: int) -> float:
+def cycle_time(robot: Robot, reps: int, hook: Callable[[], None] | None = None,
+               ctl: LengthController | None = None) -> float:
     """Median time [s] of everything a dry-run cycle computes: the feed rate, the
     trajectory's setpoint, the controller's step with measured tensions (mast update, IK,
     wrench matrix, tension distribution, setpoints) and the supervisor's decision; along the
-    paper's centre path, with noisy measured tensions."""
+    paper's centre path, with noisy measured tensions. ``hook``: called once per cycle (e.g. a
+    model hand-over, ``bench/benchmarks/learn.py``); ``ctl``: the controller (default one of
+    ``robot`` referenced at the path's start)."""
     p0 = np.array([10.0, 8.56, 1.2, 0.0, 0.0, 0.0])
-    ctl = LengthController(robot, p0)
+    ctl = LengthController(robot, p0) if ctl is None else ctl
     traj = Trajectory([Line([[10.0, 13.56, 1.2], [10.0, 13.56, 0.6], [10.0, 3.56, 0.6]])], p0)
     n = robot.n_cables
     sup = Supervisor(SupervisorLimits.for_robot(robot.tension_min, robot.tension_max,
@@ -51,6 +56,8 @@ def cycle_time(robot: Robot, reps: int) -> float:
         state["tau"] = out.tensions * noise[k[0] % 64]
         state["l"] = out.lengths
         k[0] += 1
+        if hook is not None:
+            hook()
 
     return median_time(cycle, reps, warmup=50)
 

@@ -104,6 +104,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--react", action="append", default=[], metavar="CONDITION=REACTION",
                    help="change a supervisor reaction, e.g. slack=log (repeatable; "
                         "conditions and defaults: docs/guide/safety-reactions.md)")
+    p.add_argument("--learn", action="store_true",
+                   help="identify the exit points and mast stiffnesses online from the tracker's "
+                   "fixes, tensions and encoders, and run the controller with the identified "
+                   "model, handed over at a bounded rate (lock-step only; "
+                   "docs/explanation/online-identification.md)")
+    p.add_argument("--learn-period", type=float, default=0.5, metavar="S",
+                   help="seconds of loop time between two estimator updates (default 0.5)")
+    p.add_argument("--learn-sigma-length", type=float, default=5e-4, metavar="M",
+                   help="the estimator's length noise per sample [m] (default 5e-4: the "
+                   "winding repeatability of a visit, not the encoders' resolution)")
+    p.add_argument("--learn-out", metavar="ROBOT.toml", default=None,
+                   help="write the identified model as a robot.toml at the end of the run")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.add_argument("--yes", action="store_true",
@@ -349,6 +361,14 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
             parse_address(args.live)
         except ValueError as exc:
             return _fail(args, 2, str(exc))
+    if args.learn and args.realtime:
+        return _fail(args, 2, "--learn runs the estimator inside the loop's thread: lock-step "
+                              "only (drop --realtime)")
+    if args.learn and on_buses:
+        return _fail(args, 2, "--learn on given buses: not yet; the learnt model would drive "
+                              "real winches (run it on the simulated robot)")
+    if not args.learn_period > 0:
+        return _fail(args, 2, f"--learn-period: {args.learn_period} s, must be > 0")
     if args.decimate is not None and args.decimate < 1:
         return _fail(args, 2, f"--decimate {args.decimate}: must be >= 1")
     if not args.plant_rate > 0:
@@ -551,9 +571,17 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                                           and args.init_pose == "given" else None),
                                max_duration_s=args.duration, reactions=reactions,
                                rt_priority=args.rt_priority)
+            learner = None
+            if args.learn:
+                from bench.dryrun.learn import LoopLearner
+                from controller.online_ident import IdentOptions
+                learner = LoopLearner(world.tracker, args.learn_period,
+                                      IdentOptions(sigma_length=args.learn_sigma_length,
+                                                   prior_offset=0.05))
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
-                               on_progress=_progress_printer(args.quiet, args.duration), stop=stop)
+                               on_progress=_progress_printer(args.quiet, args.duration), stop=stop,
+                               on_cycle=learner)
             res = loop.run()
         finally:
             if injector is not None:
@@ -592,6 +620,13 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         "speed_pct": speed_pct,
         "preflight": preflight.as_dict() if preflight is not None else None,
     }
+    if learner is not None:
+        out["learn"] = learner.report()
+        if args.learn_out and learner.identified() is not None:
+            from controller.robot import save_robot
+            out["learn"]["robot"] = str(save_robot(
+                learner.identified(), args.learn_out,
+                header=f"identified online by cdpr dry-run --learn from {model.name}"))
     if args.json:
         print(json.dumps(out))
     else:

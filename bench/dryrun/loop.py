@@ -286,8 +286,12 @@ class ControlLoop:
                  tick: Callable[[], None] | None = None,
                  on_event: Callable[[str], None] | None = None,
                  on_progress: Callable[[LoopResult, float], None] | None = None,
-                 stop: threading.Event | None = None) -> None:
+                 stop: threading.Event | None = None,
+                 on_cycle: Callable[..., list[tuple[str, str]]] | None = None) -> None:
         self.hw, self.tracker, self.model = hw, tracker, model
+        #: called every cycle but the initialisation's and a stop's with (t, readings, desired
+        #: pose, controller); returns events (kind, text) to log (bench/dryrun/learn.py)
+        self.on_cycle = on_cycle
         self.plan, self.opt = plan, options
         self.open_recorder = open_recorder
         self.tick = tick
@@ -603,6 +607,9 @@ class ControlLoop:
                     self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N,
                                       pose_meas, out_tensions, substituted, path_cycle,
                                       res.overruns, state, err)
+            if self.on_cycle is not None and state not in (INIT, QUICK_STOP) and not stopping:
+                for kind, text in self.on_cycle(t, r, pose_des, ctl):
+                    self._event(t, "controller", 0, "", kind, 0, "event", True, text)
             res.simulated_s = k * T
             res.trajectory_s = t_traj
             # ---- end conditions

@@ -1,0 +1,143 @@
+"""``cdpr dry-run --learn``: online identification in the loop (controller/online_ident.py).
+
+The loop hands every cycle to :class:`LoopLearner` (``ControlLoop(on_cycle=...)``). It keeps
+the samples that come with a fresh tracker fix (tensions valid), updates the estimator every
+``period_s`` of loop time with them (the estimator runs at that lower rate, not in the
+cycle's budget), moves the model the controller uses toward the estimate at a bounded rate
+(:class:`~controller.online_ident.ModelHandover`) and hands it over
+(:meth:`~controller.cycle.LengthController.set_model`). The estimator's events come back to
+the loop as events of the run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controller.cycle import LengthController
+from controller.online_ident import IdentOptions, Measurement, ModelHandover, OnlineIdentifier
+from controller.robot import Robot
+
+
+@dataclass
+class LearnSummary:
+    """What the learner did (plain data for ``--json``)."""
+
+    updates: int = 0
+    samples: int = 0
+    rejected: int = 0
+    handovers: int = 0
+    events: list[dict] = field(default_factory=list)
+    offsets_mm: dict[str, float] = field(default_factory=dict)
+    sd_mm_max: float | None = None
+
+
+class LoopLearner:
+    """Online identification for one run: ``tracker`` (``read()`` -> ``.valid``, ``.pose``,
+    ``.t_s``); ``period_s`` [s] between estimator updates and hand-overs; ``options`` the
+    estimator's noise and limits; ``rate_offset`` [m/s] the hand-over's rate; ``per_update``:
+    samples kept per update, spread over the period (the errors of one visit of the winches
+    are shared by its samples: more of them would count the same error as independent);
+    ``sync_s`` [s]: a fix is paired with the cycle's readings only when its time is within
+    this of theirs (moving at 0.1 m/s, 0.1 s between them is a centimetre of error);
+    ``still_s`` [s]: samples are kept only once the commanded pose has stood still this long
+    (the simulated plant settles at its own rate: while moving, the fix, the lengths and the
+    tensions are of different instants; measured on paper-centre, 10 to 20 mm of length
+    residual at 0.1 m/s even under the true robot); ``correlated``: the hand-over's
+    correlation limit (:meth:`~controller.online_ident.ModelHandover.target`)."""
+
+    def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
+                 rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
+                 still_s: float = 0.3, correlated: float = 0.5) -> None:
+        self.tracker = tracker
+        self.period_s = float(period_s)
+        self.options = options
+        self.rate_offset = rate_offset
+        self.correlated = float(correlated)
+        self.sync_s = float(sync_s)
+        self.still_s = float(still_s)
+        self._last_des: np.ndarray | None = None
+        self._still_since = -np.inf
+        self._spacing = self.period_s / max(int(per_update), 1)
+        self._last_kept = -np.inf
+        self.ident: OnlineIdentifier | None = None
+        self.hand: ModelHandover | None = None
+        self.summary = LearnSummary()
+        self._batch: list[Measurement] = []
+        self._last_fix = -np.inf
+        self._next = None
+
+    def _start(self, ctl: LengthController) -> None:
+        readings = ctl.init_readings if ctl.init_readings is not None else ctl.init_tensions
+        self.ident = OnlineIdentifier(ctl.robot, ctl.init_pose, readings,
+                                      reference=ctl.reference, options=self.options)
+        self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
+                                  correlated=self.correlated)
+
+    def __call__(self, t: float, r, pose_des: np.ndarray,
+                 ctl: LengthController) -> list[tuple[str, str]]:
+        """One cycle at loop time ``t`` [s] with the hardware's readings ``r`` (``tensions_N``,
+        ``tensions_ok``, ``lengths_m``): the events (kind, text) to log."""
+        if self.ident is None:
+            self._start(ctl)
+            self._next = t + self.period_s
+        tr = self.tracker.read()
+        # a fix of the plant as of this cycle's readings (the tracker measures the pose the
+        # plant settled in for these lengths and tensions: an older fix is of other lengths)
+        now = abs(tr.t_s - r.t_s) <= self.sync_s
+        moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
+        self._last_des = np.array(pose_des, float)
+        if moved:
+            self._still_since = t
+        still = t - self._still_since >= self.still_s
+        if tr.valid and now and still and tr.t_s > self._last_fix and np.all(np.isfinite(tr.pose)) \
+                and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
+            self._last_fix = tr.t_s
+            self._last_kept = t
+            self._batch.append(Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
+                                           np.array(r.lengths_m), True, t))
+        if t < self._next:
+            return []
+        self._next = t + self.period_s
+        return self._learn(t, ctl)
+
+    def _learn(self, t: float, ctl: LengthController) -> list[tuple[str, str]]:
+        s, out = self.summary, []
+        if self._batch:
+            res = self.ident.update(self._batch)
+            s.updates += 1
+            s.samples += len(self._batch)
+            s.rejected += bool(res.rejected)
+            self._batch = []
+            for e in res.events:
+                s.events.append({"t": e.t, "kind": e.kind, "text": e.detail})
+                out.append((f"learn_{e.kind}", e.detail))
+        _, changed = self.hand.advance(self.period_s)
+        if changed:
+            try:
+                ctl.set_model(self.hand.robot())
+                s.handovers += 1
+            except ValueError as exc:
+                out.append(("learn_handover_refused", str(exc)))
+        return out
+
+    def identified(self) -> Robot | None:
+        """The identified robot: the estimate of the parameters the run determined, the
+        model's values of the others (the hand-over's target; None before the first cycle)."""
+        if self.ident is None:
+            return None
+        return self.ident.robot_at(self.hand.target(), f"{self.ident.model.name}_identified")
+
+    def report(self) -> dict:
+        """The summary with the estimate: exit offsets [mm] and their largest sd [mm]."""
+        s = self.summary
+        if self.ident is not None:
+            n = self.ident.n_offsets
+            s.offsets_mm = {k: round(1e3 * float(v), 3)
+                            for k, v in zip(self.ident.names[:n], self.ident.theta[:n],
+                                            strict=True)}
+            s.sd_mm_max = round(1e3 * float(self.ident.sd[:n].max()), 3)
+        return {"updates": s.updates, "samples": s.samples, "rejected": s.rejected,
+                "handovers": s.handovers, "events": s.events, "offsets_mm": s.offsets_mm,
+                "offset_sd_mm_max": s.sd_mm_max}

@@ -1,0 +1,539 @@
+"""Online identification: the masts' settled exit points and stiffnesses, while the robot works.
+
+A recursive estimator (an extended Kalman filter on constant parameters with a small random
+walk) on the diagnosis's inverse **length residual** (``bench/diagnosis/residuals.py``): at a
+pose ``p`` with load-cell readings ``tau_m`` and encoder readings ``l``,
+
+    r(theta) = L0_H(p, tau) - [ s (l - d_model(p0)) + u0_H + dl ]        (n,) [m]
+
+where ``H`` is the controller's model with the parameters ``theta`` applied
+(:func:`controller.effects.apply_effects`), ``L0_H(p, tau)`` the unstretched lengths that hold
+the platform at ``p`` with the true tensions ``tau`` (masts deflected under them,
+:func:`controller.statics.batch_statics`), and the bracket the unstretched lengths behind the
+encoders by the initialisation convention (:func:`controller.statics.unstretched_from_readings`,
+``u0_H`` from the readings at initialisation, :func:`controller.statics.init_unstretched`).
+The same functions the diagnosis calls: one physics.
+
+Parameters ``theta`` (:attr:`OnlineIdentifier.names`), in F_b:
+
+- ``dx_<cable>``, ``dy_<cable>``, ``dz_<cable>`` [m]: the ``exit_point_offset`` effect, added to
+  the model's surveyed exit points;
+- ``cx_<mast>``, ``cy_<mast>``, ``cz_<mast>`` [rad/(N m)]: the compliance ``1/k`` of each mast's
+  joint axes (the ``mast_compliance`` effect's ``k`` = 1/c; 0 = rigid). Compliance, not
+  stiffness, is estimated: the deflection is linear in it.
+
+A measurement's pose is a tracker fix (``tracked``: its noise is carried into the residual),
+or, without one, the commanded pose: then the residual is projected on the ``n - 6``
+directions a pose error cannot produce (first order), as the diagnosis does without a tracker.
+
+Safety: estimates are clipped to physical bounds (the effects' bounds); a step larger than
+``max_step`` is clipped; an innovation beyond its chi-square threshold (a sudden change), a
+clipped step, an estimate at a bound, a covariance that grows: each is an :class:`Event`.
+The controller never takes the estimate directly: :class:`ModelHandover` moves the model it
+uses toward the estimate at a bounded rate.
+
+Pure: no I/O, no clock (times are arguments).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from controller.cycle import reference_lengths
+from controller.effects import effect_params
+from controller.robot import Robot
+from controller.statics import (
+    batch_statics,
+    init_unstretched,
+    pose_statics,
+    true_tensions,
+    unstretched_from_readings,
+)
+
+#: finite-difference steps: exit offsets [m], compliance [rad/(N m)], pose [m, rad], tension [N]
+FD_OFFSET = 1e-4
+FD_COMPLIANCE = 1e-8
+FD_POSE = 1e-5
+FD_TENSION = 1.0
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One sample: ``pose`` (6,) in F_b [m, rad] (a tracker fix when ``tracked``, else the
+    commanded pose); ``tensions`` (n,) load-cell readings [N]; ``lengths`` (n,) encoder
+    readings [m]; ``t`` [s]."""
+
+    pose: np.ndarray
+    tensions: np.ndarray
+    lengths: np.ndarray
+    tracked: bool = True
+    t: float = 0.0
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something the operator must see: ``kind`` one of ``sudden_change``,
+    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``; ``t`` [s];
+    ``detail``."""
+
+    kind: str
+    t: float
+    detail: str
+
+
+@dataclass
+class IdentOptions:
+    """Noise and safety limits. ``sigma_length`` encoder noise [m]; ``sigma_tension`` load-cell
+    noise [N]; ``sigma_pose`` tracker noise (position [m], orientation [rad]);
+    ``prior_offset`` [m] / ``prior_compliance`` [rad/(N m)] prior standard deviations;
+    ``walk_offset`` [m/sqrt(s)] / ``walk_compliance`` random walk of the parameters;
+    ``max_step_offset`` [m] / ``max_step_compliance`` largest correction per update;
+    ``prior_length`` [m]: a cable length offset expected beyond the encoder reference's
+    uncertainty (0: none); ``stiffness_min`` [N m/rad]: the stiffest bound on a joint's
+    compliance (1/it; the masts' fixed-point iteration diverges near 1e3 for ROCASPECT);
+    ``alarm_p`` false-alarm probability of the innovation test per update;
+    ``grow_updates``: covariance growing over this many updates in a row is an event;
+    ``iterations``: linearisations per update (iterated EKF; 1 = plain EKF); ``gate``: a
+    batch that fails the innovation test is not learnt from (only its event is kept)."""
+
+    sigma_length: float = 5e-5
+    sigma_tension: float = 0.5
+    sigma_pose: tuple[float, float] = (3e-5, 2e-5)
+    prior_offset: float = 0.02
+    prior_compliance: float = 2e-5
+    walk_offset: float = 1e-6
+    walk_compliance: float = 1e-10
+    max_step_offset: float = 0.05
+    max_step_compliance: float = 1e-4
+    prior_length: float = 0.0
+    stiffness_min: float = 1e4
+    alarm_p: float = 1e-6
+    grow_updates: int = 20
+    iterations: int = 1
+    gate: bool = True
+
+
+@dataclass
+class UpdateResult:
+    """One update: ``nis`` normalised innovation squared, ``dof`` its degrees of freedom,
+    ``events`` raised by it, ``used`` the number of samples used, ``rejected`` whether the
+    batch failed the innovation test and was not learnt from."""
+
+    nis: float
+    dof: int
+    events: list[Event] = field(default_factory=list)
+    used: int = 0
+    rejected: bool = False
+
+
+class OnlineIdentifier:
+    """Recursive estimate of exit-point offsets and mast compliances of ``model``.
+
+    ``init_pose`` (6,) and ``init_readings`` (n,) [N]: the pose and load-cell readings when the
+    encoders were referenced (``reference``: d_model(p0) of the model the controller ran with;
+    default that of ``model``). ``theta0``: a starting estimate (default: the model's own
+    compliance, no offsets).
+    """
+
+    def __init__(self, model: Robot, init_pose: np.ndarray, init_readings: np.ndarray,
+                 reference: np.ndarray | None = None, options: IdentOptions | None = None,
+                 theta0: np.ndarray | None = None) -> None:
+        self.model = model
+        self.opt = options or IdentOptions()
+        self.init_pose = np.asarray(init_pose, float)
+        self.init_readings = np.asarray(init_readings, float)
+        self.reference = reference_lengths(model, self.init_pose) if reference is None \
+            else np.asarray(reference, float)
+        n, m = model.n_cables, model.n_masts
+        self.n_offsets = 3 * n
+        self.n_compliance = 3 * m
+        self.names = [s.key for s in effect_params("exit_point_offset", model)] + \
+            [f"c{ax}_{mid}" for mid in model.mast_ids for ax in "xyz"] + \
+            [s.key for s in effect_params("cable_length_offset", model)]
+        lo_l, hi_l = effect_params("cable_length_offset", model)[0].bounds
+        lo_o, hi_o = effect_params("exit_point_offset", model)[0].bounds
+        k_lo = max(effect_params("mast_compliance", model)[0].bounds[0] if m else 0.0,
+                   self.opt.stiffness_min)
+        #: physical bounds of each parameter (lower, upper) (p,)
+        self.lower = np.r_[np.full(3 * n, lo_o), np.zeros(3 * m), np.full(n, lo_l)]
+        self.upper = np.r_[np.full(3 * n, hi_o), np.full(3 * m, 1.0 / k_lo), np.full(n, hi_l)]
+        c0 = model.compliance.ravel()
+        self.theta = np.r_[np.zeros(3 * n), c0, np.zeros(n)] if theta0 is None \
+            else np.array(theta0, float)
+        ref_cov = self._reference_cov()
+        #: (p,) prior variances: the scale the covariance is compared in
+        self.prior = np.r_[np.full(3 * n, self.opt.prior_offset ** 2),
+                           np.full(3 * m, self.opt.prior_compliance ** 2), np.diag(ref_cov)]
+        self.P = np.diag(self.prior)
+        self.P[-n:, -n:] = ref_cov
+        self.P0 = self.P.copy()  #: the prior covariance
+        self._walk = np.r_[np.full(3 * n, self.opt.walk_offset ** 2),
+                           np.full(3 * m, self.opt.walk_compliance ** 2), np.zeros(n)]
+        self._max_step = np.r_[np.full(3 * n, self.opt.max_step_offset),
+                               np.full(3 * m, self.opt.max_step_compliance),
+                               np.full(n, self.opt.max_step_offset)]
+        self._fd = np.r_[np.full(3 * n, FD_OFFSET), np.full(3 * m, FD_COMPLIANCE),
+                         np.full(n, FD_OFFSET)]
+        self._groups = self._column_groups()
+        #: [N] a cable read below this is slack (the diagnosis's threshold: four times the
+        #: load cells' noise, at least 1 N)
+        self.slack_threshold = max(1.0, 4.0 * self.opt.sigma_tension)
+        self._t_last: float | None = None
+        self._grow = 0
+        self._trace_last = float(np.trace(self.P))
+        self.events: list[Event] = []
+        self.updates = 0
+
+    # ----- the model ------------------------------------------------------------------
+    def robot_at(self, theta: np.ndarray | None = None, name: str | None = None) -> Robot:
+        """The model with parameters ``theta`` (default the estimate) applied."""
+        th = self.theta if theta is None else np.asarray(theta, float)
+        n, nc = self.n_offsets, self.n_compliance
+        exits = self.model.exits + th[:n].reshape(-1, 3)
+        c = th[n:n + nc].reshape(-1, 3)
+        stiffness = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.inf)
+        return self.model.replace(exits=exits, stiffness=stiffness,
+                                  length_offset=self.model.length_offset + th[n + nc:],
+                                  name=name or self.model.name)
+
+    def effects(self, theta: np.ndarray | None = None) -> dict[str, dict[str, float]]:
+        """The parameters as effects of :mod:`controller.effects` (what
+        :meth:`robot_at` applies: ``apply_effects(model, effects(theta))`` is the same robot)."""
+        th = self.theta if theta is None else np.asarray(theta, float)
+        n, nc = self.n_offsets, self.n_compliance
+        off = {k: float(v) for k, v in zip(self.names[:n], th[:n], strict=True)}
+        stiff = {f"k{k[1:]}": (1.0 / float(c) if c > 0 else float("inf"))
+                 for k, c in zip(self.names[n:n + nc], th[n:n + nc], strict=True)}
+        dl = {k: float(v) for k, v in zip(self.names[n + nc:], th[n + nc:], strict=True)}
+        return {"exit_point_offset": off, "mast_compliance": stiff, "cable_length_offset": dl}
+
+    def _reference_cov(self) -> np.ndarray:
+        """(n,n) [m^2] how uncertain the cables' encoder references are: the load cells' noise
+        at initialisation carried into ``u0`` (stretch, and the masts' deflection: correlated
+        between the cables of a mast) and the encoders' noise; the prior of the length offsets
+        ``dl`` (a constant length error from the initialisation on looks like an exit point's
+        move along the cable)."""
+        H, o = self.model, self.opt
+        n = H.n_cables
+        tau0 = true_tensions(H, self.init_readings)
+        u_a = init_unstretched(H, self.init_pose, tau0)[0]
+        J = np.empty((n, n))
+        for j in range(n):
+            d = np.zeros(n)
+            d[j] = FD_TENSION
+            J[:, j] = (init_unstretched(H, self.init_pose, tau0 + d)[0] - u_a) / FD_TENSION
+        return o.sigma_tension ** 2 * J @ J.T + \
+            np.eye(n) * (o.sigma_length ** 2 + o.prior_length ** 2)
+
+    def to_robot(self, name: str | None = None) -> Robot:
+        """The identified robot description (write it with
+        :func:`controller.robot.save_robot`)."""
+        return self.robot_at(self.theta, name or f"{self.model.name}_identified")
+
+    @property
+    def sd(self) -> np.ndarray:
+        """Standard deviations of the estimate (p,) in the parameters' units."""
+        return np.sqrt(np.maximum(np.diag(self.P), 0.0))
+
+    def residuals(self, theta: np.ndarray, poses: np.ndarray, readings: np.ndarray,
+                  lengths: np.ndarray) -> np.ndarray:
+        """Length residuals (K,n) [m] of the model with ``theta`` at ``poses`` (K,6) with
+        load-cell ``readings`` (K,n) [N] and encoder ``lengths`` (K,n) [m] (NaN where the
+        statics fail, all NaN if the initialisation pose is infeasible under ``theta``)."""
+        H = self.robot_at(theta)
+        try:
+            u0, _ = init_unstretched(H, self.init_pose, true_tensions(H, self.init_readings))
+        except ValueError:
+            return np.full(np.shape(lengths), np.nan)
+        read = unstretched_from_readings(H, lengths, self.reference, u0)
+        bs = batch_statics(H, poses, true_tensions(H, readings))
+        return np.where(bs.feasible[:, None], bs.unstretched - read, np.nan)
+
+    # ----- Jacobians -------------------------------------------------------------------
+    def _column_groups(self) -> list[np.ndarray]:
+        """Parameters perturbed together in one evaluation: with the tensions measured, a
+        mast's exit points hang only on its own cables' parameters, so one parameter per mast
+        (the same slot: cable j, axis a, or joint axis a) shares an evaluation."""
+        mi = self.model.mast_index
+        n, m = self.model.n_cables, self.model.n_masts
+        slot = np.array([int(np.sum(mi[:c] == mi[c])) for c in range(n)])
+        groups: dict[tuple, list[int]] = {}
+        for c in range(n):
+            for a in range(3):
+                groups.setdefault(("o", slot[c], a), []).append(3 * c + a)
+        for i in range(m):
+            for a in range(3):
+                groups.setdefault(("c", a), []).append(3 * n + 3 * i + a)
+        groups[("l",)] = list(range(3 * n + 3 * m, 4 * n + 3 * m))
+        return [np.array(g) for g in groups.values()]
+
+    def _support(self, j: int) -> np.ndarray:
+        """The cables (n,) bool whose residual parameter ``j`` can move (its mast's)."""
+        mi = self.model.mast_index
+        n, nc = self.n_offsets, self.n_compliance
+        if j >= n + nc:  # a length offset: its own cable
+            return np.arange(len(mi)) == j - n - nc
+        mast = mi[j // 3] if j < n else (j - n) // 3
+        return mi == mast
+
+    def jacobian(self, theta: np.ndarray, poses: np.ndarray, readings: np.ndarray,
+                 lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(r (K,n), J (K,n,p))``: residuals and their derivatives by the parameters (forward
+        differences, one evaluation per column group)."""
+        r = self.residuals(theta, poses, readings, lengths)
+        J = np.zeros(r.shape + (len(theta),))
+        for g in self._groups:
+            step = self._fd[g]
+            th = theta.copy()
+            up = theta[g] + step <= self.upper[g]
+            th[g] = np.where(up, theta[g] + step, theta[g] - step)  # backward at a bound
+            h = th[g] - theta[g]
+            dr = self.residuals(th, poses, readings, lengths) - r
+            for j, hj in zip(g, h, strict=True):
+                J[:, self._support(j), j] = dr[:, self._support(j)] / hj
+        return r, J
+
+    def nuisance(self, theta: np.ndarray, poses: np.ndarray, readings: np.ndarray,
+                 lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(Jp (K,n,6), Jt (K,n))`` at the estimate: the residuals' derivatives by the pose
+        [m/m, m/rad] and by each cable's own tension [m/N], at ``theta``."""
+        K = len(poses)
+        eye = np.eye(6) * FD_POSE
+        stacked = (poses[:, None, :] + eye[None]).reshape(-1, 6)
+        rep = lambda a: np.repeat(a, 6, axis=0)  # noqa: E731
+        r0 = self.residuals(theta, poses, readings, lengths)
+        rp = self.residuals(theta, stacked, rep(readings), rep(lengths)).reshape(K, 6, -1)
+        Jp = np.swapaxes((rp - r0[:, None, :]) / FD_POSE, 1, 2)
+        rt = self.residuals(theta, poses, readings + FD_TENSION, lengths)
+        return Jp, (rt - r0) / FD_TENSION
+
+    # ----- the update ------------------------------------------------------------------
+    def _rows(self, batch: list[Measurement], theta: np.ndarray,
+              nuis: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
+        """Whitened innovation rows at ``theta``: ``(nu (q,), Jw (q,p), ok samples, nuis)`` for
+        a batch: each sample's residual, noise-whitened; without a tracker fix, projected on
+        the directions a pose error cannot produce (``nuis``: :meth:`nuisance` of the batch,
+        computed when None)."""
+        o = self.opt
+        poses = np.array([b.pose for b in batch], float)
+        readings = np.array([b.tensions for b in batch], float)
+        lengths = np.array([b.lengths for b in batch], float)
+        r, J = self.jacobian(theta, poses, readings, lengths)
+        Jp, Jt = self.nuisance(theta, poses, readings, lengths) if nuis is None else nuis
+        sp = np.r_[np.full(3, o.sigma_pose[0]), np.full(3, o.sigma_pose[1])]
+        nus, Js = [], []
+        for k, b in enumerate(batch):
+            if not (np.isfinite(r[k]).all() and np.isfinite(J[k]).all()
+                    and np.isfinite(Jp[k]).all()):
+                continue
+            # a slack cable's reading says only that it is at least as long as its chord (the
+            # diagnosis's one-sided residual): no equation
+            taut = true_tensions(self.model, readings[k]) >= self.slack_threshold
+            if not b.tracked and np.count_nonzero(taut) <= 6:
+                continue
+            R = np.diag(o.sigma_length ** 2 + (Jt[k][taut] * o.sigma_tension) ** 2)
+            rk, Jk, Jpk = r[k][taut], J[k][taut], Jp[k][taut]
+            if b.tracked:
+                R = R + (Jpk * sp) @ (Jpk * sp).T
+            else:  # the directions orthogonal to the pose's
+                q, _ = np.linalg.qr(Jpk, mode="complete")
+                Q2 = q[:, 6:]
+                rk, Jk, R = Q2.T @ rk, Q2.T @ Jk, Q2.T @ R @ Q2
+            L = np.linalg.cholesky(R)
+            nus.append(-np.linalg.solve(L, rk))
+            Js.append(np.linalg.solve(L, Jk))
+        if not nus:
+            return np.zeros(0), np.zeros((0, len(theta))), np.zeros(0), (Jp, Jt)
+        return np.concatenate(nus), np.vstack(Js), np.ones(len(nus)), (Jp, Jt)
+
+    def update(self, batch: list[Measurement]) -> UpdateResult:
+        """One recursive update with the samples ``batch`` (taken since the last update);
+        returns the innovation test and the events raised (also kept in :attr:`events`)."""
+        if not batch:
+            return UpdateResult(0.0, 0)
+        t = float(batch[-1].t)
+        if self._t_last is not None:  # random walk since the last update
+            self.P = self.P + np.diag(self._walk * max(t - self._t_last, 0.0))
+        self._t_last = t
+        prior = self.theta
+        nu, Jw, ok, nuis = self._rows(batch, prior)
+        events: list[Event] = []
+        if len(nu) == 0:  # the model fails at every sample: nothing learnt, and said
+            events.append(Event("unusable", t, f"no sample of {len(batch)} could be evaluated "
+                                "under the estimate (statics infeasible)"))
+            self.events.extend(events)
+            return UpdateResult(0.0, 0, events, 0, rejected=True)
+        nis = self._innovation_test(nu, Jw, t, events)
+        if events and self.opt.gate:  # not the model's noise: never learnt from
+            self.events.extend(events)
+            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+        th, K, q = prior, None, len(nu)
+        for it in range(self.opt.iterations):  # iterated EKF: relinearised at the update
+            if it:
+                nu_i, Jw_i, _, _ = self._rows(batch, th, nuis)
+                if len(nu_i) != q:  # the statics fail there: keep the last linearisation
+                    break
+                nu, Jw = nu_i, Jw_i
+            y = nu + Jw @ (th - prior)  # the innovation of the prior, linearised at th
+            Sc = np.linalg.cholesky(Jw @ self.P @ Jw.T + np.eye(q))
+            K = np.linalg.solve(Sc.T, np.linalg.solve(Sc, Jw @ self.P)).T
+            th = prior + K @ y
+        step = th - prior
+        ratio = float(np.max(np.abs(step) / self._max_step))
+        if ratio > 1.0:  # the same direction, shorter: the gain scaled, the covariance with it
+            worst = int(np.argmax(np.abs(step) / self._max_step))
+            events.append(Event("large_correction", t, f"{self.names[worst]}: correction "
+                                f"{step[worst]:.3g} beyond {self._max_step[worst]:.3g} "
+                                f"(taken {1.0 / ratio:.2f} of it)"))
+            K, step = K / ratio, step / ratio
+        IKH = np.eye(len(prior)) - K @ Jw
+        self.P = IKH @ self.P @ IKH.T + K @ K.T  # Joseph form: consistent for any gain
+        self.theta = self._bounded(self.theta + step, t, events)
+        self._check_growth(t, events)
+        self.updates += 1
+        self.events.extend(events)
+        return UpdateResult(nis, q, events, int(ok.sum()))
+
+    def _innovation_test(self, nu: np.ndarray, Jw: np.ndarray, t: float,
+                         events: list[Event]) -> float:
+        """The normalised innovation squared of whitened innovations ``nu`` (rows ``Jw``); beyond
+        the chi-square quantile of :attr:`IdentOptions.alarm_p`, a ``sudden_change`` event."""
+        Sc = np.linalg.cholesky(Jw @ self.P @ Jw.T + np.eye(len(nu)))
+        w = np.linalg.solve(Sc, nu)
+        nis = float(w @ w)
+        limit = float(chi2.isf(self.opt.alarm_p, len(nu)))
+        if nis > limit:
+            events.append(Event("sudden_change", t, f"innovation chi-square {nis:.1f} > "
+                                f"{limit:.1f} ({len(nu)} dof)"))
+        return nis
+
+    def _bounded(self, theta: np.ndarray, t: float, events: list[Event]) -> np.ndarray:
+        """``theta`` within the physical bounds: the parameters beyond them set on them and the
+        others moved with them by their covariance (the projection of the estimate on the
+        bounds: a parameter the data hardly fix, clipped alone, would bias those it is
+        correlated with). A violation beyond three standard deviations is an event."""
+        for _ in range(3):
+            target = np.clip(theta, self.lower, self.upper)
+            out = np.flatnonzero(target != theta)
+            if not len(out):
+                break
+            sd = np.sqrt(np.diag(self.P)[out])
+            far = np.abs(theta[out] - target[out]) > 3.0 * sd
+            for j in out[far]:
+                events.append(Event("bound", t, f"{self.names[j]}: {theta[j]:.3g} outside "
+                                    f"[{self.lower[j]:.3g}, {self.upper[j]:.3g}]"))
+            gain = np.linalg.solve(self.P[np.ix_(out, out)], theta[out] - target[out])
+            theta = theta - self.P[:, out] @ gain
+            theta[out] = target[out]
+        return np.clip(theta, self.lower, self.upper)
+
+    def _check_growth(self, t: float, events: list[Event]) -> None:
+        tr = float(np.sum(np.diag(self.P) / self.prior))
+        self._grow = self._grow + 1 if tr > self._trace_last else 0
+        self._trace_last = tr
+        if self._grow == self.opt.grow_updates:
+            events.append(Event("covariance_growing", t, f"covariance grew over "
+                                f"{self._grow} updates in a row (nothing observes it)"))
+
+    # ----- identifiability -------------------------------------------------------------
+    def fisher(self, batch: list[Measurement], ratio: float = 0.3) -> Identifiability:
+        """What a path can fix, before running it: the Fisher information of the samples
+        ``batch`` (e.g. the path's poses with planned tensions and lengths) at the estimate;
+        a parameter is determined when the path alone brings its standard deviation below
+        ``ratio`` of the prior's."""
+        _, Jw, _, _ = self._rows(batch, self.theta)
+        F = Jw.T @ Jw
+        prior = self.prior
+        post = np.linalg.inv(F + np.linalg.inv(self.P0))
+        sd = np.sqrt(np.diag(post))
+        det = sd < ratio * np.sqrt(prior)
+        ev = np.linalg.eigvalsh(F * np.sqrt(np.outer(prior, prior)))
+        return Identifiability(self.names, sd, det, int(np.sum(ev > 1.0 / ratio ** 2 - 1.0)))
+
+
+def planned_samples(ident: OnlineIdentifier, poses: np.ndarray,
+                    tracked: bool = True) -> list[Measurement]:
+    """The samples a path's ``poses`` (P,6) would give if the robot were the current estimate
+    (its tension distribution, the lengths that hold it): what :meth:`OnlineIdentifier.fisher`
+    needs to say, before the path runs, which parameters it can fix. Infeasible poses are
+    left out."""
+    H = ident.robot_at()
+    u0, _ = init_unstretched(H, ident.init_pose, true_tensions(H, ident.init_readings))
+    out = []
+    for p in np.asarray(poses, float).reshape(-1, 6):
+        ps = pose_statics(H, p)
+        if not ps.feasible:
+            continue
+        lengths = ident.reference + (ps.unstretched - u0 - H.length_offset) / H.drum_scale
+        readings = H.load_cell_gain * ps.tensions + H.load_cell_offset
+        out.append(Measurement(p, readings, lengths, tracked, 0.0))
+    return out
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Per parameter: ``sd`` the standard deviation the path alone (plus the prior) leaves,
+    ``determined`` whether the path fixes it; ``rank`` how many independent combinations
+    (of the prior-scaled parameters) it fixes."""
+
+    names: list[str]
+    sd: np.ndarray
+    determined: np.ndarray
+    rank: int
+
+    def undetermined(self) -> list[str]:
+        """Names of the parameters the path cannot fix."""
+        return [k for k, d in zip(self.names, self.determined, strict=True) if not d]
+
+
+class ModelHandover:
+    """The model the controller uses, moved toward the estimate at a bounded rate: at most
+    ``rate_offset`` [m/s] per exit coordinate and ``rate_compliance`` [rad/(N m)/s] per joint
+    axis, so the setpoints never jump; only the parameters the data determine move
+    (:meth:`target`). ``advance(dt)`` returns the new model's parameters and whether they
+    changed."""
+
+    def __init__(self, ident: OnlineIdentifier, rate_offset: float = 2e-3,
+                 rate_compliance: float = 2e-6, determined: float = 0.3,
+                 correlated: float = 0.5) -> None:
+        self.ident = ident
+        self.theta = ident.theta.copy()
+        self._start = ident.theta.copy()
+        self.determined = float(determined)
+        self.correlated = float(correlated)
+        n, nc = ident.n_offsets, ident.n_compliance
+        self._rate = np.r_[np.full(n, rate_offset), np.full(nc, rate_compliance),
+                           np.full(len(self.theta) - n - nc, rate_offset)]
+
+    def advance(self, dt: float) -> tuple[np.ndarray, bool]:
+        """Move toward the current estimate for ``dt`` [s]."""
+        lim = self._rate * max(dt, 0.0)
+        delta = np.clip(self.target() - self.theta, -lim, lim)
+        changed = bool(np.any(delta != 0))
+        self.theta = self.theta + delta
+        return self.theta, changed
+
+    def target(self) -> np.ndarray:
+        """Where the hand-over heads: the estimate of each parameter the data determine (its
+        standard deviation below ``determined`` of its prior's) and all those correlated with it
+        beyond ``correlated`` are determined too; the starting value of the others (what
+        nothing fixes stays as the model had it, however the estimate wanders)."""
+        ident = self.ident
+        sd = ident.sd
+        fixed = sd < self.determined * np.sqrt(ident.prior)
+        # a parameter moves with those it is correlated with, or not at all (a part of a
+        # correction can be worse than none)
+        corr = np.abs(ident.P) / np.maximum(np.outer(sd, sd), 1e-300) > self.correlated
+        for _ in range(len(fixed)):
+            keep = fixed & ~np.any(corr & ~fixed[None, :], axis=1)
+            if np.array_equal(keep, fixed):
+                break
+            fixed = keep
+        return np.where(fixed, ident.theta, self._start)
+
+    def robot(self) -> Robot:
+        """The model the controller uses now."""
+        return self.ident.robot_at(self.theta)
