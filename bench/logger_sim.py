@@ -231,6 +231,9 @@ def write_log(out: str | Path, sc: Scenario, spec: LoggerSpec,
 
 def _write_csv(path: Path, cols: dict[str, np.ndarray], empty: str) -> None:
     """Write columns as CSV (floats in full precision; NaN written as ``empty``)."""
+    from bench.streams import _polars_usable
+
+    _polars_usable()  # this process starts polars' thread pool: its forked children read
     import polars as pl
 
     series = [pl.Series(name, v.astype(str)) if v.dtype.kind in "USO"

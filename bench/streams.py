@@ -51,6 +51,22 @@ EVENT_ROWS = 3
 
 NULLS = ["", "nan", "NaN", "NAN", "Nan"]
 
+#: the process that first used polars: its thread pool lives there only, and a process
+#: forked from it (the project's process pools fork) deadlocks in polars, so such a child
+#: reads row by row (polars' own warning on fork says the same)
+_POLARS_PID: int | None = None
+
+
+def _polars_usable() -> bool:
+    """Whether polars may run in this process: not in a child forked after the parent
+    started polars' thread pool."""
+    global _POLARS_PID
+    import os
+
+    if _POLARS_PID is None:
+        _POLARS_PID = os.getpid()
+    return _POLARS_PID == os.getpid()
+
 
 # ----- reading ---------------------------------------------------------------------------
 
@@ -60,7 +76,10 @@ def read_columns(p: Path, header: list[str]) -> tuple[dict[str, np.ndarray],
     name -> (N,) float64 (NaN = no value) and the ``state`` column as strings (or None).
     None when the file holds anything this fast path does not take exactly as the
     row-by-row reader would (a field that is not a plain number, an infinite value, a
-    missing time, ...): the caller then reads it row by row, naming the line."""
+    missing time, ...), or in a process forked after this one's parent used polars: the
+    caller then reads it row by row, naming the line."""
+    if not _polars_usable():
+        return None
     import polars as pl
 
     schema = {h: (pl.String if h == "state" else pl.Float64) for h in header}

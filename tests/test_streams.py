@@ -276,3 +276,28 @@ def test_an_error_in_a_split_recording_names_its_file(tmp_path, small):
         "samples = []"))
     with pytest.raises(RecordingError, match=r"meta.toml: samples: an empty list"):
         read_recording(d)
+
+
+def _read_in_child(d: str, out) -> None:
+    out.put(len(read_recording(Path(d)).t))
+
+
+def test_a_child_forked_after_polars_ran_reads_without_deadlock(tmp_path, small):
+    """The project's process pools fork; a child forked after this process used polars
+    must not call polars (its thread pool is not in the child: a deadlock, as seen in a
+    paper campaign's workers): it reads row by row, the same rows."""
+    import multiprocessing
+
+    d = _log(tmp_path, small, "log", **THREE)
+    rows = len(read_recording(d).t)  # polars' pool started here
+    assert streams._polars_usable()
+    ctx = multiprocessing.get_context("fork")
+    out = ctx.Queue()
+    child = ctx.Process(target=_read_in_child, args=(str(d), out))
+    child.start()
+    child.join(60)
+    if child.is_alive():
+        child.kill()
+        child.join()
+        pytest.fail("the forked child did not finish reading in 60 s (polars deadlock)")
+    assert out.get(timeout=5) == rows
