@@ -13,6 +13,7 @@ from __future__ import annotations
 import collections
 import functools
 import os
+import time
 
 from hypothesis import HealthCheck, Phase, settings
 from hypothesis import event as _event
@@ -49,7 +50,12 @@ def event(text: str) -> None:
 
 
 class RuleCounter(collections.Counter):
-    """Counts of the rules that ran (``@counter.counted`` on each rule)."""
+    """Counts of the rules that ran (``@counter.counted`` on each rule); ``seconds`` the
+    wall time spent in each (nested rules counted in both)."""
+
+    def __init__(self, *a, **kw) -> None:
+        super().__init__(*a, **kw)
+        self.seconds: collections.Counter = collections.Counter()
 
     def counted(self, fn):
         name = fn.__name__
@@ -58,9 +64,18 @@ class RuleCounter(collections.Counter):
         def wrapper(*a, **kw):
             self[name] += 1
             event(f"rule {name}")
-            return fn(*a, **kw)
+            t0 = time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                self.seconds[name] += time.perf_counter() - t0
 
         return wrapper
+
+    def report(self) -> str:
+        """``rule: runs, seconds`` per rule, most time first."""
+        return ", ".join(f"{name}: {self[name]} in {sec:.1f} s"
+                         for name, sec in self.seconds.most_common())
 
     def missing(self, rules: list[str], at_least: int) -> dict[str, int]:
         """Rules that ran fewer than ``at_least`` times: {rule: count}."""

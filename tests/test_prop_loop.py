@@ -362,7 +362,7 @@ def test_every_rule_ran_many_times():
     if not RULES:
         run_state_machine_as_test(LoopMachine, settings=LoopMachine.TestCase.settings)
     assert len(LOOP_RULES) >= 12
-    assert not RULES.missing(LOOP_RULES, AT_LEAST), RULES
+    assert not RULES.missing(LOOP_RULES, AT_LEAST), RULES.report()
 
 
 def test_hold_by_hand_stands_still(hold=150):

@@ -372,7 +372,7 @@ def test_every_rule_ran_many_times():
         run_state_machine_as_test(SupervisorMachine,
                                   settings=SupervisorMachine.TestCase.settings)
     assert len(SUPERVISOR_RULES) >= 15
-    assert not RULES.missing(SUPERVISOR_RULES, AT_LEAST), RULES
+    assert not RULES.missing(SUPERVISOR_RULES, AT_LEAST), RULES.report()
 
 
 def test_model_hold_timing_by_hand():
