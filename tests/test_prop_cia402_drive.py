@@ -601,6 +601,7 @@ def test_every_rule_ran_many_times():
     if not RULES:
         run_state_machine_as_test(DriveMachine, settings=DriveMachine.TestCase.settings)
     assert len(DRIVE_RULES) >= 20
+    print(RULES.report())  # with -s: how often and how long each rule ran
     assert not RULES.missing(DRIVE_RULES, AT_LEAST), RULES.report()
 
 

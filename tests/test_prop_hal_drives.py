@@ -48,6 +48,7 @@ import time
 import can
 import numpy as np
 import pytest
+from hypothesis import Phase, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import (
     RuleBasedStateMachine,
@@ -77,9 +78,19 @@ RULES = RuleCounter()
 AT_LEAST = 6  # runs of each rule in CI's profile
 
 
+def goes_wrong(**strategies):
+    """Marks one of the things that go wrong: not a rule of its own, but taken in turn by
+    :meth:`HalMachine.something_goes_wrong` with arguments drawn from ``strategies``."""
+    def mark(fn):
+        fn.goes_wrong = strategies
+        return fn
+    return mark
+
+
 class HalMachine(RuleBasedStateMachine):
-    @initialize()
-    def start(self):
+    @initialize(first_wrong=st.integers(0, 20))
+    def start(self, first_wrong=0):
+        self.first_wrong, self.n_wrong = first_wrong, 0
         self.rig = DriveRig(initial_lengths_m=10.0).start()
         self.port = self.rig.hub.address[1]
         self.hal = WinchDrives.open(self.rig.endpoint()["can"], W, EDS_PATH, clock="sync")
@@ -254,7 +265,7 @@ class HalMachine(RuleBasedStateMachine):
                 assert code == self.injected[nid]
 
     # ---- what goes wrong ----------------------------------------------------------------
-    @rule(node=NODES, kind=st.sampled_from(["over_current", "encoder"]))
+    @goes_wrong(node=NODES, kind=st.sampled_from(["over_current", "encoder"]))
     @RULES.counted
     def drive_fault(self, node, kind):
         self.fault_until_visible(node, kind)
@@ -292,28 +303,28 @@ class HalMachine(RuleBasedStateMachine):
         d.repair_encoder()
         d.clear_over_current()
 
-    @rule(node=NODES, stopped=st.booleans())
+    @goes_wrong(node=NODES, stopped=st.booleans())
     @RULES.counted
     def heartbeat(self, node, stopped):
         """A drive's heartbeat producer stops (or starts again)."""
         self.rig.bank.drive(node).stop_heartbeat(stopped)
         (self.hb_stopped.add if stopped else self.hb_stopped.discard)(node)
 
-    @rule(node=NODES, silent=st.booleans())
+    @goes_wrong(node=NODES, silent=st.booleans())
     @RULES.counted
     def off_the_bus(self, node, silent):
         """Silent: its SDO transfers (recover, fault code reads) time out."""
         self.rig.bank.drive(node).set_silent(silent)
         (self.silent.add if silent else self.silent.discard)(node)
 
-    @rule(node=NODES)
+    @goes_wrong(node=NODES)
     @RULES.counted
     def node_reset(self, node):
         self.rig.bank.drive(node).reset_node()
         self.injected.pop(node, None)
         self.cycles(3, move=False)
 
-    @rule()
+    @goes_wrong()
     @RULES.counted
     def link_lost_and_back(self):
         self.rig.hub.close()
@@ -338,7 +349,7 @@ class HalMachine(RuleBasedStateMachine):
         self.cycles(2, move=False)
 
     # ---- the events that matter ----------------------------------------------------------
-    @rule(node=NODES, kind=st.sampled_from(["over_current", "encoder"]),
+    @goes_wrong(node=NODES, kind=st.sampled_from(["over_current", "encoder"]),
           warnings=st.lists(st.sampled_from([0x8250, 0x8130, 0x4210, 0x3220]), min_size=1,
                             max_size=4))
     @RULES.counted
@@ -362,7 +373,7 @@ class HalMachine(RuleBasedStateMachine):
             return
         assert codes.get(node, want) == want, (node, hex(want), codes)
 
-    @rule(n=st.integers(0, 20))
+    @goes_wrong(n=st.integers(0, 20))
     @RULES.counted
     def master_heartbeat_stops(self, n):
         """The master's heartbeat stops (its thread and the cycle's): the drives stop on their
@@ -385,7 +396,7 @@ class HalMachine(RuleBasedStateMachine):
             self.mhb_stopped_at = None
         self.cycles(2, move=False)
 
-    @rule(node=NODES, n=st.integers(1, 12))
+    @goes_wrong(node=NODES, n=st.integers(1, 12))
     @RULES.counted
     def rpdos_lost(self, node, n):
         """The next ``n`` RPDOs to a drive are lost (its deadline is 5 cycles)."""
@@ -399,7 +410,7 @@ class HalMachine(RuleBasedStateMachine):
             event("RPDOs lost past the deadline: the drive stopped")
         d.stop_dropping()
 
-    @rule(v=st.floats(0.2, 0.8), sign=st.sampled_from([-1.0, 1.0]))
+    @goes_wrong(v=st.floats(0.2, 0.8), sign=st.sampled_from([-1.0, 1.0]))
     @RULES.counted
     def quick_stop_at_speed(self, v, sign):
         """All drives run at ``v`` [m/s], then the master quick-stops them: each stops within
@@ -449,7 +460,7 @@ class HalMachine(RuleBasedStateMachine):
         self.fault_reset()
         self.enable()
 
-    @rule(node=NODES, value=st.sampled_from([0x00, 0x02]))
+    @goes_wrong(node=NODES, value=st.sampled_from([0x00, 0x02]))
     @RULES.counted
     def second_master_write(self, node, value):
         """Another client on the bus writes 0x6040 (disable voltage, quick stop) by SDO: the
@@ -474,6 +485,27 @@ class HalMachine(RuleBasedStateMachine):
             assert self.hal.states()[k] != DriveState.OPERATION_ENABLED or self.hal.states()[
                 k] == truth, (node, DriveState(self.hal.states()[k]).name, truth)
             event("second master's write seen")
+
+    # ---- what goes wrong, in turn ---------------------------------------------------------
+    #: what goes wrong, taken in turn from one drawn at the start (each as often)
+    KINDS = ("drive_fault", "fault_then_warnings", "heartbeat", "off_the_bus", "node_reset",
+             "link_lost_and_back", "master_heartbeat_stops", "rpdos_lost",
+             "quick_stop_at_speed", "second_master_write")
+
+    def _something_goes_wrong(self, data):
+        kind = self.KINDS[(self.first_wrong + self.n_wrong) % len(self.KINDS)]
+        self.n_wrong += 1
+        fn = getattr(self, kind)
+        fn(**{name: data.draw(strategy, label=f"{kind}.{name}")
+              for name, strategy in fn.goes_wrong.items()})
+
+    # the same rule six times: most steps are something going wrong
+    something_goes_wrong = rule(data=st.data())(_something_goes_wrong)
+    something_else_goes_wrong = rule(data=st.data())(_something_goes_wrong)
+    something_goes_wrong_again = rule(data=st.data())(_something_goes_wrong)
+    something_else_again = rule(data=st.data())(_something_goes_wrong)
+    something_more = rule(data=st.data())(_something_goes_wrong)
+    something_still = rule(data=st.data())(_something_goes_wrong)
 
     # ---- invariants ---------------------------------------------------------------------
     @invariant()
@@ -503,11 +535,12 @@ class HalMachine(RuleBasedStateMachine):
                 assert states[self.hal.node_ids.index(f.node_id)] != DriveState.OPERATION_ENABLED
 
 
-HalMachine.TestCase.settings = machine_settings(examples=12, steps=25)
+HalMachine.TestCase.settings = machine_settings(examples=14, steps=30)
 TestHalDrives = HalMachine.TestCase
 assert can  # python-can is the bus behind both sides
 HAL_RULES = [name for name in dir(HalMachine)
-             if getattr(getattr(HalMachine, name), "hypothesis_stateful_rule", None)]
+             if getattr(getattr(HalMachine, name), "hypothesis_stateful_rule", None)
+             and not name.startswith("something")] + list(HalMachine.KINDS)
 
 
 def test_every_rule_ran_many_times():
@@ -516,6 +549,7 @@ def test_every_rule_ran_many_times():
     if not any(RULES[r] for r in HAL_RULES):
         run_state_machine_as_test(HalMachine, settings=HalMachine.TestCase.settings)
     assert len(HAL_RULES) >= 18
+    print(RULES.report())  # with -s: how often and how long each rule ran
     assert not RULES.missing(HAL_RULES, AT_LEAST), RULES.report()
 
 
@@ -523,7 +557,10 @@ class HalTpdoLossMachine(HalMachine):
     """The machine above plus a drive whose TPDOs stop (and come back): the HAL must call
     it ``drive_lost`` with its state UNKNOWN within 0.1 s (its last live state never)."""
 
-    @rule(node=NODES, n=st.integers(int(LOST_WITHIN_S / T) + 2, int(LOST_WITHIN_S / T) + 15))
+    KINDS = HalMachine.KINDS + ("tpdos_stop",)
+
+    @goes_wrong(node=NODES, n=st.integers(int(LOST_WITHIN_S / T) + 2,
+                                          int(LOST_WITHIN_S / T) + 15))
     @RULES.counted
     def tpdos_stop(self, node, n):
         self.rig.bank.drive(node).drop_tpdos(10**9)
@@ -531,14 +568,16 @@ class HalTpdoLossMachine(HalMachine):
         self.cycles(n, move=True)
 
     @rule(node=NODES)
-    @RULES.counted
     def tpdos_back(self, node):
         self.rig.bank.drive(node).stop_dropping()
         self.tpdo_stopped.pop(node, None)
         self.cycles(3, move=False)
 
 
-HalTpdoLossMachine.TestCase.settings = machine_settings(examples=4, steps=15)
+#: no shrinking: today the first failure is the expected one (the marker below), and
+#: shrinking a run of the HAL takes minutes
+HalTpdoLossMachine.TestCase.settings = settings(machine_settings(examples=4, steps=15),
+                                                phases=[Phase.generate])
 
 
 @pytest.mark.xfail(strict=True, reason="needs TPDO watchdog (branch feedback)")

@@ -362,6 +362,7 @@ def test_every_rule_ran_many_times():
     if not RULES:
         run_state_machine_as_test(LoopMachine, settings=LoopMachine.TestCase.settings)
     assert len(LOOP_RULES) >= 12
+    print(RULES.report())  # with -s: how often and how long each rule ran
     assert not RULES.missing(LOOP_RULES, AT_LEAST), RULES.report()
 
 

@@ -372,6 +372,7 @@ def test_every_rule_ran_many_times():
         run_state_machine_as_test(SupervisorMachine,
                                   settings=SupervisorMachine.TestCase.settings)
     assert len(SUPERVISOR_RULES) >= 15
+    print(RULES.report())  # with -s: how often and how long each rule ran
     assert not RULES.missing(SUPERVISOR_RULES, AT_LEAST), RULES.report()
 
 
