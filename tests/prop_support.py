@@ -19,11 +19,22 @@ from hypothesis import HealthCheck, Phase, settings
 from hypothesis import event as _event
 
 #: examples of the "deep" and "dev" profiles relative to "ci"
-SCALE = {"ci": 1, "dev": 3, "deep": 12}
+SCALE = {"ci": 1, "dev": 2, "deep": 5}
 
 
 def profile() -> str:
     return os.environ.get("CDPR_HYPOTHESIS") or os.environ.get("HYPOTHESIS_PROFILE", "ci")
+
+
+def phases(scale: int) -> list[Phase]:
+    """Hypothesis phases of a state machine: no explanation (minutes of replays); in the
+    "ci" profile no shrinking either (a failure is reported at once with the whole
+    sequence that failed; replaying a HAL or loop run a few hundred times while shrinking
+    takes many minutes on a loaded machine). ``CDPR_HYPOTHESIS_SHRINK=1`` shrinks anyway."""
+    out = [Phase.explicit, Phase.reuse, Phase.generate, Phase.target]
+    if scale > 1 or os.environ.get("CDPR_HYPOTHESIS_SHRINK") == "1":
+        out.append(Phase.shrink)
+    return out
 
 
 def machine_settings(examples: int, steps: int) -> settings:
@@ -35,7 +46,7 @@ def machine_settings(examples: int, steps: int) -> settings:
         max_examples=examples * scale,
         stateful_step_count=steps * (2 if scale > 1 else 1),
         deadline=None,
-        phases=[p for p in Phase if p != Phase.explain],  # explain: minutes on a machine
+        phases=phases(scale),
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
                                HealthCheck.data_too_large],
     )
