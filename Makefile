@@ -32,9 +32,12 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
-# The property-based tests with many more examples (tests/conftest.py, profile "deep").
+# The property-based tests with many more examples (tests/conftest.py, profile "deep";
+# tests/prop_support.py: 5 times the state machines' examples, twice their steps), with
+# hypothesis' statistics (the events each rule reached). docs/guide/property-tests.md
 test-deep: $(STAMP)
-	CDPR_HYPOTHESIS=deep $(PY) -m pytest -q tests/test_prop_cia402_drive.py \
+	CDPR_HYPOTHESIS=deep $(PY) -m pytest -q -n 2 --dist loadfile --hypothesis-show-statistics \
+		tests/test_prop_cia402_drive.py tests/test_prop_supervisor.py tests/test_prop_loop.py \
 		tests/test_prop_hal_drives.py tests/test_input_files.py tests/test_fuzz_can_modbus.py \
 		tests/test_dryrun_properties.py
 

@@ -1372,6 +1372,8 @@ class SimulatedDrive:
         """Encoder signal lost: EMCY 0x7305, immediate stop (brake), Fault until repaired."""
         with self.lock:
             self.encoder_broken = True
+            if self.state == State.FAULT_REACTION_ACTIVE:  # no reaction ramp without it
+                self._power_off(State.FAULT)
             self._fault(EMCY_ENCODER)
             self._async_tpdos()
 

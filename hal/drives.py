@@ -1075,6 +1075,7 @@ class WinchDrives:
         for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():
             self._hb_lost[k] = True
             self._have[k] = False  # its state is unknown now
+            self._states[k] = ST.UNKNOWN
             self._setpoint_ok[k] = False
             self._request[k] = RQ.QUICK_STOP  # hold, if it still hears us
             self._event(k, "heartbeat_lost", CODE_HEARTBEAT,
