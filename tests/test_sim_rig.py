@@ -124,12 +124,12 @@ def test_the_plant_thread_follows_the_drives():
 
 
 def test_drift_moves_the_platform_with_the_winches_still(tmp_path):
-    sc = _scenario(tmp_path, 'format = "cdpr-scenario/1"\n[nuisance]\ndrift_m_per_h = 3.6\n')
+    sc = _scenario(tmp_path, 'format = "cdpr-scenario/1"\n[nuisance]\ndrift_m_per_h = 0.9\n')
     with SimRig(sc, plant_thread=False) as rig:
         first = rig.settle_now()
         assert rig.settle_now() is first  # time stands still without SYNC (sync clock)
-        rig.bank.advance(1.0)  # 1 s of drive time: 1 mm of creep on every cable
-        assert rig.time_s() == pytest.approx(first.t_s + 1.0, abs=1e-6)
+        rig.bank.advance(4.0)  # 4 s of drive time: 1 mm of creep on every cable
+        assert rig.time_s() == pytest.approx(first.t_s + 4.0, abs=1e-6)
         rec = rig.settle_now()
         np.testing.assert_array_equal(rec.readings_m, first.readings_m)
         assert rec.pose[2] < first.pose[2] - 5e-4  # longer cables: the platform sinks
