@@ -23,6 +23,7 @@ drops exactly those records (:class:`QuietPartialReads`; ``dropped`` counts them
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import socket
@@ -187,6 +188,27 @@ def send_frames(bus: can.BusABC, msgs: list[can.Message]) -> None:
         return
     for m in msgs:
         bus.send(m)
+
+
+@contextlib.contextmanager
+def connected_network(spec, notifier_cycle_s: float = 0.05):
+    """A connected ``canopen.Network`` on the bus of ``spec`` (a :class:`CanSpec` or its
+    text), disconnected (and the bus shut down) at exit; the bus is shut down when the
+    connection fails."""
+    import canopen
+
+    bus = open_bus(spec)
+    net = canopen.Network(bus)
+    net.NOTIFIER_CYCLE = notifier_cycle_s
+    try:
+        net.connect()
+    except Exception:
+        bus.shutdown()
+        raise
+    try:
+        yield net
+    finally:
+        net.disconnect()
 
 
 def open_bus(spec: str | CanSpec, **options: Any) -> can.BusABC:

@@ -22,7 +22,7 @@ import canopen
 from bench.commission.report import Section, report_path
 from controller.loadcell_map import DEFAULT_MAP, RegisterMap, load_register_map
 from controller.winch import WinchSet, load_winches
-from hal.can_bus import open_bus
+from hal.can_bus import connected_network
 
 DEFAULT_CALIBRATION = "loadcell_calibration.toml"
 
@@ -130,18 +130,8 @@ def network_of(args: argparse.Namespace, candump: Callable | None = None
     if args.can is None:
         raise CommissionError("no CAN bus: give --can SPEC (socketcan:can0 on the robot, "
                               "socketcand:HOST:PORT for cdpr sim)", 2)
-    bus = open_bus(args.can)
-    net = canopen.Network(bus)
-    net.NOTIFIER_CYCLE = 0.05
-    try:
-        net.connect()
-    except Exception:
-        bus.shutdown()
-        raise
-    try:
+    with connected_network(args.can) as net:
         yield net
-    finally:
-        net.disconnect()
 
 
 def confirm(args: argparse.Namespace, question: str, ui: Ui) -> None:

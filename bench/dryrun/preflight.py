@@ -63,23 +63,13 @@ def check_drives(can, winches: WinchSet, eds: str | Path, window_s: float = 0.3,
                  sdo_timeout_s: float = 0.3, require_stored_safety: bool = True,
                  out: Preflight | None = None) -> Preflight:
     """Stage 1 (see the module docstring) on the bus ``can`` (a ``--can`` spec)."""
-    import canopen
-
     from bench.commission.scan import drive_rows, expected_identity
-    from hal.can_bus import open_bus
+    from hal.can_bus import connected_network
     from hal.scan import other_master_activity, scan_nodes
 
     pf = out if out is not None else Preflight()
     ids = [int(x) for x in winches.node_id]
-    bus = open_bus(can)
-    net = canopen.Network(bus)
-    net.NOTIFIER_CYCLE = 0.05
-    try:
-        net.connect()
-    except Exception:
-        bus.shutdown()
-        raise
-    try:
+    with connected_network(can) as net:
         found = scan_nodes(net, ids, window_s=window_s, timeout_s=sdo_timeout_s)
         pf.drives = drive_rows(found, winches, expected_identity(str(eds)))
         for row in pf.drives:
@@ -96,8 +86,6 @@ def check_drives(can, winches: WinchSet, eds: str | Path, window_s: float = 0.3,
         for k, nid in enumerate(ids):
             if nid in ok_ids:
                 _check_safety(net, winches, k, eds, sdo_timeout_s, require_stored_safety, pf)
-    finally:
-        net.disconnect()
     return pf
 
 

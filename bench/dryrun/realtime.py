@@ -98,25 +98,33 @@ def _check_priority(priority: int) -> None:
                          f"{os.sched_get_priority_max(os.SCHED_FIFO)}, got {priority}")
 
 
+def _enter_fifo(priority: int) -> tuple[str | None, tuple | None]:
+    """The calling thread in ``SCHED_FIFO`` at ``priority``: ``(None, its policy and
+    parameters before)`` when done, else ``(why not, None)`` as the text the scheduling
+    context managers yield (``"normal (...why...)"``)."""
+    if priority <= 0:
+        return "normal (real-time priority not requested)", None
+    if not hasattr(os, "sched_setscheduler"):
+        return "normal (this system has no SCHED_FIFO)", None
+    _check_priority(priority)
+    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        return (f"normal (SCHED_FIFO {priority} not permitted: {exc.strerror}; grant "
+                f"CAP_SYS_NICE or an rtprio limit)"), None
+    return None, before
+
+
 @contextlib.contextmanager
 def realtime_scheduling(priority: int) -> Iterator[str]:
     """The calling thread in ``SCHED_FIFO`` at ``priority`` inside and the process's other
     threads at :func:`helper_priority`, when permitted; yields what it got as text
     (``"SCHED_FIFO 50"``, or ``"normal (...why...)"``) and restores every thread's policy
     after. ``priority`` 0: leave the scheduling alone."""
-    if priority <= 0:
-        yield "normal (real-time priority not requested)"
-        return
-    if not hasattr(os, "sched_setscheduler"):
-        yield "normal (this system has no SCHED_FIFO)"
-        return
-    _check_priority(priority)
-    before = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except OSError as exc:
-        yield (f"normal (SCHED_FIFO {priority} not permitted: {exc.strerror}; grant "
-               f"CAP_SYS_NICE or an rtprio limit)")
+    refused, before = _enter_fifo(priority)
+    if refused is not None:
+        yield refused
         return
     others = _set_fifo(_other_threads(), helper_priority(priority))
     try:
@@ -136,20 +144,10 @@ def simulator_scheduling(priority: int) -> Iterator[str]:
     ``SCHED_FIFO`` at ``priority`` when permitted, and a 0.5 ms GIL switch interval so that
     the thread a frame wakes gets the interpreter quickly. Yields what it got as text,
     like :func:`realtime_scheduling`; restored after. 0: nothing changes."""
-    if priority <= 0:
-        yield "normal (real-time priority not requested)"
-        return
-    if not hasattr(os, "sched_setscheduler"):
-        yield "normal (this system has no SCHED_FIFO)"
-        return
-    _check_priority(priority)
     me = threading.get_native_id()
-    before = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except OSError as exc:
-        yield (f"normal (SCHED_FIFO {priority} not permitted: {exc.strerror}; grant "
-               f"CAP_SYS_NICE or an rtprio limit)")
+    refused, before = _enter_fifo(priority)
+    if refused is not None:
+        yield refused
         return
     saved = [(me, *before), *_set_fifo(_other_threads(), priority)]
     interval = sys.getswitchinterval()
