@@ -27,7 +27,6 @@ import json
 import math
 import re
 import tempfile
-import threading
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -37,7 +36,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from bench.recording import FORMAT, POSE_AXES, RecordingError
+from bench.recording import FORMAT, POSE_AXES, BackgroundWriter, RecordingError
 from controller.robot import Robot
 
 MCAP_NAME = "recording.mcap"
@@ -288,7 +287,7 @@ def row_schemas(lay: dict) -> dict[str, tuple[str, bytes]]:
     return out
 
 
-class McapRecordingWriter:
+class McapRecordingWriter(BackgroundWriter):
     """A recording written as one MCAP file while the run goes (the interface of
     :class:`bench.recording.RecordingWriter`: :meth:`append`, :meth:`event`,
     :meth:`update_meta`, :meth:`close`, :attr:`rows`).
@@ -313,7 +312,6 @@ class McapRecordingWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.columns = list(columns)
         self.states = states
-        self.flush_s = float(flush_s)
         self.rows = 0  #: rows written to the file so far
         self.meta = {"format": FORMAT, "robot": "robot.toml", "samples": "recording.csv",
                      "init_pose": [float(v) for v in init_pose],
@@ -348,25 +346,12 @@ class McapRecordingWriter:
                 sid = self._w.register_schema(sc.name, sc.encoding, sc.data)
                 self._ch[topic] = self._w.register_channel(topic, "protobuf", sid)
         self._w.flush()
-        self._queue: list[tuple] = []
-        self._lock = threading.Lock()
-        self._wake = threading.Event()
-        self._closed = False
-        self._error: BaseException | None = None
-        self._appended = 0
-        self._written = 0
         self._events = 0
-        self._thread = threading.Thread(target=self._run, name=f"mcap-{self.path.name}",
-                                        daemon=True)
-        self._thread.start()
+        self._start(flush_s, f"mcap-{self.path.name}")
 
     def _attach(self, name: str, text: str) -> None:
         now = time.time_ns()
         self._w.add_attachment(now, now, name, "application/toml", text.encode())
-
-    def _check(self) -> None:
-        if self._error is not None:
-            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
 
     def append(self, values: np.ndarray | list[float], state: str | None = None) -> None:
         """One row: ``values`` in column order; ``state`` when the recording has the column."""
@@ -374,36 +359,27 @@ class McapRecordingWriter:
         row = np.array(values, dtype=float)
         if len(row) != len(self.columns):
             raise ValueError(f"{len(row)} values for {len(self.columns)} columns")
-        with self._lock:
-            self._queue.append(("row", row, state or ""))
-            self._appended += 1
+        self._queue_item(("row", row, state or ""))
 
     def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
               reaction: str, active: bool, text: str) -> None:
         """One supervisor or hardware event (the columns of ``events.csv``)."""
-        self._check()
         ev = {"t": float(t), "device": str(device), "address": int(address),
               "cable": str(cable), "kind": str(kind), "code": int(code),
               "reaction": str(reaction), "active": bool(active), "text": str(text)}
-        with self._lock:
-            self._queue.append(("event", ev, None))
-            self._appended += 1
+        self._queue_item(("event", ev, None))
 
     def can_frame(self, msg) -> None:
         """One CAN frame (a ``can.Message``) for the ``/can`` channel; cheap, any thread."""
         item = ("can", (float(msg.timestamp), int(msg.arbitration_id),
                         bool(msg.is_extended_id), int(msg.dlc), bytes(msg.data)), None)
-        with self._lock:
-            self._queue.append(item)
-            self._appended += 1
+        self._queue_item(item, check=False)  # a bus thread's callback: never raises
 
     def update_meta(self, **fields: Any) -> None:
         """A new ``meta.toml`` attachment (readers take the last)."""
         self._check()
         self.meta.update(fields)
-        with self._lock:
-            self._queue.append(("meta", tomli_w.dumps(self.meta), None))
-            self._appended += 1
+        self._queue_item(("meta", tomli_w.dumps(self.meta), None))
 
     def _write_row(self, row: np.ndarray, state: str, seq: int) -> None:
         ns = _ns(float(row[0]))
@@ -433,45 +409,10 @@ class McapRecordingWriter:
                 self._attach("meta.toml", a)
             time.sleep(0)  # let a real-time loop in this process run
         self._w.flush()  # closes the chunk: the file reads up to here after a crash
-        self._written += len(items)
 
-    def _take(self) -> list[tuple]:
-        with self._lock:
-            items, self._queue = self._queue, []
-        return items
-
-    def _run(self) -> None:
-        while not self._closed:
-            self._wake.wait(self.flush_s)
-            self._wake.clear()
-            try:
-                self._write(self._take())
-            except BaseException as e:  # disk full, ...: reported by append() and close()
-                self._error = e
-                return
-
-    def flush(self) -> None:
-        """Write what is queued now (blocks until it is on disk or the writer failed)."""
-        target = self._appended
-        self._wake.set()
-        while self._written < target and self._thread.is_alive():
-            time.sleep(0.002)
-        self._check()
-
-    def close(self) -> None:
-        """Write the rest, the summary and the footer (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        self._wake.set()
-        self._thread.join()
-        try:
-            if self._error is None:
-                self._write(self._take())
-                self._w.finish()
-        finally:
-            self._f.close()
-        self._check()
+    def _finish(self) -> None:
+        """The summary and the footer, after the rest (:meth:`close`)."""
+        self._w.finish()
 
     def __enter__(self) -> McapRecordingWriter:
         return self

@@ -415,41 +415,103 @@ def _cell(v: float) -> str:
     return repr(float(v)) if math.isfinite(v) else "nan"
 
 
-class CsvStream:
-    """A CSV file written while a run goes: rows are queued by :meth:`append` (cheap, never
-    blocks on the disk) and written by a background thread at least every ``flush_s``
-    seconds, in small chunks so that a real-time loop in the same process keeps the
-    interpreter; :meth:`close` writes the rest. After a crash the file holds every row up
-    to the last flush, each row whole."""
+class BackgroundWriter:
+    """A file written while a run goes: items are queued by the caller (cheap, never blocks
+    on the disk) and written by a background thread at least every ``flush_s`` seconds;
+    :meth:`close` writes the rest. A subclass opens ``self._f``, calls :meth:`_start` and
+    defines :meth:`_write` (items to the file, flushed: the file reads up to there after a
+    crash) and optionally :meth:`_finish` (what :meth:`close` writes after the rest).
+    A write error is raised by the next :meth:`_queue_item`, :meth:`flush` or :meth:`close`."""
 
-    def __init__(self, path: Path, header: list[str], flush_s: float = 1.0) -> None:
-        self.path = path
+    path: Path
+    _f: Any
+
+    def _start(self, flush_s: float, name: str) -> None:
         self.flush_s = float(flush_s)
-        self.rows = 0  #: rows written to the file so far
-        self._f = path.open("w", newline="", encoding="utf-8")
-        self._f.write(",".join(header) + "\n")
-        self._f.flush()
         self._queue: list[tuple] = []
         self._appended = 0
+        self._written = 0
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._closed = False
         self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name=f"csv-{path.name}", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
+
+    def _write(self, items: list[tuple]) -> None:
+        raise NotImplementedError
+
+    def _finish(self) -> None:
+        return None
+
+    def _check(self) -> None:
+        if self._error is not None:
+            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
+
+    def _queue_item(self, item: tuple, check: bool = True) -> None:
+        if check:
+            self._check()
+        with self._lock:
+            self._queue.append(item)
+            self._appended += 1
+
+    def _write_taken(self) -> None:
+        with self._lock:
+            items, self._queue = self._queue, []
+        self._write(items)
+        self._written += len(items)
+
+    def _run(self) -> None:
+        while not self._closed:
+            self._wake.wait(self.flush_s)
+            self._wake.clear()
+            try:
+                self._write_taken()
+            except BaseException as e:  # disk full, ...: reported by the next call
+                self._error = e
+                return
+
+    def flush(self) -> None:
+        """Write what is queued now (blocks until it is on disk or the writer failed)."""
+        target = self._appended
+        self._wake.set()
+        while self._written < target and self._thread.is_alive():
+            time.sleep(0.002)
+        self._check()
+
+    def close(self) -> None:
+        """Write the rest and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._wake.set()
+        self._thread.join()
+        try:
+            if self._error is None:
+                self._write_taken()
+                self._finish()
+        finally:
+            self._f.close()
+        self._check()
+
+
+class CsvStream(BackgroundWriter):
+    """A CSV file written while a run goes (:class:`BackgroundWriter`): rows are queued by
+    :meth:`append` and written in small chunks so that a real-time loop in the same
+    process keeps the interpreter. After a crash the file holds every row up to the last
+    flush, each row whole."""
+
+    def __init__(self, path: Path, header: list[str], flush_s: float = 1.0) -> None:
+        self.path = path
+        self.rows = 0  #: rows written to the file so far
+        self._f = path.open("w", newline="", encoding="utf-8")
+        self._f.write(",".join(header) + "\n")
+        self._f.flush()
+        self._start(flush_s, f"csv-{path.name}")
 
     def append(self, row: tuple) -> None:
         """Queue one row (already in column order: numbers, or strings kept as they are)."""
-        if self._error is not None:
-            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
-        with self._lock:
-            self._queue.append(row)
-            self._appended += 1
-
-    def _take(self) -> list[tuple]:
-        with self._lock:
-            rows, self._queue = self._queue, []
-        return rows
+        self._queue_item(row)
 
     def _write(self, rows: list[tuple], chunk: int = 25) -> None:
         f = self._f
@@ -461,40 +523,6 @@ class CsvStream:
             time.sleep(0)  # let a real-time loop run between chunks
         f.flush()
         self.rows += len(rows)
-
-    def _run(self) -> None:
-        while not self._closed:
-            self._wake.wait(self.flush_s)
-            self._wake.clear()
-            try:
-                self._write(self._take())
-            except BaseException as e:  # disk full, ...: reported by append() and close()
-                self._error = e
-                return
-
-    def flush(self) -> None:
-        """Write what is queued now (blocks until it is on disk or the writer failed)."""
-        target = self._appended
-        self._wake.set()
-        while self.rows < target and self._thread.is_alive():
-            time.sleep(0.002)
-        if self._error is not None:
-            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
-
-    def close(self) -> None:
-        """Write the rest and close the file (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        self._wake.set()
-        self._thread.join()
-        try:
-            if self._error is None:
-                self._write(self._take())
-        finally:
-            self._f.close()
-        if self._error is not None:
-            raise OSError(f"{self.path}: writing failed: {self._error}") from self._error
 
 
 class RecordingWriter:
