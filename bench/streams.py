@@ -55,6 +55,9 @@ NULLS = ["", "nan", "NaN", "NAN", "Nan"]
 #: forked from it (the project's process pools fork) deadlocks in polars, so such a child
 #: reads row by row (polars' own warning on fork says the same)
 _POLARS_PID: int | None = None
+#: files smaller than this [bytes] are read row by row: the columnar reader pays off on
+#: long logs, and a process that never starts polars' thread pool forks safely
+FAST_MIN_BYTES = 8 * 1024 * 1024
 
 
 def _polars_usable() -> bool:
@@ -78,6 +81,11 @@ def read_columns(p: Path, header: list[str]) -> tuple[dict[str, np.ndarray],
     row-by-row reader would (a field that is not a plain number, an infinite value, a
     missing time, ...), or in a process forked after this one's parent used polars: the
     caller then reads it row by row, naming the line."""
+    try:
+        if p.stat().st_size < FAST_MIN_BYTES:
+            return None
+    except OSError:
+        return None
     if not _polars_usable():
         return None
     import polars as pl

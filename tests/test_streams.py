@@ -46,6 +46,7 @@ def _same(a, b) -> None:
 
 def test_columnar_reader_reads_what_the_row_reader_reads(tmp_path, small, monkeypatch):
     for kw in ({}, THREE):
+        monkeypatch.setattr(streams, "FAST_MIN_BYTES", 0)  # the columnar reader, small files
         d = _log(tmp_path, small, f"log{len(kw)}", **kw)
         fast = read_recording(d)
         monkeypatch.setattr(streams, "read_columns", lambda p, h: None)
@@ -282,12 +283,14 @@ def _read_in_child(d: str, out) -> None:
     out.put(len(read_recording(Path(d)).t))
 
 
-def test_a_child_forked_after_polars_ran_reads_without_deadlock(tmp_path, small):
+def test_a_child_forked_after_polars_ran_reads_without_deadlock(tmp_path, small,
+                                                                monkeypatch):
     """The project's process pools fork; a child forked after this process used polars
     must not call polars (its thread pool is not in the child: a deadlock, as seen in a
     paper campaign's workers): it reads row by row, the same rows."""
     import multiprocessing
 
+    monkeypatch.setattr(streams, "FAST_MIN_BYTES", 0)
     d = _log(tmp_path, small, "log", **THREE)
     rows = len(read_recording(d).t)  # polars' pool started here
     assert streams._polars_usable()
