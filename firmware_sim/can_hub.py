@@ -140,6 +140,10 @@ class CanHub:
         self._server.settimeout(0.2)
         self._clients: list[_Client] = []
         self._lock = threading.Lock()
+        #: the wire: a frame is stamped and sent to every client under it, so that every
+        #: client (a CAN logger among them) gets the frames in one order, the order of their
+        #: timestamps (a SYNC after the answers to the one before, as on a real bus)
+        self._wire = threading.Lock()
         self._running = False
         self._threads: list[threading.Thread] = []
         #: malformed elements received (dropped)
@@ -224,7 +228,7 @@ class CanHub:
             batch = []
             while msg is not None:  # with whatever else is waiting: one write per client
                 if not (msg.is_error_frame or msg.is_remote_frame):
-                    batch.append(frame_element(msg, time.time()))
+                    batch.append(msg)
                 if len(batch) >= MAX_BATCH:
                     break
                 try:
@@ -232,7 +236,10 @@ class CanHub:
                 except can.CanError:
                     msg = None
             if batch:
-                self._broadcast(b"".join(batch), exclude=None)
+                with self._wire:
+                    now = time.time()
+                    self._broadcast(b"".join(frame_element(m, now) for m in batch),
+                                    exclude=None)
 
     def _broadcast(self, element: bytes, exclude: _Client | None) -> None:
         with self._lock:
@@ -292,8 +299,9 @@ class CanHub:
                 log.info("socketcand hub: dropped %r from %s: %s", element, client.addr, exc)
                 return opened
             self.frames_in += 1
-            msg.timestamp = time.time()
-            self._broadcast(frame_element(msg), exclude=client)
+            with self._wire:
+                msg.timestamp = time.time()
+                self._broadcast(frame_element(msg), exclude=client)
             if self.bus is not None:
                 try:
                     self.bus.send(msg)
