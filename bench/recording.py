@@ -133,10 +133,11 @@ _CABLE_COL = re.compile(r"^(l_cmd|l_meas|tau|ax_meas|ay_meas|az_meas|vel|current
 
 
 def read_recording(path: str | Path) -> Recording:
-    """Read and validate a recording directory (or an MCAP recording: bench/mcap_record.py)."""
-    from bench import mcap_record
-    if mcap_record.mcap_file(path) is not None:
-        return mcap_record.read_recording_mcap(path)
+    """Read and validate a recording directory (or an MCAP recording: :mod:`bench.mcap`)."""
+    from bench.mcap.convert import read_recording_mcap
+    from bench.mcap.reader import mcap_file
+    if mcap_file(path) is not None:
+        return read_recording_mcap(path)
     d = Path(path)
     meta_path = d / "meta.toml"
     meta, text = read_toml(meta_path, RecordingError)

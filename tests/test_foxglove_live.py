@@ -11,7 +11,7 @@ import pytest
 
 from bench.cli import main
 from bench.dryrun.record import columns
-from bench.foxglove_live import LiveWriter, parse_address
+from bench.mcap.live import LiveWriter, parse_address
 from controller.robot import resolve_robot
 
 

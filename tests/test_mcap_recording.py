@@ -21,7 +21,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from bench.cli import main
-from bench.mcap_record import (
+from bench.mcap import (
     MCAP_NAME,
     McapRecordingWriter,
     csv_to_mcap,
@@ -199,7 +199,7 @@ def test_an_mcap_file_that_is_no_recording_is_refused_naming_it(tmp_path):
 KILLED_WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
-    from bench.mcap_record import McapRecordingWriter
+    from bench.mcap import McapRecordingWriter
     from controller.robot import resolve_robot
     robot = resolve_robot("rocaspect")
     cols = ["t", "x_des", "tau_11", "cycle"]
@@ -325,7 +325,7 @@ def test_can_frames_round_trip_through_can_log(tmp_path):
         for m in frames:
             log.on_message_received(m)
     csv_to_mcap(src, tmp_path / "r.mcap")
-    from bench.mcap_record import read_can_frames
+    from bench.mcap import read_can_frames
 
     got = list(read_can_frames(tmp_path / "r.mcap"))
     assert [(m.arbitration_id, bytes(m.data)) for m in got] == [
@@ -339,7 +339,7 @@ def test_can_frames_round_trip_through_can_log(tmp_path):
 def test_property_quaternion_is_scipys(rpy):
     from scipy.spatial.transform import Rotation
 
-    from bench.mcap_record import quaternion
+    from bench.mcap.scene import quaternion
     from controller.pose import rotation
 
     R = rotation(np.array(rpy))

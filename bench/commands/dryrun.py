@@ -356,7 +356,7 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
     except ValueError as exc:
         return _fail(args, 2, f"--react {exc}")
     if args.live is not None:
-        from bench.foxglove_live import parse_address
+        from bench.mcap.live import parse_address
         try:
             parse_address(args.live)
         except ValueError as exc:

@@ -43,7 +43,7 @@ def _fail(args: argparse.Namespace, msg: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.mcap_record import convert, convert_target, info
+    from bench.mcap import convert, convert_target, info
     from bench.recording import RecordingError
 
     try:

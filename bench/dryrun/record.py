@@ -65,9 +65,9 @@ FORMATS = ("csv", "mcap", "both")
 def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, meta: dict,
                   robot_header: str = "", fmt: str = "csv", flush_s: float = 1.0,
                   can: str | None = None, live: str | None = None):
-    """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: bench/mcap_record.py, which
+    """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: :mod:`bench.mcap`, which
     also records every frame of the ``can`` bus, a ``--can`` spec, when given); with
-    ``live`` (``HOST:PORT``) also shown live in Foxglove (bench/foxglove_live.py), and only
+    ``live`` (``HOST:PORT``) also shown live in Foxglove (:mod:`bench.mcap.live`), and only
     that when ``path`` is None."""
     if fmt not in FORMATS:
         raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
@@ -75,13 +75,13 @@ def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, 
     if path is not None and fmt == "csv":
         rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
     elif path is not None:
-        from bench.mcap_record import dry_run_recorder
+        from bench.mcap.recorders import dry_run_recorder
 
         rec = dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt, can)
     if live is None:
         return rec
-    from bench.foxglove_live import live_recorder
-    from bench.mcap_record import TeeRecorder
+    from bench.mcap.live import live_recorder
+    from bench.mcap.recorders import TeeRecorder
 
     view = live_recorder(live, robot, init_pose)
     return view if rec is None else TeeRecorder(rec, view)

@@ -1,7 +1,7 @@
 """A run shown live in Foxglove: the recording's channels on a Foxglove WebSocket server.
 
 ``cdpr dry-run ... --live [HOST:PORT]`` starts a server (foxglove-sdk) with the channels of
-an MCAP recording (bench/mcap_record.py: the JSON row channels, ``/supervisor/events``,
+an MCAP recording (bench/mcap: the JSON row channels, ``/supervisor/events``,
 ``/tf``, ``/scene``); Foxglove connects to ``ws://HOST:PORT``. The control loop only
 queues its rows (:meth:`LiveWriter.append`, cheap); a thread of its own publishes, at most
 ``rate_hz`` times a second, the newest row (a view, not a record: rows in between are not
@@ -17,15 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from bench.mcap_record import (
-    _EVENT_SCHEMA,
+from bench.mcap.channels import (
+    EVENT_SCHEMA,
     EVENTS_TOPIC,
-    _ns,
-    _Scene,
     layout,
+    log_ns,
     row_messages,
     row_schemas,
 )
+from bench.mcap.scene import Scene
 from controller.robot import Robot
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"
@@ -63,7 +63,7 @@ class LiveWriter:
         header = self.columns + (["state"] if states else [])
         self._layout = layout(header)
         self._idx = {name: i for i, name in enumerate(self.columns)}
-        self._scene = _Scene(robot, self.columns)
+        self._scene = Scene(robot, self.columns)
         self._ch: dict[str, Any] = {}
         for topic, (title, schema) in row_schemas(self._layout).items():
             self._ch[topic] = foxglove.Channel(
@@ -72,7 +72,7 @@ class LiveWriter:
         self._ch[EVENTS_TOPIC] = foxglove.Channel(
             EVENTS_TOPIC, message_encoding="json", context=self._ctx,
             schema=foxglove.Schema(name="cdpr.SupervisorEvent", encoding="jsonschema",
-                                   data=_EVENT_SCHEMA))
+                                   data=EVENT_SCHEMA))
         for topic, sc in self._scene.schemas().items():
             self._ch[topic] = foxglove.Channel(
                 topic, message_encoding="protobuf", context=self._ctx,
@@ -107,10 +107,10 @@ class LiveWriter:
             latest, self._latest = self._latest, None
             events, self._events = self._events, []
         for ev in events:
-            self._ch[EVENTS_TOPIC].log(json.dumps(ev).encode(), log_time=_ns(ev["t"]))
+            self._ch[EVENTS_TOPIC].log(json.dumps(ev).encode(), log_time=log_ns(ev["t"]))
         if latest is not None:
             row, state = latest
-            ns = _ns(float(row[0]))
+            ns = log_ns(float(row[0]))
             for topic, data in row_messages(self._layout, self._idx, self._scene, row, state,
                                             self._first):
                 self._ch[topic].log(data, log_time=ns)
