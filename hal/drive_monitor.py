@@ -64,6 +64,8 @@ class MonitorEvent:
     code: int
     text: str
     severity: str = WARNING
+    #: ``emcy``, ``boot_up``, ``sdo_lost`` (stopped answering), ``sdo_resumed``
+    kind: str = "emcy"
 
     def __str__(self) -> str:
         stamp = time.strftime("%H:%M:%S", time.localtime(self.wall_time))
@@ -110,7 +112,7 @@ class DriveMonitor:
                 if data[0] & 0x7F == 0:
                     k = [int(x) for x in self.winches.node_id].index(nid)
                     self._event(k, 0, "boot-up: the node was reset or powered on (its "
-                                "configuration is the stored one)", NMT)
+                                "configuration is the stored one)", NMT, "boot_up")
         return cb
 
     def _emcy_cb(self, k: int):
@@ -121,9 +123,10 @@ class DriveMonitor:
                         emcy_severity(code))
         return cb
 
-    def _event(self, k: int, code: int, text: str, severity: str = WARNING) -> None:
+    def _event(self, k: int, code: int, text: str, severity: str = WARNING,
+               kind: str = "emcy") -> None:
         self.events.append(MonitorEvent(time.time(), int(self.winches.node_id[k]),
-                                        self.winches.cables[k], code, text, severity))
+                                        self.winches.cables[k], code, text, severity, kind))
 
     def close(self) -> None:
         for cob, cb in self._subs:
@@ -170,13 +173,13 @@ class DriveMonitor:
                 DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE) else 0
         except DriveConfigError as exc:
             if self._answered[k]:
-                self._event(k, 0, f"stopped answering SDO: {exc}", FAULT)
+                self._event(k, 0, f"stopped answering SDO: {exc}", FAULT, "sdo_lost")
             self._answered[k] = False
             self._skip_until[k] = now + self.skip_s
             return DriveSample(t=now, answered=False, state="UNKNOWN",
                                error=str(exc).removeprefix(f"{who}: "), **base)
         if not self._answered[k]:
-            self._event(k, 0, "answers SDO again")
+            self._event(k, 0, "answers SDO again", WARNING, "sdo_resumed")
         self._answered[k] = True
         ax = self.winches.axis(k)
         return DriveSample(

@@ -237,11 +237,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q = add("monitor", "live table of drive states, positions, velocities, torques, tensions, "
             "bus load and the last errors",
             'print {"refreshes", "ended_by", "frames", "drives", "load_cells", "events", '
-            '"events_by_severity", "events_dropped", "tension_window_n", "record", "rows", '
-            '"candump"} at the end')
+            '"events_by_severity", "events_dropped", "tension_window_n", "record", "format", '
+            '"live", "rows", "candump"} at the end')
     q.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="refreshes per second")
     q.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     q.add_argument("--record", metavar="DIR", help="write a cdpr-recording/1 directory")
+    q.add_argument("--format", choices=("csv", "mcap", "both"), default="csv",
+                   help="--record as the CSV directory, as DIR/recording.mcap (MCAP, zstd, "
+                        "with the CAN frames on /can), or both [csv]")
+    q.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
+                   metavar="HOST:PORT",
+                   help="show the drives and tensions live in Foxglove: a WebSocket server "
+                        "on HOST:PORT [127.0.0.1:8765]")
     q.add_argument("--init-pose", metavar="X,Y,Z[,R,P,Y]",
                    help="init_pose of --record [forward kinematics of the first sample]")
     q.add_argument("--json-lines", action="store_true",

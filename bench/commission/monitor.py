@@ -11,9 +11,13 @@ block of plain lines per refresh.
 
 ``--record DIR`` writes a ``cdpr-recording/1`` as it goes (``t``, ``l_meas_*``, ``tau_*``,
 ``vel_*`` [m/s], ``torque_*`` [N m], ``drive_state_*`` (CiA 402 state number), and
-``current_*`` [per mille] when read); its ``init_pose`` is ``--init-pose`` or the forward
-kinematics of the first sample (said in its notes). ``--candump FILE`` logs every CAN frame,
-heard and sent, with python-can's Logger (.asc, .blf, .log, .csv by the suffix).
+``current_*`` [per mille] when read; ``events.csv``: the events below, device ``drive``,
+reaction ``event``); its ``init_pose`` is ``--init-pose`` or the forward kinematics of the
+first sample (said in its notes). ``--format mcap`` writes it as ``DIR/recording.mcap``
+instead (``both``: the two), with every CAN frame heard and sent on ``/can``
+(:mod:`bench.mcap`); ``--live [HOST:PORT]`` serves the same channels (but ``/can``) to
+Foxglove. ``--candump FILE`` logs every CAN frame, heard and sent, with python-can's Logger
+(.asc, .blf, .log, .csv by the suffix).
 ``--duration S`` ends it; else Ctrl-C or ``q`` (exit status 0, files closed).
 
 A valid tension outside the window (``--tension-window``, else the supervisor's) shows as
@@ -51,6 +55,43 @@ STATE_SHORT = {"NOT_READY_TO_SWITCH_ON": "not ready", "SWITCH_ON_DISABLED": "dis
                "READY_TO_SWITCH_ON": "ready", "SWITCHED_ON": "switched on",
                "OPERATION_ENABLED": "ENABLED", "QUICK_STOP_ACTIVE": "QUICK STOP",
                "FAULT_REACTION_ACTIVE": "FAULT REACT", "FAULT": "FAULT", "UNKNOWN": "?"}
+
+
+class _FrameSink:
+    """CAN frames (heard and sent) for the recording's ``/can``: those before the recording
+    opens (it opens with the first sample) are kept, at most ``limit``, and handed over
+    when it does (:meth:`attach`); after :meth:`detach` none."""
+
+    def __init__(self, limit: int = 100_000) -> None:
+        self.lock = threading.Lock()
+        self.pending: list | None = []
+        self.limit = limit
+        self.target = None
+
+    def __call__(self, msg) -> None:
+        with self.lock:
+            if self.target is not None:
+                self.target(msg)
+            elif self.pending is not None and len(self.pending) < self.limit:
+                self.pending.append(msg)
+
+    def attach(self, target) -> None:
+        with self.lock:
+            for m in self.pending or []:
+                target(m)
+            self.pending, self.target = None, target
+
+    def detach(self) -> None:
+        with self.lock:
+            self.pending, self.target = None, None
+
+
+def record_event(writer, e, wall_t0: float) -> None:
+    """A :class:`hal.drive_monitor.MonitorEvent` as a recording's event (``t`` [s] since
+    ``wall_t0``, the wall time of the first refresh; reaction ``event``: the monitor does
+    not react)."""
+    writer.event(e.wall_time - wall_t0, "drive", e.node_id, e.cable, e.kind, e.code, "event",
+                 e.kind != "sdo_resumed", e.text)
 
 
 class _LockedLogger:
@@ -188,7 +229,7 @@ def _init_pose(args, robot, lengths: np.ndarray) -> tuple[np.ndarray, str]:
 def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     import can
 
-    from bench.recording import RecordingWriter
+    from bench.mcap.recorders import open_writer
     from controller.robot import resolve_robot
     from controller.winch import WinchConfigError
     from hal.drive_monitor import DriveMonitor
@@ -203,11 +244,19 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     w = winches_of(args)
     rmap = register_map_of(args)
     robot = None
-    if args.record:
+    if args.live is not None:
+        from bench.mcap.live import parse_address
+
+        try:
+            parse_address(args.live)
+        except ValueError as exc:
+            raise CommissionError(str(exc), 2) from None
+    if args.record or args.live is not None:
         robot = resolve_robot(args.robot)
         if tuple(robot.cable_ids) != tuple(w.cables):
             raise WinchConfigError(f"robot {robot.name} has cables {robot.cable_ids}, the "
                                    f"winches {w.source} {w.cables}")
+    if args.record:
         rec_dir = Path(args.record)
         if rec_dir.exists() and any(rec_dir.iterdir()):
             raise CommissionError(f"--record {rec_dir}: not empty; choose a new directory", 2)
@@ -217,6 +266,7 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     period = 1.0 / args.rate
     counter = FrameCounter(window_s=1.0)
     writer = None
+    frames = _FrameSink() if args.record and args.format != "csv" else None
     logger = None
     cells = None
     polls = 0
@@ -240,11 +290,15 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             counter.count(msg)
             if logger is not None:
                 logger(msg)
+            if frames is not None:
+                frames(msg)
 
         bus.send = send_and_count
         net.notifier.add_listener(counter)
         if logger is not None:
             net.notifier.add_listener(logger)
+        if frames is not None:
+            net.notifier.add_listener(frames)
         mon = DriveMonitor(net, w, args.eds)
         try:
             if args.modbus is not None:
@@ -259,8 +313,8 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                 # (a unit that does not answer shows its timeout status instead).
                 cells.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
             screen = _Screen(sys.stderr if args.json_lines else ui.out)
-            n_seen = 0
-            t0 = time.monotonic()
+            n_seen = n_recorded = 0
+            t0, wall_t0 = time.monotonic(), time.time()
             t_end = None if args.duration is None else t0 + args.duration
             keys = None
             if sys.stdin.isatty() and not args.json:
@@ -278,22 +332,27 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                         reading = cells.read() if cells is not None else None
                         now = time.monotonic()
                         polls += 1
-                        if args.record and writer is None:
+                        if robot is not None and writer is None:
                             lengths = np.array([np.nan if s.length_m is None else s.length_m
                                                 for s in samples])
                             pose, note = _init_pose(args, robot, lengths)
                             cols = _columns(w.cables, mon.has_current)
-                            writer = RecordingWriter(
+                            writer = open_writer(
                                 args.record, robot, pose, cols,
                                 {"pose_source": "none (cdpr commission monitor)",
                                  "tension_source": "load cells" if cells else "none",
                                  "notes": f"cdpr commission monitor on {args.can}; {note}; "
                                           f"winches {w.source}"},
-                                states=False)
+                                fmt=args.format, live=args.live, can_t0=wall_t0)
+                            if frames is not None:
+                                frames.attach(writer.can_frame)
                             section.fact("init pose", f"{np.round(pose, 4).tolist()} ({note})")
                         if writer is not None:
                             writer.append(_row(now - t0, samples, reading, w, rmap,
                                                mon.has_current))
+                            new, n_recorded = _new_events(mon, n_recorded)
+                            for e in new:
+                                record_event(writer, e, wall_t0)
                         header = (f"cdpr commission monitor {time.strftime('%H:%M:%S')} "
                                   f"{args.can}")
                         last_lines = render(samples, reading, rmap,
@@ -332,6 +391,9 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             if cells is not None:
                 cells.stop()
             mon.close()
+            if frames is not None:
+                net.notifier.remove_listener(frames)
+                frames.detach()
             if writer is not None:
                 writer.close()
             net.notifier.remove_listener(counter)
@@ -345,14 +407,16 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     if any(dropped.values()):
         section.fact("events dropped", ", ".join(f"{v} {k}" for k, v in dropped.items()))
     if args.record:
-        section.fact("recording", f"{args.record} ({writer.rows if writer else 0} rows)")
+        section.fact("recording", f"{args.record} ({writer.rows if writer else 0} rows, "
+                     f"{args.format})")
     if args.candump:
         section.fact("CAN log", args.candump)
     section.bullets(events)
     if last_lines:
         section.text("Last table:\n\n```\n" + "\n".join(last_lines) + "\n```")
     ui.say(f"monitor: {polls} refreshes, ended by {why}"
-           + (f"; recording {args.record} ({writer.rows} rows)" if writer else "")
+           + (f"; recording {args.record} ({writer.rows} rows)" if args.record and writer
+              else "")
            + (f"; CAN log {args.candump}" if args.candump else ""))
     if any(dropped.values()):
         ui.say("events dropped (oldest first, by severity): "
@@ -364,7 +428,8 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
              "events_by_severity": {sev: [e.as_dict() for e in mon.events.items(sev)]
                                     for sev in SEVERITIES},
              "events_dropped": dropped, "tension_window_n": [window.low_n, window.high_n],
-             "record": args.record, "rows": writer.rows if writer else 0,
+             "record": args.record, "format": args.format, "live": args.live,
+             "rows": writer.rows if args.record and writer else 0,
              "candump": args.candump})
     if stopped is not None:  # 130 / 143: dispatch's last line on stderr says which signal
         return stopped[0]

@@ -28,14 +28,16 @@ _GROUPS: list[tuple[str, str, re.Pattern]] = [
     ("/cables/lengths", "cdpr.CableLengths", re.compile(r"^l_(cmd|meas)_(\w+)$")),
     ("/cables/tensions", "cdpr.CableTensions", re.compile(r"^(tau|plan_tau)_(\w+)$")),
     ("/cables/exits", "cdpr.ExitPoints", re.compile(r"^a(x|y|z)_meas_(\w+)$")),
-    ("/drives/feedback", "cdpr.DriveFeedback", re.compile(r"^(vel|current)_(\w+)$")),
+    ("/drives/feedback", "cdpr.DriveFeedback", re.compile(r"^(vel|current|torque)_(\w+)$")),
+    ("/drives/state", "cdpr.DriveStates", re.compile(r"^(drive_state)_(\w+)$")),
     ("/loop", "cdpr.LoopState", re.compile(r"^(cycle|overruns|substituted|state)$")),
     ("/recording/other", "cdpr.Columns", re.compile(r"^(.+)$")),
 ]
 #: the row topics in the order they are written
 TOPICS = tuple(g[0] for g in _GROUPS)
 _FIELD_NAMES = {"cmd": "commanded", "meas": "measured", "tau": "measured",
-                "plan_tau": "planned", "vel": "velocity", "current": "current"}
+                "plan_tau": "planned", "vel": "velocity", "current": "current",
+                "torque": "torque", "drive_state": "state"}
 
 
 def _path_of(topic: str, m: re.Match) -> tuple[str, ...]:

@@ -59,7 +59,7 @@ class LiveWriter:
         self._ctx = foxglove.Context()
         self.server = foxglove.start_server(name="cdpr-bench", host=host, port=port,
                                             context=self._ctx)
-        self.port: int = self.server.port
+        self.host, self.port = host, int(self.server.port)
         header = self.columns + (["state"] if states else [])
         self._layout = layout(header)
         self._idx = {name: i for i, name in enumerate(self.columns)}
@@ -154,6 +154,6 @@ def live_recorder(address: str, robot: Robot, init_pose: np.ndarray, rate_hz: fl
     rec = LiveRecorder()
     import sys
 
-    host, _ = parse_address(address)
-    print(f"Foxglove live view: ws://{host}:{rec.port}", file=sys.stderr, flush=True)
+    print(f"Foxglove live view: ws://{rec.writer.host}:{rec.port}", file=sys.stderr,
+          flush=True)
     return rec

@@ -1,8 +1,10 @@
-"""The recorders of a run in MCAP (``--format mcap|both``) and the tee of several
-recorders (a recording and the live view)."""
+"""The recorders of a run in MCAP (``--format mcap|both``), the tee of several recorders
+(a recording and the live view), and the writer of ``cdpr commission monitor``'s rows in
+any format (:func:`open_writer`)."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -49,22 +51,33 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
 
 
 class TeeRecorder:
-    """Rows, events and meta to several recorders (``--format both``)."""
+    """Rows, events and meta to several recorders (``--format both``, ``--live``); as well
+    several writers (:meth:`append`; CAN frames to those that keep them)."""
 
     def __init__(self, *recorders) -> None:
         self.recorders = recorders
 
     @property
     def rows(self) -> int:
-        return min(r.rows for r in self.recorders)
+        """The rows of the first (the recording's: a live view skips rows)."""
+        return self.recorders[0].rows
 
     def row(self, *args, **kw) -> None:
         for r in self.recorders:
             r.row(*args, **kw)
 
+    def append(self, *args, **kw) -> None:
+        for r in self.recorders:
+            r.append(*args, **kw)
+
     def event(self, *args, **kw) -> None:
         for r in self.recorders:
             r.event(*args, **kw)
+
+    def can_frame(self, msg) -> None:
+        for r in self.recorders:
+            if hasattr(r, "can_frame"):
+                r.can_frame(msg)
 
     def update_meta(self, **fields) -> None:
         for r in self.recorders:
@@ -79,3 +92,72 @@ class TeeRecorder:
                 errors.append(e)
         if errors:
             raise errors[0]
+
+
+class CsvWriter:
+    """A ``cdpr-recording/1`` directory written while a run goes, with its ``events.csv``:
+    :class:`bench.recording.RecordingWriter` and the events the dry run's recorder writes
+    (the CSV format keeps no CAN frames: ``--candump``)."""
+
+    def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray,
+                 columns: list[str], meta: dict, states: bool, flush_s: float = 1.0) -> None:
+        from bench.dryrun.record import EVENT_COLUMNS
+        from bench.recording import CsvStream, RecordingWriter
+
+        self.writer = RecordingWriter(path, robot, init_pose, columns, meta, states=states,
+                                      flush_s=flush_s)
+        self.events = CsvStream(Path(path) / "events.csv", EVENT_COLUMNS, flush_s)
+
+    @property
+    def rows(self) -> int:
+        return self.writer.rows
+
+    def append(self, values, state: str | None = None) -> None:
+        self.writer.append(values, state)
+
+    def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
+              reaction: str, active: bool, text: str) -> None:
+        from bench.dryrun.record import event_cells
+
+        self.events.append(event_cells(t, device, address, cable, kind, code, reaction,
+                                       active, text))
+
+    def update_meta(self, **fields) -> None:
+        self.writer.update_meta(**fields)
+
+    def close(self) -> None:
+        try:
+            self.writer.close()
+        finally:
+            self.events.close()
+
+
+def open_writer(path: str | Path | None, robot: Robot, init_pose: np.ndarray,
+                columns: list[str], meta: dict, fmt: str = "csv", states: bool = False,
+                live: str | None = None, can_t0: float | None = None,
+                flush_s: float = 1.0):
+    """One writer (``append(values, state)``, ``event(...)``, ``can_frame(msg)``,
+    ``update_meta``, ``close``, ``rows``) of a recording ``path`` in ``fmt`` (``csv``: the
+    directory with ``events.csv``; ``mcap``: ``path/recording.mcap`` with ``/can``;
+    ``both``) and, with ``live`` (``HOST:PORT``), the Foxglove live view (no ``/can``).
+    ``can_t0``: the CAN frames' clock [s] at ``t`` = 0 (their MCAP log time then on the
+    rows' clock). None when there is neither."""
+    from bench.dryrun.record import FORMATS
+
+    if fmt not in FORMATS:
+        raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
+    out: list = []
+    if path is not None and fmt in ("csv", "both"):
+        out.append(CsvWriter(path, robot, init_pose, columns, meta, states, flush_s))
+    if path is not None and fmt in ("mcap", "both"):
+        out.append(McapRecordingWriter(Path(path) / MCAP_NAME, robot, init_pose, columns, meta,
+                                       states=states, flush_s=flush_s, can_t0=can_t0))
+    if live is not None:
+        from bench.mcap.live import LiveWriter
+
+        view = LiveWriter(live, robot, columns, states=states)
+        print(f"Foxglove live view: ws://{view.host}:{view.port}", file=sys.stderr, flush=True)
+        out.append(view)
+    if not out:
+        return None
+    return out[0] if len(out) == 1 else TeeRecorder(*out)

@@ -35,13 +35,15 @@ class McapRecordingWriter(BackgroundWriter):
     ``append`` only queues; a background thread encodes and writes, and closes the chunk
     (zstd) and flushes the file at least every ``flush_s`` seconds. ``scene``: also the
     Foxglove ``/tf`` and ``/scene`` channels. ``header``: the CSV header order to keep
-    (``columns`` and ``state``; default: ``columns`` then ``state``)."""
+    (``columns`` and ``state``; default: ``columns`` then ``state``). ``can_t0``: the CAN
+    frames' clock [s] at ``t`` = 0, when known: ``/can`` log times are then on the rows'
+    clock (each message's ``t`` keeps the frame's own time); else the frames' clock."""
 
     def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray,
                  columns: list[str], meta: dict[str, Any] | None = None,
                  robot_header: str = "", states: bool = True, flush_s: float = 1.0,
                  robot_text: str | None = None, scene: bool = True,
-                 header: list[str] | None = None) -> None:
+                 header: list[str] | None = None, can_t0: float | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
         from controller.robot import dumps_robot
@@ -80,6 +82,7 @@ class McapRecordingWriter(BackgroundWriter):
         sid = self._w.register_schema("cdpr.CanFrame", "jsonschema", CAN_SCHEMA)
         self._ch[CAN_TOPIC] = self._w.register_channel(CAN_TOPIC, "json", sid)
         self._can_frames = 0
+        self._can_t0 = 0.0 if can_t0 is None else float(can_t0)
         self._scene = Scene(robot, self.columns) if scene else None
         if self._scene is not None:
             for topic, sc in self._scene.schemas().items():
@@ -134,7 +137,7 @@ class McapRecordingWriter(BackgroundWriter):
                 self.rows += 1
             elif kind == "can":
                 t, cid, ext, dlc, data = a
-                ns = log_ns(t)
+                ns = log_ns(t - self._can_t0)
                 self._w.add_message(self._ch[CAN_TOPIC], ns, json.dumps(
                     {"t": t, "id": cid, "extended": ext, "dlc": dlc, "data": data.hex()}
                 ).encode(), ns, self._can_frames)
