@@ -6,7 +6,9 @@ holding ``recording.mcap`` and no ``meta.toml``) becomes the CSV directory ``OUT
 directory becomes the MCAP file ``OUT`` (when it ends in ``.mcap``, else
 ``OUT/recording.mcap``). ``--json``: ``{"from", "to", "input", "output", "rows", "events",
 "truncated"}``. ``info`` prints an MCAP recording's channels, chunks and rows
-(``--json``: the object).
+(``--json``: the object). ``layout OUT`` writes the Foxglove layout
+(:mod:`bench.mcap.foxglove_layout`) for ``--robot``'s cables (``--json``: ``{"output",
+"robot", "topics"}``).
 
 Exit status: 0 done, 2 bad input or an output that exists (without ``--force``).
 """
@@ -19,7 +21,8 @@ import shutil
 import sys
 
 NAME = "recording"
-HELP = "convert recordings between the CSV directory and MCAP; describe an MCAP recording"
+HELP = ("convert recordings between the CSV directory and MCAP; describe an MCAP recording; "
+        "write the Foxglove layout")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,6 +36,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     i = sub.add_parser("info", help="channels, chunks and rows of an MCAP recording")
     i.add_argument("input", help="MCAP recording (file, or directory with recording.mcap)")
     i.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    lo = sub.add_parser("layout", help="write the Foxglove layout for a robot's cables")
+    lo.add_argument("output", help="layout file to write (*.json)")
+    lo.add_argument("--robot", default="rocaspect",
+                    help="robot name or robot.toml whose cables the plots show [rocaspect]")
+    lo.add_argument("--force", action="store_true", help="overwrite an existing OUTPUT")
+    lo.add_argument("--json", action="store_true", help="one JSON object on stdout")
 
 
 def _fail(args: argparse.Namespace, msg: str) -> int:
@@ -47,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
     from bench.recording import RecordingError
 
     try:
+        if args.action == "layout":
+            return _layout(args)
         if args.action == "info":
             out = info(args.input)
             if args.json:
@@ -75,4 +86,25 @@ def run(args: argparse.Namespace) -> int:
               f"{out['rows']} rows, {out['events']} events"
               + (" (the input was cut short: rows up to its last whole chunk)"
                  if out["truncated"] else ""))
+    return 0
+
+
+def _layout(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from bench.mcap import foxglove_layout as fl
+    from controller.robot import RobotFileError, resolve_robot
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        return _fail(args, f"{out}: exists (use --force to overwrite)")
+    try:
+        robot = resolve_robot(args.robot)
+    except (RobotFileError, ValueError, OSError) as exc:
+        return _fail(args, f"--robot {args.robot}: {exc}")
+    lay = fl.robot_layout(robot)
+    fl.write(out, lay)
+    res = {"output": str(out), "robot": robot.name, "topics": sorted(fl.topics(lay))}
+    print(json.dumps(res) if args.json else f"{out}: Foxglove layout for {robot.name} "
+          f"({len(robot.cable_ids)} cables)")
     return 0

@@ -17,6 +17,7 @@ MCAP_NAME = "recording.mcap"
 MAGIC = b"\x89MCAP0\r\n"
 META_NAME = "cdpr-recording"
 EVENTS_TOPIC = "/supervisor/events"
+LOG_TOPIC = "/supervisor/log"  #: the events as ``foxglove.Log`` (Foxglove's Log panel)
 CAN_TOPIC = "/can"
 CAN_LOG = "can.log"  #: the CAN frames beside a CSV recording (candump format)
 EVENT_FIELDS = ("device", "address", "cable", "kind", "code", "reaction", "active", "text")

@@ -20,6 +20,7 @@ import numpy as np
 from bench.mcap.channels import (
     EVENT_SCHEMA,
     EVENTS_TOPIC,
+    LOG_TOPIC,
     layout,
     log_ns,
     row_messages,
@@ -108,6 +109,7 @@ class LiveWriter:
             events, self._events = self._events, []
         for ev in events:
             self._ch[EVENTS_TOPIC].log(json.dumps(ev).encode(), log_time=log_ns(ev["t"]))
+            self._ch[LOG_TOPIC].log(self._scene.log(ev), log_time=log_ns(ev["t"]))
         if latest is not None:
             row, state = latest
             ns = log_ns(float(row[0]))

@@ -30,7 +30,7 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
             self.n = robot.n_cables
             self.writer = McapRecordingWriter(self.path / MCAP_NAME, robot, init_pose,
                                               columns(robot), meta, robot_header,
-                                              states=True, flush_s=flush_s)
+                                              states=True, flush_s=flush_s, can_t0="rows")
             self._row = np.empty(len(self.writer.columns))
             self.tap = CanTap(can, self.writer.can_frame) if can else None
 

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.mcap.channels import log_ns
+from bench.mcap.channels import LOG_TOPIC, log_ns
 from bench.recording import POSE_AXES
 from controller.robot import Robot
 
@@ -51,7 +51,24 @@ class Scene:
 
     def schemas(self) -> dict[str, Any]:
         return {"/tf": self.fm.FrameTransform.get_schema(),
-                "/scene": self.fm.SceneUpdate.get_schema()}
+                "/scene": self.fm.SceneUpdate.get_schema(),
+                LOG_TOPIC: self.fm.Log.get_schema()}
+
+    def log(self, ev: dict[str, Any]) -> bytes:
+        """A supervisor or hardware event (the fields of ``events.csv``) as a
+        ``foxglove.Log``: level :func:`log_level`, name ``device address (cable)``, message
+        ``kind 0xCODE -> reaction: text`` (and ``ended`` when it ends)."""
+        fm = self.fm
+        ns = log_ns(ev["t"])
+        who = f"{ev['device']} {ev['address']}" + (f" (cable {ev['cable']})" if ev["cable"]
+                                                  else "")
+        code = f" 0x{ev['code']:04X}" if ev["code"] else ""
+        text = (f"{ev['kind']}{code} -> {ev['reaction']}: {ev['text']}"
+                + ("" if ev["active"] else " (ended)"))
+        return fm.Log(timestamp=fm.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000),
+                      level=getattr(fm.LogLevel, log_level(ev["reaction"], ev["active"])),
+                      message=text, name=who,
+                      file="", line=0).encode()
 
     def pose(self, row: np.ndarray) -> np.ndarray | None:
         for cols in (self.meas, self.des):
@@ -134,3 +151,16 @@ class Scene:
                         fm.Point3(x=top[0], y=top[1], z=top[2])],
                 color=fm.Color(r=0.3, g=0.3, b=0.3, a=1.0)))
         return fm.SceneEntity(timestamp=stamp, frame_id="world", id="masts", lines=lines)
+
+
+def log_level(reaction: str, active: bool) -> str:
+    """The ``foxglove.Log`` level of an event: ``Error`` when it starts a quick stop or
+    disables the drives, ``Warning`` when it starts a hold or a substitution, else ``Info``
+    (a logged event, the end of a condition, the hardware's own events)."""
+    if not active:
+        return "Info"
+    if reaction in ("quick_stop", "disable"):
+        return "Error"
+    if reaction in ("hold", "substitute"):
+        return "Warning"
+    return "Info"

@@ -16,6 +16,7 @@ from bench.mcap.channels import (
     CAN_TOPIC,
     EVENT_SCHEMA,
     EVENTS_TOPIC,
+    LOG_TOPIC,
     META_NAME,
     layout,
     log_ns,
@@ -34,16 +35,20 @@ class McapRecordingWriter(BackgroundWriter):
 
     ``append`` only queues; a background thread encodes and writes, and closes the chunk
     (zstd) and flushes the file at least every ``flush_s`` seconds. ``scene``: also the
-    Foxglove ``/tf`` and ``/scene`` channels. ``header``: the CSV header order to keep
-    (``columns`` and ``state``; default: ``columns`` then ``state``). ``can_t0``: the CAN
-    frames' clock [s] at ``t`` = 0, when known: ``/can`` log times are then on the rows'
-    clock (each message's ``t`` keeps the frame's own time); else the frames' clock."""
+    Foxglove channels (``/tf``, ``/scene``, ``/supervisor/log``). ``header``: the CSV
+    header order to keep (``columns`` and ``state``; default: ``columns`` then ``state``).
+    ``can_t0``: the MCAP log time of the ``/can`` messages (each message's ``t`` keeps the
+    frame's own time): None the frames' clock; a number, the frames' clock [s] at ``t`` =
+    0 (log times on the rows' clock); ``"rows"``, the ``t`` of the newest row appended
+    before the frame (0 before the first: on the rows' clock within a row's period, also
+    when the rows' clock is simulated, lock-step)."""
 
     def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray,
                  columns: list[str], meta: dict[str, Any] | None = None,
                  robot_header: str = "", states: bool = True, flush_s: float = 1.0,
                  robot_text: str | None = None, scene: bool = True,
-                 header: list[str] | None = None, can_t0: float | None = None) -> None:
+                 header: list[str] | None = None,
+                 can_t0: float | str | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
         from controller.robot import dumps_robot
@@ -82,12 +87,16 @@ class McapRecordingWriter(BackgroundWriter):
         sid = self._w.register_schema("cdpr.CanFrame", "jsonschema", CAN_SCHEMA)
         self._ch[CAN_TOPIC] = self._w.register_channel(CAN_TOPIC, "json", sid)
         self._can_frames = 0
-        self._can_t0 = 0.0 if can_t0 is None else float(can_t0)
+        if can_t0 is not None and can_t0 != "rows":
+            can_t0 = float(can_t0)
+        self._can_t0 = can_t0
+        self._row_t = 0.0  #: the newest row's t [s] (``can_t0="rows"``)
         self._scene = Scene(robot, self.columns) if scene else None
         if self._scene is not None:
             for topic, sc in self._scene.schemas().items():
                 sid = self._w.register_schema(sc.name, sc.encoding, sc.data)
                 self._ch[topic] = self._w.register_channel(topic, "protobuf", sid)
+            self._log = 0
         self._w.flush()
         self._events = 0
         self._start(flush_s, f"mcap-{self.path.name}")
@@ -125,7 +134,8 @@ class McapRecordingWriter(BackgroundWriter):
         self._queue_item(("meta", tomli_w.dumps(self.meta), None))
 
     def _write_row(self, row: np.ndarray, state: str, seq: int) -> None:
-        ns = log_ns(float(row[0]))
+        self._row_t = float(row[0])
+        ns = log_ns(self._row_t)
         for topic, data in row_messages(self._layout, self._idx, self._scene, row, state,
                                         seq == 0):
             self._w.add_message(self._ch[topic], ns, data, ns, seq)
@@ -137,7 +147,8 @@ class McapRecordingWriter(BackgroundWriter):
                 self.rows += 1
             elif kind == "can":
                 t, cid, ext, dlc, data = a
-                ns = log_ns(t - self._can_t0)
+                ns = log_ns(t if self._can_t0 is None else self._row_t
+                            if self._can_t0 == "rows" else t - self._can_t0)
                 self._w.add_message(self._ch[CAN_TOPIC], ns, json.dumps(
                     {"t": t, "id": cid, "extended": ext, "dlc": dlc, "data": data.hex()}
                 ).encode(), ns, self._can_frames)
@@ -148,6 +159,10 @@ class McapRecordingWriter(BackgroundWriter):
                 self._w.add_message(self._ch[EVENTS_TOPIC], ns, json.dumps(a).encode(), ns,
                                     self._events)
                 self._events += 1
+                if self._scene is not None:
+                    self._w.add_message(self._ch[LOG_TOPIC], ns, self._scene.log(a), ns,
+                                        self._log)
+                    self._log += 1
             else:
                 self._attach("meta.toml", a)
             time.sleep(0)  # let a real-time loop in this process run
