@@ -28,6 +28,7 @@ MODULES: tuple[str, ...] = (
     "bench.benchmarks.master_loss",
     "bench.benchmarks.realtime_load",
     "bench.benchmarks.learn",
+    "bench.benchmarks.live",
 )
 
 _REGISTRY: dict[str, BenchFn] = {}
