@@ -106,18 +106,13 @@ class _Client:
             print(f"bench live: client: {exc}", file=sys.stderr)
 
     async def _go(self, port: int) -> None:
-        import asyncio
-
         from tornado import websocket
 
         ws = await websocket.websocket_connect(f"ws://127.0.0.1:{port}",
                                                subprotocols=["foxglove.sdk.v1"])
         subscribed: set[int] = set()
         while not self._stop.is_set():
-            try:
-                msg = await asyncio.wait_for(ws.read_message(), 0.5)
-            except asyncio.TimeoutError:
-                continue
+            msg = await ws.read_message()  # None when the run's server stops
             if msg is None:
                 break
             if isinstance(msg, str):
