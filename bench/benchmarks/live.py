@@ -141,6 +141,7 @@ def _rate_search(live: bool) -> tuple[float, float, int]:
         miss = float(out.get("overruns", cycles)) / cycles if ended == "completed" else 1.0
         print(f"bench live: {'live+mcap' if live else 'plain'} at "
               f"{out.get('rate_hz', rate)} Hz: {ended}, miss ratio {miss:.4f}"
+              + (f" ({out['message']})" if out.get("message") else "")
               + (f", {received} messages received" if live else ""), file=sys.stderr)
         if ended == "completed" and miss <= MISS_GOAL:
             return float(out["rate_hz"]), miss, received
