@@ -52,10 +52,15 @@ def realtime_run(rate_hz: float | None, live: bool, duration_s: float = DURATION
         client = _Client() if live else None
         err: list[str] = []
         reader = threading.Thread(target=_read_stderr, args=(proc, err, client), daemon=True)
-        reader.start()
+        reader.start()  # (stderr is the reader's alone: the address line starts the client)
+        killer = threading.Timer(timeout_s, proc.kill)
+        killer.start()
         try:
-            out, _ = proc.communicate(timeout=timeout_s)
+            assert proc.stdout is not None
+            out = proc.stdout.read()
+            proc.wait()
         finally:
+            killer.cancel()
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
