@@ -120,8 +120,9 @@ class HalMachine(RuleBasedStateMachine):
         self.rpdos: list[tuple[int, int, int]] = []  # (node, controlword, target) sent
         bus = hal.network.bus
         send = bus.send
+        batch = getattr(bus, "send_batch", None)  # the HAL's cycle sends its frames in one
 
-        def spy(msg, timeout=None):
+        def check(msg):
             if 0x201 <= msg.arbitration_id <= 0x27F:
                 cw, target = struct.unpack("<Hi", bytes(msg.data))
                 nid = msg.arbitration_id - 0x200
@@ -132,9 +133,19 @@ class HalMachine(RuleBasedStateMachine):
                                          "before the controller enabled it")
                 if (cw & 0x8F) != 0x0F and hal.states()[k] != DriveState.OPERATION_ENABLED:
                     assert target == hal.positions_counts()[k], (nid, target)  # holds
+
+        def spy(msg, timeout=None):
+            check(msg)
             return send(msg, timeout)
 
+        def spy_batch(msgs):
+            for m in msgs:
+                check(m)
+            return batch(msgs)
+
         bus.send = spy
+        if batch is not None:
+            bus.send_batch = spy_batch
         for node in hal.nodes:
             for name in ("upload", "download"):
                 fn = getattr(node.sdo, name)
@@ -505,6 +516,9 @@ class HalMachine(RuleBasedStateMachine):
             event("second master's write seen")
             # switched off (or quick-stopped) by it: the HAL never enables it by itself
             self.blocked.add(node)
+            self.cycles(4, move=True)
+            if truth in (d.state.SWITCH_ON_DISABLED, d.state.READY_TO_SWITCH_ON):
+                event("second master switched it off: it stays off")
 
     # ---- what goes wrong, in turn ---------------------------------------------------------
     #: what happens (the loop's calls, what goes wrong), taken in turn from one drawn at the
