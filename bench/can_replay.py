@@ -113,7 +113,7 @@ class _Player:
     def __init__(self, winches: WinchSet, eds: str | Path) -> None:
         from hal.drives_replay import ReplayDrives
 
-        self.drives = ReplayDrives.open(winches, eds)
+        self.drives = ReplayDrives.for_log(winches, eds)
         #: the loop expects its drives enabled (decided at the end of the previous cycle)
         self.expect_enabled = False
 

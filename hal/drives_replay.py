@@ -7,7 +7,7 @@ the master sent (SYNC, RPDOs, NMT, SDO requests, its heartbeat) and what the dri
 (:meth:`ReplayDrives.feed_frame`) and derives the same states, events and faults as the
 live master did, with the same code::
 
-    d = ReplayDrives.open(winches, eds)
+    d = ReplayDrives.for_log(winches, eds)
     for msg in frames:                       # in the log's order
         if d.feed_frame(msg) == "sync":      # the master's SYNC: one cycle of the master
             d.receive()                      # what arrived since the last SYNC
@@ -36,8 +36,8 @@ recovery (SDO configuration, NMT).
 
 from __future__ import annotations
 
-import os
 import struct
+import uuid
 from pathlib import Path
 
 import can
@@ -57,15 +57,12 @@ _SDO_UPLOAD = struct.Struct("<BHB")  # command, index, subindex of an SDO frame
 class ReplayDrives(WinchDrives):
     """All winch drives of a logged bus, fed frame by frame (see the module docstring)."""
 
-    _seq = 0
-
     @classmethod
-    def open(cls, winches: WinchSet, eds: str | Path | canopen.ObjectDictionary,
-             bus_name: str = "CAN log") -> ReplayDrives:  # type: ignore[override]
+    def for_log(cls, winches: WinchSet, eds: str | Path | canopen.ObjectDictionary,
+                bus_name: str = "CAN log") -> ReplayDrives:
         """A replay HAL for ``winches`` (node ids, units, SYNC period: that of the log) and
         the drives' EDS; ``bus_name`` names the log in messages. Closed by :meth:`close`."""
-        cls._seq += 1
-        bus = open_bus(f"virtual:replay-{os.getpid()}-{cls._seq}")  # its frames go nowhere
+        bus = open_bus(f"virtual:replay-{uuid.uuid4().hex}")  # its frames go nowhere
         network = canopen.Network(bus)
         network.NOTIFIER_CYCLE = 0.05
         network.connect()

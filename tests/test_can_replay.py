@@ -133,3 +133,16 @@ def test_bad_logs_are_refused_naming_the_file(tmp_path, capsys):
     empty.write_text("")
     assert main(["replay", str(empty), "--json"]) == 2
     assert "no CAN frames" in json.loads(capsys.readouterr().out)["error"]
+
+
+def test_the_replay_uses_only_public_attributes():
+    """bench/can_replay.py reaches nothing private of the HAL (nor of anything else): the
+    replay HAL's public entry (hal.drives_replay.ReplayDrives.feed_frame) is enough."""
+    import ast
+
+    import bench.can_replay as mod
+
+    tree = ast.parse(Path(mod.__file__).read_text(encoding="utf-8"))
+    private = sorted({(n.lineno, n.attr) for n in ast.walk(tree) if isinstance(n, ast.Attribute)
+                      and n.attr.startswith("_") and not n.attr.startswith("__")})
+    assert private == []
