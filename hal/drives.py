@@ -41,7 +41,9 @@ Detection (reported by :meth:`faults` while active and as :class:`DriveEvent` hi
 - drive in Quick Stop Active without the master asking (``quick_stop``: it lost its master,
   0x6007): the master holds it there (never re-enables it by itself) until :meth:`enable`;
 - heartbeat lost: no heartbeat for ``heartbeat_misses`` periods (code 0x8130): the drive's
-  state is unknown, the master asks it to quick stop (in case it still listens);
+  state is UNKNOWN in every cycle until its heartbeat is back (``heartbeat_resumed``) or
+  :meth:`recover`, whatever TPDOs it still sends; the master asks it to quick stop (in case
+  it still listens);
 - unexpected boot-up (node reset; code 0x8130) or NMT state other than OPERATIONAL;
 - TPDO missing for a SYNC or arriving late (code 0x8250 from the master's side);
 - TPDOs lost: no TPDO for ``tpdo_deadline_cycles`` SYNCs in a row (and at least
@@ -55,6 +57,10 @@ Detection (reported by :meth:`faults` while active and as :class:`DriveEvent` hi
   SYNC that this master did not send; the event names the COB-ID and what the frame does
   (node id 0 for NMT to all nodes and SYNC); active as a fault for ``FOREIGN_HOLD_S`` of
   the master clock after the last such frame;
+- a drive the master asks to be enabled that goes back towards Switch On Disabled without
+  being asked (``switched_off``: another master's 0x6040 write, or the drive itself): the
+  master stops asking, leaves it where it is and never enables it again by itself (until
+  :meth:`enable`);
 - internal limit active (software position limit reached, statusword bit 11);
 - the bus refusing frames (node id 0, code 0x8100), without raising out of the cycle;
 - the link lost (node id 0, ``link_lost``; a :class:`~hal.socketcand_link.SocketcandLink`
@@ -75,6 +81,8 @@ Memory stays bounded whatever the drives send: EMCYs are not logged by canopen
 
 Clock: ``clock="wall"`` (time.monotonic) for real drives, ``clock="sync"`` (number of SYNCs
 sent x SYNC period) with a rig on the deterministic simulated clock, or any callable.
+
+A CAN log of the bus is replayed through the same code by :class:`hal.drives_replay.ReplayDrives`.
 """
 
 from __future__ import annotations
@@ -180,10 +188,10 @@ class DriveEvent:
     node_id: int
     cable: str
     kind: str  #: emcy, emcy_malformed, emcy_overflow, fault, fault_code, fault_cleared,
-    #: quick_stop, heartbeat_lost, heartbeat_resumed, heartbeat_malformed, boot_up, nmt_state,
-    #: tpdo_missing, tpdo_late, tpdo_short, drive_lost, tpdo_resumed, foreign_master,
-    #: internal_limit, fault_reset_failed, recovered, sdo_error; node_id 0 (the bus):
-    #: bus_error, link_lost, link_back, foreign_master (NMT to all nodes, SYNC)
+    #: quick_stop, switched_off, heartbeat_lost, heartbeat_resumed, heartbeat_malformed,
+    #: boot_up, nmt_state, tpdo_missing, tpdo_late, tpdo_short, drive_lost, tpdo_resumed,
+    #: foreign_master, internal_limit, fault_reset_failed, recovered, sdo_error; node_id 0
+    #: (the bus): bus_error, link_lost, link_back, foreign_master (NMT to all nodes, SYNC)
     code: int  #: EMCY / error code (0 when none applies)
     text: str
     source: str  #: "drive" (EMCY it sent) or "hal" (detected by the master)
