@@ -1,29 +1,22 @@
 """Replay a CAN log into the HAL's drive decoders: the drive states and events again.
 
 A log (candump ``.log``, ``.asc``, ``.blf``, ``.csv`` through python-can's readers, or the
-``/can`` channel of an MCAP recording) holds what the master sent (SYNC, RPDOs, NMT, SDO
-requests, its heartbeat) and what the drives sent (TPDOs, EMCYs, heartbeats, SDO answers).
-The player sends the drives' frames on a python-can ``virtual`` bus, delivered in its own
-thread (:mod:`bench.dryrun.lockstep_bus`), to a :class:`hal.drives.WinchDrives` listening on
-that bus as the master did: at every logged SYNC the HAL takes what arrived
-(:meth:`~hal.drives.WinchDrives.receive`) and runs its cycle
-(:meth:`~hal.drives.WinchDrives.transmit`, whose frames go nowhere). Its clock is the SYNC
-count times the period (``clock="sync"``), as in a lock-step dry run; the states and events
-it derives (EMCY faults and their codes, Fault/Quick Stop transitions, heartbeats lost and
-back, boot-ups, TPDOs missing or late) are those of the live run.
-
-The HAL is put in the state it has after :meth:`~hal.drives.WinchDrives.start` without any
-traffic (no NMT, no SDO: the log's drives were started already); the master's requests are
-taken from the logged RPDOs (a quick-stop controlword is the master's, not a drive stopping
-on its own); the background 0x603F read the HAL makes on a fault is answered by the logged
-SDO answer, not asked again. This module reaches into the HAL's private state for that (the
-one place that does; its tests fail if the HAL changes under it).
+``/can`` channel of an MCAP recording) holds what the master sent and what the drives
+sent. Its frames go, in order, to a :class:`hal.drives_replay.ReplayDrives` (the HAL's
+:class:`~hal.drives.WinchDrives` fed frame by frame through its public
+:meth:`~hal.drives_replay.ReplayDrives.feed_frame`): at every logged SYNC the HAL takes
+what arrived (:meth:`~hal.drives.WinchDrives.receive`), the supervisor looks at it, and
+the HAL runs the second half of its cycle (:meth:`~hal.drives.WinchDrives.transmit`,
+whose frames go nowhere). Its clock is the SYNC count times the period, as in a lock-step
+dry run; the states and events it derives (EMCY faults and their codes, Fault/Quick Stop
+transitions, heartbeats lost and back, boot-ups, TPDOs missing or late, drives switched
+off) are those of the live run. What the HAL takes from the master's own frames (its
+requests in the RPDOs, the answer to its 0x603F read) is described in
+:mod:`hal.drives_replay`.
 """
 
 from __future__ import annotations
 
-import os
-import struct
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -34,6 +27,7 @@ import can
 import numpy as np
 
 from controller.winch import WinchSet
+from hal.drives_replay import SYNC_FRAME
 
 #: suffixes python-can reads (can.LogReader)
 LOG_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc")
@@ -113,81 +107,29 @@ class ReplayResult:
 
 
 class _Player:
-    """The HAL on a virtual bus and the sender of the logged drive frames."""
+    """The replay HAL (:class:`hal.drives_replay.ReplayDrives`) and what the replay reads of
+    the master's frames: whether the loop expected its drives enabled."""
 
     def __init__(self, winches: WinchSet, eds: str | Path) -> None:
-        import canopen
+        from hal.drives_replay import ReplayDrives
 
-        from bench.dryrun.lockstep_bus import deliver_in_sender_thread
-        from hal.can_bus import open_bus
-        from hal.drives import NMT_OPERATIONAL, WinchDrives
-        from hal.drives_cia402 import RQ
+        self.drives = ReplayDrives.for_log(winches, eds)
+        #: the loop expects its drives enabled (decided at the end of the previous cycle)
+        self.expect_enabled = False
 
-        channel = f"virtual:replay-{os.getpid()}-{id(self):x}"
-        bus = open_bus(channel)
-        self.network = canopen.Network(bus)
-        self.network.NOTIFIER_CYCLE = 0.05
-        self.network.connect()
-        deliver_in_sender_thread(self.network)
-        self.sender = open_bus(channel)
-        d = self.drives = WinchDrives(self.network, winches, eds, clock="sync",
-                                      bus_name=f"replay of {channel}")
-        d._confirm_fault_code = lambda k: None  # answered from the log (see the docstring)
-        now = d.now()
-        d._started[:] = True  # as after start(): configured and NMT started
-        d._armed[:] = False
-        d._hb_last[:] = now
-        d._rx_hb_t[:] = now
-        d._nmt[:] = NMT_OPERATIONAL
-        d._nmt_wait[:] = now + max(d.hb_timeout_s, d.period_s)
-        self.rq = RQ
-        self.master_enabled = np.zeros(d.n, bool)  #: the master asks Operation Enabled
-        self.index = {nid: k for k, nid in enumerate(d.node_ids)}
-        self.rpdo = d._rpdo
-
-    def frame(self, msg: can.Message) -> None:
-        """Hand one logged frame to the HAL (the drives' frames) or read the master's."""
-        cid, d = msg.arbitration_id, self.drives
-        if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
-            return
-        fn, node = cid & 0x780, cid & 0x7F
-        k = self.index.get(node)
-        if cid == 0x80 and not msg.data:  # SYNC: the master's cycle (replay() runs it)
-            return
-        elif k is None:
-            return
-        elif fn in (0x180, 0x080, 0x700):  # TPDO, EMCY, heartbeat of a drive
-            self.sender.send(msg)
-        elif fn == 0x200 and len(msg.data) >= self.rpdo.size:  # the master's RPDO
-            cw = self.rpdo.unpack_from(bytes(msg.data))[0]
-            self.master_enabled[k] = cw & 0x8F == 0x0F
-            if cw & 0x8F == 0x0F:
-                d._request[k] = self.rq.ENABLE
-            elif cw & 0x87 == 0x02:
-                d._request[k] = self.rq.QUICK_STOP
-        elif fn == 0x580 and len(msg.data) == 8:  # SDO answer: 0x603F read of a fault
-            cmd, index, sub = msg.data[0], *struct.unpack_from("<HB", msg.data, 1)
-            if index == 0x603F and sub == 0:
-                if cmd & 0xE0 == 0x40:
-                    code = struct.unpack_from("<H", msg.data, 4)[0]
-                    d._queue.append(("603f", k, code, ""))
-                elif cmd == 0x80:
-                    abort = struct.unpack_from("<I", msg.data, 4)[0]
-                    d._queue.append(("603f", k, None, f"SDO abort 0x{abort:08X}"))
-
-    def transmit(self) -> None:
-        """The second half of the HAL's cycle (after :meth:`WinchDrives.receive` and what
-        looks at its result): its clock advances one SYNC."""
-        self.drives.transmit()
-        while self.sender.recv(0) is not None:  # the HAL's own RPDOs and SYNC: dropped
-            pass
+    def cycle_done(self) -> None:
+        """The second half of the master's cycle; what the loop then expects of the drives
+        next cycle: the master's RPDOs so far ask some drive to be enabled and none to
+        quick stop (a loop that stops quick-stops them all; one drive switched off by
+        someone else keeps the others asked enabled)."""
+        d = self.drives
+        cw = d.master_controlwords()
+        self.expect_enabled = bool(np.any(cw & 0x8F == 0x0F)) and not bool(
+            np.any(cw & 0x87 == 0x02))
+        d.transmit()
 
     def close(self) -> None:
-        try:
-            self.drives.close()
-        finally:
-            self.network.disconnect()
-            self.sender.shutdown()
+        self.drives.close()
 
 
 def _supervise(sup, pl: _Player, res: ReplayResult,
@@ -202,7 +144,7 @@ def _supervise(sup, pl: _Player, res: ReplayResult,
     n = d.n
     ob = Observation(d.now(), np.zeros(n), np.ones(n, bool), np.zeros(n), None,
                      d.states() == ST.OPERATION_ENABLED,
-                     expect_enabled=bool(pl.master_enabled.all()), faults=faults,
+                     expect_enabled=pl.expect_enabled, faults=faults,
                      cables=tuple(d.winches.cables), node_ids=tuple(d.node_ids))
     for e in sup.step(ob).events:
         ev = {"t": round(e.t_s, 6), "device": e.device, "address": e.address,
@@ -248,11 +190,10 @@ def replay(frames: Iterable[can.Message], winches: WinchSet, eds: str | Path | N
                 if lag > 0:
                     time.sleep(lag)
             res.frames += 1
-            pl.frame(msg)
-            if msg.arbitration_id == 0x80 and not msg.data and not msg.is_extended_id:
+            if pl.drives.feed_frame(msg) == SYNC_FRAME:
                 res.syncs += 1
                 _take_cycle(pl, sup, res, on_event)
-                pl.transmit()
+                pl.cycle_done()
         if res.syncs:  # what answered the last SYNC
             _take_cycle(pl, sup, res, on_event)
     finally:

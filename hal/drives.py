@@ -41,7 +41,9 @@ Detection (reported by :meth:`faults` while active and as :class:`DriveEvent` hi
 - drive in Quick Stop Active without the master asking (``quick_stop``: it lost its master,
   0x6007): the master holds it there (never re-enables it by itself) until :meth:`enable`;
 - heartbeat lost: no heartbeat for ``heartbeat_misses`` periods (code 0x8130): the drive's
-  state is unknown, the master asks it to quick stop (in case it still listens);
+  state is UNKNOWN in every cycle until its heartbeat is back (``heartbeat_resumed``) or
+  :meth:`recover`, whatever TPDOs it still sends; the master asks it to quick stop (in case
+  it still listens);
 - unexpected boot-up (node reset; code 0x8130) or NMT state other than OPERATIONAL;
 - TPDO missing for a SYNC or arriving late (code 0x8250 from the master's side);
 - TPDOs lost: no TPDO for ``tpdo_deadline_cycles`` SYNCs in a row (and at least
@@ -55,6 +57,10 @@ Detection (reported by :meth:`faults` while active and as :class:`DriveEvent` hi
   SYNC that this master did not send; the event names the COB-ID and what the frame does
   (node id 0 for NMT to all nodes and SYNC); active as a fault for ``FOREIGN_HOLD_S`` of
   the master clock after the last such frame;
+- a drive the master asks to be enabled that goes back towards Switch On Disabled without
+  being asked (``switched_off``: another master's 0x6040 write, or the drive itself): the
+  master stops asking, leaves it where it is and never enables it again by itself (until
+  :meth:`enable`);
 - internal limit active (software position limit reached, statusword bit 11);
 - the bus refusing frames (node id 0, code 0x8100), without raising out of the cycle;
 - the link lost (node id 0, ``link_lost``; a :class:`~hal.socketcand_link.SocketcandLink`
@@ -75,6 +81,8 @@ Memory stays bounded whatever the drives send: EMCYs are not logged by canopen
 
 Clock: ``clock="wall"`` (time.monotonic) for real drives, ``clock="sync"`` (number of SYNCs
 sent x SYNC period) with a rig on the deterministic simulated clock, or any callable.
+
+A CAN log of the bus is replayed through the same code by :class:`hal.drives_replay.ReplayDrives`.
 """
 
 from __future__ import annotations
@@ -145,6 +153,10 @@ CODE_BUS = 0x8100  # communication, generic: the bus refused our frames
 NMT_NAMES = {0x00: "BOOT-UP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 NMT_OPERATIONAL = 0x05
 EMCY_STRUCT = struct.Struct("<HB5s")
+#: a drive's place on the way to Operation Enabled (by DriveState value; -1: off that way)
+_ENABLE_RANK = np.full(len(DriveState), -1, np.int8)
+_ENABLE_RANK[[ST.NOT_READY_TO_SWITCH_ON, ST.SWITCH_ON_DISABLED, ST.READY_TO_SWITCH_ON,
+              ST.SWITCHED_ON, ST.OPERATION_ENABLED]] = [0, 0, 1, 2, 3]
 #: events kept by :meth:`WinchDrives.events` when nobody takes them (oldest dropped)
 EVENTS_KEPT = 10_000
 #: EMCYs waiting for the next cycle at most (a flood beyond is counted, not kept)
@@ -176,10 +188,10 @@ class DriveEvent:
     node_id: int
     cable: str
     kind: str  #: emcy, emcy_malformed, emcy_overflow, fault, fault_code, fault_cleared,
-    #: quick_stop, heartbeat_lost, heartbeat_resumed, heartbeat_malformed, boot_up, nmt_state,
-    #: tpdo_missing, tpdo_late, tpdo_short, drive_lost, tpdo_resumed, foreign_master,
-    #: internal_limit, fault_reset_failed, recovered, sdo_error; node_id 0 (the bus):
-    #: bus_error, link_lost, link_back, foreign_master (NMT to all nodes, SYNC)
+    #: quick_stop, switched_off, heartbeat_lost, heartbeat_resumed, heartbeat_malformed,
+    #: boot_up, nmt_state, tpdo_missing, tpdo_late, tpdo_short, drive_lost, tpdo_resumed,
+    #: foreign_master, internal_limit, fault_reset_failed, recovered, sdo_error; node_id 0
+    #: (the bus): bus_error, link_lost, link_back, foreign_master (NMT to all nodes, SYNC)
     code: int  #: EMCY / error code (0 when none applies)
     text: str
     source: str  #: "drive" (EMCY it sent) or "hal" (detected by the master)
@@ -931,7 +943,11 @@ class WinchDrives:
         # a node its heartbeat says is outside OPERATIONAL sends no PDO: a TPDO counted now
         # was sent before it left (its statusword is old news)
         out_of_op = (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
-        self._have |= fresh & ~self._relink & ~out_of_op
+        self._heartbeats_back()
+        # the state is known only from fresh feedback of a node that is not lost: while its
+        # heartbeat is lost it is UNKNOWN every cycle, whatever TPDOs still come (the node
+        # needs recover() or its heartbeat back); a drive_lost node has no fresh TPDO
+        self._have |= fresh & ~self._relink & ~out_of_op & ~self._hb_lost
         self._nmt_wait[fresh] = -np.inf  # PDOs only flow in OPERATIONAL
         self._check_feedback(fresh, expected)
         self._update_states(expected)
@@ -1051,6 +1067,7 @@ class WinchDrives:
             self._event(k, "quick_stop", code, f"the drive stopped on its own ({why}): held in "
                         "Quick Stop Active until enable()")
         self._self_stopped &= qs | (new == ST.UNKNOWN)
+        self._drop_enable(old, new)
         oe = new == ST.OPERATION_ENABLED
         entering = oe & ~self._setpoint_ok
         self._target[entering] = self._pos[entering]  # hold where it stands
@@ -1061,7 +1078,24 @@ class WinchDrives:
         self._limit = limit
         self._states = new
 
-    def _check_heartbeats(self) -> None:
+    def _drop_enable(self, old: np.ndarray, new: np.ndarray) -> None:
+        """A drive asked to be enabled that went back along the enable path (Operation
+        Enabled -> Switched On -> Ready To Switch On -> Switch On Disabled) without the master
+        asking: switched off by another master (an SDO write of 0x6040) or by itself. The
+        master stops asking (never enables it again by itself, until :meth:`enable`) and
+        leaves it where it is: an event ``switched_off``."""
+        back = (self._request == RQ.ENABLE) & (_ENABLE_RANK[new] >= 0) & (
+            _ENABLE_RANK[new] < _ENABLE_RANK[old])
+        for k in np.flatnonzero(back) if np.count_nonzero(back) else ():
+            off = new[k] in (ST.SWITCH_ON_DISABLED, ST.NOT_READY_TO_SWITCH_ON)
+            self._request[k] = RQ.OFF if off else RQ.DISABLE
+            self._event(k, "switched_off", 0, f"{DriveState(old[k]).name} -> "
+                        f"{DriveState(new[k]).name} without the master asking (another master? "
+                        "the drive itself?): not enabled again until enable()")
+
+    def _heartbeats_back(self) -> None:
+        """Heartbeats of lost nodes that came again (``heartbeat_resumed``): their TPDOs of
+        this cycle give their state again."""
         if self.hb_timeout_s <= 0 or self._link_down:
             return
         now = self._clock()
@@ -1070,6 +1104,14 @@ class WinchDrives:
         for k in np.flatnonzero(back) if np.count_nonzero(back) else ():
             self._hb_lost[k] = False
             self._event(k, "heartbeat_resumed", CODE_HEARTBEAT, "heartbeat back")
+
+    def _check_heartbeats(self) -> None:
+        """Nodes silent beyond the heartbeat timeout: ``heartbeat_lost``, state UNKNOWN from
+        this cycle on until the heartbeat is back (or :meth:`recover`)."""
+        if self.hb_timeout_s <= 0 or self._link_down:
+            return
+        now = self._clock()
+        self._hb_last = np.maximum(self._hb_last, self._rx_hb_t)
         watched = self._started & ~self._rebooted & ~self._relink
         lost = watched & ~self._hb_lost & (now - self._hb_last > self.hb_timeout_s + 1e-9)
         for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():

@@ -9,7 +9,8 @@ tests. Each :meth:`~FakeHardware.write_lengths` is one control cycle of ``period
   (start-up -> Switch On Disabled, enable -> Operation Enabled, quick stop -> Quick Stop
   Active, where it holds with 0x605A options 5..8 and from which enable() resumes, or ->
   Switch On Disabled with options 0..4; fault -> Fault, fault reset -> Ready To Switch On;
-  a lost heartbeat -> the master quick-stops it);
+  a lost heartbeat -> the master quick-stops it, and reports its state UNKNOWN every cycle
+  until its heartbeat is back or it is recovered, as the HAL does);
 - load cells: every ``tension_period_s`` a new sample of ``plant(lengths_m, t_s)`` (the
   tensions the cells measure [N]; e.g. a simulated plant settling for the cable lengths;
   called again only when the lengths changed) or of the constant ``tensions_N``; the
@@ -149,6 +150,11 @@ class FakeHardware(WinchHardware):
 
     def _faulted(self) -> np.ndarray:
         return np.isin(self.states, _FAULTED)
+
+    def _reported(self) -> np.ndarray:
+        """The states as the master reports them: UNKNOWN for a node whose heartbeat is lost
+        (known only from a node that is not lost), else the drive's own."""
+        return np.where(self.hb_lost, S.UNKNOWN, self.states).astype(np.int8)
 
     # ---- fault injection --------------------------------------------------------------
     def inject_drive_fault(self, node: int | str, code: int = 0x2310,
@@ -371,6 +377,7 @@ class FakeHardware(WinchHardware):
 
     def _drive_faults(self) -> list[HardwareFault]:
         out = []
+        seen = self._reported()
         for k in range(self.n):
             nid, cable = self.node_ids[k], self.cables[k]
             if self.relink[k]:
@@ -378,7 +385,7 @@ class FakeHardware(WinchHardware):
                                          "fake: state unknown; recover() it when the link "
                                          "is back"))
                 continue
-            if self.states[k] in _FAULTED:
+            if seen[k] in _FAULTED:
                 code = int(self.code[k])
                 out.append(HardwareFault(DRIVE, nid, cable, "drive_fault", code,
                                          emcy_text(code)))
@@ -395,7 +402,7 @@ class FakeHardware(WinchHardware):
         self._tracker.update(r, self.t, self.cycle)
         faults = self._drive_faults() + loadcell_faults(r)
         return Readings(self.t, self.cycle, self.cables, self._to_model(self.pos.copy()),
-                        self.states.copy(), r.values_N, r.age_s, r.status, tuple(faults))
+                        self._reported(), r.values_N, r.age_s, r.status, tuple(faults))
 
     def _raw_lengths(self) -> np.ndarray:
         return self.pos.copy()

@@ -204,6 +204,55 @@ def test_nothing_is_reported_without_a_fault_nor_another_master(echo):
         r.close()
 
 
+def test_a_drive_another_master_switched_off_is_not_enabled_again(rig):
+    """0x6040 = 0 from another master switches node 4 off: the HAL reports it, drops its
+    own enable request (it used to drive it back to Operation Enabled within 3 cycles) and
+    leaves it off until enable(); the other drives go on."""
+    hal = rig.hal
+    for _ in range(5):
+        hal.step()
+    hal.events()
+    rig.other_master_sends(*SDO_OFF_4)
+    for _ in range(30):
+        hal.set_lengths(hal.lengths_m())
+        hal.step()
+    assert hal.state_names()[3] == "SWITCH_ON_DISABLED"
+    assert rig.bank.drive(4).state.name == "SWITCH_ON_DISABLED"
+    assert np.all(np.delete(hal.states(), 3) == OE)
+    ev = [(e.node_id, e.kind) for e in hal.events()]
+    assert ev.count((4, "switched_off")) == 1 and (4, FOREIGN_MASTER) in ev, ev
+    hal.enable_and_wait()  # the controller's own enable brings it back
+    assert np.all(hal.states() == OE)
+
+
+def test_the_bus_log_of_a_switch_off_replays_to_the_same_events(rig):
+    """The frames of the bus while another master switches node 4 off, replayed into the
+    replay HAL: the same drive events (``switched_off`` included) and final states; the
+    other master's SDO frame is not told from this master's in a log (not replayed)."""
+    from bench.can_replay import replay
+
+    log = can.Bus(interface="virtual", channel=rig.ch)  # hears every frame on the bus
+    hal = rig.hal
+    try:
+        for _ in range(5):
+            hal.step()
+        hal.events()
+        rig.other_master_sends(*SDO_OFF_4)
+        for _ in range(20):
+            hal.step()
+        time.sleep(0.05)
+        frames = []
+        while (m := log.recv(0)) is not None:
+            frames.append(m)
+    finally:
+        log.shutdown()
+    live = [(e.node_id, e.kind, e.code) for e in hal.events() if e.kind != FOREIGN_MASTER]
+    assert (4, "switched_off", 0) in live
+    got = replay(frames, W)
+    assert [(e["node"], e["kind"], e["code"]) for e in got.events] == live
+    assert got.final_states == hal.state_names()
+
+
 @pytest.mark.parametrize("cob, data, node", [
     SDO_OFF_4 + (4,),
     (0x000, bytes([0x80, 0x00]), 0),  # NMT pre-operational to all nodes

@@ -324,9 +324,19 @@ def test_heartbeat_loss_is_reported_then_resumes(enabled):
         ("drive", 5, "31", "heartbeat_lost", 0x8130)]
     # not before the silence outlasted the limit (the last heartbeat may be 1 period old)
     assert r.cycle - c0 >= period * (bus.heartbeat_misses - 1)
+    # one rule for both: its state is UNKNOWN in every cycle while it is lost (its TPDOs go
+    # on: they do not make it known), never Operation Enabled; the others keep going
+    for _ in range(int(2 * period)):
+        assert r.states[4] == DriveState.UNKNOWN, DriveState(r.states[4]).name
+        assert np.all(np.delete(r.states, 4) == OE)
+        r = hw.step()
     h.stop_heartbeat(5, False)
     r = _until(hw, lambda r: not r.faults, limit)
     assert r.faults == ()
+    # back: known again from its feedback (held where the master's quick stop left it)
+    r = hw.step()
+    assert r.states[4] in (DriveState.QUICK_STOP_ACTIVE, DriveState.SWITCH_ON_DISABLED), (
+        DriveState(r.states[4]).name)
     kinds = [(e.address, e.kind) for e in hw.events() if e.device == "drive"]
     assert (5, "heartbeat_lost") in kinds and (5, "heartbeat_resumed") in kinds
     assert {a for a, _ in kinds} == {5}

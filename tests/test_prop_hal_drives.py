@@ -22,15 +22,16 @@ Invariants:
 - no call of the cycle (exchange / receive / transmit) makes an SDO transfer (the only
   blocking I/O of the master);
 - after every cycle: a node reported lost (heartbeat lost, boot-up, link lost, drive lost)
-  is never reported Operation Enabled, and one whose state cannot be known (boot-up, link
-  lost, drive lost) is reported UNKNOWN, never its last live state;
+  is reported UNKNOWN, never its last live state (a node whose heartbeat is lost is
+  UNKNOWN in every cycle until it is back, whatever TPDOs it still sends);
 - once the master's heartbeat stopped, every drive leaves Operation Enabled within its
   consumer heartbeat time (0x1016, ``master_heartbeat_timeout_s``), and the HAL says so
   within a cycle more; a drive missing its RPDOs beyond their deadline (0x1400 sub 5)
   leaves Operation Enabled too;
 - a quick stop at speed stops every drive no further than v^2 / 2a of the configured
   quick-stop deceleration (winch file, 0x6085) plus two cycles and the lag;
-- a drive switched off by a second master is reported in its true state at once;
+- a drive switched off by a second master is reported in its true state at once, and the
+  HAL never enables it again by itself (no enable-operation controlword until enable());
 - (:class:`HalTpdoLossMachine`) a drive whose TPDOs stop is ``drive_lost`` with its state
   UNKNOWN within 0.1 s.
 
@@ -71,8 +72,7 @@ HAL_ERRORS = (DriveStartupError, DriveConfigError, BusLinkError)
 STEP_TIMEOUT = 0.05
 _in_cycle = threading.local()
 T = W.bus.sync_period_s
-LOST = ("heartbeat_lost", "boot_up", "link_lost", "drive_lost")
-UNKNOWABLE = ("boot_up", "link_lost", "drive_lost")
+LOST = ("heartbeat_lost", "boot_up", "link_lost", "drive_lost")  # state UNKNOWN meanwhile
 HB_CYCLES = int(W.bus.heartbeat_period_s * W.bus.heartbeat_misses / T) + 3  # past timeout
 LOST_WITHIN_S = 0.1  # a drive whose TPDOs stop is drive_lost within this [s]
 RULES = RuleCounter()
@@ -106,8 +106,6 @@ class HalMachine(RuleBasedStateMachine):
         self.mhb_stopped_at: float | None = None  # master clock when its heartbeat stopped
         self.mhb_checks = 0  # checks still due after it stopped (drives, then the HAL)
         self.tpdo_stopped: dict[int, float] = {}  # node -> master clock its TPDOs stopped
-        self.hb_lost_seen: set[int] = set()  # nodes reported heartbeat_lost last cycle
-        self.lost_silent: set[int] = set()  # ... found lost while silent, still both
         self.hal.start()
         self.hal.enable_and_wait()
 
@@ -122,8 +120,9 @@ class HalMachine(RuleBasedStateMachine):
         self.rpdos: list[tuple[int, int, int]] = []  # (node, controlword, target) sent
         bus = hal.network.bus
         send = bus.send
+        batch = getattr(bus, "send_batch", None)  # the HAL's cycle sends its frames in one
 
-        def spy(msg, timeout=None):
+        def check(msg):
             if 0x201 <= msg.arbitration_id <= 0x27F:
                 cw, target = struct.unpack("<Hi", bytes(msg.data))
                 nid = msg.arbitration_id - 0x200
@@ -134,9 +133,19 @@ class HalMachine(RuleBasedStateMachine):
                                          "before the controller enabled it")
                 if (cw & 0x8F) != 0x0F and hal.states()[k] != DriveState.OPERATION_ENABLED:
                     assert target == hal.positions_counts()[k], (nid, target)  # holds
+
+        def spy(msg, timeout=None):
+            check(msg)
             return send(msg, timeout)
 
+        def spy_batch(msgs):
+            for m in msgs:
+                check(m)
+            return batch(msgs)
+
         bus.send = spy
+        if batch is not None:
+            bus.send_batch = spy_batch
         for node in hal.nodes:
             for name in ("upload", "download"):
                 fn = getattr(node.sdo, name)
@@ -177,24 +186,16 @@ class HalMachine(RuleBasedStateMachine):
             self.check_cycle()
 
     def check_cycle(self) -> None:
-        """After every cycle: lost nodes never reported live; the master's heartbeat loss
-        and the RPDO deadline stop the drives in time."""
+        """After every cycle: lost nodes are UNKNOWN, never reported live; the master's
+        heartbeat loss and the RPDO deadline stop the drives in time."""
         hal = self.hal
         states = hal.states()
         faults = hal.faults()
-        # nodes found lost while silent (nothing comes from them: no state can be known)
-        hb_lost = {f.node_id for f in faults if f.kind == "heartbeat_lost"}
-        self.lost_silent |= (hb_lost - self.hb_lost_seen) & self.silent
-        self.lost_silent &= hb_lost & self.silent
-        self.hb_lost_seen = hb_lost
         for f in faults:
             k = hal.node_ids.index(f.node_id) if f.node_id in hal.node_ids else None
             if k is None:
                 continue
             if f.kind in LOST:
-                assert states[k] != DriveState.OPERATION_ENABLED, (f, states[k])
-            if f.kind in UNKNOWABLE or (f.kind == "heartbeat_lost"
-                                        and f.node_id in self.lost_silent):
                 assert states[k] == DriveState.UNKNOWN, (f, DriveState(states[k]).name)
         now = hal.now()
         if self.mhb_stopped_at is not None and not self.link_down and self.mhb_checks:
@@ -513,6 +514,11 @@ class HalMachine(RuleBasedStateMachine):
             assert self.hal.states()[k] != DriveState.OPERATION_ENABLED or self.hal.states()[
                 k] == truth, (node, DriveState(self.hal.states()[k]).name, truth)
             event("second master's write seen")
+            # switched off (or quick-stopped) by it: the HAL never enables it by itself
+            self.blocked.add(node)
+            self.cycles(4, move=True)
+            if truth in (d.state.SWITCH_ON_DISABLED, d.state.READY_TO_SWITCH_ON):
+                event("second master switched it off: it stays off")
 
     # ---- what goes wrong, in turn ---------------------------------------------------------
     #: what happens (the loop's calls, what goes wrong), taken in turn from one drawn at the
