@@ -40,7 +40,7 @@ class ReplayError(ValueError):
 def read_log(path: str | Path) -> Iterator[can.Message]:
     """The frames of a CAN log in order: an MCAP recording's ``/can`` channel, else
     python-can's reader of the file's suffix."""
-    from bench.mcap_record import mcap_file, read_can_frames
+    from bench.mcap import mcap_file, read_can_frames
 
     p = Path(path)
     if not p.exists():
@@ -61,7 +61,7 @@ def sync_period_of(path: str | Path, syncs: int = 200) -> float | None:
     """The SYNC period [s] of a log: the ``rate_hz`` of an MCAP recording's meta (a dry run
     writes it; its frames carry wall-clock stamps of a lock-step run), else the median
     interval of the first ``syncs`` SYNC frames; None when it has fewer than two."""
-    from bench.mcap_record import mcap_file, read_mcap
+    from bench.mcap import mcap_file, read_mcap
 
     p = Path(path)
     if mcap_file(p) is not None:
