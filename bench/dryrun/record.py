@@ -70,8 +70,8 @@ def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, 
                   can: str | None = None, live: str | None = None):
     """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: :mod:`bench.mcap`, which
     also records every frame of the ``can`` bus, a ``--can`` spec, when given); with
-    ``live`` (``HOST:PORT``) also shown live in Foxglove (:mod:`bench.mcap.live`), and only
-    that when ``path`` is None."""
+    ``live`` (``HOST:PORT``) also shown live in Foxglove (:mod:`bench.mcap.live`; with the
+    ``can`` bus's frames on ``/can``), and only that when ``path`` is None."""
     if fmt not in FORMATS:
         raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
     rec = None
@@ -86,7 +86,7 @@ def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, 
     from bench.mcap.live import live_recorder
     from bench.mcap.recorders import TeeRecorder
 
-    view = live_recorder(live, robot, init_pose)
+    view = live_recorder(live, robot, init_pose, can=can)
     return view if rec is None else TeeRecorder(rec, view)
 
 

@@ -139,7 +139,7 @@ def open_writer(path: str | Path | None, robot: Robot, init_pose: np.ndarray,
     """One writer (``append(values, state)``, ``event(...)``, ``can_frame(msg)``,
     ``update_meta``, ``close``, ``rows``) of a recording ``path`` in ``fmt`` (``csv``: the
     directory with ``events.csv``; ``mcap``: ``path/recording.mcap`` with ``/can``;
-    ``both``) and, with ``live`` (``HOST:PORT``), the Foxglove live view (no ``/can``).
+    ``both``) and, with ``live`` (``HOST:PORT``), the Foxglove live view (``/can`` too).
     ``can_t0``: the CAN frames' clock [s] at ``t`` = 0 (their MCAP log time then on the
     rows' clock). None when there is neither."""
     from bench.dryrun.record import FORMATS
@@ -155,7 +155,7 @@ def open_writer(path: str | Path | None, robot: Robot, init_pose: np.ndarray,
     if live is not None:
         from bench.mcap.live import LiveWriter
 
-        view = LiveWriter(live, robot, columns, states=states)
+        view = LiveWriter(live, robot, columns, states=states, can_t0=can_t0)
         print(f"Foxglove live view: ws://{view.host}:{view.port}", file=sys.stderr, flush=True)
         out.append(view)
     if not out:
