@@ -163,10 +163,11 @@ def test_a_client_receives_the_can_frames():
     assert w.can_frames > 0
 
 
-def test_the_dry_run_s_live_view_serves_its_bus_and_the_drive_states():
+@pytest.mark.parametrize("fmt", [None, "mcap"])
+def test_the_dry_run_s_live_view_serves_its_bus_and_the_drive_states(fmt, tmp_path):
     """The dry run's live recorder (``open_recorder(..., live=, can=)``) taps the drives'
-    bus: frames sent on it reach a client on ``/can``; the rows' drive states reach it on
-    ``/drives/state``."""
+    bus (with an MCAP recording, through the recording's tap): frames sent on it reach a
+    client on ``/can`` (and the file); the rows' drive states reach it on ``/drives/state``."""
     import threading
     import uuid
 
@@ -176,8 +177,10 @@ def test_the_dry_run_s_live_view_serves_its_bus_and_the_drive_states():
 
     robot = resolve_robot("rocaspect")
     spec = f"virtual:live-can-{uuid.uuid4().hex}"
-    rec = open_recorder(None, robot, np.array([10.0, 8.5, 1.0, 0, 0, 0]), {},
-                        live="127.0.0.1:0", can=spec)
+    path = None if fmt is None else tmp_path / "rec"
+    rec = open_recorder(path, robot, np.array([10.0, 8.5, 1.0, 0, 0, 0]), {},
+                        fmt=fmt or "csv", live="127.0.0.1:0", can=spec)
+    view = rec if fmt is None else rec.recorders[1]
     bus = can.Bus(interface="virtual", channel=spec.split(":", 1)[1])
     stop = threading.Event()
     n = robot.n_cables
@@ -193,7 +196,7 @@ def test_the_dry_run_s_live_view_serves_its_bus_and_the_drive_states():
     t.start()
     payloads: dict[str, list[bytes]] = {}
     try:
-        advertised, got = _client(rec.port, {"/can", "/drives/state"}, payloads=payloads,
+        advertised, got = _client(view.port, {"/can", "/drives/state"}, payloads=payloads,
                                   count=6)
     finally:
         stop.set()
@@ -205,6 +208,10 @@ def test_the_dry_run_s_live_view_serves_its_bus_and_the_drive_states():
     _check_can(payloads)
     last = json.loads(payloads["/drives/state"][-1])["state"]
     assert [last[c] for c in robot.cable_ids] == states.tolist()
+    if fmt is not None:
+        from bench.mcap import read_can_frames
+
+        assert len(list(read_can_frames(path / "recording.mcap"))) >= len(payloads["/can"])
 
 
 @pytest.mark.parametrize("address", ["127.0.0.1:http", "host:70000"])
@@ -219,3 +226,21 @@ def test_address_forms():
     assert parse_address("127.0.0.1:0") == ("127.0.0.1", 0)
     assert parse_address(":9000") == ("127.0.0.1", 9000)
     assert parse_address("0.0.0.0") == ("0.0.0.0", 8765)
+
+
+def test_a_recording_that_cannot_open_closes_the_live_view(tmp_path, capsys):
+    """``open_recorder`` with ``--live`` and a recording that fails to open (its directory
+    is a file): the error comes out and the view's server is stopped (its port refuses)."""
+    import socket
+
+    from bench.dryrun.record import open_recorder
+
+    robot = resolve_robot("rocaspect")
+    (tmp_path / "rec").write_text("a file")
+    with pytest.raises(OSError):
+        open_recorder(tmp_path / "rec", robot, np.array([10.0, 8.5, 1.0, 0, 0, 0]), {},
+                      fmt="mcap", live="127.0.0.1:0")
+    line = [x for x in capsys.readouterr().err.splitlines() if "Foxglove live view" in x]
+    port = int(line[-1].rsplit(":", 1)[1])
+    with pytest.raises(OSError), socket.create_connection(("127.0.0.1", port), timeout=2):
+        pass

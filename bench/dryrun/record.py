@@ -74,20 +74,31 @@ def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, 
     ``can`` bus's frames on ``/can``), and only that when ``path`` is None."""
     if fmt not in FORMATS:
         raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
-    rec = None
-    if path is not None and fmt == "csv":
-        rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
-    elif path is not None:
-        from bench.mcap.recorders import dry_run_recorder
+    mcap = path is not None and fmt != "csv"
+    view = None
+    if live is not None:  # one tap of the bus: the MCAP recording's when there is one
+        from bench.mcap.live import live_recorder
 
-        rec = dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt, can)
-    if live is None:
-        return rec
-    from bench.mcap.live import live_recorder
+        view = live_recorder(live, robot, init_pose, can=None if mcap else can)
+    try:
+        rec = None
+        if path is not None and not mcap:
+            rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
+        elif mcap:
+            from bench.mcap.recorders import dry_run_recorder
+
+            also = (view.writer.can_frame,) if view is not None else ()
+            rec = dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt,
+                                   can, also)
+    except BaseException:
+        if view is not None:
+            view.close()
+        raise
+    if view is None or rec is None:
+        return view if rec is None else rec
     from bench.mcap.recorders import TeeRecorder
 
-    view = live_recorder(live, robot, init_pose, can=can)
-    return view if rec is None else TeeRecorder(rec, view)
+    return TeeRecorder(rec, view)
 
 
 class DryRunRecorder:

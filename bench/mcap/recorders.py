@@ -17,11 +17,12 @@ from controller.robot import Robot
 
 def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
                      robot_header: str = "", flush_s: float = 1.0, fmt: str = "mcap",
-                     can: str | None = None):
+                     can: str | None = None, also: tuple = ()):
     """A :class:`bench.dryrun.record.DryRunRecorder` whose rows and events go to
     ``path/recording.mcap`` (the same columns and events as the CSV directory); with
     ``fmt`` ``both`` also the CSV directory (the MCAP file beside its files). ``can``: the
-    ``--can`` spec of the drives' bus, whose every frame from now on goes to ``/can``."""
+    ``--can`` spec of the drives' bus, whose every frame from now on goes to ``/can`` (and
+    to each callable of ``also``, e.g. the live view's ``can_frame``: one tap of the bus)."""
     from bench.dryrun.record import DryRunRecorder, columns
 
     class McapDryRunRecorder(DryRunRecorder):
@@ -32,7 +33,7 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
                                               columns(robot), meta, robot_header,
                                               states=True, flush_s=flush_s, can_t0="rows")
             self._row = np.empty(len(self.writer.columns))
-            self.tap = CanTap(can, self.writer.can_frame) if can else None
+            self.tap = CanTap(can, _fan_out(self.writer.can_frame, *also)) if can else None
 
         def event(self, t, device, address, cable, kind, code, reaction, active, text):
             self.writer.event(t, device, address, cable, kind, code, reaction, active, text)
@@ -48,6 +49,18 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
         csv_rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
         return TeeRecorder(csv_rec, McapDryRunRecorder())
     return McapDryRunRecorder()
+
+
+def _fan_out(*targets):
+    """One callable calling each of ``targets`` (the first alone when only one)."""
+    if len(targets) == 1:
+        return targets[0]
+
+    def each(msg) -> None:
+        for f in targets:
+            f(msg)
+
+    return each
 
 
 class TeeRecorder:
