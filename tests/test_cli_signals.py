@@ -184,11 +184,38 @@ def test_dry_run_signal_exit_status_last_line_and_recording(tmp_path, sig):
     assert len(data.t) > 0
 
 
+def _first_row_sign(monkeypatch):
+    """An event set when ``cdpr commission monitor`` appends its first row to its
+    recording (the monitor runs its loop, its signal handlers are in place)."""
+    import threading
+
+    from bench.mcap import recorders
+
+    ready = threading.Event()
+    real = recorders.open_writer
+
+    def spy(*a, **kw):
+        w = real(*a, **kw)
+        append = w.append
+
+        def first(*a2, **kw2):
+            append(*a2, **kw2)
+            ready.set()
+
+        w.append = first
+        return w
+
+    monkeypatch.setattr(recorders, "open_writer", spy)
+    return ready
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_commission_monitor_signal_keeps_its_output_and_exits_130_143(capsys, tmp_path, sig):
+def test_commission_monitor_signal_keeps_its_output_and_exits_130_143(capsys, tmp_path, sig,
+                                                                       monkeypatch):
     """``cdpr commission monitor`` ended by SIGINT / SIGTERM (in this process, on simulated
     drives and load cells): its JSON object and recording are kept, exit status 130 / 143,
-    and the last line on stderr says which signal."""
+    and the last line on stderr says which signal. The signal comes once the first row is
+    recorded (a sign, not a time: generous timeout, the monitor's --duration longer)."""
     import threading
 
     from bench.recording import read_recording
@@ -199,19 +226,30 @@ def test_commission_monitor_signal_keeps_its_output_and_exits_130_143(capsys, tm
     old = signal.signal(sig, lambda s, f: got.append(s))  # a late signal kills no test
     rig, cells = Rig(), Cells()
     rec = tmp_path / "rec"
-    timer = threading.Timer(1.0, os.kill, (os.getpid(), sig))
+    ready, done = _first_row_sign(monkeypatch), threading.Event()
+    sent: list[bool] = []
+
+    def signal_when_ready() -> None:
+        if ready.wait(120) and not done.is_set():
+            sent.append(True)
+            os.kill(os.getpid(), sig)
+
+    sender = threading.Thread(target=signal_when_ready, daemon=True)
     try:
         capsys.readouterr()
-        timer.start()
+        sender.start()
         rc = main(["commission", "monitor", "--can", rig.can, "--modbus", cells.spec,
-                   "--duration", "20", "--rate", "10", "--record", str(rec), "--no-report",
+                   "--duration", "150", "--rate", "10", "--record", str(rec), "--no-report",
                    "--json"])
     finally:
-        timer.cancel()
+        done.set()
+        ready.set()
+        sender.join(10)
         signal.signal(sig, old)
         cells.close()
         rig.close()
     cap = capsys.readouterr()
+    assert sent, "no first row within 120 s"
     assert rc == code, cap.err
     out = json.loads(cap.out.strip().splitlines()[-1])
     assert out["ended_by"] == ("Ctrl-C" if sig == signal.SIGINT else msg)

@@ -86,7 +86,7 @@ def test_a_layout_naming_what_is_not_written_is_caught(written):
     assert fl.topics(fl.robot_layout(ROBOT)) - set(written) == set()
 
 
-def test_the_live_view_serves_the_layout_s_topics_but_can():
+def test_the_live_view_serves_every_topic_of_the_layout():
     from bench.dryrun.record import columns
     from bench.mcap.live import LiveWriter
 
@@ -96,7 +96,8 @@ def test_the_live_view_serves_the_layout_s_topics_but_can():
         served = set(w._ch)
     finally:
         w.close()
-    assert fl.topics(fl.robot_layout(ROBOT)) - served == {"/can"}
+    assert fl.topics(fl.robot_layout(ROBOT)) - served == set()
+    assert "/can" in served
 
 
 def test_cdpr_recording_layout_writes_it(tmp_path, capsys):

@@ -73,6 +73,62 @@ def test_dry_run_format_both_mcap_equals_csv(tmp_path, capsys):
         assert (out / name).read_bytes() == (rec / name).read_bytes(), name
 
 
+def _mcap_messages(path: Path, topic: str) -> list[dict]:
+    """The JSON messages of ``topic`` through the mcap library's reader, in log order."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        return [json.loads(m.data) for _, _, m in
+                make_reader(f).iter_messages(topics=[topic], log_time_order=True)]
+
+
+def _drive_states(rec, cables) -> np.ndarray:
+    """The ``drive_state_{ij}`` columns of a recording, rows by cables."""
+    return np.array([rec.extra[f"drive_state_{c}"] for c in cables]).T
+
+
+def test_dry_run_records_the_drive_states_in_csv_and_mcap(tmp_path, capsys):
+    """A drive faults mid-run (lock-step): each row carries the eight CiA 402 states, the
+    rows where they change too (enabled, the fault, then the others' quick stop, the final
+    states of the run); ``/drives/state`` holds the same numbers as the CSV, and CSV ->
+    MCAP -> CSV keeps them."""
+    from hal.drives_cia402 import DriveState
+
+    (tmp_path / "f.toml").write_text('[[fault]]\nat_s = 0.4\ndrive = 3\n'
+                                     'kind = "over_current"\n', encoding="utf-8")
+    rec = tmp_path / "rec"
+    assert main(["dry-run", "paper-centre", "--duration", "1.0", "--json", "--quiet",
+                 "--faults", str(tmp_path / "f.toml"), "--decimate", "8",
+                 "--record", str(rec), "--format", "both"]) == 1
+    res = json.loads(capsys.readouterr().out)
+    assert res["ended"] == "quick_stop", res
+    csv_rec = read_recording(rec)
+    cables = csv_rec.robot.cable_ids
+    states = _drive_states(csv_rec, cables)
+    assert states.shape == (csv_rec.n_samples, 8)
+    assert (states[0] == DriveState.OPERATION_ENABLED).all()
+    assert states[-1].tolist() == [DriveState[s] for s in res["drive_states"]]  # the end
+    faulted = next(e["cable"] for e in res["events"] if e["kind"] == "drive_fault")
+    k = cables.index(faulted)
+    first_fault = int(np.flatnonzero(states[:, k] == DriveState.FAULT)[0])
+    assert (states[first_fault - 1] == DriveState.OPERATION_ENABLED).all()
+    assert DriveState.QUICK_STOP_ACTIVE in states[:, k - 1 if k else 1]
+    counts = open_with_mcap_reader(rec / MCAP_NAME)
+    assert counts["/drives/state"] == csv_rec.n_samples
+    msgs = _mcap_messages(rec / MCAP_NAME, "/drives/state")
+    from_mcap = np.array([[m["state"][c] for c in cables] for m in msgs], dtype=float)
+    np.testing.assert_array_equal(from_mcap, states)
+    np.testing.assert_array_equal([m["t"] for m in msgs], csv_rec.t)
+    assert main(["recording", "convert", str(rec), str(tmp_path / "r.mcap"), "--json"]) == 0
+    assert main(["recording", "convert", str(tmp_path / "r.mcap"), str(tmp_path / "back"),
+                 "--json"]) == 0
+    capsys.readouterr()
+    back = read_recording(tmp_path / "back")
+    _same(_drive_states(back, cables), states)
+    _same(_drive_states(read_recording(rec / MCAP_NAME), cables), states)
+    assert set(back.extra) == set(csv_rec.extra)
+
+
 def test_dry_run_format_mcap_reads_as_a_recording(tmp_path, capsys):
     rec = tmp_path / "rec"
     assert main(["dry-run", "paper-centre", "--duration", "0.3", "--quiet", "--json",

@@ -100,7 +100,7 @@ def test_monitor_format_mcap_alone_and_csv_has_no_can_channel(rig, capsys, tmp_p
 
 def test_monitor_live_serves_the_row_channels(rig, capsys, monkeypatch):
     """A client subscribes while the monitor runs (in this thread) and receives the
-    monitor's channels: lengths, tensions, drive feedback and states."""
+    monitor's channels: lengths, tensions, drive feedback and states, its raw CAN frames."""
     pytest.importorskip("tornado")
     from bench.mcap import live
     from tests.test_foxglove_live import _client
@@ -113,7 +113,7 @@ def test_monitor_live_serves_the_row_channels(rig, capsys, monkeypatch):
         servers.append(self)
 
     monkeypatch.setattr(live.LiveWriter, "__init__", spy)
-    want = {"/cables/lengths", "/cables/tensions", "/drives/feedback", "/drives/state"}
+    want = {"/cables/lengths", "/cables/tensions", "/drives/feedback", "/drives/state", "/can"}
     result: dict = {}
 
     def client():
@@ -130,4 +130,5 @@ def test_monitor_live_serves_the_row_channels(rig, capsys, monkeypatch):
     t.join(10)
     assert code == 0 and out["live"] == "127.0.0.1:0" and out["rows"] == 0
     assert result["advertised"]["/drives/state"] == "cdpr.DriveStates"
+    assert result["advertised"]["/can"] == "cdpr.CanFrame"
     assert want <= result["got"], result["got"]

@@ -15,9 +15,9 @@ block of plain lines per refresh.
 reaction ``event``); its ``init_pose`` is ``--init-pose`` or the forward kinematics of the
 first sample (said in its notes). ``--format mcap`` writes it as ``DIR/recording.mcap``
 instead (``both``: the two), with every CAN frame heard and sent on ``/can``
-(:mod:`bench.mcap`); ``--live [HOST:PORT]`` serves the same channels (but ``/can``) to
-Foxglove. ``--candump FILE`` logs every CAN frame, heard and sent, with python-can's Logger
-(.asc, .blf, .log, .csv by the suffix).
+(:mod:`bench.mcap`); ``--live [HOST:PORT]`` serves the same channels to Foxglove
+(``/can`` included). ``--candump FILE`` logs every CAN frame, heard and sent, with
+python-can's Logger (.asc, .blf, .log, .csv by the suffix).
 ``--duration S`` ends it; else Ctrl-C or ``q`` (exit status 0, files closed).
 
 A valid tension outside the window (``--tension-window``, else the supervisor's) shows as
@@ -58,9 +58,9 @@ STATE_SHORT = {"NOT_READY_TO_SWITCH_ON": "not ready", "SWITCH_ON_DISABLED": "dis
 
 
 class _FrameSink:
-    """CAN frames (heard and sent) for the recording's ``/can``: those before the recording
-    opens (it opens with the first sample) are kept, at most ``limit``, and handed over
-    when it does (:meth:`attach`); after :meth:`detach` none."""
+    """CAN frames (heard and sent) for ``/can`` (the recording's, the live view's): those
+    before the recording opens (it opens with the first sample) are kept, at most ``limit``,
+    and handed over when it does (:meth:`attach`); after :meth:`detach` none."""
 
     def __init__(self, limit: int = 100_000) -> None:
         self.lock = threading.Lock()
@@ -266,7 +266,8 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
     period = 1.0 / args.rate
     counter = FrameCounter(window_s=1.0)
     writer = None
-    frames = _FrameSink() if args.record and args.format != "csv" else None
+    frames = (_FrameSink() if (args.record and args.format != "csv") or args.live is not None
+              else None)
     logger = None
     cells = None
     polls = 0

@@ -496,7 +496,7 @@ class ControlLoop:
         out_tensions = ctl.init_tensions
         substituted = 0
         state = INIT
-        last_state = ""
+        last_state, last_drives = "", b""
         path_cycle = -1
         k = 0
         next_progress = time.perf_counter()
@@ -590,8 +590,9 @@ class ControlLoop:
                 last_sent = cmd
             # ---- measurements (at the recording's rate): tracker, error to the path
             xt.command(pose_des)
-            if k % opt.decimate == 0 or state != last_state:  # every n-th, and state changes
-                last_state = state
+            drives = r.states.tobytes()  # and the drives' CiA 402 states when they change
+            if k % opt.decimate == 0 or state != last_state or drives != last_drives:
+                last_state, last_drives = state, drives
                 tr = self.tracker.read()
                 pose_meas = nan6
                 err = math.nan  # the error counted on this row (recorded: the plots')
@@ -606,7 +607,7 @@ class ControlLoop:
                 if self.recorder is not None:
                     self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N,
                                       pose_meas, out_tensions, substituted, path_cycle,
-                                      res.overruns, state, err)
+                                      res.overruns, state, err, drive_states=r.states)
             if self.on_cycle is not None and state not in (INIT, QUICK_STOP) and not stopping:
                 for kind, text in self.on_cycle(t, r, pose_des, ctl):
                     self._event(t, "controller", 0, "", kind, 0, "event", True, text)

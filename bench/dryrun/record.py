@@ -15,7 +15,9 @@
   tracker's fix to the commanded path on the rows where the loop counted a new fix (the
   numbers the summary's ``pose_error_rms_m``/``pose_error_max_m`` are made of; ``nan`` on
   the other rows: a fix held from an earlier row, no fix, or not counted: initialisation,
-  quick stop);
+  quick stop), ``drive_state_{ij}`` the CiA 402 state of each drive as the master read it
+  on the row (:class:`hal.drives_cia402.DriveState` number: 4 Operation Enabled, 5 Quick
+  Stop Active, 7 Fault, 8 unknown, ...; ``nan`` when not given);
 - ``state``: ``init`` (initialisation dwell), ``approach`` (the move from the init pose to
   the path's start), ``move``/``dwell`` (the trajectory's labels: a dwell stands at a
   target; replicate visits have equal ``*_des``), ``hold`` (feed hold), ``quick_stop``
@@ -47,7 +49,8 @@ def columns(robot: Robot) -> list[str]:
     return (["t"] + [f"{a}_des" for a in POSE_AXES] + [f"l_cmd_{k}" for k in c]
             + [f"l_meas_{k}" for k in c] + [f"tau_{k}" for k in c]
             + [f"{a}_meas" for a in POSE_AXES] + [f"plan_tau_{k}" for k in c]
-            + ["substituted", "cycle", "overruns", "pose_err"])
+            + ["substituted", "cycle", "overruns", "pose_err"]
+            + [f"drive_state_{k}" for k in c])
 
 
 def event_cells(t: float, device: str, address: int, cable: str, kind: str, code: int,
@@ -67,24 +70,35 @@ def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, 
                   can: str | None = None, live: str | None = None):
     """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: :mod:`bench.mcap`, which
     also records every frame of the ``can`` bus, a ``--can`` spec, when given); with
-    ``live`` (``HOST:PORT``) also shown live in Foxglove (:mod:`bench.mcap.live`), and only
-    that when ``path`` is None."""
+    ``live`` (``HOST:PORT``) also shown live in Foxglove (:mod:`bench.mcap.live`; with the
+    ``can`` bus's frames on ``/can``), and only that when ``path`` is None."""
     if fmt not in FORMATS:
         raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
-    rec = None
-    if path is not None and fmt == "csv":
-        rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
-    elif path is not None:
-        from bench.mcap.recorders import dry_run_recorder
+    mcap = path is not None and fmt != "csv"
+    view = None
+    if live is not None:  # one tap of the bus: the MCAP recording's when there is one
+        from bench.mcap.live import live_recorder
 
-        rec = dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt, can)
-    if live is None:
-        return rec
-    from bench.mcap.live import live_recorder
+        view = live_recorder(live, robot, init_pose, can=None if mcap else can)
+    try:
+        rec = None
+        if path is not None and not mcap:
+            rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
+        elif mcap:
+            from bench.mcap.recorders import dry_run_recorder
+
+            also = (view.writer.can_frame,) if view is not None else ()
+            rec = dry_run_recorder(path, robot, init_pose, meta, robot_header, flush_s, fmt,
+                                   can, also)
+    except BaseException:
+        if view is not None:
+            view.close()
+        raise
+    if view is None or rec is None:
+        return view if rec is None else rec
     from bench.mcap.recorders import TeeRecorder
 
-    view = live_recorder(live, robot, init_pose)
-    return view if rec is None else TeeRecorder(rec, view)
+    return TeeRecorder(rec, view)
 
 
 class DryRunRecorder:
@@ -105,7 +119,10 @@ class DryRunRecorder:
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
-            cycle: int, overruns: int, state: str, pose_err: float = float("nan")) -> None:
+            cycle: int, overruns: int, state: str, pose_err: float = float("nan"),
+            drive_states: np.ndarray | None = None) -> None:
+        """One row (:func:`columns`); ``drive_states``: the CiA 402 state numbers of the
+        drives in cable order (None: ``nan``)."""
         n, r = self.n, self._row
         r[0] = t
         r[1:7] = pose_des
@@ -118,6 +135,7 @@ class DryRunRecorder:
         r[14 + 4 * n] = cycle
         r[15 + 4 * n] = overruns
         r[16 + 4 * n] = pose_err
+        r[17 + 4 * n:17 + 5 * n] = np.nan if drive_states is None else drive_states
         self.writer.append(r, state)
 
     def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,

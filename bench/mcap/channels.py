@@ -99,6 +99,18 @@ CAN_SCHEMA = json.dumps({
         "data": {"type": "string", "description": "payload, hex"}}}).encode()
 
 
+def can_message(t: float, cid: int, extended: bool, dlc: int, data: bytes) -> bytes:
+    """A ``/can`` message (:data:`CAN_SCHEMA`): ``t`` [s] the frame's timestamp."""
+    return json.dumps({"t": t, "id": cid, "extended": extended, "dlc": dlc,
+                       "data": data.hex()}).encode()
+
+
+def can_fields(msg) -> tuple[float, int, bool, int, bytes]:
+    """(t [s], id, extended, dlc, data) of a ``can.Message``."""
+    return (float(msg.timestamp), int(msg.arbitration_id), bool(msg.is_extended_id),
+            int(msg.dlc), bytes(msg.data))
+
+
 def num_or_none(v: float) -> float | None:
     """``v`` as a JSON number, None (``null``: not measured) when not finite."""
     return float(v) if math.isfinite(v) else None

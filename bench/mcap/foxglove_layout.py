@@ -11,7 +11,7 @@ splits), which Foxglove's *Layouts -> Import from file* reads. Its panels:
 - ``StateTransitions!states``: the loop's state (``/loop.state``, a dry run) and the drives'
   CiA 402 state numbers (``/drives/state.state.<cable>``, ``cdpr commission monitor``);
 - ``Log!events``: the supervisor's and the hardware's events (``/supervisor/log``);
-- ``RawMessages!can``: the last raw CAN frame (``/can``, a recording).
+- ``RawMessages!can``: the last raw CAN frame (``/can``).
 
 :func:`topics` lists every topic the layout names (what a test checks against the channels
 the recorders write).

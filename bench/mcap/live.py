@@ -2,25 +2,32 @@
 
 ``cdpr dry-run ... --live [HOST:PORT]`` starts a server (foxglove-sdk) with the channels of
 an MCAP recording (bench/mcap: the JSON row channels, ``/supervisor/events``,
-``/tf``, ``/scene``); Foxglove connects to ``ws://HOST:PORT``. The control loop only
-queues its rows (:meth:`LiveWriter.append`, cheap); a thread of its own publishes, at most
-``rate_hz`` times a second, the newest row (a view, not a record: rows in between are not
-sent; ``--record`` keeps them) and every event. Port 0 takes a free port
-(:attr:`LiveWriter.port`).
+``/tf``, ``/scene``, the raw CAN frames on ``/can``); Foxglove connects to
+``ws://HOST:PORT``. The control loop only queues its rows, events and frames
+(:meth:`LiveWriter.append`, :meth:`LiveWriter.can_frame`: cheap, no encoding); a thread of
+its own publishes, at most ``rate_hz`` times a second, the newest row (a view, not a record:
+rows in between are not sent; ``--record`` keeps them), every event and the CAN frames
+queued since the last publication (at most ``can_queue``, the newest; encoded only while a
+client subscribes to ``/can``). Port 0 takes a free port (:attr:`LiveWriter.port`).
 """
 
 from __future__ import annotations
 
 import json
 import threading
+from collections import deque
 from typing import Any
 
 import numpy as np
 
 from bench.mcap.channels import (
+    CAN_SCHEMA,
+    CAN_TOPIC,
     EVENT_SCHEMA,
     EVENTS_TOPIC,
     LOG_TOPIC,
+    can_fields,
+    can_message,
     layout,
     log_ns,
     row_messages,
@@ -30,6 +37,7 @@ from bench.mcap.scene import Scene
 from controller.robot import Robot
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"
+CAN_QUEUE = 4096  #: CAN frames kept between two publications (the newest)
 
 
 def parse_address(address: str) -> tuple[str, int]:
@@ -48,10 +56,14 @@ def parse_address(address: str) -> tuple[str, int]:
 
 class LiveWriter:
     """The recording writer's interface (:meth:`append`, :meth:`event`, :meth:`update_meta`,
-    :meth:`close`, :attr:`rows`) publishing on a Foxglove WebSocket server."""
+    :meth:`close`, :attr:`rows`; :meth:`can_frame`) publishing on a Foxglove WebSocket
+    server. ``can_t0``: the log time of the ``/can`` messages (each message's ``t`` keeps
+    the frame's own time [s]): None the frames' clock; a number, the frames' clock [s] at
+    ``t`` = 0; ``"rows"``, the ``t`` of the newest row published with them."""
 
     def __init__(self, address: str, robot: Robot, columns: list[str], states: bool = True,
-                 rate_hz: float = 30.0) -> None:
+                 rate_hz: float = 30.0, can_t0: float | str | None = None,
+                 can_queue: int = CAN_QUEUE) -> None:
         import foxglove
 
         host, port = parse_address(address)
@@ -74,6 +86,14 @@ class LiveWriter:
             EVENTS_TOPIC, message_encoding="json", context=self._ctx,
             schema=foxglove.Schema(name="cdpr.SupervisorEvent", encoding="jsonschema",
                                    data=EVENT_SCHEMA))
+        self._ch[CAN_TOPIC] = foxglove.Channel(
+            CAN_TOPIC, message_encoding="json", context=self._ctx,
+            schema=foxglove.Schema(name="cdpr.CanFrame", encoding="jsonschema",
+                                   data=CAN_SCHEMA))
+        self._can: deque = deque(maxlen=int(can_queue))  # appended from any thread
+        self._can_t0 = can_t0 if can_t0 is None or can_t0 == "rows" else float(can_t0)
+        self._row_t = 0.0
+        self.can_frames = 0  #: CAN frames published so far
         for topic, sc in self._scene.schemas().items():
             self._ch[topic] = foxglove.Channel(
                 topic, message_encoding="protobuf", context=self._ctx,
@@ -99,17 +119,26 @@ class LiveWriter:
         with self._lock:
             self._events.append(ev)
 
+    def can_frame(self, msg) -> None:
+        """One CAN frame (a ``can.Message``) for ``/can``; any thread (a bus's callback:
+        only queued, the oldest dropped beyond ``can_queue``)."""
+        self._can.append(msg)
+
     def update_meta(self, **fields: Any) -> None:
         """(The live view has no meta.)"""
 
     def publish(self) -> None:
-        """Publish the newest row and the events queued (the thread does it; also at close)."""
+        """Publish the events, the CAN frames and the newest row queued (the thread does it;
+        also at close)."""
         with self._lock:
             latest, self._latest = self._latest, None
             events, self._events = self._events, []
         for ev in events:
             self._ch[EVENTS_TOPIC].log(json.dumps(ev).encode(), log_time=log_ns(ev["t"]))
             self._ch[LOG_TOPIC].log(self._scene.log(ev), log_time=log_ns(ev["t"]))
+        if latest is not None:
+            self._row_t = float(latest[0][0])
+        self._publish_can()
         if latest is not None:
             row, state = latest
             ns = log_ns(float(row[0]))
@@ -118,6 +147,19 @@ class LiveWriter:
                 self._ch[topic].log(data, log_time=ns)
             self._first = False
             self.rows += 1
+
+    def _publish_can(self) -> None:
+        """The CAN frames queued (encoded only when a client subscribes to ``/can``)."""
+        ch, q = self._ch[CAN_TOPIC], self._can
+        frames = [q.popleft() for _ in range(len(q))]
+        if not frames or not ch.has_sinks():
+            return
+        for msg in frames:
+            f = can_fields(msg)
+            ns = log_ns(f[0] if self._can_t0 is None else self._row_t
+                        if self._can_t0 == "rows" else f[0] - self._can_t0)
+            ch.log(can_message(*f), log_time=ns)
+        self.can_frames += len(frames)
 
     def _run(self) -> None:
         while not self._closed.wait(self._period):
@@ -135,23 +177,36 @@ class LiveWriter:
             self.server.stop()
 
 
-def live_recorder(address: str, robot: Robot, init_pose: np.ndarray, rate_hz: float = 30.0):
+def live_recorder(address: str, robot: Robot, init_pose: np.ndarray, rate_hz: float = 30.0,
+                  can: str | None = None):
     """A :class:`bench.dryrun.record.DryRunRecorder` whose rows and events go live to
-    Foxglove (its packing of the loop's row, a :class:`LiveWriter` sink)."""
+    Foxglove (its packing of the loop's row, a :class:`LiveWriter` sink); with ``can`` (the
+    ``--can`` spec of the drives' bus) also every frame of that bus on ``/can``."""
     from bench.dryrun.record import DryRunRecorder, columns
+    from bench.mcap.can_tap import CanTap
 
     class LiveRecorder(DryRunRecorder):
         def __init__(self) -> None:
             self.n = robot.n_cables
-            self.writer = LiveWriter(address, robot, columns(robot), rate_hz=rate_hz)
+            self.writer = LiveWriter(address, robot, columns(robot), rate_hz=rate_hz,
+                                     can_t0="rows")
             self._row = np.empty(len(self.writer.columns))
             self.port = self.writer.port
+            try:
+                self.tap = CanTap(can, self.writer.can_frame) if can else None
+            except BaseException:
+                self.writer.close()
+                raise
 
         def event(self, *args) -> None:
             self.writer.event(*args)
 
         def close(self) -> None:
-            self.writer.close()
+            try:
+                if self.tap is not None:
+                    self.tap.close()
+            finally:
+                self.writer.close()
 
     rec = LiveRecorder()
     import sys

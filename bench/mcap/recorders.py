@@ -17,11 +17,12 @@ from controller.robot import Robot
 
 def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
                      robot_header: str = "", flush_s: float = 1.0, fmt: str = "mcap",
-                     can: str | None = None):
+                     can: str | None = None, also: tuple = ()):
     """A :class:`bench.dryrun.record.DryRunRecorder` whose rows and events go to
     ``path/recording.mcap`` (the same columns and events as the CSV directory); with
     ``fmt`` ``both`` also the CSV directory (the MCAP file beside its files). ``can``: the
-    ``--can`` spec of the drives' bus, whose every frame from now on goes to ``/can``."""
+    ``--can`` spec of the drives' bus, whose every frame from now on goes to ``/can`` (and
+    to each callable of ``also``, e.g. the live view's ``can_frame``: one tap of the bus)."""
     from bench.dryrun.record import DryRunRecorder, columns
 
     class McapDryRunRecorder(DryRunRecorder):
@@ -32,7 +33,7 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
                                               columns(robot), meta, robot_header,
                                               states=True, flush_s=flush_s, can_t0="rows")
             self._row = np.empty(len(self.writer.columns))
-            self.tap = CanTap(can, self.writer.can_frame) if can else None
+            self.tap = CanTap(can, _fan_out(self.writer.can_frame, *also)) if can else None
 
         def event(self, t, device, address, cable, kind, code, reaction, active, text):
             self.writer.event(t, device, address, cable, kind, code, reaction, active, text)
@@ -48,6 +49,18 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
         csv_rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
         return TeeRecorder(csv_rec, McapDryRunRecorder())
     return McapDryRunRecorder()
+
+
+def _fan_out(*targets):
+    """One callable calling each of ``targets`` (the first alone when only one)."""
+    if len(targets) == 1:
+        return targets[0]
+
+    def each(msg) -> None:
+        for f in targets:
+            f(msg)
+
+    return each
 
 
 class TeeRecorder:
@@ -139,7 +152,7 @@ def open_writer(path: str | Path | None, robot: Robot, init_pose: np.ndarray,
     """One writer (``append(values, state)``, ``event(...)``, ``can_frame(msg)``,
     ``update_meta``, ``close``, ``rows``) of a recording ``path`` in ``fmt`` (``csv``: the
     directory with ``events.csv``; ``mcap``: ``path/recording.mcap`` with ``/can``;
-    ``both``) and, with ``live`` (``HOST:PORT``), the Foxglove live view (no ``/can``).
+    ``both``) and, with ``live`` (``HOST:PORT``), the Foxglove live view (``/can`` too).
     ``can_t0``: the CAN frames' clock [s] at ``t`` = 0 (their MCAP log time then on the
     rows' clock). None when there is neither."""
     from bench.dryrun.record import FORMATS
@@ -155,7 +168,7 @@ def open_writer(path: str | Path | None, robot: Robot, init_pose: np.ndarray,
     if live is not None:
         from bench.mcap.live import LiveWriter
 
-        view = LiveWriter(live, robot, columns, states=states)
+        view = LiveWriter(live, robot, columns, states=states, can_t0=can_t0)
         print(f"Foxglove live view: ws://{view.host}:{view.port}", file=sys.stderr, flush=True)
         out.append(view)
     if not out:

@@ -18,6 +18,8 @@ from bench.mcap.channels import (
     EVENTS_TOPIC,
     LOG_TOPIC,
     META_NAME,
+    can_fields,
+    can_message,
     layout,
     log_ns,
     row_messages,
@@ -123,9 +125,8 @@ class McapRecordingWriter(BackgroundWriter):
 
     def can_frame(self, msg) -> None:
         """One CAN frame (a ``can.Message``) for the ``/can`` channel; cheap, any thread."""
-        item = ("can", (float(msg.timestamp), int(msg.arbitration_id),
-                        bool(msg.is_extended_id), int(msg.dlc), bytes(msg.data)), None)
-        self._queue_item(item, check=False)  # a bus thread's callback: never raises
+        # a bus thread's callback: never raises
+        self._queue_item(("can", can_fields(msg), None), check=False)
 
     def update_meta(self, **fields: Any) -> None:
         """A new ``meta.toml`` attachment (readers take the last)."""
@@ -146,12 +147,11 @@ class McapRecordingWriter(BackgroundWriter):
                 self._write_row(a, b, self.rows)
                 self.rows += 1
             elif kind == "can":
-                t, cid, ext, dlc, data = a
+                t = a[0]
                 ns = log_ns(t if self._can_t0 is None else self._row_t
                             if self._can_t0 == "rows" else t - self._can_t0)
-                self._w.add_message(self._ch[CAN_TOPIC], ns, json.dumps(
-                    {"t": t, "id": cid, "extended": ext, "dlc": dlc, "data": data.hex()}
-                ).encode(), ns, self._can_frames)
+                self._w.add_message(self._ch[CAN_TOPIC], ns, can_message(*a), ns,
+                                    self._can_frames)
                 self._can_frames += 1
                 continue  # (many: no pause per frame)
             elif kind == "event":
