@@ -101,3 +101,46 @@ def sentence(motion: dict) -> str:
             f"{100 * motion['share']:.0f} % of them): a laser tracker whose frame is "
             f"registered that far off would read the same; measuring exit points or fixed "
             f"targets on the base with the tracker would tell them apart")
+
+
+#: [s] the window of the polynomial whose slope is a moving row's pose rate
+RATE_WINDOW_S = 1.0
+
+
+def pose_rates(rec, rows: np.ndarray, fresh: np.ndarray, moves: np.ndarray) -> np.ndarray:
+    """(len(rows), 6) time derivatives [m/s, rad/s] of the measured pose at the path
+    ``rows`` of recording ``rec``, from the ``fresh`` rows (tracker values of their own,
+    sorted) of the same move (``moves``: the move id of each fresh row): the slope of a
+    least-squares polynomial over :data:`RATE_WINDOW_S` within the move
+    (:func:`bench.streams.local_derivative`; a line through a move of fewer than five
+    rows), so that a turn between moves does not bend it. Zero where none is known (a
+    row without a tracker pose, a move of one row): the latency cannot be seen there."""
+    from bench.streams import local_derivative
+
+    out = np.zeros((len(rows), 6))
+    if not len(rows) or not len(fresh):
+        return out
+    rate = np.zeros((rec.n_samples, 6))
+    pose = rec.pose_meas
+    for g in np.unique(moves):
+        r = fresh[moves == g]
+        r = r[np.isfinite(pose[r]).all(axis=1)]
+        if len(r) >= 5:
+            d, _ = local_derivative(rec.t[r], pose[r], 1, RATE_WINDOW_S)
+            rate[r] = np.nan_to_num(d)
+        elif len(r) >= 2 and np.ptp(rec.t[r]) > 0:
+            rate[r] = np.polyfit(rec.t[r] - rec.t[r].mean(), pose[r], 1)[0]
+    return rate[rows]
+
+
+def tracker_candidates(rm) -> list[str]:
+    """The tracker's own errors a recording can see (:class:`ResidualModel` ``rm``): its
+    frame where measured poses meet encoder lengths (or measured exit points), its latency
+    where some of those poses were taken while the platform moved (a pose rate)."""
+    pose = rm.has_pose & (rm.has_len | rm.has_exit.any(axis=1))
+    if not pose.any():
+        return []
+    out = ["tracker_frame"]
+    if (pose & rm.has_len & np.any(rm.s.pose_rate[:, :3] != 0.0, axis=1)).any():
+        out.append("tracker_latency")
+    return out

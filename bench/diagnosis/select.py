@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.diagnosis import gauge
+from bench.diagnosis.frame import tracker_candidates
 from bench.diagnosis.fit import (
     MAX_NFEV,
     ErrorStructure,
@@ -105,6 +106,7 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
         out += ["pulley_kinematics"]
     if have_len and measured_pose and rm.any_tau:
         out += ["cable_sag"]  # a sagging cable's length depends on its tension: measure it
+    out += tracker_candidates(rm)
     return out
 
 
@@ -115,7 +117,10 @@ def untested_effects(rm: ResidualModel) -> list[str]:
 
 
 #: candidates that are two forms of one effect: never both in a set
-EXCLUSIVE = {frozenset({"cable_elasticity", PER_CABLE_EA})}
+EXCLUSIVE = {frozenset({"cable_elasticity", PER_CABLE_EA}),
+             # a rigid motion of every exit point is the tracker's frame seen from the robot
+             # (the gauge: :mod:`bench.diagnosis.frame`): one of the two, the other declared
+             frozenset({"exit_point_offset", "tracker_frame"})}
 
 
 def compatible(effects: tuple[str, ...] | list[str], extra: str) -> bool:
