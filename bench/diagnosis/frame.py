@@ -144,3 +144,36 @@ def tracker_candidates(rm) -> list[str]:
     if (pose & rm.has_len & np.any(rm.s.pose_rate[:, :3] != 0.0, axis=1)).any():
         out.append("tracker_latency")
     return out
+
+
+#: the two sides of the tracker frame's gauge (a rigid motion of every exit point)
+GAUGE_PAIR = {"tracker_frame": "exit_point_offset", "exit_point_offset": "tracker_frame"}
+
+
+def gauge_alternative(selector, sel, effect: str, candidates: list[str],
+                      motion: dict | None) -> dict | None:
+    """The other side of the tracker frame's gauge for the named ``effect`` of the selection
+    ``sel`` (:class:`bench.diagnosis.select.Selection`): ``exit_point_offset`` for a named
+    ``tracker_frame``, ``tracker_frame`` for exit-point offsets that form one rigid motion
+    (``motion``, :func:`frame_motion`). A rigid motion of every exit point reads as the
+    tracker's frame moved the other way: the two differ only by the gravity the frame's
+    rotation tilts (the load cells' force balance) and by exit points measured with the
+    tracker. The swapped set is fitted (``selector.fit``, from the selection's fit) and
+    its BIC change returned as an alternative entry ``{"name", "delta_bic", "gauge",
+    "note"}``, whatever its size (declared, not a near tie). None where the pair does not
+    apply or the other is no candidate."""
+    other = GAUGE_PAIR.get(effect)
+    if other is None or other not in candidates or (effect == "exit_point_offset"
+                                                    and motion is None):
+        return None
+    swapped = tuple(c for c in sel.effects if c != effect) + (other,)
+    fit = selector.fit(swapped, sel.fit)
+    how = ("the same lengths between poses; the encoders' reference at the initialisation "
+           "pose (commanded in F_b, not measured), the gravity the frame's rotation tilts and "
+           "exit points measured with the tracker tell them apart")
+    note = (f"every exit point moved by one rigid motion instead of the tracker's frame "
+            f"({how})") if other == "exit_point_offset" else \
+        (f"the tracker's frame registered off by that rigid motion instead of the exit "
+         f"points ({how})")
+    return {"name": other, "delta_bic": float(fit.bic - sel.fit.bic), "gauge": "tracker_frame",
+            "note": note}
