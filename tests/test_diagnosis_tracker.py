@@ -133,3 +133,17 @@ def test_a_right_tracker_names_neither(tmp_path, kind):
     sc_map = scenario() if kind == "dwell" else scenario(poses=MOVES, recording=CONTINUOUS)
     sc, dg = _run(tmp_path, sc_map)
     assert not set(_named(dg)) & set(TRACKER), dg.report["mismatch"]["summary"]
+
+
+def test_the_evaluations_tracker_cases_conceal_the_trackers_errors():
+    """``bench.evaluate.CASE_HOOKS``: a case with the tracker's frame off, and one whose
+    tracker lags on a continuous recording; nothing else concealed."""
+    from bench.evaluate import CASE_HOOKS, scenario_of
+
+    frame = CASE_HOOKS["tracker_frame"](12800)
+    assert set(frame["truth"]) == {"tracker_frame"} and frame["case"]["oov"] == "none"
+    assert np.abs(scenario_of(frame).truth.tracker_frame[:3]).max() <= np.radians(0.5)
+    late = CASE_HOOKS["tracker_latency"](12801)
+    assert set(late["truth"]) == {"tracker_latency"}
+    assert late["recording"]["kind"] == "continuous"
+    assert 0.02 <= scenario_of(late).truth.tracker_latency <= 0.1
