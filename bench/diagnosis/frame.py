@@ -1,15 +1,23 @@
-"""Exit-point offsets that are one rigid motion of the whole frame.
+"""The tracker's own frame and latency beside the exit points.
 
 The platform's pose is measured in the tracker's frame. A tracker registered to the base
 frame with a small rotation and translation off (a misregistered frame, a moved tracker
 between the survey and the campaign) reads every pose through that motion: the robot, seen
-from the tracker, has every exit point moved by it. The fitted exit-point offsets then
-form a rigid motion ``d_ij = omega x a_ij + t`` (small angles), which the vocabulary's
-``exit_point_offset`` reproduces exactly (the only other trace, gravity tilted by the
-rotation, is below a milliradian). Where the offsets are such a motion, the report says
-so: the exit points may be where the description puts them and the tracker's registration
-off. A measurement of the exit points (or of fixed targets on the base) with the tracker
-tells the two apart.
+from the tracker, has every exit point moved by it. The vocabulary names that error
+``tracker_frame`` (:mod:`controller.effects`); fitted as exit-point offsets instead, they
+form a rigid motion ``d_ij = omega x a_ij + t`` (small angles). The two are one between
+poses (the gauge), not quite over a recording: the encoders are referenced at the
+initialisation pose, which the controller commands in F_b (the tracker does not place
+it), and the frame's rotation tilts gravity in the load cells' force balance; exit points
+measured with the tracker tell them apart too. The selection never fits both in one set;
+the report names the one the data prefer and declares the other
+(:func:`gauge_alternative`). Where named exit-point offsets are such a motion
+(:func:`frame_motion`), the report says so: the exit points may be where the description
+puts them and the tracker's registration off.
+
+The tracker's latency (``tracker_latency``) is seen only while the platform moves: each
+moving sample carries the rate of its measured pose (:func:`pose_rates`), and the
+recording can test the latency where some do (:func:`tracker_candidates`).
 """
 
 from __future__ import annotations
