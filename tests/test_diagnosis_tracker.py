@@ -30,9 +30,9 @@ from tests.test_diagnose_kinds import GRID, scenario
 
 TRACKER = ("tracker_frame", "tracker_latency")
 #: a continuous recording along three straight moves, twice, at 10 Hz, no dwells
-MOVES = {"kind": "list", "visits": 2, "speed_m_s": 0.5, "init_s": 2.0,
-         "list": [[5.0, 5.0, 1.0, 0, 0, 0], [15.0, 6.0, 1.3, 0, 0, 0],
-                  [9.0, 12.0, 1.0, 0, 0, 0]]}
+MOVES = {"kind": "list", "visits": 2, "speed_m_s": 0.4, "init_s": 2.0,
+         "list": [[7.0, 6.0, 1.0, 0, 0, 0], [13.0, 7.0, 1.3, 0, 0, 0],
+                  [10.0, 11.0, 1.0, 0, 0, 0]]}
 CONTINUOUS = {"kind": "continuous", "dwell_at_targets": False, "rate_hz": 10.0}
 
 
