@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.diagnosis import gauge
-from bench.diagnosis.frame import tracker_candidates
 from bench.diagnosis.fit import (
     MAX_NFEV,
     ErrorStructure,
@@ -36,6 +35,7 @@ from bench.diagnosis.fit import (
     fd_jacobian,
     fit_effects,
 )
+from bench.diagnosis.frame import tracker_candidates
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
 from bench.parallel import job_running
@@ -88,7 +88,8 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
     stretch and the length readings' offsets and scales are tested (a reading's error is
     absorbed only in the pose's six directions at each sample; the stretch and the force
     balance see the rest). Without tensions, the cables' sag (it hangs on the tensions) is
-    not (:func:`untested_effects` says which are not)."""
+    not (:func:`untested_effects` says which are not). The tracker's own frame and latency
+    where its poses can show them (:func:`bench.diagnosis.frame.tracker_candidates`)."""
     out = []
     have_len = bool(rm.has_len.any())
     have_exit = bool(rm.has_exit.any())
