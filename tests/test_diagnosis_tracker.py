@@ -147,3 +147,24 @@ def test_the_evaluations_tracker_cases_conceal_the_trackers_errors():
     assert set(late["truth"]) == {"tracker_latency"}
     assert late["recording"]["kind"] == "continuous"
     assert 0.02 <= scenario_of(late).truth.tracker_latency <= 0.1
+
+
+def test_pose_rates_follow_each_move_not_the_turn_between_them():
+    """Two straight moves meeting at a turn, no stop: each row's rate is its own move's
+    velocity (a polynomial across the turn would bend it), a short move's from a line."""
+    from types import SimpleNamespace
+
+    from bench.diagnosis.frame import pose_rates
+
+    t = np.arange(0.0, 4.0, 0.1)
+    v1, v2 = np.array([0.3, 0, 0, 0, 0, 0.01]), np.array([0, -0.2, 0.05, 0, 0, 0])
+    p = np.where((t < 2.0)[:, None], t[:, None] * v1, 2.0 * v1 + (t - 2.0)[:, None] * v2)
+    rec = SimpleNamespace(n_samples=len(t), t=t, pose_meas=p)
+    rows = np.arange(len(t))
+    moves = (t >= 2.0).astype(int)
+    got = pose_rates(rec, rows, rows, moves)
+    np.testing.assert_allclose(got[t < 2.0], np.tile(v1, ((t < 2.0).sum(), 1)), atol=1e-9)
+    np.testing.assert_allclose(got[t >= 2.0], np.tile(v2, ((t >= 2.0).sum(), 1)), atol=1e-9)
+    short = pose_rates(rec, rows[:3], rows[:3], np.zeros(3, dtype=int))
+    np.testing.assert_allclose(short, np.tile(v1, (3, 1)), atol=1e-9)
+    assert not pose_rates(rec, rows[:1], rows[:1], np.zeros(1, dtype=int)).any()
