@@ -168,3 +168,23 @@ def test_pose_rates_follow_each_move_not_the_turn_between_them():
     short = pose_rates(rec, rows[:3], rows[:3], np.zeros(3, dtype=int))
     np.testing.assert_allclose(short, np.tile(v1, (3, 1)), atol=1e-9)
     assert not pose_rates(rec, rows[:1], rows[:1], np.zeros(1, dtype=int)).any()
+
+
+def test_exit_points_moved_together_declare_the_tracker_frame(tmp_path):
+    """The other side of the gauge: every exit point moved by one rigid motion (the frame
+    surveyed off, the tracker right). The encoders' reference at the commanded
+    initialisation pose and the tilt of gravity tell it from a tracker frame: exit-point
+    offsets are named, with ``frame_motion``, and ``tracker_frame`` declared beside them."""
+    m = rocaspect()
+    omega, t = np.array([0.0, 0.0, 1.5e-3]), np.array([0.006, -0.004, 0.0])
+    d = np.cross(omega, m.exits - m.exits.mean(axis=0)) + t
+    truth = {f"d{ax}_{c}": float(d[k, a]) for k, c in enumerate(m.cable_ids)
+             for a, ax in enumerate("xyz") if d[k, a] != 0.0}
+    sc, dg = _run(tmp_path, scenario(truth={"exit_point_offset": truth},
+                                     poses=GRID | {"n": [3, 3, 2]}))
+    got = _named(dg)
+    assert set(got) == {"exit_point_offset"}, dg.report["mismatch"]["summary"]
+    motion = got["exit_point_offset"]["frame_motion"]
+    np.testing.assert_allclose(motion["rotation_rad"], omega, atol=1e-4)
+    alts = {a["name"]: a for a in got["exit_point_offset"]["alternatives"]}
+    assert alts["tracker_frame"]["gauge"] == "tracker_frame"

@@ -107,8 +107,9 @@ def sentence(motion: dict) -> str:
     return (f"the exit-point offsets move the exit points together as one rigid body "
             f"(a rotation of {rot:.2f} mrad and a translation of {tr:.1f} mm take "
             f"{100 * motion['share']:.0f} % of them): a laser tracker whose frame is "
-            f"registered that far off would read the same; measuring exit points or fixed "
-            f"targets on the base with the tracker would tell them apart")
+            f"registered that far off would read nearly the same (its fit, tracker_frame, is "
+            f"the declared alternative); measuring exit points or fixed targets on the base "
+            f"with the tracker would tell them apart")
 
 
 #: [s] the window of the polynomial whose slope is a moving row's pose rate
