@@ -32,6 +32,7 @@ from bench.recording import POSE_AXES, write_recording
 from controller.cycle import LengthController
 from firmware_sim.plant import Plant
 from firmware_sim.scenario import Scenario
+from firmware_sim.tracker_sim import TrackerView
 
 #: angular speed of continuous moves [rad/s] (orientation changes take at least this long)
 ANGULAR_SPEED = 0.1
@@ -79,6 +80,7 @@ def run_campaign(sc: Scenario, out: str | Path | None,
     states: list[str] = []
     rate = spec.rate_hz or ps.rate_hz
     dt = 1.0 / rate if rate > 0 else 1.0
+    view = TrackerView(sc.truth)  # the tracker's own errors (frame, latency), if any
 
     def quantise(lengths: np.ndarray) -> np.ndarray:
         q = nz.encoder_m
@@ -96,7 +98,8 @@ def run_campaign(sc: Scenario, out: str | Path | None,
             rows[f"l_cmd_{c}"].append(l_cmd[j])
             rows[f"l_meas_{c}"].append(l_meas[j])
         if spec.tracker:  # noise drawn in this order: pose, tensions, exit points
-            meas_pose = state.pose + np.concatenate([rng.normal(0, nz.tracker_m, 3),
+            seen = state.pose if view.exact else view.read(t, state.pose)
+            meas_pose = seen + np.concatenate([rng.normal(0, nz.tracker_m, 3),
                                                      rng.normal(0, nz.tracker_rad, 3)])
             for a, ax in enumerate(POSE_AXES):
                 rows[f"{ax}_meas"].append(meas_pose[a])
@@ -106,7 +109,8 @@ def run_campaign(sc: Scenario, out: str | Path | None,
                 rows[f"tau_{c}"].append(tau[j])
         if spec.tracker:
             for k_ in exit_idx:
-                a_meas = state.exits[k_] + rng.normal(0, nz.exit_m, 3)
+                a_seen = state.exits[k_] if view.exact else view.points(state.exits[k_])
+                a_meas = a_seen + rng.normal(0, nz.exit_m, 3)
                 for c_, ax in enumerate("xyz"):
                     rows[f"a{ax}_meas_{model.cable_ids[k_]}"].append(a_meas[c_])
         states.append(label)

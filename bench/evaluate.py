@@ -422,6 +422,34 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
     }
 
 
+def tracker_case(seed: int, effect: str = "tracker_frame", **kw) -> dict[str, Any]:
+    """A case (:func:`make_case`, all sensors, no other effect, nothing outside the
+    vocabulary) whose laser tracker carries its own error ``effect``: ``tracker_frame``, its
+    frame turned up to 0.5 degrees about each axis and shifted up to 5 mm; or
+    ``tracker_latency``, its poses 20 to 100 ms late on a continuous recording (only a
+    moving platform shows a latency). Drawn from a generator of its own (``[seed, 32]``)."""
+    rng = np.random.default_rng([seed, 32])
+    kind = kw.pop("kind", "continuous" if effect == "tracker_latency" else "mix")
+    case = make_case(seed, effects=(), kind=kind, sensors="all", oov="none", **kw)
+    if effect == "tracker_frame":
+        rot = np.radians(rng.uniform(-0.5, 0.5, 3))
+        shift = rng.uniform(-5e-3, 5e-3, 3)
+        case["truth"]["tracker_frame"] = dict(zip(("rx", "ry", "rz", "tx", "ty", "tz"),
+                                                  map(float, [*rot, *shift]), strict=True))
+    elif effect == "tracker_latency":
+        case["truth"]["tracker_latency"] = {"dt": float(rng.uniform(0.02, 0.1))}
+    else:
+        raise ValueError(f"tracker_case: {effect!r} is no tracker error (tracker_frame, "
+                         f"tracker_latency)")
+    case["case"]["tracker"] = effect
+    return case
+
+
+#: case generators beside :func:`make_case`, by the effect they conceal
+CASE_HOOKS = {e: (lambda seed, e=e, **kw: tracker_case(seed, e, **kw))
+              for e in ("tracker_frame", "tracker_latency")}
+
+
 def scenario_of(case: dict[str, Any]):
     """The parsed scenario of a case (the mapping without its ``case`` entry)."""
     from firmware_sim.scenario import parse_scenario

@@ -52,7 +52,13 @@ def _rotation_batch(rpy: np.ndarray) -> np.ndarray:
 
 
 def euler_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`rotation`: ``[roll, pitch, yaw]`` [rad], pitch in [-pi/2, pi/2]."""
+    """Inverse of :func:`rotation`: ``[roll, pitch, yaw]`` [rad], pitch in [-pi/2, pi/2];
+    (..., 3) for stacked matrices (..., 3, 3)."""
+    if np.ndim(R) > 2:
+        R = np.asarray(R, dtype=float)
+        return np.stack([np.arctan2(R[..., 2, 1], R[..., 2, 2]),
+                         np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0)),
+                         np.arctan2(R[..., 1, 0], R[..., 0, 0])], axis=-1)
     pitch = math.asin(min(1.0, max(-1.0, -float(R[2, 0]))))
     roll = math.atan2(float(R[2, 1]), float(R[2, 2]))
     yaw = math.atan2(float(R[1, 0]), float(R[0, 0]))

@@ -145,6 +145,10 @@ RANGES: dict[str, dict[str, Range | tuple[Range, ...]]] = {
         "init_pose": POSE,
         "seed": SEED,
         "truth.cable_length_offset.slip_time_*": TIME,
+        "truth.tracker_frame.r*": Range(-0.1, 0.1, "rad", "a tracker's registration turned "
+                                        "up to 6 degrees"),
+        "truth.tracker_frame.t*": Range(-1.0, 1.0, "m", "a tracker's registration shifted"),
+        "truth.tracker_latency.dt": Range(-1.0, 1.0, "s", "a tracker's stream late or early"),
         "truth.mast_compliance.k": Range(0.0, 1e12, "N m/rad", "a mast's joint stiffness",
                                          lo_open=True),
         "noise.tracker_m": Range(0.0, 0.1, "m", "a tracker's noise"),

@@ -85,6 +85,13 @@ class Robot:
     #: these internal forces (coordinates in a basis of the wrench matrix's null space at the
     #: initialisation pose, :func:`controller.statics.pretensioned`); None: the distribution's
     init_internal: np.ndarray | None = None
+    #: (6,) the laser tracker's frame F_t in F_b (effect ``tracker_frame``): rotation vector
+    #: ``rx, ry, rz`` [rad] about F_b's origin and translation ``tx, ty, tz`` [m]; a point
+    #: read ``x_t`` by the tracker is at ``R x_t + t`` in F_b. Zero: the tracker reads F_b
+    tracker_frame: np.ndarray = field(default=None)
+    #: [s] the tracker's stream lags the drives' by this (effect ``tracker_latency``): the
+    #: pose stamped ``t`` is the platform's at ``t - tracker_latency``
+    tracker_latency: float = 0.0
 
     def __post_init__(self) -> None:
         n, m = len(self.cable_ids), len(self.mast_ids)
@@ -98,6 +105,7 @@ class Robot:
             "length_offset": np.zeros(n),
             "load_cell_gain": np.ones(n),
             "load_cell_offset": np.zeros(n),
+            "tracker_frame": np.zeros(6),
         }
         for name, default in defaults.items():
             val = getattr(self, name)

@@ -193,9 +193,10 @@ class SimRig:
                              f"{self.cells.map.cables}, winches for {self.winches.cables}")
         self.server = LoadCellServer(self.cells, host=modbus_host, port=modbus_port, rtu=rtu)
 
-        # laser tracker: the plant's pose with the scenario's noise
+        # laser tracker: the plant's pose with the scenario's noise (and its own errors)
         self.tracker = SimTracker(lambda: (self.time_s(), self.last.pose),
-                                  sc.noise.tracker_m, sc.noise.tracker_rad, seed=sc.seed + 3)
+                                  sc.noise.tracker_m, sc.noise.tracker_rad, seed=sc.seed + 3,
+                                  truth=sc.truth)
         self.tracker_server = None if tracker_port is None else TrackerServer(
             self.tracker.measure, host=tracker_host, port=tracker_port, rate_hz=tracker_rate_hz)
 

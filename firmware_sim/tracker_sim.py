@@ -3,7 +3,9 @@
 :class:`SimTracker` measures a pose source (``source() -> (t_s, pose)``, e.g. the rig's
 plant time and rest pose) and adds independent Gaussian noise per sample: ``noise_m`` [m]
 on x, y, z and ``noise_rad`` [rad] on roll, pitch, yaw (``Noise.tracker_m`` and
-``Noise.tracker_rad`` of the scenario), from ``numpy.random.default_rng(seed)``. It is a
+``Noise.tracker_rad`` of the scenario), from ``numpy.random.default_rng(seed)``. Given the
+scenario's ``truth``, it also carries the tracker's own errors (``[truth.tracker_frame]``,
+``[truth.tracker_latency]``: :class:`TrackerView`), as the campaigns' tracker does. It is a
 plain callable for in-process use (``measure()`` -> ``(t_s, pose, valid)``), and
 :class:`TrackerServer` serves it over TCP. A test hook makes it lose the target:
 ``lose_target()`` / ``regain_target()`` (or ``valid = False``); then measurements carry
@@ -43,11 +45,58 @@ from collections.abc import Callable
 
 import numpy as np
 
+from controller.effects import base_to_tracker, tracker_error
+from controller.pose import rotvec_matrix
+from controller.robot import Robot
+
 log = logging.getLogger(__name__)
 
 PROTOCOL = "CDPR-TRACKER/1"
 DEFAULT_RATE_HZ = 200.0
 _MAX_LINE = 1024
+
+
+class TrackerView:
+    """What a tracker with the errors of ``truth`` (its ``tracker_frame`` and
+    ``tracker_latency``, :mod:`controller.effects`) reads of the platform: the pose the
+    platform had ``tracker_latency`` [s] before the time stamp (linear between the poses
+    it was shown, :meth:`read`), through the tracker's frame
+    (:func:`controller.effects.base_to_tracker`). Without errors it reads the pose as it is.
+    Times must not go back."""
+
+    #: [s] poses older than this beyond the latency are forgotten
+    KEEP_S = 5.0
+
+    def __init__(self, truth: Robot) -> None:
+        self.truth = truth
+        self.latency = float(truth.tracker_latency)
+        self._t: list[float] = []
+        self._p: list[np.ndarray] = []
+
+    def read(self, t: float, pose: np.ndarray) -> np.ndarray:
+        """The pose (6,) [m, rad] the tracker reads at time ``t`` [s] when the platform is at
+        ``pose`` (6,) in F_b then."""
+        pose = np.asarray(pose, dtype=float)
+        if self.latency != 0.0:
+            self._t.append(float(t))
+            self._p.append(pose.copy())
+            while len(self._t) > 2 and self._t[1] < t - abs(self.latency) - self.KEEP_S:
+                del self._t[0], self._p[0]
+            ts = np.array(self._t)
+            ps = np.array(self._p)
+            at = float(t) - self.latency
+            pose = np.array([np.interp(at, ts, ps[:, k]) for k in range(6)])
+        return base_to_tracker(self.truth, pose)
+
+    def points(self, points: np.ndarray) -> np.ndarray:
+        """Fixed points (..., 3) in F_b (exit points) as the tracker reads them."""
+        f = self.truth.tracker_frame
+        return (np.asarray(points, dtype=float) - f[3:]) @ rotvec_matrix(f[:3])
+
+    @property
+    def exact(self) -> bool:
+        """Whether the tracker reads F_b at the drives' times (no frame, no latency)."""
+        return not tracker_error(self.truth)
 
 
 class SimTracker:
@@ -56,10 +105,12 @@ class SimTracker:
     ``(t_s, pose (6,), valid)``."""
 
     def __init__(self, source: Callable[[], tuple[float, np.ndarray]], noise_m: float = 0.0,
-                 noise_rad: float = 0.0, seed: int = 0) -> None:
+                 noise_rad: float = 0.0, seed: int = 0, truth: Robot | None = None) -> None:
         if not (noise_m >= 0 and noise_rad >= 0):
             raise ValueError(f"tracker noise must be >= 0, got {noise_m} m, {noise_rad} rad")
         self.source = source
+        #: the tracker's own errors (frame, latency) of the scenario's truth; None: none
+        self.view = TrackerView(truth) if truth is not None and tracker_error(truth) else None
         self.noise_m = float(noise_m)
         self.noise_rad = float(noise_rad)
         self._sigma = np.array([noise_m] * 3 + [noise_rad] * 3, dtype=float)
@@ -86,6 +137,8 @@ class SimTracker:
             valid = bool(self.valid)
         if not valid:
             return float(t), np.full(6, np.nan), False
+        if self.view is not None:
+            pose = self.view.read(float(t), pose)
         return float(t), np.asarray(pose, dtype=float) + noise, True
 
     __call__ = measure

@@ -1,15 +1,23 @@
-"""Exit-point offsets that are one rigid motion of the whole frame.
+"""The tracker's own frame and latency beside the exit points.
 
 The platform's pose is measured in the tracker's frame. A tracker registered to the base
 frame with a small rotation and translation off (a misregistered frame, a moved tracker
 between the survey and the campaign) reads every pose through that motion: the robot, seen
-from the tracker, has every exit point moved by it. The fitted exit-point offsets then
-form a rigid motion ``d_ij = omega x a_ij + t`` (small angles), which the vocabulary's
-``exit_point_offset`` reproduces exactly (the only other trace, gravity tilted by the
-rotation, is below a milliradian). Where the offsets are such a motion, the report says
-so: the exit points may be where the description puts them and the tracker's registration
-off. A measurement of the exit points (or of fixed targets on the base) with the tracker
-tells the two apart.
+from the tracker, has every exit point moved by it. The vocabulary names that error
+``tracker_frame`` (:mod:`controller.effects`); fitted as exit-point offsets instead, they
+form a rigid motion ``d_ij = omega x a_ij + t`` (small angles). The two are one between
+poses (the gauge), not quite over a recording: the encoders are referenced at the
+initialisation pose, which the controller commands in F_b (the tracker does not place
+it), and the frame's rotation tilts gravity in the load cells' force balance; exit points
+measured with the tracker tell them apart too. The selection never fits both in one set;
+the report names the one the data prefer and declares the other
+(:func:`gauge_alternative`). Where named exit-point offsets are such a motion
+(:func:`frame_motion`), the report says so: the exit points may be where the description
+puts them and the tracker's registration off.
+
+The tracker's latency (``tracker_latency``) is seen only while the platform moves: each
+moving sample carries the rate of its measured pose (:func:`pose_rates`), and the
+recording can test the latency where some do (:func:`tracker_candidates`).
 """
 
 from __future__ import annotations
@@ -99,5 +107,82 @@ def sentence(motion: dict) -> str:
     return (f"the exit-point offsets move the exit points together as one rigid body "
             f"(a rotation of {rot:.2f} mrad and a translation of {tr:.1f} mm take "
             f"{100 * motion['share']:.0f} % of them): a laser tracker whose frame is "
-            f"registered that far off would read the same; measuring exit points or fixed "
-            f"targets on the base with the tracker would tell them apart")
+            f"registered that far off would read nearly the same (its fit, tracker_frame, is "
+            f"the declared alternative); measuring exit points or fixed targets on the base "
+            f"with the tracker would tell them apart")
+
+
+#: [s] the window of the polynomial whose slope is a moving row's pose rate
+RATE_WINDOW_S = 1.0
+
+
+def pose_rates(rec, rows: np.ndarray, fresh: np.ndarray, moves: np.ndarray) -> np.ndarray:
+    """(len(rows), 6) time derivatives [m/s, rad/s] of the measured pose at the path
+    ``rows`` of recording ``rec``, from the ``fresh`` rows (tracker values of their own,
+    sorted) of the same move (``moves``: the move id of each fresh row): the slope of a
+    least-squares polynomial over :data:`RATE_WINDOW_S` within the move
+    (:func:`bench.streams.local_derivative`; a line through a move of fewer than five
+    rows), so that a turn between moves does not bend it. Zero where none is known (a
+    row without a tracker pose, a move of one row): the latency cannot be seen there."""
+    from bench.streams import local_derivative
+
+    out = np.zeros((len(rows), 6))
+    if not len(rows) or not len(fresh):
+        return out
+    rate = np.zeros((rec.n_samples, 6))
+    pose = rec.pose_meas
+    for g in np.unique(moves):
+        r = fresh[moves == g]
+        r = r[np.isfinite(pose[r]).all(axis=1)]
+        if len(r) >= 5:
+            d, _ = local_derivative(rec.t[r], pose[r], 1, RATE_WINDOW_S)
+            rate[r] = np.nan_to_num(d)
+        elif len(r) >= 2 and np.ptp(rec.t[r]) > 0:
+            rate[r] = np.polyfit(rec.t[r] - rec.t[r].mean(), pose[r], 1)[0]
+    return rate[rows]
+
+
+def tracker_candidates(rm) -> list[str]:
+    """The tracker's own errors a recording can see (:class:`ResidualModel` ``rm``): its
+    frame where measured poses meet encoder lengths (or measured exit points), its latency
+    where some of those poses were taken while the platform moved (a pose rate)."""
+    pose = rm.has_pose & (rm.has_len | rm.has_exit.any(axis=1))
+    if not pose.any():
+        return []
+    out = ["tracker_frame"]
+    if (pose & rm.has_len & np.any(rm.s.pose_rate[:, :3] != 0.0, axis=1)).any():
+        out.append("tracker_latency")
+    return out
+
+
+#: the two sides of the tracker frame's gauge (a rigid motion of every exit point)
+GAUGE_PAIR = {"tracker_frame": "exit_point_offset", "exit_point_offset": "tracker_frame"}
+
+
+def gauge_alternative(selector, sel, effect: str, candidates: list[str],
+                      motion: dict | None) -> dict | None:
+    """The other side of the tracker frame's gauge for the named ``effect`` of the selection
+    ``sel`` (:class:`bench.diagnosis.select.Selection`): ``exit_point_offset`` for a named
+    ``tracker_frame``, ``tracker_frame`` for exit-point offsets that form one rigid motion
+    (``motion``, :func:`frame_motion`). A rigid motion of every exit point reads as the
+    tracker's frame moved the other way: the two differ only by the gravity the frame's
+    rotation tilts (the load cells' force balance) and by exit points measured with the
+    tracker. The swapped set is fitted (``selector.fit``, from the selection's fit) and
+    its BIC change returned as an alternative entry ``{"name", "delta_bic", "gauge",
+    "note"}``, whatever its size (declared, not a near tie). None where the pair does not
+    apply or the other is no candidate."""
+    other = GAUGE_PAIR.get(effect)
+    if other is None or other not in candidates or (effect == "exit_point_offset"
+                                                    and motion is None):
+        return None
+    swapped = tuple(c for c in sel.effects if c != effect) + (other,)
+    fit = selector.fit(swapped, sel.fit)
+    how = ("the same lengths between poses; the encoders' reference at the initialisation "
+           "pose (commanded in F_b, not measured), the gravity the frame's rotation tilts and "
+           "exit points measured with the tracker tell them apart")
+    note = (f"every exit point moved by one rigid motion instead of the tracker's frame "
+            f"({how})") if other == "exit_point_offset" else \
+        (f"the tracker's frame registered off by that rigid motion instead of the exit "
+         f"points ({how})")
+    return {"name": other, "delta_bic": float(fit.bic - sel.fit.bic), "gauge": "tracker_frame",
+            "note": note}

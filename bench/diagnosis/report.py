@@ -55,6 +55,9 @@ HOLDOUT_EVERY = 5
 
 #: which measurement separates two look-alike effects
 SEPARATE = {
+    frozenset({"tracker_frame", "exit_point_offset"}):
+        "load cells (the frame's rotation tilts gravity) or exit points measured with the "
+        "tracker",
     frozenset({"pulley_kinematics", "exit_point_offset"}):
         "poses that swing the cables through different swivel angles and elevations around "
         "each mast, or exit points measured by the tracker at several poses",
@@ -812,11 +815,16 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
                              for a, d in sel.alternatives.get(e, [])
                              if report_name(a) != name],
         }
+        motion = None
         if name == "exit_point_offset":
             motion = frame.frame_motion(model, params[e], params.get("drum_scale"))
             if motion is not None:
                 entry["frame_motion"] = motion
                 notes.append(frame.sentence(motion))
+        gauge_alt = frame.gauge_alternative(selector, sel, e, candidates, motion)
+        if gauge_alt is not None:
+            entry["alternatives"] = [a for a in entry["alternatives"]
+                                     if a["name"] != gauge_alt["name"]] + [gauge_alt]
         if rm.any_tau and ((name == "platform_mass" and "mass" in params[e]) or (
                 name == "load_cell_calibration" and "platform_mass" not in names
                 and any(k.startswith("gain_") for k in params[e]))):
@@ -1143,7 +1151,11 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                          f"{d:+.1f}); {how} would separate them")
     for entry in effects or []:
         for alt in entry.get("alternatives", []):
-            if "note" in alt:
+            if alt.get("gauge") == "tracker_frame":
+                parts.append(f"{alt['name']} is the other side of the tracker frame's gauge "
+                             f"of {entry['name']} (delta BIC {alt['delta_bic']:+.1f}): "
+                             f"{alt['note']}")
+            elif "note" in alt:
                 how = SEPARATE[frozenset({"load_cell_calibration", "platform_mass"})]
                 parts.append(f"{alt['name']} fits about as well as {entry['name']} (delta BIC "
                              f"{alt['delta_bic']:+.1f}: {alt['note']}): a gain common to every "

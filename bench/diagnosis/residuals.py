@@ -54,6 +54,7 @@ from bench.diagnosis.internal_forces import fit_internal_forces
 from bench.diagnosis.samples import Samples
 from controller import cables
 from controller.cycle import reference_lengths
+from controller.effects import tracker_error, tracker_points_to_base, tracker_to_base
 from controller.equilibrium import scaled_residual
 from controller.forward import forward_pose
 from controller.kinematics import gravity_wrench, wrench_matrix
@@ -222,6 +223,18 @@ class ResidualModel:
             tau = tau + weight_between_ends(H, poses)
         return tau
 
+    def measured_poses(self, H: Robot) -> np.ndarray:
+        """(N,6) the samples' measured poses in F_b under ``H``: through its tracker frame
+        and latency (:func:`controller.effects.tracker_to_base`, the latency along each
+        sample's pose rate), as read where ``H`` has no tracker error."""
+        if not tracker_error(H):
+            return self.s.pose_meas
+        return tracker_to_base(H, self.s.pose_meas, self.s.pose_rate)
+
+    def measured_exits(self, H: Robot) -> np.ndarray:
+        """(N,n,3) the samples' measured exit points in F_b under ``H``'s tracker frame."""
+        return tracker_points_to_base(H, self.s.exit_meas)
+
     def set_reference(self, reference: np.ndarray) -> None:
         """Read the encoders against another reference ``reference`` (n,) [m] (here and in
         the raw rows' model)."""
@@ -278,7 +291,8 @@ class ResidualModel:
         wrench = np.full((N, 6), np.nan)
         exits_err = np.full((N, n, 3), np.nan)
         ok = np.zeros(N, dtype=bool)
-        poses = np.where(self.has_pose[:, None], s.pose_meas, np.nan)
+        poses = np.where(self.has_pose[:, None], self.measured_poses(H), np.nan)
+        exit_meas = self.measured_exits(H)
         try:
             u0 = self._init_unstretched(H)
         except ValueError:
@@ -346,7 +360,7 @@ class ResidualModel:
             wr *= float(np.exp(np.mean(np.log(H.load_cell_gain))))
             wrench[m] = wr
             if self.has_exit[m].any():
-                e = bs.exits - s.exit_meas[m]
+                e = bs.exits - exit_meas[m]
                 e[~self.has_exit[m]] = np.nan
                 exits_err[m] = e
         # samples without tensions: internal forces from the stretch
@@ -358,7 +372,7 @@ class ResidualModel:
             # a cable left at zero tension: a one-sided residual, like a slack one's
             slack_all[u] = self._at_zero
             if self.has_exit[u].any():
-                e = ex - s.exit_meas[u]
+                e = ex - exit_meas[u]
                 e[~self.has_exit[u]] = np.nan
                 exits_err[u] = e
         length[~self.has_len] = np.nan
@@ -1071,6 +1085,7 @@ class ResidualModel:
             return Forward(pose_err, tension_err, exit_err, ok)
         todo = np.flatnonzero(have_l) if idx is None else np.intersect1d(idx,
                                                                          np.flatnonzero(have_l))
+        pose_meas, exit_meas = self.measured_poses(H), self.measured_exits(H)
         theta = None
         for i in todo:
             dl = np.where(self._slipped()[i], H.length_offset, 0.0)
@@ -1078,7 +1093,7 @@ class ResidualModel:
             # start where the hypothesis is nearest to balancing: the measured pose (near
             # the equilibrium of a good hypothesis) or the commanded one (the recording's
             # model balances there: the controller computed the lengths for it)
-            cands = [g for g in (s.pose_meas[i], s.pose_des[i]) if np.isfinite(g).all()]
+            cands = [g for g in (pose_meas[i], s.pose_des[i]) if np.isfinite(g).all()]
             if not cands:
                 guess = self.init_pose
             elif len(cands) == 1 or not H.elastic:
@@ -1092,13 +1107,13 @@ class ResidualModel:
             theta = res.theta if H.elastic else None
             ok[i] = True
             if self.has_pose[i]:
-                pose_err[i] = s.pose_meas[i] - res.pose
+                pose_err[i] = pose_meas[i] - res.pose
             if self.has_tau[i] and np.all(np.isfinite(res.tensions)) and H.elastic:
                 at_cells = res.tensions - (weight_between_ends(H, res.pose)
                                            if self.cells_at == "anchor" else 0.0)
                 tension_err[i] = s.tau[i] - (H.load_cell_gain * at_cells + H.load_cell_offset)
             if self.has_exit[i].any():
-                e = s.exit_meas[i] - res.exits
+                e = exit_meas[i] - res.exits
                 e[~self.has_exit[i]] = np.nan
                 exit_err[i] = e
         return Forward(pose_err, tension_err, exit_err, ok)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.diagnosis.frame import pose_rates
 from bench.recording import Recording, RecordingError
 from bench.streams import jittered, measured_acceleration, still_rows
 
@@ -107,6 +108,9 @@ class Samples:
     stream: Samples | None = None  # raw rows in time order, decimated (jumps in time)
     #: times [s] where moves start, meet and end, in order (:func:`_turns`)
     turns: np.ndarray | None = None
+    #: (N,6) time derivative of the measured pose [m/s, rad/s] (0 for dwells; the tracker's
+    #: latency is seen through it: :func:`bench.diagnosis.frame.pose_rates`)
+    pose_rate: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
 
     def __post_init__(self) -> None:
         N = len(self.t)
@@ -121,6 +125,8 @@ class Samples:
             self.row = np.arange(N) + 2
         if len(self.weight) != N:
             self.weight = np.ones(N)
+        if self.pose_rate.shape != (N, 6):
+            self.pose_rate = np.zeros((N, 6))
 
     @property
     def n(self) -> int:
@@ -139,7 +145,8 @@ class Samples:
         return Samples(self.t[idx], self.pose_des[idx], self.pose_meas[idx], self.l_meas[idx],
                        self.tau[idx], self.exit_meas[idx], self.count[idx], self.target[idx],
                        self.is_init[idx], self.tau_row_sd, self.kind[idx], self.block[idx],
-                       self.direction[idx], self.row[idx], dict(self.info), self.weight[idx])
+                       self.direction[idx], self.row[idx], dict(self.info), self.weight[idx],
+                       pose_rate=self.pose_rate[idx])
 
 
 # ----- impossible values --------------------------------------------------------------
@@ -501,6 +508,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     fresh = _fresh(rec, path)
     n_stale = int((~fresh).sum())
     moving = path[fresh]
+    moves_of = seg_all[fresh]  # (the moves of the fresh rows: their pose rates)
     path, seg_all = path[qs & fresh], seg_all[qs & fresh]
 
     # budget: dwell samples first (whole targets), path rows spread evenly in time
@@ -558,6 +566,8 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
         m = int(np.sum(seg_all == g))
         w[len(dwell_runs) + np.flatnonzero(seg_all == g)] = min(1.0, MOVE_INDEPENDENT / m)
     s.weight = w[order]
+    s.pose_rate = np.concatenate([np.zeros((len(dwell_runs), 6)),
+                                  pose_rates(rec, path, moving, moves_of)])[order]
     s.triples = _triples(rec, dwell_runs, moving)
     s.cluster = _clusters(s)
     s.stream = _stream(rec)

@@ -35,6 +35,7 @@ from bench.diagnosis.fit import (
     fd_jacobian,
     fit_effects,
 )
+from bench.diagnosis.frame import tracker_candidates
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
 from bench.parallel import job_running
@@ -87,7 +88,8 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
     stretch and the length readings' offsets and scales are tested (a reading's error is
     absorbed only in the pose's six directions at each sample; the stretch and the force
     balance see the rest). Without tensions, the cables' sag (it hangs on the tensions) is
-    not (:func:`untested_effects` says which are not)."""
+    not (:func:`untested_effects` says which are not). The tracker's own frame and latency
+    where its poses can show them (:func:`bench.diagnosis.frame.tracker_candidates`)."""
     out = []
     have_len = bool(rm.has_len.any())
     have_exit = bool(rm.has_exit.any())
@@ -105,6 +107,7 @@ def candidate_effects(rm: ResidualModel) -> list[str]:
         out += ["pulley_kinematics"]
     if have_len and measured_pose and rm.any_tau:
         out += ["cable_sag"]  # a sagging cable's length depends on its tension: measure it
+    out += tracker_candidates(rm)
     return out
 
 
@@ -115,7 +118,10 @@ def untested_effects(rm: ResidualModel) -> list[str]:
 
 
 #: candidates that are two forms of one effect: never both in a set
-EXCLUSIVE = {frozenset({"cable_elasticity", PER_CABLE_EA})}
+EXCLUSIVE = {frozenset({"cable_elasticity", PER_CABLE_EA}),
+             # a rigid motion of every exit point is the tracker's frame seen from the robot
+             # (the gauge: :mod:`bench.diagnosis.frame`): one of the two, the other declared
+             frozenset({"exit_point_offset", "tracker_frame"})}
 
 
 def compatible(effects: tuple[str, ...] | list[str], extra: str) -> bool:

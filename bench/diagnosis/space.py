@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.effects import apply_effects
+from controller.effects import TRACKER_FRAME_KEYS, apply_effects
 from controller.robot import Robot
 
 #: fit-parameter scale per effect (typical size of a meaningful change), for steps and scaling
@@ -22,7 +22,7 @@ SCALES = {
     "exit_point_offset": 1e-3, "mast_compliance": 1e-6, "cable_elasticity": 1e-7,
     "cable_length_offset": 1e-4, "drum_scale": 1e-4, "load_cell_gain": 1e-3,
     "load_cell_offset": 0.1, "mass": 0.1, "com": 1e-3, "pulley_kinematics": 1e-3,
-    "cable_sag": 1e-3,
+    "cable_sag": 1e-3, "tracker_frame": 1e-3, "tracker_rotation": 1e-4, "tracker_latency": 1e-3,
 }
 
 #: the nuisance of a recording without load cells at initialisation: the internal forces
@@ -62,6 +62,11 @@ EXPLAINS = {
     "pulley_kinematics": "cables wrap on pulleys of finite radius that swivel towards the "
                          "platform",
     "cable_sag": "cables sag under their own weight",
+    "tracker_frame": "the laser tracker's frame is registered to F_b with a small rotation and "
+                     "translation off: every measured pose (and exit point) is seen through "
+                     "that rigid motion",
+    "tracker_latency": "the tracker's poses lag the drives' readings by a constant time: "
+                       "while the platform moves, each pose is where it was that long before",
 }
 
 
@@ -94,6 +99,10 @@ def param_value(robot: Robot, model: Robot, p: Param) -> float:
     """The value of fit parameter ``p`` in ``robot``, in the conventions' units (exit
     offsets relative to ``model``; a common ``ea`` is the cables' mean)."""
     k = p.key
+    if p.effect == "tracker_frame":
+        return float(robot.tracker_frame[TRACKER_FRAME_KEYS.index(k)])
+    if p.effect == "tracker_latency":
+        return float(robot.tracker_latency)
     c = lambda pre: robot.cable_ids.index(k[len(pre):])  # noqa: E731
     if k.startswith(("dx_", "dy_", "dz_")):
         i = c(k[:3])
@@ -136,8 +145,10 @@ def undetermined(p: Param, phi: float, se: float) -> bool:
         # standard error of a clipped fit says nothing: a number there would be a guess
         return (phi - 2.0 * se <= 0.0 or se > UNDETERMINED_REL * phi
                 or phi * RIGID_FACTOR <= p.scale)
+    if p.effect == "tracker_frame":  # 1 mrad of rotation, 5 mm of translation
+        return se > max(1e-3 if p.key.startswith("r") else 5e-3, 0.5 * abs(phi - p.neutral))
     limits = {"exit_point_offset": 5e-3, "cable_length_offset": 1e-3, "drum_scale": 5e-3,
-              "pulley_kinematics": 0.03, "cable_sag": 0.05}
+              "pulley_kinematics": 0.03, "cable_sag": 0.05, "tracker_latency": 0.01}
     if p.effect in limits:
         return se > max(limits[p.effect], 0.5 * abs(phi - p.neutral))
     if p.key.startswith("gain_"):
@@ -198,6 +209,14 @@ def effect_fit_params(effect: str, model: Robot) -> list[Param]:
                      SCALES[effect], 0.0, 1.0) for k, c in enumerate(cids)]
     elif effect == "cable_sag":
         out = [Param("rho", effect, "value", model.rho, SCALES[effect], 0.0, 5.0)]
+    elif effect == "tracker_frame":
+        out = [Param(k, effect, "value", float(model.tracker_frame[i]),
+                     SCALES["tracker_rotation"] if i < 3 else SCALES[effect],
+                     -0.1 if i < 3 else -1.0, 0.1 if i < 3 else 1.0)
+               for i, k in enumerate(TRACKER_FRAME_KEYS)]
+    elif effect == "tracker_latency":
+        out = [Param("dt", effect, "value", float(model.tracker_latency), SCALES[effect],
+                     -1.0, 1.0)]
     else:
         raise KeyError(f"unknown effect {effect!r}")
     return out
