@@ -17,6 +17,8 @@ from bench.logger_sim import LoggerSpec, simulate_truth, write_log
 from bench.recording import RecordingError, _read_columns, _read_header, open_recording
 from firmware_sim.scenario import parse_scenario
 
+pytestmark = pytest.mark.slow
+
 #: a 3-minute campaign: 4 targets visited twice, 2 s dwells (about 45,000 rows at 250 Hz)
 POSES = {"kind": "grid", "n": [2, 2, 1], "x": [8.0, 12.0], "y": [6.0, 11.0], "rpy_deg": 2.0,
          "visits": 2, "dwell_s": 2.0, "init_s": 3.0}
