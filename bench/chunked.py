@@ -171,19 +171,21 @@ class Conditioner:
     def feed(self, block: Recording, nbytes: int) -> None:
         """Take the next block (``source_rows`` its rows in the whole file)."""
         self._check(block)
-        for name in st.GROUPS:
-            has = st._group_rows(block, name)
-            if has.any():
-                self.times.setdefault(name, []).append(block.t[has])
         if self.blocks == 0:
             self._decide(block)
         self.blocks += 1
         self.rows += block.n_samples
         self.bytes += nbytes
-        w = block if self.carry is None else st.concat_rows([self.carry, block])
+        w = block if self.carry is None else st.concat_rows([self.carry, block], init=False)
+        sw = st.describe(w)
+        new = w.n_samples - block.n_samples  # the block's first row in w
+        for name, s in sw.items():
+            rows = s.rows[s.rows >= new]
+            if len(rows):
+                self.times.setdefault(name, []).append(w.t[rows])
         cut = float(w.t[-1]) - self.margin
-        self._emit(w, cut)
-        self.carry = st.take_rows(w, np.flatnonzero(w.t >= cut - self.margin))
+        self._emit(w, sw, cut)
+        self.carry = st.take_rows(w, np.flatnonzero(w.t >= cut - self.margin), init=False)
 
     def _check(self, block: Recording) -> None:
         from bench.diagnosis.samples import check_values
@@ -205,10 +207,11 @@ class Conditioner:
             self.reference = st._slowest(s)
             self.margin = max(MARGIN_S, 8 * self.reference.period_s)
 
-    def _emit(self, w: Recording, cut: float) -> None:
-        """Keep the aligned rows of ``w`` from the last cut up to ``cut`` [s]."""
+    def _emit(self, w: Recording, sw: dict[str, st.Stream], cut: float) -> None:
+        """Keep the aligned rows of ``w`` (whose streams are ``sw``) from the last cut up to
+        ``cut`` [s]."""
         if self.reference is not None:
-            a, al = st.align(w, st.describe(w), reference=self.reference, t0=self.t0)
+            a, al = st.align(w, sw, reference=self.reference, t0=self.t0)
         else:
             a, al = w, None
         sel = np.flatnonzero((a.t >= self.until) & (a.t < cut))
@@ -226,7 +229,7 @@ class Conditioner:
                                mode="same") > 0
             self.event_rows += int(near[sel].sum())
             sel = sel[near[sel] | ((before + np.arange(len(sel))) % self.every == 0)]
-        self.kept.append(st.take_rows(a, sel))
+        self.kept.append(st.take_rows(a, sel, init=False))
 
     def _count(self, w: Recording, a: Recording, sel: np.ndarray, al: st.Alignment) -> None:
         """The alignment's counts over the rows ``sel`` of ``a`` (those this block gives)."""
@@ -249,7 +252,7 @@ class Conditioner:
     def finish(self) -> tuple[Recording, dict, list[dict]]:
         """The conditioned recording, the streams report and the excluded values."""
         if self.carry is not None:
-            self._emit(self.carry, np.inf)
+            self._emit(self.carry, st.describe(self.carry), np.inf)
         rec = st.concat_rows(self.kept)
         report: dict = {"streams": {}}
         for name, parts in self.times.items():

@@ -476,8 +476,9 @@ def condense(rec, budget: int = ROW_BUDGET):
     return out, info
 
 
-def take_rows(rec, idx: np.ndarray):
-    """The recording's rows ``idx`` (in order) as a recording of their own."""
+def take_rows(rec, idx: np.ndarray, init: bool = True):
+    """The recording's rows ``idx`` (in order) as a recording of their own (its ``init_rows``
+    found again when ``init``, else none: a part that is no recording of its own)."""
     out = replace(rec, t=rec.t[idx], pose_des=rec.pose_des[idx], pose_meas=rec.pose_meas[idx],
                   l_cmd=rec.l_cmd[idx], l_meas=rec.l_meas[idx], tau=rec.tau[idx],
                   exit_meas=rec.exit_meas[idx],
@@ -487,13 +488,13 @@ def take_rows(rec, idx: np.ndarray):
     out.source_rows = idx if src is None else src[idx]
     from bench.recording import _init_rows
 
-    out.init_rows = _init_rows(out)
+    out.init_rows = _init_rows(out) if init else np.zeros(0, dtype=int)
     return out
 
 
-def concat_rows(recs: list):
+def concat_rows(recs: list, init: bool = True):
     """Recordings of consecutive rows of one recording (:func:`take_rows` of its parts) as
-    one; ``init_rows`` found again on the whole."""
+    one; ``init_rows`` found again on the whole (when ``init``)."""
     first = recs[0]
 
     def cat(name: str) -> np.ndarray:
@@ -512,7 +513,7 @@ def concat_rows(recs: list):
         r.source_rows if r.source_rows is not None else np.arange(r.n_samples) for r in recs])
     from bench.recording import _init_rows
 
-    out.init_rows = _init_rows(out)
+    out.init_rows = _init_rows(out) if init else np.zeros(0, dtype=int)
     return out
 
 
