@@ -174,3 +174,28 @@ def test_decimating_while_reading_keeps_the_answer_of_the_full_fit(slipped, monk
         for k, v in b["params"].items():
             assert a["params"][k] == pytest.approx(v, abs=2 * np.hypot(a["stderr"][k],
                                                                        b["stderr"][k]))
+
+
+def test_the_long_log_writer_writes_streams_window_by_window(slipped):
+    # write_long_log (the 8-hour benchmark's writer) in windows of 7,000 rows, split in
+    # time: one time column rising through the windows and files, the streams at their
+    # rates, empty fields, no controller columns
+    from bench.logger_sim import write_long_log
+    from bench.recording import read_recording
+
+    sc, truth, _, d = slipped
+    rec = write_long_log(d / "long", sc, replace(THREE, split="time", files=2), truth,
+                         window_rows=7_000)
+    assert sorted(p.name for p in rec.glob("*.csv")) == ["recording-001.csv",
+                                                         "recording-002.csv"]
+    text = (rec / "recording-001.csv").read_text().splitlines()
+    assert ",," in text[2] and not any(h.endswith("_des") for h in text[0].split(","))
+    r = read_recording(rec)
+    assert np.all(np.diff(r.t) > 0)
+    assert r.n_samples == pytest.approx((truth.t[-1] - truth.t[0]) * 250.0, abs=2)
+    st = streams.describe(r)
+    for name, hz in (("encoders", 250.0), ("load_cells", 50.0), ("tracker", 25.0)):
+        assert st[name].rate_hz == pytest.approx(hz, rel=0.02)
+    assert "controller" not in st
+    # the truth of a dwell is kept as its two ends: the same readings between them
+    assert len(truth.t) < 0.95 * (truth.t[-1] - truth.t[0]) * PHYSICS_HZ
