@@ -74,19 +74,36 @@ class Truth:
     label: np.ndarray
 
 
-def simulate_truth(sc: Scenario, physics_hz: float) -> Truth:
+class _Horizon(Exception):
+    """The campaign reached the horizon of :func:`simulate_truth`."""
+
+
+def simulate_truth(sc: Scenario, physics_hz: float, until_s: float | None = None) -> Truth:
     """Run the scenario's campaign as a continuous log at ``physics_hz`` (its dwells kept)
-    and collect the truth of every step."""
+    and collect the truth of every step, up to ``until_s`` [s] when given. A run of equal
+    steps (a dwell) is kept as its first and last step: the truth is linear between steps."""
     rows: list[tuple] = []
 
+    def same(a: tuple, b: tuple) -> bool:
+        return a[7] == b[7] and all(np.array_equal(x, y) for x, y in zip(a[1:7], b[1:7],
+                                                                          strict=True))
+
     def sink(t, p_des, l_cmd, l_meas, state, tau_read, label) -> None:
-        rows.append((t, np.array(p_des, float), np.array(l_cmd, float),
-                     np.array(l_meas, float), state.pose.copy(), np.array(tau_read, float),
-                     state.exits.copy(), label))
+        if until_s is not None and t > until_s:
+            raise _Horizon
+        row = (t, np.array(p_des, float), np.array(l_cmd, float), np.array(l_meas, float),
+               state.pose.copy(), np.array(tau_read, float), state.exits.copy(), label)
+        if len(rows) >= 2 and same(row, rows[-1]) and same(row, rows[-2]):
+            rows[-1] = row  # the run's last step moves on
+        else:
+            rows.append(row)
 
     sc2 = replace(sc, recording=RecordingSpec(kind="continuous", dwell_at_targets=True,
                                               rate_hz=physics_hz))
-    run_campaign(sc2, None, sink=sink)
+    try:
+        run_campaign(sc2, None, sink=sink)
+    except _Horizon:
+        pass
     cols = list(zip(*rows, strict=True))
     return Truth(*(np.array(c) for c in cols[:7]), label=np.array(cols[7]))
 
@@ -229,8 +246,9 @@ def write_log(out: str | Path, sc: Scenario, spec: LoggerSpec,
     return d
 
 
-def _write_csv(path: Path, cols: dict[str, np.ndarray], empty: str) -> None:
-    """Write columns as CSV (floats in full precision; NaN written as ``empty``)."""
+def _write_csv(path, cols: dict[str, np.ndarray], empty: str, header: bool = True) -> None:
+    """Write columns as CSV (floats in full precision; NaN written as ``empty``) to the file
+    ``path`` (atomically), or append them to an open binary file (``header`` or not)."""
     from bench.streams import _polars_usable
 
     _polars_usable()  # this process starts polars' thread pool: its forked children read
@@ -238,6 +256,73 @@ def _write_csv(path: Path, cols: dict[str, np.ndarray], empty: str) -> None:
 
     series = [pl.Series(name, v.astype(str)) if v.dtype.kind in "USO"
               else pl.Series(name, v, nan_to_null=True) for name, v in cols.items()]
+    if not isinstance(path, Path):
+        pl.DataFrame(series).write_csv(path, null_value=empty, include_header=header)
+        return
     tmp = path.with_name(f".{path.name}.tmp")
     pl.DataFrame(series).write_csv(tmp, null_value=empty)
     tmp.replace(path)
+
+
+def write_long_log(out: str | Path, sc: Scenario, spec: LoggerSpec, truth: Truth,
+                   window_rows: int = 500_000) -> Path:
+    """Write the recording directory ``out`` like :func:`write_log` (one file, or
+    ``split="time"`` into ``spec.files`` parts), ``window_rows`` rows at a time: an hours-long
+    log is never held whole (the instants of every row and sample are; 8 bytes each).
+    The noise is drawn window by window (another draw than :func:`write_log`'s)."""
+    if spec.split not in (None, "time"):
+        raise ValueError(f"split: {spec.split!r}: a long log is written whole or split in time")
+    rng = np.random.default_rng(spec.seed + 7919 * sc.seed + 1)
+    t = _instants(truth.t[0], truth.t[-1], spec.rows_hz, spec.jitter_s, rng)
+    t[0] = truth.t[0]
+    R = len(t)
+    own: dict[str, np.ndarray | None] = {}
+    for stream in STREAMS:
+        if (stream == "tracker" and not sc.recording.tracker) or \
+                (stream == "load_cells" and not sc.recording.load_cells):
+            continue
+        if spec.rate(stream) >= spec.rows_hz:
+            own[stream] = None  # every row
+            continue
+        inst = _instants(t[0], t[-1], spec.rate(stream), spec.jitter_s, rng)
+        k = np.clip(np.searchsorted(t, inst), 1, R - 1)
+        k -= (inst - t[k - 1]) < (t[k] - inst)
+        own[stream] = np.unique(k)
+    files = spec.files if spec.split == "time" else 1
+    edges = np.linspace(0, R, files + 1).astype(int)
+    names = [f"recording-{k + 1:03d}.csv" for k in range(files)] if files > 1 \
+        else ["recording.csv"]
+    d = Path(out)
+    rates = ", ".join(f"{s} {spec.rate(s):g} Hz" for s in STREAMS)
+    meta = {"format": FORMAT, "samples": names[0] if files == 1 else names,
+            "notes": f"logger: rows at {spec.rows_hz:g} Hz, {rates}; jitter "
+                     f"{spec.jitter_s * 1e3:g} ms"}
+    write_header_files(d, sc.model, sc.init_pose, meta,
+                       robot_header=f"model the controller ran with ({sc.model.name})")
+    exit_idx = [sc.model.cable_ids.index(c) for c in sc.poses.exit_points] \
+        if sc.recording.tracker else []
+    for k, name in enumerate(names):
+        tmp = d / f".{name}.tmp"
+        with tmp.open("wb") as f:
+            for r0 in range(edges[k], edges[k + 1], window_rows):
+                r1 = min(r0 + window_rows, edges[k + 1])
+                cols = _window(sc, truth, t, own, r0, r1, exit_idx, rng)
+                _write_csv(f, cols, spec.empty, header=r0 == edges[k])
+        tmp.replace(d / name)
+    return d
+
+
+def _window(sc: Scenario, truth: Truth, t: np.ndarray, own: dict, r0: int, r1: int,
+            exit_idx: list[int], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The sensor columns of rows ``r0:r1`` (no controller columns)."""
+    cols: dict[str, np.ndarray] = {"t": t[r0:r1]}
+    for stream, rows in own.items():
+        rows = np.arange(r0, r1) if rows is None else \
+            rows[np.searchsorted(rows, r0):np.searchsorted(rows, r1)]
+        vals = _stream_values(stream, truth, t[rows], sc.noise, exit_idx, sc.model.cable_ids,
+                              rng)
+        for name, v in vals.items():
+            col = np.full(r1 - r0, np.nan)
+            col[rows - r0] = v
+            cols[name] = col
+    return cols

@@ -10,6 +10,7 @@ streams one while a run goes.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import re
@@ -138,6 +139,14 @@ def read_recording(path: str | Path) -> Recording:
     from bench.mcap.reader import mcap_file
     if mcap_file(path) is not None:
         return read_recording_mcap(path)
+    d, meta, robot, init_pose, samples_path = open_recording(path)
+    return _read_csv(d, samples_path, robot, meta, init_pose)
+
+
+def open_recording(path: str | Path) -> tuple[Path, dict, Robot, np.ndarray,
+                                                Path | list[Path]]:
+    """A recording directory's validated meta.toml and robot.toml: (directory, meta, robot,
+    init pose, the samples file or the list of a split recording's files)."""
     d = Path(path)
     meta_path = d / "meta.toml"
     meta, text = read_toml(meta_path, RecordingError)
@@ -164,7 +173,7 @@ def read_recording(path: str | Path) -> Recording:
             inside_recording(d, {"samples": q}, "samples", meta_path, text) for q in samples]
     else:
         samples_path = inside_recording(d, meta, "samples", meta_path, text)
-    return _read_csv(d, samples_path, robot, meta, np.array(ip, dtype=float))
+    return d, meta, robot, np.array(ip, dtype=float), samples_path
 
 
 def inside_recording(d: Path, meta: dict, key: str, meta_path: Path, text: str = "") -> Path:
@@ -282,17 +291,20 @@ def _read_header(p: Path, robot: Robot) -> list[str]:
     return header
 
 
-def _read_csv_rows(p: Path, header: list[str]) -> tuple[list[str], dict[str, np.ndarray],
-                                                        list[str] | None]:
-    """Row by row (errors name the line and column): header, columns, states."""
-    with p.open(newline="", encoding="utf-8") as f:
+def _read_csv_rows(p: Path, header: list[str], text: str | None = None, first_line: int = 2
+                   ) -> tuple[list[str], dict[str, np.ndarray], list[str] | None]:
+    """Row by row (errors name the line and column): header, columns, states. With ``text``
+    (a block of data lines of ``p`` whose first is line ``first_line``) that block only."""
+    with (p.open(newline="", encoding="utf-8") if text is None
+          else io.StringIO(text, newline="")) as f:
         reader = csv.reader(f)
-        next(reader)
+        if text is None:
+            next(reader)
         rows: list[list[float]] = []
         states: list[str] = []
         state_col = header.index("state") if "state" in header else -1
         numeric = [c for c, name in enumerate(header) if c != state_col]
-        for lineno, row in enumerate(reader, start=2):
+        for lineno, row in enumerate(reader, start=first_line):
             if not row or all(not x.strip() for x in row):
                 continue
             if len(row) != len(header):
@@ -322,7 +334,7 @@ def _read_csv_rows(p: Path, header: list[str]) -> tuple[list[str], dict[str, np.
         raise RecordingError(f"{p}: no samples")
     t = data[:, names.index("t")]
     if np.isnan(t).any():
-        line = int(np.flatnonzero(np.isnan(t))[0]) + 2
+        line = int(np.flatnonzero(np.isnan(t))[0]) + first_line
         raise RecordingError(f"{p}:{line}: column {header.index('t') + 1} 't': time missing")
     return header, {name: data[:, k] for k, name in enumerate(names)}, \
         (states if state_col >= 0 else None)

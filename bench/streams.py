@@ -99,6 +99,33 @@ def read_columns(p: Path, header: list[str]) -> tuple[dict[str, np.ndarray],
         return None
     if df.height == 0 or not _whole_rows(p, df.height, len(header)):
         return None
+    return _frame_columns(df, header)
+
+
+def parse_block(data: bytes, header: list[str]) -> tuple[dict[str, np.ndarray],
+                                                         list[str] | None] | None:
+    """The columns (as :func:`read_columns`) of ``data``, whole data lines of a samples file
+    whose header is ``header``; None where :func:`read_columns` gives None (the caller then
+    reads the block row by row, naming the line). Called only where polars may run."""
+    import io
+
+    import polars as pl
+
+    schema = {h: (pl.String if h == "state" else pl.Float64) for h in header}
+    try:
+        df = pl.read_csv(io.BytesIO(data), has_header=False, new_columns=header,
+                         schema=schema, null_values=NULLS, raise_if_empty=False)
+    except (pl.exceptions.PolarsError, OSError, ValueError):
+        return None
+    if df.height == 0 or data.count(b",") != df.height * (len(header) - 1):
+        return None
+    return _frame_columns(df, header)
+
+
+def _frame_columns(df, header: list[str]) -> tuple[dict[str, np.ndarray],
+                                                   list[str] | None] | None:
+    """A polars frame's columns as float64 arrays and the states as strings; None on an
+    infinite value or a missing time (the row-by-row reader names them)."""
     cols: dict[str, np.ndarray] = {}
     states = None
     for name in header:
@@ -234,9 +261,11 @@ def _slowest(streams: dict[str, Stream]) -> Stream:
     return max((streams[n] for n in MEASURED if n in streams), key=lambda s: s.period_s)
 
 
-def _fill_gaps(t: np.ndarray, slow: Stream, others: np.ndarray) -> np.ndarray:
+def _fill_gaps(t: np.ndarray, slow: Stream, others: np.ndarray, t0: float | None = None
+               ) -> np.ndarray:
     """Rows of ``others`` inside the slow stream's gaps (and before its first or after its
-    last sample), one per slow period: the instants where only faster streams measured."""
+    last sample), one per slow period counted from ``t0`` [s] (default the first row's
+    time): the instants where only faster streams measured."""
     if not len(others):
         return others
     ts = t[slow.rows]
@@ -248,7 +277,7 @@ def _fill_gaps(t: np.ndarray, slow: Stream, others: np.ndarray) -> np.ndarray:
     cand = others[inside]
     if not len(cand):
         return cand
-    bins = np.floor((t[cand] - t[0]) / slow.period_s).astype(np.int64)
+    bins = np.floor((t[cand] - (t[0] if t0 is None else t0)) / slow.period_s).astype(np.int64)
     _, first = np.unique(bins, return_index=True)
     return cand[first]
 
@@ -326,18 +355,26 @@ def _align_group(rec, g: str, stream: Stream, ref: np.ndarray, al: Alignment) ->
     return out.reshape((len(ref),) + shape)
 
 
-def align(rec, streams: dict[str, Stream] | None = None):
+def align(rec, streams: dict[str, Stream] | None = None, reference: Stream | None = None,
+          t0: float | None = None):
     """``rec`` brought to the instants of its slowest measuring stream (see the module
     docstring): a new Recording and the :class:`Alignment`, or ``rec`` and None when its
-    streams share the rows already."""
+    streams share the rows already. A part of a long recording read block by block
+    (:mod:`bench.chunked`) is brought to the whole recording's ``reference`` stream (its
+    name and period; the rows are this part's), gap instants counted from ``t0`` [s]."""
     streams = describe(rec) if streams is None else streams
-    if not multi_rate(rec, streams):
-        return rec, None
-    slow = _slowest(streams)
+    if reference is None:
+        if not multi_rate(rec, streams):
+            return rec, None
+        slow = _slowest(streams)
+    else:
+        rows = streams[reference.name].rows if reference.name in streams \
+            else np.zeros(0, dtype=int)
+        slow = replace(reference, rows=rows)
     name = slow.name
     others = [streams[n].rows for n in MEASURED if n in streams and n != name]
     others_rows = np.unique(np.concatenate(others)) if others else np.zeros(0, dtype=int)
-    ref = np.unique(np.concatenate([slow.rows, _fill_gaps(rec.t, slow, others_rows)]))
+    ref = np.unique(np.concatenate([slow.rows, _fill_gaps(rec.t, slow, others_rows, t0)]))
     al = Alignment(name, rec.n_samples, len(ref))
     new = {}
     for sname, s in streams.items():
@@ -439,8 +476,9 @@ def condense(rec, budget: int = ROW_BUDGET):
     return out, info
 
 
-def take_rows(rec, idx: np.ndarray):
-    """The recording's rows ``idx`` (in order) as a recording of their own."""
+def take_rows(rec, idx: np.ndarray, init: bool = True):
+    """The recording's rows ``idx`` (in order) as a recording of their own (its ``init_rows``
+    found again when ``init``, else none: a part that is no recording of its own)."""
     out = replace(rec, t=rec.t[idx], pose_des=rec.pose_des[idx], pose_meas=rec.pose_meas[idx],
                   l_cmd=rec.l_cmd[idx], l_meas=rec.l_meas[idx], tau=rec.tau[idx],
                   exit_meas=rec.exit_meas[idx],
@@ -450,7 +488,32 @@ def take_rows(rec, idx: np.ndarray):
     out.source_rows = idx if src is None else src[idx]
     from bench.recording import _init_rows
 
-    out.init_rows = _init_rows(out)
+    out.init_rows = _init_rows(out) if init else np.zeros(0, dtype=int)
+    return out
+
+
+def concat_rows(recs: list, init: bool = True):
+    """Recordings of consecutive rows of one recording (:func:`take_rows` of its parts) as
+    one; ``init_rows`` found again on the whole (when ``init``)."""
+    first = recs[0]
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(r, name) for r in recs])
+
+    keys = list(dict.fromkeys(k for r in recs for k in r.extra))
+    extra = {k: np.concatenate([r.extra.get(k, np.full(r.n_samples, np.nan)) for r in recs])
+             for k in keys}
+    state = None
+    if any(r.state is not None for r in recs):
+        state = [x for r in recs for x in (r.state or [""] * r.n_samples)]
+    out = replace(first, t=cat("t"), pose_des=cat("pose_des"), pose_meas=cat("pose_meas"),
+                  l_cmd=cat("l_cmd"), l_meas=cat("l_meas"), tau=cat("tau"),
+                  exit_meas=cat("exit_meas"), state=state, extra=extra)
+    out.source_rows = np.concatenate([
+        r.source_rows if r.source_rows is not None else np.arange(r.n_samples) for r in recs])
+    from bench.recording import _init_rows
+
+    out.init_rows = _init_rows(out) if init else np.zeros(0, dtype=int)
     return out
 
 

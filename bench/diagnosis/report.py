@@ -18,10 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.chunked import read_conditioned
 from bench.diagnosis import frame, gauge, locate, probes, slips, unexplained
 from bench.diagnosis.fit import FitResult, fit_effects, split_columns
 from bench.diagnosis.residuals import Forward, ResidualModel
-from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
+from bench.diagnosis.samples import Samples, pooled_std, prepare
 from bench.diagnosis.select import (
     BIC_ENTER,
     BIC_TIE,
@@ -39,8 +40,8 @@ from bench.diagnosis.space import (
     report_name,
     undetermined,
 )
-from bench.recording import Recording, RecordingError, read_recording
-from bench.streams import condition, summary_line
+from bench.recording import Recording, RecordingError
+from bench.streams import summary_line
 from controller.kinematics import gravity_wrench
 from controller.robot import Robot, save_robot
 from controller.statics import batch_statics
@@ -675,14 +676,12 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
 def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None,
               write_model: str | Path | None) -> Diagnosis:
     say = progress or (lambda m: None)
-    rec = read_recording(path)
+    rec, streams, excluded = read_conditioned(path)  # long logs block by block
     model = rec.robot
-    excluded = check_values(rec)
     for e in excluded[:5]:
         if "row" in e:
             say(f"excluded: recording.csv line {e['row']}, column {e['column']}: "
                 f"{e['value']:g} ({e['why']})")
-    rec, streams = condition(rec)
     say("streams: " + summary_line(streams))
     s = prepare(rec)
     if s.n == 0:
