@@ -57,10 +57,10 @@ def read_conditioned(path: str | Path) -> tuple[Recording, dict, list[dict]]:
     the streams report of :func:`bench.streams.condition`, the impossible values excluded
     as :func:`bench.diagnosis.samples.check_values` lists them). Long recordings are read
     block by block (module docstring); others whole."""
-    from bench import mcap_record
     from bench.diagnosis.samples import check_values
+    from bench.mcap.reader import mcap_file
 
-    if mcap_record.mcap_file(path) is None:
+    if mcap_file(path) is None:
         d, meta, robot, init_pose, samples = open_recording(path)
         paths = samples if isinstance(samples, list) else [samples]
         try:
