@@ -32,7 +32,7 @@ import numpy as np
 from bench.diagnosis.fit import fd_jacobian, fit_effects
 from bench.diagnosis.residuals import BLOCKS, ResidualModel
 from bench.diagnosis.samples import Samples
-from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
+from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name, undetermined
 from controller import design
 from controller.cycle import reference_lengths
 from controller.robot import Robot
@@ -45,6 +45,10 @@ TARGET = 25.0
 CANDIDATES = 150
 #: effects a design fixes when the report names none (what commissioning identifies)
 DEFAULT_EFFECTS = ("exit_point_offset", "mast_compliance")
+#: candidates' roll, pitch and yaw are drawn within +- this [deg]
+RPY_DEG = 3.0
+#: share of the frame's span in x and y left out of the candidates' box on each side
+BOX_MARGIN = 0.03
 #: rows averaged per dwell sample of the designed campaign (3 s at 2 Hz)
 ROWS_PER_DWELL = 6
 
@@ -126,9 +130,8 @@ def _candidate(entry: dict[str, Any]) -> str:
 
 def hypotheses(report: dict[str, Any], model: Robot) -> Hypotheses:
     """The preferred hypothesis and its rivals from ``report`` on ``model``."""
-    from bench.diagnosis.report import named_robot
-
     from bench.diagnosis import gauge
+    from bench.diagnosis.report import named_robot
 
     entries = report["effects"]
     effects = tuple(_candidate(e) for e in entries)
@@ -298,18 +301,33 @@ def pieces(hyp: Hypotheses, ctx: Context, poses: np.ndarray) -> Pieces:
 
 
 def candidate_poses(robot: Robot, ctx: Context, count: int, rng: np.random.Generator,
-                    rpy_deg: float = 3.0) -> np.ndarray:
+                    rpy_deg: float | None = None) -> np.ndarray:
     """``count`` random tension-feasible poses (:func:`bench.evaluate.feasible_poses`) in the
     site's box (default the robot's workspace box), within the site's tension window."""
-    from bench.evaluate import feasible_poses, workspace_box
+    from bench.evaluate import feasible_poses
 
-    box = ctx.box if ctx.box is not None else workspace_box(robot)
-    pts = feasible_poses(robot, rng, count, rpy_deg, box=box)
+    box = ctx.box if ctx.box is not None else design_box(robot)
+    rpy = RPY_DEG if rpy_deg is None else rpy_deg
+    pts = feasible_poses(robot, rng, count, rpy, box=box)
     if ctx.tension_window is not None and len(pts):
         lo, hi = ctx.tension_window
         ok = [k for k, p in enumerate(pts) if _within(robot, p, lo, hi)]
         pts = pts[ok]
     return pts
+
+
+def design_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """Where candidates are drawn without a site box: the robot's frame
+    (:func:`controller.paths.frame_box`) less :data:`BOX_MARGIN` of its span in x and y,
+    heights from 10 % to 60 % of the highest exit point above the ground (the feasibility
+    check then keeps the poses the tension distribution holds)."""
+    from controller.paths import frame_box
+
+    fb = frame_box(robot)
+    span = fb[1] - fb[0]
+    lo = np.array([*(fb[0, :2] + BOX_MARGIN * span[:2]), fb[0, 2] + 0.1 * span[2]])
+    hi = np.array([*(fb[1, :2] - BOX_MARGIN * span[:2]), fb[0, 2] + 0.6 * span[2]])
+    return lo, hi
 
 
 def _within(robot: Robot, pose: np.ndarray, lo: float, hi: float) -> bool:
@@ -463,3 +481,76 @@ def context(report: dict[str, Any], report_path: str | Path, scenario: str | Pat
         tracker = tracker and st.tracker is not None
     return Context(model, np.asarray(init, float), readings, tracker, tensions, noise, box,
                    window)
+
+
+def path_poses(name_or_path: str | Path) -> tuple[np.ndarray, int]:
+    """The poses (P,6) of a ``cdpr-path/1`` file's ``visits`` segments and their visits
+    (the largest of the segments'); 3-number targets keep a level orientation."""
+    from controller.paths import load_path
+    from controller.trajectory import Visits
+
+    spec = load_path(name_or_path)
+    poses, visits = [], 0
+    for seg in spec.segments:
+        if isinstance(seg, Visits):
+            for t in seg.poses:
+                poses.append(list(t) + [0.0] * (6 - len(t)))
+            visits = max(visits, int(seg.visits))
+    if not poses:
+        raise DesignError(f"{spec.source}: no visits segment: no poses to visit")
+    return np.array(poses, float), visits
+
+
+#: parameters the match (goal) compares: mast stiffnesses and exit offsets
+MATCH_PREFIXES = ("dx_", "dy_", "dz_", "kx_", "ky_", "kz_")
+
+
+def match_reference(report: dict[str, Any], ctx: Context, ref_poses: np.ndarray,
+                    ref_visits: int, visits: int, seed: int = 0,
+                    candidates: int = CANDIDATES, n_max: int = 40) -> dict[str, Any]:
+    """How many designed poses (``visits`` each) reach the standard errors the reference
+    campaign (``ref_poses`` visited ``ref_visits`` times) gives on the preferred
+    hypothesis' exit offsets and mast stiffnesses (:data:`MATCH_PREFIXES`), both predicted
+    by the same Fisher information."""
+    hyp = hypotheses(report, ctx.model)
+    rng = np.random.default_rng(seed)
+    cand = candidate_poses(hyp.robot, ctx, candidates, rng)
+    allp = np.vstack([np.asarray(ref_poses, float), cand])
+    pc = pieces(Hypotheses(hyp.effects, hyp.robot, [], hyp.undetermined, hyp.default), ctx,
+                allp)
+    # the pieces keep the feasible poses in order: the reference's come first
+    n_ref = int(np.sum(_kept_index(hyp.robot, ctx, allp) < len(ref_poses)))
+    prior = np.eye(len(pc.keys)) * 1e-6
+    ref_se = design.standard_errors(pc.F[:n_ref], np.arange(n_ref), ref_visits, prior) \
+        * pc.scale
+    space = ParamSpace(ctx.model, hyp.effects)
+    phi = space.phi_of(hyp.robot)
+    # what the reference leaves undetermined (the diagnosis's rule) is no standard to reach
+    open_ = [undetermined(p, float(v), float(e)) for p, v, e in zip(space.params, phi, ref_se,
+                                                                    strict=True)]
+    keys = np.array([k for k, key in enumerate(pc.keys) if key.startswith(MATCH_PREFIXES)
+                     and not open_[k]], dtype=int)
+    if not len(keys):
+        raise DesignError("the reference determines no exit offset or mast stiffness to match")
+    count, idx = design.poses_to_match(pc.F[n_ref:], ref_se[keys] / pc.scale[keys], keys,
+                                      visits, prior, n_max)
+    got = design.standard_errors(pc.F[n_ref:], idx, visits, prior) * pc.scale
+    worst = float(np.max(got[keys] / ref_se[keys]))
+    left = [pc.keys[k] for k in range(len(pc.keys))
+            if open_[k] and pc.keys[k].startswith(MATCH_PREFIXES)]
+    return {"reference_poses": n_ref, "undetermined_by_reference": left,
+            "reference_visits": ref_visits, "visits": visits,
+            "poses_needed": count, "poses": [[float(v) for v in p] for p in
+                                             pc.poses[n_ref:][idx]],
+            "worst_ratio": worst,
+            "stderr_reference": {pc.keys[k]: float(v) for k, v in
+                                 zip(keys, _to_units(pc.keys, ref_se, hyp, ctx)[keys],
+                                     strict=True)},
+            "stderr_designed": {pc.keys[k]: float(v) for k, v in
+                                zip(keys, _to_units(pc.keys, got, hyp, ctx)[keys],
+                                    strict=True)}}
+
+
+def _kept_index(H: Robot, ctx: Context, poses: np.ndarray) -> np.ndarray:
+    """Indices of ``poses`` whose statics under ``H`` are feasible (those the pieces keep)."""
+    return np.array([k for k, p in enumerate(poses) if pose_statics(H, p).feasible], int)

@@ -180,16 +180,27 @@ def standard_errors(F: np.ndarray, S: np.ndarray | list[int], visits: int = 1,
 def poses_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visits: int,
                    prior: np.ndarray | None = None, n_max: int | None = None
                    ) -> tuple[int, np.ndarray]:
-    """The fewest poses of a D-optimal greedy design (``visits`` each) whose standard errors
-    of the parameters ``keys`` (indices) are all at most ``reference`` (len(keys),); returns
-    ``(count, indices)`` (count -1 when even ``n_max`` candidates do not reach it)."""
-    C = F.shape[0]
+    """The fewest poses (``visits`` each) whose standard errors of the parameters ``keys``
+    (indices) are all at most ``reference`` (len(keys),): greedy on the weighted
+    A-criterion ``sum_k (se_k / reference_k)^2`` (each step adds the candidate that lowers it
+    most), stopped as soon as every ratio is at most 1. Returns ``(count, indices)`` (count
+    -1 when ``n_max`` poses do not reach it)."""
+    C, p = F.shape[0], F.shape[1]
     n_max = C if n_max is None else min(n_max, C)
+    prior = np.eye(p) * 1e-6 if prior is None else prior
+    keys = np.asarray(keys, dtype=int)
+    ref2 = np.asarray(reference, float) ** 2
     S: list[int] = []
-    prior = np.eye(F.shape[1]) * 1e-6 if prior is None else prior
+    M = prior.copy()
+
+    def cost(Mi: np.ndarray) -> float:
+        return float(np.sum(np.diag(np.linalg.pinv(Mi, hermitian=True))[keys] / ref2))
+
     for _ in range(n_max):
         rest = [i for i in range(C) if i not in S]
-        S.append(max(rest, key=lambda i: logdet(information(F, S + [i], visits, prior))))
+        best = min(rest, key=lambda i: cost(M + visits * F[i]))
+        S.append(best)
+        M = M + visits * F[best]
         if np.all(standard_errors(F, S, visits, prior)[keys] <= reference):
             return len(S), np.array(S, dtype=int)
     return -1, np.array(S, dtype=int)
