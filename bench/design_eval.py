@@ -2,7 +2,8 @@
 
 Each case (from its seed): ROCASPECT with a concealed effect that a small campaign confuses
 with another (:data:`AMBIGUOUS`: pulley radii, which exit-point offsets imitate on poses
-that swing the cables little; the cables' E*A, which the load cells' gains imitate), a first
+that swing the cables little; the cables' E*A and a gain shared by the load cells, which
+the load cells' gauge lets a mass or a common E*A imitate), a first
 campaign of a few poses close together around the initialisation pose at one height, and its
 diagnosis. A case counts when that report names an alternative. Then ``cdpr campaign
 design`` chooses ``poses`` poses, the simulator records them on the same truth, and the
@@ -25,8 +26,10 @@ from typing import Any
 
 import numpy as np
 
-#: concealed effects that a small campaign confuses with another
-AMBIGUOUS = ("pulley_kinematics", "cable_elasticity")
+#: concealed effects that a small campaign confuses with another: pulley radii (exit-point
+#: offsets imitate them), the cables' E*A and a gain shared by every load cell (the load
+#: cells' gauge: a platform mass, a common E*A imitate them)
+AMBIGUOUS = ("pulley_kinematics", "cable_elasticity", "load_cell_calibration")
 
 
 def make_case(seed: int) -> dict[str, Any]:
@@ -40,12 +43,16 @@ def make_case(seed: int) -> dict[str, Any]:
     cids = list(model.cable_ids)
     if effect == "pulley_kinematics":
         truth = {f"r_{c}": float(rng.uniform(0.03, 0.1)) for c in cids}
+    elif effect == "load_cell_calibration":
+        common = float(rng.choice([-1, 1]) * rng.uniform(0.01, 0.04) + 1)
+        truth = {f"gain_{c}": common * float(rng.uniform(0.995, 1.005)) for c in cids}
     else:
-        ea = float(np.mean(model.ea)) * float(rng.choice([-1, 1]) * rng.uniform(0.15, 0.4) + 1)
+        ea = float(np.mean(model.ea)) * float(rng.choice([-1, 1]) * rng.uniform(0.2, 0.5) + 1)
         truth = {"ea": ea}
     centre = np.array([10.0, 8.56]) + rng.uniform(-2.0, 2.0, 2)
     z = float(rng.uniform(0.9, 1.6))
-    box = (np.array([*(centre - 1.5), z]), np.array([*(centre + 1.5), z]))
+    half = 1.5 if effect == "pulley_kinematics" else 3.0  # E*A shows where tensions differ
+    box = (np.array([*(centre - half), z]), np.array([*(centre + half), z]))
     pts = feasible_poses(model, rng, int(rng.integers(4, 7)), 0.0, box=box)
     init = [float(centre[0]), float(centre[1]), z, 0.0, 0.0, 0.0]
     scale = float(rng.choice([0.5, 1.0, 2.0]))
