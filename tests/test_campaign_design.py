@@ -180,3 +180,21 @@ def test_cli_refuses_what_it_cannot_use(scenario, tmp_path, capsys):
     assert "--poses N is required" in capsys.readouterr().err
     assert main(["campaign", str(scenario), str(tmp_path / "x"), "--out", "y.toml"]) == 2
     assert "only with 'cdpr campaign design" in capsys.readouterr().err
+
+
+def test_poses_to_match_stops_at_the_first_design_that_reaches_the_reference():
+    """Pure: candidate i informs parameter i % 3 with weight i + 1; the reference is what the
+    two most informative candidates of each parameter give once."""
+    C, p = 12, 3
+    F = np.zeros((C, p, p))
+    for i in range(C):
+        F[i, i % p, i % p] = i + 1.0
+    ref = 1.0 / np.sqrt(np.array([10.0 + 7.0, 11.0 + 8.0, 12.0 + 9.0]))
+    count, idx = design.poses_to_match(F, ref, np.arange(p), visits=1)
+    se = design.standard_errors(F, idx, 1, np.eye(p) * 1e-6)  # the prior poses_to_match adds
+    assert count == len(idx) and np.all(se <= ref)
+    assert count == 6  # two per parameter: fewer cannot reach it
+    # visits count as information: twice the visits, fewer poses
+    count2, _ = design.poses_to_match(F, ref, np.arange(p), visits=2)
+    assert count2 < count
+    assert design.poses_to_match(F, ref / 100, np.arange(p), visits=1, n_max=5)[0] == -1
