@@ -302,13 +302,16 @@ def pieces(hyp: Hypotheses, ctx: Context, poses: np.ndarray) -> Pieces:
 
 def candidate_poses(robot: Robot, ctx: Context, count: int, rng: np.random.Generator,
                     rpy_deg: float | None = None) -> np.ndarray:
-    """``count`` random tension-feasible poses (:func:`bench.evaluate.feasible_poses`) in the
-    site's box (default the robot's workspace box), within the site's tension window."""
-    from bench.evaluate import feasible_poses
+    """Random tension-feasible poses (``count`` drawn, :func:`bench.evaluate.feasible_poses`,
+    under ``robot``, the preferred hypothesis) in the site's box (default :func:`design_box`)
+    that the controller's model holds too, within the site's tension window."""
+    from bench.evaluate import feasible, feasible_poses
 
     box = ctx.box if ctx.box is not None else design_box(robot)
     rpy = RPY_DEG if rpy_deg is None else rpy_deg
     pts = feasible_poses(robot, rng, count, rpy, box=box)
+    # the controller runs the campaign with its model: a pose must be feasible for it too
+    pts = pts[[k for k, p in enumerate(pts) if feasible(ctx.model, p)]]
     if ctx.tension_window is not None and len(pts):
         lo, hi = ctx.tension_window
         ok = [k for k, p in enumerate(pts) if _within(robot, p, lo, hi)]
@@ -401,6 +404,22 @@ def _to_units(keys: list[str], se: np.ndarray, hyp: Hypotheses, ctx: Context) ->
         if p.kind == "inverse" and phi[k] > 0:
             out[k] = se[k] / phi[k] ** 2
     return out
+
+
+def check_path(text: str, ctx: Context) -> str:
+    """The dry run's check of the designed path (``cdpr-path/1`` ``text``) from the init
+    pose, for the controller's model (:func:`controller.paths.check_trajectory`): ``""``
+    when it passes, else where and why it fails."""
+    import tomllib
+
+    from controller.paths import build_trajectory, check_trajectory, parse_path
+
+    spec = parse_path(tomllib.loads(text), "<designed path>", text)
+    chk = check_trajectory(ctx.model, build_trajectory(spec, ctx.init_pose))
+    if chk.ok:
+        return ""
+    return (f"the path fails the dry run's check at t = {chk.t_s:.1f} s, pose "
+            f"{np.round(chk.pose, 3).tolist()}: {chk.reason}")
 
 
 def path_document(res: Result, visits: int, report_path: str, dwell_s: float = 3.0,

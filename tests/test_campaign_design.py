@@ -156,6 +156,7 @@ def test_cli_writes_a_path_that_the_campaign_visits(scenario, tmp_path, capsys):
                "--candidates", "25", "--visits", "1", "--out", str(out), "--json"])
     got = json.loads(capsys.readouterr().out)
     assert rc == 0 and got["path"] == str(out) and len(got["poses"]) == 3
+    assert got["path_check"] == "ok"  # the dry run's check of the whole path, from init
     assert got["alternatives"][0]["name"] == "exit_point_offset instead of pulley_kinematics"
     spec = load_path(out)
     assert np.allclose(np.array(spec.segments[0].poses), got["poses"], atol=1e-6)

@@ -48,9 +48,14 @@ def run(args: argparse.Namespace) -> int:
             out["match"]["path"] = args.match
     except (cd.DesignError, ValueError) as e:
         return _fail(args.json, 2, str(e))
+    text = cd.path_document(res, visits, report_path, seed=seed)
+    problem = cd.check_path(text, ctx)
+    out["path_check"] = problem or "ok"
+    if problem:  # said, and the file still written: a site may move the init pose
+        out["notes"].append(problem)
     if args.out is not None:
         try:
-            write_text_file(args.out, cd.path_document(res, visits, report_path, seed=seed))
+            write_text_file(args.out, text)
         except OSError as e:
             return _fail(args.json, 2, str(e))
     if args.json:
