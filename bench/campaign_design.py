@@ -391,7 +391,18 @@ def run_design(report: dict[str, Any], ctx: Context, n: int, visits: int = 2,
                          f"told apart by poses alone; {how} would")
     stderr = {k: float(v) for k, v in zip(pc.keys, _to_units(pc.keys, se, hyp, ctx),
                                            strict=True)}
+    notes += _undetermined_notes(hyp, stderr)
     return Result(pc.poses[d.indices], d, stderr, pc.keys, notes, hyp, len(pc.poses))
+
+
+def _undetermined_notes(hyp: Hypotheses, stderr: dict[str, float]) -> list[str]:
+    """The design's predicted standard errors (parameter units) of the parameters the report
+    left undetermined (it gives them no value: the prediction is at the model's)."""
+    got = [f"{k} {stderr[k]:.3g}" for k in hyp.undetermined if k in stderr]
+    if not got:
+        return []
+    return ["undetermined in the report; the design's predicted standard errors: "
+            + ", ".join(got)]
 
 
 def _to_units(keys: list[str], se: np.ndarray, hyp: Hypotheses, ctx: Context) -> np.ndarray:
