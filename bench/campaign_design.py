@@ -334,6 +334,7 @@ def design_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _within(robot: Robot, pose: np.ndarray, lo: float, hi: float) -> bool:
+    """Whether ``robot``'s tension distribution holds ``pose`` within [lo, hi] [N]."""
     ps = pose_statics(robot, pose)
     return bool(ps.feasible and ps.tensions.min() >= lo and ps.tensions.max() <= hi)
 
@@ -341,8 +342,9 @@ def _within(robot: Robot, pose: np.ndarray, lo: float, hi: float) -> bool:
 @dataclass
 class Result:
     """A design: the chosen ``poses`` (N,6), the :class:`controller.design.Design`, the
-    predicted standard errors (``stderr``, parameter units) and their values with the
-    report's campaign unknown; ``notes`` what the design does and does not settle."""
+    predicted standard errors of the preferred hypothesis' parameters ``keys`` (``stderr``,
+    parameter units); ``notes`` what the design does and does not settle; ``candidates``
+    the candidate poses it chose from."""
 
     poses: np.ndarray
     design: design.Design
@@ -387,8 +389,8 @@ def run_design(report: dict[str, Any], ctx: Context, n: int, visits: int = 2,
         else:
             how = SEPARATE.get(frozenset(names), "more poses spread over the workspace")
             notes.append(f"{label}: expected chi-square difference only {d.delta[label]:.1f} "
-                         f"(< {target:g}) on any {n} tension-feasible poses: they cannot be "
-                         f"told apart by poses alone; {how} would")
+                         f"(< {target:g}) on the best {n} of {len(pc.poses)} tension-feasible "
+                         f"poses: poses alone do not tell them apart; {how} would")
     stderr = {k: float(v) for k, v in zip(pc.keys, _to_units(pc.keys, se, hyp, ctx),
                                            strict=True)}
     notes += _undetermined_notes(hyp, stderr)
