@@ -199,3 +199,31 @@ def test_poses_to_match_stops_at_the_first_design_that_reaches_the_reference():
     count2, _ = design.poses_to_match(F, ref, np.arange(p), visits=2)
     assert count2 < count
     assert design.poses_to_match(F, ref / 100, np.arange(p), visits=1, n_max=5)[0] == -1
+
+
+def test_the_load_cells_gauge_is_said_to_need_more_than_poses(ctx):
+    """A gain shared by every load cell against the platform's mass: one in the statics, the
+    stretch of the cables is all that differs (0.5 % of it): no set of poses separates them,
+    and the design says what would."""
+    gains = {f"gain_{c}": 1.005 for c in ("11", "12", "21", "22", "31", "32", "41", "42")}
+    rep = _report([{"name": "load_cell_calibration", "params": gains, "undetermined": [],
+                    "alternatives": [{"name": "platform_mass", "delta_bic": 2.0,
+                                      "note": "a mass instead of a common gain"}]}])
+    res = cd.run_design(rep, ctx, 4, candidates=30)
+    (label, delta), = res.design.delta.items()
+    assert label == "platform_mass instead of load_cell_calibration"
+    assert delta < cd.TARGET and not res.design.separated[label]
+    assert "poses alone do not tell them apart; a known extra mass" in res.notes[0]
+
+
+@pytest.mark.slow
+def test_a_designed_campaign_settles_what_the_first_diagnosis_left_open():
+    """The whole flow on the simulator (bench.design_eval): concealed pulley radii, a first
+    campaign of poses close together whose diagnosis names exit offsets as an alternative;
+    the designed campaign's diagnosis names the pulleys alone."""
+    from bench.design_eval import run_case
+
+    got = run_case(9023, poses=8)
+    assert got["alternatives"] == ["exit_point_offset for pulley_kinematics"]
+    assert got["second"] == ["pulley_kinematics"] and got["left"] == []
+    assert got["settled"]
