@@ -1,5 +1,10 @@
 """``cdpr campaign SCENARIO OUT_DIR``: record a campaign on the simulated robot.
 
+``cdpr campaign design REPORT.json (--site FILE | --scenario S) --poses N [--out PATH.toml]``
+designs the next campaign from a diagnosis report instead
+(:mod:`bench.commands.campaign_design`); ``--path PATH.toml`` then records the visits of that
+path's poses.
+
 Runs the scenario's campaign (:func:`bench.campaign.run_campaign`: the controller with
 the scenario's model visits the pose set; the plant is the scenario's truth) and writes
 the recording directory (``cdpr-recording/1``: ``meta.toml``, ``robot.toml`` = the model,
@@ -26,7 +31,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from bench.commands.argtypes import nonnegative_int
+from bench.commands.argtypes import nonnegative_int, positive_int
 
 if TYPE_CHECKING:
     from firmware_sim.scenario import Scenario
@@ -39,8 +44,10 @@ RECORDING_FILES = ("meta.toml", "robot.toml", "recording.csv")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", help="scenario file (cdpr-scenario/1)")
-    p.add_argument("out_dir", help="recording directory to write (created if absent)")
+    p.add_argument("scenario", help="scenario file (cdpr-scenario/1), or the word 'design' "
+                   "(then the next argument is a diagnosis report: design a campaign)")
+    p.add_argument("out_dir", help="recording directory to write (created if absent); after "
+                   "'design': the cdpr-diagnosis/1 report")
     p.add_argument("--poses", type=int, metavar="N",
                    help="visit N of the scenario's poses (random pose sets: draw N; grid and "
                         "list: N of them, chosen with the scenario's seed)")
@@ -51,8 +58,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true",
                    help="write into a non-empty OUT_DIR (replaces the recording's files)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--path", metavar="PATH.toml",
+                   help="visit the poses of this cdpr-path/1 file's visits segments (e.g. a "
+                        "designed one) instead of the scenario's, with its visits")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: path, samples, rows, visits, poses, seconds")
+    g = p.add_argument_group("design (cdpr campaign design REPORT.json ...)")
+    g.add_argument("--site", metavar="FILE",
+                   help="design: the site file (its workspace box and tension window)")
+    g.add_argument("--scenario", dest="design_scenario", metavar="S",
+                   help="design: a scenario (its model, init pose and sensors, when the "
+                        "report's recording cannot be read)")
+    g.add_argument("--out", metavar="PATH.toml",
+                   help="design: write the poses as a cdpr-path/1 file")
+    g.add_argument("--candidates", type=positive_int, default=150, metavar="C",
+                   help="design: tension-feasible candidate poses drawn (default 150)")
+    g.add_argument("--match", metavar="PATH",
+                   help="design: also the fewest designed poses that reach the standard "
+                        "errors this path's poses give (exit offsets, mast stiffnesses)")
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -70,8 +93,20 @@ def _adjust(sc: Scenario, args: argparse.Namespace) -> tuple[Scenario, Any]:
 
     if args.seed is not None:
         sc = dataclasses.replace(sc, seed=args.seed)
+    if args.path is not None:
+        from bench.campaign_design import DesignError, path_poses
+        from controller.paths import PathFileError
+
+        try:
+            poses, visits = path_poses(args.path)
+        except (DesignError, PathFileError) as e:
+            raise ScenarioError(str(e)) from e
+        if args.visits is None:
+            sc = dataclasses.replace(sc, poses=dataclasses.replace(sc.poses, visits=visits))
     if args.visits is not None:
         sc = dataclasses.replace(sc, poses=dataclasses.replace(sc.poses, visits=args.visits))
+    if args.path is not None:
+        return sc, poses if args.poses is None else poses[:args.poses]
     if args.poses is None:
         return sc, None
     if sc.poses.kind == "random":
@@ -106,6 +141,15 @@ def _place(tmp: Path, out: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.outputs import removing_created
+
+    if args.scenario == "design":
+        from bench.commands.campaign_design import run as design
+
+        return design(args)
+    for opt in ("site", "design_scenario", "out", "match"):
+        if getattr(args, opt) is not None:
+            flag = "--scenario" if opt == "design_scenario" else f"--{opt}"
+            return _fail(args, 2, f"{flag}: only with 'cdpr campaign design REPORT.json'")
 
     # refused or failed (a bad scenario, Ctrl-C): no directory made for OUT_DIR left
     return removing_created(lambda created: _run(args, created))

@@ -1,0 +1,206 @@
+"""Designed experiments: which poses to measure next, from what a diagnosis left open.
+
+Pure linear algebra on per-candidate pieces (no robot, no I/O): the caller evaluates, at
+each candidate pose ``i`` of a feasible set, the whitened residual Jacobian of the
+diagnosis's residual model (one physics: ``bench.campaign_design`` builds it with
+``bench.diagnosis.residuals.ResidualModel``), and this module chooses ``N`` of them.
+
+Two things a campaign of poses ``S`` (each visited ``v`` times) should do:
+
+**Fix the parameters** (D-optimality). The preferred model's Fisher information is
+``M(S) = M0 + v sum_{i in S} J_i^T J_i`` (``J_i`` the whitened Jacobian rows of candidate
+``i``, parameters scaled to their typical size; ``M0`` a weak prior that keeps ``log det``
+finite while ``S`` is small). The criterion is ``log det M(S)``: the volume of the
+confidence ellipsoid, whatever units the parameters have.
+
+**Separate the alternatives** (T-optimality). Data made by the preferred model, fitted by an
+alternative ``a`` (linearised at its best fit over every candidate: residuals ``d_i``,
+Jacobian ``K_i``), leave the alternative the chi-square
+
+    Delta_a(S) = v * min_delta sum_{i in S} |d_i - K_i delta|^2
+               = v * (c - b^T (A + R_a / v)^-1 b),   A = sum K_i^T K_i, b = sum K_i^T d_i,
+                                                       c = sum |d_i|^2
+
+(``R_a`` the alternative's weak prior): the expected chi-square difference between the two
+explanations on that campaign (noise adds the same to both). An alternative is
+**separated** when ``Delta_a`` reaches ``target``.
+
+The chosen set maximises the compound criterion
+
+    Phi(S) = log det M(S) + w sum_a log(min(Delta_a(S), target) + eps target)
+
+(``w`` the number of parameters: an alternative brought from nothing to the target is worth
+as much as the parameters' information multiplied by ``1/eps``; once every alternative reached
+``target``, only the parameters' information counts). Without alternatives ``Phi`` is the
+D-criterion alone. Greedy forward selection builds ``S`` one pose at a time, then Fedorov
+exchange passes swap a chosen pose for a candidate while ``Phi`` grows (each accepted swap
+raises ``Phi``: it ends).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: share of the target an alternative counts with before it is separated at all
+EPS = 1e-3
+#: Fedorov exchange passes at most
+EXCHANGE_PASSES = 4
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """An alternative explanation's pieces per candidate: ``A`` (C,q,q) ``K_i^T K_i``,
+    ``b`` (C,q) ``K_i^T d_i``, ``c`` (C,) ``|d_i|^2`` (whitened, dimensionless), and
+    ``prior`` (q,q) its weak prior information; ``name`` for the report."""
+
+    name: str
+    A: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    prior: np.ndarray
+
+    @staticmethod
+    def from_rows(name: str, d: list[np.ndarray], K: list[np.ndarray],
+                  prior: np.ndarray) -> Alternative:
+        """From per-candidate residual rows ``d[i]`` (r_i,) and Jacobian rows ``K[i]`` (r_i,q)."""
+        A = np.stack([k.T @ k for k in K])
+        b = np.stack([k.T @ di for k, di in zip(K, d, strict=True)])
+        c = np.array([float(di @ di) for di in d])
+        return Alternative(name, A, b, c, np.asarray(prior, float))
+
+
+@dataclass(frozen=True)
+class Design:
+    """The chosen candidates ``indices`` (in the order chosen); ``logdet`` of the parameters'
+    information; ``delta`` the expected chi-square difference per alternative (by name);
+    ``separated`` per alternative (``delta >= target``); ``criterion`` Phi; ``exchanges``
+    accepted swaps."""
+
+    indices: np.ndarray
+    logdet: float
+    delta: dict[str, float]
+    separated: dict[str, bool]
+    criterion: float
+    exchanges: int
+
+
+def information(F: np.ndarray, S: np.ndarray | list[int], visits: int = 1,
+                prior: np.ndarray | None = None) -> np.ndarray:
+    """``M(S)`` (p,p): the prior plus ``visits`` times the candidates' information ``F``
+    (C,p,p) summed over ``S``."""
+    S = np.asarray(S, dtype=int)
+    M = visits * F[S].sum(axis=0) if len(S) else np.zeros(F.shape[1:])
+    return M if prior is None else M + prior
+
+
+def logdet(M: np.ndarray) -> float:
+    """``log det M`` of a symmetric matrix (-inf when it is not positive definite)."""
+    sign, val = np.linalg.slogdet(M)
+    return float(val) if sign > 0 else -np.inf
+
+
+def discrimination(alt: Alternative, S: np.ndarray | list[int], visits: int = 1) -> float:
+    """``Delta_a(S)``: the chi-square the alternative is left with, refitted to the preferred
+    model's data on ``S`` visited ``visits`` times (module docstring)."""
+    S = np.asarray(S, dtype=int)
+    if not len(S):
+        return 0.0
+    A, b, c = alt.A[S].sum(axis=0), alt.b[S].sum(axis=0), float(alt.c[S].sum())
+    return _delta(A, b, c, alt.prior, visits)
+
+
+def _delta(A: np.ndarray, b: np.ndarray, c: float, prior: np.ndarray, visits: int) -> float:
+    x = np.linalg.solve(A + prior / visits, b)
+    return max(visits * (c - float(b @ x)), 0.0)
+
+
+def criterion(F: np.ndarray, alts: list[Alternative], S: np.ndarray | list[int], visits: int,
+              prior: np.ndarray, target: float) -> float:
+    """``Phi(S)`` (module docstring)."""
+    phi = logdet(information(F, S, visits, prior))
+    w = float(F.shape[1])
+    for a in alts:
+        phi += w * np.log(min(discrimination(a, S, visits), target) + EPS * target)
+    return phi
+
+
+def choose(F: np.ndarray, n: int, alts: list[Alternative] | None = None, visits: int = 1,
+           prior: np.ndarray | None = None, target: float = 25.0,
+           start: np.ndarray | None = None) -> Design:
+    """Choose ``n`` of the C candidates: greedy forward selection on ``Phi`` (from ``start``
+    when given), then exchange passes.
+
+    ``F`` (C,p,p) each candidate's information (``J_i^T J_i``, scaled parameters); ``alts``
+    the alternatives to separate (none: a D-optimal design); ``visits`` per pose; ``prior``
+    (p,p) the weak prior information (default ``1e-6 I``); ``target`` the chi-square
+    difference that separates an alternative."""
+    F = np.asarray(F, float)
+    C, p = F.shape[0], F.shape[1]
+    if not 1 <= n <= C:
+        raise ValueError(f"poses: {n} asked, {C} candidates (must be 1..{C})")
+    alts = list(alts or [])
+    prior = np.eye(p) * 1e-6 if prior is None else np.asarray(prior, float)
+
+    def phi(S: list[int]) -> float:
+        return criterion(F, alts, S, visits, prior, target)
+
+    S = [int(i) for i in (start if start is not None else [])][:n]
+    while len(S) < n:
+        rest = [i for i in range(C) if i not in S]
+        S.append(max(rest, key=lambda i: phi(S + [i])))
+    best, swaps = phi(S), 0
+    for _ in range(EXCHANGE_PASSES):
+        improved = False
+        for k in range(n):
+            for j in range(C):
+                if j in S:
+                    continue
+                trial = S[:k] + [j] + S[k + 1:]
+                val = phi(trial)
+                if val > best + 1e-9 * max(1.0, abs(best)):
+                    S, best, improved, swaps = trial, val, True, swaps + 1
+        if not improved:
+            break
+    idx = np.array(S, dtype=int)
+    delta = {a.name: discrimination(a, idx, visits) for a in alts}
+    return Design(idx, logdet(information(F, idx, visits, prior)), delta,
+                  {k: v >= target for k, v in delta.items()}, best, swaps)
+
+
+def standard_errors(F: np.ndarray, S: np.ndarray | list[int], visits: int = 1,
+                    prior: np.ndarray | None = None) -> np.ndarray:
+    """(p,) the standard errors ``sqrt(diag(M(S)^-1))`` the design gives (in the units of
+    the scaled parameters ``F`` is in)."""
+    M = information(F, S, visits, prior)
+    return np.sqrt(np.maximum(np.diag(np.linalg.pinv(M, hermitian=True)), 0.0))
+
+
+def poses_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visits: int,
+                   prior: np.ndarray | None = None, n_max: int | None = None
+                   ) -> tuple[int, np.ndarray]:
+    """The fewest poses (``visits`` each) whose standard errors of the parameters ``keys``
+    (indices) are all at most ``reference`` (len(keys),): greedy on the weighted
+    A-criterion ``sum_k (se_k / reference_k)^2`` (each step adds the candidate that lowers it
+    most), stopped as soon as every ratio is at most 1. Returns ``(count, indices)`` (count
+    -1 when ``n_max`` poses do not reach it)."""
+    C, p = F.shape[0], F.shape[1]
+    n_max = C if n_max is None else min(n_max, C)
+    prior = np.eye(p) * 1e-6 if prior is None else prior
+    keys = np.asarray(keys, dtype=int)
+    ref2 = np.asarray(reference, float) ** 2
+    S: list[int] = []
+    M = prior.copy()
+
+    def cost(Mi: np.ndarray) -> float:
+        return float(np.sum(np.diag(np.linalg.pinv(Mi, hermitian=True))[keys] / ref2))
+
+    for _ in range(n_max):
+        rest = [i for i in range(C) if i not in S]
+        best = min(rest, key=lambda i: cost(M + visits * F[i]))
+        S.append(best)
+        M = M + visits * F[best]
+        if np.all(standard_errors(F, S, visits, prior)[keys] <= reference):
+            return len(S), np.array(S, dtype=int)
+    return -1, np.array(S, dtype=int)

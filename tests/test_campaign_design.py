@@ -1,0 +1,229 @@
+"""``cdpr campaign design``: D-optimal poses for the parameters, T-optimal ones for the
+alternatives, on the diagnosis's own residual model; the path it writes is what ``cdpr
+campaign --path`` visits."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bench import campaign_design as cd
+from bench.cli import main
+from controller import design
+from controller.paths import load_path
+from controller.statics import pose_statics
+
+SCENARIO = """
+format = "cdpr-scenario/1"
+robot = "rocaspect"
+seed = 5
+init_pose = [10.0, 8.56, 1.2, 0.0, 0.0, 0.0]
+
+[noise]
+tracker_m = 3.0e-5
+tracker_rad = 2.0e-5
+load_cell_n = 0.5
+encoder_m = 1.0e-6
+process_m = 2.0e-4
+exit_m = 5.0e-5
+
+[truth.pulley_kinematics]
+r_11 = 0.06
+r_22 = 0.06
+
+[poses]
+kind = "list"
+list = [[8.0, 7.0, 1.2, 0, 0, 0], [12.0, 7.0, 1.2, 0, 0, 0], [10.0, 10.0, 1.2, 0, 0, 0]]
+visits = 1
+dwell_s = 1.0
+rate_hz = 2.0
+init_s = 2.0
+"""
+
+NOISE = {"length": 2e-4, "force": 0.5, "moment": 0.5, "exit": 1e-4}
+RADII = {f"r_{c}": 0.06 for c in ("11", "12", "21", "22", "31", "32", "41", "42")}
+
+
+def _report(effects: list[dict]) -> dict:
+    return {"format": "cdpr-diagnosis/1", "recording": "", "effects": effects,
+            "mismatch": {"noise": NOISE}}
+
+
+def _pulley(alternatives: list[dict]) -> dict:
+    return {"name": "pulley_kinematics", "params": RADII, "undetermined": [],
+            "alternatives": alternatives}
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory):
+    p = tmp_path_factory.mktemp("design") / "sc.toml"
+    p.write_text(SCENARIO)
+    return p
+
+
+@pytest.fixture(scope="module")
+def ctx(scenario):
+    return cd.context(_report([]), scenario, scenario=scenario)
+
+
+@pytest.fixture(scope="module")
+def candidates(ctx):
+    return cd.candidate_poses(ctx.model, ctx, 24, np.random.default_rng(3))
+
+
+def test_the_preferred_hypothesis_explains_its_own_synthetic_data(ctx, candidates):
+    """One physics: the data made by the hypothesis leave it no residual in the diagnosis's
+    residual model, and another hypothesis a large one."""
+    hyp = cd.hypotheses(_report([_pulley([])]), ctx.model)
+    rm, kept = cd.residual_model(hyp.robot, ctx, candidates[:8])
+    assert len(kept) == 8
+    r = rm.whitened(hyp.robot)
+    assert np.max(np.abs(r)) < 0.05
+    assert np.max(np.abs(rm.whitened(ctx.model))) > 10.0
+
+
+def test_d_optimal_beats_random_poses_and_keeps_them_feasible(ctx, candidates):
+    hyp = cd.hypotheses(_report([_pulley([])]), ctx.model)
+    pc = cd.pieces(hyp, ctx, candidates)
+    n = 6
+    d = design.choose(pc.F, n)
+    prior = np.eye(pc.F.shape[1]) * 1e-6
+    rng = np.random.default_rng(0)
+    rand = [design.logdet(design.information(pc.F, rng.choice(len(pc.F), n, replace=False),
+                                             1, prior)) for _ in range(30)]
+    assert d.logdet > max(rand)
+    assert len(set(d.indices.tolist())) == n
+    for p in pc.poses[d.indices]:
+        ps = pose_statics(hyp.robot, p)
+        assert ps.feasible and ps.tensions.max() <= ctx.model.tension_max
+
+
+def test_discrimination_picks_the_poses_where_the_alternatives_differ():
+    """Pure: ten candidates carry the same information; only candidates 3 and 7 show a
+    difference the alternative cannot fit away. The T-criterion takes both, the D-criterion
+    alone has no reason to."""
+    C, p = 10, 2
+    F = np.stack([np.eye(p)] * C)
+    d = [np.zeros(3) for _ in range(C)]
+    d[3], d[7] = np.array([0.0, 0.0, 4.0]), np.array([0.0, 3.0, 0.0])
+    K = [np.array([[1.0], [0.0], [0.0]]) for _ in range(C)]
+    alt = design.Alternative.from_rows("other", d, K, np.eye(1) * 1e-6)
+    got = design.choose(F, 2, [alt], target=20.0)
+    assert sorted(got.indices.tolist()) == [3, 7]
+    assert got.delta["other"] == pytest.approx(25.0)
+    assert got.separated["other"]
+    # an alternative whose parameters make every difference (one shift fits them all) is
+    # never separated, whichever poses
+    same = [np.array([0.0, 3.0, 4.0]) if i in (3, 7) else np.zeros(3) for i in range(C)]
+    K_all = [np.eye(3) if i in (3, 7) else np.zeros((3, 3)) for i in range(C)]
+    fits = design.Alternative.from_rows("fits", same, K_all, np.eye(3) * 1e-6)
+    got = design.choose(F, 2, [fits], target=20.0)
+    assert got.delta["fits"] < 1e-3 and not got.separated["fits"]
+
+
+def test_design_separates_pulleys_from_exit_offsets(ctx, candidates):
+    rep = _report([_pulley([{"name": "exit_point_offset", "delta_bic": 1.5}])])
+    res = cd.run_design(rep, ctx, 6, visits=2, candidates=40)
+    label = "exit_point_offset instead of pulley_kinematics"
+    assert res.design.separated[label]
+    # the poses chosen for the alternative show more difference than a parameters-only design
+    hyp = cd.hypotheses(rep, ctx.model)
+    pc = cd.pieces(hyp, ctx, cd.candidate_poses(hyp.robot, ctx, 40,
+                                                np.random.default_rng(0)))
+    d_only = design.choose(pc.F, 6, visits=2)
+    assert res.design.delta[label] >= design.discrimination(pc.alts[0], d_only.indices, 2)
+    assert any("separates them" in n for n in res.notes)
+
+
+def test_nothing_to_separate_gives_a_design_for_the_parameters_only(ctx):
+    res = cd.run_design(_report([_pulley([])]), ctx, 4, candidates=30)
+    assert res.design.delta == {}
+    assert res.notes == ["the report names no alternative: a design for the parameters only "
+                         "(D-optimal; nothing to separate)"]
+    res = cd.run_design(_report([]), ctx, 4, candidates=30)
+    assert "nothing to separate" in res.notes[0]
+    assert {k.split("_")[0] for k in res.stderr} == {"dx", "dy", "dz", "kx", "ky", "kz"}
+
+
+def test_cli_writes_a_path_that_the_campaign_visits(scenario, tmp_path, capsys):
+    rep = tmp_path / "report.json"
+    rep.write_text(json.dumps(_report([_pulley([{"name": "exit_point_offset",
+                                                  "delta_bic": 1.5}])])))
+    out = tmp_path / "designed.toml"
+    rc = main(["campaign", "design", str(rep), "--scenario", str(scenario), "--poses", "3",
+               "--candidates", "25", "--visits", "1", "--out", str(out), "--json"])
+    got = json.loads(capsys.readouterr().out)
+    assert rc == 0 and got["path"] == str(out) and len(got["poses"]) == 3
+    assert got["path_check"] == "ok"  # the dry run's check of the whole path, from init
+    assert got["alternatives"][0]["name"] == "exit_point_offset instead of pulley_kinematics"
+    spec = load_path(out)
+    assert np.allclose(np.array(spec.segments[0].poses), got["poses"], atol=1e-6)
+    rc = main(["campaign", str(scenario), str(tmp_path / "rec"), "--path", str(out),
+               "--quiet", "--json"])
+    done = json.loads(capsys.readouterr().out)
+    assert rc == 0 and done["poses"] == 3 and done["visits"] == 3
+
+
+def test_cli_refuses_what_it_cannot_use(scenario, tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"format": "other"}))
+    rc = main(["campaign", "design", str(bad), "--scenario", str(scenario), "--poses", "3",
+               "--json"])
+    err = json.loads(capsys.readouterr().out)["error"]
+    assert rc == 2 and str(bad) in err and "format" in err
+    rep = tmp_path / "r.json"
+    rep.write_text(json.dumps(_report([])))
+    assert main(["campaign", "design", str(rep), "--poses", "3"]) == 2
+    assert "exactly one of --site" in capsys.readouterr().err
+    assert main(["campaign", "design", str(rep), "--scenario", str(scenario)]) == 2
+    assert "--poses N is required" in capsys.readouterr().err
+    assert main(["campaign", str(scenario), str(tmp_path / "x"), "--out", "y.toml"]) == 2
+    assert "only with 'cdpr campaign design" in capsys.readouterr().err
+
+
+def test_poses_to_match_stops_at_the_first_design_that_reaches_the_reference():
+    """Pure: candidate i informs parameter i % 3 with weight i + 1; the reference is what the
+    two most informative candidates of each parameter give once."""
+    C, p = 12, 3
+    F = np.zeros((C, p, p))
+    for i in range(C):
+        F[i, i % p, i % p] = i + 1.0
+    ref = 1.0 / np.sqrt(np.array([10.0 + 7.0, 11.0 + 8.0, 12.0 + 9.0]))
+    count, idx = design.poses_to_match(F, ref, np.arange(p), visits=1)
+    se = design.standard_errors(F, idx, 1, np.eye(p) * 1e-6)  # the prior poses_to_match adds
+    assert count == len(idx) and np.all(se <= ref)
+    assert count == 6  # two per parameter: fewer cannot reach it
+    # visits count as information: twice the visits, fewer poses
+    count2, _ = design.poses_to_match(F, ref, np.arange(p), visits=2)
+    assert count2 < count
+    assert design.poses_to_match(F, ref / 100, np.arange(p), visits=1, n_max=5)[0] == -1
+
+
+def test_the_load_cells_gauge_is_said_to_need_more_than_poses(ctx):
+    """A gain shared by every load cell against the platform's mass: one in the statics, the
+    stretch of the cables is all that differs (0.5 % of it): no set of poses separates them,
+    and the design says what would."""
+    gains = {f"gain_{c}": 1.005 for c in ("11", "12", "21", "22", "31", "32", "41", "42")}
+    rep = _report([{"name": "load_cell_calibration", "params": gains, "undetermined": [],
+                    "alternatives": [{"name": "platform_mass", "delta_bic": 2.0,
+                                      "note": "a mass instead of a common gain"}]}])
+    res = cd.run_design(rep, ctx, 4, candidates=30)
+    (label, delta), = res.design.delta.items()
+    assert label == "platform_mass instead of load_cell_calibration"
+    assert delta < cd.TARGET and not res.design.separated[label]
+    assert "poses alone do not tell them apart; a known extra mass" in res.notes[0]
+
+
+@pytest.mark.slow
+def test_a_designed_campaign_settles_what_the_first_diagnosis_left_open():
+    """The whole flow on the simulator (bench.design_eval): concealed pulley radii, a first
+    campaign of poses close together whose diagnosis names exit offsets as an alternative;
+    the designed campaign's diagnosis names the pulleys alone."""
+    from bench.design_eval import run_case
+
+    got = run_case(9023, poses=8)
+    assert got["alternatives"] == ["exit_point_offset for pulley_kinematics"]
+    assert got["second"] == ["pulley_kinematics"] and got["left"] == []
+    assert got["settled"]
