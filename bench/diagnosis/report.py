@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.diagnosis import frame, gauge, locate, probes, slips, unexplained
+from bench.diagnosis import frame, gauge, locate, noise, probes, slips, unexplained
 from bench.diagnosis.fit import FitResult, fit_effects, split_columns
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, check_values, pooled_std, prepare
@@ -719,6 +719,8 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         nz = rm.noise_summary()
         say(f"noise, the replicate groups split at the steps: lengths "
             f"{nz['length'] * 1e3:.3f} mm, forces {nz['force']:.2f} N")
+    changes = noise.separate(rm, say)  # systematic differences of replicates: not noise
+    nz = rm.noise_summary()
     say("baseline: equilibrium of every sample under the recording's model")
     base_fw = rm.forward(model)
     pose_noise = _pose_noise(s, base_fw)
@@ -782,6 +784,9 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         probed = None
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
                                    model.pivots, model.mast_ids, fitted, probed)
+    leftover = unexplained.with_changes(leftover, changes, {
+        c: float(t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
+        if t > rm.init_end})
     if leftover is not None:
         say("unexplained: " + leftover["summary"])
 
