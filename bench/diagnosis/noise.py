@@ -350,3 +350,28 @@ def separate(rm: ResidualModel, say=lambda m: None) -> list[Change]:
             f"{', '.join(f'{t:.1f}' for t in times)} s: lengths {nz['length'] * 1e3:.3f} mm, "
             f"forces {nz['force']:.2f} N")
     return changes
+
+
+def floor_assumed(rm: ResidualModel, say=lambda m: None) -> dict[str, float]:
+    """Without replicate visits (``rm``'s noise assumed): the high-frequency noise of the
+    residuals under the model (:func:`high_frequency`) measured, and the assumed
+    repeatability raised to it where it is below (the noise of one sample cannot be less
+    than its successive samples show; a fit's own chi-square is never the yardstick).
+    Returns the high-frequency estimate per block (reported with the noise)."""
+    hf = high_frequency(rm, rm.blocks(rm.model))
+    if rm.sigma_source == "replicate visits" or not hf:
+        return hf
+    raised = []
+    for kind in (0, 1):
+        for name, v in hf.items():
+            have = math.hypot(rm.sigma_k[kind][name], rm.white_k[kind][name])
+            if v > have:
+                rm.sigma_k[kind][name] = math.sqrt(v * v - rm.white_k[kind][name] ** 2)
+                raised.append(name)
+    if raised:
+        rm.sigma = dict(rm.sigma_k[int(np.bincount(rm.s.kind, minlength=2).argmax())])
+        rm._update_sd()
+        rm.sigma_source += ", raised to the high-frequency residuals"
+        say(f"no replicate visits: the assumed noise raised to the high-frequency residuals "
+            f"({', '.join(sorted(set(raised)))})")
+    return hf

@@ -720,6 +720,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         say(f"noise, the replicate groups split at the steps: lengths "
             f"{nz['length'] * 1e3:.3f} mm, forces {nz['force']:.2f} N")
     changes = noise.separate(rm, say)  # systematic differences of replicates: not noise
+    high_freq = noise.floor_assumed(rm, say)
     nz = rm.noise_summary()
     say("baseline: equilibrium of every sample under the recording's model")
     base_fw = rm.forward(model)
@@ -872,6 +873,8 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
                          pose_noise, excluded, effects)
     mismatch["encoder_reference"] = {"reading": reference, "means": REFERENCES[reference]}
+    mismatch["noise"] |= {"high_frequency": high_freq,
+                          "systematic": [c.entry() for c in changes]}
     mismatch["streams"] = streams
     if rm.any_tau:
         mismatch["load_cells"] = {"at": rm.cells_at}
