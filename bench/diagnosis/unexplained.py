@@ -430,15 +430,17 @@ def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray, span: float | None = Non
 
 def with_changes(leftover: dict | None, changes: list, slip_times: dict[str, float]
                  ) -> dict | None:
-    """``leftover`` (the ``unexplained`` object or None) with the systematic differences
-    between replicate visits (:func:`bench.diagnosis.noise.find_changes`) that no named
-    effect accounts for: ``changes`` (each with its time: when a step began, or the start
-    of a trend) and a finding each. Steps of a cable's length at a time a named slip
-    (``slip_times``: cable id -> t [s]) lies in are the slip's, not declared."""
+    """``leftover`` (the ``unexplained`` object or None) with the steps between replicate
+    visits (:func:`bench.diagnosis.noise.find_changes`) that no named effect accounts for:
+    ``changes`` (each with the time it began) and a finding each. Steps of a cable's length
+    at a time a named slip (``slip_times``: cable id -> t [s]) lies in are the slip's, not
+    declared."""
     from bench.diagnosis import noise
 
     noise.name_slips(changes, slip_times)
-    left = [c for c in changes if c.named is None]
+    # (a trend or a difference by direction is judged by the time and direction tests
+    # above, against the noise the replicate groups give; a step is located in time here)
+    left = [c for c in changes if c.named is None and c.kind == "step"]
     if not left:
         return leftover
     out = dict(leftover) if leftover is not None else {}
@@ -448,19 +450,11 @@ def with_changes(leftover: dict | None, changes: list, slip_times: dict[str, flo
         cols = ", ".join(c.columns[:4]) + (" ..." if len(c.columns) > 4 else "")
         what = {"length": "length residuals of cables", "force": "force balance",
                 "moment": "moment balance", "exit": "exit points"}.get(c.block, c.block)
-        if c.kind == "step":
-            findings.append(f"something changed at t = {c.t_s:.1f} s (between the samples at "
-                            f"{c.before_s:.1f} and {c.after_s:.1f} s): the replicate visits "
-                            f"after it differ from those before in the {what} {cols} by "
-                            f"{c.size:.0f} times their noise (z = {c.z:.0f})")
-        elif c.kind == "trend":
-            findings.append(f"the replicate visits drift over the campaign from t = "
-                            f"{c.t_s:.1f} s in the {what} {cols} ({c.size:.0f} times their "
-                            f"noise, z = {c.z:.0f})")
-        else:
-            findings.append(f"the replicate visits differ by the direction of the last move "
-                            f"in the {what} {cols} ({c.size:.0f} times their noise, "
-                            f"z = {c.z:.0f})")
+        between = f" (between the samples at {c.before_s:.1f} and {c.after_s:.1f} s)" \
+            if c.before_s is not None and c.after_s is not None else ""
+        findings.append(f"something changed at t = {c.t_s:.1f} s{between}: the replicate visits "
+                        f"after it differ from those before in the {what} {cols} by "
+                        f"{c.size:.0f} times their noise (z = {c.z:.0f})")
     out["findings"] = findings
     out["summary"] = "; ".join(findings)
     return out
