@@ -160,3 +160,66 @@ def test_split_targets_and_high_frequency_noise():
 
     got = noise.high_frequency(_RM(), None)["length"]
     assert 0.8e-4 < got < 1.2e-4
+
+
+class _FakeSamples:
+    def __init__(self, n_targets: int, visits: int, n: int, rng) -> None:
+        self.target = np.tile(np.arange(n_targets), visits)
+        N = len(self.target)
+        self.t = np.arange(N, dtype=float) * 10.0
+        self.is_init = np.zeros(N, dtype=bool)
+        pos = rng.uniform([3, 3, 0.5], [17, 14, 2], size=(n_targets, 3))
+        self.pose_meas = np.concatenate([pos[self.target], np.zeros((N, 3))], axis=1)
+        self.pose_des = self.pose_meas
+        self.count = np.full(N, 6)
+        self.kind = np.zeros(N, dtype=int)
+        self.direction = rng.choice([-1.0, 1.0], size=(N, n))
+
+
+class _FakeModel:
+    cable_ids = tuple(f"{m}{k}" for m in "1234" for k in "12")
+
+
+class _FakeRM:
+    """The parts of a ResidualModel that :func:`noise.find_changes` reads: length residuals
+    ``x`` (N, 8) of targets visited ``visits`` times."""
+
+    def __init__(self, x: np.ndarray, s: _FakeSamples) -> None:
+        self.s, self.x, self.model = s, x, _FakeModel()
+        self.white_k = {0: {"length": 1e-6}, 1: {"length": 1e-6}}
+
+    def _block_values(self, b):
+        return {"length": self.x}
+
+    def _replicate_groups(self, groups):
+        return {"length": np.repeat(self.s.target[:, None], self.x.shape[1], axis=1)}
+
+
+def _fake(seed: int, kind: str | None, size: float = 8.0) -> list[noise.Change]:
+    """Replicate deviations of unit noise, a model error per target, and (``kind``) a step
+    at the campaign's middle, a trend, or a difference by direction of ``size`` noise."""
+    rng = np.random.default_rng(seed)
+    s = _FakeSamples(15, 3, 8, rng)
+    x = rng.normal(0, 5.0, (15, 8))[s.target] + rng.normal(0, 1.0, (len(s.t), 8))
+    if kind == "step":
+        x += size * (s.t > s.t.mean())[:, None]
+    elif kind == "trend":
+        x += size * (s.t / s.t.max())[:, None]
+    elif kind == "direction":
+        x += 0.5 * size * s.direction
+    return noise.find_changes(_FakeRM(x * 1e-4, s), None)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_pure_noise_is_no_systematic_difference(seed):
+    assert _fake(seed, None) == []
+
+
+@pytest.mark.parametrize("kind", ["step", "trend", "direction"])
+def test_each_systematic_difference_is_found(kind):
+    # (a trend of 16 noise over the campaign: 5 between visits a third of it apart)
+    got = _fake(1, kind, 16.0 if kind == "trend" else 8.0)
+    assert got and got[0].kind == kind, got
+    if kind == "step":
+        t_mid = 10.0 * 45 / 2
+        assert got[0].before_s < t_mid < got[0].after_s
