@@ -292,10 +292,12 @@ def split_targets(target: np.ndarray, t: np.ndarray, times: list[float]) -> np.n
     return out.ravel().astype(np.asarray(target).dtype)
 
 
-def name_slips(changes: list[Change], slip_times: dict[str, float]) -> None:
+def name_slips(changes: list[Change], slip_times: dict[str, float],
+               offsets: set[str] | frozenset[str] = frozenset()) -> None:
     """Mark the steps of length residuals that a named slip accounts for: a slip of one of
     the step's cables at a time between its samples (``slip_times``: cable id -> t [s] of
-    the slips the report names)."""
+    the slips the report names), or a length offset the report names (``offsets``: cable
+    ids) on the cable the step shows most on: that offset began at the step's time."""
     for c in changes:
         if c.kind != "step" or c.block != "length":
             continue
@@ -306,6 +308,23 @@ def name_slips(changes: list[Change], slip_times: dict[str, float]) -> None:
             if ts is not None and lo - 1e-6 <= ts <= hi + 1e-6:
                 c.named = {"effect": "cable_length_offset", "cable": cid, "t_s": _round(ts)}
                 break
+        if c.named is None and c.columns and c.columns[0] in offsets:
+            c.named = {"effect": "cable_length_offset", "cable": c.columns[0],
+                       "t_s": _round(c.t_s)}
+
+
+def annotate(effects: list[dict], changes: list[Change]) -> None:
+    """Say in a named length offset's ``explains`` when the replicate visits show it began,
+    where the fit did not place it in time (its slip time the initialisation)."""
+    for e in effects:
+        if e["name"] != "cable_length_offset" or "; from t = " in e["explains"]:
+            continue
+        got = [c.named for c in changes if c.named is not None and c.named.get("t_s")
+               is not None and f"dl_{c.named['cable']}" in e["params"]]
+        if got:
+            e["explains"] += "; begun at " + ", ".join(
+                f"t = {g['t_s']:.1f} s on cable {g['cable']}" for g in got) \
+                + " (the replicate visits differ from then on)"
 
 
 def high_frequency(rm: ResidualModel, b: Blocks) -> dict[str, float]:

@@ -787,7 +787,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
                                    model.pivots, model.mast_ids, fitted, probed)
     leftover = unexplained.with_changes(leftover, changes, {
         c: float(t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
-        if t > rm.init_end})
+        if t > rm.init_end}, {k[len("dl_"):] for k in params.get("cable_length_offset", {})})
     if leftover is not None:
         say("unexplained: " + leftover["summary"])
 
@@ -844,6 +844,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         if leftover is not None:
             entry["provisional"] = True
         effects.append(entry)
+    noise.annotate(effects, changes)
     # exit offsets (and drum scales) that a tracker's registration or scale would read are
     # provisional: the tracker is checked before exit points or drums are moved
     motion = next((e["frame_motion"] for e in effects if "frame_motion" in e), None)

@@ -428,16 +428,17 @@ def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray, span: float | None = Non
     return float(b * (np.ptp(tt) if span is None else span)), float(b / se)
 
 
-def with_changes(leftover: dict | None, changes: list, slip_times: dict[str, float]
-                 ) -> dict | None:
+def with_changes(leftover: dict | None, changes: list, slip_times: dict[str, float],
+                 offsets: set[str] | frozenset[str] = frozenset()) -> dict | None:
     """``leftover`` (the ``unexplained`` object or None) with the steps between replicate
     visits (:func:`bench.diagnosis.noise.find_changes`) that no named effect accounts for:
     ``changes`` (each with the time it began) and a finding each. Steps of a cable's length
     at a time a named slip (``slip_times``: cable id -> t [s]) lies in are the slip's, not
-    declared."""
+    declared, and so are those on a cable whose length offset is named (``offsets``: its
+    slip, begun then)."""
     from bench.diagnosis import noise
 
-    noise.name_slips(changes, slip_times)
+    noise.name_slips(changes, slip_times, offsets)
     # (a trend or a difference by direction is judged by the time and direction tests
     # above, against the noise the replicate groups give; a step is located in time here)
     left = [c for c in changes if c.named is None and c.kind == "step"]
