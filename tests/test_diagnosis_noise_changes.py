@@ -18,7 +18,7 @@ import pytest
 
 import bench.campaign as campaign
 from bench.campaign import run_campaign
-from bench.diagnosis import noise
+from bench.diagnosis import noise, unexplained
 from bench.diagnosis.report import diagnose
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.samples import prepare
@@ -223,3 +223,23 @@ def test_each_systematic_difference_is_found(kind):
     if kind == "step":
         t_mid = 10.0 * 45 / 2
         assert got[0].before_s < t_mid < got[0].after_s
+
+
+def test_a_length_step_a_named_offset_accounts_for_is_not_declared():
+    step = noise.Change("step", "length", ["21", "22"], 135.6, 7.0, 4.0, 134.0, 137.1)
+    load = noise.Change("step", "force", ["z"], 135.6, 9.0, 50.0, 134.0, 137.1)
+    # a slip the report places between the step's samples, or an offset on its cable
+    assert unexplained.with_changes(None, [copy.copy(step)], {"21": 135.0}) is None
+    effects = [{"name": "cable_length_offset", "params": {"dl_21": -3e-3}, "explains": "x"}]
+    named = [copy.copy(step)]
+    assert unexplained.with_changes(None, named, {}, {"21"}) is None
+    noise.annotate(effects, named)
+    assert "t = 135.6 s on cable 21" in effects[0]["explains"]
+    # an offset on another cable, or a slip at another time, accounts for nothing; nor for
+    # a step of the force balance
+    for args in (({"21": 100.0}, {"31"}), ({}, set())):
+        left = unexplained.with_changes(None, [copy.copy(step), copy.copy(load)], *args)
+        assert [c["block"] for c in left["changes"]] == ["length", "force"]
+        assert left["changes"][0]["t_s"] == 135.6 and "t = 135.6 s" in left["summary"]
+    left = unexplained.with_changes(None, [copy.copy(step), copy.copy(load)], {}, {"21"})
+    assert [c["block"] for c in left["changes"]] == ["force"]
