@@ -297,7 +297,7 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
     """Mark the steps of length residuals that a named slip accounts for: a slip of one of
     the step's cables at a time between its samples (``slip_times``: cable id -> t [s] of
     the slips the report names), or a length offset the report names (``offsets``: cable
-    ids) on the cable the step shows most on: that offset began at the step's time."""
+    ids) on one of the step's cables: that offset began at the step's time."""
     for c in changes:
         if c.kind != "step" or c.block != "length":
             continue
@@ -308,9 +308,11 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
             if ts is not None and lo - 1e-6 <= ts <= hi + 1e-6:
                 c.named = {"effect": "cable_length_offset", "cable": cid, "t_s": _round(ts)}
                 break
-        if c.named is None and c.columns and c.columns[0] in offsets:
-            c.named = {"effect": "cable_length_offset", "cable": c.columns[0],
-                       "t_s": _round(c.t_s)}
+        # (where a sample's pose or tensions are estimated, one cable's slip moves every
+        # cable's residual: the slipped cable need not show most)
+        mine = [cid for cid in c.columns if cid in offsets]
+        if c.named is None and mine:
+            c.named = {"effect": "cable_length_offset", "cable": mine[0], "t_s": _round(c.t_s)}
 
 
 def annotate(effects: list[dict], changes: list[Change]) -> None:
