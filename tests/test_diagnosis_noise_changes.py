@@ -173,6 +173,7 @@ class _FakeSamples:
         self.pose_des = self.pose_meas
         self.count = np.full(N, 6)
         self.kind = np.zeros(N, dtype=int)
+        self.block = self.target.copy()
         self.direction = rng.choice([-1.0, 1.0], size=(N, n))
 
 

@@ -33,7 +33,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import sparse, stats
+from scipy.sparse.csgraph import connected_components
 
 from bench.diagnosis.residuals import Blocks, ResidualModel
 
@@ -113,44 +114,63 @@ def _centre(x: np.ndarray, g: np.ndarray) -> np.ndarray:
     return x - means[g]
 
 
-def _ftest(x: np.ndarray, U: np.ndarray, dof0: float, floor2: float
-           ) -> tuple[float, float, np.ndarray] | None:
-    """F-test of regressors ``U`` (m, q) (centred within groups) on centred deviations ``x``
-    (m,) with ``dof0`` degrees of freedom before: (p-value, RMS of the fit over its
-    residual spread, the fitted part (m,)); the residual variance floored at ``floor2``."""
+def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+           ) -> tuple[float, float] | None:
+    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,), both centred within their
+    replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
+    independent, the samples of one are not. ``dof0`` the units' degrees of freedom before;
+    the residual variance floored at ``floor2`` per sample. Returns (p-value, RMS of the
+    fitted part over its residual spread)."""
     q = U.shape[1]
     dof = dof0 - q
     if dof < 2 or not np.any(U):
         return None
-    coef, *_ = np.linalg.lstsq(U, x, rcond=None)
-    fitted = U @ coef
-    rss1 = float(np.sum((x - fitted) ** 2))
-    gain = float(np.sum(x * x)) - rss1
+    n_u = int(unit.max()) + 1
+    xs = np.bincount(unit, weights=x, minlength=n_u)
+    A = np.stack([np.bincount(unit, weights=U[:, k], minlength=n_u) for k in range(q)],
+                 axis=1)
+    size_u = np.bincount(unit, minlength=n_u).astype(float)
+    coef, *_ = np.linalg.lstsq(A, xs, rcond=None)
+    fitted = A @ coef
+    rss1 = float(np.sum((xs - fitted) ** 2))
+    gain = float(np.sum(xs * xs)) - rss1
     if gain <= 0:
         return None
-    s2 = max(rss1 / dof, floor2)
-    F = gain / q / s2
-    p = float(stats.f.sf(F, q, dof))
-    size = math.sqrt(float(np.mean(fitted[np.abs(fitted) > 0] ** 2)) / s2) \
-        if np.any(np.abs(fitted) > 0) else 0.0
-    return p, size, fitted
+    s2 = max(rss1 / dof, floor2 * float(np.mean(size_u)))
+    p = float(stats.f.sf(gain / q / s2, q, dof))
+    moved = np.abs(fitted) > 0
+    size = math.sqrt(float(np.mean(fitted[moved] ** 2)) / s2) if moved.any() else 0.0
+    return p, size
 
 
-def _column(x: np.ndarray, g: np.ndarray, t: np.ndarray, ok: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
-    """The replicated samples of a column: indices (m,), group labels 0..k-1, deviations from
-    the group means and the degrees of freedom left (m - k)."""
+def _column(x: np.ndarray, g: np.ndarray, unit: np.ndarray, ok: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """The samples of a column that compare error units within a replicate group: their
+    indices, group labels 0..k-1, unit labels 0..u-1, deviations from the group means, and
+    the units' degrees of freedom (units less the groups' connected components: twenty
+    groups each holding a row of the same two moves are one difference, not twenty)."""
     idx = np.flatnonzero(ok & np.isfinite(x))
     if len(idx) < 6:
         return None
-    _, inv, cnt = np.unique(g[idx], return_inverse=True, return_counts=True)
-    rep = cnt[inv] >= 2
-    idx = idx[rep]
-    if len(idx) < 6:
-        return None
-    _, inv, cnt = np.unique(g[idx], return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    return idx, inv, _centre(x[idx], inv), float(len(idx) - len(cnt))
+    for _ in range(2):  # (groups whose samples lie in two units or more)
+        _, inv = np.unique(g[idx], return_inverse=True)
+        inv = inv.ravel()
+        _, uinv = np.unique(unit[idx], return_inverse=True)
+        uinv = uinv.ravel()
+        umin = np.full(inv.max() + 1, np.iinfo(np.int64).max)
+        umax = np.full(inv.max() + 1, -1)
+        np.minimum.at(umin, inv, uinv)
+        np.maximum.at(umax, inv, uinv)
+        keep = (umax > umin)[inv]
+        if keep.all():
+            break
+        idx = idx[keep]
+        if len(idx) < 6:
+            return None
+    k, n_u = int(inv.max()) + 1, int(uinv.max()) + 1
+    graph = sparse.coo_matrix((np.ones(len(idx)), (inv, k + uinv)), shape=(k + n_u,) * 2)
+    n_comp = connected_components(graph, directed=False)[0]
+    return idx, inv, uinv, _centre(x[idx], inv), float(n_u - n_comp)
 
 
 def _splits(t: np.ndarray, inv: np.ndarray) -> np.ndarray:
@@ -172,6 +192,20 @@ def _splits(t: np.ndarray, inv: np.ndarray) -> np.ndarray:
     return mids
 
 
+def _direction(x: np.ndarray, g: np.ndarray, d: np.ndarray, unit: np.ndarray,
+               ok: np.ndarray, floor2: float) -> tuple[float, float] | None:
+    """F-test of the sign of the last move ``d`` on the deviations of ``x`` within groups
+    ``g`` (error units split by that sign)."""
+    sign = np.sign(d).astype(np.int64)
+    col = _column(x, g, unit * 3 + sign + 1, ok & (sign != 0))
+    if col is None:
+        return None
+    idx, inv, uinv, xc, dof0 = col
+    if (sign[idx] > 0).sum() < 3 or (sign[idx] < 0).sum() < 3:
+        return None
+    return _ftest(xc, _centre(sign[idx][:, None].astype(float), inv), uinv, dof0, floor2)
+
+
 def _pose_features(pos: np.ndarray) -> np.ndarray:
     """``[1, x, y, z]`` of positions (m, 3), centred and scaled (constant axes dropped)."""
     cols = [np.ones(len(pos))]
@@ -183,8 +217,8 @@ def _pose_features(pos: np.ndarray) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def _step(x: np.ndarray, inv: np.ndarray, t: np.ndarray, pos: np.ndarray, dof0: float,
-          floor2: float) -> tuple[float, float, float] | None:
+def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
+          dof0: float, floor2: float) -> tuple[float, float, float] | None:
     """The most significant step of deviations ``x`` over the candidate times: (p-value
     Bonferroni-corrected over the times, size, time [s]). The step is the same at every
     pose or a smooth function of it (``[1, x, y, z]`` from the step on, where the
@@ -198,7 +232,7 @@ def _step(x: np.ndarray, inv: np.ndarray, t: np.ndarray, pos: np.ndarray, dof0: 
     best = None
     for tm in mids:
         U = _centre(feats * (t >= tm)[:, None], inv)
-        got = _ftest(x, U, dof0, floor2)
+        got = _ftest(x, U, unit, dof0, floor2)
         if got is not None and (best is None or got[0] < best[0]):
             best = (got[0], got[1], float(tm))
     if best is None:
@@ -220,6 +254,8 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
     pos = np.where(np.isfinite(s.pose_meas[:, :3]), s.pose_meas[:, :3], s.pose_des[:, :3])
     live &= np.isfinite(pos).all(axis=1)
     count = np.maximum(s.count, 1).astype(float)
+    # rows of one move are one unit (their slow errors shared); every dwell its own
+    unit = np.where(s.kind == 1, s.block, -1 - np.arange(s.n))
     found: list[Change] = []
     for name in TESTED:
         v = values.get(name)
@@ -231,26 +267,25 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
         hits: dict[str, list[tuple[float, float, float | None, str]]] = {}
         m = v.shape[1]
         for j in range(m):
-            col = _column(v[:, j], G[name][:, j], s.t, live)
+            col = _column(v[:, j], G[name][:, j], unit, live)
             if col is None:
                 continue
-            idx, inv, x, dof0 = col
+            idx, inv, uinv, x, dof0 = col
             floor2 = float(np.mean(white2[idx]))
             t = s.t[idx]
-            got = _step(x, inv, t, pos[idx], dof0, floor2)
+            got = _step(x, inv, uinv, t, pos[idx], dof0, floor2)
             if got is not None:
                 hits.setdefault("step", []).append((got[0] * m, got[1], got[2], names[j]))
-            tr = _ftest(x, _centre((t - t.mean())[:, None], inv), dof0, floor2)
+            tr = _ftest(x, _centre((t - t.mean())[:, None], inv), uinv, dof0, floor2)
             if tr is not None:
                 hits.setdefault("trend", []).append((tr[0] * m, tr[1], float(t.min()),
                                                      names[j]))
             if name == "length":
-                d = s.direction[idx, j]
-                if (d > 0).sum() >= 3 and (d < 0).sum() >= 3:
-                    dr = _ftest(x, _centre(d[:, None].astype(float), inv), dof0, floor2)
-                    if dr is not None:
-                        hits.setdefault("direction", []).append((dr[0] * m, dr[1], None,
-                                                                 names[j]))
+                dr = _direction(v[:, j], G[name][:, j], s.direction[:, j], unit, live,
+                                floor2)
+                if dr is not None:
+                    hits.setdefault("direction", []).append((dr[0] * m, dr[1], None,
+                                                             names[j]))
         for kind, rows in hits.items():
             sig = [r for r in rows if r[0] < P_SYSTEMATIC and r[1] >= MIN_SIZE]
             if not sig:
