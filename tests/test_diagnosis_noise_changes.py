@@ -174,6 +174,7 @@ class _FakeSamples:
         self.count = np.full(N, 6)
         self.kind = np.zeros(N, dtype=int)
         self.block = self.target.copy()
+        self.n = N
         self.direction = rng.choice([-1.0, 1.0], size=(N, n))
 
 
@@ -244,3 +245,30 @@ def test_a_length_step_a_named_offset_accounts_for_is_not_declared():
         assert left["changes"][0]["t_s"] == 135.6 and "t = 135.6 s" in left["summary"]
     left = unexplained.with_changes(None, [copy.copy(step), copy.copy(load)], {}, {"21"})
     assert [c["block"] for c in left["changes"]] == ["force"]
+
+
+def test_rows_of_the_same_two_moves_are_one_difference():
+    """A continuous recording's replicate groups of path rows (case 12812 of `cdpr evaluate
+    --seed 12800`): twenty-odd groups each pairing a row of one move with a row of the
+    same later move. The moves' slow errors (a visit's change blending along the move)
+    differ between the two moves by several row noises; counted as twenty-odd independent
+    differences that read as a step of z 8 between the moves."""
+    rng = np.random.default_rng(4)
+    s = _FakeSamples(5, 2, 8, rng)  # five dwell targets visited twice
+    rows = 24
+    t_a, t_b = 55.0 + np.arange(rows), 120.0 + np.arange(rows)
+    n_d = len(s.t)
+    s.t = np.concatenate([s.t, t_a, t_b])
+    s.target = np.concatenate([s.target, 100 + np.arange(rows), 100 + np.arange(rows)])
+    s.kind = np.concatenate([s.kind, np.ones(2 * rows, dtype=int)])
+    s.block = np.concatenate([s.block, np.full(rows, 50), np.full(rows, 51)])
+    pos = np.concatenate([s.pose_meas, np.tile(s.pose_meas[:1], (2 * rows, 1))])
+    s.pose_meas = s.pose_des = pos
+    s.count = np.full(len(s.t), 6)
+    s.is_init = np.zeros(len(s.t), dtype=bool)
+    s.direction = rng.choice([-1.0, 1.0], size=(len(s.t), 8))
+    s.n = len(s.t)
+    x = rng.normal(0, 1.0, (len(s.t), 8))
+    x[n_d:n_d + rows] = 4.0 + rng.normal(0, 0.2, (rows, 8))  # move A's slow error
+    x[n_d + rows:] = -4.0 + rng.normal(0, 0.2, (rows, 8))  # move B's
+    assert noise.find_changes(_FakeRM(x * 1e-4, s), None) == []
