@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.chunked import read_conditioned
-from bench.diagnosis import frame, gauge, locate, probes, slips, unexplained
+from bench.diagnosis import frame, gauge, locate, noise, probes, slips, unexplained
 from bench.diagnosis.fit import FitResult, fit_effects, split_columns
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, pooled_std, prepare
@@ -721,6 +721,9 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         nz = rm.noise_summary()
         say(f"noise, the replicate groups split at the steps: lengths "
             f"{nz['length'] * 1e3:.3f} mm, forces {nz['force']:.2f} N")
+    changes = noise.separate(rm, say)  # systematic differences of replicates: not noise
+    high_freq = noise.floor_assumed(rm, say)
+    nz = rm.noise_summary()
     say("baseline: equilibrium of every sample under the recording's model")
     base_fw = rm.forward(model)
     pose_noise = _pose_noise(s, base_fw)
@@ -784,6 +787,9 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         probed = None
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
                                    model.pivots, model.mast_ids, fitted, probed)
+    leftover = unexplained.with_changes(leftover, changes, {
+        c: float(t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
+        if t > rm.init_end}, {k[len("dl_"):] for k in params.get("cable_length_offset", {})})
     if leftover is not None:
         say("unexplained: " + leftover["summary"])
 
@@ -845,6 +851,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         if leftover is not None:
             entry["provisional"] = True
         effects.append(entry)
+    noise.annotate(effects, changes)
     # exit offsets (and drum scales) that a tracker's registration or scale would read are
     # provisional: the tracker is checked before exit points or drums are moved
     motion = next((e["frame_motion"] for e in effects if "frame_motion" in e), None)
@@ -874,6 +881,8 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
                          pose_noise, excluded, effects)
     mismatch["encoder_reference"] = {"reading": reference, "means": REFERENCES[reference]}
+    mismatch["noise"] |= {"high_frequency": high_freq,
+                          "systematic": [c.entry() for c in changes]}
     mismatch["streams"] = streams
     if rm.any_tau:
         mismatch["load_cells"] = {"at": rm.cells_at}

@@ -426,3 +426,36 @@ def _slope(x: np.ndarray, t: np.ndarray, w: np.ndarray, span: float | None = Non
     var = np.sum(ww * res ** 2) / max(sw - 2, 1)
     se = math.sqrt(max(var, 1e-12) / stt)
     return float(b * (np.ptp(tt) if span is None else span)), float(b / se)
+
+
+def with_changes(leftover: dict | None, changes: list, slip_times: dict[str, float],
+                 offsets: set[str] | frozenset[str] = frozenset()) -> dict | None:
+    """``leftover`` (the ``unexplained`` object or None) with the steps between replicate
+    visits (:func:`bench.diagnosis.noise.find_changes`) that no named effect accounts for:
+    ``changes`` (each with the time it began) and a finding each. Steps of a cable's length
+    at a time a named slip (``slip_times``: cable id -> t [s]) lies in are the slip's, not
+    declared, and so are those on a cable whose length offset is named (``offsets``: its
+    slip, begun then)."""
+    from bench.diagnosis import noise
+
+    noise.name_slips(changes, slip_times, offsets)
+    # (a trend or a difference by direction is judged by the time and direction tests
+    # above, against the noise the replicate groups give; a step is located in time here)
+    left = [c for c in changes if c.named is None and c.kind == "step"]
+    if not left:
+        return leftover
+    out = dict(leftover) if leftover is not None else {}
+    out["changes"] = [c.entry() for c in left]
+    findings = list(out.get("findings", []))
+    for c in left:
+        cols = ", ".join(c.columns[:4]) + (" ..." if len(c.columns) > 4 else "")
+        what = {"length": "length residuals of cables", "force": "force balance",
+                "moment": "moment balance", "exit": "exit points"}.get(c.block, c.block)
+        between = f" (between the samples at {c.before_s:.1f} and {c.after_s:.1f} s)" \
+            if c.before_s is not None and c.after_s is not None else ""
+        findings.append(f"something changed at t = {c.t_s:.1f} s{between}: the replicate visits "
+                        f"after it differ from those before in the {what} {cols} by "
+                        f"{c.size:.0f} times their noise (z = {c.z:.0f})")
+    out["findings"] = findings
+    out["summary"] = "; ".join(findings)
+    return out

@@ -1,0 +1,434 @@
+"""Noise that cannot hide a change: replicate visits tested before they are pooled.
+
+The repeatability of a campaign is the spread of its replicate visits (a model error
+repeats at a pose, noise does not). A change during the campaign (a new load on the
+platform, a slipped cable, a moved mast) repeats too, but only from its time on: pooled
+with the visits before it, it becomes "noise" and hides itself (a load change between
+the first and the second visit of each pose read as 17 N of load-cell noise, and the
+model as explaining the data). So the replicate deviations (each sample's residual less
+its replicate group's mean) are first tested for what noise cannot do:
+
+- **by time and by pose**: a step at one time, the same at every pose or changing
+  smoothly with the pose (a regression on ``[1, x, y, z]`` from the step on), scanned
+  over the campaign's times;
+- **by time, slowly**: a trend over the campaign (creep, a drift);
+- **by direction of travel**: a length residual that differs with the sign of its
+  cable's last move (hysteresis, backlash).
+
+Each test is an F-test against the deviations' own spread after it (scale-free: the
+contaminated noise estimate is never the yardstick), Bonferroni-corrected over the
+times scanned and the columns, floored by the row-to-row (white) noise, on independent
+error units (a dwell, or all rows of one move: they share the move's slow errors). A systematic
+step splits the replicate groups at its time (:func:`split_targets`), so the noise comes
+from what is random; the step is then named (a slip's time) or declared ``unexplained``
+with the time it began (:func:`declare`).
+
+Recordings without replicates take their noise from the high-frequency part of the
+residuals (:func:`high_frequency`): second differences of successive samples of one
+move, which remove the motion's smooth part of the model error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import sparse, stats
+from scipy.sparse.csgraph import connected_components
+
+from bench.diagnosis.residuals import Blocks, ResidualModel
+
+#: a systematic difference is declared below this p-value, after the correction for the
+#: times scanned and the columns tested (a z of about 7)
+P_SYSTEMATIC = 1e-12
+#: ... and where it is at least this large against the deviations' spread after it
+MIN_SIZE = 3.0
+#: at most this many split times are scanned (evenly over the candidates)
+MAX_SPLITS = 64
+#: a split time is scanned where at least this many replicate groups span it
+MIN_SPANNING = 3
+#: the blocks tested (their values per :meth:`ResidualModel._block_values`)
+TESTED = ("length", "force", "moment", "exit")
+
+
+@dataclass
+class Change:
+    """A systematic difference between replicate visits.
+
+    ``kind`` "step" (from ``t_s`` on), "trend" (over the campaign, from ``t_s``) or
+    "direction" (by the sign of the cable's last move; ``t_s`` None); ``block`` and
+    ``columns`` where it shows (column names: cable ids, ``x y z`` of the force or
+    moment); ``z`` the significance as a normal deviate (corrected); ``size`` its RMS
+    over the samples it moves, in units of the deviations' spread; ``before_s`` /
+    ``after_s`` the last sample time before and the first after a step [s]."""
+
+    kind: str
+    block: str
+    columns: list[str]
+    t_s: float | None
+    z: float
+    size: float
+    before_s: float | None = None
+    after_s: float | None = None
+    named: dict | None = field(default=None)
+
+    def entry(self) -> dict:
+        """The report's object (``unexplained.changes[]``; ``mismatch.noise.systematic``)."""
+        out = {"kind": self.kind, "block": self.block, "columns": list(self.columns),
+               "t_s": _round(self.t_s), "z": _round(self.z, 1),
+               "size_over_noise": _round(self.size, 1)}
+        if self.kind == "step":
+            out["between_s"] = [_round(self.before_s), _round(self.after_s)]
+        if self.named is not None:
+            out["named"] = dict(self.named)
+        return out
+
+
+def _round(x: float | None, nd: int = 3) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(round(x, nd))
+
+
+def column_names(rm: ResidualModel, block: str, width: int) -> list[str]:
+    """Names of a block's columns: cable ids (length), axes (force, moment), ``a<ax>_<id>``
+    (exit)."""
+    ids = list(rm.model.cable_ids)
+    if block == "length":
+        return ids[:width]
+    if block in ("force", "moment"):
+        return list("xyz")[:width]
+    return [f"a{ax}_{c}" for c in ids for ax in "xyz"][:width]
+
+
+def _z_of(p: float) -> float:
+    """The normal deviate of a one-sided p-value (large for tiny p)."""
+    return float(stats.norm.isf(max(p, 1e-300)))
+
+
+def _centre(x: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """``x`` (m,) or (m, q) less its mean over each group ``g`` (m,) (labels 0..k-1)."""
+    cnt = np.bincount(g).astype(float)
+    if x.ndim == 1:
+        return x - (np.bincount(g, weights=x) / cnt)[g]
+    means = np.stack([np.bincount(g, weights=x[:, j], minlength=len(cnt))
+                      for j in range(x.shape[1])], axis=1) / cnt[:, None]
+    return x - means[g]
+
+
+def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+           ) -> tuple[float, float] | None:
+    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,), both centred within their
+    replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
+    independent, the samples of one are not. ``dof0`` the units' degrees of freedom before;
+    the residual variance floored at ``floor2`` per sample. Returns (p-value, RMS of the
+    fitted part over its residual spread)."""
+    q = U.shape[1]
+    dof = dof0 - q
+    if dof < 2 or not np.any(U):
+        return None
+    n_u = int(unit.max()) + 1
+    xs = np.bincount(unit, weights=x, minlength=n_u)
+    A = np.stack([np.bincount(unit, weights=U[:, k], minlength=n_u) for k in range(q)],
+                 axis=1)
+    size_u = np.bincount(unit, minlength=n_u).astype(float)
+    coef, *_ = np.linalg.lstsq(A, xs, rcond=None)
+    fitted = A @ coef
+    rss1 = float(np.sum((xs - fitted) ** 2))
+    gain = float(np.sum(xs * xs)) - rss1
+    if gain <= 0:
+        return None
+    s2 = max(rss1 / dof, floor2 * float(np.mean(size_u)))
+    p = float(stats.f.sf(gain / q / s2, q, dof))
+    moved = np.abs(fitted) > 0
+    size = math.sqrt(float(np.mean(fitted[moved] ** 2)) / s2) if moved.any() else 0.0
+    return p, size
+
+
+def _column(x: np.ndarray, g: np.ndarray, unit: np.ndarray, ok: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """The samples of a column that compare error units within a replicate group: their
+    indices, group labels 0..k-1, unit labels 0..u-1, deviations from the group means, and
+    the units' degrees of freedom (units less the groups' connected components: twenty
+    groups each holding a row of the same two moves are one difference, not twenty)."""
+    idx = np.flatnonzero(ok & np.isfinite(x))
+    if len(idx) < 6:
+        return None
+    for _ in range(2):  # (groups whose samples lie in two units or more)
+        _, inv = np.unique(g[idx], return_inverse=True)
+        inv = inv.ravel()
+        _, uinv = np.unique(unit[idx], return_inverse=True)
+        uinv = uinv.ravel()
+        umin = np.full(inv.max() + 1, np.iinfo(np.int64).max)
+        umax = np.full(inv.max() + 1, -1)
+        np.minimum.at(umin, inv, uinv)
+        np.maximum.at(umax, inv, uinv)
+        keep = (umax > umin)[inv]
+        if keep.all():
+            break
+        idx = idx[keep]
+        if len(idx) < 6:
+            return None
+    k, n_u = int(inv.max()) + 1, int(uinv.max()) + 1
+    graph = sparse.coo_matrix((np.ones(len(idx)), (inv, k + uinv)), shape=(k + n_u,) * 2)
+    n_comp = connected_components(graph, directed=False)[0]
+    return idx, inv, uinv, _centre(x[idx], inv), float(n_u - n_comp)
+
+
+def _splits(t: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """Candidate step times: midpoints between consecutive distinct times where at least
+    :data:`MIN_SPANNING` groups have samples on both sides; at most :data:`MAX_SPLITS`."""
+    ut = np.unique(t)
+    if len(ut) < 2:
+        return ut[:0]
+    mids = 0.5 * (ut[1:] + ut[:-1])
+    k = int(inv.max()) + 1
+    first = np.full(k, np.inf)
+    last = np.full(k, -np.inf)
+    np.minimum.at(first, inv, t)
+    np.maximum.at(last, inv, t)
+    spanning = ((first[None, :] < mids[:, None]) & (last[None, :] > mids[:, None])).sum(axis=1)
+    mids = mids[spanning >= MIN_SPANNING]
+    if len(mids) > MAX_SPLITS:
+        mids = mids[np.unique(np.linspace(0, len(mids) - 1, MAX_SPLITS).round().astype(int))]
+    return mids
+
+
+def _direction(x: np.ndarray, g: np.ndarray, d: np.ndarray, unit: np.ndarray,
+               ok: np.ndarray, floor2: float) -> tuple[float, float] | None:
+    """F-test of the sign of the last move ``d`` on the deviations of ``x`` within groups
+    ``g`` (error units split by that sign)."""
+    sign = np.sign(d).astype(np.int64)
+    col = _column(x, g, unit * 3 + sign + 1, ok & (sign != 0))
+    if col is None:
+        return None
+    idx, inv, uinv, xc, dof0 = col
+    if (sign[idx] > 0).sum() < 3 or (sign[idx] < 0).sum() < 3:
+        return None
+    return _ftest(xc, _centre(sign[idx][:, None].astype(float), inv), uinv, dof0, floor2)
+
+
+def _pose_features(pos: np.ndarray) -> np.ndarray:
+    """``[1, x, y, z]`` of positions (m, 3), centred and scaled (constant axes dropped)."""
+    cols = [np.ones(len(pos))]
+    for a in range(pos.shape[1]):
+        v = pos[:, a]
+        sd = float(np.std(v))
+        if sd > 1e-3 and np.isfinite(sd):
+            cols.append((v - v.mean()) / sd)
+    return np.stack(cols, axis=1)
+
+
+def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
+          dof0: float, floor2: float) -> tuple[float, float, float] | None:
+    """The most significant step of deviations ``x`` over the candidate times: (p-value
+    Bonferroni-corrected over the times, size, time [s]). The step is the same at every
+    pose or a smooth function of it (``[1, x, y, z]`` from the step on, where the
+    degrees of freedom allow it)."""
+    mids = _splits(t, inv)
+    if not len(mids):
+        return None
+    feats = _pose_features(pos)
+    if dof0 - feats.shape[1] < 8:
+        feats = feats[:, :1]
+    best = None
+    for tm in mids:
+        U = _centre(feats * (t >= tm)[:, None], inv)
+        got = _ftest(x, U, unit, dof0, floor2)
+        if got is not None and (best is None or got[0] < best[0]):
+            best = (got[0], got[1], float(tm))
+    if best is None:
+        return None
+    return min(best[0] * len(mids), 1.0), best[1], best[2]
+
+
+def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | None = None
+                 ) -> list[Change]:
+    """Systematic differences between the replicate visits of ``rm``'s samples under the
+    residual blocks ``b`` (of the recording's model), after the initialisation, in the
+    replicate groups ``groups`` (per block, (N, d); default: ``rm``'s, split at the slips
+    it knows). One finding per block and kind, the most significant column's, with every
+    column significant beside it."""
+    s = rm.s
+    values = rm._block_values(b)
+    G = rm._replicate_groups(None) if groups is None else groups
+    live = ~s.is_init
+    pos = np.where(np.isfinite(s.pose_meas[:, :3]), s.pose_meas[:, :3], s.pose_des[:, :3])
+    live &= np.isfinite(pos).all(axis=1)
+    count = np.maximum(s.count, 1).astype(float)
+    # rows of one move are one unit (their slow errors shared); every dwell its own
+    unit = np.where(s.kind == 1, s.block, -1 - np.arange(s.n))
+    found: list[Change] = []
+    for name in TESTED:
+        v = values.get(name)
+        if v is None or not np.isfinite(v).any():
+            continue
+        names = column_names(rm, name, v.shape[1])
+        kind_white = np.array([rm.white_k[0][name], rm.white_k[1][name]])
+        white2 = (kind_white[np.clip(s.kind, 0, 1)] ** 2 / count)
+        hits: dict[str, list[tuple[float, float, float | None, str]]] = {}
+        m = v.shape[1]
+        for j in range(m):
+            col = _column(v[:, j], G[name][:, j], unit, live)
+            if col is None:
+                continue
+            idx, inv, uinv, x, dof0 = col
+            floor2 = float(np.mean(white2[idx]))
+            t = s.t[idx]
+            got = _step(x, inv, uinv, t, pos[idx], dof0, floor2)
+            if got is not None:
+                hits.setdefault("step", []).append((got[0] * m, got[1], got[2], names[j]))
+            tr = _ftest(x, _centre((t - t.mean())[:, None], inv), uinv, dof0, floor2)
+            if tr is not None:
+                hits.setdefault("trend", []).append((tr[0] * m, tr[1], float(t.min()),
+                                                     names[j]))
+            if name == "length":
+                dr = _direction(v[:, j], G[name][:, j], s.direction[:, j], unit, live,
+                                floor2)
+                if dr is not None:
+                    hits.setdefault("direction", []).append((dr[0] * m, dr[1], None,
+                                                             names[j]))
+        for kind, rows in hits.items():
+            sig = [r for r in rows if r[0] < P_SYSTEMATIC and r[1] >= MIN_SIZE]
+            if not sig:
+                continue
+            top = min(sig, key=lambda r: r[0])
+            found.append(Change(kind, name, [r[3] for r in sorted(sig, key=lambda r: r[0])],
+                                top[2], _z_of(top[0]), top[1]))
+    return _prefer_steps(found, s.t[live])
+
+
+def _prefer_steps(found: list[Change], t: np.ndarray) -> list[Change]:
+    """A step explains a trend of the same block (a step half-way is a trend too): the
+    trend is dropped where the block's step is more significant. Steps get the times of
+    the samples on each side."""
+    steps = {c.block: c for c in found if c.kind == "step"}
+    out = []
+    for c in found:
+        if c.kind == "trend" and c.block in steps and steps[c.block].z >= c.z:
+            continue
+        if c.kind == "step" and c.t_s is not None:
+            before, after = t[t < c.t_s], t[t > c.t_s]
+            c.before_s = float(before.max()) if len(before) else None
+            c.after_s = float(after.min()) if len(after) else None
+        out.append(c)
+    return sorted(out, key=lambda c: -c.z)
+
+
+def change_times(changes: list[Change]) -> list[float]:
+    """The distinct times [s] of the steps among ``changes``, in order."""
+    return sorted({c.t_s for c in changes if c.kind == "step" and c.t_s is not None})
+
+
+def split_targets(target: np.ndarray, t: np.ndarray, times: list[float]) -> np.ndarray:
+    """Replicate groups ``target`` (N,) split at ``times`` [s]: visits on different sides of
+    a change are no replicates of each other (labels renumbered 0..)."""
+    epoch = np.searchsorted(np.asarray(sorted(times), float), t, side="right")
+    _, out = np.unique(np.stack([np.asarray(target), epoch], axis=1), axis=0,
+                       return_inverse=True)
+    return out.ravel().astype(np.asarray(target).dtype)
+
+
+def name_slips(changes: list[Change], slip_times: dict[str, float],
+               offsets: set[str] | frozenset[str] = frozenset()) -> None:
+    """Mark the steps of length residuals that a named slip accounts for: a slip of one of
+    the step's cables at a time between its samples (``slip_times``: cable id -> t [s] of
+    the slips the report names), or a length offset the report names (``offsets``: cable
+    ids) on one of the step's cables: that offset began at the step's time."""
+    for c in changes:
+        if c.kind != "step" or c.block != "length":
+            continue
+        lo = c.before_s if c.before_s is not None else -np.inf
+        hi = c.after_s if c.after_s is not None else np.inf
+        for cid in c.columns:
+            ts = slip_times.get(cid)
+            if ts is not None and lo - 1e-6 <= ts <= hi + 1e-6:
+                c.named = {"effect": "cable_length_offset", "cable": cid, "t_s": _round(ts)}
+                break
+        # (where a sample's pose or tensions are estimated, one cable's slip moves every
+        # cable's residual: the slipped cable need not show most)
+        mine = [cid for cid in c.columns if cid in offsets]
+        if c.named is None and mine:
+            c.named = {"effect": "cable_length_offset", "cable": mine[0], "t_s": _round(c.t_s)}
+
+
+def annotate(effects: list[dict], changes: list[Change]) -> None:
+    """Say in a named length offset's ``explains`` when the replicate visits show it began,
+    where the fit did not place it in time (its slip time the initialisation)."""
+    for e in effects:
+        if e["name"] != "cable_length_offset" or "; from t = " in e["explains"]:
+            continue
+        got = [c.named for c in changes if c.named is not None and c.named.get("t_s")
+               is not None and f"dl_{c.named['cable']}" in e["params"]]
+        if got:
+            e["explains"] += "; begun at " + ", ".join(
+                f"t = {g['t_s']:.1f} s on cable {g['cable']}" for g in got) \
+                + " (the replicate visits differ from then on)"
+
+
+def high_frequency(rm: ResidualModel, b: Blocks) -> dict[str, float]:
+    """Noise of one sample per block from the high-frequency part of the residuals ``b``:
+    second differences of successive samples of one move or dwell stretch (``s.block``), in
+    time order, ``sd = sqrt(mean(d2^2) / 6)`` (white noise: Var(x0 - 2 x1 + x2) = 6 var),
+    robustly (1.4826 MAD); a smooth model error along the motion (linear over three
+    samples) cancels. Blocks without three successive samples are left out."""
+    s = rm.s
+    values = rm._block_values(b)
+    order = np.lexsort((s.t, s.block))
+    out = {}
+    for name, v in values.items():
+        x = v[order]
+        blk = s.block[order]
+        same = (blk[2:] == blk[1:-1]) & (blk[1:-1] == blk[:-2])
+        d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+        d2 = d2[same]
+        d2 = d2[np.isfinite(d2)]
+        if d2.size < 6:
+            continue
+        out[name] = float(1.4826 * np.median(np.abs(d2)) / math.sqrt(6.0))
+    return out
+
+
+def separate(rm: ResidualModel, say=lambda m: None) -> list[Change]:
+    """Test ``rm``'s replicate visits under its model (:func:`find_changes`) and, where a step
+    is found, split the replicate groups (``rm.s.target``) at its time and estimate the
+    noise again: the noise comes from what is random. Returns every change found."""
+    model = rm.model
+    changes = find_changes(rm, rm.blocks(model))
+    for c in changes:
+        where = f" from t = {c.t_s:.1f} s" if c.t_s is not None and c.kind == "step" else ""
+        say(f"replicate visits differ systematically ({c.kind}{where}, {c.block} "
+            f"{', '.join(c.columns[:4])}; z = {c.z:.0f}): not pooled as noise")
+    times = change_times(changes)
+    if times:
+        rm.s.target = split_targets(rm.s.target, rm.s.t, times)
+        rm.estimate_noise(model)
+        nz = rm.noise_summary()
+        say(f"noise, the replicate groups split at t = "
+            f"{', '.join(f'{t:.1f}' for t in times)} s: lengths {nz['length'] * 1e3:.3f} mm, "
+            f"forces {nz['force']:.2f} N")
+    return changes
+
+
+def floor_assumed(rm: ResidualModel, say=lambda m: None) -> dict[str, float]:
+    """Without replicate visits (``rm``'s noise assumed): the high-frequency noise of the
+    residuals under the model (:func:`high_frequency`) measured, and the assumed
+    repeatability raised to it where it is below (the noise of one sample cannot be less
+    than its successive samples show; a fit's own chi-square is never the yardstick).
+    Returns the high-frequency estimate per block (reported with the noise)."""
+    hf = high_frequency(rm, rm.blocks(rm.model))
+    if rm.sigma_source == "replicate visits" or not hf:
+        return hf
+    raised = []
+    for kind in (0, 1):
+        for name, v in hf.items():
+            have = math.hypot(rm.sigma_k[kind][name], rm.white_k[kind][name])
+            if v > have:
+                rm.sigma_k[kind][name] = math.sqrt(v * v - rm.white_k[kind][name] ** 2)
+                raised.append(name)
+    if raised:
+        rm.sigma = dict(rm.sigma_k[int(np.bincount(rm.s.kind, minlength=2).argmax())])
+        rm._update_sd()
+        rm.sigma_source += ", raised to the high-frequency residuals"
+        say(f"no replicate visits: the assumed noise raised to the high-frequency residuals "
+            f"({', '.join(sorted(set(raised)))})")
+    return hf
