@@ -369,6 +369,7 @@ SHIPPED = {
     "rocaspect-remeasured": "rocaspect_remeasured.toml",
     "cogiro": "cogiro.toml",
     "ipanema": "ipanema.toml",
+    "hexa6": "hexa6.toml",
 }
 
 

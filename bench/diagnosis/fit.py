@@ -8,6 +8,7 @@ from the whitened Jacobian at the solution.
 from __future__ import annotations
 
 import hashlib
+import math
 import weakref
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
@@ -1198,3 +1199,176 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     if np.any(level <= 0):
         return plain
     return theta
+
+
+# ----- 95 % intervals -----------------------------------------------------------------------
+
+#: two-sided 95 % quantile of the normal distribution
+Z95 = 1.959963984540054
+#: a free parameter that another one follows by at least this correlation (the fit's
+#: curvature) has its interval checked by profile refits ...
+PROFILE_CORRELATION = 0.9
+#: ... and so has one whose chi-square at an end of its linearised interval (the others
+#: moved as the curvature says they follow it) rises by more than this factor above or below
+#: the rise the curvature predicts there
+PROFILE_NONLINEAR = 1.25
+#: refits of one diagnosis's profile intervals at most (one per end of a parameter: the most
+#: correlated or least linear parameters first; the others keep the linearised interval)
+PROFILE_REFITS = 12
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A 95 % interval ``[lo, hi]`` of one fit parameter in fit space (c = 1/k, e = 1/EA)
+    and how it was found: ``linearised`` (the estimate +- 1.96 reported standard errors) or
+    ``profile`` (an end moved out to where the refit holding the parameter there rises by
+    the chi-square of a 95 % interval, widened only)."""
+
+    lo: float
+    hi: float
+    method: str
+
+
+def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0) -> Interval:
+    """The estimate +- :data:`Z95` reported standard errors (with ``extra_var``, fit units
+    squared: an uncertainty the fit cannot see), within the parameter's bounds."""
+    se = math.sqrt(float(fit.reported_stderr[k]) ** 2 + extra_var)
+    p = fit.space.params[k]
+    return Interval(max(float(fit.phi[k]) - Z95 * se, p.lo),
+                    min(float(fit.phi[k]) + Z95 * se, p.hi), "linearised")
+
+
+def interval_checks(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
+                    which: np.ndarray) -> list[tuple[float, int]]:
+    """The parameters of ``which`` whose linearised interval needs profile refits, most
+    doubtful first, as ``(doubt, index)``: those another free parameter follows by
+    :data:`PROFILE_CORRELATION` or more under the fit's curvature (a swivel pulley's radius
+    and its cable's exit point), and those whose chi-square at an end of the interval, the
+    others moved as the curvature says, departs from the curvature's prediction by
+    more than :data:`PROFILE_NONLINEAR` (one evaluation per end, no refit)."""
+    C = fit.curvature_cov
+    if C is None or not len(which):
+        return []
+    space = fit.space
+    lik = StretchLikelihood(rm, idx)
+
+    def chi2_at(phi: np.ndarray) -> float:
+        r = lik.residuals(space.robot(phi))
+        return float(r @ r)
+
+    with rm.cold():  # (the warm starts of what follows left as they were)
+        return _checks(fit, which, C, chi2_at)
+
+
+def _checks(fit: FitResult, which: np.ndarray, C: np.ndarray,
+            chi2_at: Callable[[np.ndarray], float]) -> list[tuple[float, int]]:
+    """:func:`interval_checks` with the chi-square function ``chi2_at``."""
+    space = fit.space
+    movable = np.diag(C) > 0
+    sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    c0 = chi2_at(fit.phi)
+    out = []
+    for k in which:
+        se = float(fit.reported_stderr[k])
+        if not movable[k] or not (np.isfinite(se) and se > 0):
+            continue
+        others = movable.copy()
+        others[k] = False
+        corr = float(np.max(np.abs(C[k, others]) / (sd[k] * sd[others]), initial=0.0))
+        doubt = corr / PROFILE_CORRELATION if corr >= PROFILE_CORRELATION else 0.0
+        pred = (Z95 * se) ** 2 / C[k, k]
+        for sign in (-1.0, 1.0):
+            phi = np.clip(fit.phi + C[:, k] / C[k, k] * sign * Z95 * se, space.lo, space.hi)
+            ratio = (chi2_at(phi) - c0) / pred
+            off = abs(math.log(ratio)) / math.log(PROFILE_NONLINEAR) if ratio > 0 else np.inf
+            if off > 1.0:
+                doubt = max(doubt, off)
+        if doubt > 0:
+            out.append((float(doubt), int(k)))
+    return sorted(out, reverse=True)
+
+
+def _profile_job(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray,
+                 hold: np.ndarray) -> FitResult:
+    """One profile refit (a plain function for the process pool)."""
+    from bench.parallel import job_running
+
+    with job_running():
+        return fit_effects(space, rm, idx, phi0, hold=hold, prune=False)
+
+
+def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
+                         which: np.ndarray, extra_var: np.ndarray | None = None,
+                         pool: object = None,
+                         say: Callable[[str], None] | None = None) -> dict[int, Interval]:
+    """95 % intervals of the parameters ``which`` of ``fit`` (on the samples ``idx``).
+
+    Each starts linearised (:func:`linearised_interval`). Where that is in doubt
+    (:func:`interval_checks`: correlated parameters, a chi-square that is not quadratic),
+    each end is checked by a profile refit: the parameter held at the end, the others
+    refitted from where the curvature moves them. The chi-square of a 95 % interval there
+    is the rise the curvature predicts at the linearised end, ``(1.96 se)^2 / C_kk``
+    (``C`` the curvature covariance: 3.84 times the variance the reported error adds to
+    the curvature's); a refit that rises by less (a flat or curved valley) moves the end
+    out to where a quadratic through its rise reaches it (within the bounds). An interval
+    is widened, never narrowed. At most :data:`PROFILE_REFITS` refits, on ``pool`` (an
+    executor) where there is one."""
+    say = say or (lambda m: None)
+    ev = np.zeros(len(fit.phi)) if extra_var is None else extra_var
+    out = {int(k): linearised_interval(fit, int(k), float(ev[k])) for k in which}
+    doubtful = [k for _, k in interval_checks(fit, rm, idx, np.asarray(which, dtype=int))]
+    doubtful = doubtful[:PROFILE_REFITS // 2]
+    if not doubtful:
+        return out
+    space, C = fit.space, fit.curvature_cov
+    assert C is not None
+    movable = np.diag(C) > 0
+    jobs = []
+    for k in doubtful:
+        iv = out[k]
+        for end in (iv.lo, iv.hi):
+            phi0 = np.clip(fit.phi + C[:, k] / C[k, k] * (end - fit.phi[k]), space.lo, space.hi)
+            phi0[k] = end
+            hold = ~movable
+            hold[k] = True
+            jobs.append((k, end, phi0, hold))
+    say(f"checking the intervals of {len(doubtful)} parameters by {len(jobs)} profile refits")
+    if pool is not None and len(jobs) > 1:
+        futs = [pool.submit(_profile_job, space, rm, idx, phi0, hold)  # type: ignore[attr-defined]
+                for _, _, phi0, hold in jobs]
+        fits = [f.result() for f in futs]
+    else:
+        fits = [_profile_job(space, rm, idx, phi0, hold) for _, _, phi0, hold in jobs]
+    ends: dict[int, list[float]] = {}
+    for (k, end, _, _), res in zip(jobs, fits, strict=True):
+        ends.setdefault(k, []).append(_profile_end(fit, k, end, res))
+    for k, (lo, hi) in ends.items():
+        iv = out[k]
+        out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi),
+                          "profile" if lo < iv.lo or hi > iv.hi else "linearised")
+    return out
+
+
+def _profile_end(fit: FitResult, k: int, end: float, res: FitResult) -> float:
+    """Where the 95 % chi-square of parameter ``k`` is reached on the side of ``end``, from
+    the profile refit ``res`` holding it at ``end``: ``end`` itself where the refit rises by
+    at least the curvature's prediction (or did not converge), else further out along a
+    quadratic through the minimum and the refit's rise, within the parameter's bounds."""
+    p = fit.space.params[k]
+    C = fit.curvature_cov
+    d = end - float(fit.phi[k])
+    if C is None or d == 0 or not res.success:
+        return end
+    target = d * d / C[k, k]
+    rise = res.chi2 - fit.chi2
+    if rise >= target:
+        return end
+    far = float(fit.phi[k]) + d * (math.sqrt(target / rise) if rise > 0 else np.inf)
+    return float(np.clip(far, p.lo, p.hi))
+
+
+def value_interval(p, iv: Interval) -> tuple[float, float]:
+    """An interval of fit space as the parameter's values ``(lo, hi)`` in the conventions'
+    units (a stiffness k = 1/c: the ends swap; an end at c <= 0 is an infinite stiffness)."""
+    a, b = p.to_value(iv.lo), p.to_value(iv.hi)
+    return (min(a, b), max(a, b))
