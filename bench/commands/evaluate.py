@@ -54,13 +54,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="conceal exactly these effects in every case ('none': no effect); "
                         "default: a random mix of 0 to 2 per case")
     p.add_argument("--robot", default="mix",
-                   help="model of every case: shipped name or robot.toml path; 'mix': "
-                        "ROCASPECT, CoGiRo- and IPAnema-class robots, half of them with a "
-                        "perturbed geometry [mix]")
+                   help="model of every case: shipped name (e.g. hexa6, six cables) or "
+                        "robot.toml path; 'mix': ROCASPECT, CoGiRo- and IPAnema-class robots, "
+                        "half of them with a perturbed geometry; 'mix_new': the IPAnema-class "
+                        "rigid frame with swivel pulleys of radii that differ cable by cable, "
+                        "or the six-cable hexa6, half of them perturbed [mix]")
     p.add_argument("--kind", default="mix", choices=("mix", "dwell", "continuous",
-                                                     "continuous_dwell"),
+                                                     "continuous_dwell", "logger", "hour",
+                                                     "load_change", "new"),
                    help="recording kind: dwells with replicate visits, continuous rows along "
-                        "moves (without or with dwells at the targets) [mix]")
+                        "moves (without or with dwells at the targets) [mix: one of these]; "
+                        "drawn only when asked: logger (streams at their own rates with "
+                        "gaps, as a bench's logger writes them), hour (the same, an hour "
+                        "long), load_change (dwells, the platform's load changed after the "
+                        "first visit: physics outside the vocabulary), new (one of these "
+                        "three)")
     p.add_argument("--sensors", default="mix", choices=("mix", "all", "no_tensions",
                                                         "no_tracker"),
                    help="column groups the recordings hold [mix]")
