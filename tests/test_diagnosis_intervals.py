@@ -111,3 +111,54 @@ def test_coverage_counts_the_intervals_and_the_linearised_errors_per_effect():
     # a report without intervals: the linearised one
     assert covers(_rec("mass", 10.0, 10.1, 0.1))
     assert not covers(_rec("mass", 10.0, 10.3, 0.1))
+
+
+# ----- coverage over generated cases --------------------------------------------------------
+
+#: small cases: dwells on a 3 x 2 grid, two visits, every sensor, nothing outside the vocabulary
+SMALL = {"kind": "dwell", "sensors": "all", "oov": "none", "poses": {"n": [3, 2, 1], "visits": 2}}
+
+
+def binomial_floor(n: int, p: float = 0.95, alpha: float = 0.005) -> int:
+    """The fewest of ``n`` intervals that must hold the truth: intervals of coverage ``p``
+    hold fewer with probability below ``alpha``."""
+    from scipy.stats import binom
+
+    return int(binom.ppf(alpha, n, p))
+
+
+def _coverage(effect: str, robot: str, seeds: range) -> dict:
+    from bench.evaluate import one_blas_thread, run_case
+
+    one_blas_thread()
+    scores = [run_case(s, robot=robot, effects=(effect,), **SMALL) for s in seeds]
+    right = [s for s in scores if s["exact"] and not s["unexplained"]]
+    assert len(right) >= len(scores) - 1, [(s["seed"], s["named"]) for s in scores]
+    return coverage(right)[effect]
+
+
+def test_binomial_floor_fails_intervals_of_70_percent():
+    """The bound the coverage tests use: 95 % intervals pass it (but for 1 in 200), intervals
+    that cover 70 % of the time fail it with the parameter counts these tests have."""
+    from scipy.stats import binom
+
+    for n in (24, 32, 48):
+        k = binomial_floor(n)
+        assert binom.cdf(k - 1, n, 0.95) < 0.005
+        assert binom.sf(k - 1, n, 0.70) < 0.1, n
+
+
+@pytest.mark.parametrize("effect,robot,seeds", [
+    ("pulley_kinematics", "ipanema", range(3200, 3204)),
+    ("exit_point_offset", "rocaspect", range(3210, 3213)),
+    ("load_cell_calibration", "cogiro", range(3220, 3224)),
+])
+def test_95_percent_intervals_cover_the_truth(effect, robot, seeds):
+    """Per effect kind, over small generated cases named right, the report's 95 % intervals
+    hold the truth of their parameters as often as 95 % intervals do (a binomial bound that
+    intervals covering 70 % of the time fail)."""
+    cov = _coverage(effect, robot, seeds)
+    n = cov["params"]
+    assert n >= 20, cov
+    k = round(cov["covered"] * n)
+    assert k >= binomial_floor(n), cov

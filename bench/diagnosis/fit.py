@@ -7,6 +7,7 @@ from the whitened Jacobian at the solution.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 import weakref
@@ -172,7 +173,7 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     start, what is held, the budget, the residual model's noise (its whitening) and this
     module's settings. Not the residual model's warm starts: they only shorten the path."""
     h = hashlib.blake2b(digest_size=20)
-    for a in (idx, phi0, hold, rm.slip_times, rm.sqrt_w, rm.len_rank, rm.reference,
+    for a in (idx, phi0, hold, space.neutral, rm.slip_times, rm.sqrt_w, rm.len_rank, rm.reference,
               *(rm.sd[k] for k in sorted(rm.sd))):
         if a is None:
             h.update(b"-")
@@ -1288,6 +1289,14 @@ def _checks(fit: FitResult, which: np.ndarray, C: np.ndarray,
     return sorted(out, reverse=True)
 
 
+def held_at(space: ParamSpace, values: np.ndarray) -> ParamSpace:
+    """``space`` whose held parameters are held at ``values`` (fit space) in place of the
+    model's values: a fit's ``hold`` keeps a parameter at its space's ``neutral``."""
+    out = copy.copy(space)
+    out.neutral = np.asarray(values, dtype=float).copy()
+    return out
+
+
 def _profile_job(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray,
                  hold: np.ndarray) -> FitResult:
     """One profile refit (a plain function for the process pool)."""
@@ -1331,16 +1340,17 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
             phi0[k] = end
             hold = ~movable
             hold[k] = True
-            jobs.append((k, end, phi0, hold))
+            jobs.append((k, end, held_at(space, np.where(hold, phi0, space.neutral)), phi0,
+                         hold))
     say(f"checking the intervals of {len(doubtful)} parameters by {len(jobs)} profile refits")
     if pool is not None and len(jobs) > 1:
-        futs = [pool.submit(_profile_job, space, rm, idx, phi0, hold)  # type: ignore[attr-defined]
-                for _, _, phi0, hold in jobs]
+        futs = [pool.submit(_profile_job, sp, rm, idx, phi0, hold)  # type: ignore[attr-defined]
+                for _, _, sp, phi0, hold in jobs]
         fits = [f.result() for f in futs]
     else:
-        fits = [_profile_job(space, rm, idx, phi0, hold) for _, _, phi0, hold in jobs]
+        fits = [_profile_job(sp, rm, idx, phi0, hold) for _, _, sp, phi0, hold in jobs]
     ends: dict[int, list[float]] = {}
-    for (k, end, _, _), res in zip(jobs, fits, strict=True):
+    for (k, end, _, _, _), res in zip(jobs, fits, strict=True):
         ends.setdefault(k, []).append(_profile_end(fit, k, end, res))
     for k, (lo, hi) in ends.items():
         iv = out[k]
