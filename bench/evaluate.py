@@ -1001,7 +1001,8 @@ def covers(rec: dict, linearised: bool = False) -> bool:
     iv = rec.get("interval")
     if linearised or iv is None:
         return abs(rec["value"] - rec["truth"]) <= 1.959963984540054 * rec["stderr"]
-    return iv[0] <= rec["truth"] <= iv[1]
+    lo, hi = (-math.inf if iv[0] is None else iv[0]), (math.inf if iv[1] is None else iv[1])
+    return lo <= rec["truth"] <= hi
 
 
 def coverage(scores: list[dict]) -> dict:

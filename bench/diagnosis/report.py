@@ -182,12 +182,14 @@ def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | N
 
 def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects: list[str],
                      params: dict[str, dict], floor_var: np.ndarray, pool: Executor | None,
-                     say: Progress) -> dict[str, dict[str, tuple[float, float, str]]]:
+                     say: Progress) -> dict[str, dict[str, tuple[float | None, float | None,
+                                                                  str]]]:
     """Per chosen candidate, the 95 % interval of each reported parameter (``params``) in
     the conventions' units and how it was found (:func:`bench.diagnosis.fit.
     confidence_intervals`: linearised, or widened by profile refits where parameters
     correlate or the chi-square is not quadratic); ``floor_var`` as in
-    :func:`effect_entries`, in the interval."""
+    :func:`effect_entries`, in the interval. An unbounded end (a stiffness as rigid as the
+    data allow) is None."""
     from bench.diagnosis.fit import confidence_intervals, value_interval
 
     where = {(report_name(e), fit.space.params[k].key): int(k)
@@ -195,14 +197,14 @@ def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects
     which = np.array(sorted({where[(report_name(e), key)] for e in effects
                              for key in params[e] if (report_name(e), key) in where}), dtype=int)
     ivs = confidence_intervals(fit, rm, idx, which, floor_var, pool, say) if len(which) else {}
-    out: dict[str, dict[str, tuple[float, float, str]]] = {}
+    out: dict[str, dict[str, tuple[float | None, float | None, str]]] = {}
     for e in effects:
         out[e] = {}
         for key in params[e]:
             k = where.get((report_name(e), key))
             if k is not None and k in ivs:
                 lo, hi = value_interval(fit.space.params[k], ivs[k])
-                out[e][key] = (lo, hi, ivs[k].method)
+                out[e][key] = (_f(lo), _f(hi), ivs[k].method)
     return out
 
 
