@@ -1008,7 +1008,8 @@ def covers(rec: dict, linearised: bool = False) -> bool:
 def coverage(scores: list[dict]) -> dict:
     """Per effect kind (and ``all``), how often the 95 % intervals of the scored parameters
     hold the truth: the report's intervals and the linearised ones, with Wilson 95 %
-    intervals of the rates, and how many were widened by profile refits. Every parameter
+    intervals of the rates, and how many were widened by refits (``profiled``: profile or
+    jackknife). Every parameter
     counts once; ``cases`` counts the cases behind them (a case's parameters share its
     data: the rate's interval is a per-parameter one)."""
     groups: dict[str, list[tuple[int, dict]]] = {}
@@ -1024,7 +1025,8 @@ def coverage(scores: list[dict]) -> dict:
         out[e] = {"params": n, "cases": len({sd for sd, _ in recs}),
                   "covered": k / n, "covered_ci95": list(wilson(k, n)),
                   "covered_linearised": kl / n, "covered_linearised_ci95": list(wilson(kl, n)),
-                  "profiled": sum(r.get("method") == "profile" for _, r in recs)}
+                  "profiled": sum(r.get("method") in ("profile", "jackknife")
+                                  for _, r in recs)}
     return out
 
 

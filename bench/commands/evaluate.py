@@ -312,6 +312,13 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
     lines.append("  by concealed effect (cases, named, exact):")
     lines += [f"    {e:<22} {v['cases']:>4} {v['named']:>4} {v['exact']:>4}"
               for e, v in s["by_effect"].items()]
+    cov = s.get("coverage", {})
+    if cov:
+        lines.append("  95 % intervals holding the truth (cases named exactly; parameters, "
+                     "report's intervals, value +- 1.96 standard errors, widened by refits):")
+        lines += [f"    {e:<22} {v['params']:>4} {_pct(v['covered']):>7} "
+                  f"{_pct(v['covered_linearised']):>7} {v['profiled']:>4}"
+                  for e, v in cov.items()]
     lines.append("  equilibrium solver per robot (calls, by Newton, energy-descent fallbacks, "
                  "failures):")
     lines += [f"    {r:<12} {v['calls']:>7} {v['newton']:>7} {v['fallbacks']:>5} "
