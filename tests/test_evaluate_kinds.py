@@ -43,7 +43,7 @@ def test_a_logger_case_says_how_its_logger_writes():
 
 
 def test_an_hour_case_lasts_an_hour():
-    case = _case(6, kind="hour", robot="rocaspect")
+    case = _case(6, kind="hour", robot="rocaspect", effects=())
     assert case["case"]["logger"]["rows_hz"] == 50.0
     assert _duration(scenario_of(case)) >= 3000.0
 

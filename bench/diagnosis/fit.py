@@ -1207,23 +1207,25 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
 #: two-sided 95 % quantile of the normal distribution
 Z95 = 1.959963984540054
 #: a free parameter that another one follows by at least this correlation (the fit's
-#: curvature) has its interval checked by profile refits ...
-PROFILE_CORRELATION = 0.9
-#: ... and so has one whose chi-square at an end of its linearised interval (the others
-#: moved as the curvature says they follow it) rises by more than this factor above or below
-#: the rise the curvature predicts there
+#: curvature) nearly trades with it: its interval is checked by the jackknife
+#: (:func:`jackknife`) ...
+JACKKNIFE_CORRELATION = 0.99
+#: ... and one whose chi-square at an end of its linearised interval (the others moved as
+#: the curvature says they follow it) rises by more than this factor above or below the rise
+#: the curvature predicts there is checked by profile refits (the valley is not quadratic)
 PROFILE_NONLINEAR = 1.25
-#: refits of one diagnosis's profile intervals at most (one per end of a parameter: the most
-#: correlated or least linear parameters first; the others keep the linearised interval)
-PROFILE_REFITS = 12
+#: profile refits of one diagnosis at most (one per end of a parameter: the least linear
+#: parameters first; the others keep the linearised interval)
+PROFILE_REFITS = 8
 
 
 @dataclass(frozen=True)
 class Interval:
     """A 95 % interval ``[lo, hi]`` of one fit parameter in fit space (c = 1/k, e = 1/EA)
-    and how it was found: ``linearised`` (the estimate +- 1.96 reported standard errors) or
+    and how it was found: ``linearised`` (the estimate +- 1.96 reported standard errors),
     ``profile`` (an end moved out to where the refit holding the parameter there rises by
-    the chi-square of a 95 % interval, widened only)."""
+    the chi-square of a 95 % interval) or ``jackknife`` (the estimate +- a Student quantile
+    of jackknife standard errors); widened only."""
 
     lo: float
     hi: float
@@ -1239,14 +1241,25 @@ def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0) -> Inter
                     min(float(fit.phi[k]) + Z95 * se, p.hi), "linearised")
 
 
+@dataclass(frozen=True)
+class IntervalCheck:
+    """What :func:`interval_checks` found of one parameter: ``nonlinear`` how far (in
+    factors of :data:`PROFILE_NONLINEAR`, above 1: too far) its chi-square at the
+    linearised ends departs from the curvature's prediction; ``correlation`` the largest
+    with another free parameter."""
+
+    index: int
+    nonlinear: float
+    correlation: float
+
+
 def interval_checks(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
-                    which: np.ndarray) -> list[tuple[float, int]]:
-    """The parameters of ``which`` whose linearised interval needs profile refits, most
-    doubtful first, as ``(doubt, index)``: those another free parameter follows by
-    :data:`PROFILE_CORRELATION` or more under the fit's curvature (a swivel pulley's radius
-    and its cable's exit point), and those whose chi-square at an end of the interval, the
-    others moved as the curvature says, departs from the curvature's prediction by
-    more than :data:`PROFILE_NONLINEAR` (one evaluation per end, no refit)."""
+                    which: np.ndarray) -> list[IntervalCheck]:
+    """For the parameters of ``which`` with a finite error: the largest correlation with
+    another free parameter under the fit's curvature (a swivel pulley's radius and its
+    cable's exit point: -0.997), and how far the chi-square at each end of the linearised
+    interval, the others moved as the curvature says, departs from the curvature's
+    prediction (one evaluation per end, no refit)."""
     C = fit.curvature_cov
     if C is None or not len(which):
         return []
@@ -1262,7 +1275,7 @@ def interval_checks(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
 
 
 def _checks(fit: FitResult, which: np.ndarray, C: np.ndarray,
-            chi2_at: Callable[[np.ndarray], float]) -> list[tuple[float, int]]:
+            chi2_at: Callable[[np.ndarray], float]) -> list[IntervalCheck]:
     """:func:`interval_checks` with the chi-square function ``chi2_at``."""
     space = fit.space
     movable = np.diag(C) > 0
@@ -1276,17 +1289,15 @@ def _checks(fit: FitResult, which: np.ndarray, C: np.ndarray,
         others = movable.copy()
         others[k] = False
         corr = float(np.max(np.abs(C[k, others]) / (sd[k] * sd[others]), initial=0.0))
-        doubt = corr / PROFILE_CORRELATION if corr >= PROFILE_CORRELATION else 0.0
         pred = (Z95 * se) ** 2 / C[k, k]
+        off = 0.0
         for sign in (-1.0, 1.0):
             phi = np.clip(fit.phi + C[:, k] / C[k, k] * sign * Z95 * se, space.lo, space.hi)
             ratio = (chi2_at(phi) - c0) / pred
-            off = abs(math.log(ratio)) / math.log(PROFILE_NONLINEAR) if ratio > 0 else np.inf
-            if off > 1.0:
-                doubt = max(doubt, off)
-        if doubt > 0:
-            out.append((float(doubt), int(k)))
-    return sorted(out, reverse=True)
+            off = max(off, abs(math.log(ratio)) / math.log(PROFILE_NONLINEAR) if ratio > 0
+                      else np.inf)
+        out.append(IntervalCheck(int(k), off, corr))
+    return out
 
 
 def held_at(space: ParamSpace, values: np.ndarray) -> ParamSpace:
@@ -1312,28 +1323,58 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
                          say: Callable[[str], None] | None = None) -> dict[int, Interval]:
     """95 % intervals of the parameters ``which`` of ``fit`` (on the samples ``idx``).
 
-    Each starts linearised (:func:`linearised_interval`). Where that is in doubt
-    (:func:`interval_checks`: correlated parameters, a chi-square that is not quadratic),
-    each end is checked by a profile refit: the parameter held at the end, the others
-    refitted from where the curvature moves them. The chi-square of a 95 % interval there
-    is the rise the curvature predicts at the linearised end, ``(1.96 se)^2 / C_kk``
-    (``C`` the curvature covariance: 3.84 times the variance the reported error adds to
-    the curvature's); a refit that rises by less (a flat or curved valley) moves the end
-    out to where a quadratic through its rise reaches it (within the bounds). An interval
-    is widened, never narrowed. At most :data:`PROFILE_REFITS` refits, on ``pool`` (an
-    executor) where there is one."""
+    Each starts linearised (:func:`linearised_interval`), and is widened (never narrowed)
+    where that is in doubt (:func:`interval_checks`):
+
+    - a chi-square that is not quadratic: each end is checked by a profile refit, the
+      parameter held at the end, the others refitted from where the curvature moves them.
+      The chi-square of a 95 % interval there is the rise the curvature predicts at the
+      linearised end, ``(1.96 se)^2 / C_kk`` (``C`` the curvature covariance: 3.84 times
+      the variance the reported error adds to the curvature's); a refit that rises by less
+      (a flat or curved valley) moves the end out to where a quadratic through its rise
+      reaches it (within the bounds). At most :data:`PROFILE_REFITS` refits;
+    - a parameter that nearly trades with another (correlation of at least
+      :data:`JACKKNIFE_CORRELATION`): the estimate +- a Student quantile of its jackknife
+      standard error (:func:`jackknife`, one refit per group of blocks), where that reaches
+      further. Along the shared direction of the two, a small error of the model of the
+      residuals' errors is a large one of the parameters, and the curvature's valley is
+      quadratic there all the same (the profile of a swivel pulley's radius beside its
+      cable's exit point rose within 0.3 % of the curvature's prediction at 1.96 and at
+      4.3 standard errors).
+
+    The refits run on ``pool`` (an executor) where there is one."""
     say = say or (lambda m: None)
     ev = np.zeros(len(fit.phi)) if extra_var is None else extra_var
     out = {int(k): linearised_interval(fit, int(k), float(ev[k])) for k in which}
-    doubtful = [k for _, k in interval_checks(fit, rm, idx, np.asarray(which, dtype=int))]
-    doubtful = doubtful[:PROFILE_REFITS // 2]
-    if not doubtful:
-        return out
+    checks = interval_checks(fit, rm, idx, np.asarray(which, dtype=int))
+    curved = [c.index for c in sorted(checks, key=lambda c: -c.nonlinear) if c.nonlinear > 1.0]
+    curved = curved[:PROFILE_REFITS // 2]
+    if curved:
+        _widen_by_profiles(fit, rm, idx, curved, out, pool, say)
+    trading = [c.index for c in checks if c.correlation >= JACKKNIFE_CORRELATION]
+    if trading:
+        jk = jackknife(fit, rm, idx, pool, say)
+        if jk is not None:
+            se_jk, t = jk
+            for k in trading:
+                p, iv = fit.space.params[k], out[k]
+                lo = max(float(fit.phi[k]) - t * se_jk[k], p.lo)
+                hi = min(float(fit.phi[k]) + t * se_jk[k], p.hi)
+                if lo < iv.lo or hi > iv.hi:
+                    out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi), "jackknife")
+    return out
+
+
+def _widen_by_profiles(fit: FitResult, rm: ResidualModel, idx: np.ndarray, ks: list[int],
+                       out: dict[int, Interval], pool: object,
+                       say: Callable[[str], None]) -> None:
+    """The profile refits of :func:`confidence_intervals` for the parameters ``ks``: their
+    intervals in ``out`` widened in place."""
     space, C = fit.space, fit.curvature_cov
     assert C is not None
     movable = np.diag(C) > 0
     jobs = []
-    for k in doubtful:
+    for k in ks:
         iv = out[k]
         for end in (iv.lo, iv.hi):
             phi0 = np.clip(fit.phi + C[:, k] / C[k, k] * (end - fit.phi[k]), space.lo, space.hi)
@@ -1342,7 +1383,7 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
             hold[k] = True
             jobs.append((k, end, held_at(space, np.where(hold, phi0, space.neutral)), phi0,
                          hold))
-    say(f"checking the intervals of {len(doubtful)} parameters by {len(jobs)} profile refits")
+    say(f"checking the intervals of {len(ks)} parameters by {len(jobs)} profile refits")
     if pool is not None and len(jobs) > 1:
         futs = [pool.submit(_profile_job, sp, rm, idx, phi0, hold)  # type: ignore[attr-defined]
                 for _, _, sp, phi0, hold in jobs]
@@ -1356,16 +1397,6 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
         iv = out[k]
         out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi),
                           "profile" if lo < iv.lo or hi > iv.hi else "linearised")
-    jk = jackknife(fit, rm, idx, pool, say)
-    if jk is not None:
-        se_jk, t = jk
-        for k in doubtful:
-            p, iv = space.params[k], out[k]
-            lo = max(float(fit.phi[k]) - t * se_jk[k], p.lo)
-            hi = min(float(fit.phi[k]) + t * se_jk[k], p.hi)
-            if lo < iv.lo or hi > iv.hi:
-                out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi), "jackknife")
-    return out
 
 
 #: groups of blocks (a target with its visits, or one move) the jackknife leaves out in turn
