@@ -12,7 +12,9 @@ from bench.diagnosis.fit import (
     Z95,
     FitResult,
     Interval,
+    _memo_key,
     _profile_end,
+    held_at,
     linearised_interval,
     value_interval,
 )
@@ -78,6 +80,28 @@ def test_profile_end_moves_out_only_where_the_refit_rises_less_than_the_curvatur
     assert _profile_end(fit, 0, lo_end, _refit(fit, target / 4)) == pytest.approx(
         0.06 - 2 * (0.06 - lo_end))
     assert _profile_end(fit, 0, lo_end, _refit(fit, target / 1000)) == 0.0
+
+
+def test_a_profile_refit_holds_its_parameter_at_the_end_not_at_the_models_value():
+    """A fit's ``hold`` keeps a parameter at its space's ``neutral``: the profile's space
+    (:func:`held_at`) moves that to the end, and the fits' memo tells the two apart (a
+    profile refit once held the radius at the model's value at every end: its chi-square
+    rose by 2170 wherever the end was)."""
+    space = ParamSpace(resolve_robot("ipanema"), ("pulley_kinematics",))
+    values = space.neutral.copy()
+    values[0] = 0.07
+    held = held_at(space, values)
+    assert held.neutral[0] == 0.07 and space.neutral[0] == 0.05
+    assert held.robot(values).pulley_radius[0] == pytest.approx(0.07)
+
+    class _RM:  # what the memo key reads of a residual model
+        s = slip_times = sqrt_w = len_rank = reference = None
+        sd: dict = {}
+        visit_sd = slack_threshold = cells_at = None
+
+    idx, hold = np.arange(3), np.ones(len(space), dtype=bool)
+    assert _memo_key(space, _RM(), idx, values, 10, hold, False) != _memo_key(
+        held, _RM(), idx, values, 10, hold, False)
 
 
 def test_a_stiffness_interval_is_the_inverse_of_its_compliance_interval():
