@@ -373,7 +373,7 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
         from controller.robot import RobotFileError, resolve_robot
 
         try:
-            if args.robot != "mix":
+            if args.robot not in ("mix", "mix_new"):
                 resolve_robot(args.robot)
         except RobotFileError as e:
             raise UsageError(f"--robot: {e}") from e
