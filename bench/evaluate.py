@@ -269,8 +269,10 @@ def _strengthen(effect: str, params: dict[str, float], model: Robot) -> dict[str
     neutral = _neutral(model)
     out = {}
     for k, v in params.items():
-        # (every cable's E*A at once: the model's mean)
-        n0 = neutral.get(k, float(np.mean(model.ea)) if k == "ea" else 0.0)
+        # (every cable's E*A at once: the model's mean, as draw_effect takes it)
+        finite = model.ea[np.isfinite(model.ea)]
+        n0 = neutral.get(k, (float(np.mean(finite)) if len(finite) else 6.0e5) if k == "ea"
+                         else 0.0)
         if effect == "mast_compliance":
             out[k] = max(v / 1.5, 1e4)
         elif k.startswith("ea"):
