@@ -375,7 +375,7 @@ SHIPPED = {
 
 def shipped_robot_path(name: str) -> Path:
     """Path of a description shipped with the package (``rocaspect``, ``rocaspect-remeasured``,
-    ``cogiro``, ``ipanema``)."""
+    ``cogiro``, ``ipanema``, ``hexa6``)."""
     fname = SHIPPED.get(name)
     if fname is None:
         raise RobotFileError(f"{name}: no such shipped robot (known: {', '.join(SHIPPED)})")
