@@ -377,12 +377,13 @@ SHIPPED = {
     "rocaspect-remeasured": "rocaspect_remeasured.toml",
     "cogiro": "cogiro.toml",
     "ipanema": "ipanema.toml",
+    "hexa6": "hexa6.toml",
 }
 
 
 def shipped_robot_path(name: str) -> Path:
     """Path of a description shipped with the package (``rocaspect``, ``rocaspect-remeasured``,
-    ``cogiro``, ``ipanema``)."""
+    ``cogiro``, ``ipanema``, ``hexa6``)."""
     fname = SHIPPED.get(name)
     if fname is None:
         raise RobotFileError(f"{name}: no such shipped robot (known: {', '.join(SHIPPED)})")

@@ -54,13 +54,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="conceal exactly these effects in every case ('none': no effect); "
                         "default: a random mix of 0 to 2 per case")
     p.add_argument("--robot", default="mix",
-                   help="model of every case: shipped name or robot.toml path; 'mix': "
-                        "ROCASPECT, CoGiRo- and IPAnema-class robots, half of them with a "
-                        "perturbed geometry [mix]")
+                   help="model of every case: shipped name (e.g. hexa6, six cables) or "
+                        "robot.toml path; 'mix': ROCASPECT, CoGiRo- and IPAnema-class robots, "
+                        "half of them with a perturbed geometry; 'mix_new': the IPAnema-class "
+                        "rigid frame with swivel pulleys of radii that differ cable by cable, "
+                        "or the six-cable hexa6, half of them perturbed [mix]")
     p.add_argument("--kind", default="mix", choices=("mix", "dwell", "continuous",
-                                                     "continuous_dwell"),
+                                                     "continuous_dwell", "logger", "hour",
+                                                     "load_change", "new"),
                    help="recording kind: dwells with replicate visits, continuous rows along "
-                        "moves (without or with dwells at the targets) [mix]")
+                        "moves (without or with dwells at the targets) [mix: one of these]; "
+                        "drawn only when asked: logger (streams at their own rates with "
+                        "gaps, as a bench's logger writes them), hour (the same, an hour "
+                        "long), load_change (dwells, the platform's load changed after the "
+                        "first visit: physics outside the vocabulary), new (one of these "
+                        "three)")
     p.add_argument("--sensors", default="mix", choices=("mix", "all", "no_tensions",
                                                         "no_tracker"),
                    help="column groups the recordings hold [mix]")
@@ -304,6 +312,13 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
     lines.append("  by concealed effect (cases, named, exact):")
     lines += [f"    {e:<22} {v['cases']:>4} {v['named']:>4} {v['exact']:>4}"
               for e, v in s["by_effect"].items()]
+    cov = s.get("coverage", {})
+    if cov:
+        lines.append("  95 % intervals holding the truth (cases named exactly; parameters, "
+                     "report's intervals, value +- 1.96 standard errors, widened by refits):")
+        lines += [f"    {e:<22} {v['params']:>4} {_pct(v['covered']):>7} "
+                  f"{_pct(v['covered_linearised']):>7} {v['profiled']:>4}"
+                  for e, v in cov.items()]
     lines.append("  equilibrium solver per robot (calls, by Newton, energy-descent fallbacks, "
                  "failures):")
     lines += [f"    {r:<12} {v['calls']:>7} {v['newton']:>7} {v['fallbacks']:>5} "
@@ -358,7 +373,7 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
         from controller.robot import RobotFileError, resolve_robot
 
         try:
-            if args.robot != "mix":
+            if args.robot not in ("mix", "mix_new"):
                 resolve_robot(args.robot)
         except RobotFileError as e:
             raise UsageError(f"--robot: {e}") from e

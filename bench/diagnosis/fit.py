@@ -7,7 +7,9 @@ from the whitened Jacobian at the solution.
 
 from __future__ import annotations
 
+import copy
 import hashlib
+import math
 import weakref
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
@@ -171,7 +173,7 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     start, what is held, the budget, the residual model's noise (its whitening) and this
     module's settings. Not the residual model's warm starts: they only shorten the path."""
     h = hashlib.blake2b(digest_size=20)
-    for a in (idx, phi0, hold, rm.slip_times, rm.sqrt_w, rm.len_rank, rm.reference,
+    for a in (idx, phi0, hold, space.neutral, rm.slip_times, rm.sqrt_w, rm.len_rank, rm.reference,
               *(rm.sd[k] for k in sorted(rm.sd))):
         if a is None:
             h.update(b"-")
@@ -1198,3 +1200,266 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     if np.any(level <= 0):
         return plain
     return theta
+
+
+# ----- 95 % intervals -----------------------------------------------------------------------
+
+#: two-sided 95 % quantile of the normal distribution
+Z95 = 1.959963984540054
+#: a free parameter that another one follows by at least this correlation (the fit's
+#: curvature) nearly trades with it: its interval is checked by the jackknife
+#: (:func:`jackknife`) ...
+JACKKNIFE_CORRELATION = 0.99
+#: ... and one whose chi-square at an end of its linearised interval (the others moved as
+#: the curvature says they follow it) rises by more than this factor above or below the rise
+#: the curvature predicts there is checked by profile refits (the valley is not quadratic)
+PROFILE_NONLINEAR = 1.25
+#: profile refits of one diagnosis at most (one per end of a parameter: the least linear
+#: parameters first; the others keep the linearised interval)
+PROFILE_REFITS = 8
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A 95 % interval ``[lo, hi]`` of one fit parameter in fit space (c = 1/k, e = 1/EA)
+    and how it was found: ``linearised`` (the estimate +- 1.96 reported standard errors),
+    ``profile`` (an end moved out to where the refit holding the parameter there rises by
+    the chi-square of a 95 % interval) or ``jackknife`` (the estimate +- a Student quantile
+    of jackknife standard errors); widened only."""
+
+    lo: float
+    hi: float
+    method: str
+
+
+def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0) -> Interval:
+    """The estimate +- :data:`Z95` reported standard errors (with ``extra_var``, fit units
+    squared: an uncertainty the fit cannot see), within the parameter's bounds."""
+    se = math.sqrt(float(fit.reported_stderr[k]) ** 2 + extra_var)
+    p = fit.space.params[k]
+    return Interval(max(float(fit.phi[k]) - Z95 * se, p.lo),
+                    min(float(fit.phi[k]) + Z95 * se, p.hi), "linearised")
+
+
+@dataclass(frozen=True)
+class IntervalCheck:
+    """What :func:`interval_checks` found of one parameter: ``nonlinear`` how far (in
+    factors of :data:`PROFILE_NONLINEAR`, above 1: too far) its chi-square at the
+    linearised ends departs from the curvature's prediction; ``correlation`` the largest
+    with another free parameter."""
+
+    index: int
+    nonlinear: float
+    correlation: float
+
+
+def interval_checks(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
+                    which: np.ndarray) -> list[IntervalCheck]:
+    """For the parameters of ``which`` with a finite error: the largest correlation with
+    another free parameter under the fit's curvature (a swivel pulley's radius and its
+    cable's exit point: -0.997), and how far the chi-square at each end of the linearised
+    interval, the others moved as the curvature says, departs from the curvature's
+    prediction (one evaluation per end, no refit)."""
+    C = fit.curvature_cov
+    if C is None or not len(which):
+        return []
+    space = fit.space
+    lik = StretchLikelihood(rm, idx)
+
+    def chi2_at(phi: np.ndarray) -> float:
+        r = lik.residuals(space.robot(phi))
+        return float(r @ r)
+
+    with rm.cold():  # (the warm starts of what follows left as they were)
+        return _checks(fit, which, C, chi2_at)
+
+
+def _checks(fit: FitResult, which: np.ndarray, C: np.ndarray,
+            chi2_at: Callable[[np.ndarray], float]) -> list[IntervalCheck]:
+    """:func:`interval_checks` with the chi-square function ``chi2_at``."""
+    space = fit.space
+    movable = np.diag(C) > 0
+    sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    c0 = chi2_at(fit.phi)
+    out = []
+    for k in which:
+        se = float(fit.reported_stderr[k])
+        if not movable[k] or not (np.isfinite(se) and se > 0):
+            continue
+        others = movable.copy()
+        others[k] = False
+        corr = float(np.max(np.abs(C[k, others]) / (sd[k] * sd[others]), initial=0.0))
+        pred = (Z95 * se) ** 2 / C[k, k]
+        off = 0.0
+        for sign in (-1.0, 1.0):
+            phi = np.clip(fit.phi + C[:, k] / C[k, k] * sign * Z95 * se, space.lo, space.hi)
+            ratio = (chi2_at(phi) - c0) / pred
+            off = max(off, abs(math.log(ratio)) / math.log(PROFILE_NONLINEAR) if ratio > 0
+                      else np.inf)
+        out.append(IntervalCheck(int(k), off, corr))
+    return out
+
+
+def held_at(space: ParamSpace, values: np.ndarray) -> ParamSpace:
+    """``space`` whose held parameters are held at ``values`` (fit space) in place of the
+    model's values: a fit's ``hold`` keeps a parameter at its space's ``neutral``."""
+    out = copy.copy(space)
+    out.neutral = np.asarray(values, dtype=float).copy()
+    return out
+
+
+def _profile_job(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray,
+                 hold: np.ndarray) -> FitResult:
+    """One profile refit (a plain function for the process pool)."""
+    from bench.parallel import job_running
+
+    with job_running():
+        return fit_effects(space, rm, idx, phi0, hold=hold, prune=False)
+
+
+def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
+                         which: np.ndarray, extra_var: np.ndarray | None = None,
+                         pool: object = None,
+                         say: Callable[[str], None] | None = None) -> dict[int, Interval]:
+    """95 % intervals of the parameters ``which`` of ``fit`` (on the samples ``idx``).
+
+    Each starts linearised (:func:`linearised_interval`), and is widened (never narrowed)
+    where that is in doubt (:func:`interval_checks`):
+
+    - a chi-square that is not quadratic: each end is checked by a profile refit, the
+      parameter held at the end, the others refitted from where the curvature moves them.
+      The chi-square of a 95 % interval there is the rise the curvature predicts at the
+      linearised end, ``(1.96 se)^2 / C_kk`` (``C`` the curvature covariance: 3.84 times
+      the variance the reported error adds to the curvature's); a refit that rises by less
+      (a flat or curved valley) moves the end out to where a quadratic through its rise
+      reaches it (within the bounds). At most :data:`PROFILE_REFITS` refits;
+    - a parameter that nearly trades with another (correlation of at least
+      :data:`JACKKNIFE_CORRELATION`): the estimate +- a Student quantile of its jackknife
+      standard error (:func:`jackknife`, one refit per group of blocks), where that reaches
+      further. Along the shared direction of the two, a small error of the model of the
+      residuals' errors is a large one of the parameters, and the curvature's valley is
+      quadratic there all the same (the profile of a swivel pulley's radius beside its
+      cable's exit point rose within 0.3 % of the curvature's prediction at 1.96 and at
+      4.3 standard errors).
+
+    The refits run on ``pool`` (an executor) where there is one."""
+    say = say or (lambda m: None)
+    ev = np.zeros(len(fit.phi)) if extra_var is None else extra_var
+    out = {int(k): linearised_interval(fit, int(k), float(ev[k])) for k in which}
+    checks = interval_checks(fit, rm, idx, np.asarray(which, dtype=int))
+    curved = [c.index for c in sorted(checks, key=lambda c: -c.nonlinear) if c.nonlinear > 1.0]
+    curved = curved[:PROFILE_REFITS // 2]
+    if curved:
+        _widen_by_profiles(fit, rm, idx, curved, out, pool, say)
+    trading = [c.index for c in checks if c.correlation >= JACKKNIFE_CORRELATION]
+    if trading:
+        jk = jackknife(fit, rm, idx, pool, say)
+        if jk is not None:
+            se_jk, t = jk
+            for k in trading:
+                p, iv = fit.space.params[k], out[k]
+                lo = max(float(fit.phi[k]) - t * se_jk[k], p.lo)
+                hi = min(float(fit.phi[k]) + t * se_jk[k], p.hi)
+                if lo < iv.lo or hi > iv.hi:
+                    out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi), "jackknife")
+    return out
+
+
+def _widen_by_profiles(fit: FitResult, rm: ResidualModel, idx: np.ndarray, ks: list[int],
+                       out: dict[int, Interval], pool: object,
+                       say: Callable[[str], None]) -> None:
+    """The profile refits of :func:`confidence_intervals` for the parameters ``ks``: their
+    intervals in ``out`` widened in place."""
+    space, C = fit.space, fit.curvature_cov
+    assert C is not None
+    movable = np.diag(C) > 0
+    jobs = []
+    for k in ks:
+        iv = out[k]
+        for end in (iv.lo, iv.hi):
+            phi0 = np.clip(fit.phi + C[:, k] / C[k, k] * (end - fit.phi[k]), space.lo, space.hi)
+            phi0[k] = end
+            hold = ~movable
+            hold[k] = True
+            jobs.append((k, end, held_at(space, np.where(hold, phi0, space.neutral)), phi0,
+                         hold))
+    say(f"checking the intervals of {len(ks)} parameters by {len(jobs)} profile refits")
+    if pool is not None and len(jobs) > 1:
+        futs = [pool.submit(_profile_job, sp, rm, idx, phi0, hold)  # type: ignore[attr-defined]
+                for _, _, sp, phi0, hold in jobs]
+        fits = [f.result() for f in futs]
+    else:
+        fits = [_profile_job(sp, rm, idx, phi0, hold) for _, _, sp, phi0, hold in jobs]
+    ends: dict[int, list[float]] = {}
+    for (k, end, _, _, _), res in zip(jobs, fits, strict=True):
+        ends.setdefault(k, []).append(_profile_end(fit, k, end, res))
+    for k, (lo, hi) in ends.items():
+        iv = out[k]
+        out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi),
+                          "profile" if lo < iv.lo or hi > iv.hi else "linearised")
+
+
+#: groups of blocks (a target with its visits, or one move) the jackknife leaves out in turn
+JACKKNIFE_GROUPS = 8
+
+
+def jackknife(fit: FitResult, rm: ResidualModel, idx: np.ndarray, pool: object = None,
+              say: Callable[[str], None] | None = None) -> tuple[np.ndarray, float] | None:
+    """Delete-a-group jackknife standard errors of ``fit``'s free parameters and the
+    Student quantile of its 95 % interval: the blocks of the samples ``idx`` (a target with
+    its visits, or one move; the initialisation always kept) dealt into
+    :data:`JACKKNIFE_GROUPS` groups, each left out by one refit from ``fit`` (what ``fit``
+    holds held where it is). The spread of the refits is what the data's own errors do to
+    the estimate, whatever their model: where parameters nearly trade (a swivel pulley's
+    radius and its cable's exit point, correlation -0.997), a small error of the model of
+    the residuals' errors is a large one along their shared direction. None with fewer than
+    4 blocks or refits."""
+    from scipy.stats import t as student
+
+    s = rm.s
+    blocks, init = s.block[idx], s.is_init[idx]
+    ub = np.unique(blocks[~init])
+    G = min(JACKKNIFE_GROUPS, len(ub))
+    if G < 4 or fit.curvature_cov is None:
+        return None
+    hold = ~(np.diag(fit.curvature_cov) > 0)
+    space = held_at(fit.space, np.where(hold, fit.phi, fit.space.neutral))
+    subsets = [idx[~(np.isin(blocks, ub[g::G]) & ~init)] for g in range(G)]
+    (say or (lambda m: None))(f"jackknife: {G} refits, each without a group of blocks")
+    if pool is not None:
+        futs = [pool.submit(_profile_job, space, rm, sub, fit.phi, hold)  # type: ignore[attr-defined]
+                for sub in subsets]
+        fits = [f.result() for f in futs]
+    else:
+        fits = [_profile_job(space, rm, sub, fit.phi, hold) for sub in subsets]
+    th = np.array([f.phi for f in fits if f.success])
+    n = len(th)
+    if n < 4:
+        return None
+    var = (n - 1) / n * np.sum((th - th.mean(axis=0)) ** 2, axis=0)
+    return np.sqrt(var), float(student.ppf(0.975, n - 1))
+
+
+def _profile_end(fit: FitResult, k: int, end: float, res: FitResult) -> float:
+    """Where the 95 % chi-square of parameter ``k`` is reached on the side of ``end``, from
+    the profile refit ``res`` holding it at ``end``: ``end`` itself where the refit rises by
+    at least the curvature's prediction (or did not converge), else further out along a
+    quadratic through the minimum and the refit's rise, within the parameter's bounds."""
+    p = fit.space.params[k]
+    C = fit.curvature_cov
+    d = end - float(fit.phi[k])
+    if C is None or d == 0 or not res.success:
+        return end
+    target = d * d / C[k, k]
+    rise = res.chi2 - fit.chi2
+    if rise >= target:
+        return end
+    far = float(fit.phi[k]) + d * (math.sqrt(target / rise) if rise > 0 else np.inf)
+    return float(np.clip(far, p.lo, p.hi))
+
+
+def value_interval(p, iv: Interval) -> tuple[float, float]:
+    """An interval of fit space as the parameter's values ``(lo, hi)`` in the conventions'
+    units (a stiffness k = 1/c: the ends swap; an end at c <= 0 is an infinite stiffness)."""
+    a, b = p.to_value(iv.lo), p.to_value(iv.hi)
+    return (min(a, b), max(a, b))

@@ -184,6 +184,34 @@ def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | N
     return params, errs, undet
 
 
+def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects: list[str],
+                     params: dict[str, dict], floor_var: np.ndarray, pool: Executor | None,
+                     say: Progress) -> dict[str, dict[str, tuple[float | None, float | None,
+                                                                  str]]]:
+    """Per chosen candidate, the 95 % interval of each reported parameter (``params``) in
+    the conventions' units and how it was found (:func:`bench.diagnosis.fit.
+    confidence_intervals`: linearised, or widened by profile refits where parameters
+    correlate or the chi-square is not quadratic); ``floor_var`` as in
+    :func:`effect_entries`, in the interval. An unbounded end (a stiffness as rigid as the
+    data allow) is None."""
+    from bench.diagnosis.fit import confidence_intervals, value_interval
+
+    where = {(report_name(e), fit.space.params[k].key): int(k)
+             for e in effects for k in fit.space.indices(e)}
+    which = np.array(sorted({where[(report_name(e), key)] for e in effects
+                             for key in params[e] if (report_name(e), key) in where}), dtype=int)
+    ivs = confidence_intervals(fit, rm, idx, which, floor_var, pool, say) if len(which) else {}
+    out: dict[str, dict[str, tuple[float | None, float | None, str]]] = {}
+    for e in effects:
+        out[e] = {}
+        for key in params[e]:
+            k = where.get((report_name(e), key))
+            if k is not None and k in ivs:
+                lo, hi = value_interval(fit.space.params[k], ivs[k])
+                out[e][key] = (_f(lo), _f(hi), ivs[k].method)
+    return out
+
+
 #: an effect whose parameters jointly differ from the model at this p-value (Wald) ...
 JOINT_P = 1e-6
 #: ... names the fewest parameters that leave the rest consistent with the model at this one
@@ -775,6 +803,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         floor = _reference_var(rm, final)
         params, errs, undet = effect_entries(final, sel.effects, floor)
     sel.fit = final
+    intervals = effect_intervals(final, rm, fit_idx, sel.effects, params, floor, pool, say)
     fitted = cleaned_robot(final)
     say("fitted: equilibrium of every sample under the corrected model")
     fit_fw = rm.forward(fitted)
@@ -811,6 +840,8 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
             "name": name,
             "params": params[e],
             "stderr": errs[e],
+            "interval95": {k: list(v[:2]) for k, v in intervals[e].items()},
+            "interval_method": {k: v[2] for k, v in intervals[e].items()},
             "explains": EXPLAINS[name],
             "evidence": {"heldout_pose_rms_before_m": before,
                          "heldout_pose_rms_after_m": after,
