@@ -11,6 +11,7 @@ the loop as events of the run.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,15 +46,31 @@ class LoopLearner:
     (the simulated plant settles at its own rate: while moving, the fix, the lengths and the
     tensions are of different instants; measured on paper-centre, 10 to 20 mm of length
     residual at 0.1 m/s even under the true robot); ``correlated``: the hand-over's
-    correlation limit (:meth:`~controller.online_ident.ModelHandover.target`)."""
+    correlation limit (:meth:`~controller.online_ident.ModelHandover.target`);
+    ``use_tracker``: False learns from tensions and encoders only (the commanded pose stands
+    for the pose, :class:`~controller.online_ident.Measurement` ``tracked=False``: the
+    residual's ``n - 6`` directions a pose error cannot produce), whatever the tracker
+    gives (it may still serve the loop's initialisation and the recording);
+    ``state_time``: the time [s, the readings' clock] of the platform state the readings
+    are of (the simulated plant's last settle, :attr:`firmware_sim.rig.SimRig.last`): when
+    given, samples are kept while moving too, at the cycles whose readings are of a settled
+    state (quasi-static samples of the moving platform: their length residual under the
+    true robot is that at rest, 0.6 mm RMS on paper-centre at 0.5 m/s, against 7 mm for
+    the cycles between two settles); without it, only at rest (``still_s``)."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
-                 still_s: float = 0.3, correlated: float = 0.5) -> None:
+                 still_s: float = 0.3, correlated: float = 0.5,
+                 rate_compliance: float = 2e-6,
+                 use_tracker: bool = True,
+                 state_time: Callable[[], float] | None = None) -> None:
         self.tracker = tracker
+        self.state_time = state_time
+        self.use_tracker = bool(use_tracker)
         self.period_s = float(period_s)
         self.options = options
         self.rate_offset = rate_offset
+        self.rate_compliance = rate_compliance
         self.correlated = float(correlated)
         self.sync_s = float(sync_s)
         self.still_s = float(still_s)
@@ -73,6 +90,7 @@ class LoopLearner:
         self.ident = OnlineIdentifier(ctl.robot, ctl.init_pose, readings,
                                       reference=ctl.reference, options=self.options)
         self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
+                                  rate_compliance=self.rate_compliance,
                                   correlated=self.correlated)
 
     def __call__(self, t: float, r, pose_des: np.ndarray,
@@ -82,25 +100,39 @@ class LoopLearner:
         if self.ident is None:
             self._start(ctl)
             self._next = t + self.period_s
-        tr = self.tracker.read()
-        # a fix of the plant as of this cycle's readings (the tracker measures the pose the
-        # plant settled in for these lengths and tensions: an older fix is of other lengths)
-        now = abs(tr.t_s - r.t_s) <= self.sync_s
         moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
         self._last_des = np.array(pose_des, float)
         if moved:
             self._still_since = t
-        still = t - self._still_since >= self.still_s
-        if tr.valid and now and still and tr.t_s > self._last_fix and np.all(np.isfinite(tr.pose)) \
-                and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
-            self._last_fix = tr.t_s
-            self._last_kept = t
-            self._batch.append(Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
-                                           np.array(r.lengths_m), True, t))
+        if self.state_time is not None:
+            still = abs(self.state_time() - r.t_s) <= self.sync_s
+        else:
+            still = t - self._still_since >= self.still_s
+        if still and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
+            m = self._sample(t, r, pose_des)
+            if m is not None:
+                self._last_kept = t
+                self._batch.append(m)
         if t < self._next:
             return []
         self._next = t + self.period_s
         return self._learn(t, ctl)
+
+    def _sample(self, t: float, r, pose_des: np.ndarray) -> Measurement | None:
+        """This cycle's sample: with the tracker, its fix when it is of the plant as of this
+        cycle's readings (the tracker measures the pose the plant settled in for these
+        lengths and tensions: an older fix is of other lengths), else none; without, the
+        commanded pose."""
+        if not self.use_tracker:
+            return Measurement(np.array(pose_des, float), np.array(r.tensions_N),
+                               np.array(r.lengths_m), False, t)
+        tr = self.tracker.read()
+        if not (tr.valid and abs(tr.t_s - r.t_s) <= self.sync_s and tr.t_s > self._last_fix
+                and np.all(np.isfinite(tr.pose))):
+            return None
+        self._last_fix = tr.t_s
+        return Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
+                           np.array(r.lengths_m), True, t)
 
     def _learn(self, t: float, ctl: LengthController) -> list[tuple[str, str]]:
         s, out = self.summary, []

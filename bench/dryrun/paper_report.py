@@ -116,7 +116,7 @@ def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOp
         goals["best_is_centre_path_centre_init"] = order[0] == ("centre", "centre")
         goals["paper_order"] = ["centre path, centre init", "centre path, side init",
                                 "side path, side init", "side path, centre init"]
-    for m in ("compliant", "diagnosed"):
+    for m in ("compliant", "diagnosed", "learned", "learned_untracked"):
         cuts = [c.get(f"at_max_cut_{m}") for c in cases]
         if m in opt.models and cuts and all(v is not None for v in cuts):
             goals[f"min_at_max_cut_{m}"] = min(cuts)
