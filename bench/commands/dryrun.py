@@ -582,6 +582,11 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                                tick=tick, on_event=on_event,
                                on_progress=_progress_printer(args.quiet, args.duration), stop=stop,
                                on_cycle=learner)
+            if learner is not None:  # its identifiability said before the platform moves
+                learner.trajectory = lambda: loop.trajectory
+                rig = getattr(world, "rig", None)
+                if rig is not None:  # quasi-static samples at the plant's settles
+                    learner.state_time = lambda: rig.last.t_s
             res = loop.run()
         finally:
             if injector is not None:

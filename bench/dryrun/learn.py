@@ -17,8 +17,47 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller.cycle import LengthController
-from controller.online_ident import IdentOptions, Measurement, ModelHandover, OnlineIdentifier
+from controller.online_ident import (
+    IdentOptions,
+    Measurement,
+    ModelHandover,
+    OnlineIdentifier,
+    planned_samples,
+)
 from controller.robot import Robot
+
+#: [s] between two poses of a trajectory in :func:`path_identifiability`
+IDENT_STEP_S = 1.0
+
+
+def path_identifiability(ident: OnlineIdentifier, trajectory, step_s: float = IDENT_STEP_S
+                         ) -> dict[str, dict]:
+    """What a trajectory can fix, before it runs: the Fisher information
+    (:meth:`~controller.online_ident.OnlineIdentifier.fisher`) of its poses every ``step_s``
+    [s] with the tensions and lengths of the current estimate
+    (:func:`~controller.online_ident.planned_samples`), with the tracker's fixes and
+    without (tensions and encoders only). ``{"tracker"|"no_tracker": {"determined" (count),
+    "parameters" (count), "rank", "undetermined" [names]}}``."""
+    t = np.arange(0.0, trajectory.duration_s + 1e-9, step_s)
+    poses = np.asarray(trajectory.sample(t).pose, float).reshape(-1, 6)
+    out = {}
+    for key, tracked in (("tracker", True), ("no_tracker", False)):
+        fi = ident.fisher(planned_samples(ident, poses, tracked))
+        out[key] = {"determined": int(np.sum(fi.determined)), "parameters": len(fi.names),
+                    "rank": fi.rank, "undetermined": fi.undetermined()}
+    return out
+
+
+def identifiability_text(idf: dict[str, dict]) -> str:
+    """One line per case of :func:`path_identifiability`."""
+    lines = []
+    for key, what in (("tracker", "with the tracker"), ("no_tracker", "without it")):
+        d = idf[key]
+        und = d["undetermined"]
+        names = ", ".join(und[:12]) + (f" and {len(und) - 12} more" if len(und) > 12 else "")
+        lines.append(f"{what}: {d['determined']} of {d['parameters']} parameters determined "
+                     f"(rank {d['rank']}){'; not: ' + names if und else ''}")
+    return "; ".join(lines)
 
 
 @dataclass
@@ -56,14 +95,21 @@ class LoopLearner:
     given, samples are kept while moving too, at the cycles whose readings are of a settled
     state (quasi-static samples of the moving platform: their length residual under the
     true robot is that at rest, 0.6 mm RMS on paper-centre at 0.5 m/s, against 7 mm for
-    the cycles between two settles); without it, only at rest (``still_s``)."""
+    the cycles between two settles); without it, only at rest (``still_s``);
+    ``threaded``: the estimator's updates run on a thread of their own
+    (:class:`_EstimatorThread`), not in the cycle: the cycle hands the period's samples
+    over and, at the same period, moves the hand-over toward the estimate of the last
+    update the thread finished (under its lock; while an update is in progress the
+    hand-over waits for the next period: the cycle never waits for the estimator).
+    :meth:`close` ends the thread."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
                  still_s: float = 0.3, correlated: float = 0.5,
                  rate_compliance: float = 2e-6,
                  use_tracker: bool = True,
-                 state_time: Callable[[], float] | None = None) -> None:
+                 state_time: Callable[[], float] | None = None,
+                 threaded: bool = False) -> None:
         self.tracker = tracker
         self.state_time = state_time
         self.use_tracker = bool(use_tracker)
@@ -84,6 +130,13 @@ class LoopLearner:
         self._batch: list[Measurement] = []
         self._last_fix = -np.inf
         self._next = None
+        self._new_events: list[dict] = []
+        self._worker: _EstimatorThread | None = None
+        self.threaded = bool(threaded)
+        #: the run's trajectory (a callable returning it, set by the loop's owner): its
+        #: identifiability is said at the first cycle, before the platform moves
+        self.trajectory: Callable[[], object] | None = None
+        self.identifiable: dict | None = None
 
     def _start(self, ctl: LengthController) -> None:
         readings = ctl.init_readings if ctl.init_readings is not None else ctl.init_tensions
@@ -92,14 +145,21 @@ class LoopLearner:
         self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
                                   rate_compliance=self.rate_compliance,
                                   correlated=self.correlated)
+        if self.threaded:
+            self._worker = _EstimatorThread(self.ident)
 
     def __call__(self, t: float, r, pose_des: np.ndarray,
                  ctl: LengthController) -> list[tuple[str, str]]:
         """One cycle at loop time ``t`` [s] with the hardware's readings ``r`` (``tensions_N``,
         ``tensions_ok``, ``lengths_m``): the events (kind, text) to log."""
+        first: list[tuple[str, str]] = []
         if self.ident is None:
             self._start(ctl)
             self._next = t + self.period_s
+            traj = self.trajectory() if self.trajectory is not None else None
+            if traj is not None:
+                self.identifiable = path_identifiability(self.ident, traj)
+                first.append(("learn_identifiable", identifiability_text(self.identifiable)))
         moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
         self._last_des = np.array(pose_des, float)
         if moved:
@@ -114,9 +174,9 @@ class LoopLearner:
                 self._last_kept = t
                 self._batch.append(m)
         if t < self._next:
-            return []
+            return first
         self._next = t + self.period_s
-        return self._learn(t, ctl)
+        return first + self._learn(t, ctl)
 
     def _sample(self, t: float, r, pose_des: np.ndarray) -> Measurement | None:
         """This cycle's sample: with the tracker, its fix when it is of the plant as of this
@@ -137,22 +197,54 @@ class LoopLearner:
     def _learn(self, t: float, ctl: LengthController) -> list[tuple[str, str]]:
         s, out = self.summary, []
         if self._batch:
-            res = self.ident.update(self._batch)
-            s.updates += 1
-            s.samples += len(self._batch)
-            s.rejected += bool(res.rejected)
-            self._batch = []
-            for e in res.events:
-                s.events.append({"t": e.t, "kind": e.kind, "text": e.detail})
-                out.append((f"learn_{e.kind}", e.detail))
-        _, changed = self.hand.advance(self.period_s)
-        if changed:
+            batch, self._batch = self._batch, []
+            if self._worker is not None:
+                self._worker.submit(batch)
+            else:
+                self._record(self.ident.update(batch), len(batch))
+        if self._worker is not None:
+            robot, results = None, []
+            # the estimate as of the last update the thread finished; while it updates, the
+            # hand-over waits for the next period (the cycle never waits for the estimator)
+            if self._worker.lock.acquire(blocking=False):
+                try:
+                    results = self._worker.take()
+                    _, changed = self.hand.advance(self.period_s)
+                    robot = self.hand.robot() if changed else None
+                finally:
+                    self._worker.lock.release()
+            for res, k in results:
+                self._record(res, k)
+        else:
+            _, changed = self.hand.advance(self.period_s)
+            robot = self.hand.robot() if changed else None
+        out = [(f"learn_{e['kind']}", e["text"]) for e in self._new_events]
+        self._new_events = []
+        if robot is not None:
             try:
-                ctl.set_model(self.hand.robot())
+                ctl.set_model(robot)
                 s.handovers += 1
             except ValueError as exc:
                 out.append(("learn_handover_refused", str(exc)))
         return out
+
+    def _record(self, res, k: int) -> None:
+        s = self.summary
+        s.updates += 1
+        s.samples += k
+        s.rejected += bool(res.rejected)
+        for e in res.events:
+            ev = {"t": e.t, "kind": e.kind, "text": e.detail}
+            s.events.append(ev)
+            self._new_events.append(ev)
+
+    def close(self) -> None:
+        """End the estimator's thread (threaded mode; waits for the update in progress)."""
+        if self._worker is not None:
+            self._worker.close()
+            with self._worker.lock:
+                for res, k in self._worker.take():
+                    self._record(res, k)
 
     def identified(self) -> Robot | None:
         """The identified robot: the estimate of the parameters the run determined, the
@@ -172,4 +264,41 @@ class LoopLearner:
             s.sd_mm_max = round(1e3 * float(self.ident.sd[:n].max()), 3)
         return {"updates": s.updates, "samples": s.samples, "rejected": s.rejected,
                 "handovers": s.handovers, "events": s.events, "offsets_mm": s.offsets_mm,
-                "offset_sd_mm_max": s.sd_mm_max}
+                "offset_sd_mm_max": s.sd_mm_max, "identifiable": self.identifiable}
+
+
+class _EstimatorThread:
+    """The estimator's updates on a daemon thread: :meth:`submit` a batch (returns at once;
+    batches queue up), :meth:`take` the results finished since the last call (hold
+    :attr:`lock`: the estimate does not change under it), :meth:`close`."""
+
+    def __init__(self, ident: OnlineIdentifier) -> None:
+        import queue
+        import threading
+
+        self.ident = ident
+        self.lock = threading.Lock()
+        self._queue: queue.Queue = queue.Queue()
+        self._done: list = []
+        self._thread = threading.Thread(target=self._run, name="cdpr-estimator", daemon=True)
+        self._thread.start()
+
+    def submit(self, batch: list[Measurement]) -> None:
+        self._queue.put(batch)
+
+    def take(self) -> list:
+        done, self._done = self._done, []
+        return done
+
+    def _run(self) -> None:
+        while True:
+            batch = self._queue.get()
+            if batch is None:
+                return
+            with self.lock:
+                res = self.ident.update(batch)
+                self._done.append((res, len(batch)))
+
+    def close(self) -> None:
+        self._queue.put(None)
+        self._thread.join()

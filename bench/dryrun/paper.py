@@ -107,6 +107,9 @@ WARMUP_DWELL_S = 0.5
 #: [m/s] the learning models' hand-over rate per exit coordinate: the setpoints move by
 #: at most about this much per second more than the path asks (2 % of its 0.5 m/s)
 LEARN_RATE_OFFSET = 0.01
+#: the hand-over's correlation limit for the learning models
+#: (:meth:`controller.online_ident.ModelHandover.target`; above 1: off)
+LEARN_CORRELATED = 1.01
 #: the scenarios and paths the campaigns use (shipped names)
 SCENARIO = "paper-centre"
 CALIBRATION_SCENARIO = "paper-calibration"
@@ -413,6 +416,8 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
         loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                            tick=world.tick, on_progress=progress, stop=_STOP,
                            on_cycle=learner)
+        if learner is not None:
+            learner.trajectory = lambda: loop.trajectory
         res = loop.run()
     _write_progress(spec.progress, 1.0)
     if res.ended == "interrupted" and in_process and not _STOP.is_set():
@@ -453,6 +458,7 @@ def _learner(learn: Mapping[str, Any] | None, world: Any) -> Any:
     return LoopLearner(world.tracker, float(learn.get("period_s", 0.5)),
                        IdentOptions(sigma_length=float(learn.get("sigma_length", 5e-4))),
                        rate_offset=float(learn.get("rate_offset", LEARN_RATE_OFFSET)),
+                       correlated=float(learn.get("correlated", LEARN_CORRELATED)),
                        use_tracker=bool(learn.get("tracker", True)),
                        state_time=None if rig is None else (lambda: rig.last.t_s))
 
