@@ -101,12 +101,13 @@ class IdentOptions:
     batch that fails the innovation test is not learnt from (only its event is kept);
     ``drift_window`` updates: the sum of their normalised innovations squared is tested
     against the chi-square quantile of ``drift_p`` (a slow change no single batch shows,
-    e.g. ropes that keep settling): beyond it, a ``drift`` event and the covariance of the
-    exit offsets and compliances grows by ``drift_inflate`` of their prior variance (the
-    filter learns again; the test restarts on the next ``drift_window`` updates);
+    e.g. ropes that keep settling): beyond it, a ``drift`` event and the covariance is
+    multiplied by ``drift_inflate`` (the filter learns again; the test restarts on the next
+    ``drift_window`` updates);
     ``persist``: that many batches in a row failing the innovation test are a change that
-    persists, not outliers: a ``drift`` event, the covariance inflated as above, and the
-    batch learnt from."""
+    persists, not outliers: when the correction they call for (with the covariance inflated
+    as above) is within ``max_step_*``, a ``drift`` event and the batch learnt from (junk
+    that persists asks for more: still not learnt)."""
 
     sigma_length: float = 5e-5
     sigma_tension: float = 0.5
@@ -125,7 +126,7 @@ class IdentOptions:
     gate: bool = True
     drift_window: int = 20
     drift_p: float = 1e-6
-    drift_inflate: float = 0.01
+    drift_inflate: float = 4.0
     persist: int = 3
 
 
@@ -388,13 +389,10 @@ class OnlineIdentifier:
             self._check_drift(nis, len(nu), t, events)
             self.events.extend(events)
             return UpdateResult(nis, len(nu), events, 0, rejected=True)
-        if events and self.opt.gate:  # a change that persists: the robot changed
+        persistent = bool(events) and self.opt.gate
+        saved = self.P.copy()
+        if persistent:  # a change that persists: learnt again, if physically plausible
             self._inflate()
-            self._window = []
-            events.append(Event("drift", t, f"{self._rejects} batches in a row beyond the "
-                                "innovation test: the robot changed; exit offsets and "
-                                "compliances learnt again"))
-            self._rejects = 0
         th, K, q = prior, None, len(nu)
         for it in range(self.opt.iterations):  # iterated EKF: relinearised at the update
             if it:
@@ -408,6 +406,17 @@ class OnlineIdentifier:
             th = prior + K @ y
         step = th - prior
         ratio = float(np.max(np.abs(step) / self._max_step))
+        if persistent and ratio > 1.0:  # no change the robot can make: not learnt
+            self.P = saved
+            self._check_drift(nis, len(nu), t, events)
+            self.events.extend(events)
+            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+        if persistent:
+            self._window = []
+            events.append(Event("drift", t, f"{self._rejects} batches in a row beyond the "
+                                "innovation test: the robot changed; the model is "
+                                "learnt again"))
+            self._rejects = 0
         if ratio > 1.0:  # the same direction, shorter: the gain scaled, the covariance with it
             worst = int(np.argmax(np.abs(step) / self._max_step))
             events.append(Event("large_correction", t, f"{self.names[worst]}: correction "
@@ -457,10 +466,12 @@ class OnlineIdentifier:
         return np.clip(theta, self.lower, self.upper)
 
     def _inflate(self) -> None:
-        """The exit offsets' and compliances' covariance grown by
-        :attr:`IdentOptions.drift_inflate` of their prior variance (learn again)."""
-        k = self.n_offsets + self.n_compliance
-        self.P[:k, :k] += np.diag(self.opt.drift_inflate * self.prior[:k])
+        """The covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading memory: the
+        combinations the data fixed stay fixed relative to each other, nothing the data never
+        fixed is opened up). The length offsets too: a change after the initialisation
+        (an exit point that moved) is, for the encoders referenced before it, a change of the
+        exit points and of the length offsets that hold the old reference."""
+        self.P = self.P * self.opt.drift_inflate
 
     def _check_drift(self, nis: float, dof: int, t: float, events: list[Event]) -> None:
         """The windowed innovation test (:attr:`IdentOptions.drift_window`): a ``drift``
@@ -482,7 +493,7 @@ class OnlineIdentifier:
         self._window = []
         events.append(Event("drift", t, f"innovations of the last {o.drift_window} updates: "
                             f"chi-square {total:.1f} > {limit:.1f} ({dof_sum} dof): the robot "
-                            f"is changing; exit offsets and compliances learnt again"))
+                            f"is changing; the model is learnt again"))
 
     def _check_growth(self, t: float, events: list[Event]) -> None:
         tr = float(np.sum(np.diag(self.P) / self.prior))

@@ -90,6 +90,8 @@ MODELS: dict[str, str] = {
 #: the order models appear in tables and plots
 MODEL_ORDER = ("nominal", "remeasured", "compliant", "diagnosed", "learned",
                "learned_untracked")
+#: the models paper-paths runs when none are named
+DEFAULT_MODELS = ("nominal", "remeasured", "compliant", "diagnosed")
 #: the learning models: whether the estimator uses the tracker's fixes
 LEARNED: dict[str, bool] = {"learned": True, "learned_untracked": False}
 #: the warm-up of the learning models: dwell poses offset from the init pose [m] (x, y, z
@@ -104,6 +106,8 @@ WARMUP_BOX: tuple[tuple[float, float, float], tuple[float, float, float]] = (
     (1.0, 2.0, 0.6), (19.0, 15.12, 2.0))
 #: [s] dwell at each warm-up pose (the learner keeps samples after ``still_s`` at rest)
 WARMUP_DWELL_S = 0.5
+#: the warm-up's segment name
+WARMUP_NAME = "learning warm-up"
 #: [m/s] the learning models' hand-over rate per exit coordinate: the setpoints move by
 #: at most about this much per second more than the path asks (2 % of its 0.5 m/s)
 LEARN_RATE_OFFSET = 0.01
@@ -244,8 +248,8 @@ def warmup_specs(init_pose: Sequence[float]) -> list:
     lo, hi = np.array(WARMUP_BOX[0]), np.array(WARMUP_BOX[1])
     poses = tuple(tuple(np.r_[np.clip(p0[:3] + np.array(o), lo, hi), p0[3:]].tolist())
                   for o in WARMUP_OFFSETS)
-    return [Visits(poses, 1, WARMUP_DWELL_S, name="learning warm-up"),
-            Move(tuple(p0.tolist()), name="learning warm-up: back to the init pose")]
+    return [Visits(poses, 1, WARMUP_DWELL_S, name=WARMUP_NAME),
+            Move(tuple(p0.tolist()), name=f"{WARMUP_NAME}: back to the init pose")]
 
 
 def with_warmup(path: Any, warmup: Sequence, start_pose: Sequence[float],
@@ -464,10 +468,11 @@ def _learner(learn: Mapping[str, Any] | None, world: Any) -> Any:
 
 
 def _warmup_s(traj: Any) -> float | None:
-    """[s] trajectory time before the path's start (warm-up and approach)."""
+    """[s] trajectory time of the learning warm-up (:func:`warmup_specs`; not the approach
+    to the path's start, which every model's run has)."""
     if traj is None:
         return None
-    return max((s.t1 for s in traj.segments if s.cycle < 0), default=0.0)
+    return float(sum(s.duration_s for s in traj.segments if s.name.startswith(WARMUP_NAME)))
 
 
 def figures(recording: str | Path, kind: str) -> dict[str, Any]:
@@ -537,7 +542,7 @@ class PathsOptions:
     """What ``paper-paths`` runs (the defaults are the command's)."""
 
     work: Path
-    models: tuple[str, ...] = MODEL_ORDER
+    models: tuple[str, ...] = DEFAULT_MODELS
     planned: bool = True  #: the measured-vs-planned comparison in the heavy scenario
     rate_hz: float = PATHS_RATE_HZ
     plant_rate_hz: float = PATHS_PLANT_HZ
