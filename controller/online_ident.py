@@ -466,11 +466,12 @@ class OnlineIdentifier:
         return np.clip(theta, self.lower, self.upper)
 
     def _inflate(self) -> None:
-        """The covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading memory: the
-        combinations the data fixed stay fixed relative to each other, nothing the data never
-        fixed is opened up). The length offsets too: a change after the initialisation
-        (an exit point that moved) is, for the encoders referenced before it, a change of the
-        exit points and of the length offsets that hold the old reference."""
+        """The whole covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading
+        memory: the correlations the data built are kept, so the update corrects along the
+        combinations they fixed rather than opening each parameter alone). The length offsets
+        too: a change after the initialisation (an exit point that moved) is, for the
+        encoders referenced before it, a change of the exit points and of the length offsets
+        that hold the old reference."""
         self.P = self.P * self.opt.drift_inflate
 
     def _check_drift(self, nis: float, dof: int, t: float, events: list[Event]) -> None:
