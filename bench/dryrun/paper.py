@@ -111,8 +111,10 @@ WARMUP_NAME = "learning warm-up"
 #: [m/s] the learning models' hand-over rate per exit coordinate: the setpoints move by
 #: at most about this much per second more than the path asks (2 % of its 0.5 m/s)
 LEARN_RATE_OFFSET = 0.01
-#: the hand-over's correlation limit for the learning models
-#: (:meth:`controller.online_ident.ModelHandover.target`; above 1: off)
+#: the hand-over's correlation limit for the learning model with the tracker
+#: (:meth:`controller.online_ident.ModelHandover.target`; above 1: off: the warm-up's samples
+#: fix the parameters together). Without the tracker (2 equations a sample) the warm-up leaves
+#: them correlated: the default 0.5 applies, a part of a correction can be worse than none
 LEARN_CORRELATED = 1.01
 #: the scenarios and paths the campaigns use (shipped names)
 SCENARIO = "paper-centre"
@@ -462,7 +464,8 @@ def _learner(learn: Mapping[str, Any] | None, world: Any) -> Any:
     return LoopLearner(world.tracker, float(learn.get("period_s", 0.5)),
                        IdentOptions(sigma_length=float(learn.get("sigma_length", 5e-4))),
                        rate_offset=float(learn.get("rate_offset", LEARN_RATE_OFFSET)),
-                       correlated=float(learn.get("correlated", LEARN_CORRELATED)),
+                       correlated=float(learn.get("correlated", LEARN_CORRELATED if
+                                                  learn.get("tracker", True) else 0.5)),
                        use_tracker=bool(learn.get("tracker", True)),
                        state_time=None if rig is None else (lambda: rig.last.t_s))
 
