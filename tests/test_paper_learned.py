@@ -71,3 +71,10 @@ def test_learned_goal_in_the_report(tmp_path):
 def test_learned_models_refused_in_paper_poses(capsys):
     assert main(["dry-run", "paper-poses", "--models", "learned", "--json", "--quiet"]) == 2
     assert "paper-paths" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["--models", "learned"], ["--cases", "centre/centre"],
+                                  ["--sets", "gold"]])
+def test_paper_drift_refuses_options_of_the_other_campaigns(argv, capsys):
+    assert main(["dry-run", "paper-drift", *argv, "--json", "--quiet"]) == 2
+    assert "do not apply to paper-drift" in capsys.readouterr().out

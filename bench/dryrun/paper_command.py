@@ -5,7 +5,8 @@ plus ``--jobs``, ``--cycles``, ``--speeds``, ``--models``, ``--diagnosed-model``
 campaigns themselves: :mod:`bench.dryrun.paper`; the results: :mod:`bench.dryrun.paper_report`.
 
 ``paper-paths [--json] [--plots DIR] [--record DIR] [--jobs N] [--rate HZ] [--duration S]
-[--models nominal,remeasured,compliant,diagnosed] [--diagnosed-model ROBOT.toml]``: the
+[--models nominal,remeasured,compliant,diagnosed,learned,learned_untracked]
+[--diagnosed-model ROBOT.toml]``: the
 four path runs of Table 3 per model, the calibration campaign (``paper-calibration``
 scenario, ``calibration-quick`` path) recorded by a dry run and diagnosed by ``cdpr
 diagnose`` for the ``diagnosed`` model (``--diagnosed-model`` runs a corrected robot.toml
@@ -32,7 +33,9 @@ max / nominal AT max), "paper_at_max_nominal_m", "paper_at_mean_nominal_m",
 "model_file", "diagnose_s", "calibration", "vs_truth": {"exit_rms_m", "exit_max_m",
 "stiffness_fitted", "stiffness_truth", "stiffness_rel_error"}}, "runs": [{"label", "model",
 "mast_tensions", "simulated_s", "wall_s", "slack_events", "events", "recording"}],
-"failures": [{"label", "error"}], "rate_hz", "reactions", "wall_s", "plots"}`` (m, s).
+"failures": [{"label", "error"}], "learning": [{"label", "warmup_s", "updates", "samples",
+"rejected", "handovers", "event_counts", "identifiable", "offset_sd_mm_max"}] (the
+learning models' runs), "rate_hz", "reactions", "wall_s", "plots"}`` (m, s).
 
 ``paper-poses --json``: ``{"scenario": "paper-poses", "cycles", "speeds_pct", "models",
 "rate_hz", "reactions", "runs": [{"set", "speed_pct", "model", "apx_m", "apy_m", "apz_m",
