@@ -101,7 +101,10 @@ class LoopLearner:
     over and, at the same period, moves the hand-over toward the estimate of the last
     update the thread finished (under its lock; while an update is in progress the
     hand-over waits for the next period: the cycle never waits for the estimator).
-    :meth:`close` ends the thread."""
+    :meth:`close` ends the thread; ``handover_s`` [s] between two hand-overs of the model
+    (default a tenth of ``period_s``): the model moves toward the estimate by the rate times
+    this each time, so that a setpoint moves by a fraction of a millimetre more than the path
+    asks at each hand-over, never by the period's worth at once."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
@@ -109,11 +112,13 @@ class LoopLearner:
                  rate_compliance: float = 2e-6,
                  use_tracker: bool = True,
                  state_time: Callable[[], float] | None = None,
-                 threaded: bool = False) -> None:
+                 threaded: bool = False, handover_s: float | None = None) -> None:
         self.tracker = tracker
         self.state_time = state_time
         self.use_tracker = bool(use_tracker)
         self.period_s = float(period_s)
+        self.handover_s = self.period_s / 10.0 if handover_s is None else float(handover_s)
+        self._next_hand = self._last_hand = 0.0
         self.options = options
         self.rate_offset = rate_offset
         self.rate_compliance = rate_compliance
@@ -156,6 +161,8 @@ class LoopLearner:
         if self.ident is None:
             self._start(ctl)
             self._next = t + self.period_s
+            self._next_hand = t + self.handover_s
+            self._last_hand = t
             traj = self.trajectory() if self.trajectory is not None else None
             if traj is not None:
                 self.identifiable = path_identifiability(self.ident, traj)
@@ -173,10 +180,13 @@ class LoopLearner:
             if m is not None:
                 self._last_kept = t
                 self._batch.append(m)
-        if t < self._next:
+        if t >= self._next:
+            self._next = t + self.period_s
+            self._update()
+        if t < self._next_hand:
             return first
-        self._next = t + self.period_s
-        return first + self._learn(t, ctl)
+        self._next_hand = t + self.handover_s
+        return first + self._handover(t, ctl)
 
     def _sample(self, t: float, r, pose_des: np.ndarray) -> Measurement | None:
         """This cycle's sample: with the tracker, its fix when it is of the plant as of this
@@ -194,36 +204,42 @@ class LoopLearner:
         return Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
                            np.array(r.lengths_m), True, t)
 
-    def _learn(self, t: float, ctl: LengthController) -> list[tuple[str, str]]:
-        s, out = self.summary, []
-        if self._batch:
-            batch, self._batch = self._batch, []
-            if self._worker is not None:
-                self._worker.submit(batch)
-            else:
-                self._record(self.ident.update(batch), len(batch))
+    def _update(self) -> None:
+        """The period's batch to the estimator (its thread, or now)."""
+        if not self._batch:
+            return
+        batch, self._batch = self._batch, []
         if self._worker is not None:
-            robot, results = None, []
-            # the estimate as of the last update the thread finished; while it updates, the
-            # hand-over waits for the next period (the cycle never waits for the estimator)
-            if self._worker.lock.acquire(blocking=False):
-                try:
-                    results = self._worker.take()
-                    _, changed = self.hand.advance(self.period_s)
-                    robot = self.hand.robot() if changed else None
-                finally:
-                    self._worker.lock.release()
-            for res, k in results:
-                self._record(res, k)
+            self._worker.submit(batch)
         else:
-            _, changed = self.hand.advance(self.period_s)
-            robot = self.hand.robot() if changed else None
+            self._record(self.ident.update(batch), len(batch))
+
+    def _handover(self, t: float, ctl: LengthController) -> list[tuple[str, str]]:
+        """Move the model toward the estimate for the time since the last hand-over and give it
+        to the controller; the events of the updates finished since."""
+        robot, results, moved = None, [], False
+        if self._worker is None or self._worker.lock.acquire(blocking=False):
+            # threaded: the estimate as of the last update the thread finished; while it
+            # updates, the hand-over waits for the next one (the cycle never waits)
+            try:
+                if self._worker is not None:
+                    results = self._worker.take()
+                _, changed = self.hand.advance(t - self._last_hand)
+                robot = self.hand.robot() if changed else None
+                moved = True
+            finally:
+                if self._worker is not None:
+                    self._worker.lock.release()
+        if moved:
+            self._last_hand = t
+        for res, k in results:
+            self._record(res, k)
         out = [(f"learn_{e['kind']}", e["text"]) for e in self._new_events]
         self._new_events = []
         if robot is not None:
             try:
                 ctl.set_model(robot)
-                s.handovers += 1
+                self.summary.handovers += 1
             except ValueError as exc:
                 out.append(("learn_handover_refused", str(exc)))
         return out
