@@ -173,3 +173,35 @@ def test_identifiability_said_at_the_first_cycle():
     assert "cz_1" in idf["tracker"]["undetermined"]  # torsion: a path hardly loads it
     assert "with the tracker" in ev[0][1] and "without it" in ev[0][1]
     assert learner.report()["identifiable"] == idf
+
+
+def test_handover_moves_the_model_in_small_steps():
+    """The model changes every ``handover_s``, each time by at most the rate times it (not
+    the period's worth at once: that was a setpoint step of ~10 mm)."""
+    model = rocaspect(compliant=True)
+    truth = apply_effects(model, {"exit_point_offset": {"dx_11": 0.01, "dy_21": -0.01}})
+    plant = Plant(model, truth, seed=1)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=0.2, per_update=2, correlated=1.01,
+                          rate_offset=0.01, handover_s=0.02)
+    steps, last = [], None
+    T, fresh = 0.01, [0.0]
+    learner.state_time = lambda: fresh[0]
+    for k in range(1, 201):
+        t = k * T
+        pose = P0 + np.r_[2.0 * np.sin(t), 1.5 * np.sin(2 * t), 0.3 * np.sin(3 * t), 0, 0, 0]
+        fresh[0] = t if k % 2 == 0 else fresh[0]
+        m = plant.measure(pose, t)
+        tracker.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=t)
+        learner(t, SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                                   tensions_ok=np.ones(8, bool)), pose, ctl)
+        if learner.hand is not None:
+            if last is not None:
+                steps.append(np.abs(learner.hand.theta - last))
+            last = learner.hand.theta.copy()
+    steps = np.array(steps)
+    bound = learner.hand._rate * (0.02 + T) * (1 + 1e-9) + 1e-15  # rate x time since the last
+    assert learner.summary.handovers > 3 * learner.summary.updates > 0
+    assert np.all(steps <= bound), (steps / bound).max()
+    assert steps.sum() > 0  # it did move

@@ -47,8 +47,10 @@ def bench_learn(quick: bool) -> dict[str, float]:
     (:class:`bench.dryrun.learn.LoopLearner`, ``threaded``): each cycle the learner keeps
     its sample (a tracked pose with tensions and lengths of the truth, 4 per period), every
     :data:`HANDOVER_EVERY` cycles (0.5 s at 256 Hz) it hands the batch to the estimator's
-    thread and the model over (rate-limited, :class:`~controller.online_ident.ModelHandover`)
-    while the thread runs its updates concurrently; ``learn_handover_us``: one hand-over
+    thread, and every tenth of that it hands the model over (rate-limited,
+    :class:`~controller.online_ident.ModelHandover`) while the thread runs its updates
+    concurrently (the median is of cycles without a hand-over: ``learn_handover_us`` is
+    the cost of those with one); ``learn_handover_us``: one hand-over
     (:meth:`~controller.cycle.LengthController.set_model`); ``ident_update_ms``: one
     estimator update with a batch of 4 tracked samples (what the thread does per period)."""
     from types import SimpleNamespace
