@@ -205,3 +205,19 @@ def test_handover_moves_the_model_in_small_steps():
     assert learner.summary.handovers > 3 * learner.summary.updates > 0
     assert np.all(steps <= bound), (steps / bound).max()
     assert steps.sum() > 0  # it did move
+
+
+def test_set_model_keeps_the_running_state():
+    """Handing over the same model changes no setpoint: the mast update keeps the last
+    cycle's cable directions (those at p0 moved the exit points by centimetres for a cycle,
+    a setpoint jump at each hand-over far from p0)."""
+    model = rocaspect(compliant=True)
+    far = P0 + np.r_[-7.0, 3.0, 0.4, 0, 0, 0]
+    tau = pose_statics(model, far).tensions
+    a = LengthController(model, P0, pose_statics(model, P0).tensions)
+    b = LengthController(model, P0, pose_statics(model, P0).tensions)
+    for ctl in (a, b):
+        ctl.step(far, tau)
+    b.set_model(model.replace(name="handed over"))
+    np.testing.assert_allclose(b.step(far, tau).lengths, a.step(far, tau).lengths,
+                               rtol=0, atol=1e-12)
