@@ -145,11 +145,18 @@ class LengthController:
         handed over at a bounded rate: :class:`controller.online_ident.ModelHandover`): its
         exit points, masts, cables and calibration, and its ``u0`` at p0 with the readings at
         initialisation; the encoder reference ``d_model(p0)`` stays the one the encoders were
-        referenced by. Raises ValueError (the model in use unchanged) if p0 is infeasible."""
+        referenced by; the running state (the last cycle's cable directions, the planned
+        tensions) is kept. Raises ValueError (the model in use unchanged) if p0 is
+        infeasible."""
         if robot.cable_ids != self.robot.cable_ids or robot.mast_ids != self.robot.mast_ids:
             raise ValueError(f"model {robot.name!r}: cables/masts differ from "
                              f"{self.robot.name!r}'s")
+        u, planned = self._u, self._planned
         self._use(robot)
+        # the running state stays: the last cycle's cable directions (the mast update's; those
+        # at p0 would move the exit points by centimetres for one cycle away from p0) and the
+        # planned tensions that stand for invalid readings
+        self._u, self._planned = u, planned
 
     def true_tensions(self, measured: np.ndarray) -> np.ndarray:
         """The model's true tensions [N] for load-cell readings (its gain and offset)."""

@@ -76,7 +76,8 @@ class Measurement:
 @dataclass(frozen=True)
 class Event:
     """Something the operator must see: ``kind`` one of ``sudden_change``,
-    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``; ``t`` [s];
+    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``, ``drift``;
+    ``t`` [s];
     ``detail``."""
 
     kind: str
@@ -97,7 +98,16 @@ class IdentOptions:
     ``alarm_p`` false-alarm probability of the innovation test per update;
     ``grow_updates``: covariance growing over this many updates in a row is an event;
     ``iterations``: linearisations per update (iterated EKF; 1 = plain EKF); ``gate``: a
-    batch that fails the innovation test is not learnt from (only its event is kept)."""
+    batch that fails the innovation test is not learnt from (only its event is kept);
+    ``drift_window`` updates: the sum of their normalised innovations squared is tested
+    against the chi-square quantile of ``drift_p`` (a slow change no single batch shows,
+    e.g. ropes that keep settling): beyond it, a ``drift`` event and the covariance is
+    multiplied by ``drift_inflate`` (the filter learns again; the test restarts on the next
+    ``drift_window`` updates);
+    ``persist``: that many batches in a row failing the innovation test are a change that
+    persists, not outliers: when the correction they call for (with the covariance inflated
+    as above) is within ``max_step_*``, a ``drift`` event and the batch learnt from (junk
+    that persists asks for more: still not learnt)."""
 
     sigma_length: float = 5e-5
     sigma_tension: float = 0.5
@@ -114,6 +124,10 @@ class IdentOptions:
     grow_updates: int = 20
     iterations: int = 1
     gate: bool = True
+    drift_window: int = 20
+    drift_p: float = 1e-6
+    drift_inflate: float = 4.0
+    persist: int = 3
 
 
 @dataclass
@@ -186,6 +200,8 @@ class OnlineIdentifier:
         self._trace_last = float(np.trace(self.P))
         self.events: list[Event] = []
         self.updates = 0
+        self._window: list[tuple[float, int]] = []  #: (nis, dof) of the last updates
+        self._rejects = 0  #: batches in a row that failed the innovation test
 
     # ----- the model ------------------------------------------------------------------
     def robot_at(self, theta: np.ndarray | None = None, name: str | None = None) -> Robot:
@@ -367,9 +383,16 @@ class OnlineIdentifier:
             self.events.extend(events)
             return UpdateResult(0.0, 0, events, 0, rejected=True)
         nis = self._innovation_test(nu, Jw, t, events)
-        if events and self.opt.gate:  # not the model's noise: never learnt from
+        self._rejects = self._rejects + 1 if events else 0
+        if events and self.opt.gate and self._rejects < self.opt.persist:
+            # not the model's noise: not learnt from, unless it persists
+            self._check_drift(nis, len(nu), t, events)
             self.events.extend(events)
             return UpdateResult(nis, len(nu), events, 0, rejected=True)
+        persistent = bool(events) and self.opt.gate
+        saved = self.P.copy()
+        if persistent:  # a change that persists: learnt again, if physically plausible
+            self._inflate()
         th, K, q = prior, None, len(nu)
         for it in range(self.opt.iterations):  # iterated EKF: relinearised at the update
             if it:
@@ -383,6 +406,17 @@ class OnlineIdentifier:
             th = prior + K @ y
         step = th - prior
         ratio = float(np.max(np.abs(step) / self._max_step))
+        if persistent and ratio > 1.0:  # no change the robot can make: not learnt
+            self.P = saved
+            self._check_drift(nis, len(nu), t, events)
+            self.events.extend(events)
+            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+        if persistent:
+            self._window = []
+            events.append(Event("drift", t, f"{self._rejects} batches in a row beyond the "
+                                "innovation test: the robot changed; the model is "
+                                "learnt again"))
+            self._rejects = 0
         if ratio > 1.0:  # the same direction, shorter: the gain scaled, the covariance with it
             worst = int(np.argmax(np.abs(step) / self._max_step))
             events.append(Event("large_correction", t, f"{self.names[worst]}: correction "
@@ -393,6 +427,7 @@ class OnlineIdentifier:
         self.P = IKH @ self.P @ IKH.T + K @ K.T  # Joseph form: consistent for any gain
         self.theta = self._bounded(self.theta + step, t, events)
         self._check_growth(t, events)
+        self._check_drift(nis, q, t, events)
         self.updates += 1
         self.events.extend(events)
         return UpdateResult(nis, q, events, int(ok.sum()))
@@ -429,6 +464,37 @@ class OnlineIdentifier:
             theta = theta - self.P[:, out] @ gain
             theta[out] = target[out]
         return np.clip(theta, self.lower, self.upper)
+
+    def _inflate(self) -> None:
+        """The whole covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading
+        memory: the correlations the data built are kept, so the update corrects along the
+        combinations they fixed rather than opening each parameter alone). The length offsets
+        too: a change after the initialisation (an exit point that moved) is, for the
+        encoders referenced before it, a change of the exit points and of the length offsets
+        that hold the old reference."""
+        self.P = self.P * self.opt.drift_inflate
+
+    def _check_drift(self, nis: float, dof: int, t: float, events: list[Event]) -> None:
+        """The windowed innovation test (:attr:`IdentOptions.drift_window`): a ``drift``
+        event and the covariance inflated when the last updates' innovations together are
+        beyond the model's noise."""
+        o = self.opt
+        if o.drift_window < 1:
+            return
+        self._window.append((nis, dof))
+        if len(self._window) < o.drift_window:
+            return
+        total = sum(v for v, _ in self._window)
+        dof_sum = sum(d for _, d in self._window)
+        self._window = self._window[1:]
+        limit = float(chi2.isf(o.drift_p, dof_sum))
+        if total <= limit:
+            return
+        self._inflate()
+        self._window = []
+        events.append(Event("drift", t, f"innovations of the last {o.drift_window} updates: "
+                            f"chi-square {total:.1f} > {limit:.1f} ({dof_sum} dof): the robot "
+                            f"is changing; the model is learnt again"))
 
     def _check_growth(self, t: float, events: list[Event]) -> None:
         tr = float(np.sum(np.diag(self.P) / self.prior))

@@ -73,7 +73,10 @@ class Nuisances:
     [N]; ``init_pretension_n``: the tensions when the encoders were referenced differ from
     the tension distribution's by internal forces of this size [N] (in a random direction
     of the wrench matrix's null space, within the tension limits: a controller's or an
-    operator's pretension; recordings with load cells measure it, others cannot).
+    operator's pretension; recordings with load cells measure it, others cannot);
+    ``settle_m``, ``settle_s``: the supporting ropes keep settling, every mast leaning toward
+    the workspace: its exit points move horizontally toward the centroid of the pivots by
+    ``settle_m`` [m] per ``settle_s`` [s] of plant time (linear creep from t = 0).
     """
 
     hysteresis_m: float = 0.0
@@ -83,6 +86,8 @@ class Nuisances:
     thermal_strain_per_s: float = 0.0
     friction_n: float | np.ndarray = 0.0
     init_pretension_n: float = 0.0
+    settle_m: float = 0.0
+    settle_s: float = 3600.0
 
 
 @dataclass(frozen=True)
@@ -132,8 +137,13 @@ class Plant:
         if self.nuisances.init_pretension_n:
             self.u0, self.init_tensions = init_unstretched(
                 t, self.init_pose, self._pretension(self.nuisances.init_pretension_n))
-        self._a_star = settled_exits(t)
+        self._a_star0 = self._a_star = settled_exits(t)
         self._r = lever_arms(self._a_star, t.pivots, t.mast_index)
+        inward = t.pivots.mean(axis=0) - t.pivots
+        inward[:, 2] = 0.0
+        #: (n,3) horizontal unit vector of each exit's settling (toward the pivots' centroid)
+        self._settle_dir = (inward / np.linalg.norm(inward, axis=1, keepdims=True))[
+            t.mast_index]
         self._free = np.isfinite(t.stiffness).ravel()
         height = float(np.mean(np.linalg.norm(self._r, axis=1)))
         self._scale = np.concatenate([np.ones(6), np.full(int(self._free.sum()), height)])
@@ -348,6 +358,10 @@ class Plant:
                guess: np.ndarray | None = None) -> PlantState:
         """Rest position for encoder ``readings`` (n,) [m] at time ``t`` [s]; becomes the state.
         ``guess``: a pose near the answer after a long move (see :meth:`rest`)."""
+        nz = self.nuisances
+        if nz.settle_m:  # the ropes' creep: the settled exits at time t
+            self._a_star = self._a_star0 + self._settle_dir * (nz.settle_m * t / nz.settle_s)
+            self._r = lever_arms(self._a_star, self.truth.pivots, self.truth.mast_index)
         self.state = self.rest(self.unstretched(readings, t, visit_noise), guess)
         return self.state
 

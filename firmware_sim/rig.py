@@ -321,7 +321,7 @@ class SimRig:
 
     def _time_dependent(self, t_prev: float, t: float) -> bool:
         sc = self.scenario
-        if np.any(np.asarray(sc.drift_m_per_s) != 0.0) and t > t_prev:
+        if (np.any(np.asarray(sc.drift_m_per_s) != 0.0) or sc.rope_settle_m) and t > t_prev:
             return True
         slips = sc.slip_times[(sc.slip_times > 0) & (sc.truth.length_offset != 0)]
         return bool(np.any((slips > t_prev) & (slips <= t)))

@@ -40,6 +40,8 @@ friction_n = 0.0                 # pulley friction seen by friction_cables' load
 friction_cables = []             # cable ids (default: every cable when friction_n > 0)
 init_pretension_n = 0.0          # tensions at referencing off the distribution's by internal
                                  # forces of this size [N] (random null-space direction)
+rope_settle_m = 0.0              # the masts' supporting ropes keep settling: every exit point
+rope_settle_h = 1.0              # moves this far [m] toward the pivots' centroid per this time [h]
 
 [recording]                      # what is recorded and how
 kind = "dwell"                   # dwell: visits with dwells | continuous: rows along the path
@@ -186,6 +188,9 @@ class Scenario:
     react: dict[str, str] = field(default_factory=dict)
     #: internal forces [N] by which the tensions at referencing differ from the distribution's
     init_pretension_n: float = 0.0
+    #: the supporting ropes' further settling: exit displacement [m] per ``rope_settle_s``
+    rope_settle_m: float = 0.0
+    rope_settle_s: float = 3600.0
 
     def nuisances(self, process: bool = True) -> Nuisances:
         """The plant's nuisances for this scenario (``process``: with the per-visit process
@@ -195,13 +200,14 @@ class Scenario:
         return Nuisances(self.hysteresis_m, self.drift_m_per_s,
                          self.noise.process_m if process else 0.0, self.backlash_m,
                          self.thermal_strain_per_s, self.friction_n,
-                         self.init_pretension_n)
+                         self.init_pretension_n, self.rope_settle_m, self.rope_settle_s)
 
 
 _TOP = {"format", "robot", "seed", "init_pose", "truth", "noise", "nuisance", "poses", "notes",
         "path", "recording", "react"}
 _NUISANCE = ("hysteresis_m", "drift_m_per_h", "backlash_m", "backlash_cables",
-             "thermal_strain_per_h", "friction_n", "friction_cables", "init_pretension_n")
+             "thermal_strain_per_h", "friction_n", "friction_cables", "init_pretension_n",
+             "rope_settle_m", "rope_settle_h")
 _RECORDING = {"kind", "dwell_at_targets", "rate_hz", "state_column", "tracker", "load_cells"}
 
 
@@ -405,7 +411,10 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>",
                     PoseSet(**kw), str(data.get("notes", "")), run_path, backlash, thermal,
                     friction, RecordingSpec(**rkw), _react(p, data.get("react", {})),
                     num("nuisance.init_pretension_n", nz.get("init_pretension_n", 0.0),
-                         nonneg=True))
+                         nonneg=True),
+                    num("nuisance.rope_settle_m", nz.get("rope_settle_m", 0.0), nonneg=True),
+                    3600.0 * num("nuisance.rope_settle_h", nz.get("rope_settle_h", 1.0),
+                                 positive=True))
 
 
 def _react(p: Path, react: Any) -> dict[str, str]:

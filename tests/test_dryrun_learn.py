@@ -67,3 +67,157 @@ def test_learn_refuses_realtime(capsys):
     assert main(["dry-run", "paper-centre", "--learn", "--realtime", "--json", "--quiet"]) == 2
     out = json.loads(capsys.readouterr().out)
     assert "lock-step only" in out["error"]
+
+
+def _drive(learner, plant, ctl, tracker, settle_every: int, cycles: int, moving: bool,
+           tracked: bool = True):
+    """Cycles of 0.01 s along a line (``moving``) or at rest; the plant's state is fresh every
+    ``settle_every`` cycles (``learner.state_time``). Returns (kept samples, cycles at which
+    the state was fresh)."""
+    T, fresh_t = 0.01, [0.0]
+    learner.state_time = lambda: fresh_t[0]
+    kept, fresh = [], []
+    for k in range(1, cycles + 1):
+        t = k * T
+        pose = P0 + (np.r_[0.2 * t, 0.1 * t, 0, 0, 0, 0] if moving else 0.0)
+        if k % settle_every == 0:
+            fresh_t[0] = t
+            fresh.append(k)
+        m = plant.measure(pose, t)
+        tracker.reading = SimpleNamespace(valid=tracked, pose=m.pose if tracked else
+                                          np.full(6, np.nan), t_s=t)
+        r = SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                            tensions_ok=np.ones(8, bool))
+        learner(t, r, pose, ctl)
+        if learner._last_kept == t:
+            kept.append(k)
+    return kept, fresh
+
+
+def test_learner_keeps_quasi_static_samples_while_moving():
+    """With ``state_time``, samples while moving, only at cycles whose readings are of a
+    settled plant state; without it, none while moving."""
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=2)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=0.5, per_update=10)
+    kept, fresh = _drive(learner, plant, ctl, tracker, 3, 120, moving=True)
+    assert kept and set(kept) <= set(fresh), (kept, fresh)
+    assert learner.summary.samples + len(learner._batch) >= 10
+    still = LoopLearner(tracker, period_s=0.5, per_update=10)
+    _drive(still, plant, LengthController(model, P0, plant.init_readings), tracker, 3, 120,
+           moving=True)
+    still.state_time = None
+    n0 = still.summary.samples + len(still._batch)
+    for k in range(20):  # without state_time: moving cycles give nothing
+        t = 1.3 + 0.01 * k
+        pose = P0 + np.r_[0.2 * t, 0, 0, 0, 0, 0]
+        m = plant.measure(pose, t)
+        tracker.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=t)
+        still(t, SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                                 tensions_ok=np.ones(8, bool)), pose, ctl)
+    assert still.summary.samples + len(still._batch) == n0
+
+
+def test_untracked_learner_uses_the_commanded_pose():
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=2)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=0.5, per_update=4, use_tracker=False)
+    _drive(learner, plant, ctl, tracker, 2, 40, moving=True, tracked=False)
+    assert learner._batch or learner.summary.samples
+    assert all(not m.tracked for m in learner._batch)
+    tracked = LoopLearner(tracker, period_s=0.5, per_update=4)
+    _drive(tracked, plant, ctl, tracker, 2, 40, moving=True, tracked=False)
+    assert not tracked._batch and tracked.summary.samples == 0  # no fix: nothing
+
+
+def test_threaded_learner_learns_the_same():
+    """The estimator on its own thread: the same batches, the same estimate; the hand-over
+    follows."""
+    model = rocaspect(compliant=True)
+    truth = apply_effects(model, {"exit_point_offset": {"dx_11": 0.004, "dy_21": -0.004}})
+    out = []
+    for threaded in (False, True):
+        plant = Plant(model, truth, seed=1)
+        ctl = LengthController(model, P0, plant.init_readings)
+        tracker = FakeTracker()
+        learner = LoopLearner(tracker, period_s=0.2, per_update=2, threaded=threaded,
+                              correlated=1.01)
+        _drive(learner, plant, ctl, tracker, 2, 150, moving=True)
+        learner.close()
+        out.append((learner.summary.updates, learner.ident.theta.copy()))
+    assert out[0][0] == out[1][0] > 3
+    np.testing.assert_allclose(out[0][1], out[1][1], rtol=0, atol=1e-12)
+
+
+def test_identifiability_said_at_the_first_cycle():
+    from controller.trajectory import Line, Trajectory
+
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=2)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker)
+    corners = [[12.0, 10.0, 1.6], [8.0, 10.0, 0.8], [8.0, 7.0, 1.6], [12.0, 7.0, 0.8]]
+    learner.trajectory = lambda: Trajectory([Line(corners)], P0)
+    m = plant.measure(P0, 0.01)
+    ev = learner(0.01, SimpleNamespace(t_s=0.01, tensions_N=m.tensions, lengths_m=m.lengths,
+                                       tensions_ok=np.ones(8, bool)), P0, ctl)
+    kinds = [k for k, _ in ev]
+    assert kinds[0] == "learn_identifiable", ev
+    idf = learner.identifiable
+    assert idf["tracker"]["determined"] > idf["no_tracker"]["determined"]
+    assert "cz_1" in idf["tracker"]["undetermined"]  # torsion: a path hardly loads it
+    assert "with the tracker" in ev[0][1] and "without it" in ev[0][1]
+    assert learner.report()["identifiable"] == idf
+
+
+def test_handover_moves_the_model_in_small_steps():
+    """The model changes every ``handover_s``, each time by at most the rate times it (not
+    the period's worth at once: that was a setpoint step of ~10 mm)."""
+    model = rocaspect(compliant=True)
+    truth = apply_effects(model, {"exit_point_offset": {"dx_11": 0.01, "dy_21": -0.01}})
+    plant = Plant(model, truth, seed=1)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=0.2, per_update=2, correlated=1.01,
+                          rate_offset=0.01, handover_s=0.02)
+    steps, last = [], None
+    T, fresh = 0.01, [0.0]
+    learner.state_time = lambda: fresh[0]
+    for k in range(1, 201):
+        t = k * T
+        pose = P0 + np.r_[2.0 * np.sin(t), 1.5 * np.sin(2 * t), 0.3 * np.sin(3 * t), 0, 0, 0]
+        fresh[0] = t if k % 2 == 0 else fresh[0]
+        m = plant.measure(pose, t)
+        tracker.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=t)
+        learner(t, SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                                   tensions_ok=np.ones(8, bool)), pose, ctl)
+        if learner.hand is not None:
+            if last is not None:
+                steps.append(np.abs(learner.hand.theta - last))
+            last = learner.hand.theta.copy()
+    steps = np.array(steps)
+    bound = learner.hand._rate * (0.02 + T) * (1 + 1e-9) + 1e-15  # rate x time since the last
+    assert learner.summary.handovers > 3 * learner.summary.updates > 0
+    assert np.all(steps <= bound), (steps / bound).max()
+    assert steps.sum() > 0  # it did move
+
+
+def test_set_model_keeps_the_running_state():
+    """Handing over the same model changes no setpoint: the mast update keeps the last
+    cycle's cable directions (those at p0 moved the exit points by centimetres for a cycle,
+    a setpoint jump at each hand-over far from p0)."""
+    model = rocaspect(compliant=True)
+    far = P0 + np.r_[-7.0, 3.0, 0.4, 0, 0, 0]
+    tau = pose_statics(model, far).tensions
+    a = LengthController(model, P0, pose_statics(model, P0).tensions)
+    b = LengthController(model, P0, pose_statics(model, P0).tensions)
+    for ctl in (a, b):
+        ctl.step(far, tau)
+    b.set_model(model.replace(name="handed over"))
+    np.testing.assert_allclose(b.step(far, tau).lengths, a.step(far, tau).lengths,
+                               rtol=0, atol=1e-12)

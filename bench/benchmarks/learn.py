@@ -28,42 +28,74 @@ def _setup():
     return model, truth, tau0, rng
 
 
+class _Fix:
+    """A tracker stand-in: ``read()`` returns the current sample's pose, now."""
+
+    def __init__(self) -> None:
+        from types import SimpleNamespace
+
+        self.reading = SimpleNamespace(valid=True, pose=P0, t_s=0.0)
+
+    def read(self):
+        return self.reading
+
+
 @register("learn")
 def bench_learn(quick: bool) -> dict[str, float]:
-    """``control_cycle_learn_us``: the control cycle of ``control_cycle_us`` with the identified
-    model handed over every :data:`HANDOVER_EVERY` cycles (rate-limited,
-    :class:`~controller.online_ident.ModelHandover`; the estimator itself runs outside the
-    cycle, at the tracker's rate); ``learn_handover_us``: one hand-over
-    (:meth:`~controller.cycle.LengthController.set_model`); ``ident_update_ms``: one estimator
-    update with a batch of 4 tracked samples."""
+    """``control_cycle_learn_us``: the control cycle of ``control_cycle_us`` with online
+    identification as the dry run runs it on its own thread
+    (:class:`bench.dryrun.learn.LoopLearner`, ``threaded``): each cycle the learner keeps
+    its sample (a tracked pose with tensions and lengths of the truth, 4 per period), every
+    :data:`HANDOVER_EVERY` cycles (0.5 s at 256 Hz) it hands the batch to the estimator's
+    thread, and every tenth of that it hands the model over (rate-limited,
+    :class:`~controller.online_ident.ModelHandover`) while the thread runs its updates
+    concurrently (the median is of cycles without a hand-over: ``learn_handover_us`` is
+    the cost of those with one); ``learn_handover_us``: one hand-over
+    (:meth:`~controller.cycle.LengthController.set_model`); ``ident_update_ms``: one
+    estimator update with a batch of 4 tracked samples (what the thread does per period)."""
+    from types import SimpleNamespace
+
+    from bench.dryrun.learn import LoopLearner
+
     model, truth, tau0, rng = _setup()
-    est = OnlineIdentifier(model, P0, tau0)
-    hand = ModelHandover(est)
-    est.theta = est.theta + np.r_[rng.normal(0, 0.003, est.n_offsets),
-                                  np.zeros(len(est.theta) - est.n_offsets)]
-    ctl = LengthController(model, P0, tau0)
-    k = [0]
-
-    def handover():
-        k[0] += 1
-        if k[0] % HANDOVER_EVERY == 0:
-            hand.advance(HANDOVER_EVERY * 0.0039)
-            ctl.set_model(hand.robot())
-
-    reps = 300 if quick else 5000
-    cyc = cycle_time(model, reps, hook=handover, ctl=ctl)
-
-    def one_handover():
-        hand.advance(0.5)
-        ctl.set_model(hand.robot())
-
-    ho = median_time(one_handover, 20 if quick else 200, warmup=2)
     poses = [P0 + np.r_[rng.uniform(-3, 3), rng.uniform(-2, 2), rng.uniform(-0.4, 0.6),
                         np.zeros(3)] for _ in range(64)]
     samples = []
     for p in poses:
         ps = pose_statics(truth, p)
         samples.append(Measurement(p, ps.tensions, ps.unstretched, True, 0.0))
+    T = 0.0039
+    ctl = LengthController(model, P0, tau0)
+    fix = _Fix()
+    clock = {"t": 0.0}
+    learner = LoopLearner(fix, period_s=HANDOVER_EVERY * T, correlated=1.01, rate_offset=0.01,
+                          state_time=lambda: clock["t"], threaded=True)
+    k = [0]
+
+    def learn():
+        k[0] += 1
+        t = clock["t"] = k[0] * T
+        m = samples[(k[0] // 8) % len(samples)]
+        fix.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=t)
+        r = SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                            tensions_ok=np.ones(len(m.tensions), bool))
+        learner(t, r, m.pose, ctl)
+
+    reps = 300 if quick else 5000
+    try:
+        cyc = cycle_time(model, reps, hook=learn, ctl=ctl)
+    finally:
+        learner.close()
+    est = OnlineIdentifier(model, P0, tau0)
+    hand = ModelHandover(est)
+    est.theta = est.theta + np.r_[rng.normal(0, 0.003, est.n_offsets),
+                                  np.zeros(len(est.theta) - est.n_offsets)]
+
+    def one_handover():
+        hand.advance(0.5)
+        ctl.set_model(hand.robot())
+
+    ho = median_time(one_handover, 20 if quick else 200, warmup=2)
     j = [0]
 
     def update():
@@ -71,5 +103,7 @@ def bench_learn(quick: bool) -> dict[str, float]:
         j[0] += 1
 
     up = median_time(update, 5 if quick else 40, warmup=1)
+    if learner.summary.updates == 0:
+        raise RuntimeError("the estimator's thread ran no update during the cycle benchmark")
     return {"control_cycle_learn_us": cyc * 1e6, "learn_handover_us": ho * 1e6,
             "ident_update_ms": up * 1e3}

@@ -22,8 +22,9 @@ from pathlib import Path
 WHAT: dict[str, str] = {
     "control_cycle_us": "IK + wrench matrix + tension distribution + mast update, 8 cables",
     "control_cycle_pulley_us": "the same with swivel pulleys of 0.1 m on every cable",
-    "control_cycle_learn_us": "the control cycle with the identified model handed over "
-                              "every 128 cycles (online identification)",
+    "control_cycle_learn_us": "the control cycle with online identification: the sample "
+                              "kept each cycle, the model handed over every 13 cycles, "
+                              "the estimator updating on its own thread",
     "learn_handover_us": "one hand-over of the identified model to the controller",
     "ident_update_ms": "one online-identification update, 4 tracked samples",
     "equilibrium_ms": "warm-started elasto-static equilibrium, compliant masts",

@@ -128,9 +128,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--jobs", type=int, default=2, metavar="N",
                    help="runs in parallel processes [2]")
     g.add_argument("--models", metavar="LIST", default=None,
-                   help="controller models, of nominal, remeasured, compliant, diagnosed, and "
-                        "for paper-paths planned (the measured-vs-planned tensions comparison) "
-                        "[paper-paths: all; paper-poses: nominal,remeasured]")
+                   help="controller models, of nominal, remeasured, compliant, diagnosed, "
+                        "learned, learned_untracked, and for paper-paths planned (the "
+                        "measured-vs-planned tensions comparison) [paper-paths: nominal, "
+                        "remeasured, compliant, diagnosed, planned; paper-poses: "
+                        "nominal,remeasured]")
     g.add_argument("--diagnosed-model", metavar="ROBOT.toml", default=None,
                    help="the diagnosed model: this corrected robot.toml (no calibration run)")
     g.add_argument("--cases", metavar="LIST", default=None,
@@ -187,7 +189,7 @@ def _progress_printer(quiet: bool, duration_s: float | None = None):
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.scenario in ("paper-paths", "paper-poses"):
+    if args.scenario in ("paper-paths", "paper-poses", "paper-drift"):
         from bench.dryrun import paper_command
 
         return paper_command.run(args)
@@ -582,6 +584,11 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                                tick=tick, on_event=on_event,
                                on_progress=_progress_printer(args.quiet, args.duration), stop=stop,
                                on_cycle=learner)
+            if learner is not None:  # its identifiability said before the platform moves
+                learner.trajectory = lambda: loop.trajectory
+                rig = getattr(world, "rig", None)
+                if rig is not None:  # quasi-static samples at the plant's settles
+                    learner.state_time = lambda: rig.last.t_s
             res = loop.run()
         finally:
             if injector is not None:

@@ -11,13 +11,53 @@ the loop as events of the run.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from controller.cycle import LengthController
-from controller.online_ident import IdentOptions, Measurement, ModelHandover, OnlineIdentifier
+from controller.online_ident import (
+    IdentOptions,
+    Measurement,
+    ModelHandover,
+    OnlineIdentifier,
+    planned_samples,
+)
 from controller.robot import Robot
+
+#: [s] between two poses of a trajectory in :func:`path_identifiability`
+IDENT_STEP_S = 1.0
+
+
+def path_identifiability(ident: OnlineIdentifier, trajectory, step_s: float = IDENT_STEP_S
+                         ) -> dict[str, dict]:
+    """What a trajectory can fix, before it runs: the Fisher information
+    (:meth:`~controller.online_ident.OnlineIdentifier.fisher`) of its poses every ``step_s``
+    [s] with the tensions and lengths of the current estimate
+    (:func:`~controller.online_ident.planned_samples`), with the tracker's fixes and
+    without (tensions and encoders only). ``{"tracker"|"no_tracker": {"determined" (count),
+    "parameters" (count), "rank", "undetermined" [names]}}``."""
+    t = np.arange(0.0, trajectory.duration_s + 1e-9, step_s)
+    poses = np.asarray(trajectory.sample(t).pose, float).reshape(-1, 6)
+    out = {}
+    for key, tracked in (("tracker", True), ("no_tracker", False)):
+        fi = ident.fisher(planned_samples(ident, poses, tracked))
+        out[key] = {"determined": int(np.sum(fi.determined)), "parameters": len(fi.names),
+                    "rank": fi.rank, "undetermined": fi.undetermined()}
+    return out
+
+
+def identifiability_text(idf: dict[str, dict]) -> str:
+    """One line per case of :func:`path_identifiability`."""
+    lines = []
+    for key, what in (("tracker", "with the tracker"), ("no_tracker", "without it")):
+        d = idf[key]
+        und = d["undetermined"]
+        names = ", ".join(und[:12]) + (f" and {len(und) - 12} more" if len(und) > 12 else "")
+        lines.append(f"{what}: {d['determined']} of {d['parameters']} parameters determined "
+                     f"(rank {d['rank']}){'; not: ' + names if und else ''}")
+    return "; ".join(lines)
 
 
 @dataclass
@@ -45,15 +85,43 @@ class LoopLearner:
     (the simulated plant settles at its own rate: while moving, the fix, the lengths and the
     tensions are of different instants; measured on paper-centre, 10 to 20 mm of length
     residual at 0.1 m/s even under the true robot); ``correlated``: the hand-over's
-    correlation limit (:meth:`~controller.online_ident.ModelHandover.target`)."""
+    correlation limit (:meth:`~controller.online_ident.ModelHandover.target`);
+    ``use_tracker``: False learns from tensions and encoders only (the commanded pose stands
+    for the pose, :class:`~controller.online_ident.Measurement` ``tracked=False``: the
+    residual's ``n - 6`` directions a pose error cannot produce), whatever the tracker
+    gives (it may still serve the loop's initialisation and the recording);
+    ``state_time``: the time [s, the readings' clock] of the platform state the readings
+    are of (the simulated plant's last settle, :attr:`firmware_sim.rig.SimRig.last`): when
+    given, samples are kept while moving too, at the cycles whose readings are of a settled
+    state (quasi-static samples of the moving platform: their length residual under the
+    true robot is that at rest, 0.6 mm RMS on paper-centre at 0.5 m/s, against 7 mm for
+    the cycles between two settles); without it, only at rest (``still_s``);
+    ``threaded``: the estimator's updates run on a thread of their own
+    (:class:`_EstimatorThread`), not in the cycle: the cycle hands the period's samples
+    over and, at the same period, moves the hand-over toward the estimate of the last
+    update the thread finished (under its lock; while an update is in progress the
+    hand-over waits for the next period: the cycle never waits for the estimator).
+    :meth:`close` ends the thread; ``handover_s`` [s] between two hand-overs of the model
+    (default a tenth of ``period_s``): the model moves toward the estimate by the rate times
+    this each time, so that a setpoint moves by a fraction of a millimetre more than the path
+    asks at each hand-over, never by the period's worth at once."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
-                 still_s: float = 0.3, correlated: float = 0.5) -> None:
+                 still_s: float = 0.3, correlated: float = 0.5,
+                 rate_compliance: float = 2e-6,
+                 use_tracker: bool = True,
+                 state_time: Callable[[], float] | None = None,
+                 threaded: bool = False, handover_s: float | None = None) -> None:
         self.tracker = tracker
+        self.state_time = state_time
+        self.use_tracker = bool(use_tracker)
         self.period_s = float(period_s)
+        self.handover_s = self.period_s / 10.0 if handover_s is None else float(handover_s)
+        self._next_hand = self._last_hand = 0.0
         self.options = options
         self.rate_offset = rate_offset
+        self.rate_compliance = rate_compliance
         self.correlated = float(correlated)
         self.sync_s = float(sync_s)
         self.still_s = float(still_s)
@@ -67,60 +135,132 @@ class LoopLearner:
         self._batch: list[Measurement] = []
         self._last_fix = -np.inf
         self._next = None
+        self._new_events: list[dict] = []
+        self._worker: _EstimatorThread | None = None
+        self.threaded = bool(threaded)
+        #: the run's trajectory (a callable returning it, set by the loop's owner): its
+        #: identifiability is said at the first cycle, before the platform moves
+        self.trajectory: Callable[[], object] | None = None
+        self.identifiable: dict | None = None
 
     def _start(self, ctl: LengthController) -> None:
         readings = ctl.init_readings if ctl.init_readings is not None else ctl.init_tensions
         self.ident = OnlineIdentifier(ctl.robot, ctl.init_pose, readings,
                                       reference=ctl.reference, options=self.options)
         self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
+                                  rate_compliance=self.rate_compliance,
                                   correlated=self.correlated)
+        if self.threaded:
+            self._worker = _EstimatorThread(self.ident)
 
     def __call__(self, t: float, r, pose_des: np.ndarray,
                  ctl: LengthController) -> list[tuple[str, str]]:
         """One cycle at loop time ``t`` [s] with the hardware's readings ``r`` (``tensions_N``,
         ``tensions_ok``, ``lengths_m``): the events (kind, text) to log."""
+        first: list[tuple[str, str]] = []
         if self.ident is None:
             self._start(ctl)
             self._next = t + self.period_s
-        tr = self.tracker.read()
-        # a fix of the plant as of this cycle's readings (the tracker measures the pose the
-        # plant settled in for these lengths and tensions: an older fix is of other lengths)
-        now = abs(tr.t_s - r.t_s) <= self.sync_s
+            self._next_hand = t + self.handover_s
+            self._last_hand = t
+            traj = self.trajectory() if self.trajectory is not None else None
+            if traj is not None:
+                self.identifiable = path_identifiability(self.ident, traj)
+                first.append(("learn_identifiable", identifiability_text(self.identifiable)))
         moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
         self._last_des = np.array(pose_des, float)
         if moved:
             self._still_since = t
-        still = t - self._still_since >= self.still_s
-        if tr.valid and now and still and tr.t_s > self._last_fix and np.all(np.isfinite(tr.pose)) \
-                and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
-            self._last_fix = tr.t_s
-            self._last_kept = t
-            self._batch.append(Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
-                                           np.array(r.lengths_m), True, t))
-        if t < self._next:
-            return []
-        self._next = t + self.period_s
-        return self._learn(t, ctl)
+        if self.state_time is not None:
+            still = abs(self.state_time() - r.t_s) <= self.sync_s
+        else:
+            still = t - self._still_since >= self.still_s
+        if still and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
+            m = self._sample(t, r, pose_des)
+            if m is not None:
+                self._last_kept = t
+                self._batch.append(m)
+        if t >= self._next:
+            self._next = t + self.period_s
+            self._update()
+        if t < self._next_hand:
+            return first
+        self._next_hand = t + self.handover_s
+        return first + self._handover(t, ctl)
 
-    def _learn(self, t: float, ctl: LengthController) -> list[tuple[str, str]]:
-        s, out = self.summary, []
-        if self._batch:
-            res = self.ident.update(self._batch)
-            s.updates += 1
-            s.samples += len(self._batch)
-            s.rejected += bool(res.rejected)
-            self._batch = []
-            for e in res.events:
-                s.events.append({"t": e.t, "kind": e.kind, "text": e.detail})
-                out.append((f"learn_{e.kind}", e.detail))
-        _, changed = self.hand.advance(self.period_s)
-        if changed:
+    def _sample(self, t: float, r, pose_des: np.ndarray) -> Measurement | None:
+        """This cycle's sample: with the tracker, its fix when it is of the plant as of this
+        cycle's readings (the tracker measures the pose the plant settled in for these
+        lengths and tensions: an older fix is of other lengths), else none; without, the
+        commanded pose."""
+        if not self.use_tracker:
+            return Measurement(np.array(pose_des, float), np.array(r.tensions_N),
+                               np.array(r.lengths_m), False, t)
+        tr = self.tracker.read()
+        if not (tr.valid and abs(tr.t_s - r.t_s) <= self.sync_s and tr.t_s > self._last_fix
+                and np.all(np.isfinite(tr.pose))):
+            return None
+        self._last_fix = tr.t_s
+        return Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
+                           np.array(r.lengths_m), True, t)
+
+    def _update(self) -> None:
+        """The period's batch to the estimator (its thread, or now)."""
+        if not self._batch:
+            return
+        batch, self._batch = self._batch, []
+        if self._worker is not None:
+            self._worker.submit(batch)
+        else:
+            self._record(self.ident.update(batch), len(batch))
+
+    def _handover(self, t: float, ctl: LengthController) -> list[tuple[str, str]]:
+        """Move the model toward the estimate for the time since the last hand-over and give it
+        to the controller; the events of the updates finished since."""
+        robot, results, moved = None, [], False
+        if self._worker is None or self._worker.lock.acquire(blocking=False):
+            # threaded: the estimate as of the last update the thread finished; while it
+            # updates, the hand-over waits for the next one (the cycle never waits)
             try:
-                ctl.set_model(self.hand.robot())
-                s.handovers += 1
+                if self._worker is not None:
+                    results = self._worker.take()
+                _, changed = self.hand.advance(t - self._last_hand)
+                robot = self.hand.robot() if changed else None
+                moved = True
+            finally:
+                if self._worker is not None:
+                    self._worker.lock.release()
+        if moved:
+            self._last_hand = t
+        for res, k in results:
+            self._record(res, k)
+        out = [(f"learn_{e['kind']}", e["text"]) for e in self._new_events]
+        self._new_events = []
+        if robot is not None:
+            try:
+                ctl.set_model(robot)
+                self.summary.handovers += 1
             except ValueError as exc:
                 out.append(("learn_handover_refused", str(exc)))
         return out
+
+    def _record(self, res, k: int) -> None:
+        s = self.summary
+        s.updates += 1
+        s.samples += k
+        s.rejected += bool(res.rejected)
+        for e in res.events:
+            ev = {"t": e.t, "kind": e.kind, "text": e.detail}
+            s.events.append(ev)
+            self._new_events.append(ev)
+
+    def close(self) -> None:
+        """End the estimator's thread (threaded mode; waits for the update in progress)."""
+        if self._worker is not None:
+            self._worker.close()
+            with self._worker.lock:
+                for res, k in self._worker.take():
+                    self._record(res, k)
 
     def identified(self) -> Robot | None:
         """The identified robot: the estimate of the parameters the run determined, the
@@ -140,4 +280,41 @@ class LoopLearner:
             s.sd_mm_max = round(1e3 * float(self.ident.sd[:n].max()), 3)
         return {"updates": s.updates, "samples": s.samples, "rejected": s.rejected,
                 "handovers": s.handovers, "events": s.events, "offsets_mm": s.offsets_mm,
-                "offset_sd_mm_max": s.sd_mm_max}
+                "offset_sd_mm_max": s.sd_mm_max, "identifiable": self.identifiable}
+
+
+class _EstimatorThread:
+    """The estimator's updates on a daemon thread: :meth:`submit` a batch (returns at once;
+    batches queue up), :meth:`take` the results finished since the last call (hold
+    :attr:`lock`: the estimate does not change under it), :meth:`close`."""
+
+    def __init__(self, ident: OnlineIdentifier) -> None:
+        import queue
+        import threading
+
+        self.ident = ident
+        self.lock = threading.Lock()
+        self._queue: queue.Queue = queue.Queue()
+        self._done: list = []
+        self._thread = threading.Thread(target=self._run, name="cdpr-estimator", daemon=True)
+        self._thread.start()
+
+    def submit(self, batch: list[Measurement]) -> None:
+        self._queue.put(batch)
+
+    def take(self) -> list:
+        done, self._done = self._done, []
+        return done
+
+    def _run(self) -> None:
+        while True:
+            batch = self._queue.get()
+            if batch is None:
+                return
+            with self.lock:
+                res = self.ident.update(batch)
+                self._done.append((res, len(batch)))
+
+    def close(self) -> None:
+        self._queue.put(None)
+        self._thread.join()

@@ -80,9 +80,42 @@ MODELS: dict[str, str] = {
                  "load cells measure",
     "diagnosed": "the corrected robot.toml cdpr diagnose wrote from a dry-run calibration "
                  "recording; exit points moved with the measured tensions",
+    "learned": "starts from the nominal model and identifies exit points and mast "
+               "compliance online (tracker fixes, tensions, encoders) during a warm-up of "
+               "at most 60 s, then runs the path with the model handed over (learning on)",
+    "learned_untracked": "as learned, but the estimator uses tensions and encoders only "
+                         "(the tracker serves the initialisation and the figures, not the "
+                         "learning)",
 }
 #: the order models appear in tables and plots
-MODEL_ORDER = ("nominal", "remeasured", "compliant", "diagnosed")
+MODEL_ORDER = ("nominal", "remeasured", "compliant", "diagnosed", "learned",
+               "learned_untracked")
+#: the models paper-paths runs when none are named
+DEFAULT_MODELS = ("nominal", "remeasured", "compliant", "diagnosed")
+#: the learning models: whether the estimator uses the tracker's fixes
+LEARNED: dict[str, bool] = {"learned": True, "learned_untracked": False}
+#: the warm-up of the learning models: dwell poses offset from the init pose [m] (x, y, z
+#: from the init pose, clipped into :data:`WARMUP_BOX`), each visited once: toward each
+#: mast in turn, high and low alternately (large tension changes on every mast: its
+#: cables taut near it, slack-ish far from it; the height changes every tension)
+WARMUP_OFFSETS: tuple[tuple[float, float, float], ...] = (
+    (-2.5, -2.5, 0.6), (-2.5, 2.5, -0.5), (2.5, 2.5, 0.6), (2.5, -2.5, -0.5))
+#: the box the warm-up's poses are kept in [m] (x, y, z lower; x, y, z upper): the extent
+#: of the calibration grid (bench/data/paths/calibration-quick.toml)
+WARMUP_BOX: tuple[tuple[float, float, float], tuple[float, float, float]] = (
+    (1.0, 2.0, 0.6), (19.0, 15.12, 2.0))
+#: [s] dwell at each warm-up pose (the learner keeps samples after ``still_s`` at rest)
+WARMUP_DWELL_S = 0.5
+#: the warm-up's segment name
+WARMUP_NAME = "learning warm-up"
+#: [m/s] the learning models' hand-over rate per exit coordinate: the setpoints move by
+#: at most about this much per second more than the path asks (2 % of its 0.5 m/s)
+LEARN_RATE_OFFSET = 0.01
+#: the hand-over's correlation limit for the learning model with the tracker
+#: (:meth:`controller.online_ident.ModelHandover.target`; above 1: off: the warm-up's samples
+#: fix the parameters together). Without the tracker (2 equations a sample) the warm-up leaves
+#: them correlated: the default 0.5 applies, a part of a correction can be worse than none
+LEARN_CORRELATED = 1.01
 #: the scenarios and paths the campaigns use (shipped names)
 SCENARIO = "paper-centre"
 CALIBRATION_SCENARIO = "paper-calibration"
@@ -142,7 +175,13 @@ class RunSpec:
     ``stop_file`` a file whose appearance stops the run (quick stop, recording kept);
     ``reactions`` the supervisor's reactions changed for the run, condition -> reaction
     name (default :data:`REACTIONS`: slack logged);
-    ``tags`` free data copied into the result (case, model, ...).
+    ``tags`` free data copied into the result (case, model, ...);
+    ``learn``: None, or the online identification's options (``tracker`` bool: the
+    estimator uses the tracker's fixes; ``period_s``; ``sigma_length``): the run learns
+    (:class:`bench.dryrun.learn.LoopLearner`) from its first cycle to its last;
+    ``warmup``: the segment specs (:mod:`controller.trajectory`) run from the init pose
+    before the path, as part of its approach (``cycle`` -1: no part of the ISO figures),
+    or a callable of the init pose that returns them.
     """
 
     label: str
@@ -161,6 +200,8 @@ class RunSpec:
     stop_file: str | None = None
     reactions: Mapping[str, str] = field(default_factory=lambda: dict(REACTIONS))
     tags: Mapping[str, Any] = field(default_factory=dict)
+    learn: Mapping[str, Any] | None = None
+    warmup: Any = None
 
 
 @dataclass(frozen=True)
@@ -197,6 +238,36 @@ def table1_exit_offsets(nominal: Robot, remeasured: Robot, stiffness: Sequence[f
         ps = pose_statics(apply_effects(nominal, eff), p)
         off = off + (remeasured.exits - ps.exits)
     return off
+
+
+def warmup_specs(init_pose: Sequence[float]) -> list:
+    """The learning models' warm-up from ``init_pose`` (6,): one visit of each pose of
+    :data:`WARMUP_OFFSETS` (level, kept in :data:`WARMUP_BOX`) with a dwell of
+    :data:`WARMUP_DWELL_S`, then back to the init pose's position."""
+    from controller.trajectory import Move, Visits
+
+    p0 = np.asarray(init_pose, float)
+    lo, hi = np.array(WARMUP_BOX[0]), np.array(WARMUP_BOX[1])
+    poses = tuple(tuple(np.r_[np.clip(p0[:3] + np.array(o), lo, hi), p0[3:]].tolist())
+                  for o in WARMUP_OFFSETS)
+    return [Visits(poses, 1, WARMUP_DWELL_S, name=WARMUP_NAME),
+            Move(tuple(p0.tolist()), name=f"{WARMUP_NAME}: back to the init pose")]
+
+
+def with_warmup(path: Any, warmup: Sequence, start_pose: Sequence[float],
+                limits: Any = None) -> Any:
+    """The trajectory of ``path`` (:class:`controller.paths.PathSpec`) from ``start_pose``
+    with the segment specs ``warmup`` run first, as part of the approach (``cycle`` -1)."""
+    from controller.paths import build_trajectory
+    from controller.trajectory import Move, Trajectory
+
+    if not warmup:
+        return build_trajectory(path, start_pose, limits)
+    specs = list(warmup)
+    if path.start is not None:
+        specs.append(Move(path.start, "approach", f"{path.source}: start"))
+    return Trajectory(specs + list(path.segments), start_pose, limits or path.limits,
+                      repeat=path.repeat, approach=len(specs))
 
 
 def known_truth(scenario: Scenario, unknown: Sequence[str] = ()) -> Robot:
@@ -287,7 +358,7 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
     from bench.dryrun.record import DryRunRecorder
     from bench.dryrun.scenarios import max_rate_hz, sync_period_us
     from bench.dryrun.world import start_world, with_rate
-    from controller.paths import PathSpec, build_trajectory, check_trajectory, load_path
+    from controller.paths import PathSpec, check_trajectory, load_path
     from controller.robot import load_robot
     from controller.supervisor import Reaction
     from controller.winch import load_winches
@@ -310,8 +381,11 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
         limits = path.limits.replace(speed_pct=float(spec.speed_pct))
     plant_hz = plant_rate(spec.plant_rate_hz, limits or path.limits)
 
+    def warm(p0) -> list:
+        return list(spec.warmup(p0) if callable(spec.warmup) else spec.warmup or ())
+
     def plan(p0):
-        traj = build_trajectory(path, p0, limits)
+        traj = with_warmup(path, warm(p0), p0, limits)
         chk = check_trajectory(model, traj, winches)
         if not chk.ok:
             raise PathRefused(f"path {path.name or path.source} refused for model {model.name}: "
@@ -337,14 +411,19 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
 
     max_s = spec.max_duration_s
     if max_s is not None:  # counted from the end of the approach to the path
-        approach = build_trajectory(path, spec.scenario.init_pose, limits).segments
+        approach = with_warmup(path, warm(spec.scenario.init_pose), spec.scenario.init_pose,
+                               limits).segments
         max_s += max((s.t1 for s in approach if s.cycle < 0), default=0.0)
     opts = LoopOptions(decimate=decimate, mast_tensions=spec.mast_tensions,
                        max_duration_s=max_s,
                        reactions={k: Reaction[v.upper()] for k, v in spec.reactions.items()})
     with start_world(spec.scenario, winches, "inprocess", False, plant_hz) as world:
+        learner = _learner(spec.learn, world)
         loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
-                           tick=world.tick, on_progress=progress, stop=_STOP)
+                           tick=world.tick, on_progress=progress, stop=_STOP,
+                           on_cycle=learner)
+        if learner is not None:
+            learner.trajectory = lambda: loop.trajectory
         res = loop.run()
     _write_progress(spec.progress, 1.0)
     if res.ended == "interrupted" and in_process and not _STOP.is_set():
@@ -365,9 +444,38 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
         "events": [e for e in res.events
                    if e["reaction"] not in ("none", "event", "log") and e["active"]],
     }
+    if learner is not None:
+        out["learn"] = learner.report()
+        out["learn"]["warmup_s"] = _warmup_s(loop.trajectory)
     if spec.kind != "record":
         out.update(figures(rec, spec.kind))
     return out
+
+
+def _learner(learn: Mapping[str, Any] | None, world: Any) -> Any:
+    """The run's online identification (None: the run does not learn); in the in-process
+    world, the time of the plant state the readings are of is the rig's last settle."""
+    if learn is None:
+        return None
+    from bench.dryrun.learn import LoopLearner
+    from controller.online_ident import IdentOptions
+
+    rig = getattr(world, "rig", None)
+    return LoopLearner(world.tracker, float(learn.get("period_s", 0.5)),
+                       IdentOptions(sigma_length=float(learn.get("sigma_length", 5e-4))),
+                       rate_offset=float(learn.get("rate_offset", LEARN_RATE_OFFSET)),
+                       correlated=float(learn.get("correlated", LEARN_CORRELATED if
+                                                  learn.get("tracker", True) else 0.5)),
+                       use_tracker=bool(learn.get("tracker", True)),
+                       state_time=None if rig is None else (lambda: rig.last.t_s))
+
+
+def _warmup_s(traj: Any) -> float | None:
+    """[s] trajectory time of the learning warm-up (:func:`warmup_specs`; not the approach
+    to the path's start, which every model's run has)."""
+    if traj is None:
+        return None
+    return float(sum(s.duration_s for s in traj.segments if s.name.startswith(WARMUP_NAME)))
 
 
 def figures(recording: str | Path, kind: str) -> dict[str, Any]:
@@ -437,7 +545,7 @@ class PathsOptions:
     """What ``paper-paths`` runs (the defaults are the command's)."""
 
     work: Path
-    models: tuple[str, ...] = MODEL_ORDER
+    models: tuple[str, ...] = DEFAULT_MODELS
     planned: bool = True  #: the measured-vs-planned comparison in the heavy scenario
     rate_hz: float = PATHS_RATE_HZ
     plant_rate_hz: float = PATHS_PLANT_HZ
@@ -470,13 +578,15 @@ def paths_plan(opt: PathsOptions) -> tuple[list[DiagnoseSpec | RunSpec], list[Ru
         robots["remeasured"] = resolve_robot("rocaspect-remeasured")
     stop = str(work / ".stop")
 
-    def spec(label, scen, robot, path, tags, robot_file=None, mast="measured") -> RunSpec:
+    def spec(label, scen, robot, path, tags, robot_file=None, mast="measured",
+             learn=None) -> RunSpec:
         return RunSpec(label, scen, PATHS[path], str(work / label), robot=robot,
                        robot_file=robot_file, rate_hz=opt.rate_hz,
                        plant_rate_hz=opt.plant_rate_hz, mast_tensions=mast,
                        max_duration_s=opt.max_duration_s,
                        progress=str(work / f".{label}.progress"), stop_file=stop,
-                       reactions=opt.reactions, tags=tags)
+                       reactions=opt.reactions, tags=tags, learn=learn,
+                       warmup=warmup_specs if learn is not None else None)
 
     first: list[DiagnoseSpec | RunSpec] = []
     second: list[RunSpec] = []
@@ -498,6 +608,9 @@ def paths_plan(opt: PathsOptions) -> tuple[list[DiagnoseSpec | RunSpec], list[Ru
             label = f"{m}_{_case_name(case)}"
             if m == "diagnosed":
                 second.append(spec(label, scen, None, case[0], tags, robot_file=model_file))
+            elif m in LEARNED:
+                first.append(spec(label, scen, sc.model, case[0], tags,
+                                  learn={"tracker": LEARNED[m]}))
             else:
                 first.append(spec(label, scen, robots[m], case[0], tags))
     if opt.planned:

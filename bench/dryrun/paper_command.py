@@ -5,7 +5,8 @@ plus ``--jobs``, ``--cycles``, ``--speeds``, ``--models``, ``--diagnosed-model``
 campaigns themselves: :mod:`bench.dryrun.paper`; the results: :mod:`bench.dryrun.paper_report`.
 
 ``paper-paths [--json] [--plots DIR] [--record DIR] [--jobs N] [--rate HZ] [--duration S]
-[--models nominal,remeasured,compliant,diagnosed] [--diagnosed-model ROBOT.toml]``: the
+[--models nominal,remeasured,compliant,diagnosed,learned,learned_untracked]
+[--diagnosed-model ROBOT.toml]``: the
 four path runs of Table 3 per model, the calibration campaign (``paper-calibration``
 scenario, ``calibration-quick`` path) recorded by a dry run and diagnosed by ``cdpr
 diagnose`` for the ``diagnosed`` model (``--diagnosed-model`` runs a corrected robot.toml
@@ -32,13 +33,24 @@ max / nominal AT max), "paper_at_max_nominal_m", "paper_at_mean_nominal_m",
 "model_file", "diagnose_s", "calibration", "vs_truth": {"exit_rms_m", "exit_max_m",
 "stiffness_fitted", "stiffness_truth", "stiffness_rel_error"}}, "runs": [{"label", "model",
 "mast_tensions", "simulated_s", "wall_s", "slack_events", "events", "recording"}],
-"failures": [{"label", "error"}], "rate_hz", "reactions", "wall_s", "plots"}`` (m, s).
+"failures": [{"label", "error"}], "learning": [{"label", "warmup_s", "updates", "samples",
+"rejected", "handovers", "event_counts", "identifiable", "offset_sd_mm_max"}] (the
+learning models' runs), "rate_hz", "reactions", "wall_s", "plots"}`` (m, s).
 
 ``paper-poses --json``: ``{"scenario": "paper-poses", "cycles", "speeds_pct", "models",
 "rate_hz", "reactions", "runs": [{"set", "speed_pct", "model", "apx_m", "apy_m", "apz_m",
 "ap_m", "rp_m", "ap_a_rad", ..., "rp_c_rad" (the worst pose of the set, ISO 9283), "poses":
 [{"command", "n", "ap_m", "rp_m"}], "simulated_s", "wall_s", "recording"}],
 "ap_grows_away_from_centre": {"<model>_<v>pct": bool}, "wall_s", "failures", "plots"}``.
+
+``paper-drift [--duration S] [--json] [--record DIR] [--jobs N]``: the supporting ropes
+settle a further 5 mm over ``--duration`` (default 3600 s) while the centre path runs again
+and again, learned controller against the fixed true model of t = 0
+(:mod:`bench.dryrun.paper_drift`); ``--json``: ``{"scenario": "paper-drift", "settle_m",
+"duration_s", "runs": {"learned"|"fixed": {"passes", "settled_m", "worst_m", "ratio",
+"first_m", "last_m", "per_pass": [[t_s, at_m]], "drift_events": [[t_s, text]] (learned),
+"learn_events", "warmup_s"}}, "goals": {"learned_ratio", "learned_within_2x",
+"drift_detected_at_s", "fixed_ratio", "fixed_degrades"}, "failures", "wall_s"}``.
 
 Exit status: 0 every run completed, 1 a run failed (the others are reported), 2 bad input.
 """
@@ -55,7 +67,7 @@ import threading
 import time
 from pathlib import Path
 
-CAMPAIGNS = ("paper-paths", "paper-poses")
+CAMPAIGNS = ("paper-paths", "paper-poses", "paper-drift")
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -165,6 +177,11 @@ def run(args: argparse.Namespace) -> int:
         previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, on_term)
     t0 = time.perf_counter()
     try:
+        if name == "paper-drift":
+            if sets or cases or models:
+                return _fail(args, 2, "--sets, --cases and --models do not apply to "
+                                      "paper-drift")
+            return _drift(args, work, t0)
         if name == "paper-paths":
             if sets:
                 return _fail(args, 2, "--sets applies to paper-poses")
@@ -228,6 +245,10 @@ def _poses(args, paper, work: Path, models: list[str], speeds: list[float], sets
         return _fail(args, 2, "--models planned: the measured-vs-planned comparison is part of "
                               "paper-paths")
     if models:
+        learned = [m for m in models if m in paper.LEARNED]
+        if learned:
+            return _fail(args, 2, f"--models {', '.join(learned)}: the learning models run in "
+                                  f"paper-paths")
         if "diagnosed" in models and args.diagnosed_model is None:
             return _fail(args, 2, "--models diagnosed needs --diagnosed-model ROBOT.toml (the "
                                   "corrected robot.toml of cdpr diagnose, e.g. the one "
@@ -259,4 +280,30 @@ def _poses(args, paper, work: Path, models: list[str], speeds: list[float], sets
         print(json.dumps(res))
     else:
         print(rep.poses_table(res))
+    return 1 if failures else 0
+
+
+def _drift(args, work: Path, t0: float) -> int:
+    from bench.dryrun import paper
+    from bench.dryrun import paper_drift as pd
+
+    duration = float(args.duration) if args.duration is not None else pd.DURATION_S
+    rate = float(args.rate) if args.rate is not None else pd.RATE_HZ
+    items = pd.drift_plan(work, duration, pd.SETTLE_M, rate)
+    prog = paper.Progress("paper-drift", len(items), args.quiet)
+    if not args.quiet:
+        print(f"cdpr dry-run paper-drift: ropes settling {1e3 * pd.SETTLE_M:g} mm over "
+              f"{duration:g} s, {len(items)} runs (learned, fixed), {rate:g} Hz, {args.jobs} "
+              f"processes; recordings in {work}", file=sys.stderr)
+    prog.start()
+    try:
+        results, failures = paper.run_campaign([items], args.jobs, prog)
+    finally:
+        prog.close()
+    res = pd.drift_result(results, failures, pd.SETTLE_M, duration)
+    res["wall_s"] = time.perf_counter() - t0
+    if args.json:
+        print(json.dumps(res))
+    else:
+        print(pd.drift_table(res))
     return 1 if failures else 0

@@ -74,6 +74,19 @@ def diagnosis_vs_truth(model_file: str, truth: Robot,
             "stiffness_rel_error": [[_f(v) for v in row] for row in rel]}
 
 
+def _learning(r: dict) -> dict[str, Any]:
+    """A learning run's summary: its label, warm-up [s], updates, samples, rejected batches,
+    hand-overs, its events counted by kind, what it could identify (said before moving)."""
+    lr = r["learn"]
+    counts: dict[str, int] = {}
+    for e in lr["events"]:
+        counts[e["kind"]] = counts.get(e["kind"], 0) + 1
+    return {"label": r["label"], "warmup_s": lr.get("warmup_s"), "updates": lr["updates"],
+            "samples": lr["samples"], "rejected": lr["rejected"], "handovers": lr["handovers"],
+            "event_counts": counts, "identifiable": lr.get("identifiable"),
+            "offset_sd_mm_max": lr.get("offset_sd_mm_max")}
+
+
 def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOptions,
                  wall_s: float) -> dict[str, Any]:
     """The ``paper-paths --json`` object (see :mod:`bench.dryrun.paper_command`)."""
@@ -116,12 +129,13 @@ def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOp
         goals["best_is_centre_path_centre_init"] = order[0] == ("centre", "centre")
         goals["paper_order"] = ["centre path, centre init", "centre path, side init",
                                 "side path, side init", "side path, centre init"]
-    for m in ("compliant", "diagnosed"):
+    for m in ("compliant", "diagnosed", "learned", "learned_untracked"):
         cuts = [c.get(f"at_max_cut_{m}") for c in cases]
         if m in opt.models and cuts and all(v is not None for v in cuts):
             goals[f"min_at_max_cut_{m}"] = min(cuts)
             goals[f"{m}_cuts_at_max_by_80pct_everywhere"] = min(cuts) >= GOAL_CUT
     out["goals"] = goals
+    out["learning"] = [_learning(r) for r in results if r.get("learn") is not None]
     if opt.planned:
         pv = []
         for case in opt.cases:
@@ -213,11 +227,18 @@ def paths_table(res: dict[str, Any]) -> str:
     if "nominal_order" in g:
         lines.append(f"  nominal, best to worst: {'; '.join(g['nominal_order'])} (paper: "
                      f"{'; '.join(g['paper_order'])})")
-    for m in ("compliant", "diagnosed"):
+    for m in ("compliant", "diagnosed", "learned", "learned_untracked"):
         if f"min_at_max_cut_{m}" in g:
             ok = g[f"{m}_cuts_at_max_by_80pct_everywhere"]
             lines.append(f"  {m}: AT max cut by {100 * g[f'min_at_max_cut_{m}']:.0f} % at "
                          f"least ({'meets' if ok else 'misses'} the 80 % goal)")
+    for lr in res.get("learning", []):
+        lines.append(f"  {lr['label']}: warm-up {lr['warmup_s']:.0f} s; {lr['updates']} "
+                     f"updates, {lr['samples']} samples, {lr['rejected']} rejected, "
+                     f"{lr['handovers']} hand-overs; events {lr['event_counts'] or 'none'}")
+        if lr.get("identifiable"):
+            from bench.dryrun.learn import identifiability_text
+            lines.append(f"    said before moving: {identifiability_text(lr['identifiable'])}")
     pv = res.get("planned_vs_measured")
     if pv:
         mass = pv["platform_mass_kg"]
