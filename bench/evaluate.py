@@ -766,8 +766,13 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
 
     one_blas_thread()
 
+    tracker = kw.pop("tracker", None)
     try:
-        case = make_case(seed, attempt=attempt, **kw)
+        if tracker:  # the tracker's own error alone (tracker_case)
+            case = CASE_HOOKS[tracker](seed, attempt=attempt, **{
+                k: v for k, v in kw.items() if k in ("robot", "poses", "kind")})
+        else:
+            case = make_case(seed, attempt=attempt, **kw)
     except RuntimeError as e:
         raise CaseError(str(e)) from e
     rng = np.random.default_rng([seed, 7, attempt])

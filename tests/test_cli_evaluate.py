@@ -424,3 +424,18 @@ def test_run_each_says_when_each_item_starts():
     started.clear()
     assert [o.value for o in run_each(abs, [-4], jobs=1, on_start=started.append)] == [4]
     assert started == [-4]
+
+
+def test_tracker_error_cases_conceal_the_tracker_s_error_alone(capsys):
+    """``--tracker-error``: each case's tracker carries that error and nothing else is
+    concealed; the diagnosis is scored on it (here named exactly); combined with
+    ``--effects`` it is refused naming both."""
+    rc, out, _ = run_json(capsys, "--cases", "1", "--seed", "41000", "--jobs", "1",
+                          "--tracker-error", "tracker_frame", "--robot", "rocaspect",
+                          "--grid", "3,2,1", "--visits", "2", "--kind", "dwell")
+    assert rc == 0 and out["config"]["tracker"] == "tracker_frame"
+    (case,) = out["cases"]
+    assert case["truth"] == ["tracker_frame"] and case["named"] == ["tracker_frame"]
+    rc, out, _ = run_json(capsys, "--cases", "1", "--tracker-error", "tracker_frame",
+                          "--effects", "drum_scale")
+    assert rc == 2 and "--tracker-error" in out["error"] and "--effects" in out["error"]

@@ -74,6 +74,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="column groups the recordings hold [mix]")
     p.add_argument("--oov", choices=("backlash", "thermal", "friction", "none"),
                    help="physics outside the vocabulary in every case (default: in some)")
+    p.add_argument("--tracker-error", choices=("tracker_frame", "tracker_latency"),
+                   help="every case's laser tracker carries this error of its own and nothing "
+                        "else is concealed (all sensors; tracker_latency: continuous "
+                        "recordings unless --kind says otherwise)")
     p.add_argument("--grid", metavar="NX,NY,NZ",
                    help="pose grid of each case's campaign (default: random grids and counts)")
     p.add_argument("--visits", type=int, metavar="V",
@@ -123,8 +127,14 @@ def case_config(args: argparse.Namespace) -> dict[str, Any]:
         if args.visits < 1:
             raise UsageError(f"--visits {args.visits}: must be >= 1")
         poses["visits"] = args.visits
-    return {"robot": args.robot, "effects": effects, "poses": poses, "kind": args.kind,
-            "sensors": args.sensors, "oov": args.oov}
+    tracker = getattr(args, "tracker_error", None)
+    if tracker and (effects is not None or args.sensors != "mix" or args.oov is not None):
+        raise UsageError(f"--tracker-error {tracker}: conceals the tracker's error alone "
+                         f"(all sensors, nothing outside the vocabulary); drop --effects, "
+                         f"--sensors and --oov")
+    config = {"robot": args.robot, "effects": effects, "poses": poses, "kind": args.kind,
+              "sensors": args.sensors, "oov": args.oov}
+    return config | ({"tracker": tracker} if tracker else {})
 
 
 def case_kwargs(config: dict[str, Any]) -> dict[str, Any]:
@@ -134,7 +144,7 @@ def case_kwargs(config: dict[str, Any]) -> dict[str, Any]:
         kw["effects"] = tuple(config["effects"])
     if config["poses"]:
         kw["poses"] = dict(config["poses"])
-    for k in ("kind", "sensors", "oov"):
+    for k in ("kind", "sensors", "oov", "tracker"):
         if config.get(k) not in (None, "mix"):
             kw[k] = config[k]
     return kw
