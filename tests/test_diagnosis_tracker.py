@@ -188,3 +188,20 @@ def test_exit_points_moved_together_declare_the_tracker_frame(tmp_path):
     np.testing.assert_allclose(motion["rotation_rad"], omega, atol=1e-4)
     alts = {a["name"]: a for a in got["exit_point_offset"]["alternatives"]}
     assert alts["tracker_frame"]["gauge"] == "tracker_frame"
+
+
+def test_a_latency_below_what_the_time_stamps_resolve_is_not_named(tmp_path):
+    """A tracker 1 ms late on rows stamped at their writer's period (tens of ms): an offset
+    the time stamps cannot resolve (the logger's convention of stamping), not named; the
+    floor is a tenth of the length readings' period (the encoders' stream's where the
+    recording holds streams)."""
+    from bench.diagnosis.frame import LATENCY_FLOOR, stamp_period_s
+
+    sc, dg = _run(tmp_path, scenario(truth={"tracker_latency": {"dt": 0.001}}, poses=MOVES,
+                                     recording=CONTINUOUS))
+    assert "tracker_latency" not in _named(dg), dg.report["mismatch"]["summary"]
+    t = np.arange(0.0, 10.0, 0.05)
+    assert stamp_period_s(t, None) == pytest.approx(0.05)
+    streams = {"streams": {"encoders": {"period_s": 0.004}}}
+    assert stamp_period_s(t, streams) == 0.004
+    assert LATENCY_FLOOR * 0.05 > 0.001

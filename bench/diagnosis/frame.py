@@ -155,6 +155,42 @@ def tracker_candidates(rm) -> list[str]:
     return out
 
 
+#: a latency below this share of the moving samples' spacing in time is no finding
+LATENCY_FLOOR = 0.1
+
+
+def latency_floor_s(rm) -> float:
+    """[s] the smallest tracker latency the recording of ``rm`` can name:
+    :data:`LATENCY_FLOOR` times the period of its length readings (``rm.stamp_period_s``:
+    the encoders' stream, or the rows'). A row's time stamp says when it was written, not
+    when within its period each sensor sampled; an offset between the streams well below
+    that period is the logger's (or the drives') convention of stamping, not a tracker
+    that lags. 0 where the period is unknown."""
+    period = getattr(rm, "stamp_period_s", None)
+    return float(LATENCY_FLOOR * period) if period and np.isfinite(period) else 0.0
+
+
+def stamp_period_s(t: np.ndarray, streams: dict | None) -> float | None:
+    """[s] the period of a recording's length readings: the encoders' stream's where the
+    recording holds streams at their own rates (``streams``, :func:`bench.streams.condition`'s
+    report), else the median spacing of the rows' time stamps ``t`` [s]."""
+    enc = ((streams or {}).get("streams") or {}).get("encoders") or {}
+    if enc.get("period_s"):
+        return float(enc["period_s"])
+    dt = np.diff(np.asarray(t, dtype=float))
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    return float(np.median(dt)) if dt.size else None
+
+
+def material(rm, effect: str, values: dict[str, float]) -> bool:
+    """Whether the tracker's error ``effect`` (fitted ``values``) is one the recording of
+    ``rm`` can name: a ``tracker_latency`` of at least :func:`latency_floor_s`. True for
+    every other effect."""
+    if effect != "tracker_latency":
+        return True
+    return abs(values.get("dt", 0.0)) >= latency_floor_s(rm)
+
+
 #: the two sides of the tracker frame's gauge (a rigid motion of every exit point)
 GAUGE_PAIR = {"tracker_frame": "exit_point_offset", "exit_point_offset": "tracker_frame"}
 

@@ -719,6 +719,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     say(f"{rec.n_samples} rows -> {s.n} samples ({inf['dwell_samples']} dwells, "
         f"{inf['path_samples']} rows of moves) in {s.n_targets} replicate groups")
     rm = ResidualModel(s, model, rec.init_pose, rec.init_tensions, rows=s.triples)
+    rm.stamp_period_s = frame.stamp_period_s(rec.t, streams)
     rm.estimate_noise(model)
     reference = _encoder_reference(rec, rm, say)
     nz = rm.noise_summary()

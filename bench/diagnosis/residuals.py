@@ -168,6 +168,9 @@ class ResidualModel:
         self.sigma_k = {0: dict(self.sigma), 1: dict(self.sigma)}
         self.white_k = {0: dict(self.white), 1: dict(self.white)}
         self.sigma_source = "defaults (no replicate visits)"
+        #: [s] period of the recording's length readings (set by the diagnosis; None
+        #: unknown): what its time stamps resolve (:func:`bench.diagnosis.frame.material`)
+        self.stamp_period_s: float | None = None
         self.replicate_dof = 0.0
         #: visit-to-visit length error of dwells [m] measured on replicates (None unmeasured)
         self.visit_sd: float | None = None

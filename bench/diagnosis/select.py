@@ -35,7 +35,7 @@ from bench.diagnosis.fit import (
     fd_jacobian,
     fit_effects,
 )
-from bench.diagnosis.frame import tracker_candidates
+from bench.diagnosis.frame import material, tracker_candidates
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
 from bench.parallel import job_running
@@ -813,7 +813,7 @@ class Selector:
             # that lowered the BIC by 19,223, and the truth (BIC 132) was never reached.
             # The backward step checks the errors once the set explains the data.)
             clear = [(f, e) for f, e in every if f.bic - current.bic <= -BIC_ENTER]
-            firm = [(f, e) for f, e in clear if _far_step(current, f) or stands_out(f, e)]
+            firm = [(f, e) for f, e in clear if _far_step(current, f) or stands_out(f, e, self.rm)]
             if not firm:
                 weak = min(clear, key=lambda x: x[0].bic)
                 w, k = wald_statistic(*weak)
@@ -973,7 +973,7 @@ class Selector:
             if len(chosen) < 2:
                 break
             reduced = self.fit(tuple(c for c in chosen if c != e), current)
-            weak = not _far_step(reduced, current) and not stands_out(current, e)
+            weak = not _far_step(reduced, current) and not stands_out(current, e, self.rm)
             if (reduced.bic - current.bic < BIC_ENTER or weak) and not _takes_over(
                     e, chosen, current, reduced):
                 self.progress(f"dropping {e}: the other effects explain it" if not weak else
@@ -1170,7 +1170,7 @@ def wald_statistic(fit: FitResult, effect: str) -> tuple[float, int]:
     return (w if np.isfinite(w) else 0.0), len(ix)
 
 
-def stands_out(fit: FitResult, effect: str) -> bool:
+def stands_out(fit: FitResult, effect: str, rm: ResidualModel | None = None) -> bool:
     """Whether ``effect``'s parameters in ``fit`` depart from the model's values, by their
     own errors, at the significance the BIC asks of one parameter to enter (a chi-square
     drop of :data:`BIC_ENTER` + ln n): the Wald statistic's tail probability with as many
@@ -1183,11 +1183,15 @@ def stands_out(fit: FitResult, effect: str) -> bool:
     or the model misfits, W is smaller than the chi-square's drop. A parameter named 1.7
     standard errors from the model's value is no finding, whatever the chi-square said.
     (The BIC's charge per parameter is the complexity's, which the BIC made; this test
-    asks only that the departure be real.)"""
+    asks only that the departure be real.) With the residual model ``rm``, a tracker
+    latency must also exceed what the recording's time stamps can resolve
+    (:func:`bench.diagnosis.frame.material`)."""
     from scipy.stats import chi2 as chi2_dist
 
     w, k = wald_statistic(fit, effect)
     if k == 0:
+        return False
+    if rm is not None and not material(rm, effect, fit.space.values(fit.phi).get(effect, {})):
         return False
     bar = BIC_ENTER + float(np.log(max(fit.n_eff or fit.n_res, 2)))
     return bool(chi2_dist.sf(w, k) < chi2_dist.sf(bar, 1))
