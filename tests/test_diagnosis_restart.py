@@ -38,6 +38,7 @@ def _fit(sizes: dict[str, int], bic: float, undetermined: int = 0) -> SimpleName
 
 def _selector(found: tuple[list[str], SimpleNamespace]) -> tuple[Selector, list]:
     sel = object.__new__(Selector)
+    sel.rm = None  # no residual model (stands_out without the tracker latency floor)
     sel.model = rocaspect()  # 24 exit-point offsets, 8 pulley radii, 8 length offsets, ...
     sel.progress = lambda msg: None
     sel.stalled = False
@@ -463,6 +464,7 @@ def test_a_search_that_comes_back_to_a_set_it_left_stops_there():
     12554: the load cells swapped for a cable's E*A and E*A dropped, fourteen times over):
     the search stops when it comes back to a set it left."""
     sel = object.__new__(Selector)
+    sel.rm = None  # no residual model (stands_out without the tracker latency floor)
     sel.progress = lambda msg: None
     sel.budget = None
     sel.max_effects = 5
@@ -507,6 +509,7 @@ def test_prefetch_refits_the_subsets_fit_would_refit_and_keeps_the_better(monkey
 
     monkeypatch.setattr(select, "_space_job", job)
     sel = object.__new__(Selector)
+    sel.rm = None  # no residual model (stands_out without the tracker latency floor)
     sel.model = rocaspect()
     sel.progress = lambda msg: None
     sel.rm, sel.train = None, None
