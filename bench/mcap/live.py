@@ -14,6 +14,7 @@ client subscribes to ``/can``). Port 0 takes a free port (:attr:`LiveWriter.port
 from __future__ import annotations
 
 import json
+import sys
 import threading
 from collections import deque
 from typing import Any
@@ -182,35 +183,12 @@ def live_recorder(address: str, robot: Robot, init_pose: np.ndarray, rate_hz: fl
     """A :class:`bench.dryrun.record.DryRunRecorder` whose rows and events go live to
     Foxglove (its packing of the loop's row, a :class:`LiveWriter` sink); with ``can`` (the
     ``--can`` spec of the drives' bus) also every frame of that bus on ``/can``."""
-    from bench.dryrun.record import DryRunRecorder, columns
-    from bench.mcap.can_tap import CanTap
+    from bench.dryrun.record import columns
+    from bench.mcap.recorders import SinkRecorder
 
-    class LiveRecorder(DryRunRecorder):
-        def __init__(self) -> None:
-            self.n = robot.n_cables
-            self.writer = LiveWriter(address, robot, columns(robot), rate_hz=rate_hz,
-                                     can_t0="rows")
-            self._row = np.empty(len(self.writer.columns))
-            self.port = self.writer.port
-            try:
-                self.tap = CanTap(can, self.writer.can_frame) if can else None
-            except BaseException:
-                self.writer.close()
-                raise
-
-        def event(self, *args) -> None:
-            self.writer.event(*args)
-
-        def close(self) -> None:
-            try:
-                if self.tap is not None:
-                    self.tap.close()
-            finally:
-                self.writer.close()
-
-    rec = LiveRecorder()
-    import sys
-
+    writer = LiveWriter(address, robot, columns(robot), rate_hz=rate_hz, can_t0="rows")
+    rec = SinkRecorder(writer, robot.n_cables, can)
+    rec.port = writer.port
     print(f"Foxglove live view: ws://{rec.writer.host}:{rec.port}", file=sys.stderr,
           flush=True)
     return rec

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.dryrun.record import DryRunRecorder, columns
 from bench.mcap.can_tap import CanTap
 from bench.mcap.channels import MCAP_NAME
 from bench.mcap.writer import McapRecordingWriter
@@ -23,32 +24,46 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
     ``fmt`` ``both`` also the CSV directory (the MCAP file beside its files). ``can``: the
     ``--can`` spec of the drives' bus, whose every frame from now on goes to ``/can`` (and
     to each callable of ``also``, e.g. the live view's ``can_frame``: one tap of the bus)."""
-    from bench.dryrun.record import DryRunRecorder, columns
-
-    class McapDryRunRecorder(DryRunRecorder):
-        def __init__(self) -> None:  # the CSV recorder's row packing, an MCAP sink
-            self.path = Path(path)
-            self.n = robot.n_cables
-            self.writer = McapRecordingWriter(self.path / MCAP_NAME, robot, init_pose,
-                                              columns(robot), meta, robot_header,
-                                              states=True, flush_s=flush_s, can_t0="rows")
-            self._row = np.empty(len(self.writer.columns))
-            self.tap = CanTap(can, _fan_out(self.writer.can_frame, *also)) if can else None
-
-        def event(self, t, device, address, cable, kind, code, reaction, active, text):
-            self.writer.event(t, device, address, cable, kind, code, reaction, active, text)
-
-        def close(self) -> None:
-            try:
-                if self.tap is not None:
-                    self.tap.close()
-            finally:
-                self.writer.close()
+    def mcap() -> SinkRecorder:
+        writer = McapRecordingWriter(Path(path) / MCAP_NAME, robot, init_pose, columns(robot),
+                                     meta, robot_header, states=True, flush_s=flush_s,
+                                     can_t0="rows")
+        rec = SinkRecorder(writer, robot.n_cables, can, _fan_out(writer.can_frame, *also))
+        rec.path = Path(path)
+        return rec
 
     if fmt == "both":
         csv_rec = DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
-        return TeeRecorder(csv_rec, McapDryRunRecorder())
-    return McapDryRunRecorder()
+        return TeeRecorder(csv_rec, mcap())
+    return mcap()
+
+
+class SinkRecorder(DryRunRecorder):
+    """A :class:`bench.dryrun.record.DryRunRecorder` (its packing of the loop's row) whose
+    rows and events go to ``writer`` (an MCAP writer, the live view: ``append``, ``event``,
+    ``update_meta``, ``close``, ``columns``, ``rows``), ``n_cables`` cables; with ``can``
+    (the ``--can`` spec of the drives' bus) every frame of that bus to ``on_frame``
+    (:class:`CanTap`). The writer is closed when the tap cannot open."""
+
+    def __init__(self, writer, n_cables: int, can: str | None, on_frame=None) -> None:
+        self.n = n_cables
+        self.writer = writer
+        self._row = np.empty(len(writer.columns))
+        try:
+            self.tap = CanTap(can, on_frame or writer.can_frame) if can else None
+        except BaseException:
+            writer.close()
+            raise
+
+    def event(self, t, device, address, cable, kind, code, reaction, active, text) -> None:
+        self.writer.event(t, device, address, cable, kind, code, reaction, active, text)
+
+    def close(self) -> None:
+        try:
+            if self.tap is not None:
+                self.tap.close()
+        finally:
+            self.writer.close()
 
 
 def _fan_out(*targets):
