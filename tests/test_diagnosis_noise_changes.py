@@ -155,7 +155,7 @@ def test_split_targets_and_high_frequency_noise():
     class _RM:
         s = _S()
 
-        def _block_values(self, b):
+        def block_values(self, b):
             return {"length": x[:, None]}
 
     got = noise.high_frequency(_RM(), None)["length"]
@@ -190,10 +190,10 @@ class _FakeRM:
         self.s, self.x, self.model = s, x, _FakeModel()
         self.white_k = {0: {"length": 1e-6}, 1: {"length": 1e-6}}
 
-    def _block_values(self, b):
+    def block_values(self, b):
         return {"length": self.x}
 
-    def _replicate_groups(self, groups):
+    def replicate_groups(self, groups):
         return {"length": np.repeat(self.s.target[:, None], self.x.shape[1], axis=1)}
 
 

@@ -48,7 +48,7 @@ MIN_SIZE = 3.0
 MAX_SPLITS = 64
 #: a split time is scanned where at least this many replicate groups span it
 MIN_SPANNING = 3
-#: the blocks tested (their values per :meth:`ResidualModel._block_values`)
+#: the blocks tested (their values per :meth:`ResidualModel.block_values`)
 TESTED = ("length", "force", "moment", "exit")
 
 
@@ -249,8 +249,8 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
     it knows). One finding per block and kind, the most significant column's, with every
     column significant beside it."""
     s = rm.s
-    values = rm._block_values(b)
-    G = rm._replicate_groups(None) if groups is None else groups
+    values = rm.block_values(b)
+    G = rm.replicate_groups(None) if groups is None else groups
     live = ~s.is_init
     pos = np.where(np.isfinite(s.pose_meas[:, :3]), s.pose_meas[:, :3], s.pose_des[:, :3])
     live &= np.isfinite(pos).all(axis=1)
@@ -372,7 +372,7 @@ def high_frequency(rm: ResidualModel, b: Blocks) -> dict[str, float]:
     robustly (1.4826 MAD); a smooth model error along the motion (linear over three
     samples) cancels. Blocks without three successive samples are left out."""
     s = rm.s
-    values = rm._block_values(b)
+    values = rm.block_values(b)
     order = np.lexsort((s.t, s.block))
     out = {}
     for name, v in values.items():

@@ -730,7 +730,7 @@ class ResidualModel:
                 own = rw.get(kind) or rw.get(1 - kind) or {}
                 self.white_k[kind].update(own)
         self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
-        G = self._replicate_groups(groups)
+        G = self.replicate_groups(groups)
         count = np.maximum(self.s.count, 1)
         w = np.clip(self.s.weight, 0.0, 1.0)
         # every call starts from the declared defaults: replicate groups of an earlier call
@@ -745,7 +745,7 @@ class ResidualModel:
             of_kind = self.s.kind == kind
             if not of_kind.any():
                 continue
-            for name, vals in self._block_values(b).items():
+            for name, vals in self.block_values(b).items():
                 v = np.where(of_kind[:, None], vals, np.nan)
                 g = G[name]
                 if not np.isfinite(v).any():
@@ -792,7 +792,7 @@ class ResidualModel:
         self._update_sd()
         return self.noise_summary()
 
-    def _replicate_groups(self, groups: np.ndarray | None) -> dict[str, np.ndarray]:
+    def replicate_groups(self, groups: np.ndarray | None) -> dict[str, np.ndarray]:
         """Replicate group ids per block column (see :meth:`estimate_noise`): ``length`` (N,n),
         ``exit`` (N,3n), ``force`` and ``moment`` (N,3)."""
         s, n = self.s, self.model.n_cables
@@ -829,7 +829,7 @@ class ResidualModel:
 
     def _white(self, b: Blocks, sel: np.ndarray) -> dict[str, float]:
         out = {}
-        for name, vals in self._block_values(b).items():
+        for name, vals in self.block_values(b).items():
             v = vals[sel].reshape(int(sel.sum()), -1)
             T = len(v) // 3
             if T < 2:
@@ -844,7 +844,7 @@ class ResidualModel:
             out[name] = max(float(np.sqrt(np.mean(d2[keep] ** 2) / 6.0)), FLOORS[name])
         return out
 
-    def _block_values(self, b: Blocks) -> dict[str, np.ndarray]:
+    def block_values(self, b: Blocks) -> dict[str, np.ndarray]:
         """Residual blocks for noise estimates (slack cables' one-sided residuals left out;
         length residuals projected by per-sample unknowns scaled back to the readings'
         noise)."""
