@@ -93,3 +93,18 @@ def listen_endpoint(option: str, text: str, schemes: tuple[str, ...]) -> tuple[s
         raise ValueError(f"{option} {text!r}: expected {forms} (PORT in 0..65535, 0: any "
                          "free one)")
     return scheme, host, p
+
+
+#: where ``--live`` serves when given without an address (:data:`bench.mcap.live.DEFAULT_ADDRESS`)
+LIVE_ADDRESS = "127.0.0.1:8765"
+
+
+def add_format_and_live(p: argparse.ArgumentParser, mcap_note: str, shows: str) -> None:
+    """``--format csv|mcap|both`` (what ``--record`` writes; ``mcap_note`` says what the MCAP
+    file holds beyond the rows) and ``--live [HOST:PORT]`` (``shows``: what Foxglove shows)."""
+    p.add_argument("--format", choices=("csv", "mcap", "both"), default="csv",
+                   help=f"--record as the CSV directory, as DIR/recording.mcap (MCAP, zstd, "
+                        f"{mcap_note}), or both [csv]")
+    p.add_argument("--live", nargs="?", const=LIVE_ADDRESS, default=None, metavar="HOST:PORT",
+                   help=f"show {shows} live in Foxglove: a WebSocket server on HOST:PORT "
+                        f"[{LIVE_ADDRESS}]")

@@ -17,7 +17,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.commands.argtypes import nonnegative_float, positive_float, positive_int
+from bench.commands.argtypes import (
+    add_format_and_live,
+    nonnegative_float,
+    positive_float,
+    positive_int,
+)
 
 NAME = "commission"
 HELP = ("commission the winches and load cells: scan, check, reference, enable, disable, "
@@ -242,13 +247,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="refreshes per second")
     q.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     q.add_argument("--record", metavar="DIR", help="write a cdpr-recording/1 directory")
-    q.add_argument("--format", choices=("csv", "mcap", "both"), default="csv",
-                   help="--record as the CSV directory, as DIR/recording.mcap (MCAP, zstd, "
-                        "with the CAN frames on /can), or both [csv]")
-    q.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
-                   metavar="HOST:PORT",
-                   help="show the drives and tensions live in Foxglove: a WebSocket server "
-                        "on HOST:PORT [127.0.0.1:8765]")
+    add_format_and_live(q, "with the CAN frames on /can", "the drives and tensions")
     q.add_argument("--init-pose", metavar="X,Y,Z[,R,P,Y]",
                    help="init_pose of --record [forward kinematics of the first sample]")
     q.add_argument("--json-lines", action="store_true",

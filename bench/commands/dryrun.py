@@ -45,7 +45,7 @@ import sys
 import threading
 from pathlib import Path
 
-from bench.commands.argtypes import positive_float
+from bench.commands.argtypes import add_format_and_live, positive_float
 from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
 
 NAME = "dry-run"
@@ -85,13 +85,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="plant settles per second of simulated time [20]")
     p.add_argument("--record", metavar="DIR", default=None,
                    help="write the run as a cdpr-recording/1 directory (with events.csv)")
-    p.add_argument("--format", choices=("csv", "mcap", "both"), default="csv",
-                   help="--record as the CSV directory, as DIR/recording.mcap (MCAP, zstd; "
-                        "docs/guide/mcap-and-replay.md), or both [csv]")
-    p.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
-                   metavar="HOST:PORT",
-                   help="show the run live in Foxglove: a WebSocket server on HOST:PORT "
-                        "[127.0.0.1:8765]")
+    add_format_and_live(p, "docs/guide/mcap-and-replay.md", "the run")
     p.add_argument("--decimate", type=int, default=None, metavar="N",
                    help="record every N-th cycle [about 50 rows per second]")
     p.add_argument("--force", action="store_true", help="overwrite a non-empty --record DIR")
