@@ -251,6 +251,16 @@ class WinchDrives:
         self._own_network = own_network
         self.bus_name = bus_name or str(getattr(network.bus, "channel_info", None)
                                         or getattr(network.bus, "channel", "CAN bus"))
+        self._add_nodes(network, winches, eds)
+        self.period_s = winches.bus.sync_period_s
+        self.hb_timeout_s = winches.bus.heartbeat_period_s * winches.bus.heartbeat_misses
+        self._clock = self._pick_clock(clock)
+        self._init_state(network)
+        self._subscribe(network)
+
+    def _add_nodes(self, network: canopen.Network, winches: WinchSet,
+                   eds: str | Path | canopen.ObjectDictionary) -> None:
+        """One canopen RemoteNode per winch, added to ``network``; the PDO layouts."""
         self.node_ids = [int(x) for x in winches.node_id]
         self.nodes: list[canopen.RemoteNode] = []
         for nid in self.node_ids:
@@ -264,17 +274,20 @@ class WinchDrives:
         od0 = self.nodes[0].object_dictionary
         self._rpdo = pdo_struct(od0, RPDO_MAP)
         self._tpdo = pdo_struct(od0, TPDO_MAP)
-        self.period_s = winches.bus.sync_period_s
-        self.hb_timeout_s = winches.bus.heartbeat_period_s * winches.bus.heartbeat_misses
+
+    def _pick_clock(self, clock: str | Callable[[], float]) -> Callable[[], float]:
+        """The master clock [s]: 'wall' (monotonic), 'sync' (SYNCs sent x period) or a callable."""
         self._wall_clock = clock == "wall"
         if clock == "wall":
-            self._clock: Callable[[], float] = time.monotonic
-        elif clock == "sync":
-            self._clock = self._sync_clock
-        elif callable(clock):
-            self._clock = clock
-        else:
-            raise ValueError(f"clock must be 'wall', 'sync' or a callable, got {clock!r}")
+            return time.monotonic
+        if clock == "sync":
+            return self._sync_clock
+        if callable(clock):
+            return clock
+        raise ValueError(f"clock must be 'wall', 'sync' or a callable, got {clock!r}")
+
+    def _init_state(self, network: canopen.Network) -> None:
+        """The receive-side (notifier thread, under ``_rx``) and cycle-side state arrays."""
         n = self.n
         # receive side (written by the notifier thread under _rx)
         self._rx = threading.Condition()
@@ -340,6 +353,9 @@ class WinchDrives:
         self._mhb_wall = -np.inf  # wall time of the last master heartbeat sent
         self._mhb_clock = -np.inf  # master clock of the last one sent by the cycle
         self._closed = False
+
+    def _subscribe(self, network: canopen.Network) -> None:
+        """Take each node's TPDO, heartbeat and EMCY from canopen; watch for another master."""
         self._subs: list[tuple[int, Callable]] = []
         for k, node in enumerate(self.nodes):
             # the master's own EMCY and heartbeat handling: bounded, and a malformed frame
@@ -562,22 +578,6 @@ class WinchDrives:
                             f"NMT state {NMT_NAMES.get(state, hex(state))}, "
                             "expected OPERATIONAL: its power state is unknown")
         self._nmt[k] = state
-
-    # ------------------------------------------------------------------ start-up (blocking)
-
-    def _wait_bootups(self, ks: list[int], before: np.ndarray, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        with self._rx:
-            while True:
-                missing = [k for k in ks if self._boot_count[k] <= before[k]]
-                left = deadline - time.monotonic()
-                if not missing:
-                    return
-                if left <= 0:
-                    who = ", ".join(self.who(k) for k in missing)
-                    raise DriveStartupError(
-                        f"no boot-up within {timeout:.1f} s after NMT reset from {who}")
-                self._rx.wait(left)
 
     def _send_nmt(self, k: int, command: int) -> None:
         self.network.send_message(0, bytes([command, self.node_ids[k]]))

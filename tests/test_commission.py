@@ -12,12 +12,12 @@ import dataclasses
 import json
 import threading
 import time
-import uuid
 
 import can
 import canopen
 import numpy as np
 import pytest
+from drive_rig import BankRig
 
 from bench.cli import main
 from bench.commission.files import edit_length_at_zero
@@ -25,7 +25,6 @@ from bench.commission.loadcells import collect_points, fit_gain, measure_raw
 from bench.recording import read_recording
 from controller.winch import load_winches, m_to_counts
 from firmware_sim.cia402_drive import EDS_PATH, SimulatedDrive
-from firmware_sim.drive_bank import SimulatedWinchBank
 from firmware_sim.loadcell_bank import LoadCellBank
 from firmware_sim.loadcell_server import LoadCellServer
 from hal.drives import WinchDrives
@@ -45,17 +44,11 @@ W = load_winches()
 L0 = np.linspace(9.0, 12.5, 8)
 
 
-class Rig:
+class Rig(BankRig):
     """Eight simulated drives on a virtual channel; ``net`` a master-side network on it."""
 
     def __init__(self, winches=W, before_start=None) -> None:
-        self.ch = f"commission-{uuid.uuid4().hex}"
-        self.can = f"virtual:{self.ch}"
-        self.bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=self.ch), winches)
-        self.bank.set_positions_m(L0)
-        if before_start:
-            before_start(self)
-        self.bank.start()
+        super().__init__("commission", winches, L0, before_start)
         self.net = canopen.Network(can.Bus(interface="virtual", channel=self.ch))
         self.net.NOTIFIER_CYCLE = 0.05
         self.net.connect()
@@ -70,7 +63,7 @@ class Rig:
 
     def close(self) -> None:
         self.net.disconnect()
-        self.bank.close()
+        super().close()
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ import can
 import canopen
 import numpy as np
 import pytest
+from drive_rig import BankRig
 
 from bench.cli import main
 from bench.dryrun.loop import ControlLoop, LoopOptions
@@ -91,23 +92,20 @@ def test_own_frames_are_recognised_once_and_only_within_the_window():
 # ---------------------------------------------------------------------------- the HAL
 
 
-class Rig:
+class Rig(BankRig):
     """Eight simulated drives on a virtual bus and the HAL, lock-step on the SYNC clock;
     ``echo``: the HAL's bus receives its own frames (as a bus with receive_own_messages)."""
 
     def __init__(self, echo: bool = False) -> None:
-        self.ch = f"feedback-{uuid.uuid4().hex}"
-        self.bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=self.ch), W)
-        self.bank.set_positions_m(np.linspace(8.0, 15.0, 8))
-        self.bank.start()
+        super().__init__("feedback")
         if echo:
-            net = canopen.Network(open_bus(f"virtual:{self.ch}", receive_own_messages=True))
+            net = canopen.Network(open_bus(self.can, receive_own_messages=True))
             net.connect()
             self.hal = WinchDrives(net, W, EDS_PATH, clock="sync", own_network=True)
+            self.hal.start()
+            self.hal.enable_and_wait()
         else:
-            self.hal = WinchDrives.open(f"virtual:{self.ch}", W, EDS_PATH, clock="sync")
-        self.hal.start()
-        self.hal.enable_and_wait()
+            self.hal = self.open_hal()
 
     def other_master_sends(self, cob: int, data: bytes) -> None:
         """A second python-can client on the channel sends one frame (delivered to the HAL
@@ -121,7 +119,7 @@ class Rig:
 
     def close(self) -> None:
         self.hal.close()
-        self.bank.close()
+        super().close()
 
 
 @pytest.fixture

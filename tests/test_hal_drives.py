@@ -16,6 +16,7 @@ import can
 import canopen
 import numpy as np
 import pytest
+from drive_rig import BankRig
 
 from controller.winch import limits_counts, load_winches, m_to_counts, metres_per_count
 from firmware_sim.cia402_drive import EDS_PATH, State
@@ -32,19 +33,12 @@ L0 = np.linspace(8.0, 15.0, 8)  # initial cable lengths [m]
 OE = DriveState.OPERATION_ENABLED
 
 
-class Rig:
+class Rig(BankRig):
     def __init__(self, winches=W, lengths=L0, start=True, enable=True, before_start=None):
-        self.ch = f"haldrives-{uuid.uuid4().hex}"
-        self.bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=self.ch), winches)
-        self.bank.set_positions_m(lengths)
-        if before_start:
-            before_start(self.bank)
-        self.bank.start()
-        self.hal = WinchDrives.open(f"virtual:{self.ch}", winches, EDS_PATH, clock="sync")
-        if start:
-            self.hal.start()
+        super().__init__("haldrives", winches, lengths,
+                         before_start and (lambda r: before_start(r.bank)))
+        self.hal = self.open_hal(winches, start, enable)
         if enable:
-            self.hal.enable_and_wait()
             assert self.hal.events() == []
 
     def steps(self, n: int, timeout: float = 0.5) -> list[bool]:
@@ -62,7 +56,7 @@ class Rig:
 
     def close(self) -> None:
         self.hal.close()
-        self.bank.close()
+        super().close()
 
 
 @pytest.fixture
