@@ -107,6 +107,21 @@ class EquilibriumTerms:
     cables: CableForces | None = None  # sagging cables' forces (rho > 0)
 
 
+def _balance(robot: Robot, st: CableState, f: np.ndarray, theta: np.ndarray,
+             r: np.ndarray, tau: np.ndarray, u_exit: np.ndarray) -> np.ndarray:
+    """Equilibrium residual (6+3m,): net force [N] and moment [N m] on the platform (cable
+    forces ``f`` (n,3) on it plus gravity, base frame), then each mast's ``theta - C M``
+    [rad] with M the moments of the tensions ``tau`` [N] pulling along ``u_exit`` at the
+    exits."""
+    wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
+    F = np.empty(6 + 3 * robot.n_masts)
+    F[:3] = f.sum(axis=0) + wg[:3]
+    F[3:6] = cross(st.Rb, f).sum(axis=0) + wg[3:]
+    M = mast_moments(r, tau, u_exit, robot.mast_index, robot.n_masts)
+    F[6:] = (theta - robot.compliance * M).ravel()
+    return F
+
+
 def _terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
            a_star: np.ndarray, r: np.ndarray, guess: CableForces | None = None
            ) -> EquilibriumTerms:
@@ -116,12 +131,7 @@ def _terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, l0: np.ndarray,
         return _terms_sag(robot, st, exits, theta, l0, r, guess)
     tau = elastic_tensions(st.length, l0, robot.ea)
     f = tau[:, None] * st.u
-    wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
-    F = np.empty(6 + 3 * robot.n_masts)
-    F[:3] = f.sum(axis=0) + wg[:3]
-    F[3:6] = cross(st.Rb, f).sum(axis=0) + wg[3:]
-    M = mast_moments(r, tau, st.u, robot.mast_index, robot.n_masts)
-    F[6:] = (theta - robot.compliance * M).ravel()
+    F = _balance(robot, st, f, theta, r, tau, st.u)
     return EquilibriumTerms(st, exits, tau, st.length > l0, f, F)
 
 
@@ -130,13 +140,8 @@ def _terms_sag(robot: Robot, st: CableState, exits: np.ndarray, theta: np.ndarra
     """Terms with sagging cables: catenary forces at both ends (:mod:`controller.cables`)."""
     cf = cables.from_lengths(robot, st, l0, guess)
     f = cf.platform
-    wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
-    F = np.empty(6 + 3 * robot.n_masts)
-    F[:3] = f.sum(axis=0) + wg[:3]
-    F[3:6] = cross(st.Rb, f).sum(axis=0) + wg[3:]
     u_exit = cf.exit / np.maximum(cf.tension, 1e-12)[:, None]
-    M = mast_moments(r, cf.tension, u_exit, robot.mast_index, robot.n_masts)
-    F[6:] = (theta - robot.compliance * M).ravel()
+    F = _balance(robot, st, f, theta, r, cf.tension, u_exit)
     return EquilibriumTerms(st, exits, cf.tension, np.ones(robot.n_cables, dtype=bool), f, F,
                             cf)
 
@@ -634,12 +639,7 @@ def _mixed_terms(robot: Robot, pose: np.ndarray, theta: np.ndarray, tau: np.ndar
     exits = deflect(a_star, r, theta, robot.mast_index) if robot.compliant else a_star
     st = cable_state(pose, robot.anchors, exits, robot.pulley_radius)
     f = tau[:, None] * st.u
-    wg = gravity_wrench(robot.mass, robot.com, robot.gravity, st.R)
-    F = np.empty(6 + 3 * robot.n_masts)
-    F[:3] = f.sum(axis=0) + wg[:3]
-    F[3:6] = cross(st.Rb, f).sum(axis=0) + wg[3:]
-    M = mast_moments(r, tau, st.u, robot.mast_index, robot.n_masts)
-    F[6:] = (theta - robot.compliance * M).ravel()
+    F = _balance(robot, st, f, theta, r, tau, st.u)
     e = st.length - l0 - tau * (l0 / robot.ea)
     return EquilibriumTerms(st, exits, tau, tau > 0, f, F), e
 
