@@ -25,6 +25,7 @@ class BankRig:
 
     def __init__(self, prefix: str, winches: WinchSet = W, lengths: np.ndarray | None = None,
                  before_start: Callable[[Any], None] | None = None) -> None:
+        self.hal: WinchDrives | None = None  #: a master's HAL on the channel, closed first
         self.ch = f"{prefix}-{uuid.uuid4().hex}"
         self.can = f"virtual:{self.ch}"
         self.bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=self.ch), winches)
@@ -45,4 +46,6 @@ class BankRig:
         return hal
 
     def close(self) -> None:
+        if self.hal is not None:
+            self.hal.close()
         self.bank.close()

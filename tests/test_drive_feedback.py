@@ -117,10 +117,6 @@ class Rig(BankRig):
             other.shutdown()
         time.sleep(0.1)
 
-    def close(self) -> None:
-        self.hal.close()
-        super().close()
-
 
 @pytest.fixture
 def rig():

@@ -54,10 +54,6 @@ class Rig(BankRig):
             assert self.hal.step()
         return cmd
 
-    def close(self) -> None:
-        self.hal.close()
-        super().close()
-
 
 @pytest.fixture
 def rig():
