@@ -24,11 +24,14 @@ has its footer; a child killed outright leaves a file that reads up to its last 
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import pickle
 import signal
+import socket
+import subprocess
 import sys
+from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -66,34 +69,43 @@ class Factory(NamedTuple):
 
 
 class Spawned:
-    """A child process started ahead (a fresh interpreter that imports the writers'
-    modules, about a second of CPU: started before the robot, it does not compete with the
-    hardware's start-up), waiting for its writers (:class:`RecordingProcess`).
-    :meth:`close` ends it (idempotent; a :class:`RecordingProcess` closes the one it
-    took)."""
+    """A child process started ahead (``python -m bench.mcap.child``: a fresh interpreter
+    that imports the writers' modules, about a second of CPU: started before the robot, it
+    does not compete with the hardware's start-up), waiting for its writers
+    (:class:`RecordingProcess`) on :attr:`conn` (a socket pair). :meth:`close` ends it
+    (idempotent; a :class:`RecordingProcess` closes the one it took)."""
 
-    def __init__(self, name: str = "recording") -> None:
-        ctx = multiprocessing.get_context("spawn")  # (a fork of a threaded process may hang)
-        self.conn, theirs = ctx.Pipe()
-        self.proc = ctx.Process(target=serve, args=(theirs, os.getpid()), name=f"cdpr-{name}",
-                                daemon=True)
-        self.proc.start()
-        theirs.close()
+    def __init__(self) -> None:
+        ours, theirs = socket.socketpair()
+        env = dict(os.environ)
+        root = str(Path(__file__).resolve().parents[2])  # (this source tree first)
+        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "bench.mcap.child", str(theirs.fileno()),
+                 str(os.getpid())], pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
+                env=env)
+        finally:
+            theirs.close()
+        self.conn = Connection(ours.detach())
 
     @property
-    def pid(self) -> int | None:
+    def pid(self) -> int:
         return self.proc.pid
 
     def close(self, timeout_s: float = CLOSE_S) -> None:
         """End the child: told (the end of the pipe), then SIGTERM (it finishes its file),
         then SIGKILL, ``timeout_s`` each."""
         self.conn.close()
-        p = self.proc
-        p.join(timeout_s if p.exitcode is None else 0)
-        for end in (p.terminate, p.kill):
-            if p.exitcode is None:
+        for end in (None, self.proc.terminate, self.proc.kill):
+            if self.proc.poll() is not None:
+                return
+            if end is not None:
                 end()
-                p.join(timeout_s)
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                pass
 
 
 class RecordingProcess(BackgroundWriter):
@@ -109,7 +121,7 @@ class RecordingProcess(BackgroundWriter):
     def __init__(self, factories: list[Factory], columns: list[str], can: str | None = None,
                  name: str = "recording", spawned: Spawned | None = None,
                  startup_s: float = STARTUP_S) -> None:
-        self.child = spawned if spawned is not None else Spawned(name)
+        self.child = spawned if spawned is not None else Spawned()
         self._f = self.child.conn
         self.path = name  # type: ignore[assignment]  (BackgroundWriter's errors name it)
         self.columns = list(columns)
@@ -133,7 +145,7 @@ class RecordingProcess(BackgroundWriter):
             kind, value = self._f.recv()
         except EOFError:
             raise OSError(f"{self.path}: the recording process ended (exit "
-                          f"{self.child.proc.exitcode}) before it could {what}") from None
+                          f"{self.child.proc.poll()}) before it could {what}") from None
         if kind == "error":
             raise value
         return value
@@ -191,7 +203,7 @@ def serve(conn, parent: int) -> None:
 
     try:
         job = conn.recv()
-    except (EOFError, SystemExit):
+    except EOFError:  # the parent ended before the run opened its recording
         return
     if job is None:
         return
@@ -245,8 +257,21 @@ def _open(factories: list[Factory], can: str | None):
         raise
 
 
+#: the child takes the parent's batches (SIGTERM, SIGHUP stop it); once False they are
+#: ignored: the writers close undisturbed (e.g. the parent's death signal after the EOF)
+_TAKING = [False]
+
+
 def _calls(conn, tee) -> None:
     """The parent's batches to the writers until ``None`` or the end of the pipe."""
+    _TAKING[0] = True
+    try:
+        _take(conn, tee)
+    finally:
+        _TAKING[0] = False
+
+
+def _take(conn, tee) -> None:
     while True:
         try:
             batch = conn.recv()
@@ -266,10 +291,11 @@ def _calls(conn, tee) -> None:
 
 
 def _finish_on_signal(signum, frame) -> None:
-    """SIGTERM, SIGHUP (or the parent's death): stop taking batches, finish the file."""
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, signal.SIG_IGN)  # once: the writers close undisturbed
-    raise SystemExit(128 + signum)
+    """SIGTERM, SIGHUP (or the parent's death): stop taking batches, finish the file (once
+    the writers are closing: nothing)."""
+    if _TAKING[0]:
+        _TAKING[0] = False
+        raise SystemExit(128 + signum)
 
 
 def _answer(conn, kind: str, value: Any) -> None:
@@ -281,4 +307,16 @@ def _answer(conn, kind: str, value: Any) -> None:
         except (pickle.PicklingError, TypeError, AttributeError, ValueError):  # unpicklable
             conn.send((kind, RuntimeError(f"{type(value).__name__}: {value}")))
     except OSError:  # the parent is gone
-        print(f"cdpr recording process: {kind}: {value}", file=sys.stderr)
+        if kind == "error":
+            print(f"cdpr recording process: {value}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m bench.mcap.child FD PARENT``: :func:`serve` on the socket ``FD`` for the
+    parent process ``PARENT`` (pid)."""
+    fd, parent = (int(a) for a in (argv if argv is not None else sys.argv[1:]))
+    serve(Connection(fd), parent)
+
+
+if __name__ == "__main__":
+    main()
