@@ -243,3 +243,36 @@ def test_ctrl_c_to_the_process_group_leaves_a_whole_file(tmp_path):
     assert _gone(child, 5.0)
     c = read_mcap(tmp_path / "rec" / "recording.mcap")
     assert not c.truncated and len(c.data) == rows > 10
+
+
+def test_a_real_time_dry_run_records_in_its_child_process(tmp_path, capsys, monkeypatch):
+    """``cdpr dry-run --realtime --record --format both --live``: the MCAP recording and
+    the view in the child process started by the command (and ended with it), the CSV
+    directory here; the file opens in the mcap reader with every channel, its rows are the
+    CSV directory's, ``/can`` holds the in-process rig's frames."""
+    from bench.cli import main
+    from bench.mcap import child as child_mod
+    from bench.recording import read_recording
+
+    started: list[Spawned] = []
+
+    class Spy(Spawned):
+        def __init__(self) -> None:
+            super().__init__()
+            started.append(self)
+
+    monkeypatch.setattr(child_mod, "Spawned", Spy)
+    rec = tmp_path / "rec"
+    assert main(["dry-run", "paper-centre", "--realtime", "--duration", "0.3", "--json",
+                 "--quiet", "--record", str(rec), "--format", "both", "--live",
+                 "127.0.0.1:0"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["ended"] == "completed"
+    assert len(started) == 1 and started[0].proc.poll() == 0
+    counts = open_with_mcap_reader(rec / "recording.mcap")
+    assert ROW_TOPICS | {"/supervisor/events", "/supervisor/log"} <= set(counts)
+    assert counts["/can"] > 0
+    c = read_mcap(rec / "recording.mcap")
+    assert not c.truncated
+    csv = read_recording(rec)
+    assert len(c.data) == csv.n_samples

@@ -7,8 +7,8 @@ frame), the live view's publisher and a second connection to the drives' bus who
 python-can notifier parses every frame (about 6,000 a second at 256 Hz). In real time
 each of them now and then holds the interpreter when the loop's cycle is due.
 :class:`RecordingProcess` keeps only the queueing in the loop's process: the rows (numpy
-arrays), events and meta are handed, in batches every :data:`BATCH_S`, through a pipe to
-ONE child process that builds the writers (the same classes as in lock-step:
+arrays), events and meta are handed, in batches every :data:`BATCH_S`, through a socket
+pair to ONE child process that builds the writers (the same classes as in lock-step:
 :class:`bench.mcap.writer.McapRecordingWriter`, :class:`bench.mcap.live.LiveWriter`) and
 calls them; the child opens its own connection to the bus for ``/can`` (a ``virtual`` bus,
 which lives in one process, is tapped in the loop's process and its frames handed over
@@ -84,7 +84,7 @@ class Spawned:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "bench.mcap.child", str(theirs.fileno()),
                  str(os.getpid())], pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
-                env=env)
+                stdout=subprocess.DEVNULL, env=env)  # (the run's --json is its own)
         finally:
             theirs.close()
         self.conn = Connection(ours.detach())
