@@ -82,18 +82,37 @@ def single_blas_thread() -> bool:
     return done
 
 
-def _die_with_parent(parent: int) -> None:
-    """Worker initializer: end this process when the parent ``parent`` (pid) ends."""
+def end_with_parent(parent: int, signum: int = signal.SIGKILL, grace_s: float = 0.0) -> None:
+    """End this (child) process when its parent ``parent`` (pid) ends, whatever ends it: the
+    kernel sends ``signum`` when the parent goes (Linux ``PR_SET_PDEATHSIG``; the parent is
+    the thread that started this process), and a thread watches the parent's pid every
+    :data:`WATCH_S` (elsewhere, or if the parent went before the request) and exits
+    (status 1) ``grace_s`` seconds after the parent is gone (time for a handler of
+    ``signum`` to finish its work)."""
     if sys.platform.startswith("linux"):
         try:
             import ctypes
 
             libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+            libc.prctl(1, signum, 0, 0, 0)  # PR_SET_PDEATHSIG
         except (OSError, AttributeError):  # pragma: no cover - platform dependent
             pass
     if os.getppid() != parent:  # the parent is already gone
         os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(WATCH_S)
+            if os.getppid() != parent:
+                time.sleep(grace_s)
+                os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def _die_with_parent(parent: int) -> None:
+    """Worker initializer: end this process when the parent ``parent`` (pid) ends."""
+    end_with_parent(parent)
     # Ctrl-C goes to the whole process group: the parent decides, the workers carry on
     # until it ends them (no traceback per worker). SIGTERM (terminate_workers, or sent to
     # the group) ends a worker at once and quietly: a fork inherits the parent's handlers,
@@ -103,14 +122,6 @@ def _die_with_parent(parent: int) -> None:
         if sig is not None:
             signal.signal(sig, signal.SIG_DFL)
     single_blas_thread()
-
-    def watch() -> None:
-        while True:
-            time.sleep(WATCH_S)
-            if os.getppid() != parent:
-                os._exit(1)
-
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 def worker_pool(jobs: int, share_cores: bool = False) -> ProcessPoolExecutor:

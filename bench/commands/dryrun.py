@@ -478,7 +478,7 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         return open_record_format(rec, model, p0, meta,
                                   robot_header=f"model the controller ran with ({model.name})",
                                   fmt=args.format, can=world.info.get("can"),
-                                  live=args.live)
+                                  live=args.live, child=child)
 
     where = (f"site {settings.site.path}" if on_buses and settings.site is not None
              else f"--can {settings.can}" if on_buses else f"rig {args.rig}")
@@ -520,6 +520,13 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
     if faults is not None and args.rig == "process":
         sim_args = ("--faults", str(args.faults))
     sim = None
+    child = None  # real time: the MCAP recording and the live view in a child process,
+    # started before the robot (docs/guide/mcap-and-replay.md)
+    if args.realtime and (args.live is not None or (record_dir is not None
+                                                    and args.format != "csv")):
+        from bench.mcap.child import Spawned
+
+        child = Spawned()
     try:
         try:
             if args.rig == "process" and not on_buses:
@@ -593,6 +600,8 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                 if sim is not None:
                     sim.stop()
     finally:
+        if child is not None:
+            child.close()
         for s, h in previous.items():
             signal.signal(s, h)
     if tty and not args.quiet:

@@ -67,14 +67,20 @@ FORMATS = ("csv", "mcap", "both")
 
 def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, meta: dict,
                   robot_header: str = "", fmt: str = "csv", flush_s: float = 1.0,
-                  can: str | None = None, live: str | None = None):
+                  can: str | None = None, live: str | None = None, child=None):
     """The recorder of a run in ``fmt`` (:data:`FORMATS`; MCAP: :mod:`bench.mcap`, which
     also records every frame of the ``can`` bus, a ``--can`` spec, when given); with
     ``live`` (``HOST:PORT``) also shown live in Foxglove (:mod:`bench.mcap.live`; with the
-    ``can`` bus's frames on ``/can``), and only that when ``path`` is None."""
+    ``can`` bus's frames on ``/can``), and only that when ``path`` is None. ``child`` (a
+    real-time run: a :class:`bench.mcap.child.Spawned` process): the MCAP recording and
+    the live view are written and served by that child process (the CSV directory stays
+    in this one); None: here (lock-step: in the order of the simulated bus)."""
     if fmt not in FORMATS:
         raise ValueError(f"record format {fmt!r}: one of {', '.join(FORMATS)}")
     mcap = path is not None and fmt != "csv"
+    if child is not None and (mcap or live is not None):
+        return _in_child(child, path, robot, init_pose, meta, robot_header, fmt, flush_s,
+                         can, live)
     view = None
     if live is not None:  # one tap of the bus: the MCAP recording's when there is one
         from bench.mcap.live import live_recorder
@@ -99,6 +105,26 @@ def open_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray, 
     from bench.mcap.recorders import TeeRecorder
 
     return TeeRecorder(rec, view)
+
+
+def _in_child(child, path: str | Path | None, robot: Robot, init_pose: np.ndarray,
+              meta: dict, robot_header: str, fmt: str, flush_s: float, can: str | None,
+              live: str | None):
+    """:func:`open_recorder` with ``child``: the CSV directory (``fmt`` csv or both) here,
+    first (its directory must be empty), the MCAP recording and the live view in the
+    child process (:func:`bench.mcap.recorders.process_recorder`)."""
+    from bench.mcap.recorders import TeeRecorder, process_recorder
+
+    csv_rec = (DryRunRecorder(path, robot, init_pose, meta, robot_header, flush_s)
+               if path is not None and fmt in ("csv", "both") else None)
+    try:
+        rec = process_recorder(path if fmt != "csv" else None, robot, init_pose, meta,
+                               robot_header, flush_s, can, live, child)
+    except BaseException:
+        if csv_rec is not None:
+            csv_rec.close()
+        raise
+    return rec if csv_rec is None else TeeRecorder(csv_rec, rec)
 
 
 class DryRunRecorder:

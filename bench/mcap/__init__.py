@@ -23,9 +23,10 @@ Modules: :mod:`~bench.mcap.channels` (topics, schemas, a row's messages),
 :mod:`~bench.mcap.scene` (``/tf``, ``/scene``), :mod:`~bench.mcap.writer`,
 :mod:`~bench.mcap.reader` (and ``cdpr recording info``), :mod:`~bench.mcap.convert` (MCAP <->
 CSV directory), :mod:`~bench.mcap.can_tap` (``/can``), :mod:`~bench.mcap.recorders` (the
-dry run's and the monitor's recorders), :mod:`~bench.mcap.live` (the Foxglove WebSocket
-view), :mod:`~bench.mcap.foxglove_layout` (the shipped Foxglove layout). The package shares
-its last name with the ``mcap`` library, which every import here names absolutely.
+dry run's and the monitor's recorders), :mod:`~bench.mcap.child` (a real-time run's
+writers in a child process), :mod:`~bench.mcap.live` (the Foxglove WebSocket view),
+:mod:`~bench.mcap.foxglove_layout` (the shipped Foxglove layout). The package shares its
+last name with the ``mcap`` library, which every import here names absolutely.
 """
 
 from bench.mcap.channels import (

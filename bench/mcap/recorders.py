@@ -38,6 +38,42 @@ def dry_run_recorder(path: str | Path, robot: Robot, init_pose: np.ndarray, meta
     return mcap()
 
 
+def process_recorder(path: str | Path | None, robot: Robot, init_pose: np.ndarray,
+                     meta: dict, robot_header: str = "", flush_s: float = 1.0,
+                     can: str | None = None, live: str | None = None,
+                     spawned=None) -> SinkRecorder:
+    """A :class:`SinkRecorder` whose MCAP recording ``path/recording.mcap`` (none when
+    ``path`` is None) and live view (``live``, ``HOST:PORT``; none when None) are written
+    and served by a child process (:class:`bench.mcap.child.RecordingProcess`: a real-time
+    loop's process only queues its rows; ``spawned``, a :class:`bench.mcap.child.Spawned`,
+    or one started now). ``can``: the ``--can`` spec of the drives' bus
+    for ``/can``, tapped by the child on its own connection (a ``virtual`` bus, which
+    lives in this process, here, its frames handed over)."""
+    from bench.mcap.child import Factory, RecordingProcess
+    from bench.mcap.live import LiveWriter
+    from hal.can_bus import parse_can_spec
+
+    cols = columns(robot)
+    factories = []
+    if path is not None:
+        factories.append(Factory(McapRecordingWriter, (Path(path) / MCAP_NAME, robot,
+                                                       init_pose, cols, meta, robot_header),
+                                 {"states": True, "flush_s": flush_s, "can_t0": "rows"}))
+    if live is not None:
+        factories.append(Factory(LiveWriter, (live, robot, cols), {"can_t0": "rows"}))
+    here = can is not None and parse_can_spec(can).interface == "virtual"
+    proc = RecordingProcess(factories, cols, None if here else can,
+                            name=str(path) if path is not None else "live view",
+                            spawned=spawned)
+    rec = SinkRecorder(proc, robot.n_cables, can if here else None)
+    rec.path = Path(path) if path is not None else None
+    if live is not None:
+        rec.port = proc.port
+        print(f"Foxglove live view: ws://{proc.host}:{proc.port}", file=sys.stderr,
+              flush=True)
+    return rec
+
+
 class SinkRecorder(DryRunRecorder):
     """A :class:`bench.dryrun.record.DryRunRecorder` (its packing of the loop's row) whose
     rows and events go to ``writer`` (an MCAP writer, the live view: ``append``, ``event``,
