@@ -49,6 +49,10 @@ DEFAULT_EFFECTS = ("exit_point_offset", "mast_compliance")
 RPY_DEG = 3.0
 #: share of the frame's span in x and y left out of the candidates' box on each side
 BOX_MARGIN = 0.03
+#: the candidates' heights, as shares of the frame's height (the ground to the highest exit
+#: point): the whole height the tension distribution may hold (high poses load the cables
+#: most: their stretch is what tells a load cell's gain from the platform's mass)
+BOX_HEIGHTS = (0.05, 0.9)
 #: rows averaged per dwell sample of the designed campaign (3 s at 2 Hz)
 ROWS_PER_DWELL = 6
 
@@ -259,6 +263,94 @@ def _fit_within(rm: ResidualModel, space: ParamSpace, phi0: np.ndarray, Z: np.nd
     return phi
 
 
+#: step of a load-cell reading in the readings' finite differences [N]
+READING_STEP = 1.0
+
+
+def _reading_rows(rm: ResidualModel, H: Robot, K: int) -> tuple[list[np.ndarray],
+                                                                list[np.ndarray]]:
+    """Per candidate (samples 1..K): its whitened rows by its own load-cell readings (r_i,n)
+    and by the initialisation's readings (r_i,n) [per N], forward differences of
+    :data:`READING_STEP` (a sample's rows depend on its own readings and the
+    initialisation's only)."""
+    r0 = rm.whitened(H)
+    ent = rm.entry_samples()
+    n = rm.s.tau.shape[1]
+    own, init = np.zeros((len(r0), n)), np.zeros((len(r0), n))
+    tau, tau0 = rm.s.tau.copy(), None if rm.tau0 is None else rm.tau0.copy()
+    with rm.frozen():
+        for j in range(n):
+            rm.s.tau[1:, j] += READING_STEP
+            own[:, j] = (rm.whitened(H) - r0) / READING_STEP
+            rm.s.tau[:] = tau
+            rm.s.tau[0, j] += READING_STEP
+            if tau0 is not None:
+                rm.tau0[j] += READING_STEP
+            init[:, j] = (rm.whitened(H) - r0) / READING_STEP
+            rm.s.tau[:] = tau
+            if tau0 is not None:
+                rm.tau0[:] = tau0
+    return ([own[ent == i + 1] for i in range(K)], [init[ent == i + 1] for i in range(K)])
+
+
+def identifiability(hyp: Hypotheses, ctx: Context, poses: np.ndarray, visits: int,
+                    measured: np.ndarray) -> dict[str, Any]:
+    """What a campaign at ``poses`` (each visited ``visits`` times) fixes of the preferred
+    hypothesis' parameters when only the cables ``measured`` (n,) bool carry load cells
+    (:func:`controller.design.measured_information`: the other cables' tensions are
+    unknowns of every pose, and of the initialisation), against every cable measured: the
+    predicted standard errors (parameter units) and which parameters the diagnosis's rule
+    (:func:`bench.diagnosis.space.undetermined`) would leave undetermined."""
+    if not ctx.tensions:
+        raise DesignError("--load-cells: the campaign records no tensions (its recording or "
+                          "scenario has no load cells)")
+    measured = np.asarray(measured, bool)
+    rm, kept = residual_model(hyp.robot, ctx, poses)
+    K = len(kept)
+    space = ParamSpace(ctx.model, hyp.effects)
+    phi = space.phi_of(hyp.robot)
+    _, Jp = _rows(rm, space, phi, K)
+    Jr, J0 = _reading_rows(rm, hyp.robot, K)
+    S = np.arange(K)
+    out: dict[str, Any] = {"load_cells": [c for c, m in zip(ctx.model.cable_ids, measured,
+                                                            strict=True) if m],
+                           "poses": K, "visits": visits}
+    for name, mask in (("all", np.ones_like(measured)), ("measured", measured)):
+        G = design.measured_information(Jp, Jr, J0, mask)
+        se = design.subset_standard_errors(G, S, int(np.sum(~mask)), visits) * space.scale
+        se_u = _to_units([p.key for p in space.params], se, hyp, ctx)
+        out[name] = {"stderr": {p.key: float(v) for p, v in zip(space.params, se_u,
+                                                                 strict=True)},
+                     "undetermined": [p.key for p, v, e in zip(space.params, phi, se,
+                                                                strict=True)
+                                      if undetermined(p, float(v), float(e))]}
+    out["lost"] = [x for x in out["measured"]["undetermined"]
+                   if x not in out["all"]["undetermined"]]
+    return out
+
+
+def identifiability_note(ident: dict[str, Any]) -> str:
+    """One line: what the design leaves undetermined with only the load cells named."""
+    cells = ", ".join(ident["load_cells"])
+    lost = ident["lost"]
+    left = ident["measured"]["undetermined"]
+    return (f"with load cells on {cells} only: "
+            + (f"undetermined {', '.join(left)}" if left else "every parameter determined")
+            + (f" ({len(lost)} of them fixed when every cable is measured)" if lost else ""))
+
+
+def measured_mask(model: Robot, cables: list[str] | None) -> np.ndarray:
+    """(n,) bool: the cables (ids of ``model``) that carry load cells; None: every one."""
+    ids = list(model.cable_ids)
+    if cables is None:
+        return np.ones(len(ids), bool)
+    bad = [c for c in cables if c not in ids]
+    if bad or not cables:
+        raise DesignError(f"--load-cells: {', '.join(bad) or 'none given'}: cable ids must be "
+                          f"among {', '.join(ids)}")
+    return np.array([c in cables for c in ids])
+
+
 @dataclass
 class Pieces:
     """Per candidate: ``F`` (C,p,p) the preferred hypothesis' information; ``keys`` its
@@ -322,14 +414,14 @@ def candidate_poses(robot: Robot, ctx: Context, count: int, rng: np.random.Gener
 def design_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Where candidates are drawn without a site box: the robot's frame
     (:func:`controller.paths.frame_box`) less :data:`BOX_MARGIN` of its span in x and y,
-    heights from 10 % to 60 % of the highest exit point above the ground (the feasibility
+    heights :data:`BOX_HEIGHTS` of the highest exit point above the ground (the feasibility
     check then keeps the poses the tension distribution holds)."""
     from controller.paths import frame_box
 
     fb = frame_box(robot)
     span = fb[1] - fb[0]
-    lo = np.array([*(fb[0, :2] + BOX_MARGIN * span[:2]), fb[0, 2] + 0.1 * span[2]])
-    hi = np.array([*(fb[1, :2] - BOX_MARGIN * span[:2]), fb[0, 2] + 0.6 * span[2]])
+    lo = np.array([*(fb[0, :2] + BOX_MARGIN * span[:2]), fb[0, 2] + BOX_HEIGHTS[0] * span[2]])
+    hi = np.array([*(fb[1, :2] - BOX_MARGIN * span[:2]), fb[0, 2] + BOX_HEIGHTS[1] * span[2]])
     return lo, hi
 
 

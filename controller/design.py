@@ -204,3 +204,56 @@ def poses_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visit
         if np.all(standard_errors(F, S, visits, prior)[keys] <= reference):
             return len(S), np.array(S, dtype=int)
     return -1, np.array(S, dtype=int)
+
+
+def marginal_information(Jt: np.ndarray, Je: np.ndarray) -> np.ndarray:
+    """(p,p) the information on the parameters of the whitened Jacobian ``Jt`` (r,p) once the
+    nuisance parameters of ``Je`` (r,k) are fitted away (the Schur complement
+    ``Jt^T Jt - Jt^T Je (Je^T Je)^+ Je^T Jt``): what a direction of the parameters the
+    nuisance can imitate leaves is lost."""
+    A = Jt.T @ Jt
+    if Je.shape[1] == 0:
+        return A
+    B = Jt.T @ Je
+    M = A - B @ np.linalg.pinv(Je.T @ Je, hermitian=True) @ B.T
+    return 0.5 * (M + M.T)
+
+
+def measured_information(Jp: list[np.ndarray], Jr: list[np.ndarray], J0: list[np.ndarray],
+                         measured: np.ndarray) -> np.ndarray:
+    """Per candidate the information when only the cables ``measured`` (n,) bool carry load
+    cells: each candidate's unmeasured tensions are its own nuisance parameters, the
+    unmeasured readings at initialisation a nuisance shared by every candidate.
+
+    ``Jp[i]`` (r_i,p) candidate ``i``'s whitened rows by the parameters (scaled); ``Jr[i]``
+    (r_i,n) by its own readings [per N]; ``J0[i]`` (r_i,n) by the initialisation's readings.
+    Returns (C, p+k, p+k) (``k`` unmeasured cables): the parameters then the shared
+    nuisance, to sum over a design and reduce with :func:`eliminate` (``k``). With every
+    cable measured it is ``Jp[i]^T Jp[i]``: nothing lost."""
+    off = ~np.asarray(measured, bool)
+    out = []
+    for jp, jr, j0 in zip(Jp, Jr, J0, strict=True):
+        out.append(marginal_information(np.hstack([jp, j0[:, off]]), jr[:, off]))
+    return np.stack(out)
+
+
+def eliminate(M: np.ndarray, k: int) -> np.ndarray:
+    """(p,p) the information on the first ``p`` parameters of ``M`` (p+k,p+k) once its last
+    ``k`` (nuisance) are fitted away (Schur complement)."""
+    if k == 0:
+        return M
+    p = M.shape[0] - k
+    A, B, C = M[:p, :p], M[:p, p:], M[p:, p:]
+    out = A - B @ np.linalg.pinv(C, hermitian=True) @ B.T
+    return 0.5 * (out + out.T)
+
+
+def subset_standard_errors(G: np.ndarray, S: np.ndarray | list[int], k: int, visits: int = 1,
+                           prior: np.ndarray | None = None) -> np.ndarray:
+    """(p,) the standard errors (scaled parameters) a design ``S`` (``visits`` each) gives
+    with only some cables measured: ``G`` from :func:`measured_information`, ``k`` its
+    shared nuisance; ``prior`` (p,p) on the parameters (default ``1e-6 I``: a parameter the
+    data cannot fix gets a standard error near 1e3, i.e. 1000 typical sizes)."""
+    M = eliminate(information(G, S, visits), k)
+    M = M + (np.eye(M.shape[0]) * 1e-6 if prior is None else prior)
+    return np.sqrt(np.maximum(np.diag(np.linalg.pinv(M, hermitian=True)), 0.0))

@@ -24,7 +24,8 @@ def run(args: argparse.Namespace) -> int:
     """``args.out_dir`` is the report; ``--poses`` N; ``--site`` / ``--scenario``; ``--out``
     the path file; ``--visits`` per pose (default 2); ``--seed`` the candidates' draw;
     ``--candidates``; ``--match PATH`` also the fewest poses that reach that path's
-    standard errors."""
+    standard errors; ``--load-cells`` what the design fixes with only those cables
+    measured."""
     from bench import campaign_design as cd
     from bench.outputs import write_text_file
 
@@ -46,6 +47,10 @@ def run(args: argparse.Namespace) -> int:
             out["match"] = cd.match_reference(report, ctx, ref, ref_visits, visits, seed,
                                               args.candidates)
             out["match"]["path"] = args.match
+        if args.load_cells is not None:
+            mask = cd.measured_mask(ctx.model, args.load_cells)
+            out["identifiability"] = cd.identifiability(res.hyp, ctx, res.poses, visits, mask)
+            out["notes"].append(cd.identifiability_note(out["identifiability"]))
     except (cd.DesignError, ValueError) as e:
         return _fail(args.json, 2, str(e))
     text = cd.path_document(res, visits, report_path, seed=seed)
