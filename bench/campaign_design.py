@@ -631,11 +631,14 @@ MATCH_PREFIXES = ("dx_", "dy_", "dz_", "kx_", "ky_", "kz_")
 
 def match_reference(report: dict[str, Any], ctx: Context, ref_poses: np.ndarray,
                     ref_visits: int, visits: int, seed: int = 0,
-                    candidates: int = CANDIDATES, n_max: int = 40) -> dict[str, Any]:
+                    candidates: int = CANDIDATES, n_max: int = 40,
+                    n: int | None = None) -> dict[str, Any]:
     """How many designed poses (``visits`` each) reach the standard errors the reference
     campaign (``ref_poses`` visited ``ref_visits`` times) gives on the preferred
     hypothesis' exit offsets and mast stiffnesses (:data:`MATCH_PREFIXES`), both predicted
-    by the same Fisher information."""
+    by the same Fisher information (:func:`controller.design.fewest_to_match`); with ``n``
+    also the ``n`` poses that come closest (:func:`controller.design.choose_matching`:
+    the largest ratio of standard errors to the reference's made small), in ``at_poses``."""
     hyp = hypotheses(report, ctx.model)
     rng = np.random.default_rng(seed)
     cand = candidate_poses(hyp.robot, ctx, candidates, rng)
@@ -656,13 +659,22 @@ def match_reference(report: dict[str, Any], ctx: Context, ref_poses: np.ndarray,
                      and not open_[k]], dtype=int)
     if not len(keys):
         raise DesignError("the reference determines no exit offset or mast stiffness to match")
-    count, idx = design.poses_to_match(pc.F[n_ref:], ref_se[keys] / pc.scale[keys], keys,
-                                      visits, prior, n_max)
-    got = design.standard_errors(pc.F[n_ref:], idx, visits, prior) * pc.scale
+    F, ref = pc.F[n_ref:], ref_se[keys] / pc.scale[keys]
+    count, idx = design.fewest_to_match(F, ref, keys, visits, prior, n_max, seed)
+    got = design.standard_errors(F, idx, visits, prior) * pc.scale
     worst = float(np.max(got[keys] / ref_se[keys]))
     left = [pc.keys[k] for k in range(len(pc.keys))
             if open_[k] and pc.keys[k].startswith(MATCH_PREFIXES)]
-    return {"reference_poses": n_ref, "undetermined_by_reference": left,
+    at = None
+    if n is not None:
+        sel = design.choose_matching(F, min(n, len(F)), keys, ref, visits, prior, seed=seed)
+        ratio = (design.standard_errors(F, sel, visits, prior) * pc.scale)[keys] / ref_se[keys]
+        se_at = _to_units(pc.keys, design.standard_errors(F, sel, visits, prior) * pc.scale,
+                          hyp, ctx)
+        at = {"poses": [[float(v) for v in p] for p in pc.poses[n_ref:][sel]],
+              "worst_ratio": float(ratio.max()), "median_ratio": float(np.median(ratio)),
+              "stderr": {k: float(v) for k, v in zip(pc.keys, se_at, strict=True)}}
+    return {"reference_poses": n_ref, "undetermined_by_reference": left, "at_poses": at,
             "reference_visits": ref_visits, "visits": visits,
             "poses_needed": count, "poses": [[float(v) for v in p] for p in
                                              pc.poses[n_ref:][idx]],

@@ -257,3 +257,100 @@ def subset_standard_errors(G: np.ndarray, S: np.ndarray | list[int], k: int, vis
     M = eliminate(information(G, S, visits), k)
     M = M + (np.eye(M.shape[0]) * 1e-6 if prior is None else prior)
     return np.sqrt(np.maximum(np.diag(np.linalg.pinv(M, hermitian=True)), 0.0))
+
+
+#: the ratios' norm a matching design minimises (a smooth stand-in for the largest ratio)
+MATCH_NORM = 8
+#: starts of a matching design: the greedy one, then random ones
+MATCH_STARTS = 4
+
+
+def ratio_cost(M: np.ndarray, keys: np.ndarray, reference: np.ndarray) -> float:
+    """``(sum_k (se_k / reference_k)^(2q))^(1/q)`` with ``q`` :data:`MATCH_NORM`: the
+    standard errors ``se`` of the parameters ``keys`` that the information ``M`` (p,p) gives,
+    as ratios to ``reference`` (same units), close to the largest squared ratio."""
+    var = np.diag(np.linalg.pinv(M, hermitian=True))[keys]
+    r2 = np.maximum(var, 0.0) / np.asarray(reference, float) ** 2
+    top = float(r2.max())
+    if top <= 0.0:
+        return 0.0
+    return top * float(np.sum((r2 / top) ** MATCH_NORM)) ** (1.0 / MATCH_NORM)
+
+
+def choose_matching(F: np.ndarray, n: int, keys: np.ndarray, reference: np.ndarray,
+                    visits: int = 1, prior: np.ndarray | None = None,
+                    starts: int = MATCH_STARTS, seed: int = 0) -> np.ndarray:
+    """``n`` of the C candidates (``visits`` each) whose standard errors of the parameters
+    ``keys`` come closest to (below) ``reference``: :func:`ratio_cost` minimised by greedy
+    forward selection and, from it and from ``starts - 1`` random sets, exchange passes
+    (Fedorov: swap a chosen candidate for another while the cost falls). Returns the
+    indices of the best."""
+    F = np.asarray(F, float)
+    C, p = F.shape[0], F.shape[1]
+    if not 1 <= n <= C:
+        raise ValueError(f"poses: {n} asked, {C} candidates (must be 1..{C})")
+    prior = np.eye(p) * 1e-6 if prior is None else np.asarray(prior, float)
+    keys = np.asarray(keys, dtype=int)
+
+    def cost(S: list[int]) -> float:
+        return ratio_cost(information(F, S, visits, prior), keys, reference)
+
+    S: list[int] = []
+    while len(S) < n:
+        S.append(min((i for i in range(C) if i not in S), key=lambda i: cost(S + [i])))
+    rng = np.random.default_rng(seed)
+    tries = [S] + [rng.choice(C, n, replace=False).tolist() for _ in range(starts - 1)]
+    best_S, best = S, np.inf
+    for S in tries:
+        S, val = _exchange(cost, S, C)
+        if val < best:
+            best_S, best = S, val
+    return np.array(best_S, dtype=int)
+
+
+def _exchange(cost, S: list[int], C: int) -> tuple[list[int], float]:
+    """Exchange passes on ``S`` (at most :data:`EXCHANGE_PASSES`) while ``cost`` falls."""
+    S = [int(i) for i in S]
+    val = cost(S)
+    for _ in range(EXCHANGE_PASSES):
+        improved = False
+        for k in range(len(S)):
+            for j in range(C):
+                if j in S:
+                    continue
+                trial = S[:k] + [j] + S[k + 1:]
+                v = cost(trial)
+                if v < val * (1.0 - 1e-9):
+                    S, val, improved = trial, v, True
+        if not improved:
+            break
+    return S, val
+
+
+def fewest_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visits: int,
+                    prior: np.ndarray | None = None, n_max: int | None = None,
+                    seed: int = 0) -> tuple[int, np.ndarray]:
+    """The fewest poses (``visits`` each) whose standard errors of ``keys`` are all at most
+    ``reference``: :func:`poses_to_match` (greedy) gives a count, then
+    :func:`choose_matching` (exchange, several starts) tries one pose fewer while it still
+    reaches. Returns ``(count, indices)`` (count -1 when ``n_max`` poses do not reach)."""
+    C, p = F.shape[0], F.shape[1]
+    n_max = C if n_max is None else min(n_max, C)
+    prior = np.eye(p) * 1e-6 if prior is None else prior
+    keys = np.asarray(keys, dtype=int)
+
+    def reaches(S: np.ndarray) -> bool:
+        return bool(np.all(standard_errors(F, S, visits, prior)[keys] <= reference))
+
+    count, S = poses_to_match(F, reference, keys, visits, prior, n_max)
+    if count < 0:
+        S = choose_matching(F, n_max, keys, reference, visits, prior, seed=seed)
+        if not reaches(S):
+            return -1, S
+        count = n_max
+    while count > 1:
+        T = choose_matching(F, count - 1, keys, reference, visits, prior, seed=seed)
+        if not reaches(T):
+            break
+        count, S = count - 1, T
+    return count, np.asarray(S, dtype=int)

@@ -287,3 +287,27 @@ def test_cli_says_what_only_some_load_cells_fix(scenario, tmp_path, capsys):
     rc = main(["campaign", "design", str(rep), "--scenario", str(scenario), "--poses", "3",
                "--candidates", "20", "--load-cells", "11,x", "--json"])
     assert rc == 2 and "--load-cells: x" in json.loads(capsys.readouterr().out)["error"]
+
+
+def test_matching_design_brings_the_largest_ratio_down():
+    """Pure: rank-one candidates in 4 parameters; the matching design (exchange, several
+    starts) leaves a largest ratio to the reference no worse than the greedy A-design of
+    the same size, and fewest_to_match never needs more poses than the greedy count."""
+    rng = np.random.default_rng(7)
+    C, p = 40, 4
+    v = rng.normal(size=(C, p)) * np.array([1.0, 1.0, 0.3, 0.1])
+    F = np.einsum("ci,cj->cij", v, v)
+    keys = np.arange(p)
+    prior = np.eye(p) * 1e-6
+    ref = design.standard_errors(F, np.arange(C)[:20], 1, prior)  # 20 poses, in order
+    greedy_n, greedy = design.poses_to_match(F, ref, keys, 1)
+    assert greedy_n > 0
+    n = max(greedy_n - 1, p)
+    _, first = design.poses_to_match(F, ref * 1e-3, keys, 1, n_max=n)  # greedy, n poses
+    got = design.choose_matching(F, n, keys, ref, 1)
+    assert len(set(got.tolist())) == n
+    worst = np.max(design.standard_errors(F, got, 1, prior) / ref)
+    assert worst <= np.max(design.standard_errors(F, first, 1, prior) / ref) + 1e-12
+    count, idx = design.fewest_to_match(F, ref, keys, 1)
+    assert 0 < count < greedy_n and len(idx) == count  # exchange: 14 poses, greedy 17
+    assert np.all(design.standard_errors(F, idx, 1, prior) <= ref)
