@@ -402,6 +402,7 @@ def candidate_poses(robot: Robot, ctx: Context, count: int, rng: np.random.Gener
     box = ctx.box if ctx.box is not None else design_box(robot)
     rpy = RPY_DEG if rpy_deg is None else rpy_deg
     pts = feasible_poses(robot, rng, count, rpy, box=box)
+    pts = pts[[k for k, p in enumerate(pts) if _inside_frame(ctx.model, p)]]
     # the controller runs the campaign with its model: a pose must be feasible for it too
     pts = pts[[k for k, p in enumerate(pts) if feasible(ctx.model, p)]]
     if ctx.tension_window is not None and len(pts):
@@ -423,6 +424,18 @@ def design_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     lo = np.array([*(fb[0, :2] + BOX_MARGIN * span[:2]), fb[0, 2] + BOX_HEIGHTS[0] * span[2]])
     hi = np.array([*(fb[1, :2] - BOX_MARGIN * span[:2]), fb[0, 2] + BOX_HEIGHTS[1] * span[2]])
     return lo, hi
+
+
+def _inside_frame(robot: Robot, pose: np.ndarray) -> bool:
+    """Whether every platform anchor at ``pose`` lies inside the robot's frame
+    (:func:`controller.paths.frame_box`, the dry run's check of a path)."""
+    from controller.kinematics import cable_state
+    from controller.paths import frame_box
+
+    box = frame_box(robot)
+    B = cable_state(np.asarray(pose, float), robot.anchors, robot.exits,
+                    robot.pulley_radius).B
+    return bool(np.all((B >= box[0]) & (B <= box[1])))
 
 
 def _within(robot: Robot, pose: np.ndarray, lo: float, hi: float) -> bool:

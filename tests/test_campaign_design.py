@@ -133,7 +133,8 @@ def test_design_separates_pulleys_from_exit_offsets(ctx, candidates):
     pc = cd.pieces(hyp, ctx, cd.candidate_poses(hyp.robot, ctx, 40,
                                                 np.random.default_rng(0)))
     d_only = design.choose(pc.F, 6, visits=2)
-    assert res.design.delta[label] >= design.discrimination(pc.alts[0], d_only.indices, 2)
+    assert res.design.delta[label] >= design.discrimination(pc.alts[0], d_only.indices, 2) \
+        * (1 - 1e-9)
     assert any("separates them" in n for n in res.notes)
 
 
