@@ -332,8 +332,8 @@ def fewest_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visi
                     seed: int = 0) -> tuple[int, np.ndarray]:
     """The fewest poses (``visits`` each) whose standard errors of ``keys`` are all at most
     ``reference``: :func:`poses_to_match` (greedy) gives a count, then
-    :func:`choose_matching` (exchange, several starts) tries one pose fewer while it still
-    reaches. Returns ``(count, indices)`` (count -1 when ``n_max`` poses do not reach)."""
+    :func:`choose_matching` (exchange, several starts) looks for fewer by bisection (a count
+    it reaches becomes the new upper end). Returns ``(count, indices)`` (count -1 when ``n_max`` poses do not reach)."""
     C, p = F.shape[0], F.shape[1]
     n_max = C if n_max is None else min(n_max, C)
     prior = np.eye(p) * 1e-6 if prior is None else prior
@@ -348,9 +348,12 @@ def fewest_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visi
         if not reaches(S):
             return -1, S
         count = n_max
-    while count > 1:
-        T = choose_matching(F, count - 1, keys, reference, visits, prior, seed=seed)
-        if not reaches(T):
-            break
-        count, S = count - 1, T
+    lo = 0  # bisection: fewer poses than lo do not reach (as far as the search finds)
+    while count - lo > 1:
+        mid = (lo + count) // 2
+        T = choose_matching(F, mid, keys, reference, visits, prior, seed=seed)
+        if reaches(T):
+            count, S = mid, T
+        else:
+            lo = mid
     return count, np.asarray(S, dtype=int)
