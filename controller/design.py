@@ -265,16 +265,15 @@ MATCH_NORM = 8
 MATCH_STARTS = 4
 
 
-def ratio_cost(M: np.ndarray, keys: np.ndarray, reference: np.ndarray) -> float:
+def ratio_cost(M: np.ndarray, keys: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """``(sum_k (se_k / reference_k)^(2q))^(1/q)`` with ``q`` :data:`MATCH_NORM`: the
-    standard errors ``se`` of the parameters ``keys`` that the information ``M`` (p,p) gives,
-    as ratios to ``reference`` (same units), close to the largest squared ratio."""
-    var = np.diag(np.linalg.pinv(M, hermitian=True))[keys]
+    standard errors ``se`` of the parameters ``keys`` that the information ``M`` (p,p), or a
+    stack of them (..., p,p), gives as ratios to ``reference`` (same units); close to the
+    largest squared ratio. ``M`` must be positive definite (a prior keeps it so)."""
+    var = np.diagonal(np.linalg.inv(M), axis1=-2, axis2=-1)[..., keys]
     r2 = np.maximum(var, 0.0) / np.asarray(reference, float) ** 2
-    top = float(r2.max())
-    if top <= 0.0:
-        return 0.0
-    return top * float(np.sum((r2 / top) ** MATCH_NORM)) ** (1.0 / MATCH_NORM)
+    top = np.maximum(r2.max(axis=-1), 1e-300)
+    return top * np.sum((r2 / top[..., None]) ** MATCH_NORM, axis=-1) ** (1.0 / MATCH_NORM)
 
 
 def choose_matching(F: np.ndarray, n: int, keys: np.ndarray, reference: np.ndarray,
@@ -291,37 +290,45 @@ def choose_matching(F: np.ndarray, n: int, keys: np.ndarray, reference: np.ndarr
         raise ValueError(f"poses: {n} asked, {C} candidates (must be 1..{C})")
     prior = np.eye(p) * 1e-6 if prior is None else np.asarray(prior, float)
     keys = np.asarray(keys, dtype=int)
+    vF = visits * F
 
-    def cost(S: list[int]) -> float:
-        return ratio_cost(information(F, S, visits, prior), keys, reference)
+    def costs(base: np.ndarray, S: list[int]) -> np.ndarray:
+        """The cost of ``base`` plus each candidate (inf for those in ``S``)."""
+        c = ratio_cost(base[None] + vF, keys, reference)
+        c[S] = np.inf
+        return c
 
     S: list[int] = []
+    M = prior.copy()
     while len(S) < n:
-        S.append(min((i for i in range(C) if i not in S), key=lambda i: cost(S + [i])))
+        j = int(np.argmin(costs(M, S)))
+        S.append(j)
+        M = M + vF[j]
     rng = np.random.default_rng(seed)
     tries = [S] + [rng.choice(C, n, replace=False).tolist() for _ in range(starts - 1)]
     best_S, best = S, np.inf
-    for S in tries:
-        S, val = _exchange(cost, S, C)
+    for T in tries:
+        T, val = _exchange(costs, vF, prior, T, keys, reference)
         if val < best:
-            best_S, best = S, val
+            best_S, best = T, val
     return np.array(best_S, dtype=int)
 
 
-def _exchange(cost, S: list[int], C: int) -> tuple[list[int], float]:
-    """Exchange passes on ``S`` (at most :data:`EXCHANGE_PASSES`) while ``cost`` falls."""
+def _exchange(costs, vF: np.ndarray, prior: np.ndarray, S: list[int], keys: np.ndarray,
+              reference: np.ndarray) -> tuple[list[int], float]:
+    """Exchange passes on ``S`` (at most :data:`EXCHANGE_PASSES`): each chosen candidate in
+    turn is swapped for the candidate that lowers the cost most, while the cost falls."""
     S = [int(i) for i in S]
-    val = cost(S)
+    M = prior + vF[S].sum(axis=0)
+    val = float(ratio_cost(M, keys, reference))
     for _ in range(EXCHANGE_PASSES):
         improved = False
         for k in range(len(S)):
-            for j in range(C):
-                if j in S:
-                    continue
-                trial = S[:k] + [j] + S[k + 1:]
-                v = cost(trial)
-                if v < val * (1.0 - 1e-9):
-                    S, val, improved = trial, v, True
+            base = M - vF[S[k]]
+            c = costs(base, S)
+            j = int(np.argmin(c))
+            if c[j] < val * (1.0 - 1e-9):
+                S[k], M, val, improved = j, base + vF[j], float(c[j]), True
         if not improved:
             break
     return S, val
@@ -333,7 +340,8 @@ def fewest_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visi
     """The fewest poses (``visits`` each) whose standard errors of ``keys`` are all at most
     ``reference``: :func:`poses_to_match` (greedy) gives a count, then
     :func:`choose_matching` (exchange, several starts) looks for fewer by bisection (a count
-    it reaches becomes the new upper end). Returns ``(count, indices)`` (count -1 when ``n_max`` poses do not reach)."""
+    it reaches becomes the new upper end). Returns ``(count, indices)`` (count -1 when
+    ``n_max`` poses do not reach)."""
     C, p = F.shape[0], F.shape[1]
     n_max = C if n_max is None else min(n_max, C)
     prior = np.eye(p) * 1e-6 if prior is None else prior
