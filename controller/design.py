@@ -35,6 +35,15 @@ as much as the parameters' information multiplied by ``1/eps``; once every alter
 D-criterion alone. Greedy forward selection builds ``S`` one pose at a time, then Fedorov
 exchange passes swap a chosen pose for a candidate while ``Phi`` grows (each accepted swap
 raises ``Phi``: it ends).
+
+**Match a reference's standard errors** (:func:`choose_matching`, :func:`fewest_to_match`):
+the poses whose standard errors of chosen parameters come closest to (below) those of a
+reference campaign, by the 8-norm of the ratios (a smooth largest ratio), greedy then
+exchange from several starts.
+
+**Only some cables measured** (:func:`measured_information`): an unmeasured cable's tension
+is a nuisance of every pose (and of the initialisation); its columns are fitted away from
+the information (Schur complement, :func:`marginal_information`, :func:`eliminate`).
 """
 
 from __future__ import annotations
