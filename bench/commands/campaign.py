@@ -75,7 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="design: tension-feasible candidate poses drawn (default 150)")
     g.add_argument("--match", metavar="PATH",
                    help="design: also the fewest designed poses that reach the standard "
-                        "errors this path's poses give (exit offsets, mast stiffnesses)")
+                        "errors this path's poses give (exit offsets, mast stiffnesses); "
+                        "with nothing to separate, the poses written aim at them")
     g.add_argument("--load-cells", dest="load_cells", metavar="IDS",
                    type=lambda v: [c.strip() for c in v.split(",") if c.strip()],
                    help="design: the cables that carry load cells (comma-separated ids): "
