@@ -8,13 +8,14 @@ campaign of a few poses close together around the initialisation pose at one hei
 diagnosis. A case counts when that report names an alternative. Then ``cdpr campaign
 design`` chooses ``poses`` poses, the simulator records them on the same truth, and the
 diagnosis runs again: **settled** when the new report names the concealed effect with no
-alternative left.
+alternative left; a case whose design or designed campaign fails (the simulated plant
+cannot find a rest position) counts as not settled, its ``stage`` and ``error`` said.
 
 ``evaluate(seeds)`` runs the cases one after another in this process; the figure in the
 docs comes from::
 
     python -c "from bench.design_eval import evaluate, summary; \\
-               print(summary(evaluate(range(9000, 9030))))"
+               print(summary(evaluate(range(9300, 9350))))"
 """
 
 from __future__ import annotations
