@@ -16,7 +16,9 @@ one physics) gives, per candidate:
   (:func:`bench.diagnosis.fit.fit_effects`), its whitened residuals and Jacobian there.
 
 :func:`controller.design.choose` picks N of them (D-optimal for the parameters, T-optimal for
-the alternatives); :func:`path_document` writes them as a ``cdpr-path/1`` file with a
+the alternatives; :func:`match_reference` the poses that come closest to a reference
+campaign's standard errors; :func:`identifiability` what they fix with only some cables
+measured); :func:`path_document` writes them as a ``cdpr-path/1`` file with a
 ``visits`` segment, which ``cdpr dry-run --path`` follows and ``cdpr campaign --path`` visits.
 """
 
