@@ -16,7 +16,9 @@ one physics) gives, per candidate:
   (:func:`bench.diagnosis.fit.fit_effects`), its whitened residuals and Jacobian there.
 
 :func:`controller.design.choose` picks N of them (D-optimal for the parameters, T-optimal for
-the alternatives); :func:`path_document` writes them as a ``cdpr-path/1`` file with a
+the alternatives; :func:`match_reference` the poses that come closest to a reference
+campaign's standard errors; :func:`identifiability` what they fix with only some cables
+measured); :func:`path_document` writes them as a ``cdpr-path/1`` file with a
 ``visits`` segment, which ``cdpr dry-run --path`` follows and ``cdpr campaign --path`` visits.
 """
 
@@ -49,6 +51,10 @@ DEFAULT_EFFECTS = ("exit_point_offset", "mast_compliance")
 RPY_DEG = 3.0
 #: share of the frame's span in x and y left out of the candidates' box on each side
 BOX_MARGIN = 0.03
+#: the candidates' heights, as shares of the frame's height (the ground to the highest exit
+#: point): the whole height the tension distribution may hold (high poses load the cables
+#: most: their stretch is what tells a load cell's gain from the platform's mass)
+BOX_HEIGHTS = (0.05, 0.9)
 #: rows averaged per dwell sample of the designed campaign (3 s at 2 Hz)
 ROWS_PER_DWELL = 6
 
@@ -259,6 +265,94 @@ def _fit_within(rm: ResidualModel, space: ParamSpace, phi0: np.ndarray, Z: np.nd
     return phi
 
 
+#: step of a load-cell reading in the readings' finite differences [N]
+READING_STEP = 1.0
+
+
+def _reading_rows(rm: ResidualModel, H: Robot, K: int) -> tuple[list[np.ndarray],
+                                                                list[np.ndarray]]:
+    """Per candidate (samples 1..K): its whitened rows by its own load-cell readings (r_i,n)
+    and by the initialisation's readings (r_i,n) [per N], forward differences of
+    :data:`READING_STEP` (a sample's rows depend on its own readings and the
+    initialisation's only)."""
+    r0 = rm.whitened(H)
+    ent = rm.entry_samples()
+    n = rm.s.tau.shape[1]
+    own, init = np.zeros((len(r0), n)), np.zeros((len(r0), n))
+    tau, tau0 = rm.s.tau.copy(), None if rm.tau0 is None else rm.tau0.copy()
+    with rm.frozen():
+        for j in range(n):
+            rm.s.tau[1:, j] += READING_STEP
+            own[:, j] = (rm.whitened(H) - r0) / READING_STEP
+            rm.s.tau[:] = tau
+            rm.s.tau[0, j] += READING_STEP
+            if tau0 is not None:
+                rm.tau0[j] += READING_STEP
+            init[:, j] = (rm.whitened(H) - r0) / READING_STEP
+            rm.s.tau[:] = tau
+            if tau0 is not None:
+                rm.tau0[:] = tau0
+    return ([own[ent == i + 1] for i in range(K)], [init[ent == i + 1] for i in range(K)])
+
+
+def identifiability(hyp: Hypotheses, ctx: Context, poses: np.ndarray, visits: int,
+                    measured: np.ndarray) -> dict[str, Any]:
+    """What a campaign at ``poses`` (each visited ``visits`` times) fixes of the preferred
+    hypothesis' parameters when only the cables ``measured`` (n,) bool carry load cells
+    (:func:`controller.design.measured_information`: the other cables' tensions are
+    unknowns of every pose, and of the initialisation), against every cable measured: the
+    predicted standard errors (parameter units) and which parameters the diagnosis's rule
+    (:func:`bench.diagnosis.space.undetermined`) would leave undetermined."""
+    if not ctx.tensions:
+        raise DesignError("--load-cells: the campaign records no tensions (its recording or "
+                          "scenario has no load cells)")
+    measured = np.asarray(measured, bool)
+    rm, kept = residual_model(hyp.robot, ctx, poses)
+    K = len(kept)
+    space = ParamSpace(ctx.model, hyp.effects)
+    phi = space.phi_of(hyp.robot)
+    _, Jp = _rows(rm, space, phi, K)
+    Jr, J0 = _reading_rows(rm, hyp.robot, K)
+    S = np.arange(K)
+    out: dict[str, Any] = {"load_cells": [c for c, m in zip(ctx.model.cable_ids, measured,
+                                                            strict=True) if m],
+                           "poses": K, "visits": visits}
+    for name, mask in (("all", np.ones_like(measured)), ("measured", measured)):
+        G = design.measured_information(Jp, Jr, J0, mask)
+        se = design.subset_standard_errors(G, S, int(np.sum(~mask)), visits) * space.scale
+        se_u = _to_units([p.key for p in space.params], se, hyp, ctx)
+        out[name] = {"stderr": {p.key: float(v) for p, v in zip(space.params, se_u,
+                                                                 strict=True)},
+                     "undetermined": [p.key for p, v, e in zip(space.params, phi, se,
+                                                                strict=True)
+                                      if undetermined(p, float(v), float(e))]}
+    out["lost"] = [x for x in out["measured"]["undetermined"]
+                   if x not in out["all"]["undetermined"]]
+    return out
+
+
+def identifiability_note(ident: dict[str, Any]) -> str:
+    """One line: what the design leaves undetermined with only the load cells named."""
+    cells = ", ".join(ident["load_cells"])
+    lost = ident["lost"]
+    left = ident["measured"]["undetermined"]
+    return (f"with load cells on {cells} only: "
+            + (f"undetermined {', '.join(left)}" if left else "every parameter determined")
+            + (f" ({len(lost)} of them fixed when every cable is measured)" if lost else ""))
+
+
+def measured_mask(model: Robot, cables: list[str] | None) -> np.ndarray:
+    """(n,) bool: the cables (ids of ``model``) that carry load cells; None: every one."""
+    ids = list(model.cable_ids)
+    if cables is None:
+        return np.ones(len(ids), bool)
+    bad = [c for c in cables if c not in ids]
+    if bad or not cables:
+        raise DesignError(f"--load-cells: {', '.join(bad) or 'none given'}: cable ids must be "
+                          f"among {', '.join(ids)}")
+    return np.array([c in cables for c in ids])
+
+
 @dataclass
 class Pieces:
     """Per candidate: ``F`` (C,p,p) the preferred hypothesis' information; ``keys`` its
@@ -310,6 +404,7 @@ def candidate_poses(robot: Robot, ctx: Context, count: int, rng: np.random.Gener
     box = ctx.box if ctx.box is not None else design_box(robot)
     rpy = RPY_DEG if rpy_deg is None else rpy_deg
     pts = feasible_poses(robot, rng, count, rpy, box=box)
+    pts = pts[[k for k, p in enumerate(pts) if _inside_frame(ctx.model, p)]]
     # the controller runs the campaign with its model: a pose must be feasible for it too
     pts = pts[[k for k, p in enumerate(pts) if feasible(ctx.model, p)]]
     if ctx.tension_window is not None and len(pts):
@@ -322,15 +417,27 @@ def candidate_poses(robot: Robot, ctx: Context, count: int, rng: np.random.Gener
 def design_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Where candidates are drawn without a site box: the robot's frame
     (:func:`controller.paths.frame_box`) less :data:`BOX_MARGIN` of its span in x and y,
-    heights from 10 % to 60 % of the highest exit point above the ground (the feasibility
+    heights :data:`BOX_HEIGHTS` of the highest exit point above the ground (the feasibility
     check then keeps the poses the tension distribution holds)."""
     from controller.paths import frame_box
 
     fb = frame_box(robot)
     span = fb[1] - fb[0]
-    lo = np.array([*(fb[0, :2] + BOX_MARGIN * span[:2]), fb[0, 2] + 0.1 * span[2]])
-    hi = np.array([*(fb[1, :2] - BOX_MARGIN * span[:2]), fb[0, 2] + 0.6 * span[2]])
+    lo = np.array([*(fb[0, :2] + BOX_MARGIN * span[:2]), fb[0, 2] + BOX_HEIGHTS[0] * span[2]])
+    hi = np.array([*(fb[1, :2] - BOX_MARGIN * span[:2]), fb[0, 2] + BOX_HEIGHTS[1] * span[2]])
     return lo, hi
+
+
+def _inside_frame(robot: Robot, pose: np.ndarray) -> bool:
+    """Whether every platform anchor at ``pose`` lies inside the robot's frame
+    (:func:`controller.paths.frame_box`, the dry run's check of a path)."""
+    from controller.kinematics import cable_state
+    from controller.paths import frame_box
+
+    box = frame_box(robot)
+    B = cable_state(np.asarray(pose, float), robot.anchors, robot.exits,
+                    robot.pulley_radius).B
+    return bool(np.all((B >= box[0]) & (B <= box[1])))
 
 
 def _within(robot: Robot, pose: np.ndarray, lo: float, hi: float) -> bool:
@@ -539,11 +646,14 @@ MATCH_PREFIXES = ("dx_", "dy_", "dz_", "kx_", "ky_", "kz_")
 
 def match_reference(report: dict[str, Any], ctx: Context, ref_poses: np.ndarray,
                     ref_visits: int, visits: int, seed: int = 0,
-                    candidates: int = CANDIDATES, n_max: int = 40) -> dict[str, Any]:
+                    candidates: int = CANDIDATES, n_max: int = 40,
+                    n: int | None = None) -> dict[str, Any]:
     """How many designed poses (``visits`` each) reach the standard errors the reference
     campaign (``ref_poses`` visited ``ref_visits`` times) gives on the preferred
     hypothesis' exit offsets and mast stiffnesses (:data:`MATCH_PREFIXES`), both predicted
-    by the same Fisher information."""
+    by the same Fisher information (:func:`controller.design.fewest_to_match`); with ``n``
+    also the ``n`` poses that come closest (:func:`controller.design.choose_matching`:
+    the largest ratio of standard errors to the reference's made small), in ``at_poses``."""
     hyp = hypotheses(report, ctx.model)
     rng = np.random.default_rng(seed)
     cand = candidate_poses(hyp.robot, ctx, candidates, rng)
@@ -564,13 +674,22 @@ def match_reference(report: dict[str, Any], ctx: Context, ref_poses: np.ndarray,
                      and not open_[k]], dtype=int)
     if not len(keys):
         raise DesignError("the reference determines no exit offset or mast stiffness to match")
-    count, idx = design.poses_to_match(pc.F[n_ref:], ref_se[keys] / pc.scale[keys], keys,
-                                      visits, prior, n_max)
-    got = design.standard_errors(pc.F[n_ref:], idx, visits, prior) * pc.scale
+    F, ref = pc.F[n_ref:], ref_se[keys] / pc.scale[keys]
+    count, idx = design.fewest_to_match(F, ref, keys, visits, prior, n_max, seed)
+    got = design.standard_errors(F, idx, visits, prior) * pc.scale
     worst = float(np.max(got[keys] / ref_se[keys]))
     left = [pc.keys[k] for k in range(len(pc.keys))
             if open_[k] and pc.keys[k].startswith(MATCH_PREFIXES)]
-    return {"reference_poses": n_ref, "undetermined_by_reference": left,
+    at = None
+    if n is not None:
+        sel = design.choose_matching(F, min(n, len(F)), keys, ref, visits, prior, seed=seed)
+        ratio = (design.standard_errors(F, sel, visits, prior) * pc.scale)[keys] / ref_se[keys]
+        se_at = _to_units(pc.keys, design.standard_errors(F, sel, visits, prior) * pc.scale,
+                          hyp, ctx)
+        at = {"poses": [[float(v) for v in p] for p in pc.poses[n_ref:][sel]],
+              "worst_ratio": float(ratio.max()), "median_ratio": float(np.median(ratio)),
+              "stderr": {k: float(v) for k, v in zip(pc.keys, se_at, strict=True)}}
+    return {"reference_poses": n_ref, "undetermined_by_reference": left, "at_poses": at,
             "reference_visits": ref_visits, "visits": visits,
             "poses_needed": count, "poses": [[float(v) for v in p] for p in
                                              pc.poses[n_ref:][idx]],

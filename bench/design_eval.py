@@ -8,13 +8,14 @@ campaign of a few poses close together around the initialisation pose at one hei
 diagnosis. A case counts when that report names an alternative. Then ``cdpr campaign
 design`` chooses ``poses`` poses, the simulator records them on the same truth, and the
 diagnosis runs again: **settled** when the new report names the concealed effect with no
-alternative left.
+alternative left; a case whose design or designed campaign fails (the simulated plant
+cannot find a rest position) counts as not settled, its ``stage`` and ``error`` said.
 
 ``evaluate(seeds)`` runs the cases one after another in this process; the figure in the
 docs comes from::
 
     python -c "from bench.design_eval import evaluate, summary; \\
-               print(summary(evaluate(range(9000, 9030))))"
+               print(summary(evaluate(range(9300, 9350))))"
 """
 
 from __future__ import annotations
@@ -74,7 +75,6 @@ def _alternatives(report: dict[str, Any]) -> list[str]:
 
 def run_case(seed: int, poses: int = 10, visits: int = 2) -> dict[str, Any]:
     """One case: first campaign, diagnosis, design, designed campaign, diagnosis again."""
-    from bench import campaign_design as cd
     from bench.campaign import run_campaign
     from bench.diagnosis.report import diagnose
     from bench.evaluate import one_blas_thread
@@ -94,24 +94,44 @@ def run_case(seed: int, poses: int = 10, visits: int = 2) -> dict[str, Any]:
         out["alternatives"] = _alternatives(first)
         if not out["alternatives"]:
             return out
-        rpath = Path(d) / "report.json"
-        rpath.write_text(json.dumps(first, default=float))
-        ctx = cd.context(first, rpath)
-        res = cd.run_design(first, ctx, poses, visits=visits, seed=seed)
-        out["predicted"] = {k: round(v, 1) for k, v in res.design.delta.items()}
-        path = Path(d) / "designed.toml"
-        path.write_text(cd.path_document(res, visits, str(rpath), seed=seed))
-        poses_, v = cd.path_poses(path)
-        import dataclasses
-
-        sc2 = dataclasses.replace(sc, poses=dataclasses.replace(sc.poses, visits=v))
-        rec2 = Path(d) / "rec2"
-        run_campaign(sc2, rec2, poses=poses_)
-        second = diagnose(rec2).report
+        try:
+            second = _designed(first, sc, Path(d), poses, visits, seed, out)
+        except (ValueError, RuntimeError) as e:  # the design or its campaign failed:
+            out.update(error=str(e), settled=False)  # a case with an alternative, unsettled
+            return out
     out["second"] = [e["name"] for e in second["effects"]]
     out["left"] = _alternatives(second)
     out["settled"] = out["second"] == [concealed] and not out["left"]
     return out
+
+
+def _designed(first: dict[str, Any], sc: Any, d: Path, poses: int, visits: int, seed: int,
+              out: dict[str, Any]) -> dict[str, Any]:
+    """Design from the ``first`` report, record the designed campaign on the scenario ``sc``'s
+    truth in ``d``, and return its diagnosis (``out`` gets the predicted differences)."""
+    import dataclasses
+
+    from bench import campaign_design as cd
+    from bench.campaign import run_campaign
+    from bench.diagnosis.report import diagnose
+
+    out["stage"] = "design"
+    rpath = d / "report.json"
+    rpath.write_text(json.dumps(first, default=float))
+    ctx = cd.context(first, rpath)
+    res = cd.run_design(first, ctx, poses, visits=visits, seed=seed)
+    out["predicted"] = {k: round(v, 1) for k, v in res.design.delta.items()}
+    path = d / "designed.toml"
+    path.write_text(cd.path_document(res, visits, str(rpath), seed=seed))
+    out["path_check"] = cd.check_path(path.read_text(), ctx) or "ok"
+    poses_, v = cd.path_poses(path)
+    sc2 = dataclasses.replace(sc, poses=dataclasses.replace(sc.poses, visits=v))
+    out["stage"] = "designed campaign"
+    run_campaign(sc2, d / "rec2", poses=poses_)
+    out["stage"] = "second diagnosis"
+    second = diagnose(d / "rec2").report
+    del out["stage"]
+    return second
 
 
 def evaluate(seeds, poses: int = 10, visits: int = 2) -> list[dict[str, Any]]:
@@ -128,9 +148,10 @@ def evaluate(seeds, poses: int = 10, visits: int = 2) -> list[dict[str, Any]]:
 
 def summary(results: list[dict[str, Any]]) -> dict[str, Any]:
     """How many cases had an alternative, and how many of those one designed campaign
-    settled."""
+    settled (a case whose design or designed campaign failed counts as unsettled)."""
     amb = [r for r in results if r.get("alternatives")]
     settled = [r for r in amb if r.get("settled")]
     return {"cases": len(results), "errors": sum("error" in r for r in results),
+            "failed_after_first": sum("error" in r for r in amb),
             "with_alternative": len(amb), "settled": len(settled),
             "rate": len(settled) / len(amb) if amb else None, "results": results}

@@ -35,6 +35,15 @@ as much as the parameters' information multiplied by ``1/eps``; once every alter
 D-criterion alone. Greedy forward selection builds ``S`` one pose at a time, then Fedorov
 exchange passes swap a chosen pose for a candidate while ``Phi`` grows (each accepted swap
 raises ``Phi``: it ends).
+
+**Match a reference's standard errors** (:func:`choose_matching`, :func:`fewest_to_match`):
+the poses whose standard errors of chosen parameters come closest to (below) those of a
+reference campaign, by the 8-norm of the ratios (a smooth largest ratio), greedy then
+exchange from several starts.
+
+**Only some cables measured** (:func:`measured_information`): an unmeasured cable's tension
+is a nuisance of every pose (and of the initialisation); its columns are fitted away from
+the information (Schur complement, :func:`marginal_information`, :func:`eliminate`).
 """
 
 from __future__ import annotations
@@ -204,3 +213,164 @@ def poses_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visit
         if np.all(standard_errors(F, S, visits, prior)[keys] <= reference):
             return len(S), np.array(S, dtype=int)
     return -1, np.array(S, dtype=int)
+
+
+def marginal_information(Jt: np.ndarray, Je: np.ndarray) -> np.ndarray:
+    """(p,p) the information on the parameters of the whitened Jacobian ``Jt`` (r,p) once the
+    nuisance parameters of ``Je`` (r,k) are fitted away (the Schur complement
+    ``Jt^T Jt - Jt^T Je (Je^T Je)^+ Je^T Jt``): what a direction of the parameters the
+    nuisance can imitate leaves is lost."""
+    A = Jt.T @ Jt
+    if Je.shape[1] == 0:
+        return A
+    B = Jt.T @ Je
+    M = A - B @ np.linalg.pinv(Je.T @ Je, hermitian=True) @ B.T
+    return 0.5 * (M + M.T)
+
+
+def measured_information(Jp: list[np.ndarray], Jr: list[np.ndarray], J0: list[np.ndarray],
+                         measured: np.ndarray) -> np.ndarray:
+    """Per candidate the information when only the cables ``measured`` (n,) bool carry load
+    cells: each candidate's unmeasured tensions are its own nuisance parameters, the
+    unmeasured readings at initialisation a nuisance shared by every candidate.
+
+    ``Jp[i]`` (r_i,p) candidate ``i``'s whitened rows by the parameters (scaled); ``Jr[i]``
+    (r_i,n) by its own readings [per N]; ``J0[i]`` (r_i,n) by the initialisation's readings.
+    Returns (C, p+k, p+k) (``k`` unmeasured cables): the parameters then the shared
+    nuisance, to sum over a design and reduce with :func:`eliminate` (``k``). With every
+    cable measured it is ``Jp[i]^T Jp[i]``: nothing lost."""
+    off = ~np.asarray(measured, bool)
+    out = []
+    for jp, jr, j0 in zip(Jp, Jr, J0, strict=True):
+        out.append(marginal_information(np.hstack([jp, j0[:, off]]), jr[:, off]))
+    return np.stack(out)
+
+
+def eliminate(M: np.ndarray, k: int) -> np.ndarray:
+    """(p,p) the information on the first ``p`` parameters of ``M`` (p+k,p+k) once its last
+    ``k`` (nuisance) are fitted away (Schur complement)."""
+    if k == 0:
+        return M
+    p = M.shape[0] - k
+    A, B, C = M[:p, :p], M[:p, p:], M[p:, p:]
+    out = A - B @ np.linalg.pinv(C, hermitian=True) @ B.T
+    return 0.5 * (out + out.T)
+
+
+def subset_standard_errors(G: np.ndarray, S: np.ndarray | list[int], k: int, visits: int = 1,
+                           prior: np.ndarray | None = None) -> np.ndarray:
+    """(p,) the standard errors (scaled parameters) a design ``S`` (``visits`` each) gives
+    with only some cables measured: ``G`` from :func:`measured_information`, ``k`` its
+    shared nuisance; ``prior`` (p,p) on the parameters (default ``1e-6 I``: a parameter the
+    data cannot fix gets a standard error near 1e3, i.e. 1000 typical sizes)."""
+    M = eliminate(information(G, S, visits), k)
+    M = M + (np.eye(M.shape[0]) * 1e-6 if prior is None else prior)
+    return np.sqrt(np.maximum(np.diag(np.linalg.pinv(M, hermitian=True)), 0.0))
+
+
+#: the ratios' norm a matching design minimises (a smooth stand-in for the largest ratio)
+MATCH_NORM = 8
+#: starts of a matching design: the greedy one, then random ones
+MATCH_STARTS = 4
+
+
+def ratio_cost(M: np.ndarray, keys: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``(sum_k (se_k / reference_k)^(2q))^(1/q)`` with ``q`` :data:`MATCH_NORM`: the
+    standard errors ``se`` of the parameters ``keys`` that the information ``M`` (p,p), or a
+    stack of them (..., p,p), gives as ratios to ``reference`` (same units); close to the
+    largest squared ratio. ``M`` must be positive definite (a prior keeps it so)."""
+    var = np.diagonal(np.linalg.inv(M), axis1=-2, axis2=-1)[..., keys]
+    r2 = np.maximum(var, 0.0) / np.asarray(reference, float) ** 2
+    top = np.maximum(r2.max(axis=-1), 1e-300)
+    return top * np.sum((r2 / top[..., None]) ** MATCH_NORM, axis=-1) ** (1.0 / MATCH_NORM)
+
+
+def choose_matching(F: np.ndarray, n: int, keys: np.ndarray, reference: np.ndarray,
+                    visits: int = 1, prior: np.ndarray | None = None,
+                    starts: int = MATCH_STARTS, seed: int = 0) -> np.ndarray:
+    """``n`` of the C candidates (``visits`` each) whose standard errors of the parameters
+    ``keys`` come closest to (below) ``reference``: :func:`ratio_cost` minimised by greedy
+    forward selection and, from it and from ``starts - 1`` random sets, exchange passes
+    (Fedorov: swap a chosen candidate for another while the cost falls). Returns the
+    indices of the best."""
+    F = np.asarray(F, float)
+    C, p = F.shape[0], F.shape[1]
+    if not 1 <= n <= C:
+        raise ValueError(f"poses: {n} asked, {C} candidates (must be 1..{C})")
+    prior = np.eye(p) * 1e-6 if prior is None else np.asarray(prior, float)
+    keys = np.asarray(keys, dtype=int)
+    vF = visits * F
+
+    def costs(base: np.ndarray, S: list[int]) -> np.ndarray:
+        """The cost of ``base`` plus each candidate (inf for those in ``S``)."""
+        c = ratio_cost(base[None] + vF, keys, reference)
+        c[S] = np.inf
+        return c
+
+    S: list[int] = []
+    M = prior.copy()
+    while len(S) < n:
+        j = int(np.argmin(costs(M, S)))
+        S.append(j)
+        M = M + vF[j]
+    rng = np.random.default_rng(seed)
+    tries = [S] + [rng.choice(C, n, replace=False).tolist() for _ in range(starts - 1)]
+    best_S, best = S, np.inf
+    for T in tries:
+        T, val = _exchange(costs, vF, prior, T, keys, reference)
+        if val < best:
+            best_S, best = T, val
+    return np.array(best_S, dtype=int)
+
+
+def _exchange(costs, vF: np.ndarray, prior: np.ndarray, S: list[int], keys: np.ndarray,
+              reference: np.ndarray) -> tuple[list[int], float]:
+    """Exchange passes on ``S`` (at most :data:`EXCHANGE_PASSES`): each chosen candidate in
+    turn is swapped for the candidate that lowers the cost most, while the cost falls."""
+    S = [int(i) for i in S]
+    M = prior + vF[S].sum(axis=0)
+    val = float(ratio_cost(M, keys, reference))
+    for _ in range(EXCHANGE_PASSES):
+        improved = False
+        for k in range(len(S)):
+            base = M - vF[S[k]]
+            c = costs(base, S)
+            j = int(np.argmin(c))
+            if c[j] < val * (1.0 - 1e-9):
+                S[k], M, val, improved = j, base + vF[j], float(c[j]), True
+        if not improved:
+            break
+    return S, val
+
+
+def fewest_to_match(F: np.ndarray, reference: np.ndarray, keys: np.ndarray, visits: int,
+                    prior: np.ndarray | None = None, n_max: int | None = None,
+                    seed: int = 0) -> tuple[int, np.ndarray]:
+    """The fewest poses (``visits`` each) whose standard errors of ``keys`` are all at most
+    ``reference``: :func:`poses_to_match` (greedy) gives a count, then
+    :func:`choose_matching` (exchange, several starts) looks for fewer by bisection (a count
+    it reaches becomes the new upper end). Returns ``(count, indices)`` (count -1 when
+    ``n_max`` poses do not reach)."""
+    C, p = F.shape[0], F.shape[1]
+    n_max = C if n_max is None else min(n_max, C)
+    prior = np.eye(p) * 1e-6 if prior is None else prior
+    keys = np.asarray(keys, dtype=int)
+
+    def reaches(S: np.ndarray) -> bool:
+        return bool(np.all(standard_errors(F, S, visits, prior)[keys] <= reference))
+
+    count, S = poses_to_match(F, reference, keys, visits, prior, n_max)
+    if count < 0:
+        S = choose_matching(F, n_max, keys, reference, visits, prior, seed=seed)
+        if not reaches(S):
+            return -1, S
+        count = n_max
+    lo = 0  # bisection: fewer poses than lo do not reach (as far as the search finds)
+    while count - lo > 1:
+        mid = (lo + count) // 2
+        T = choose_matching(F, mid, keys, reference, visits, prior, seed=seed)
+        if reaches(T):
+            count, S = mid, T
+        else:
+            lo = mid
+    return count, np.asarray(S, dtype=int)

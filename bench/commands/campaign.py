@@ -75,7 +75,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="design: tension-feasible candidate poses drawn (default 150)")
     g.add_argument("--match", metavar="PATH",
                    help="design: also the fewest designed poses that reach the standard "
-                        "errors this path's poses give (exit offsets, mast stiffnesses)")
+                        "errors this path's poses give (exit offsets, mast stiffnesses); "
+                        "with nothing to separate, the poses written aim at them")
+    g.add_argument("--load-cells", dest="load_cells", metavar="IDS",
+                   type=lambda v: [c.strip() for c in v.split(",") if c.strip()],
+                   help="design: the cables that carry load cells (comma-separated ids): "
+                        "also say what the design fixes with only those measured")
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -146,9 +151,10 @@ def run(args: argparse.Namespace) -> int:
         from bench.commands.campaign_design import run as design
 
         return design(args)
-    for opt in ("site", "design_scenario", "out", "match"):
+    for opt in ("site", "design_scenario", "out", "match", "load_cells"):
         if getattr(args, opt) is not None:
-            flag = "--scenario" if opt == "design_scenario" else f"--{opt}"
+            flag = "--scenario" if opt == "design_scenario" else \
+                f"--{opt.replace('_', '-')}"
             return _fail(args, 2, f"{flag}: only with 'cdpr campaign design REPORT.json'")
 
     # refused or failed (a bad scenario, Ctrl-C): no directory made for OUT_DIR left

@@ -24,7 +24,10 @@ def run(args: argparse.Namespace) -> int:
     """``args.out_dir`` is the report; ``--poses`` N; ``--site`` / ``--scenario``; ``--out``
     the path file; ``--visits`` per pose (default 2); ``--seed`` the candidates' draw;
     ``--candidates``; ``--match PATH`` also the fewest poses that reach that path's
-    standard errors."""
+    standard errors; ``--load-cells`` what the design fixes with only those cables
+    measured."""
+    import numpy as np
+
     from bench import campaign_design as cd
     from bench.outputs import write_text_file
 
@@ -44,8 +47,20 @@ def run(args: argparse.Namespace) -> int:
         if args.match is not None:
             ref, ref_visits = cd.path_poses(args.match)
             out["match"] = cd.match_reference(report, ctx, ref, ref_visits, visits, seed,
-                                              args.candidates)
+                                              args.candidates, n=args.poses)
             out["match"]["path"] = args.match
+            at = out["match"]["at_poses"]
+            if not res.hyp.alternatives:  # nothing to separate: aim at the path's errors
+                res.poses = np.array(at["poses"], float)
+                out["poses"], out["predicted_stderr"] = at["poses"], at["stderr"]
+                out["notes"].append(
+                    f"poses chosen to reach the standard errors of {args.match} on exit "
+                    f"offsets and mast stiffnesses: largest ratio {at['worst_ratio']:.2f}, "
+                    f"median {at['median_ratio']:.2f} (predicted)")
+        if args.load_cells is not None:
+            mask = cd.measured_mask(ctx.model, args.load_cells)
+            out["identifiability"] = cd.identifiability(res.hyp, ctx, res.poses, visits, mask)
+            out["notes"].append(cd.identifiability_note(out["identifiability"]))
     except (cd.DesignError, ValueError) as e:
         return _fail(args.json, 2, str(e))
     text = cd.path_document(res, visits, report_path, seed=seed)
