@@ -31,6 +31,7 @@ from bench.diagnosis.select import (
     _space_job,
     _warm,
     candidate_effects,
+    compatible,
     untested_effects,
 )
 from bench.diagnosis.space import (
@@ -815,6 +816,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     except (ValueError, np.linalg.LinAlgError) as e:  # a check beside the answer: say so
         say(f"the probes could not be evaluated: {e}")
         probed = None
+    probed = _lookalike_stands(rm, selector, sel, params, candidates, probed, say)
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
                                    model.pivots, model.mast_ids, fitted, probed)
     leftover = unexplained.with_changes(leftover, changes, {
@@ -858,10 +860,12 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
             if motion is not None:
                 entry["frame_motion"] = motion
                 notes.append(frame.sentence(motion))
-        gauge_alt = frame.gauge_alternative(selector, sel, e, candidates, motion)
-        if gauge_alt is not None:
-            entry["alternatives"] = [a for a in entry["alternatives"]
-                                     if a["name"] != gauge_alt["name"]] + [gauge_alt]
+        for declared in (frame.gauge_alternative(selector, sel, e, candidates, motion),
+                         frame.translation_alternative(selector, sel, e, params[e],
+                                                       candidates)):
+            if declared is not None:
+                entry["alternatives"] = [a for a in entry["alternatives"]
+                                         if a["name"] != declared["name"]] + [declared]
         if rm.any_tau and ((name == "platform_mass" and "mass" in params[e]) or (
                 name == "load_cell_calibration" and "platform_mass" not in names
                 and any(k.startswith("gain_") for k in params[e]))):
@@ -952,6 +956,43 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     }
     return Diagnosis(plain(report), rec, s, rm, sel, fitted, base_fw, fit_fw, test,
                      write_error)
+
+
+def _lookalike_stands(rm: ResidualModel, selector: Selector, sel: Selection,
+                      params: dict[str, dict], candidates: list[str],
+                      probed: tuple[list, list] | None, say: Progress
+                      ) -> tuple[list, list] | None:
+    """``probed`` (:func:`probes.screen` at the final fit) with the stands found through a
+    named effect's declared look-alikes (:func:`frame.lookalikes`): where the set with the
+    look-alike in the effect's place fits within :data:`BIC_ENTER` of the selection's (the
+    data prefer the named effect by less than any effect needs to enter), the probes are
+    screened at that set's fit too, and a probe that stands for the look-alike there
+    (:func:`probes.through_lookalike`) puts the named effect in question. A one-parameter
+    tracker frame must not take, as a look-alike with more parameters would not, the
+    residual that physics outside the vocabulary left."""
+    if probed is None:
+        return None
+    results, stands = probed
+    for e in sel.effects:
+        if any(st.effect == e for st in stands):
+            continue
+        rest = tuple(c for c in sel.effects if c != e)
+        for a in frame.lookalikes(e, params.get(e, {}), candidates):
+            if a in rest or not compatible(rest, a):
+                continue
+            f = selector.fit(rest + (a,), sel.fit)
+            d = float(f.bic - sel.fit.bic)
+            if not d < BIC_ENTER:
+                continue
+            try:
+                st = probes.through_lookalike(rm, e, a, f.space, f.phi, d)
+            except (ValueError, np.linalg.LinAlgError) as err:
+                say(f"the probes beside {report_name(a)} could not be evaluated: {err}")
+                continue
+            if st is not None:
+                stands = [*stands, st]
+                break
+    return results, stands
 
 
 def plain(obj):
