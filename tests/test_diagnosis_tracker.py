@@ -241,7 +241,8 @@ def test_a_frame_translation_does_not_hide_friction_on_a_small_dwell_campaign(tm
     assert rep["unexplained"] is not None, rep["mismatch"]["summary"]
     got = _named(dg)
     if "tracker_frame" in got:  # named: its look-alike listed, and the probe through it
-        assert "cable_length_offset" in {a["name"] for a in got["tracker_frame"]["alternatives"]}
+        alts = {a["name"]: a for a in got["tracker_frame"]["alternatives"]}
+        assert alts["cable_length_offset"]["lookalike"] == "tracker_frame"
         q = {e["effect"]: e for e in rep["unexplained"].get("effects_in_question", [])}
         assert q["tracker_frame"]["via"] == "cable_length_offset"
 

@@ -248,12 +248,14 @@ def translation_alternative(selector, sel, effect: str, reported: dict[str, floa
     """``cable_length_offset`` as the declared alternative of a ``tracker_frame`` fixed by
     translations only (:func:`lookalikes`): the set with it in the frame's place fitted
     from the selection's fit, its BIC change returned (whatever its size) as an entry
-    ``{"name", "delta_bic", "note"}``. None where it does not apply."""
+    ``{"name", "delta_bic", "lookalike": "tracker_frame", "note"}``. None where it does not
+    apply."""
     if "cable_length_offset" not in lookalikes(effect, reported, candidates):
         return None
     swapped = tuple(c for c in sel.effects if c != effect) + ("cable_length_offset",)
     fit = selector.fit(swapped, sel.fit)
     return {"name": "cable_length_offset", "delta_bic": float(fit.bic - sel.fit.bic),
+            "lookalike": "tracker_frame",
             "note": "the tracker's frame fixed by a translation only: on poses close together "
                     "a translation of every measured pose changes each cable's length by "
                     "nearly the same amount at every pose, as per-cable length offsets do "

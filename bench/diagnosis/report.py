@@ -1278,6 +1278,9 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                 parts.append(f"{alt['name']} is the other side of the tracker frame's gauge "
                              f"of {entry['name']} (delta BIC {alt['delta_bic']:+.1f}): "
                              f"{alt['note']}")
+            elif alt.get("lookalike") == "tracker_frame":
+                parts.append(f"{alt['name']} reads as {entry['name']} on these poses (delta "
+                             f"BIC {alt['delta_bic']:+.1f}): {alt['note']}")
             elif "note" in alt:
                 how = SEPARATE[frozenset({"load_cell_calibration", "platform_mass"})]
                 parts.append(f"{alt['name']} fits about as well as {entry['name']} (delta BIC "
