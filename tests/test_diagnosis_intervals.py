@@ -184,3 +184,56 @@ def test_95_percent_intervals_cover_the_truth(effect, robot, seeds):
     assert n >= 32, cov
     k = round(cov["covered"] * n)
     assert k >= binomial_floor(n), cov
+
+
+@pytest.mark.parametrize("theta", [0.0, 1.5, 3.0, 6.0])
+def test_selective_intervals_cover_the_truth_of_parameters_reported_past_a_threshold(theta):
+    """Estimates x ~ N(theta, 1) reported only when |x| > 3 (the report's rule): the
+    selective 95 % interval holds theta 95 % of the time among the reported ones (drawn
+    from the normal truncated to |x| > 3), where x +- 1.96 holds a theta of 0 never."""
+    from scipy.stats import truncnorm
+
+    from bench.diagnosis.fit import selective_interval
+
+    rng = np.random.default_rng(7)
+    c, n = 3.0, 300
+    # P(x > c) against P(x < -c): each side drawn in its share
+    p_hi = 1.0 - truncnorm.cdf(c, -np.inf, np.inf, loc=theta)  # (plain normal tail)
+    p_lo = truncnorm.cdf(-c, -np.inf, np.inf, loc=theta)
+    hi_side = rng.random(n) < p_hi / (p_hi + p_lo)
+    x = np.where(hi_side,
+                 truncnorm.rvs(c - theta, np.inf, loc=theta, size=n, random_state=rng),
+                 truncnorm.rvs(-np.inf, -c - theta, loc=theta, size=n, random_state=rng))
+    ivs = [selective_interval(float(v), 0.0, 1.0, c) for v in x]
+    hit = np.mean([lo <= theta <= hi for lo, hi in ivs])
+    assert 0.92 <= hit <= 0.98, hit
+    if theta == 0.0:
+        assert not np.any(np.abs(x) <= Z95)  # the plain interval never holds it
+
+
+def test_a_selective_interval_far_past_the_threshold_is_the_plain_one():
+    from bench.diagnosis.fit import selective_interval
+
+    lo, hi = selective_interval(2.0 + 12.0 * 0.1, 2.0, 0.1, 3.0)
+    assert lo == pytest.approx(3.2 - Z95 * 0.1, abs=1e-4)
+    assert hi == pytest.approx(3.2 + Z95 * 0.1, abs=1e-4)
+    assert selective_interval(2.25, 2.0, 0.1, 3.0) is None  # not past the threshold
+    lo, hi = selective_interval(-0.31, 0.0, 0.1, 3.0)  # just past: reaches over 0, and
+    assert hi > 0.0 and -0.31 - Z95 * 0.1 < lo < -0.31  # its far end comes in
+
+
+def test_a_parameter_reported_just_past_its_threshold_gets_the_selective_interval():
+    """The report's rule (:func:`report_threshold`) and the interval (:func:`selective`):
+    a parameter 3.1 errors from the model's value reaches back over it; 30 errors out it
+    keeps its linearised interval."""
+    from bench.diagnosis.report import report_threshold, selective
+
+    p = _fit(0.0, 1e-3, 1e-3).space.params[0]
+    near = _fit(p.neutral + 3.1e-3, 1e-3, 1e-3)
+    s, c = report_threshold(p, 1e-3)
+    assert s == pytest.approx(1e-3) and c == pytest.approx(3.0)
+    iv = selective(near, 0, linearised_interval(near, 0))
+    assert iv.method == "selective" and iv.lo < p.neutral < iv.hi, (iv, p.neutral)
+    far = _fit(p.neutral + 30e-3, 1e-3, 1e-3)
+    lin = linearised_interval(far, 0)
+    assert selective(far, 0, lin) == lin

@@ -205,3 +205,56 @@ def test_a_latency_below_what_the_time_stamps_resolve_is_not_named(tmp_path):
     streams = {"streams": {"encoders": {"period_s": 0.004}}}
     assert stamp_period_s(t, streams) == 0.004
     assert LATENCY_FLOOR * 0.05 > 0.001
+
+
+def test_a_translation_only_frame_has_the_length_offsets_as_its_lookalike():
+    """Which effects read as a named tracker error: the exit points' rigid motion always,
+    per-cable length offsets only for a frame fixed by translations (a rotation moves
+    poses far apart differently), and only among the candidates."""
+    from bench.diagnosis.frame import lookalikes
+
+    every = ["exit_point_offset", "cable_length_offset", "tracker_frame"]
+    assert lookalikes("tracker_frame", {"tz": -5e-4}, every) == [
+        "exit_point_offset", "cable_length_offset"]
+    assert lookalikes("tracker_frame", {"tx": 1e-3, "tz": 2e-3}, every)[-1] == \
+        "cable_length_offset"
+    assert lookalikes("tracker_frame", {"rz": 1e-3, "tz": 2e-3}, every) == ["exit_point_offset"]
+    assert lookalikes("tracker_frame", {"tz": 2e-3}, ["tracker_frame"]) == []
+    assert lookalikes("cable_length_offset", {"dl_11": 1e-3}, every) == []
+
+
+def test_a_frame_translation_does_not_hide_friction_on_a_small_dwell_campaign(tmp_path):
+    """Evaluation case 12863: CoGiRo, 5 poses visited twice, winch friction (outside the
+    vocabulary), nothing concealed. A tracker-frame translation (tz, one parameter) and
+    per-cable length offsets read alike there; the offsets' place a thermal probe takes
+    within the tie, so the frame's may stand for physics outside the vocabulary too:
+    ``unexplained`` is declared through the look-alike, which is listed."""
+    import json
+
+    from bench.evaluate import run_case
+
+    run_case(12863, keep=str(tmp_path))
+    case = json.loads((tmp_path / "12863" / "case.json").read_text())
+    assert case["case"]["oov"] == "friction" and not case["truth"]
+    dg = diagnose(tmp_path / "12863" / "rec")
+    rep = dg.report
+    assert rep["unexplained"] is not None, rep["mismatch"]["summary"]
+    got = _named(dg)
+    if "tracker_frame" in got:  # named: its look-alike listed, and the probe through it
+        alts = {a["name"]: a for a in got["tracker_frame"]["alternatives"]}
+        assert alts["cable_length_offset"]["lookalike"] == "tracker_frame"
+        q = {e["effect"]: e for e in rep["unexplained"].get("effects_in_question", [])}
+        assert q["tracker_frame"]["via"] == "cable_length_offset"
+
+
+def test_a_tracker_raised_on_a_small_dwell_campaign_stays_explained(tmp_path):
+    """The tracker's frame 2 mm low on a small campaign (5 poses, two visits each): named
+    ``tracker_frame`` or its look-alike, nothing put in question (no physics outside the
+    vocabulary here: the probes through the look-alike must find nothing)."""
+    poses = {"kind": "list", "visits": 2, "list": [
+        [9.0, 7.5, 1.0, 0, 0, 0], [11.0, 8.0, 1.2, 0, 0, 0], [10.0, 9.5, 0.9, 0, 0, 0],
+        [8.5, 9.0, 1.1, 0, 0, 0], [11.5, 9.5, 1.0, 0, 0, 0]]}
+    sc, dg = _run(tmp_path, scenario(truth={"tracker_frame": {"tz": -0.002}}, poses=poses))
+    got = _named(dg)
+    assert set(got) & {"tracker_frame", "cable_length_offset"}, dg.report["mismatch"]["summary"]
+    assert dg.report["unexplained"] is None, dg.report["unexplained"]["summary"]

@@ -1458,6 +1458,56 @@ def _profile_end(fit: FitResult, k: int, end: float, res: FitResult) -> float:
     return float(np.clip(far, p.lo, p.hi))
 
 
+def selective_interval(x: float, neutral: float, se: float, c: float,
+                       level: float = 0.95) -> tuple[float, float] | None:
+    """The ``level`` confidence interval (fit units) of a parameter estimated at ``x`` with
+    standard error ``se`` that is reported only because it departs from the model's value
+    ``neutral`` by more than ``c`` standard errors (|x - neutral| > c se): the interval of
+    the normal mean given that selection (the truncated normal's quantiles inverted in its
+    mean). A parameter named for passing a threshold sits, by that choice, where the noise
+    pushed it past the threshold: of eight length offsets at the model's value, the one
+    that noise moved 3.1 standard errors out is reported, and its value +- 1.96 standard
+    errors never holds the model's value. Far past the threshold the interval is the plain
+    one. None where ``x`` did not pass or ``se`` is no error."""
+    from scipy.optimize import brentq
+    from scipy.stats import norm
+
+    if not (se > 0 and math.isfinite(se) and c >= 0):
+        return None
+    z = (x - neutral) / se
+    if abs(z) <= c:
+        return None
+    sign = 1.0 if z > 0 else -1.0
+    z = abs(z)  # the selection is symmetric: work on the side the estimate fell
+
+    def below(theta: float) -> float:
+        """P(Z <= z | |Z| > c) for Z ~ N(theta, 1), falling in theta (log-space tails)."""
+        left = norm.logcdf(-c - theta)          # Z < -c
+        mid = _log_diff(norm.logcdf(z - theta), norm.logcdf(c - theta))  # c < Z <= z
+        right = norm.logsf(c - theta)           # Z > c
+        num = np.logaddexp(left, mid)
+        return float(np.exp(num - np.logaddexp(left, right)))
+
+    alpha = 1.0 - level
+    ends = []
+    for target in (1.0 - alpha / 2.0, alpha / 2.0):
+        lo, hi = z - 40.0, z + 40.0
+        try:
+            ends.append(brentq(lambda t, q=target: below(t) - q, lo, hi, xtol=1e-6))
+        except ValueError:  # no crossing within 40 errors: the plain end
+            ends.append(z - Z95 if target > 0.5 else z + Z95)
+    a, b = neutral + sign * ends[0] * se, neutral + sign * ends[1] * se
+    return (min(a, b), max(a, b))
+
+
+def _log_diff(la: float, lb: float) -> float:
+    """log(exp(la) - exp(lb)) for la >= lb (-inf where they are equal)."""
+    if not la > lb:
+        return -math.inf
+    with np.errstate(divide="ignore"):
+        return float(la + np.log1p(-np.exp(lb - la)))
+
+
 def value_interval(p, iv: Interval) -> tuple[float, float]:
     """An interval of fit space as the parameter's values ``(lo, hi)`` in the conventions'
     units (a stiffness k = 1/c: the ends swap; an end at c <= 0 is an infinite stiffness)."""

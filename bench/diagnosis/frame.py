@@ -222,3 +222,42 @@ def gauge_alternative(selector, sel, effect: str, candidates: list[str],
          f"points ({how})")
     return {"name": other, "delta_bic": float(fit.bic - sel.fit.bic), "gauge": "tracker_frame",
             "note": note}
+
+
+#: the tracker frame's translations (a frame fixed by these alone moves every pose alike)
+TRANSLATION_KEYS = frozenset({"tx", "ty", "tz"})
+
+
+def lookalikes(effect: str, reported: dict[str, float], candidates: list[str]) -> list[str]:
+    """The effects that read as the named tracker error ``effect`` (its ``reported``
+    parameters): the other side of the frame's gauge (:data:`GAUGE_PAIR`), and, for a
+    ``tracker_frame`` that the data fix by translations only, ``cable_length_offset``: a
+    translation ``t`` of every measured pose changes cable i's length by ``u_i . t``
+    (``u_i`` its unit vector), nearly the same at poses close together, so per-cable
+    length offsets read the same on a small campaign. Only candidates are listed."""
+    if effect != "tracker_frame":
+        return []
+    out = [GAUGE_PAIR[effect]]
+    if reported and set(reported) <= TRANSLATION_KEYS:
+        out.append("cable_length_offset")
+    return [a for a in out if a in candidates]
+
+
+def translation_alternative(selector, sel, effect: str, reported: dict[str, float],
+                            candidates: list[str]) -> dict | None:
+    """``cable_length_offset`` as the declared alternative of a ``tracker_frame`` fixed by
+    translations only (:func:`lookalikes`): the set with it in the frame's place fitted
+    from the selection's fit, its BIC change returned (whatever its size) as an entry
+    ``{"name", "delta_bic", "lookalike": "tracker_frame", "note"}``. None where it does not
+    apply."""
+    if "cable_length_offset" not in lookalikes(effect, reported, candidates):
+        return None
+    swapped = tuple(c for c in sel.effects if c != effect) + ("cable_length_offset",)
+    fit = selector.fit(swapped, sel.fit)
+    return {"name": "cable_length_offset", "delta_bic": float(fit.bic - sel.fit.bic),
+            "lookalike": "tracker_frame",
+            "note": "the tracker's frame fixed by a translation only: on poses close together "
+                    "a translation of every measured pose changes each cable's length by "
+                    "nearly the same amount at every pose, as per-cable length offsets do "
+                    "(poses spread over the workspace, or a rotation the data fix, tell them "
+                    "apart)"}

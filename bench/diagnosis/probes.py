@@ -140,9 +140,15 @@ class Stand:
     effect: str
     probe: ProbeResult
     delta_bic: float
+    #: the look-alike of ``effect`` the probe replaced (:func:`through_lookalike`), and the
+    #: look-alike's BIC change in ``effect``'s place; None where it replaced ``effect``
+    via: str | None = None
+    via_delta_bic: float | None = None
 
     def as_dict(self) -> dict:
-        return {"effect": self.effect, "delta_bic": _r(self.delta_bic)} | {
+        via = {} if self.via is None else {"via": self.via,
+                                           "via_delta_bic": _r(self.via_delta_bic)}
+        return {"effect": self.effect, "delta_bic": _r(self.delta_bic)} | via | {
             k: v for k, v in self.probe.as_dict().items() if k != "finding"}
 
 
@@ -313,10 +319,28 @@ def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> l
     for st in stands or []:
         p = st.probe
         where = "" if p.cable is None else f" on cable {p.cable}"
+        place = "in its place" if st.via is None else \
+            (f"in the place of its look-alike {report_name(st.via)} (which fits within BIC "
+             f"{st.via_delta_bic:+.0f} of it)")
         out.append(f"{report_name(st.effect)} may stand for physics outside the vocabulary: "
-                   f"{WHAT[p.name]}{where} explains the data as well or better in its place (BIC "
+                   f"{WHAT[p.name]}{where} explains the data as well or better {place} (BIC "
                    f"{st.delta_bic:+.0f}, {p.size_over_noise:.1f} times the noise)")
     return out
+
+
+def through_lookalike(rm: ResidualModel, effect: str, lookalike: str, fit_space: ParamSpace,
+                      phi: np.ndarray, delta_bic: float) -> Stand | None:
+    """The probe that stands for ``lookalike`` in the fit (``fit_space`` at ``phi``) of the
+    named effects with ``lookalike`` in ``effect``'s place (:func:`screen`'s test there), as
+    a :class:`Stand` of ``effect``: the data tell the two apart by ``delta_bic`` only (the
+    look-alike's BIC change), so what the look-alike may stand for the named effect may
+    too. None where no probe stands for it."""
+    _, stands = screen(rm, fit_space, phi)
+    got = [st for st in stands if st.effect == lookalike]
+    if not got:
+        return None
+    st = min(got, key=lambda x: x.delta_bic)
+    return Stand(effect, st.probe, st.delta_bic, lookalike, float(delta_bic))
 
 
 def _length_noise(rm: ResidualModel) -> float:

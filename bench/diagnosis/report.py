@@ -20,7 +20,7 @@ import numpy as np
 
 from bench.chunked import read_conditioned
 from bench.diagnosis import frame, gauge, locate, noise, probes, slips, unexplained
-from bench.diagnosis.fit import FitResult, fit_effects, split_columns
+from bench.diagnosis.fit import FitResult, Interval, fit_effects, split_columns
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, pooled_std, prepare
 from bench.diagnosis.select import (
@@ -31,6 +31,7 @@ from bench.diagnosis.select import (
     _space_job,
     _warm,
     candidate_effects,
+    compatible,
     untested_effects,
 )
 from bench.diagnosis.space import (
@@ -143,6 +144,29 @@ def exit_rms(rm: ResidualModel, H: Robot) -> float | None:
     return _f(locate.rms(np.linalg.norm(e, axis=2)))
 
 
+#: a parameter is reported when it departs from the model's value by more than this many
+#: standard errors (and :data:`PRACTICAL`)
+REPORT_SIGMAS = 3.0
+
+
+def report_threshold(p, se: float, floor_var: float = 0.0) -> tuple[float, float]:
+    """(s, c): a parameter ``p`` (fit units, standard error ``se``, ``floor_var`` an
+    uncertainty the fit cannot see) is reported as differing from the model when it departs
+    from the model's value by more than ``c`` times ``s``: :data:`REPORT_SIGMAS` standard
+    errors, or the change too small to matter (:data:`PRACTICAL`; a load cell's offset 0.3
+    N; a stiffness 2 % of the model's) where that is more."""
+    if p.kind == "inverse":
+        s, floor = se, 0.02 * abs(p.neutral)
+    else:
+        s = math.sqrt(se ** 2 + floor_var)
+        floor = PRACTICAL.get(p.effect, 0.0) if not p.key.startswith("offset_") else 0.3
+    if not math.isfinite(s):
+        return s, REPORT_SIGMAS
+    if s <= 0:  # (no error: the floor alone)
+        return floor, 1.0
+    return s, max(REPORT_SIGMAS, floor / s)
+
+
 def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | None = None
                    ) -> tuple[dict, dict, dict]:
     """Per chosen candidate: report params and stderr (only those that differ from the
@@ -162,13 +186,11 @@ def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | N
             if undetermined(p, phi, se):
                 undet[e].append(p.key)
                 continue
-            if p.kind != "inverse" and abs(phi - p.neutral) <= max(
-                    3.0 * math.sqrt(se ** 2 + fv[k]),
-                    PRACTICAL.get(p.effect, 0.0) if not p.key.startswith("offset_") else 0.3):
-                continue  # the model's value within the uncertainty, or a negligible change
-            if p.kind == "inverse" and abs(phi - p.neutral) <= max(3.0 * se,
-                                                                    0.02 * abs(p.neutral)):
-                continue  # the model's own stiffness within the uncertainty
+            scale, c = report_threshold(p, se, float(fv[k]))
+            if abs(phi - p.neutral) <= c * scale:
+                # the model's value within the uncertainty, or a negligible change (a
+                # stiffness: the model's own within the uncertainty)
+                continue
             value = values[p.effect][p.key]
             rse = float(fit.reported_stderr[k])  # with what pruning may have moved in
             err = rse / phi**2 if p.kind == "inverse" else rse
@@ -201,6 +223,8 @@ def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects
     which = np.array(sorted({where[(report_name(e), key)] for e in effects
                              for key in params[e] if (report_name(e), key) in where}), dtype=int)
     ivs = confidence_intervals(fit, rm, idx, which, floor_var, pool, say) if len(which) else {}
+    for k in ivs:
+        ivs[k] = selective(fit, k, ivs[k], float(floor_var[k]))
     out: dict[str, dict[str, tuple[float | None, float | None, str]]] = {}
     for e in effects:
         out[e] = {}
@@ -210,6 +234,25 @@ def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects
                 lo, hi = value_interval(fit.space.params[k], ivs[k])
                 out[e][key] = (_f(lo), _f(hi), ivs[k].method)
     return out
+
+
+def selective(fit: FitResult, k: int, iv: Interval, floor_var: float = 0.0) -> Interval:
+    """The interval ``iv`` of parameter ``k`` of ``fit`` widened to the one that allows for
+    its having been reported for departing from the model's value
+    (:func:`report_threshold`, :func:`bench.diagnosis.fit.selective_interval`): method
+    ``selective`` where that reaches further. Parameters reported jointly (no threshold of
+    their own passed) keep ``iv``."""
+    from bench.diagnosis.fit import selective_interval
+
+    p = fit.space.params[k]
+    s, c = report_threshold(p, float(fit.stderr[k]), floor_var)
+    got = selective_interval(float(fit.phi[k]), p.neutral, s, c)
+    if got is None:
+        return iv
+    lo, hi = max(got[0], p.lo), min(got[1], p.hi)
+    if lo < iv.lo or hi > iv.hi:
+        return Interval(min(lo, iv.lo), max(hi, iv.hi), "selective")
+    return iv
 
 
 #: an effect whose parameters jointly differ from the model at this p-value (Wald) ...
@@ -815,6 +858,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     except (ValueError, np.linalg.LinAlgError) as e:  # a check beside the answer: say so
         say(f"the probes could not be evaluated: {e}")
         probed = None
+    probed = _lookalike_stands(rm, selector, sel, params, candidates, probed, say)
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
                                    model.pivots, model.mast_ids, fitted, probed)
     leftover = unexplained.with_changes(leftover, changes, {
@@ -858,10 +902,12 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
             if motion is not None:
                 entry["frame_motion"] = motion
                 notes.append(frame.sentence(motion))
-        gauge_alt = frame.gauge_alternative(selector, sel, e, candidates, motion)
-        if gauge_alt is not None:
-            entry["alternatives"] = [a for a in entry["alternatives"]
-                                     if a["name"] != gauge_alt["name"]] + [gauge_alt]
+        for declared in (frame.gauge_alternative(selector, sel, e, candidates, motion),
+                         frame.translation_alternative(selector, sel, e, params[e],
+                                                       candidates)):
+            if declared is not None:
+                entry["alternatives"] = [a for a in entry["alternatives"]
+                                         if a["name"] != declared["name"]] + [declared]
         if rm.any_tau and ((name == "platform_mass" and "mass" in params[e]) or (
                 name == "load_cell_calibration" and "platform_mass" not in names
                 and any(k.startswith("gain_") for k in params[e]))):
@@ -952,6 +998,43 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     }
     return Diagnosis(plain(report), rec, s, rm, sel, fitted, base_fw, fit_fw, test,
                      write_error)
+
+
+def _lookalike_stands(rm: ResidualModel, selector: Selector, sel: Selection,
+                      params: dict[str, dict], candidates: list[str],
+                      probed: tuple[list, list] | None, say: Progress
+                      ) -> tuple[list, list] | None:
+    """``probed`` (:func:`probes.screen` at the final fit) with the stands found through a
+    named effect's declared look-alikes (:func:`frame.lookalikes`): where the set with the
+    look-alike in the effect's place fits within :data:`BIC_ENTER` of the selection's (the
+    data prefer the named effect by less than any effect needs to enter), the probes are
+    screened at that set's fit too, and a probe that stands for the look-alike there
+    (:func:`probes.through_lookalike`) puts the named effect in question. A one-parameter
+    tracker frame must not take, as a look-alike with more parameters would not, the
+    residual that physics outside the vocabulary left."""
+    if probed is None:
+        return None
+    results, stands = probed
+    for e in sel.effects:
+        if any(st.effect == e for st in stands):
+            continue
+        rest = tuple(c for c in sel.effects if c != e)
+        for a in frame.lookalikes(e, params.get(e, {}), candidates):
+            if a in rest or not compatible(rest, a):
+                continue
+            f = selector.fit(rest + (a,), sel.fit)
+            d = float(f.bic - sel.fit.bic)
+            if not d < BIC_ENTER:
+                continue
+            try:
+                st = probes.through_lookalike(rm, e, a, f.space, f.phi, d)
+            except (ValueError, np.linalg.LinAlgError) as err:
+                say(f"the probes beside {report_name(a)} could not be evaluated: {err}")
+                continue
+            if st is not None:
+                stands = [*stands, st]
+                break
+    return results, stands
 
 
 def plain(obj):
@@ -1195,6 +1278,9 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                 parts.append(f"{alt['name']} is the other side of the tracker frame's gauge "
                              f"of {entry['name']} (delta BIC {alt['delta_bic']:+.1f}): "
                              f"{alt['note']}")
+            elif alt.get("lookalike") == "tracker_frame":
+                parts.append(f"{alt['name']} reads as {entry['name']} on these poses (delta "
+                             f"BIC {alt['delta_bic']:+.1f}): {alt['note']}")
             elif "note" in alt:
                 how = SEPARATE[frozenset({"load_cell_calibration", "platform_mass"})]
                 parts.append(f"{alt['name']} fits about as well as {entry['name']} (delta BIC "
