@@ -107,7 +107,13 @@ class IdentOptions:
     ``persist``: that many batches in a row failing the innovation test are a change that
     persists, not outliers: when the correction they call for (with the covariance inflated
     as above) is within ``max_step_*``, a ``drift`` event and the batch learnt from (junk
-    that persists asks for more: still not learnt)."""
+    that persists asks for more: still not learnt);
+    ``untracked_ratio``: without the tracker's fixes (batches of untracked samples only),
+    the estimate moves only along the directions the untracked samples since the tracker
+    stopped determine: those whose standard deviation, from the covariance when the
+    tracker stopped (the prior when there never was one), their information alone brings
+    below this ratio of it (:meth:`OnlineIdentifier.untracked_directions`); the others keep
+    the estimate of the tracker's time (0: off, every direction learnt)."""
 
     sigma_length: float = 5e-5
     sigma_tension: float = 0.5
@@ -128,6 +134,7 @@ class IdentOptions:
     drift_p: float = 1e-6
     drift_inflate: float = 4.0
     persist: int = 3
+    untracked_ratio: float = 0.3
 
 
 @dataclass
@@ -202,6 +209,9 @@ class OnlineIdentifier:
         self.updates = 0
         self._window: list[tuple[float, int]] = []  #: (nis, dof) of the last updates
         self._rejects = 0  #: batches in a row that failed the innovation test
+        #: untracked learning: the covariance when the tracker stopped (None: tracked)
+        self._anchor: np.ndarray | None = None
+        self._info = np.zeros_like(self.P)  #: untracked information since then
 
     # ----- the model ------------------------------------------------------------------
     def robot_at(self, theta: np.ndarray | None = None, name: str | None = None) -> Robot:
@@ -383,6 +393,12 @@ class OnlineIdentifier:
             self.events.extend(events)
             return UpdateResult(0.0, 0, events, 0, rejected=True)
         nis = self._innovation_test(nu, Jw, t, events)
+        Pi = None
+        if any(b.tracked for b in batch):
+            self._anchor = None
+        elif self.opt.untracked_ratio > 0:  # only the directions the untracked data fix
+            Pi = self._untracked_projector(Jw)
+            Jw = Jw @ Pi
         self._rejects = self._rejects + 1 if events else 0
         if events and self.opt.gate and self._rejects < self.opt.persist:
             # not the model's noise: not learnt from, unless it persists
@@ -399,7 +415,7 @@ class OnlineIdentifier:
                 nu_i, Jw_i, _, _ = self._rows(batch, th, nuis)
                 if len(nu_i) != q:  # the statics fail there: keep the last linearisation
                     break
-                nu, Jw = nu_i, Jw_i
+                nu, Jw = nu_i, (Jw_i if Pi is None else Jw_i @ Pi)
             y = nu + Jw @ (th - prior)  # the innovation of the prior, linearised at th
             Sc = np.linalg.cholesky(Jw @ self.P @ Jw.T + np.eye(q))
             K = np.linalg.solve(Sc.T, np.linalg.solve(Sc, Jw @ self.P)).T
@@ -431,6 +447,36 @@ class OnlineIdentifier:
         self.updates += 1
         self.events.extend(events)
         return UpdateResult(nis, q, events, int(ok.sum()))
+
+    def _untracked_projector(self, Jw: np.ndarray) -> np.ndarray:
+        """(p,p) for the whitened rows ``Jw`` (q,p) of an untracked batch: the projector
+        ``Pi`` (in the metric of the covariance) on the directions
+        :meth:`untracked_directions` finds with this batch's information added. The update
+        sees the rows ``Jw @ Pi``: its gain ``P Pi^T Jw^T S^-1`` lies in their span, the other
+        directions keep their estimate and their covariance (the Joseph form stays exact for
+        this gain)."""
+        if self._anchor is None:  # the tracker just stopped (or never ran)
+            self._anchor = self.P.copy()
+            self._info = np.zeros_like(self.P)
+        self._info = self._info + Jw.T @ Jw
+        D = self.untracked_directions()
+        if D.shape[1] == 0:
+            return np.zeros_like(self.P)
+        Pinv_D = np.linalg.solve(self.P, D)
+        return D @ np.linalg.solve(D.T @ Pinv_D, Pinv_D.T)
+
+    def untracked_directions(self) -> np.ndarray:
+        """(p,k) the directions of the parameters the untracked samples since the tracker
+        stopped determine: the eigenvectors of their information scaled by the covariance
+        of that time, ``L^T F L`` (``P = L L^T``), whose eigenvalue ``lambda`` shrinks the
+        standard deviation below :attr:`IdentOptions.untracked_ratio` of its value then
+        (``1 / sqrt(1 + lambda)`` below it), mapped back by ``L``."""
+        if self._anchor is None:
+            return np.zeros((len(self.theta), 0))
+        L = np.linalg.cholesky(self._anchor)
+        lam, V = np.linalg.eigh(L.T @ self._info @ L)
+        keep = lam > 1.0 / self.opt.untracked_ratio ** 2 - 1.0
+        return L @ V[:, keep]
 
     def _innovation_test(self, nu: np.ndarray, Jw: np.ndarray, t: float,
                          events: list[Event]) -> float:

@@ -63,10 +63,67 @@ def test_learner_learns_at_rest_and_hands_over():
     assert np.all(np.isfinite(ctl.step(P0, ps.tensions).lengths))
 
 
-def test_learn_refuses_realtime(capsys):
-    assert main(["dry-run", "paper-centre", "--learn", "--realtime", "--json", "--quiet"]) == 2
+def test_learn_runs_in_real_time(capsys):
+    """``--learn --realtime``: the estimator on its own thread, closed at the end of the run
+    (no thread left); the run completes with the learner's report."""
+    import threading
+
+    rc = main(["dry-run", "paper-centre", "--learn", "--realtime", "--duration", "1.5",
+               "--json", "--quiet", "--learn-period", "0.25"])
     out = json.loads(capsys.readouterr().out)
-    assert "lock-step only" in out["error"]
+    assert rc == 0, out
+    assert out["realtime"] and out["cycles"] > 0 and "learn" in out, out
+    assert not [t for t in threading.enumerate() if t.name == "cdpr-estimator"]
+
+
+def _slow_cycles(monkeypatch, threaded: bool, delay_s: float = 0.3):
+    """Wall time [s] of each learner call (the cycle's share) over 1.2 s of cycles, with the
+    estimator's update made ``delay_s`` slower; and the learner."""
+    import time
+
+    from controller.online_ident import OnlineIdentifier
+
+    real = OnlineIdentifier.update
+
+    def slow(self, batch):
+        time.sleep(delay_s)
+        return real(self, batch)
+
+    monkeypatch.setattr(OnlineIdentifier, "update", slow)
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=3)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=0.1, per_update=2, threaded=threaded)
+    learner(0.0, _reading(plant, tracker, P0, 0.0), P0, ctl)  # the start: not timed
+    walls = []
+    for k in range(1, 121):
+        t = 0.01 * k
+        pose = P0 + np.r_[0.1 * t, 0, 0, 0, 0, 0]
+        r = _reading(plant, tracker, pose, t)
+        t0 = time.perf_counter()
+        learner(t, r, pose, ctl)
+        walls.append(time.perf_counter() - t0)
+    learner.close()
+    return np.array(walls), learner
+
+
+def _reading(plant, tracker, pose, t):
+    m = plant.measure(pose, t)
+    tracker.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=t)
+    return SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                           tensions_ok=np.ones(8, bool))
+
+
+def test_threaded_learner_never_blocks_the_cycle(monkeypatch):
+    """An estimator update made 0.3 s slower: threaded, no cycle's learner call waits for it
+    (each well below the delay; the updates still happen, behind); in the cycle (not
+    threaded), the calls that update take the delay (what the thread is for)."""
+    walls, learner = _slow_cycles(monkeypatch, threaded=True)
+    assert walls.max() < 0.1, walls.max()
+    assert learner.summary.updates >= 1  # they ran on the thread (close waited for them)
+    walls_in, _ = _slow_cycles(monkeypatch, threaded=False)
+    assert walls_in.max() >= 0.3
 
 
 def _drive(learner, plant, ctl, tracker, settle_every: int, cycles: int, moving: bool,

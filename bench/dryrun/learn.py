@@ -96,7 +96,8 @@ class LoopLearner:
     state (quasi-static samples of the moving platform: their length residual under the
     true robot is that at rest, 0.6 mm RMS on paper-centre at 0.5 m/s, against 7 mm for
     the cycles between two settles); without it, only at rest (``still_s``);
-    ``threaded``: the estimator's updates run on a thread of their own
+    ``threaded``: the estimator's updates (and the identifiability of the trajectory, said
+    at the first hand-over after the thread computed it) run on a thread of their own
     (:class:`_EstimatorThread`), not in the cycle: the cycle hands the period's samples
     over and, at the same period, moves the hand-over toward the estimate of the last
     update the thread finished (under its lock; while an update is in progress the
@@ -104,7 +105,13 @@ class LoopLearner:
     :meth:`close` ends the thread; ``handover_s`` [s] between two hand-overs of the model
     (default a tenth of ``period_s``): the model moves toward the estimate by the rate times
     this each time, so that a setpoint moves by a fraction of a millimetre more than the path
-    asks at each hand-over, never by the period's worth at once."""
+    asks at each hand-over, never by the period's worth at once;
+    ``tracked_s`` [s]: with ``use_tracker``, the tracker's fixes are used this long after the
+    first cycle (a number, or a callable that returns it, asked at the first cycle, e.g. the
+    warm-up's duration), then tensions and encoders only (a ``learn_untracked`` event); the
+    estimator then moves only the directions these determine
+    (:attr:`~controller.online_ident.IdentOptions.untracked_ratio`). None: the tracker all
+    the run."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
@@ -112,8 +119,11 @@ class LoopLearner:
                  rate_compliance: float = 2e-6,
                  use_tracker: bool = True,
                  state_time: Callable[[], float] | None = None,
-                 threaded: bool = False, handover_s: float | None = None) -> None:
+                 threaded: bool = False, handover_s: float | None = None,
+                 tracked_s: float | Callable[[], float | None] | None = None) -> None:
         self.tracker = tracker
+        self.tracked_s = tracked_s
+        self._untracked_at = np.inf  #: [s] loop time the tracker's fixes stop being used
         self.state_time = state_time
         self.use_tracker = bool(use_tracker)
         self.period_s = float(period_s)
@@ -164,9 +174,19 @@ class LoopLearner:
             self._next_hand = t + self.handover_s
             self._last_hand = t
             traj = self.trajectory() if self.trajectory is not None else None
-            if traj is not None:
+            if traj is not None and self._worker is not None:  # said when the thread has it
+                self._worker.call(lambda: path_identifiability(self.ident, traj))
+            elif traj is not None:
                 self.identifiable = path_identifiability(self.ident, traj)
                 first.append(("learn_identifiable", identifiability_text(self.identifiable)))
+            ts = self.tracked_s() if callable(self.tracked_s) else self.tracked_s
+            if ts is not None and self.use_tracker:
+                self._untracked_at = t + float(ts)
+        if t >= self._untracked_at:
+            self._untracked_at = np.inf
+            self.use_tracker = False
+            first.append(("learn_untracked", "the tracker's fixes are no longer used: tensions "
+                          "and encoders only, along the directions they determine"))
         moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
         self._last_des = np.array(pose_des, float)
         if moved:
@@ -232,9 +252,8 @@ class LoopLearner:
                     self._worker.lock.release()
         if moved:
             self._last_hand = t
-        for res, k in results:
-            self._record(res, k)
-        out = [(f"learn_{e['kind']}", e["text"]) for e in self._new_events]
+        out = self._results(results)
+        out += [(f"learn_{e['kind']}", e["text"]) for e in self._new_events]
         self._new_events = []
         if robot is not None:
             try:
@@ -242,6 +261,18 @@ class LoopLearner:
                 self.summary.handovers += 1
             except ValueError as exc:
                 out.append(("learn_handover_refused", str(exc)))
+        return out
+
+    def _results(self, results: list) -> list[tuple[str, str]]:
+        """Record what the thread finished (updates; the identifiability, said as an
+        event)."""
+        out = []
+        for res, k in results:
+            if k is None:
+                self.identifiable = res
+                out.append(("learn_identifiable", identifiability_text(res)))
+            else:
+                self._record(res, k)
         return out
 
     def _record(self, res, k: int) -> None:
@@ -259,8 +290,7 @@ class LoopLearner:
         if self._worker is not None:
             self._worker.close()
             with self._worker.lock:
-                for res, k in self._worker.take():
-                    self._record(res, k)
+                self._results(self._worker.take())
 
     def identified(self) -> Robot | None:
         """The identified robot: the estimate of the parameters the run determined, the
@@ -280,12 +310,21 @@ class LoopLearner:
             s.sd_mm_max = round(1e3 * float(self.ident.sd[:n].max()), 3)
         return {"updates": s.updates, "samples": s.samples, "rejected": s.rejected,
                 "handovers": s.handovers, "events": s.events, "offsets_mm": s.offsets_mm,
-                "offset_sd_mm_max": s.sd_mm_max, "identifiable": self.identifiable}
+                "offset_sd_mm_max": s.sd_mm_max, "identifiable": self.identifiable,
+                "untracked_directions": self._untracked_count()}
+
+    def _untracked_count(self) -> int | None:
+        """How many directions the untracked samples determined (None: no untracked
+        learning in this run)."""
+        if self.ident is None or self.use_tracker:
+            return None
+        return int(self.ident.untracked_directions().shape[1])
 
 
 class _EstimatorThread:
-    """The estimator's updates on a daemon thread: :meth:`submit` a batch (returns at once;
-    batches queue up), :meth:`take` the results finished since the last call (hold
+    """The estimator's updates on a daemon thread: :meth:`submit` a batch or :meth:`call` a
+    function of the estimator (both return at once; they queue up), :meth:`take` the results
+    finished since the last call, ``(UpdateResult, samples)`` or ``(value, None)`` (hold
     :attr:`lock`: the estimate does not change under it), :meth:`close`."""
 
     def __init__(self, ident: OnlineIdentifier) -> None:
@@ -302,6 +341,9 @@ class _EstimatorThread:
     def submit(self, batch: list[Measurement]) -> None:
         self._queue.put(batch)
 
+    def call(self, fn: Callable[[], object]) -> None:
+        self._queue.put(fn)
+
     def take(self) -> list:
         done, self._done = self._done, []
         return done
@@ -312,8 +354,10 @@ class _EstimatorThread:
             if batch is None:
                 return
             with self.lock:
-                res = self.ident.update(batch)
-                self._done.append((res, len(batch)))
+                if callable(batch):
+                    self._done.append((batch(), None))
+                else:
+                    self._done.append((self.ident.update(batch), len(batch)))
 
     def close(self) -> None:
         self._queue.put(None)
