@@ -110,8 +110,9 @@ class LoopLearner:
     first cycle (a number, or a callable that returns it, asked at the first cycle, e.g. the
     warm-up's duration), then tensions and encoders only (a ``learn_untracked`` event); the
     estimator then moves only the directions these determine
-    (:attr:`~controller.online_ident.IdentOptions.untracked_ratio`). None: the tracker all
-    the run."""
+    (:attr:`~controller.online_ident.IdentOptions.untracked_ratio`); with ``untracked``
+    False, the learning stops then instead (the hand-over still reaches the estimate).
+    None: the tracker all the run."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
@@ -120,8 +121,11 @@ class LoopLearner:
                  use_tracker: bool = True,
                  state_time: Callable[[], float] | None = None,
                  threaded: bool = False, handover_s: float | None = None,
-                 tracked_s: float | Callable[[], float | None] | None = None) -> None:
+                 tracked_s: float | Callable[[], float | None] | None = None,
+                 untracked: bool = True) -> None:
         self.tracker = tracker
+        self.untracked = bool(untracked)
+        self._learning = True
         self.tracked_s = tracked_s
         self._untracked_at = np.inf  #: [s] loop time the tracker's fixes stop being used
         self.state_time = state_time
@@ -185,8 +189,11 @@ class LoopLearner:
         if t >= self._untracked_at:
             self._untracked_at = np.inf
             self.use_tracker = False
+            self._learning = self.untracked
             first.append(("learn_untracked", "the tracker's fixes are no longer used: tensions "
-                          "and encoders only, along the directions they determine"))
+                          "and encoders only, along the directions they determine"
+                          if self.untracked else "the tracker's fixes are no longer used: "
+                          "learning stops, the model is kept"))
         moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
         self._last_des = np.array(pose_des, float)
         if moved:
@@ -195,7 +202,8 @@ class LoopLearner:
             still = abs(self.state_time() - r.t_s) <= self.sync_s
         else:
             still = t - self._still_since >= self.still_s
-        if still and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
+        due = t - self._last_kept >= self._spacing * 0.999
+        if self._learning and still and np.all(r.tensions_ok) and due:
             m = self._sample(t, r, pose_des)
             if m is not None:
                 self._last_kept = t
