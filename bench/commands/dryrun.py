@@ -102,7 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="identify the exit points and mast stiffnesses online from the tracker's "
                    "fixes, tensions and encoders, and run the controller with the identified "
                    "model, handed over at a bounded rate (with --realtime or on given buses "
-                   "the estimator runs on its own thread; "
+                   "the estimator runs in a process of its own; "
                    "docs/explanation/online-identification.md)")
     p.add_argument("--learn-period", type=float, default=0.5, metavar="S",
                    help="seconds of loop time between two estimator updates (default 0.5)")
@@ -567,12 +567,12 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
             if args.learn:
                 from bench.dryrun.learn import LoopLearner
                 from controller.online_ident import IdentOptions
-                # on the wall clock the estimator runs on its own thread (the cycle
+                # on the wall clock the estimator runs in its own process (the cycle
                 # never waits for it); lock-step: in the cycle, reproducible
                 learner = LoopLearner(world.tracker, args.learn_period,
                                       IdentOptions(sigma_length=args.learn_sigma_length,
                                                    prior_offset=0.05),
-                                      threaded=args.realtime)
+                                      threaded=args.realtime, process=True)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
                                on_progress=_progress_printer(args.quiet, args.duration), stop=stop,

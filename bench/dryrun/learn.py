@@ -38,8 +38,17 @@ def path_identifiability(ident: OnlineIdentifier, trajectory, step_s: float = ID
     (:func:`~controller.online_ident.planned_samples`), with the tracker's fixes and
     without (tensions and encoders only). ``{"tracker"|"no_tracker": {"determined" (count),
     "parameters" (count), "rank", "undetermined" [names]}}``."""
+    return poses_identifiability(ident, trajectory_poses(trajectory, step_s))
+
+
+def trajectory_poses(trajectory, step_s: float = IDENT_STEP_S) -> np.ndarray:
+    """(P,6) the trajectory's poses every ``step_s`` [s]."""
     t = np.arange(0.0, trajectory.duration_s + 1e-9, step_s)
-    poses = np.asarray(trajectory.sample(t).pose, float).reshape(-1, 6)
+    return np.asarray(trajectory.sample(t).pose, float).reshape(-1, 6)
+
+
+def poses_identifiability(ident: OnlineIdentifier, poses: np.ndarray) -> dict[str, dict]:
+    """:func:`path_identifiability` of the poses (P,6)."""
     out = {}
     for key, tracked in (("tracker", True), ("no_tracker", False)):
         fi = ident.fisher(planned_samples(ident, poses, tracked))
@@ -102,10 +111,14 @@ class LoopLearner:
     over and, at the same period, moves the hand-over toward the estimate of the last
     update the thread finished (under its lock; while an update is in progress the
     hand-over waits for the next period: the cycle never waits for the estimator).
-    :meth:`close` ends the thread; ``handover_s`` [s] between two hand-overs of the model
-    (default a tenth of ``period_s``): the model moves toward the estimate by the rate times
-    this each time, so that a setpoint moves by a fraction of a millimetre more than the path
-    asks at each hand-over, never by the period's worth at once;
+    :meth:`close` ends the thread; ``process``: with ``threaded``, the estimator in a
+    process of its own instead (:class:`_EstimatorProcess`: a thread of the loop's process
+    shares its interpreter lock, so a busy estimator delays the cycles by up to the
+    interpreter's switch interval, 5 ms, each time); ``handover_s`` [s] between two
+    hand-overs of the model (default a tenth of ``period_s``): the model moves toward the
+    estimate by the rate times this each time, so that a setpoint moves by a fraction of a
+    millimetre more than the path asks at each hand-over, never by the period's worth at
+    once;
     ``tracked_s`` [s]: with ``use_tracker``, the tracker's fixes are used this long after the
     first cycle (a number, or a callable that returns it, asked at the first cycle, e.g. the
     warm-up's duration), then tensions and encoders only (a ``learn_untracked`` event); the
@@ -122,7 +135,7 @@ class LoopLearner:
                  state_time: Callable[[], float] | None = None,
                  threaded: bool = False, handover_s: float | None = None,
                  tracked_s: float | Callable[[], float | None] | None = None,
-                 untracked: bool = True) -> None:
+                 untracked: bool = True, process: bool = False) -> None:
         self.tracker = tracker
         self.untracked = bool(untracked)
         self._learning = True
@@ -150,7 +163,10 @@ class LoopLearner:
         self._last_fix = -np.inf
         self._next = None
         self._new_events: list[dict] = []
-        self._worker: _EstimatorThread | None = None
+        self._worker: _EstimatorThread | _EstimatorProcess | None = None
+        self.process = bool(process)
+        #: the estimator's class (a test slows it down)
+        self.ident_class: type[OnlineIdentifier] = OnlineIdentifier
         self.threaded = bool(threaded)
         #: the run's trajectory (a callable returning it, set by the loop's owner): its
         #: identifiability is said at the first cycle, before the platform moves
@@ -159,13 +175,13 @@ class LoopLearner:
 
     def _start(self, ctl: LengthController) -> None:
         readings = ctl.init_readings if ctl.init_readings is not None else ctl.init_tensions
-        self.ident = OnlineIdentifier(ctl.robot, ctl.init_pose, readings,
+        self.ident = self.ident_class(ctl.robot, ctl.init_pose, readings,
                                       reference=ctl.reference, options=self.options)
         self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
                                   rate_compliance=self.rate_compliance,
                                   correlated=self.correlated)
         if self.threaded:
-            self._worker = _EstimatorThread(self.ident)
+            self._worker = (_EstimatorProcess if self.process else _EstimatorThread)(self.ident)
 
     def __call__(self, t: float, r, pose_des: np.ndarray,
                  ctl: LengthController) -> list[tuple[str, str]]:
@@ -179,7 +195,7 @@ class LoopLearner:
             self._last_hand = t
             traj = self.trajectory() if self.trajectory is not None else None
             if traj is not None and self._worker is not None:  # said when the thread has it
-                self._worker.call(lambda: path_identifiability(self.ident, traj))
+                self._worker.call_identifiability(trajectory_poses(traj))
             elif traj is not None:
                 self.identifiable = path_identifiability(self.ident, traj)
                 first.append(("learn_identifiable", identifiability_text(self.identifiable)))
@@ -349,8 +365,9 @@ class _EstimatorThread:
     def submit(self, batch: list[Measurement]) -> None:
         self._queue.put(batch)
 
-    def call(self, fn: Callable[[], object]) -> None:
-        self._queue.put(fn)
+    def call_identifiability(self, poses: np.ndarray) -> None:
+        """:func:`poses_identifiability` of ``poses`` (P,6), as a result ``(value, None)``."""
+        self._queue.put(lambda: poses_identifiability(self.ident, poses))
 
     def take(self) -> list:
         done, self._done = self._done, []
@@ -370,3 +387,88 @@ class _EstimatorThread:
     def close(self) -> None:
         self._queue.put(None)
         self._thread.join()
+
+
+class _EstimatorProcess:
+    """The estimator in a process of its own (``spawn``): no interpreter lock shared with the
+    loop, so the estimator's work never delays a cycle (and a loop thread in SCHED_FIFO
+    preempts it). The same interface as :class:`_EstimatorThread`: :meth:`submit` and
+    :meth:`call_identifiability` send to the process (a few hundred bytes, at once);
+    :meth:`take` receives what it finished, without waiting, and sets the estimate and its
+    covariance of each update on :attr:`ident`, the loop's copy (what the hand-over reads);
+    :meth:`close` ends the process and takes its whole final state. :attr:`lock` is the
+    loop's own (never held by the process)."""
+
+    def __init__(self, ident: OnlineIdentifier) -> None:
+        import multiprocessing
+        import threading
+
+        self.ident = ident
+        self.lock = threading.Lock()
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_estimator_main, args=(child, ident),
+                                 name="cdpr-estimator", daemon=True)
+        self._proc.start()
+        child.close()
+        self._pending: list = []
+
+    def submit(self, batch: list[Measurement]) -> None:
+        self._conn.send(("update", batch))
+
+    def call_identifiability(self, poses: np.ndarray) -> None:
+        self._conn.send(("identifiable", poses))
+
+    def take(self) -> list:
+        done, self._pending = self._pending, []
+        while not self._conn.closed and self._conn.poll():
+            done += self._receive(self._conn.recv())
+        return done
+
+    def _receive(self, msg: tuple) -> list:
+        kind = msg[0]
+        if kind == "update":
+            _, res, k, theta, P = msg
+            self.ident.theta, self.ident.P = theta, P
+            return [(res, k)]
+        if kind == "identifiable":
+            return [(msg[1], None)]
+        if kind == "final":
+            self.ident.__dict__.update(msg[1].__dict__)
+        return []
+
+    def close(self, timeout_s: float = 60.0) -> None:
+        """The updates sent are finished, then the process ends (at most ``timeout_s``)."""
+        try:
+            self._conn.send(("close",))
+            while self._conn.poll(timeout_s):
+                msg = self._conn.recv()
+                self._pending += self._receive(msg)
+                if msg[0] == "final":
+                    break
+        except (EOFError, OSError):
+            pass
+        finally:
+            self._proc.join(timeout_s)
+            if self._proc.is_alive():
+                self._proc.terminate()
+                self._proc.join()
+            self._conn.close()
+
+
+def _estimator_main(conn, ident: OnlineIdentifier) -> None:
+    """:class:`_EstimatorProcess`'s process: updates and identifiability until ``close``,
+    then the whole estimator back."""
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):  # the loop's process ended
+            return
+        if msg[0] == "update":
+            res = ident.update(msg[1])
+            conn.send(("update", res, len(msg[1]), ident.theta.copy(), ident.P.copy()))
+        elif msg[0] == "identifiable":
+            conn.send(("identifiable", poses_identifiability(ident, msg[1])))
+        else:
+            conn.send(("final", ident))
+            return
