@@ -293,3 +293,35 @@ def test_set_model_keeps_the_running_state():
     b.set_model(model.replace(name="handed over"))
     np.testing.assert_allclose(b.step(far, tau).lengths, a.step(far, tau).lengths,
                                rtol=0, atol=1e-12)
+
+
+def test_tracker_on_its_own_clock_pairs_fixes_at_rest():
+    """A tracker whose fix times are on its own clock (over TCP: 1000 s apart from the
+    readings'): fixes pair with the cycles at rest once the platform stood still
+    ``still_s``, and only with fixes received since; with the shared-clock rule, none."""
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=4)
+    kept = {}
+    for shared in (True, False):
+        ctl = LengthController(model, P0, plant.init_readings)
+        tracker = FakeTracker()
+        learner = LoopLearner(tracker, period_s=10.0, per_update=1000, still_s=0.2,
+                              shared_clock=shared)
+        moving_kept = 0
+        for k in range(1, 101):
+            t = 0.01 * k
+            moving = 2 <= k <= 50  # (the first cycle: at rest before it)
+            pose = P0 + np.r_[0.1 * min(t, 0.5), 0, 0, 0, 0, 0]
+            m = plant.measure(pose, t)
+            age = 0.0 if moving or k % 5 else 0.15  # some fixes arrive late (received before)
+            tracker.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=1000.0 + t,
+                                              age_s=age)
+            n0 = len(learner._batch)
+            learner(t, SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                                       tensions_ok=np.ones(8, bool)), pose, ctl)
+            if len(learner._batch) > n0:
+                moving_kept += moving
+                assert t - tracker.reading.age_s >= learner._still_since + 0.2 - 1e-9
+        kept[shared] = (len(learner._batch), moving_kept)
+    assert kept[True] == (0, 0)
+    assert kept[False][0] > 10 and kept[False][1] == 0, kept

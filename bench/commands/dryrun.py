@@ -572,7 +572,8 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                 learner = LoopLearner(world.tracker, args.learn_period,
                                       IdentOptions(sigma_length=args.learn_sigma_length,
                                                    prior_offset=0.05),
-                                      threaded=args.realtime, process=True)
+                                      threaded=args.realtime, process=True,
+                                      shared_clock=getattr(world, "rig", None) is not None)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
                                on_progress=_progress_printer(args.quiet, args.duration), stop=stop,

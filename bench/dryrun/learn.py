@@ -125,7 +125,11 @@ class LoopLearner:
     estimator then moves only the directions these determine
     (:attr:`~controller.online_ident.IdentOptions.untracked_ratio`); with ``untracked``
     False, the learning stops then instead (the hand-over still reaches the estimate).
-    None: the tracker all the run."""
+    None: the tracker all the run;
+    ``shared_clock``: the tracker's fix times are on the readings' clock (the in-process
+    rig): a fix pairs with a cycle within ``sync_s``; False (a tracker on its own clock, e.g.
+    over TCP): a fix pairs with a cycle at rest (``still_s``, whatever ``state_time``) when
+    it was received after the platform had stood still ``still_s`` (its ``age_s``)."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
@@ -135,8 +139,10 @@ class LoopLearner:
                  state_time: Callable[[], float] | None = None,
                  threaded: bool = False, handover_s: float | None = None,
                  tracked_s: float | Callable[[], float | None] | None = None,
-                 untracked: bool = True, process: bool = False) -> None:
+                 untracked: bool = True, process: bool = False,
+                 shared_clock: bool = True) -> None:
         self.tracker = tracker
+        self.shared_clock = bool(shared_clock)
         self.untracked = bool(untracked)
         self._learning = True
         self.tracked_s = tracked_s
@@ -214,7 +220,7 @@ class LoopLearner:
         self._last_des = np.array(pose_des, float)
         if moved:
             self._still_since = t
-        if self.state_time is not None:
+        if self.state_time is not None and self.shared_clock:
             still = abs(self.state_time() - r.t_s) <= self.sync_s
         else:
             still = t - self._still_since >= self.still_s
@@ -241,8 +247,11 @@ class LoopLearner:
             return Measurement(np.array(pose_des, float), np.array(r.tensions_N),
                                np.array(r.lengths_m), False, t)
         tr = self.tracker.read()
-        if not (tr.valid and abs(tr.t_s - r.t_s) <= self.sync_s and tr.t_s > self._last_fix
-                and np.all(np.isfinite(tr.pose))):
+        if self.shared_clock:
+            now = abs(tr.t_s - r.t_s) <= self.sync_s
+        else:  # received after the platform stood still long enough
+            now = t - tr.age_s >= self._still_since + self.still_s
+        if not (tr.valid and now and tr.t_s > self._last_fix and np.all(np.isfinite(tr.pose))):
             return None
         self._last_fix = tr.t_s
         return Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
