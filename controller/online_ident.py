@@ -387,9 +387,8 @@ class OnlineIdentifier:
         prior = self.theta
         nu, Jw, ok, nuis = self._rows(batch, prior)
         events: list[Event] = []
-        if len(nu) == 0:  # the model fails at every sample: nothing learnt, and said
-            events.append(Event("unusable", t, f"no sample of {len(batch)} could be evaluated "
-                                "under the estimate (statics infeasible)"))
+        if len(nu) == 0:  # no sample gives an equation: nothing learnt, and said
+            events.append(Event("unusable", t, self._unusable(batch)))
             self.events.extend(events)
             return UpdateResult(0.0, 0, events, 0, rejected=True)
         nis = self._innovation_test(nu, Jw, t, events)
@@ -447,6 +446,15 @@ class OnlineIdentifier:
         self.updates += 1
         self.events.extend(events)
         return UpdateResult(nis, q, events, int(ok.sum()))
+
+    def _unusable(self, batch: list[Measurement]) -> str:
+        """Why no sample of ``batch`` gave an equation."""
+        few = sum(not b.tracked and np.count_nonzero(true_tensions(self.model, b.tensions)
+                                                     >= self.slack_threshold) <= 6
+                  for b in batch)
+        return (f"no sample of {len(batch)} could be used: {few} untracked with 6 taut cables "
+                f"or fewer (nothing left once the pose's 6 directions are projected out), "
+                f"{len(batch) - few} with statics infeasible under the estimate")
 
     def _untracked_projector(self, Jw: np.ndarray) -> np.ndarray:
         """(p,p) for the whitened rows ``Jw`` (q,p) of an untracked batch: the projector

@@ -353,3 +353,20 @@ def test_same_residual_as_the_diagnosis(model):
     diag = rm.blocks(est.robot_at(theta)).length
     ours = est.residuals(theta, s.pose_meas, s.tau, s.l_meas)
     np.testing.assert_allclose(ours, diag, atol=1e-9)
+
+
+def test_untracked_slack_batch_is_unusable_and_says_why(model):
+    """Untracked samples with 6 taut cables or fewer give no equation (the pose's 6
+    directions projected out): an ``unusable`` event that says so; nothing learnt."""
+    plant = Plant(model, model, seed=5)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    m = plant.measure(P0 + np.r_[1.0, 0.5, 0, 0, 0, 0], 0.1, tracked=False)
+    slack = m.tensions.copy()
+    slack[:2] = 0.0
+    before = est.theta.copy()
+    res = est.update([Measurement(m.pose, slack, m.lengths, False, 0.1)])
+    assert res.rejected and [e.kind for e in res.events] == ["unusable"]
+    assert "1 untracked with 6 taut cables or fewer" in res.events[0].detail
+    np.testing.assert_array_equal(est.theta, before)
+    # the same sample with all cables taut is used
+    assert not est.update([m]).rejected
