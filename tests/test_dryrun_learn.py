@@ -325,3 +325,30 @@ def test_tracker_on_its_own_clock_pairs_fixes_at_rest():
         kept[shared] = (len(learner._batch), moving_kept)
     assert kept[True] == (0, 0)
     assert kept[False][0] > 10 and kept[False][1] == 0, kept
+
+
+@pytest.mark.parametrize("untracked", [True, False])
+def test_tracker_for_the_first_seconds_then_untracked_or_stop(untracked):
+    """``tracked_s``: the tracker's fixes for that long after the first cycle, then a
+    ``learn_untracked`` event and tensions and encoders only (``untracked``), or no more
+    samples (not ``untracked``)."""
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=6)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=10.0, per_update=200, tracked_s=lambda: 0.5,
+                          untracked=untracked)
+    events = []
+    for k in range(1, 101):
+        t = 0.01 * k
+        events += learner(t, _reading(plant, tracker, P0, t), P0, ctl)
+    kinds = [e[0] for e in events]
+    assert kinds.count("learn_untracked") == 1
+    times = [m.t for m in learner._batch]
+    tracked = [m.tracked for m in learner._batch]
+    assert all(tracked[i] for i, s in enumerate(times) if s < 0.01 + 0.5 - 1e-9)
+    after = [m for m in learner._batch if m.t >= 0.51 - 1e-9]
+    if untracked:
+        assert after and not any(m.tracked for m in after)
+    else:
+        assert not after
