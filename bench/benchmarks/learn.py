@@ -49,10 +49,11 @@ def bench_learn(quick: bool) -> dict[str, float]:
     truth, 4 per period), every :data:`HANDOVER_EVERY` cycles (0.5 s at 256 Hz) it sends the
     batch to the estimator's process, and every tenth of that it takes the finished updates
     and hands the model over (rate-limited, :class:`~controller.online_ident.ModelHandover`)
-    while the process runs its updates concurrently (the median is of cycles without a hand-over: ``learn_handover_us`` is
-    the cost of those with one); ``learn_handover_us``: one hand-over
-    (:meth:`~controller.cycle.LengthController.set_model`); ``ident_update_ms``: one
-    estimator update with a batch of 4 tracked samples (what the thread does per period)."""
+    while the process runs its updates concurrently (the median is of cycles without a
+    hand-over: ``learn_handover_us`` is the cost of those with one); ``learn_handover_us``:
+    one hand-over (:meth:`~controller.cycle.LengthController.set_model`);
+    ``ident_update_ms``: one estimator update with a batch of 4 tracked samples (what the
+    process does per period)."""
     from types import SimpleNamespace
 
     from bench.dryrun.learn import LoopLearner
