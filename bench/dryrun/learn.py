@@ -28,6 +28,8 @@ from controller.robot import Robot
 
 #: [s] between two poses of a trajectory in :func:`path_identifiability`
 IDENT_STEP_S = 1.0
+#: the estimator's process runs this much nicer than the loop (:class:`_EstimatorProcess`)
+ESTIMATOR_NICE = 10
 
 
 def path_identifiability(ident: OnlineIdentifier, trajectory, step_s: float = IDENT_STEP_S
@@ -173,7 +175,10 @@ class LoopLearner:
         self.process = bool(process)
         #: the estimator's class (a test slows it down)
         self.ident_class: type[OnlineIdentifier] = OnlineIdentifier
+
         self.threaded = bool(threaded)
+        if self.threaded and self.process:  # started now: its start-up before the motion
+            self._worker = _EstimatorProcess()
         #: the run's trajectory (a callable returning it, set by the loop's owner): its
         #: identifiability is said at the first cycle, before the platform moves
         self.trajectory: Callable[[], object] | None = None
@@ -186,8 +191,10 @@ class LoopLearner:
         self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
                                   rate_compliance=self.rate_compliance,
                                   correlated=self.correlated)
-        if self.threaded:
-            self._worker = (_EstimatorProcess if self.process else _EstimatorThread)(self.ident)
+        if self.threaded and self.process:
+            self._worker.begin(self.ident)
+        elif self.threaded:
+            self._worker = _EstimatorThread(self.ident)
 
     def __call__(self, t: float, r, pose_des: np.ndarray,
                  ctl: LengthController) -> list[tuple[str, str]]:
@@ -400,27 +407,33 @@ class _EstimatorThread:
 
 class _EstimatorProcess:
     """The estimator in a process of its own (``spawn``): no interpreter lock shared with the
-    loop, so the estimator's work never delays a cycle (and a loop thread in SCHED_FIFO
-    preempts it). The same interface as :class:`_EstimatorThread`: :meth:`submit` and
-    :meth:`call_identifiability` send to the process (a few hundred bytes, at once);
-    :meth:`take` receives what it finished, without waiting, and sets the estimate and its
-    covariance of each update on :attr:`ident`, the loop's copy (what the hand-over reads);
-    :meth:`close` ends the process and takes its whole final state. :attr:`lock` is the
-    loop's own (never held by the process)."""
+    loop, so the estimator's work never delays a cycle (a loop thread in SCHED_FIFO preempts
+    it; without, it runs :data:`ESTIMATOR_NICE` nicer). The same interface as
+    :class:`_EstimatorThread`: :meth:`submit` and :meth:`call_identifiability` send to the
+    process (a few hundred bytes, at once); :meth:`take` receives what it finished, without
+    waiting, and sets the estimate and its covariance of each update on :attr:`ident`, the
+    loop's copy (what the hand-over reads); :meth:`close` ends the process and takes its
+    whole final state. :attr:`lock` is the loop's own (never held by the process)."""
 
-    def __init__(self, ident: OnlineIdentifier) -> None:
+    def __init__(self) -> None:
         import multiprocessing
         import threading
 
-        self.ident = ident
+        self.ident: OnlineIdentifier | None = None
         self.lock = threading.Lock()
         ctx = multiprocessing.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_estimator_main, args=(child, ident),
+        self._proc = ctx.Process(target=_estimator_main, args=(child,),
                                  name="cdpr-estimator", daemon=True)
         self._proc.start()
         child.close()
         self._pending: list = []
+
+    def begin(self, ident: OnlineIdentifier) -> None:
+        """The estimator to run (its state at the first cycle); :attr:`ident` the loop's
+        copy."""
+        self.ident = ident
+        self._conn.send(("begin", ident))
 
     def submit(self, batch: list[Measurement]) -> None:
         self._conn.send(("update", batch))
@@ -442,7 +455,7 @@ class _EstimatorProcess:
             return [(res, k)]
         if kind == "identifiable":
             return [(msg[1], None)]
-        if kind == "final":
+        if kind == "final" and msg[1] is not None and self.ident is not None:
             self.ident.__dict__.update(msg[1].__dict__)
         return []
 
@@ -465,15 +478,26 @@ class _EstimatorProcess:
             self._conn.close()
 
 
-def _estimator_main(conn, ident: OnlineIdentifier) -> None:
-    """:class:`_EstimatorProcess`'s process: updates and identifiability until ``close``,
-    then the whole estimator back."""
+def _estimator_main(conn) -> None:
+    """:class:`_EstimatorProcess`'s process: the estimator (``begin``), then its updates and
+    identifiability until ``close``, then the whole estimator back. It runs
+    :data:`ESTIMATOR_NICE` nicer than the loop: on a busy machine the loop and the drives'
+    process get the processor first."""
+    import os
+
+    try:
+        os.nice(ESTIMATOR_NICE)
+    except OSError:  # not permitted: normal priority
+        pass
+    ident: OnlineIdentifier | None = None
     while True:
         try:
             msg = conn.recv()
         except (EOFError, OSError):  # the loop's process ended
             return
-        if msg[0] == "update":
+        if msg[0] == "begin":
+            ident = msg[1]
+        elif msg[0] == "update":
             res = ident.update(msg[1])
             conn.send(("update", res, len(msg[1]), ident.theta.copy(), ident.P.copy()))
         elif msg[0] == "identifiable":
