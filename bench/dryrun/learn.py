@@ -29,7 +29,7 @@ from controller.robot import Robot
 #: [s] between two poses of a trajectory in :func:`path_identifiability`
 IDENT_STEP_S = 1.0
 #: the estimator's process runs this much nicer than the loop (:class:`_EstimatorProcess`)
-ESTIMATOR_NICE = 10
+ESTIMATOR_NICE = 19
 
 
 def path_identifiability(ident: OnlineIdentifier, trajectory, step_s: float = IDENT_STEP_S
@@ -175,7 +175,6 @@ class LoopLearner:
         self.process = bool(process)
         #: the estimator's class (a test slows it down)
         self.ident_class: type[OnlineIdentifier] = OnlineIdentifier
-
         self.threaded = bool(threaded)
         if self.threaded and self.process:  # started now: its start-up before the motion
             self._worker = _EstimatorProcess()
