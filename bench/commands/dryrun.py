@@ -125,8 +125,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--models", metavar="LIST", default=None,
                    help="controller models, of nominal, remeasured, compliant, diagnosed, "
                         "learned, learned_warmup, learned_untracked, and for paper-paths "
-                        "planned (the "
-                        "measured-vs-planned tensions comparison) [paper-paths: nominal, "
+                        "planned (the measured-vs-planned tensions comparison) [paper-paths: "
+                        "nominal, "
                         "remeasured, compliant, diagnosed, planned; paper-poses: "
                         "nominal,remeasured]")
     g.add_argument("--diagnosed-model", metavar="ROBOT.toml", default=None,
