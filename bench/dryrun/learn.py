@@ -216,6 +216,7 @@ class LoopLearner:
                 self._untracked_at = t + float(ts)
         if t >= self._untracked_at:
             self._untracked_at = np.inf
+            self._update()  # the tracked samples in a batch of their own
             self.use_tracker = False
             self._learning = self.untracked
             first.append(("learn_untracked", "the tracker's fixes are no longer used: tensions "
