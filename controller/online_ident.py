@@ -90,7 +90,9 @@ class IdentOptions:
     """Noise and safety limits. ``sigma_length`` encoder noise [m]; ``sigma_tension`` load-cell
     noise [N]; ``sigma_pose`` tracker noise (position [m], orientation [rad]);
     ``prior_offset`` [m] / ``prior_compliance`` [rad/(N m)] prior standard deviations;
-    ``walk_offset`` [m/sqrt(s)] / ``walk_compliance`` random walk of the parameters;
+    ``walk_offset`` [m/sqrt(s)] / ``walk_compliance`` / ``walk_length`` [m/sqrt(s)] random
+    walk of the parameters (the length offsets' too: the encoders keep the reference of the
+    initialisation, so an exit that moves afterwards moves them with it);
     ``max_step_offset`` [m] / ``max_step_compliance`` largest correction per update;
     ``prior_length`` [m]: a cable length offset expected beyond the encoder reference's
     uncertainty (0: none); ``stiffness_min`` [N m/rad]: the stiffest bound on a joint's
@@ -103,7 +105,11 @@ class IdentOptions:
     against the chi-square quantile of ``drift_p`` (a slow change no single batch shows,
     e.g. ropes that keep settling): beyond it, a ``drift`` event and the covariance is
     multiplied by ``drift_inflate`` (the filter learns again; the test restarts on the next
-    ``drift_window`` updates);
+    ``drift_window`` updates); and the estimate's move from its reference (that of the
+    ``drift_window``-th update, or of the last such event) is tested at ``drift_p`` in the
+    metric of the reference's covariance: a filter that follows a slow change by its random
+    walk, with no innovation beyond its noise, says so too (a ``drift`` event, no
+    inflation);
     ``persist``: that many batches in a row failing the innovation test are a change that
     persists, not outliers: when the correction they call for (with the covariance inflated
     as above) is within ``max_step_*``, a ``drift`` event and the batch learnt from (junk
@@ -122,6 +128,7 @@ class IdentOptions:
     prior_compliance: float = 2e-5
     walk_offset: float = 1e-6
     walk_compliance: float = 1e-10
+    walk_length: float = 1e-6
     max_step_offset: float = 0.05
     max_step_compliance: float = 1e-4
     prior_length: float = 0.0
@@ -192,7 +199,8 @@ class OnlineIdentifier:
         self.P[-n:, -n:] = ref_cov
         self.P0 = self.P.copy()  #: the prior covariance
         self._walk = np.r_[np.full(3 * n, self.opt.walk_offset ** 2),
-                           np.full(3 * m, self.opt.walk_compliance ** 2), np.zeros(n)]
+                           np.full(3 * m, self.opt.walk_compliance ** 2),
+                           np.full(n, self.opt.walk_length ** 2)]
         self._max_step = np.r_[np.full(3 * n, self.opt.max_step_offset),
                                np.full(3 * m, self.opt.max_step_compliance),
                                np.full(n, self.opt.max_step_offset)]
@@ -209,6 +217,8 @@ class OnlineIdentifier:
         self.updates = 0
         self._window: list[tuple[float, int]] = []  #: (nis, dof) of the last updates
         self._rejects = 0  #: batches in a row that failed the innovation test
+        #: the estimate and covariance the move test compares with (None: not yet)
+        self._moved_ref: tuple[np.ndarray, np.ndarray] | None = None
         #: untracked learning: the covariance when the tracker stopped (None: tracked)
         self._anchor: np.ndarray | None = None
         self._info = np.zeros_like(self.P)  #: untracked information since then
@@ -443,6 +453,7 @@ class OnlineIdentifier:
         self.theta = self._bounded(self.theta + step, t, events)
         self._check_growth(t, events)
         self._check_drift(nis, q, t, events)
+        self._check_moved(t, events)
         self.updates += 1
         self.events.extend(events)
         return UpdateResult(nis, q, events, int(ok.sum()))
@@ -549,6 +560,26 @@ class OnlineIdentifier:
         events.append(Event("drift", t, f"innovations of the last {o.drift_window} updates: "
                             f"chi-square {total:.1f} > {limit:.1f} ({dof_sum} dof): the robot "
                             f"is changing; the model is learnt again"))
+
+    def _check_moved(self, t: float, events: list[Event]) -> None:
+        """A ``drift`` event when the estimate moved from its reference (that of the
+        ``drift_window``-th update, or of the last such event) beyond the chi-square quantile
+        of ``drift_p`` in the metric of the reference's covariance (a consistent filter's
+        estimate moves by less: its change has the covariance ``P_ref - P``)."""
+        if self._moved_ref is None:
+            if self.updates + 1 >= self.opt.drift_window:
+                self._moved_ref = (self.theta.copy(), self.P.copy())
+            return
+        th0, P0 = self._moved_ref
+        d = self.theta - th0
+        d2 = float(d @ np.linalg.solve(P0, d))
+        limit = float(chi2.isf(self.opt.drift_p, len(d)))
+        if d2 <= limit:
+            return
+        self._moved_ref = (self.theta.copy(), self.P.copy())
+        events.append(Event("drift", t, f"the estimate moved by chi-square {d2:.1f} > "
+                            f"{limit:.1f} ({len(d)} dof) from its reference: the robot is "
+                            f"changing"))
 
     def _check_growth(self, t: float, events: list[Event]) -> None:
         tr = float(np.sum(np.diag(self.P) / self.prior))
