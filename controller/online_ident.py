@@ -90,7 +90,9 @@ class IdentOptions:
     """Noise and safety limits. ``sigma_length`` encoder noise [m]; ``sigma_tension`` load-cell
     noise [N]; ``sigma_pose`` tracker noise (position [m], orientation [rad]);
     ``prior_offset`` [m] / ``prior_compliance`` [rad/(N m)] prior standard deviations;
-    ``walk_offset`` [m/sqrt(s)] / ``walk_compliance`` random walk of the parameters;
+    ``walk_offset`` [m/sqrt(s)] / ``walk_compliance`` / ``walk_length`` [m/sqrt(s)] random
+    walk of the parameters (the length offsets' too: the encoders keep the reference of the
+    initialisation, so an exit that moves afterwards moves them with it);
     ``max_step_offset`` [m] / ``max_step_compliance`` largest correction per update;
     ``prior_length`` [m]: a cable length offset expected beyond the encoder reference's
     uncertainty (0: none); ``stiffness_min`` [N m/rad]: the stiffest bound on a joint's
@@ -103,11 +105,21 @@ class IdentOptions:
     against the chi-square quantile of ``drift_p`` (a slow change no single batch shows,
     e.g. ropes that keep settling): beyond it, a ``drift`` event and the covariance is
     multiplied by ``drift_inflate`` (the filter learns again; the test restarts on the next
-    ``drift_window`` updates);
+    ``drift_window`` updates); and the estimate's move from its reference (that of the
+    ``drift_window``-th update, or of the last such event) is tested at ``drift_p`` in the
+    metric of the reference's covariance: a filter that follows a slow change by its random
+    walk, with no innovation beyond its noise, says so too (a ``drift`` event, no
+    inflation);
     ``persist``: that many batches in a row failing the innovation test are a change that
     persists, not outliers: when the correction they call for (with the covariance inflated
     as above) is within ``max_step_*``, a ``drift`` event and the batch learnt from (junk
-    that persists asks for more: still not learnt)."""
+    that persists asks for more: still not learnt);
+    ``untracked_ratio``: without the tracker's fixes (batches of untracked samples only),
+    the estimate moves only along the directions the untracked samples since the tracker
+    stopped determine: those whose standard deviation, from the covariance when the
+    tracker stopped (the prior when there never was one), their information alone brings
+    below this ratio of it (:meth:`OnlineIdentifier.untracked_directions`); the others keep
+    the estimate of the tracker's time (0: off, every direction learnt)."""
 
     sigma_length: float = 5e-5
     sigma_tension: float = 0.5
@@ -116,6 +128,7 @@ class IdentOptions:
     prior_compliance: float = 2e-5
     walk_offset: float = 1e-6
     walk_compliance: float = 1e-10
+    walk_length: float = 1e-6
     max_step_offset: float = 0.05
     max_step_compliance: float = 1e-4
     prior_length: float = 0.0
@@ -128,6 +141,7 @@ class IdentOptions:
     drift_p: float = 1e-6
     drift_inflate: float = 4.0
     persist: int = 3
+    untracked_ratio: float = 0.3
 
 
 @dataclass
@@ -185,7 +199,8 @@ class OnlineIdentifier:
         self.P[-n:, -n:] = ref_cov
         self.P0 = self.P.copy()  #: the prior covariance
         self._walk = np.r_[np.full(3 * n, self.opt.walk_offset ** 2),
-                           np.full(3 * m, self.opt.walk_compliance ** 2), np.zeros(n)]
+                           np.full(3 * m, self.opt.walk_compliance ** 2),
+                           np.full(n, self.opt.walk_length ** 2)]
         self._max_step = np.r_[np.full(3 * n, self.opt.max_step_offset),
                                np.full(3 * m, self.opt.max_step_compliance),
                                np.full(n, self.opt.max_step_offset)]
@@ -202,6 +217,11 @@ class OnlineIdentifier:
         self.updates = 0
         self._window: list[tuple[float, int]] = []  #: (nis, dof) of the last updates
         self._rejects = 0  #: batches in a row that failed the innovation test
+        #: the estimate and covariance the move test compares with (None: not yet)
+        self._moved_ref: tuple[np.ndarray, np.ndarray] | None = None
+        #: untracked learning: the covariance when the tracker stopped (None: tracked)
+        self._anchor: np.ndarray | None = None
+        self._info = np.zeros_like(self.P)  #: untracked information since then
 
     # ----- the model ------------------------------------------------------------------
     def robot_at(self, theta: np.ndarray | None = None, name: str | None = None) -> Robot:
@@ -377,12 +397,17 @@ class OnlineIdentifier:
         prior = self.theta
         nu, Jw, ok, nuis = self._rows(batch, prior)
         events: list[Event] = []
-        if len(nu) == 0:  # the model fails at every sample: nothing learnt, and said
-            events.append(Event("unusable", t, f"no sample of {len(batch)} could be evaluated "
-                                "under the estimate (statics infeasible)"))
+        if len(nu) == 0:  # no sample gives an equation: nothing learnt, and said
+            events.append(Event("unusable", t, self._unusable(batch)))
             self.events.extend(events)
             return UpdateResult(0.0, 0, events, 0, rejected=True)
         nis = self._innovation_test(nu, Jw, t, events)
+        Pi = None
+        if any(b.tracked for b in batch):
+            self._anchor = None
+        elif self.opt.untracked_ratio > 0:  # only the directions the untracked data fix
+            Pi = self._untracked_projector(Jw)
+            Jw = Jw @ Pi
         self._rejects = self._rejects + 1 if events else 0
         if events and self.opt.gate and self._rejects < self.opt.persist:
             # not the model's noise: not learnt from, unless it persists
@@ -399,7 +424,7 @@ class OnlineIdentifier:
                 nu_i, Jw_i, _, _ = self._rows(batch, th, nuis)
                 if len(nu_i) != q:  # the statics fail there: keep the last linearisation
                     break
-                nu, Jw = nu_i, Jw_i
+                nu, Jw = nu_i, (Jw_i if Pi is None else Jw_i @ Pi)
             y = nu + Jw @ (th - prior)  # the innovation of the prior, linearised at th
             Sc = np.linalg.cholesky(Jw @ self.P @ Jw.T + np.eye(q))
             K = np.linalg.solve(Sc.T, np.linalg.solve(Sc, Jw @ self.P)).T
@@ -428,9 +453,49 @@ class OnlineIdentifier:
         self.theta = self._bounded(self.theta + step, t, events)
         self._check_growth(t, events)
         self._check_drift(nis, q, t, events)
+        self._check_moved(t, events)
         self.updates += 1
         self.events.extend(events)
         return UpdateResult(nis, q, events, int(ok.sum()))
+
+    def _unusable(self, batch: list[Measurement]) -> str:
+        """Why no sample of ``batch`` gave an equation."""
+        few = sum(not b.tracked and np.count_nonzero(true_tensions(self.model, b.tensions)
+                                                     >= self.slack_threshold) <= 6
+                  for b in batch)
+        return (f"no sample of {len(batch)} could be used: {few} untracked with 6 taut cables "
+                f"or fewer (nothing left once the pose's 6 directions are projected out), "
+                f"{len(batch) - few} with statics infeasible under the estimate")
+
+    def _untracked_projector(self, Jw: np.ndarray) -> np.ndarray:
+        """(p,p) for the whitened rows ``Jw`` (q,p) of an untracked batch: the projector
+        ``Pi`` (in the metric of the covariance) on the directions
+        :meth:`untracked_directions` finds with this batch's information added. The update
+        sees the rows ``Jw @ Pi``: its gain ``P Pi^T Jw^T S^-1`` lies in their span, the other
+        directions keep their estimate and their covariance (the Joseph form stays exact for
+        this gain)."""
+        if self._anchor is None:  # the tracker just stopped (or never ran)
+            self._anchor = self.P.copy()
+            self._info = np.zeros_like(self.P)
+        self._info = self._info + Jw.T @ Jw
+        D = self.untracked_directions()
+        if D.shape[1] == 0:
+            return np.zeros_like(self.P)
+        Pinv_D = np.linalg.solve(self.P, D)
+        return D @ np.linalg.solve(D.T @ Pinv_D, Pinv_D.T)
+
+    def untracked_directions(self) -> np.ndarray:
+        """(p,k) the directions of the parameters the untracked samples since the tracker
+        stopped determine: the eigenvectors of their information scaled by the covariance
+        of that time, ``L^T F L`` (``P = L L^T``), whose eigenvalue ``lambda`` shrinks the
+        standard deviation below :attr:`IdentOptions.untracked_ratio` of its value then
+        (``1 / sqrt(1 + lambda)`` below it), mapped back by ``L``."""
+        if self._anchor is None:
+            return np.zeros((len(self.theta), 0))
+        L = np.linalg.cholesky(self._anchor)
+        lam, V = np.linalg.eigh(L.T @ self._info @ L)
+        keep = lam > 1.0 / self.opt.untracked_ratio ** 2 - 1.0
+        return L @ V[:, keep]
 
     def _innovation_test(self, nu: np.ndarray, Jw: np.ndarray, t: float,
                          events: list[Event]) -> float:
@@ -495,6 +560,26 @@ class OnlineIdentifier:
         events.append(Event("drift", t, f"innovations of the last {o.drift_window} updates: "
                             f"chi-square {total:.1f} > {limit:.1f} ({dof_sum} dof): the robot "
                             f"is changing; the model is learnt again"))
+
+    def _check_moved(self, t: float, events: list[Event]) -> None:
+        """A ``drift`` event when the estimate moved from its reference (that of the
+        ``drift_window``-th update, or of the last such event) beyond the chi-square quantile
+        of ``drift_p`` in the metric of the reference's covariance (a consistent filter's
+        estimate moves by less: its change has the covariance ``P_ref - P``)."""
+        if self._moved_ref is None:
+            if self.updates + 1 >= self.opt.drift_window:
+                self._moved_ref = (self.theta.copy(), self.P.copy())
+            return
+        th0, P0 = self._moved_ref
+        d = self.theta - th0
+        d2 = float(d @ np.linalg.solve(P0, d))
+        limit = float(chi2.isf(self.opt.drift_p, len(d)))
+        if d2 <= limit:
+            return
+        self._moved_ref = (self.theta.copy(), self.P.copy())
+        events.append(Event("drift", t, f"the estimate moved by chi-square {d2:.1f} > "
+                            f"{limit:.1f} ({len(d)} dof) from its reference: the robot is "
+                            f"changing"))
 
     def _check_growth(self, t: float, events: list[Event]) -> None:
         tr = float(np.sum(np.diag(self.P) / self.prior))

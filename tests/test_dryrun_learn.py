@@ -8,11 +8,13 @@ import json
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from bench.cli import main
 from bench.dryrun.learn import LoopLearner
 from controller.cycle import LengthController
 from controller.effects import apply_effects
+from controller.online_ident import OnlineIdentifier
 from controller.statics import pose_statics
 from tests.robots import rocaspect
 from tests.test_online_ident import P0, Plant
@@ -63,10 +65,80 @@ def test_learner_learns_at_rest_and_hands_over():
     assert np.all(np.isfinite(ctl.step(P0, ps.tensions).lengths))
 
 
-def test_learn_refuses_realtime(capsys):
-    assert main(["dry-run", "paper-centre", "--learn", "--realtime", "--json", "--quiet"]) == 2
+def test_learn_runs_in_real_time(capsys):
+    """``--learn --realtime``: the estimator in its own process, ended with the run (none
+    left); the run completes with the learner's report."""
+    import multiprocessing
+
+    rc = main(["dry-run", "paper-centre", "--learn", "--realtime", "--duration", "1.5",
+               "--json", "--quiet", "--learn-period", "0.25"])
     out = json.loads(capsys.readouterr().out)
-    assert "lock-step only" in out["error"]
+    assert rc == 0, out
+    assert out["realtime"] and out["cycles"] > 0 and "learn" in out, out
+    assert not [p for p in multiprocessing.active_children() if p.name == "cdpr-estimator"]
+
+
+class SlowIdent(OnlineIdentifier):
+    """The estimator with each update made 0.3 s slower (a sleep, then a busy loop: the
+    interpreter's lock held, as a slow update in Python holds it)."""
+
+    def update(self, batch):
+        import time
+
+        time.sleep(0.15)
+        t_end = time.perf_counter() + 0.15
+        while time.perf_counter() < t_end:
+            pass
+        return super().update(batch)
+
+
+def _slow_cycles(threaded: bool, process: bool = False):
+    """Wall time [s] of each learner call (the cycle's share) over 1.2 s of cycles, with the
+    estimator's update made 0.3 s slower (:class:`SlowIdent`); and the learner."""
+    import time
+
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=3)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=0.1, per_update=2, threaded=threaded,
+                          process=process)
+    learner.ident_class = SlowIdent
+    learner(0.0, _reading(plant, tracker, P0, 0.0), P0, ctl)  # the start: not timed
+    walls = []
+    for k in range(1, 121):
+        t = 0.01 * k
+        pose = P0 + np.r_[0.1 * t, 0, 0, 0, 0, 0]
+        r = _reading(plant, tracker, pose, t)
+        t0 = time.perf_counter()
+        learner(t, r, pose, ctl)
+        walls.append(time.perf_counter() - t0)
+    learner.close()
+    return np.array(walls), learner
+
+
+def _reading(plant, tracker, pose, t):
+    m = plant.measure(pose, t)
+    tracker.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=t)
+    return SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                           tensions_ok=np.ones(8, bool))
+
+
+@pytest.mark.parametrize("process", [False, True])
+def test_threaded_learner_never_blocks_the_cycle(process):
+    """An estimator update made 0.3 s slower: on its thread or in its process, no cycle's
+    learner call waits for it (each well below the delay; the updates still happen,
+    behind, and the same as in the cycle); in the cycle (not threaded), the calls that
+    update take the delay (what the thread is for)."""
+    walls, learner = _slow_cycles(threaded=True, process=process)
+    assert walls.max() < 0.1, walls.max()
+    assert learner.summary.updates >= 1  # they ran aside (close waited for them)
+    walls_in, inline = _slow_cycles(threaded=False)
+    assert walls_in.max() >= 0.3
+    k = learner.summary.updates  # the same estimate after the same updates
+    assert k <= inline.summary.updates
+    if k == inline.summary.updates:
+        np.testing.assert_allclose(learner.ident.theta, inline.ident.theta, atol=1e-12)
 
 
 def _drive(learner, plant, ctl, tracker, settle_every: int, cycles: int, moving: bool,
@@ -221,3 +293,62 @@ def test_set_model_keeps_the_running_state():
     b.set_model(model.replace(name="handed over"))
     np.testing.assert_allclose(b.step(far, tau).lengths, a.step(far, tau).lengths,
                                rtol=0, atol=1e-12)
+
+
+def test_tracker_on_its_own_clock_pairs_fixes_at_rest():
+    """A tracker whose fix times are on its own clock (over TCP: 1000 s apart from the
+    readings'): fixes pair with the cycles at rest once the platform stood still
+    ``still_s``, and only with fixes received since; with the shared-clock rule, none."""
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=4)
+    kept = {}
+    for shared in (True, False):
+        ctl = LengthController(model, P0, plant.init_readings)
+        tracker = FakeTracker()
+        learner = LoopLearner(tracker, period_s=10.0, per_update=1000, still_s=0.2,
+                              shared_clock=shared)
+        moving_kept = 0
+        for k in range(1, 101):
+            t = 0.01 * k
+            moving = 2 <= k <= 50  # (the first cycle: at rest before it)
+            pose = P0 + np.r_[0.1 * min(t, 0.5), 0, 0, 0, 0, 0]
+            m = plant.measure(pose, t)
+            age = 0.0 if moving or k % 5 else 0.15  # some fixes arrive late (received before)
+            tracker.reading = SimpleNamespace(valid=True, pose=m.pose, t_s=1000.0 + t,
+                                              age_s=age)
+            n0 = len(learner._batch)
+            learner(t, SimpleNamespace(t_s=t, tensions_N=m.tensions, lengths_m=m.lengths,
+                                       tensions_ok=np.ones(8, bool)), pose, ctl)
+            if len(learner._batch) > n0:
+                moving_kept += moving
+                assert t - tracker.reading.age_s >= learner._still_since + 0.2 - 1e-9
+        kept[shared] = (len(learner._batch), moving_kept)
+    assert kept[True] == (0, 0)
+    assert kept[False][0] > 10 and kept[False][1] == 0, kept
+
+
+@pytest.mark.parametrize("untracked", [True, False])
+def test_tracker_for_the_first_seconds_then_untracked_or_stop(untracked):
+    """``tracked_s``: the tracker's fixes for that long after the first cycle, then a
+    ``learn_untracked`` event and tensions and encoders only (``untracked``), or no more
+    samples (not ``untracked``)."""
+    model = rocaspect(compliant=True)
+    plant = Plant(model, model, seed=6)
+    ctl = LengthController(model, P0, plant.init_readings)
+    tracker = FakeTracker()
+    learner = LoopLearner(tracker, period_s=10.0, per_update=200, tracked_s=lambda: 0.5,
+                          untracked=untracked)
+    events = []
+    for k in range(1, 101):
+        t = 0.01 * k
+        events += learner(t, _reading(plant, tracker, P0, t), P0, ctl)
+    kinds = [e[0] for e in events]
+    assert kinds.count("learn_untracked") == 1
+    # the tracked samples went to the estimator at the switch, in a batch of their own
+    assert learner.summary.updates == 1 and learner.summary.samples > 0
+    after = learner._batch
+    assert all(m.t >= 0.51 - 1e-9 for m in after)
+    if untracked:
+        assert after and not any(m.tracked for m in after)
+    else:
+        assert not after

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from controller.effects import apply_effects
-from controller.online_ident import Measurement, OnlineIdentifier
+from controller.online_ident import IdentOptions, Measurement, OnlineIdentifier
 from controller.statics import pose_statics
 from firmware_sim.plant import Nuisances, Plant
 from firmware_sim.scenario import ScenarioError, parse_scenario
@@ -99,7 +99,7 @@ def _length_error(est: OnlineIdentifier, theta: np.ndarray, truth, plant: Drifti
     return float(np.nanmax(np.abs(r)))
 
 
-def _run(drift: bool) -> dict:
+def _run(drift: bool, options: IdentOptions | None = None) -> dict:
     """30 s settled (the estimate starts at the truth with the prior's covariance: the
     first updates fix it), then 60 s in which the ropes settle 5 mm (``drift``) or not; one
     update a second with 3 tracked samples at varied poses."""
@@ -108,7 +108,7 @@ def _run(drift: bool) -> dict:
     off = {f"d{a}_{c}": float(rng.normal(0, 0.004)) for c in model.cable_ids for a in "xyz"}
     truth0 = apply_effects(model, {"exit_point_offset": off})
     plant = DriftingReadings(model, truth0, 30.0, drift, seed=2)
-    est = OnlineIdentifier(model, P0, plant.init_readings)
+    est = OnlineIdentifier(model, P0, plant.init_readings, options=options)
     theta0 = plant.truth_theta(est, {"exit_point_offset": off})
     est.theta = theta0.copy()
     probes = [P0 + np.r_[dx, dy, dz, 0, 0, 0]
@@ -123,7 +123,8 @@ def _run(drift: bool) -> dict:
         err["learned"].append(_length_error(est, est.theta, truth, plant, probes))
         err["fixed"].append(_length_error(est, theta0, truth, plant, probes))
     return {"err": {k: np.array(v) for k, v in err.items()},
-            "drift": [e.t for e in est.events if e.kind == "drift"]}
+            "drift": [e.t for e in est.events if e.kind == "drift"],
+            "moved": [e.t for e in est.events if e.kind == "drift" and "moved" in e.detail]}
 
 
 def test_learned_follows_the_drift_the_fixed_model_does_not():
@@ -140,6 +141,19 @@ def test_no_drift_no_drift_event():
     out = _run(drift=False)
     assert out["drift"] == []
     assert out["err"]["learned"].max() < 1e-3
+
+
+@pytest.mark.parametrize("drift", [True, False])
+def test_a_drift_followed_by_the_walk_is_said_too(drift):
+    """A random walk fast enough to follow the ropes (few innovations beyond the noise):
+    the estimate's move from its reference says the drift, during it; without drift,
+    nothing."""
+    out = _run(drift, IdentOptions(walk_offset=2e-4, walk_length=2e-4))
+    if drift:
+        assert out["moved"] and 30.0 < out["moved"][0] < 90.0, out["drift"]
+        assert out["err"]["learned"][30:].max() < out["err"]["fixed"][-1]
+    else:
+        assert out["drift"] == [], out["drift"]
 
 
 def test_paper_drift_goals(monkeypatch):

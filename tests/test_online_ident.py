@@ -152,12 +152,25 @@ def test_slack_cable_says_nothing():
     assert np.abs(z).max() < 3.0, z
 
 
-def test_untracked_converges_too(model):
-    """Without tracker fixes the pose is taken as commanded and its error projected out."""
+@pytest.mark.parametrize("ratio", [0.0, 0.3])
+def test_untracked_converges_too(model, ratio):
+    """Without tracker fixes the pose is taken as commanded and its error projected out;
+    every direction learnt (``untracked_ratio`` 0) or only those the samples determine
+    (the others keep their prior and its covariance)."""
     eff = concealed(model, seed=11)
     plant = Plant(model, apply_effects(model, eff), seed=12)
-    est = OnlineIdentifier(model, P0, plant.init_readings)
-    res = run(est, plant, path(13, 45), tracked=False)
+    est = OnlineIdentifier(model, P0, plant.init_readings,
+                           options=IdentOptions(untracked_ratio=ratio))
+    res, outside, dirs = [], 0.0, []
+    for i, poses in enumerate(np.array_split(np.array(path(13, 45)), 15)):
+        before = est.theta.copy()
+        res.append(est.update([plant.measure(p, 0.3 * i + 0.1 * k, False)
+                               for k, p in enumerate(poses)]))
+        D, step = est.untracked_directions(), est.theta - before
+        dirs.append(D.shape[1])
+        if D.shape[1]:  # each step in the span of the directions determined so far
+            step = step - D @ np.linalg.lstsq(D, step, rcond=None)[0]
+        outside = max(outside, float(np.abs(step).max()))
     assert not any(r.rejected for r in res), [e.detail for r in res for e in r.events]
     truth = plant.truth_theta(est, eff)
     z = (est.theta - truth) / est.sd
@@ -165,7 +178,11 @@ def test_untracked_converges_too(model):
     n = est.n_offsets  # and it learnt what 2 equations a pose can fix
     cxy = [j for j, k in enumerate(est.names) if k[:2] in ("cx", "cy")]
     assert np.all(np.abs(est.theta[cxy] - truth[cxy]) < 0.2 * truth[cxy])
-    assert np.mean(est.sd[:n]) < 0.6 * est.opt.prior_offset, np.mean(est.sd[:n])
+    if ratio == 0:
+        assert np.mean(est.sd[:n]) < 0.6 * est.opt.prior_offset, np.mean(est.sd[:n])
+        return
+    assert dirs[0] < dirs[-1] < len(est.names), dirs  # more with more samples, not all
+    assert outside < 1e-9, outside  # outside them, nothing moved
 
 
 def _junk(plant, rng, i, p):
@@ -336,3 +353,20 @@ def test_same_residual_as_the_diagnosis(model):
     diag = rm.blocks(est.robot_at(theta)).length
     ours = est.residuals(theta, s.pose_meas, s.tau, s.l_meas)
     np.testing.assert_allclose(ours, diag, atol=1e-9)
+
+
+def test_untracked_slack_batch_is_unusable_and_says_why(model):
+    """Untracked samples with 6 taut cables or fewer give no equation (the pose's 6
+    directions projected out): an ``unusable`` event that says so; nothing learnt."""
+    plant = Plant(model, model, seed=5)
+    est = OnlineIdentifier(model, P0, plant.init_readings)
+    m = plant.measure(P0 + np.r_[1.0, 0.5, 0, 0, 0, 0], 0.1, tracked=False)
+    slack = m.tensions.copy()
+    slack[:2] = 0.0
+    before = est.theta.copy()
+    res = est.update([Measurement(m.pose, slack, m.lengths, False, 0.1)])
+    assert res.rejected and [e.kind for e in res.events] == ["unusable"]
+    assert "1 untracked with 6 taut cables or fewer" in res.events[0].detail
+    np.testing.assert_array_equal(est.theta, before)
+    # the same sample with all cables taut is used
+    assert not est.update([m]).rejected

@@ -13,19 +13,21 @@ from controller.paths import load_path
 
 
 def test_learned_runs_start_nominal_and_learn(tmp_path):
-    opt = paper.PathsOptions(work=tmp_path, models=("nominal", "learned", "learned_untracked"),
-                             planned=False)
+    opt = paper.PathsOptions(work=tmp_path, models=("nominal", "learned", "learned_warmup",
+                                                    "learned_untracked"), planned=False)
     first, second = paper.paths_plan(opt)
     assert second == []
     by = {it.label: it for it in first}
     sc = paper.load_named_scenario(paper.SCENARIO)
     for case in paper.CASES:
         name = f"{case[0]}-path_{case[1]}-init"
-        nom, lr, lu = (by[f"{m}_{name}"] for m in ("nominal", "learned", "learned_untracked"))
+        nom, lr, lw, lu = (by[f"{m}_{name}"] for m in ("nominal", "learned", "learned_warmup",
+                                                        "learned_untracked"))
         assert nom.learn is None and nom.warmup is None
-        assert lr.learn == {"tracker": True} and lu.learn == {"tracker": False}
-        assert lr.robot.name == lu.robot.name == sc.model.name  # the nominal model
-        assert lr.warmup is paper.warmup_specs
+        assert lr.learn == {"tracker": True} and lu.learn == {"tracker": "warmup"}
+        assert lw.learn == {"tracker": "warmup_only"}
+        assert lr.robot.name == lw.robot.name == lu.robot.name == sc.model.name  # nominal
+        assert lr.warmup is lw.warmup is lu.warmup is paper.warmup_specs
 
 
 @pytest.mark.parametrize("init", sorted(paper.INIT_POSES))

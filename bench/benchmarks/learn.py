@@ -43,16 +43,17 @@ class _Fix:
 @register("learn")
 def bench_learn(quick: bool) -> dict[str, float]:
     """``control_cycle_learn_us``: the control cycle of ``control_cycle_us`` with online
-    identification as the dry run runs it on its own thread
-    (:class:`bench.dryrun.learn.LoopLearner`, ``threaded``): each cycle the learner keeps
-    its sample (a tracked pose with tensions and lengths of the truth, 4 per period), every
-    :data:`HANDOVER_EVERY` cycles (0.5 s at 256 Hz) it hands the batch to the estimator's
-    thread, and every tenth of that it hands the model over (rate-limited,
-    :class:`~controller.online_ident.ModelHandover`) while the thread runs its updates
-    concurrently (the median is of cycles without a hand-over: ``learn_handover_us`` is
-    the cost of those with one); ``learn_handover_us``: one hand-over
-    (:meth:`~controller.cycle.LengthController.set_model`); ``ident_update_ms``: one
-    estimator update with a batch of 4 tracked samples (what the thread does per period)."""
+    identification as the dry run runs it on the wall clock, the estimator in a process of
+    its own (:class:`bench.dryrun.learn.LoopLearner`, ``threaded``, ``process``): each
+    cycle the learner keeps its sample (a tracked pose with tensions and lengths of the
+    truth, 4 per period), every :data:`HANDOVER_EVERY` cycles (0.5 s at 256 Hz) it sends the
+    batch to the estimator's process, and every tenth of that it takes the finished updates
+    and hands the model over (rate-limited, :class:`~controller.online_ident.ModelHandover`)
+    while the process runs its updates concurrently (the median is of cycles without a
+    hand-over: ``learn_handover_us`` is the cost of those with one); ``learn_handover_us``:
+    one hand-over (:meth:`~controller.cycle.LengthController.set_model`);
+    ``ident_update_ms``: one estimator update with a batch of 4 tracked samples (what the
+    process does per period)."""
     from types import SimpleNamespace
 
     from bench.dryrun.learn import LoopLearner
@@ -69,7 +70,7 @@ def bench_learn(quick: bool) -> dict[str, float]:
     fix = _Fix()
     clock = {"t": 0.0}
     learner = LoopLearner(fix, period_s=HANDOVER_EVERY * T, correlated=1.01, rate_offset=0.01,
-                          state_time=lambda: clock["t"], threaded=True)
+                          state_time=lambda: clock["t"], threaded=True, process=True)
     k = [0]
 
     def learn():
@@ -104,6 +105,6 @@ def bench_learn(quick: bool) -> dict[str, float]:
 
     up = median_time(update, 5 if quick else 40, warmup=1)
     if learner.summary.updates == 0:
-        raise RuntimeError("the estimator's thread ran no update during the cycle benchmark")
+        raise RuntimeError("the estimator's process ran no update during the cycle benchmark")
     return {"control_cycle_learn_us": cyc * 1e6, "learn_handover_us": ho * 1e6,
             "ident_update_ms": up * 1e3}

@@ -101,7 +101,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--learn", action="store_true",
                    help="identify the exit points and mast stiffnesses online from the tracker's "
                    "fixes, tensions and encoders, and run the controller with the identified "
-                   "model, handed over at a bounded rate (lock-step only; "
+                   "model, handed over at a bounded rate (with --realtime or on given buses "
+                   "the estimator runs in a process of its own; "
                    "docs/explanation/online-identification.md)")
     p.add_argument("--learn-period", type=float, default=0.5, metavar="S",
                    help="seconds of loop time between two estimator updates (default 0.5)")
@@ -123,8 +124,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="runs in parallel processes [2]")
     g.add_argument("--models", metavar="LIST", default=None,
                    help="controller models, of nominal, remeasured, compliant, diagnosed, "
-                        "learned, learned_untracked, and for paper-paths planned (the "
-                        "measured-vs-planned tensions comparison) [paper-paths: nominal, "
+                        "learned, learned_warmup, learned_untracked, and for paper-paths "
+                        "planned (the measured-vs-planned tensions comparison) [paper-paths: "
+                        "nominal, "
                         "remeasured, compliant, diagnosed, planned; paper-poses: "
                         "nominal,remeasured]")
     g.add_argument("--diagnosed-model", metavar="ROBOT.toml", default=None,
@@ -357,12 +359,6 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
             parse_address(args.live)
         except ValueError as exc:
             return _fail(args, 2, str(exc))
-    if args.learn and args.realtime:
-        return _fail(args, 2, "--learn runs the estimator inside the loop's thread: lock-step "
-                              "only (drop --realtime)")
-    if args.learn and on_buses:
-        return _fail(args, 2, "--learn on given buses: not yet; the learnt model would drive "
-                              "real winches (run it on the simulated robot)")
     if not args.learn_period > 0:
         return _fail(args, 2, f"--learn-period: {args.learn_period} s, must be > 0")
     if args.decimate is not None and args.decimate < 1:
@@ -578,9 +574,13 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
             if args.learn:
                 from bench.dryrun.learn import LoopLearner
                 from controller.online_ident import IdentOptions
+                # on the wall clock the estimator runs in its own process (the cycle
+                # never waits for it); lock-step: in the cycle, reproducible
                 learner = LoopLearner(world.tracker, args.learn_period,
                                       IdentOptions(sigma_length=args.learn_sigma_length,
-                                                   prior_offset=0.05))
+                                                   prior_offset=0.05),
+                                      threaded=args.realtime, process=True,
+                                      shared_clock=getattr(world, "rig", None) is not None)
             loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
                                tick=tick, on_event=on_event,
                                on_progress=_progress_printer(args.quiet, args.duration), stop=stop,
@@ -590,7 +590,11 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
                 rig = getattr(world, "rig", None)
                 if rig is not None:  # quasi-static samples at the plant's settles
                     learner.state_time = lambda: rig.last.t_s
-            res = loop.run()
+            try:
+                res = loop.run()
+            finally:
+                if learner is not None:
+                    learner.close()
         finally:
             if injector is not None:
                 injector.stop()

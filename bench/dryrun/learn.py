@@ -28,6 +28,8 @@ from controller.robot import Robot
 
 #: [s] between two poses of a trajectory in :func:`path_identifiability`
 IDENT_STEP_S = 1.0
+#: the estimator's process runs this much nicer than the loop (:class:`_EstimatorProcess`)
+ESTIMATOR_NICE = 19
 
 
 def path_identifiability(ident: OnlineIdentifier, trajectory, step_s: float = IDENT_STEP_S
@@ -38,8 +40,17 @@ def path_identifiability(ident: OnlineIdentifier, trajectory, step_s: float = ID
     (:func:`~controller.online_ident.planned_samples`), with the tracker's fixes and
     without (tensions and encoders only). ``{"tracker"|"no_tracker": {"determined" (count),
     "parameters" (count), "rank", "undetermined" [names]}}``."""
+    return poses_identifiability(ident, trajectory_poses(trajectory, step_s))
+
+
+def trajectory_poses(trajectory, step_s: float = IDENT_STEP_S) -> np.ndarray:
+    """(P,6) the trajectory's poses every ``step_s`` [s]."""
     t = np.arange(0.0, trajectory.duration_s + 1e-9, step_s)
-    poses = np.asarray(trajectory.sample(t).pose, float).reshape(-1, 6)
+    return np.asarray(trajectory.sample(t).pose, float).reshape(-1, 6)
+
+
+def poses_identifiability(ident: OnlineIdentifier, poses: np.ndarray) -> dict[str, dict]:
+    """:func:`path_identifiability` of the poses (P,6)."""
     out = {}
     for key, tracked in (("tracker", True), ("no_tracker", False)):
         fi = ident.fisher(planned_samples(ident, poses, tracked))
@@ -96,15 +107,31 @@ class LoopLearner:
     state (quasi-static samples of the moving platform: their length residual under the
     true robot is that at rest, 0.6 mm RMS on paper-centre at 0.5 m/s, against 7 mm for
     the cycles between two settles); without it, only at rest (``still_s``);
-    ``threaded``: the estimator's updates run on a thread of their own
+    ``threaded``: the estimator's updates (and the identifiability of the trajectory, said
+    at the first hand-over after the thread computed it) run on a thread of their own
     (:class:`_EstimatorThread`), not in the cycle: the cycle hands the period's samples
     over and, at the same period, moves the hand-over toward the estimate of the last
     update the thread finished (under its lock; while an update is in progress the
     hand-over waits for the next period: the cycle never waits for the estimator).
-    :meth:`close` ends the thread; ``handover_s`` [s] between two hand-overs of the model
-    (default a tenth of ``period_s``): the model moves toward the estimate by the rate times
-    this each time, so that a setpoint moves by a fraction of a millimetre more than the path
-    asks at each hand-over, never by the period's worth at once."""
+    :meth:`close` ends the thread; ``process``: with ``threaded``, the estimator in a
+    process of its own instead (:class:`_EstimatorProcess`: a thread of the loop's process
+    shares its interpreter lock, so a busy estimator delays the cycles by up to the
+    interpreter's switch interval, 5 ms, each time); ``handover_s`` [s] between two
+    hand-overs of the model (default a tenth of ``period_s``): the model moves toward the
+    estimate by the rate times this each time, so that a setpoint moves by a fraction of a
+    millimetre more than the path asks at each hand-over, never by the period's worth at
+    once;
+    ``tracked_s`` [s]: with ``use_tracker``, the tracker's fixes are used this long after the
+    first cycle (a number, or a callable that returns it, asked at the first cycle, e.g. the
+    warm-up's duration), then tensions and encoders only (a ``learn_untracked`` event); the
+    estimator then moves only the directions these determine
+    (:attr:`~controller.online_ident.IdentOptions.untracked_ratio`); with ``untracked``
+    False, the learning stops then instead (the hand-over still reaches the estimate).
+    None: the tracker all the run;
+    ``shared_clock``: the tracker's fix times are on the readings' clock (the in-process
+    rig): a fix pairs with a cycle within ``sync_s``; False (a tracker on its own clock, e.g.
+    over TCP): a fix pairs with a cycle at rest (``still_s``, whatever ``state_time``) when
+    it was received after the platform had stood still ``still_s`` (its ``age_s``)."""
 
     def __init__(self, tracker, period_s: float = 0.5, options: IdentOptions | None = None,
                  rate_offset: float = 2e-3, per_update: int = 4, sync_s: float = 1e-3,
@@ -112,8 +139,16 @@ class LoopLearner:
                  rate_compliance: float = 2e-6,
                  use_tracker: bool = True,
                  state_time: Callable[[], float] | None = None,
-                 threaded: bool = False, handover_s: float | None = None) -> None:
+                 threaded: bool = False, handover_s: float | None = None,
+                 tracked_s: float | Callable[[], float | None] | None = None,
+                 untracked: bool = True, process: bool = False,
+                 shared_clock: bool = True) -> None:
         self.tracker = tracker
+        self.shared_clock = bool(shared_clock)
+        self.untracked = bool(untracked)
+        self._learning = True
+        self.tracked_s = tracked_s
+        self._untracked_at = np.inf  #: [s] loop time the tracker's fixes stop being used
         self.state_time = state_time
         self.use_tracker = bool(use_tracker)
         self.period_s = float(period_s)
@@ -136,8 +171,13 @@ class LoopLearner:
         self._last_fix = -np.inf
         self._next = None
         self._new_events: list[dict] = []
-        self._worker: _EstimatorThread | None = None
+        self._worker: _EstimatorThread | _EstimatorProcess | None = None
+        self.process = bool(process)
+        #: the estimator's class (a test slows it down)
+        self.ident_class: type[OnlineIdentifier] = OnlineIdentifier
         self.threaded = bool(threaded)
+        if self.threaded and self.process:  # started now: its start-up before the motion
+            self._worker = _EstimatorProcess()
         #: the run's trajectory (a callable returning it, set by the loop's owner): its
         #: identifiability is said at the first cycle, before the platform moves
         self.trajectory: Callable[[], object] | None = None
@@ -145,12 +185,14 @@ class LoopLearner:
 
     def _start(self, ctl: LengthController) -> None:
         readings = ctl.init_readings if ctl.init_readings is not None else ctl.init_tensions
-        self.ident = OnlineIdentifier(ctl.robot, ctl.init_pose, readings,
+        self.ident = self.ident_class(ctl.robot, ctl.init_pose, readings,
                                       reference=ctl.reference, options=self.options)
         self.hand = ModelHandover(self.ident, rate_offset=self.rate_offset,
                                   rate_compliance=self.rate_compliance,
                                   correlated=self.correlated)
-        if self.threaded:
+        if self.threaded and self.process:
+            self._worker.begin(self.ident)
+        elif self.threaded:
             self._worker = _EstimatorThread(self.ident)
 
     def __call__(self, t: float, r, pose_des: np.ndarray,
@@ -164,18 +206,33 @@ class LoopLearner:
             self._next_hand = t + self.handover_s
             self._last_hand = t
             traj = self.trajectory() if self.trajectory is not None else None
-            if traj is not None:
+            if traj is not None and self._worker is not None:  # said when the thread has it
+                self._worker.call_identifiability(trajectory_poses(traj))
+            elif traj is not None:
                 self.identifiable = path_identifiability(self.ident, traj)
                 first.append(("learn_identifiable", identifiability_text(self.identifiable)))
+            ts = self.tracked_s() if callable(self.tracked_s) else self.tracked_s
+            if ts is not None and self.use_tracker:
+                self._untracked_at = t + float(ts)
+        if t >= self._untracked_at:
+            self._untracked_at = np.inf
+            self._update()  # the tracked samples in a batch of their own
+            self.use_tracker = False
+            self._learning = self.untracked
+            first.append(("learn_untracked", "the tracker's fixes are no longer used: tensions "
+                          "and encoders only, along the directions they determine"
+                          if self.untracked else "the tracker's fixes are no longer used: "
+                          "learning stops, the model is kept"))
         moved = self._last_des is not None and np.abs(pose_des - self._last_des).max() > 1e-9
         self._last_des = np.array(pose_des, float)
         if moved:
             self._still_since = t
-        if self.state_time is not None:
+        if self.state_time is not None and self.shared_clock:
             still = abs(self.state_time() - r.t_s) <= self.sync_s
         else:
             still = t - self._still_since >= self.still_s
-        if still and np.all(r.tensions_ok) and t - self._last_kept >= self._spacing * 0.999:
+        due = t - self._last_kept >= self._spacing * 0.999
+        if self._learning and still and np.all(r.tensions_ok) and due:
             m = self._sample(t, r, pose_des)
             if m is not None:
                 self._last_kept = t
@@ -197,8 +254,11 @@ class LoopLearner:
             return Measurement(np.array(pose_des, float), np.array(r.tensions_N),
                                np.array(r.lengths_m), False, t)
         tr = self.tracker.read()
-        if not (tr.valid and abs(tr.t_s - r.t_s) <= self.sync_s and tr.t_s > self._last_fix
-                and np.all(np.isfinite(tr.pose))):
+        if self.shared_clock:
+            now = abs(tr.t_s - r.t_s) <= self.sync_s
+        else:  # received after the platform stood still long enough
+            now = t - tr.age_s >= self._still_since + self.still_s
+        if not (tr.valid and now and tr.t_s > self._last_fix and np.all(np.isfinite(tr.pose))):
             return None
         self._last_fix = tr.t_s
         return Measurement(np.array(tr.pose, float), np.array(r.tensions_N),
@@ -232,9 +292,8 @@ class LoopLearner:
                     self._worker.lock.release()
         if moved:
             self._last_hand = t
-        for res, k in results:
-            self._record(res, k)
-        out = [(f"learn_{e['kind']}", e["text"]) for e in self._new_events]
+        out = self._results(results)
+        out += [(f"learn_{e['kind']}", e["text"]) for e in self._new_events]
         self._new_events = []
         if robot is not None:
             try:
@@ -242,6 +301,18 @@ class LoopLearner:
                 self.summary.handovers += 1
             except ValueError as exc:
                 out.append(("learn_handover_refused", str(exc)))
+        return out
+
+    def _results(self, results: list) -> list[tuple[str, str]]:
+        """Record what the thread finished (updates; the identifiability, said as an
+        event)."""
+        out = []
+        for res, k in results:
+            if k is None:
+                self.identifiable = res
+                out.append(("learn_identifiable", identifiability_text(res)))
+            else:
+                self._record(res, k)
         return out
 
     def _record(self, res, k: int) -> None:
@@ -259,8 +330,7 @@ class LoopLearner:
         if self._worker is not None:
             self._worker.close()
             with self._worker.lock:
-                for res, k in self._worker.take():
-                    self._record(res, k)
+                self._results(self._worker.take())
 
     def identified(self) -> Robot | None:
         """The identified robot: the estimate of the parameters the run determined, the
@@ -280,12 +350,21 @@ class LoopLearner:
             s.sd_mm_max = round(1e3 * float(self.ident.sd[:n].max()), 3)
         return {"updates": s.updates, "samples": s.samples, "rejected": s.rejected,
                 "handovers": s.handovers, "events": s.events, "offsets_mm": s.offsets_mm,
-                "offset_sd_mm_max": s.sd_mm_max, "identifiable": self.identifiable}
+                "offset_sd_mm_max": s.sd_mm_max, "identifiable": self.identifiable,
+                "untracked_directions": self._untracked_count()}
+
+    def _untracked_count(self) -> int | None:
+        """How many directions the untracked samples determined (None: no untracked
+        learning in this run)."""
+        if self.ident is None or self.use_tracker:
+            return None
+        return int(self.ident.untracked_directions().shape[1])
 
 
 class _EstimatorThread:
-    """The estimator's updates on a daemon thread: :meth:`submit` a batch (returns at once;
-    batches queue up), :meth:`take` the results finished since the last call (hold
+    """The estimator's updates on a daemon thread: :meth:`submit` a batch or :meth:`call` a
+    function of the estimator (both return at once; they queue up), :meth:`take` the results
+    finished since the last call, ``(UpdateResult, samples)`` or ``(value, None)`` (hold
     :attr:`lock`: the estimate does not change under it), :meth:`close`."""
 
     def __init__(self, ident: OnlineIdentifier) -> None:
@@ -302,6 +381,10 @@ class _EstimatorThread:
     def submit(self, batch: list[Measurement]) -> None:
         self._queue.put(batch)
 
+    def call_identifiability(self, poses: np.ndarray) -> None:
+        """:func:`poses_identifiability` of ``poses`` (P,6), as a result ``(value, None)``."""
+        self._queue.put(lambda: poses_identifiability(self.ident, poses))
+
     def take(self) -> list:
         done, self._done = self._done, []
         return done
@@ -312,9 +395,113 @@ class _EstimatorThread:
             if batch is None:
                 return
             with self.lock:
-                res = self.ident.update(batch)
-                self._done.append((res, len(batch)))
+                if callable(batch):
+                    self._done.append((batch(), None))
+                else:
+                    self._done.append((self.ident.update(batch), len(batch)))
 
     def close(self) -> None:
         self._queue.put(None)
         self._thread.join()
+
+
+class _EstimatorProcess:
+    """The estimator in a process of its own (``spawn``): no interpreter lock shared with the
+    loop, so the estimator's work never delays a cycle (a loop thread in SCHED_FIFO preempts
+    it; without, it runs :data:`ESTIMATOR_NICE` nicer). The same interface as
+    :class:`_EstimatorThread`: :meth:`submit` and :meth:`call_identifiability` send to the
+    process (a few hundred bytes, at once); :meth:`take` receives what it finished, without
+    waiting, and sets the estimate and its covariance of each update on :attr:`ident`, the
+    loop's copy (what the hand-over reads); :meth:`close` ends the process and takes its
+    whole final state. :attr:`lock` is the loop's own (never held by the process)."""
+
+    def __init__(self) -> None:
+        import multiprocessing
+        import threading
+
+        self.ident: OnlineIdentifier | None = None
+        self.lock = threading.Lock()
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_estimator_main, args=(child,),
+                                 name="cdpr-estimator", daemon=True)
+        self._proc.start()
+        child.close()
+        self._pending: list = []
+
+    def begin(self, ident: OnlineIdentifier) -> None:
+        """The estimator to run (its state at the first cycle); :attr:`ident` the loop's
+        copy."""
+        self.ident = ident
+        self._conn.send(("begin", ident))
+
+    def submit(self, batch: list[Measurement]) -> None:
+        self._conn.send(("update", batch))
+
+    def call_identifiability(self, poses: np.ndarray) -> None:
+        self._conn.send(("identifiable", poses))
+
+    def take(self) -> list:
+        done, self._pending = self._pending, []
+        while not self._conn.closed and self._conn.poll():
+            done += self._receive(self._conn.recv())
+        return done
+
+    def _receive(self, msg: tuple) -> list:
+        kind = msg[0]
+        if kind == "update":
+            _, res, k, theta, P = msg
+            self.ident.theta, self.ident.P = theta, P
+            return [(res, k)]
+        if kind == "identifiable":
+            return [(msg[1], None)]
+        if kind == "final" and msg[1] is not None and self.ident is not None:
+            self.ident.__dict__.update(msg[1].__dict__)
+        return []
+
+    def close(self, timeout_s: float = 60.0) -> None:
+        """The updates sent are finished, then the process ends (at most ``timeout_s``)."""
+        try:
+            self._conn.send(("close",))
+            while self._conn.poll(timeout_s):
+                msg = self._conn.recv()
+                self._pending += self._receive(msg)
+                if msg[0] == "final":
+                    break
+        except (EOFError, OSError):
+            pass
+        finally:
+            self._proc.join(timeout_s)
+            if self._proc.is_alive():
+                self._proc.terminate()
+                self._proc.join()
+            self._conn.close()
+
+
+def _estimator_main(conn) -> None:
+    """:class:`_EstimatorProcess`'s process: the estimator (``begin``), then its updates and
+    identifiability until ``close``, then the whole estimator back. It runs
+    :data:`ESTIMATOR_NICE` nicer than the loop: on a busy machine the loop and the drives'
+    process get the processor first."""
+    import os
+
+    try:
+        os.nice(ESTIMATOR_NICE)
+    except OSError:  # not permitted: normal priority
+        pass
+    ident: OnlineIdentifier | None = None
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):  # the loop's process ended
+            return
+        if msg[0] == "begin":
+            ident = msg[1]
+        elif msg[0] == "update":
+            res = ident.update(msg[1])
+            conn.send(("update", res, len(msg[1]), ident.theta.copy(), ident.P.copy()))
+        elif msg[0] == "identifiable":
+            conn.send(("identifiable", poses_identifiability(ident, msg[1])))
+        else:
+            conn.send(("final", ident))
+            return

@@ -83,17 +83,23 @@ MODELS: dict[str, str] = {
     "learned": "starts from the nominal model and identifies exit points and mast "
                "compliance online (tracker fixes, tensions, encoders) during a warm-up of "
                "at most 60 s, then runs the path with the model handed over (learning on)",
-    "learned_untracked": "as learned, but the estimator uses tensions and encoders only "
-                         "(the tracker serves the initialisation and the figures, not the "
-                         "learning)",
+    "learned_untracked": "as learned during the warm-up (tracker fixes, tensions, encoders), "
+                         "then tensions and encoders only: the tracker off for the path "
+                         "(it still gives the figures); the estimate moves only along the "
+                         "directions these determine",
+    "learned_warmup": "as learned during the warm-up, then fixed: no learning on the path "
+                      "(what learned_untracked starts from)",
 }
 #: the order models appear in tables and plots
 MODEL_ORDER = ("nominal", "remeasured", "compliant", "diagnosed", "learned",
-               "learned_untracked")
+               "learned_warmup", "learned_untracked")
 #: the models paper-paths runs when none are named
 DEFAULT_MODELS = ("nominal", "remeasured", "compliant", "diagnosed")
-#: the learning models: whether the estimator uses the tracker's fixes
-LEARNED: dict[str, bool] = {"learned": True, "learned_untracked": False}
+#: the learning models: whether the estimator uses the tracker's fixes (True: all the run;
+#: "warmup": during the warm-up only, then tensions and encoders; "warmup_only": during the
+#: warm-up only, then no learning)
+LEARNED: dict[str, bool | str] = {"learned": True, "learned_untracked": "warmup",
+                                  "learned_warmup": "warmup_only"}
 #: the warm-up of the learning models: dwell poses offset from the init pose [m] (x, y, z
 #: from the init pose, clipped into :data:`WARMUP_BOX`), each visited once: toward each
 #: mast in turn, high and low alternately (large tension changes on every mast: its
@@ -176,8 +182,10 @@ class RunSpec:
     ``reactions`` the supervisor's reactions changed for the run, condition -> reaction
     name (default :data:`REACTIONS`: slack logged);
     ``tags`` free data copied into the result (case, model, ...);
-    ``learn``: None, or the online identification's options (``tracker`` bool: the
-    estimator uses the tracker's fixes; ``period_s``; ``sigma_length``): the run learns
+    ``learn``: None, or the online identification's options (``tracker``: the estimator
+    uses the tracker's fixes, True all the run, False never, "warmup" during the warm-up
+    only (then tensions and encoders), "warmup_only" during the warm-up only (then the
+    learning stops); ``period_s``; ``sigma_length``): the run learns
     (:class:`bench.dryrun.learn.LoopLearner`) from its first cycle to its last;
     ``warmup``: the segment specs (:mod:`controller.trajectory`) run from the init pose
     before the path, as part of its approach (``cycle`` -1: no part of the ISO figures),
@@ -461,13 +469,19 @@ def _learner(learn: Mapping[str, Any] | None, world: Any) -> Any:
     from controller.online_ident import IdentOptions
 
     rig = getattr(world, "rig", None)
-    return LoopLearner(world.tracker, float(learn.get("period_s", 0.5)),
-                       IdentOptions(sigma_length=float(learn.get("sigma_length", 5e-4))),
-                       rate_offset=float(learn.get("rate_offset", LEARN_RATE_OFFSET)),
-                       correlated=float(learn.get("correlated", LEARN_CORRELATED if
-                                                  learn.get("tracker", True) else 0.5)),
-                       use_tracker=bool(learn.get("tracker", True)),
-                       state_time=None if rig is None else (lambda: rig.last.t_s))
+    tracker = learn.get("tracker", True)
+    learner = LoopLearner(world.tracker, float(learn.get("period_s", 0.5)),
+                          IdentOptions(sigma_length=float(learn.get("sigma_length", 5e-4))),
+                          rate_offset=float(learn.get("rate_offset", LEARN_RATE_OFFSET)),
+                          correlated=float(learn.get("correlated", LEARN_CORRELATED if
+                                                     tracker is not False else 0.5)),
+                          use_tracker=tracker is not False,
+                          state_time=None if rig is None else (lambda: rig.last.t_s))
+    if tracker in ("warmup", "warmup_only"):  # the tracker's fixes during the warm-up only
+        learner.untracked = tracker == "warmup"
+        learner.tracked_s = lambda: _warmup_s(learner.trajectory()
+                                              if learner.trajectory is not None else None)
+    return learner
 
 
 def _warmup_s(traj: Any) -> float | None:

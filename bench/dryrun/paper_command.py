@@ -5,7 +5,7 @@ plus ``--jobs``, ``--cycles``, ``--speeds``, ``--models``, ``--diagnosed-model``
 campaigns themselves: :mod:`bench.dryrun.paper`; the results: :mod:`bench.dryrun.paper_report`.
 
 ``paper-paths [--json] [--plots DIR] [--record DIR] [--jobs N] [--rate HZ] [--duration S]
-[--models nominal,remeasured,compliant,diagnosed,learned,learned_untracked]
+[--models nominal,remeasured,compliant,diagnosed,learned,learned_warmup,learned_untracked]
 [--diagnosed-model ROBOT.toml]``: the
 four path runs of Table 3 per model, the calibration campaign (``paper-calibration``
 scenario, ``calibration-quick`` path) recorded by a dry run and diagnosed by ``cdpr

@@ -84,7 +84,8 @@ def _learning(r: dict) -> dict[str, Any]:
     return {"label": r["label"], "warmup_s": lr.get("warmup_s"), "updates": lr["updates"],
             "samples": lr["samples"], "rejected": lr["rejected"], "handovers": lr["handovers"],
             "event_counts": counts, "identifiable": lr.get("identifiable"),
-            "offset_sd_mm_max": lr.get("offset_sd_mm_max")}
+            "offset_sd_mm_max": lr.get("offset_sd_mm_max"),
+            "untracked_directions": lr.get("untracked_directions")}
 
 
 def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOptions,
@@ -129,7 +130,7 @@ def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOp
         goals["best_is_centre_path_centre_init"] = order[0] == ("centre", "centre")
         goals["paper_order"] = ["centre path, centre init", "centre path, side init",
                                 "side path, side init", "side path, centre init"]
-    for m in ("compliant", "diagnosed", "learned", "learned_untracked"):
+    for m in ("compliant", "diagnosed", "learned", "learned_warmup", "learned_untracked"):
         cuts = [c.get(f"at_max_cut_{m}") for c in cases]
         if m in opt.models and cuts and all(v is not None for v in cuts):
             goals[f"min_at_max_cut_{m}"] = min(cuts)
@@ -227,7 +228,7 @@ def paths_table(res: dict[str, Any]) -> str:
     if "nominal_order" in g:
         lines.append(f"  nominal, best to worst: {'; '.join(g['nominal_order'])} (paper: "
                      f"{'; '.join(g['paper_order'])})")
-    for m in ("compliant", "diagnosed", "learned", "learned_untracked"):
+    for m in ("compliant", "diagnosed", "learned", "learned_warmup", "learned_untracked"):
         if f"min_at_max_cut_{m}" in g:
             ok = g[f"{m}_cuts_at_max_by_80pct_everywhere"]
             lines.append(f"  {m}: AT max cut by {100 * g[f'min_at_max_cut_{m}']:.0f} % at "
