@@ -21,6 +21,7 @@ very stiff stand-in (``RIGID_EA``) so that their tensions are defined.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +33,7 @@ from controller.energy import potential_energy
 from controller.equilibrium import energy_gradient
 from controller.kinematics import cable_state, wrench_matrix
 from controller.masts import deflect, lever_arms
-from controller.pose import euler_rate_matrix, rotation
+from controller.pose import euler_from_rotation, euler_rate_matrix, rotation
 from controller.robot import Robot
 from controller.statics import (
     init_statics,
@@ -50,6 +51,10 @@ RIGID_EA = 1.0e8
 
 class PlantError(RuntimeError):
     """The plant found no rest position (the message says why)."""
+
+
+class _Lost(PlantError):
+    """One rest search lost its way (no rest position, or a spurious one turned over)."""
 
 
 @dataclass(frozen=True)
@@ -274,8 +279,68 @@ class Plant:
 
         The search starts from the last rest position, or from the pose ``guess``
         (6,) when the platform moved far since (e.g. the pose the controller aimed at).
+        When that search loses its way after a long move (it finds no rest position, or
+        one turned over: :data:`MAX_TURN_RAD`), the plant follows the move as the real
+        platform goes through it instead (:meth:`_follow`); a search that loses its way
+        on every step of :data:`MAX_HALVINGS` halvings raises :class:`PlantError`.
         """
-        start = self.state
+        start, hess_inv = self.state, self._hess_inv
+        try:
+            return self._search(start, l0, guess)
+        except _Lost as lost:
+            self._hess_inv = hess_inv  # the failed search's preconditioner is of nowhere
+            path = self._path(start, np.asarray(l0, dtype=float), guess)
+            try:
+                return self._follow(start, path, 0.0, 1.0, MAX_HALVINGS, first=False)
+            except _Lost as again:
+                raise PlantError(f"{lost}; following the move in up to {2 ** MAX_HALVINGS} "
+                                 f"steps: {again}") from None
+
+    def _path(self, start: PlantState, l0: np.ndarray, guess: np.ndarray | None
+              ) -> Callable[[float], np.ndarray]:
+        """The unstretched lengths [m] along the move from the rest ``start`` to ``l0`` (n,),
+        as a function of the fraction ``f`` in [0, 1] (``start.unstretched`` at 0, ``l0`` at
+        1). Toward a ``guess`` (the pose aimed at), as the controller moves the platform:
+        along the straight line of poses from the start to the guess, the cables' lengths
+        there less their stretch, blended from the start's to the guess's (the truth's
+        geometry at the start's mast rotations); else the lengths blend linearly."""
+        if guess is None:
+            return lambda f: start.unstretched + f * (l0 - start.unstretched)
+        t, exits = self.truth, self._exits(start.theta)
+        guess = np.asarray(guess, dtype=float)
+
+        def length(pose: np.ndarray) -> np.ndarray:
+            return cable_state(pose, t.anchors, exits, t.pulley_radius).length
+
+        s0 = length(start.pose) - start.unstretched
+        s1 = length(guess) - l0
+        return lambda f: (l0 if f >= 1.0 else
+                          length(start.pose + f * (guess - start.pose)) - s0 - f * (s1 - s0))
+
+    def _follow(self, start: PlantState, path: Callable[[float], np.ndarray], f0: float,
+                f1: float, halvings: int, first: bool = True) -> PlantState:
+        """Rest position at ``path(f1)`` reached from the rest ``start`` (at ``path(f0)``) as
+        the platform goes (a homotopy): the search starts at ``start`` (with ``first``);
+        when it loses its way (or without ``first``), the rest at the midpoint of the
+        fractions is found first, each half split again down to ``halvings`` times (raises
+        :class:`_Lost` beyond)."""
+        if first:
+            hess_inv = self._hess_inv
+            try:
+                return self._search(start, path(f1), None)
+            except _Lost:
+                if halvings <= 0:
+                    raise
+                self._hess_inv = hess_inv
+        fm = 0.5 * (f0 + f1)
+        mid = self._follow(start, path, f0, fm, halvings - 1)
+        return self._follow(mid, path, fm, f1, halvings - 1)
+
+    def _search(self, start: PlantState, l0: np.ndarray, guess: np.ndarray | None
+                ) -> PlantState:
+        """One rest search from the rest ``start`` (its mast rotations) and the pose ``guess``
+        (or ``start``'s pose): raises :class:`_Lost` when it finds no rest position or one
+        turned over, :class:`PlantError` when the force model and the energy disagree."""
         pose0 = start.pose.copy() if guess is None else np.asarray(guess, dtype=float).copy()
         y0 = np.concatenate([np.zeros(6), start.theta.ravel()[self._free] * self._scale[6:]])
         e0 = potential_energy(self.truth, pose0, start.theta, l0, self._a_star, self._r,
@@ -301,14 +366,15 @@ class Plant:
                                method="BFGS", options={"gtol": gtol, "maxiter": 800,
                                                        "hess_inv0": self._hess_inv})
             if np.linalg.norm(res.jac, np.inf) > accept:
-                raise PlantError(f"plant: no rest position found ({res.message}; energy "
+                raise _Lost(f"plant: no rest position found ({res.message}; energy "
                                  f"gradient {np.linalg.norm(res.jac, np.inf):.3g})")
             y = res.x
+        y = self._unwound(y, pose0)
         turn = _turn_angle(pose0[3:6], self._unpack(y, pose0)[0][3:6])
         if turn > MAX_TURN_RAD:
-            raise PlantError(f"plant: the rest position found is turned by {turn:.2f} rad from "
-                             f"where the search started (a spurious stationary point, not "
-                             f"where the platform goes)")
+            raise _Lost(f"plant: the rest position found is turned by {turn:.2f} rad from "
+                        f"where the search started (a spurious stationary point, not "
+                        f"where the platform goes)")
         self._rests += 1
         check = self.check_every <= 1 or self._rests % self.check_every == 1
         fd = self._fd_gradient(y, *args) if check else None
@@ -324,6 +390,20 @@ class Plant:
             self._hung = hung
         tau = hung.tension  # at the exit ends
         return PlantState(pose, tau, exits, theta, np.asarray(l0, float).copy())
+
+    def _unwound(self, y: np.ndarray, pose0: np.ndarray) -> np.ndarray:
+        """``y`` whose Euler angles went round (one changed by more than pi [rad] in a long
+        search) written as the same orientation's principal angles, wound by whole turns to
+        lie nearest ``pose0``'s; any other ``y`` as it is."""
+        x = y[3:6] / self._scale[3:6]
+        if np.abs(x).max() <= np.pi:
+            return y
+        rpy0 = pose0[3:6]
+        rpy = euler_from_rotation(rotation(rpy0 + x))
+        rpy = rpy + 2 * np.pi * np.round((rpy0 - rpy) / (2 * np.pi))
+        y = y.copy()
+        y[3:6] = (rpy - rpy0) * self._scale[3:6]
+        return y
 
     def _chord(self, y: np.ndarray, args: tuple, gtol: float,
                max_iter: int = 30) -> tuple[np.ndarray, bool]:
@@ -373,6 +453,10 @@ class Plant:
 #: a rest position turned this much [rad] from where its search started is spurious: the
 #: platform rests near its last position or the commanded pose
 MAX_TURN_RAD = 0.5
+
+#: a rest search that loses its way follows the move in halves, each halved again while its
+#: search loses its way, at most this many times (steps of 1/64 of the move)
+MAX_HALVINGS = 6
 
 
 def _turn_angle(rpy_a: np.ndarray, rpy_b: np.ndarray) -> float:
