@@ -284,17 +284,27 @@ class Plant:
         platform goes through it instead (:meth:`_follow`); a search that loses its way
         on every step of :data:`MAX_HALVINGS` halvings raises :class:`PlantError`.
         """
-        start, hess_inv = self.state, self._hess_inv
+        start, hess_inv, hung = self.state, self._hess_inv, self._hung
         try:
             return self._search(start, l0, guess)
         except _Lost as lost:
             self._hess_inv = hess_inv  # the failed search's preconditioner is of nowhere
             path = self._path(start, np.asarray(l0, dtype=float), guess)
             try:
-                return self._follow(start, path, 0.0, 1.0, MAX_HALVINGS, first=False)
+                end = self._follow(start, path, 0.0, 1.0, MAX_HALVINGS, first=False)
+                why = ""
             except _Lost as again:
-                raise PlantError(f"{lost}; following the move in up to {2 ** MAX_HALVINGS} "
-                                 f"steps: {again}") from None
+                why = f"following the move in up to {2 ** MAX_HALVINGS} steps: {again}"
+            ref, whence = (start.pose, "its last rest") if guess is None else (guess,
+                                                                                "the pose aimed at")
+            turn = 0.0 if why else _turn_angle(np.asarray(ref)[3:6], end.pose[3:6])
+            if turn > MAX_TURN_RAD:  # followed step by step, the platform turned over
+                why = (f"following the move, the platform ends turned by {turn:.2f} rad from "
+                       f"{whence} (it turns over: no rest position the robot reaches)")
+            if why:
+                self._hess_inv, self._hung = hess_inv, hung
+                raise PlantError(f"{lost}; {why}") from None
+            return end
 
     def _path(self, start: PlantState, l0: np.ndarray, guess: np.ndarray | None
               ) -> Callable[[float], np.ndarray]:
