@@ -280,52 +280,66 @@ class Plant:
         The search starts from the last rest position, or from the pose ``guess``
         (6,) when the platform moved far since (e.g. the pose the controller aimed at).
         When that search loses its way after a long move (it finds no rest position, or
-        one turned over: :data:`MAX_TURN_RAD`), the plant follows the move as the real
-        platform goes through it instead (:meth:`_follow`); a search that loses its way
-        on every step of :data:`MAX_HALVINGS` halvings raises :class:`PlantError`.
+        one turned over: :data:`MAX_TURN_RAD`), the plant follows the move through the
+        rest positions in between instead (:meth:`_follow_move`).
         """
-        start, hess_inv, hung = self.state, self._hess_inv, self._hung
+        hess_inv = self._hess_inv
         try:
-            return self._search(start, l0, guess)
+            return self._search(self.state, l0, guess)
         except _Lost as lost:
             self._hess_inv = hess_inv  # the failed search's preconditioner is of nowhere
-            path = self._path(start, np.asarray(l0, dtype=float), guess)
+            return self._follow_move(np.asarray(l0, dtype=float), guess, str(lost))
+
+    def _follow_move(self, l0: np.ndarray, guess: np.ndarray | None, lost: str
+                     ) -> PlantState:
+        """Rest for ``l0`` (n,) [m] reached from the last rest along each of :meth:`_paths`
+        in turn (:meth:`_follow`); raises :class:`PlantError` (saying ``lost``, why the
+        direct search failed) when every path loses its way, or when the rest reached is
+        turned by more than :data:`MAX_TURN_RAD` from ``guess`` (else from the last rest):
+        the platform turned over, no rest position the robot reaches."""
+        start, hess_inv, hung = self.state, self._hess_inv, self._hung
+        ref, whence = ((start.pose, "its last rest") if guess is None
+                       else (np.asarray(guess, dtype=float), "the pose aimed at"))
+        why = []
+        for name, path in self._paths(start, l0, guess):
             try:
                 end = self._follow(start, path, 0.0, 1.0, MAX_HALVINGS, first=False)
-                why = ""
             except _Lost as again:
-                why = f"following the move in up to {2 ** MAX_HALVINGS} steps: {again}"
-            ref, whence = (start.pose, "its last rest") if guess is None else (guess,
-                                                                                "the pose aimed at")
-            turn = 0.0 if why else _turn_angle(np.asarray(ref)[3:6], end.pose[3:6])
-            if turn > MAX_TURN_RAD:  # followed step by step, the platform turned over
-                why = (f"following the move, the platform ends turned by {turn:.2f} rad from "
-                       f"{whence} (it turns over: no rest position the robot reaches)")
-            if why:
+                why.append(f"{name} in up to {2 ** MAX_HALVINGS} steps: {again}")
                 self._hess_inv, self._hung = hess_inv, hung
-                raise PlantError(f"{lost}; {why}") from None
-            return end
+                continue
+            turn = _turn_angle(ref[3:6], end.pose[3:6])
+            if turn <= MAX_TURN_RAD:
+                return end
+            why.append(f"{name}, the platform ends turned by {turn:.2f} rad from {whence} "
+                       f"(it turns over: no rest position the robot reaches)")
+            self._hess_inv, self._hung = hess_inv, hung
+        raise PlantError(f"{lost}; following the move {'; '.join(why)}")
 
-    def _path(self, start: PlantState, l0: np.ndarray, guess: np.ndarray | None
-              ) -> Callable[[float], np.ndarray]:
-        """The unstretched lengths [m] along the move from the rest ``start`` to ``l0`` (n,),
-        as a function of the fraction ``f`` in [0, 1] (``start.unstretched`` at 0, ``l0`` at
-        1). Toward a ``guess`` (the pose aimed at), as the controller moves the platform:
-        along the straight line of poses from the start to the guess, the cables' lengths
-        there less their stretch, blended from the start's to the guess's (the truth's
-        geometry at the start's mast rotations); else the lengths blend linearly."""
+    def _paths(self, start: PlantState, l0: np.ndarray, guess: np.ndarray | None
+               ) -> list[tuple[str, Callable[[float], np.ndarray]]]:
+        """Paths of the unstretched lengths [m] from the rest ``start`` to ``l0`` (n,), each a
+        function of the fraction ``f`` in [0, 1] (``start.unstretched`` at 0, ``l0`` at 1):
+        the lengths blended linearly (as winches moving together pay out); with a ``guess``
+        (the pose aimed at) also as the controller moves the platform: along the straight
+        line of poses from the start's to the guess, the cables' lengths there less their
+        stretch, blended from the start's to the guess's (the truth's geometry at the
+        start's mast rotations)."""
+        u = start.unstretched
+        paths = [("with the lengths blended", lambda f: u + f * (l0 - u))]
         if guess is None:
-            return lambda f: start.unstretched + f * (l0 - start.unstretched)
+            return paths
         t, exits = self.truth, self._exits(start.theta)
         guess = np.asarray(guess, dtype=float)
 
         def length(pose: np.ndarray) -> np.ndarray:
             return cable_state(pose, t.anchors, exits, t.pulley_radius).length
 
-        s0 = length(start.pose) - start.unstretched
-        s1 = length(guess) - l0
-        return lambda f: (l0 if f >= 1.0 else
-                          length(start.pose + f * (guess - start.pose)) - s0 - f * (s1 - s0))
+        s0, s1 = length(start.pose) - u, length(guess) - l0
+        paths.append(("along the poses to the pose aimed at", lambda f: (
+            l0 if f >= 1.0 else length(start.pose + f * (guess - start.pose)) - s0
+            - f * (s1 - s0))))
+        return paths
 
     def _follow(self, start: PlantState, path: Callable[[float], np.ndarray], f0: float,
                 f1: float, halvings: int, first: bool = True) -> PlantState:
