@@ -167,7 +167,7 @@ def _stepped(plant: Plant, ctl: LengthController, end: np.ndarray, steps: int) -
 
 def test_a_long_move_in_one_step_lands_where_a_stepped_move_lands():
     """Across the frame in one step, no guess: the search from the last rest used to end on
-    a spurious stationary point turned by 0.52 rad (PlantError); the plant now follows the
+    a spurious stationary point turned by 2.6 rad (PlantError); the plant now follows the
     move and lands where 40 small steps along it land."""
     plant, ctl = _pulley_plant_at(CORNER_HIGH)
     one = plant.settle(ctl.step(CORNER_LOW).lengths).pose
