@@ -15,7 +15,10 @@ diagnosis's Newton solver: it minimises the potential energy
 the mast joint rotations by preconditioned descent and BFGS (Hessian by finite
 differences, never the analytic Jacobian), and checks each rest position by
 finite differences of the energy alone, so an error in the force model cannot
-pass unnoticed into the truth. Cables that the truth leaves inextensible get a
+pass unnoticed into the truth. A search that loses its way after a long move (no rest
+position, or one turned over) is not the answer: the plant then follows the move through
+the rest positions in between (a homotopy of the unstretched lengths, halved while a step
+still loses its way). Cables that the truth leaves inextensible get a
 very stiff stand-in (``RIGID_EA``) so that their tensions are defined.
 """
 
@@ -391,7 +394,7 @@ class Plant:
                                                        "hess_inv0": self._hess_inv})
             if np.linalg.norm(res.jac, np.inf) > accept:
                 raise _Lost(f"plant: no rest position found ({res.message}; energy "
-                                 f"gradient {np.linalg.norm(res.jac, np.inf):.3g})")
+                            f"gradient {np.linalg.norm(res.jac, np.inf):.3g})")
             y = res.x
         y = self._unwound(y, pose0)
         turn = _turn_angle(pose0[3:6], self._unpack(y, pose0)[0][3:6])
