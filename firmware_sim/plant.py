@@ -15,12 +15,16 @@ diagnosis's Newton solver: it minimises the potential energy
 the mast joint rotations by preconditioned descent and BFGS (Hessian by finite
 differences, never the analytic Jacobian), and checks each rest position by
 finite differences of the energy alone, so an error in the force model cannot
-pass unnoticed into the truth. Cables that the truth leaves inextensible get a
+pass unnoticed into the truth. A search that loses its way after a long move (no rest
+position, or one turned over) is not the answer: the plant then follows the move through
+the rest positions in between (a homotopy of the unstretched lengths, halved while a step
+still loses its way). Cables that the truth leaves inextensible get a
 very stiff stand-in (``RIGID_EA``) so that their tensions are defined.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +36,7 @@ from controller.energy import potential_energy
 from controller.equilibrium import energy_gradient
 from controller.kinematics import cable_state, wrench_matrix
 from controller.masts import deflect, lever_arms
-from controller.pose import euler_rate_matrix, rotation
+from controller.pose import euler_from_rotation, euler_rate_matrix, rotation
 from controller.robot import Robot
 from controller.statics import (
     init_statics,
@@ -50,6 +54,10 @@ RIGID_EA = 1.0e8
 
 class PlantError(RuntimeError):
     """The plant found no rest position (the message says why)."""
+
+
+class _Lost(PlantError):
+    """One rest search lost its way (no rest position, or a spurious one turned over)."""
 
 
 @dataclass(frozen=True)
@@ -274,8 +282,92 @@ class Plant:
 
         The search starts from the last rest position, or from the pose ``guess``
         (6,) when the platform moved far since (e.g. the pose the controller aimed at).
+        When that search loses its way after a long move (it finds no rest position, or
+        one turned over: :data:`MAX_TURN_RAD`), the plant follows the move through the
+        rest positions in between instead (:meth:`_follow_move`).
         """
-        start = self.state
+        hess_inv = self._hess_inv
+        try:
+            return self._search(self.state, l0, guess)
+        except _Lost as lost:
+            self._hess_inv = hess_inv  # the failed search's preconditioner is of nowhere
+            return self._follow_move(np.asarray(l0, dtype=float), guess, str(lost))
+
+    def _follow_move(self, l0: np.ndarray, guess: np.ndarray | None, lost: str
+                     ) -> PlantState:
+        """Rest for ``l0`` (n,) [m] reached from the last rest along each of :meth:`_paths`
+        in turn (:meth:`_follow`); raises :class:`PlantError` (saying ``lost``, why the
+        direct search failed) when every path loses its way, or when the rest reached is
+        turned by more than :data:`MAX_TURN_RAD` from ``guess`` (else from the last rest):
+        the platform turned over, no rest position the robot reaches."""
+        start, hess_inv, hung = self.state, self._hess_inv, self._hung
+        ref, whence = ((start.pose, "its last rest") if guess is None
+                       else (np.asarray(guess, dtype=float), "the pose aimed at"))
+        why = []
+        for name, path in self._paths(start, l0, guess):
+            try:
+                end = self._follow(start, path, 0.0, 1.0, MAX_HALVINGS, first=False)
+            except _Lost as again:
+                why.append(f"{name} in up to {2 ** MAX_HALVINGS} steps: {again}")
+                self._hess_inv, self._hung = hess_inv, hung
+                continue
+            turn = _turn_angle(ref[3:6], end.pose[3:6])
+            if turn <= MAX_TURN_RAD:
+                return end
+            why.append(f"{name}, the platform ends turned by {turn:.2f} rad from {whence} "
+                       f"(it turns over: no rest position the robot reaches)")
+            self._hess_inv, self._hung = hess_inv, hung
+        raise PlantError(f"{lost}; following the move {'; '.join(why)}")
+
+    def _paths(self, start: PlantState, l0: np.ndarray, guess: np.ndarray | None
+               ) -> list[tuple[str, Callable[[float], np.ndarray]]]:
+        """Paths of the unstretched lengths [m] from the rest ``start`` to ``l0`` (n,), each a
+        function of the fraction ``f`` in [0, 1] (``start.unstretched`` at 0, ``l0`` at 1):
+        the lengths blended linearly (as winches moving together pay out); with a ``guess``
+        (the pose aimed at) also as the controller moves the platform: along the straight
+        line of poses from the start's to the guess, the cables' lengths there less their
+        stretch, blended from the start's to the guess's (the truth's geometry at the
+        start's mast rotations)."""
+        u = start.unstretched
+        paths = [("with the lengths blended", lambda f: u + f * (l0 - u))]
+        if guess is None:
+            return paths
+        t, exits = self.truth, self._exits(start.theta)
+        guess = np.asarray(guess, dtype=float)
+
+        def length(pose: np.ndarray) -> np.ndarray:
+            return cable_state(pose, t.anchors, exits, t.pulley_radius).length
+
+        s0, s1 = length(start.pose) - u, length(guess) - l0
+        paths.append(("along the poses to the pose aimed at", lambda f: (
+            l0 if f >= 1.0 else length(start.pose + f * (guess - start.pose)) - s0
+            - f * (s1 - s0))))
+        return paths
+
+    def _follow(self, start: PlantState, path: Callable[[float], np.ndarray], f0: float,
+                f1: float, halvings: int, first: bool = True) -> PlantState:
+        """Rest position at ``path(f1)`` reached from the rest ``start`` (at ``path(f0)``) as
+        the platform goes (a homotopy): the search starts at ``start`` (with ``first``);
+        when it loses its way (or without ``first``), the rest at the midpoint of the
+        fractions is found first, each half split again down to ``halvings`` times (raises
+        :class:`_Lost` beyond)."""
+        if first:
+            hess_inv = self._hess_inv
+            try:
+                return self._search(start, path(f1), None)
+            except _Lost:
+                if halvings <= 0:
+                    raise
+                self._hess_inv = hess_inv
+        fm = 0.5 * (f0 + f1)
+        mid = self._follow(start, path, f0, fm, halvings - 1)
+        return self._follow(mid, path, fm, f1, halvings - 1)
+
+    def _search(self, start: PlantState, l0: np.ndarray, guess: np.ndarray | None
+                ) -> PlantState:
+        """One rest search from the rest ``start`` (its mast rotations) and the pose ``guess``
+        (or ``start``'s pose): raises :class:`_Lost` when it finds no rest position or one
+        turned over, :class:`PlantError` when the force model and the energy disagree."""
         pose0 = start.pose.copy() if guess is None else np.asarray(guess, dtype=float).copy()
         y0 = np.concatenate([np.zeros(6), start.theta.ravel()[self._free] * self._scale[6:]])
         e0 = potential_energy(self.truth, pose0, start.theta, l0, self._a_star, self._r,
@@ -301,14 +393,15 @@ class Plant:
                                method="BFGS", options={"gtol": gtol, "maxiter": 800,
                                                        "hess_inv0": self._hess_inv})
             if np.linalg.norm(res.jac, np.inf) > accept:
-                raise PlantError(f"plant: no rest position found ({res.message}; energy "
-                                 f"gradient {np.linalg.norm(res.jac, np.inf):.3g})")
+                raise _Lost(f"plant: no rest position found ({res.message}; energy "
+                            f"gradient {np.linalg.norm(res.jac, np.inf):.3g})")
             y = res.x
+        y = self._unwound(y, pose0)
         turn = _turn_angle(pose0[3:6], self._unpack(y, pose0)[0][3:6])
         if turn > MAX_TURN_RAD:
-            raise PlantError(f"plant: the rest position found is turned by {turn:.2f} rad from "
-                             f"where the search started (a spurious stationary point, not "
-                             f"where the platform goes)")
+            raise _Lost(f"plant: the rest position found is turned by {turn:.2f} rad from "
+                        f"where the search started (a spurious stationary point, not "
+                        f"where the platform goes)")
         self._rests += 1
         check = self.check_every <= 1 or self._rests % self.check_every == 1
         fd = self._fd_gradient(y, *args) if check else None
@@ -324,6 +417,20 @@ class Plant:
             self._hung = hung
         tau = hung.tension  # at the exit ends
         return PlantState(pose, tau, exits, theta, np.asarray(l0, float).copy())
+
+    def _unwound(self, y: np.ndarray, pose0: np.ndarray) -> np.ndarray:
+        """``y`` whose Euler angles went round (one changed by more than pi [rad] in a long
+        search) written as the same orientation's principal angles, wound by whole turns to
+        lie nearest ``pose0``'s; any other ``y`` as it is."""
+        x = y[3:6] / self._scale[3:6]
+        if np.abs(x).max() <= np.pi:
+            return y
+        rpy0 = pose0[3:6]
+        rpy = euler_from_rotation(rotation(rpy0 + x))
+        rpy = rpy + 2 * np.pi * np.round((rpy0 - rpy) / (2 * np.pi))
+        y = y.copy()
+        y[3:6] = (rpy - rpy0) * self._scale[3:6]
+        return y
 
     def _chord(self, y: np.ndarray, args: tuple, gtol: float,
                max_iter: int = 30) -> tuple[np.ndarray, bool]:
@@ -373,6 +480,10 @@ class Plant:
 #: a rest position turned this much [rad] from where its search started is spurious: the
 #: platform rests near its last position or the commanded pose
 MAX_TURN_RAD = 0.5
+
+#: a rest search that loses its way follows the move in halves, each halved again while its
+#: search loses its way, at most this many times (steps of 1/64 of the move)
+MAX_HALVINGS = 6
 
 
 def _turn_angle(rpy_a: np.ndarray, rpy_b: np.ndarray) -> float:

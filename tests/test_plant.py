@@ -12,6 +12,7 @@ import controller.equilibrium as equilibrium
 from controller.cycle import LengthController
 from controller.effects import apply_effects
 from controller.equilibrium import solve_equilibrium
+from controller.pose import rotation
 from controller.statics import pose_statics
 from firmware_sim import plant as plant_mod
 from firmware_sim.plant import Nuisances, Plant, PlantError
@@ -136,3 +137,90 @@ def test_sagging_cables_start_from_the_last_rest_and_land_where_a_cold_start_doe
         b = cold.settle(lengths)
         np.testing.assert_allclose(a.pose, b.pose, atol=1e-9)
         np.testing.assert_allclose(a.tensions, b.tensions, rtol=1e-8, atol=1e-6)
+
+
+#: pulley radii [m] of a generated pulley case (bench/design_eval.py, seed 9300) whose designed
+#: campaign jumped across the frame between poses
+R_9300 = {"r_11": 0.073, "r_12": 0.047, "r_21": 0.081, "r_22": 0.057, "r_31": 0.08,
+          "r_32": 0.093, "r_41": 0.048, "r_42": 0.054}
+CORNER_HIGH = np.array([19.944, 16.381, 2.113, 0.015, -0.04, -0.037])
+CORNER_LOW = np.array([1.787, 0.754, 0.509, -0.016, -0.01, -0.003])
+
+
+def _pulley_plant_at(pose: np.ndarray) -> tuple[Plant, LengthController]:
+    model = rocaspect()
+    plant = Plant(model, apply_effects(model, {"pulley_kinematics": R_9300}), P0)
+    ctl = LengthController(model, P0)
+    plant.settle(ctl.step(P0).lengths, guess=P0)
+    plant.settle(ctl.step(pose).lengths, guess=pose)
+    return plant, ctl
+
+
+def _stepped(plant: Plant, ctl: LengthController, end: np.ndarray, steps: int) -> np.ndarray:
+    """Rest pose after moving to ``end`` along the straight line in ``steps`` small settles."""
+    start = plant.state.pose.copy()
+    for k in range(1, steps + 1):
+        p = start + k / steps * (end - start)
+        s = plant.settle(ctl.step(p).lengths)
+    return s.pose
+
+
+def test_a_long_move_in_one_step_lands_where_a_stepped_move_lands():
+    """Across the frame in one step, no guess: the search from the last rest used to end on
+    a spurious stationary point turned by 2.6 rad (PlantError); the plant now follows the
+    move and lands where 40 small steps along it land."""
+    plant, ctl = _pulley_plant_at(CORNER_HIGH)
+    one = plant.settle(ctl.step(CORNER_LOW).lengths).pose
+    plant, ctl = _pulley_plant_at(CORNER_HIGH)
+    np.testing.assert_allclose(one, _stepped(plant, ctl, CORNER_LOW, 40), atol=1e-7)
+    assert np.abs(one[3:] - CORNER_LOW[3:]).max() < 0.05  # not turned over
+
+
+def test_a_lost_search_toward_a_guess_follows_the_path_of_poses(monkeypatch):
+    """When the search from the pose aimed at loses its way (made so here), the plant follows
+    the straight line of poses to it and lands where the direct search lands."""
+    plant, ctl = _pulley_plant_at(CORNER_HIGH)
+    direct = plant.settle(ctl.step(CORNER_LOW).lengths, guess=CORNER_LOW).pose
+    plant, ctl = _pulley_plant_at(CORNER_HIGH)
+    real = plant._search
+    guesses = []
+
+    def lost_once(start, l0, guess):
+        guesses.append(guess)
+        if len(guesses) == 1:
+            raise plant_mod._Lost("plant: lost (test)")
+        return real(start, l0, guess)
+
+    monkeypatch.setattr(plant, "_search", lost_once)
+    followed = plant.settle(ctl.step(CORNER_LOW).lengths, guess=CORNER_LOW).pose
+    assert len(guesses) > 2 and all(g is None for g in guesses[1:])  # followed in steps
+    np.testing.assert_allclose(followed, direct, atol=1e-7)
+
+
+def test_a_move_that_turns_the_platform_over_is_still_refused():
+    """One cable shortened by 3 m in one step: followed step by step the platform rolls over
+    (by more than MAX_TURN_RAD from its last rest), which is no rest position the robot
+    reaches: PlantError, and the plant's state is left as it was."""
+    plant, ctl = _pulley_plant_at(P0)
+    before = plant.state
+    lengths = ctl.step(P0).lengths + np.array([-3.0, 0, 0, 0, 0, 0, 0, 0])
+    with pytest.raises(PlantError, match="turns over"):
+        plant.settle(lengths)
+    assert plant.state is before
+    np.testing.assert_allclose(plant.settle(ctl.step(P0).lengths).pose, P0, atol=1e-4)
+
+
+def test_a_search_that_went_round_returns_the_angles_nearest_its_start():
+    """A long search may wind an Euler angle by whole turns: the rest pose carries the same
+    orientation's angles nearest where the search started (never hundreds of radians)."""
+    plant, _ = _pulley_plant_at(P0)
+    y = np.zeros(6 + int(plant._free.sum()))
+    y[3:6] = np.array([-527.78, 270.16, -175.95]) * plant._scale[3:6]
+    pose0 = np.array([0, 0, 0, 0.02, -0.01, 0.03])
+    got = plant._unpack(plant._unwound(y, pose0), pose0)[0][3:6]
+    assert np.abs(got - pose0[3:6]).max() <= np.pi
+    np.testing.assert_allclose(rotation(got), rotation(pose0[3:6] + y[3:6] / plant._scale[3:6]),
+                               atol=1e-12)  # the same orientation
+    small = y.copy()
+    small[3:6] = np.array([0.1, -0.2, 0.3]) * plant._scale[3:6]
+    assert plant._unwound(small, pose0) is small  # a search that stayed near: untouched
