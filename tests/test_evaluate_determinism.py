@@ -23,7 +23,7 @@ CASE = (5, SMALL_KW | {"effects": ["drum_scale"]})
 #: the case run before it in this process (about 3.5 s)
 BEFORE = (7, SMALL_KW | {"effects": ["cable_sag"]})
 #: what legitimately differs between two runs of one case
-TIMES = ("seconds", "case_seconds", "cpu_seconds")
+TIMES = ("seconds", "case_seconds", "cpu_seconds", "record_seconds", "record_cpu_seconds")
 
 ALONE = """
 import json, sys
