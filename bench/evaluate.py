@@ -786,8 +786,10 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
     with tempfile.TemporaryDirectory(dir=workdir) as d:
         rec = Path(d) / "rec"
         strength: dict[str, float] = {}
+        t_rec, c_rec, recordings = time.perf_counter(), time.process_time(), 0
         for stronger in range(4):
             sc = scenario_of(case)
+            recordings += 1
             try:
                 record(case, rec)
             except ValueError as e:  # a pose the model cannot reach
@@ -803,10 +805,13 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
                     del case["truth"][e]
             if stronger == 3:
                 sc = scenario_of(case)
+                recordings += 1
                 record(case, rec)
                 strength = oracle(rec, sc, "logger" in case["case"]) if sc.effects else {}
         t0 = time.perf_counter()
         c0 = time.process_time()
+        made = {"recordings": recordings, "record_seconds": t0 - t_rec,
+                "record_cpu_seconds": c0 - c_rec}
         equilibrium.STATS.reset()
         dg = diagnose(rec)
         seconds = time.perf_counter() - t0
@@ -827,7 +832,11 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
         # what it takes on an idle core, whatever else the machine runs
         "cpu_seconds": cpu,
         "unexplained_summary": (dg.report["unexplained"] or {}).get("summary"),
-    }
+        # every named effect's parameters (:func:`compare`), and what making the case cost
+        # (the plant's statics, recorded again for each strengthening of a weak effect):
+        # ``seconds`` and ``cpu_seconds`` are the diagnosis's alone
+        "named_params": {e["name"]: dict(e["params"]) for e in dg.report["effects"]},
+    } | made
     return s.as_dict()
 
 
@@ -1076,14 +1085,19 @@ def _zstats(z: np.ndarray) -> dict:
 
 def _times(scores: list[dict]) -> dict:
     """Wall-clock seconds of the diagnoses (with whatever else ran on the machine), and their
-    processor seconds (what one idle core takes)."""
+    processor seconds (what one idle core takes); processor seconds of making the cases
+    (the plant's statics: a campaign with sagging cables takes minutes)."""
     t = [s["seconds"] for s in scores]
     c = [s["info"]["cpu_seconds"] for s in scores if "cpu_seconds" in s.get("info", {})]
+    r = [s["info"]["record_cpu_seconds"] for s in scores
+         if "record_cpu_seconds" in s.get("info", {})]
     return {"median_case_s": float(np.median(t)) if t else None,
             "max_case_s": float(np.max(t)) if t else None,
             "median_case_cpu_s": float(np.median(c)) if c else None,
             "max_case_cpu_s": float(np.max(c)) if c else None,
-            "cases_over_60_cpu_s": int(sum(v > 60.0 for v in c))}
+            "cases_over_60_cpu_s": int(sum(v > 60.0 for v in c)),
+            "median_record_cpu_s": float(np.median(r)) if r else None,
+            "max_record_cpu_s": float(np.max(r)) if r else None}
 
 
 def _by_effect(scores: list[dict]) -> dict:
@@ -1108,3 +1122,86 @@ def _equilibrium(scores: list[dict]) -> dict:
         for k in r:
             r[k] += int(eq.get(k, 0))
     return out
+
+
+# ----- comparing two evaluations ------------------------------------------------------------
+
+#: a parameter value moved when it changed by more than this many standard errors (or, with
+#: none known, by more than :data:`PARAM_RTOL` of its size)
+PARAM_SE = 0.5
+PARAM_RTOL = 1e-3
+
+
+def answer(rec: dict) -> dict:
+    """What a case's diagnosis answered (one record of ``cdpr evaluate --out``): the effects it
+    named, whether it declared an unexplained residual, whether that is the exact answer,
+    the parameter values it reported (``{effect.key: (value, stderr)}``; those the record
+    holds: the scored ones, and every named effect's with ``info.named_params``), or the
+    error the case raised."""
+    if "error" in rec:
+        return {"error": str(rec["error"]).splitlines()[0]}
+    params: dict[str, tuple[float, float | None]] = {}
+    for e, p in (rec.get("info", {}).get("named_params") or {}).items():
+        for k, v in p.items():
+            params[f"{e}.{k}"] = (float(v), None)
+    for iv in rec.get("intervals", []):
+        params[f"{iv['effect']}.{iv['key']}"] = (float(iv["value"]), iv.get("stderr"))
+    return {"named": sorted(rec.get("named", [])), "unexplained": bool(rec.get("unexplained")),
+            "exact": bool(rec.get("exact")), "params": params}
+
+
+def _moved(a: tuple[float, float | None], b: tuple[float, float | None]) -> bool:
+    se = max((s for s in (a[1], b[1]) if s is not None and math.isfinite(s)), default=None)
+    tol = PARAM_SE * se if se else PARAM_RTOL * max(abs(a[0]), abs(b[0]), 1e-12)
+    return abs(a[0] - b[0]) > tol
+
+
+def differences(a: dict, b: dict) -> list[str]:
+    """How the answers ``a`` and ``b`` (:func:`answer`) of one case differ, in words (empty:
+    the same answer: same effects, same unexplained, parameters within :data:`PARAM_SE`
+    standard errors)."""
+    if "error" in a or "error" in b:
+        return [] if a == b else ["error"]
+    out = []
+    gone, new = sorted(set(a["named"]) - set(b["named"])), sorted(set(b["named"])
+                                                                   - set(a["named"]))
+    if gone or new:
+        out.append("named " + " ".join([f"-{e}" for e in gone] + [f"+{e}" for e in new]))
+    if a["unexplained"] != b["unexplained"]:
+        out.append("unexplained " + ("declared" if b["unexplained"] else "gone"))
+    if a["exact"] != b["exact"]:
+        out.append("exact" if b["exact"] else "no longer exact")
+    moved = [k for k in sorted(set(a["params"]) & set(b["params"]))
+             if _moved(a["params"][k], b["params"][k])]
+    if moved:
+        out.append("moved " + ", ".join(f"{k} {a['params'][k][0]:.6g} -> {b['params'][k][0]:.6g}"
+                                        for k in moved))
+    return out
+
+
+def compare(a: dict[int, dict], b: dict[int, dict]) -> dict:
+    """Two evaluations' records by seed (``a`` before, ``b`` after): the seeds both hold, how
+    many answered the same, each case that differs (its answers and :func:`differences`),
+    the seeds only one holds, and the exact detections of each on the common seeds."""
+    common = sorted(set(a) & set(b))
+    differ = []
+    for s in common:
+        x, y = answer(a[s]), answer(b[s])
+        what = differences(x, y)
+        if what:
+            info = a[s].get("info", {})
+            differ.append({"seed": s, "case": {k: info[k] for k in ("robot", "kind", "sensors",
+                                                                   "oov") if k in info},
+                           "truth": a[s].get("truth", b[s].get("truth")),
+                           "a": _plain_answer(x), "b": _plain_answer(y), "differences": what})
+    exact = {k: sum(bool(r[s].get("exact")) for s in common) for k, r in (("a", a), ("b", b))}
+    return {"common": len(common), "same": len(common) - len(differ), "differ": differ,
+            "only_a": sorted(set(a) - set(b)), "only_b": sorted(set(b) - set(a)),
+            "exact": exact}
+
+
+def _plain_answer(x: dict) -> dict:
+    if "error" in x:
+        return x
+    return {k: v for k, v in x.items() if k != "params"} | {
+        "params": {k: v[0] for k, v in x["params"].items()}}

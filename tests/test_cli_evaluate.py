@@ -56,7 +56,8 @@ def without_seconds(case: dict) -> dict:
     out = {k: v for k, v in case.items() if k not in ("seconds", "pid")}
     if "info" in out:
         out["info"] = {k: v for k, v in out["info"].items()
-                       if k not in ("case_seconds", "cpu_seconds")}
+                       if k not in ("case_seconds", "cpu_seconds", "record_seconds",
+                                    "record_cpu_seconds")}
     return out
 
 
@@ -123,7 +124,7 @@ def test_human_report(capsys):
     assert rc == 0
     text = cap.out
     for words in ("2 cases (seeds 5..6)", "exact detection", "false positives", "95 % CI",
-                  "parameters in tol.", "z-scores", "seconds per case", "concealed \\ named"):
+                  "parameters in tol.", "z-scores", "diagnosis seconds", "concealed \\ named"):
         assert words in text, words
     # one row of the detection matrix per effect the two cases conceal
     rows = {e for seed in (5, 6) for e in evaluate.make_case(seed, **ONE_KW)["truth"]} \

@@ -14,6 +14,10 @@ A case that raises is recorded as an error (seed and message) and counted; the o
 go on. A case that kills its worker process is an error too (``BrokenProcessPool``); the
 cases that ran beside it run again (see :mod:`bench.parallel`).
 
+``--compare A B`` runs nothing: it reads two evaluations (``--out`` files or ``--json``
+outputs, A before a change and B after) and lists the cases whose answers differ
+(:func:`bench.evaluate.compare`); exit status 1 when some differ, 0 when none.
+
 Exit status: 0 all cases scored, 1 some case raised, 2 bad arguments or FILE, or the
 scheduler cannot be reached, 130 interrupted (Ctrl-C), 143 terminated (SIGTERM): under
 ``--json`` the object then holds ``"error"`` and the cases finished so far (``summary`` with
@@ -41,7 +45,12 @@ OUT_FORMAT = "cdpr-evaluation/1"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--cases", type=int, required=True, metavar="N", help="number of cases")
+    p.add_argument("--cases", type=int, metavar="N", help="number of cases")
+    p.add_argument("--compare", nargs=2, metavar=("A", "B"),
+                   help="run nothing: compare two evaluations (--out files or --json "
+                        "outputs), A before and B after a change: the cases whose answers "
+                        "differ (effects named, unexplained declared, exact, parameters moved "
+                        "by more than half a standard error); exit 1 when some differ")
     p.add_argument("--seed", type=nonnegative_int, default=0, metavar="S",
                    help="seed of the first case; case k has seed S + k [0]")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
@@ -308,11 +317,14 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
                                           f"{s['z_scores_all_cases']['robust_std']:.2f})"),
              "  held-out / noise     " + ("n/a" if s["heldout_over_noise_median"] is None
                                           else f"{s['heldout_over_noise_median']:.2f} (median)"),
-             "  seconds per case     " + ("n/a" if med is None else
+             "  diagnosis seconds    " + ("n/a" if med is None else
                                           f"{med:.1f} (median), {s['max_case_s']:.1f} (max)")
              + ("" if s.get("median_case_cpu_s") is None else
                 f"; processor seconds {s['median_case_cpu_s']:.1f} (median), "
-                f"{s['max_case_cpu_s']:.1f} (max), {s['cases_over_60_cpu_s']} over 60"),
+                f"{s['max_case_cpu_s']:.1f} (max), {s['cases_over_60_cpu_s']} over 60")
+             + ("" if s.get("median_record_cpu_s") is None else
+                f"; making the cases {s['median_record_cpu_s']:.1f} (median), "
+                f"{s['max_record_cpu_s']:.1f} (max) processor seconds"),
              "  by robot:"]
     lines += [_rate_line(k, v) for k, v in s["by_robot"].items()]
     lines.append("  by recording kind:")
@@ -339,6 +351,68 @@ def human(summary: dict, errors: list[dict], seeds: range) -> str:
     for e in errors:
         lines.append(f"  error: seed {e['seed']}: {e['error']}")
     return "\n".join(lines)
+
+
+# ----- compare ------------------------------------------------------------------------------
+
+def load_records(path: Path) -> dict[int, dict]:
+    """The case records by seed of an evaluation: an ``--out`` file (JSON lines) or the
+    ``--json`` output (one object with ``cases`` and ``errors``)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise UsageError(f"{path}: cannot read: {e.strerror or e}") from e
+    try:
+        whole = json.loads(text)
+    except json.JSONDecodeError:
+        whole = None
+    if isinstance(whole, dict) and "format" not in whole:
+        if not isinstance(whole.get("cases"), list):
+            raise UsageError(f"{path}: a JSON object without 'cases': not the output of "
+                             f"cdpr evaluate --json")
+        return {int(r["seed"]): r for r in [*whole["cases"], *whole.get("errors", [])]}
+    header, records = read_results(path)
+    if header is None:
+        raise UsageError(f"{path}: no {OUT_FORMAT} header line and no --json output: not "
+                         f"written by cdpr evaluate")
+    return records
+
+
+def compare_lines(cmp: dict, a: str, b: str) -> str:
+    """The comparison in words: counts, then one block per case whose answer differs."""
+    lines = [f"compared {cmp['common']} cases (A {a}, B {b}): {cmp['same']} same answers, "
+             f"{len(cmp['differ'])} differ; exact A {cmp['exact']['a']}, B {cmp['exact']['b']}"]
+    for k in ("only_a", "only_b"):
+        if cmp[k]:
+            lines.append(f"  seeds only in {k[-1].upper()}: {len(cmp[k])} "
+                         f"({cmp[k][0]}..{cmp[k][-1]})")
+    for d in cmp["differ"]:
+        case = " ".join(str(v) for v in d["case"].values())
+        lines.append(f"  seed {d['seed']} ({case}; concealed "
+                     f"{','.join(d['truth'] or []) or 'none'}): {'; '.join(d['differences'])}")
+        for k in ("a", "b"):
+            x = d[k]
+            said = x["error"] if "error" in x else (
+                f"named {','.join(x['named']) or 'none'}"
+                + (", unexplained" if x["unexplained"] else "")
+                + (", exact" if x["exact"] else ""))
+            lines.append(f"    {k.upper()}: {said}")
+    return "\n".join(lines)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from bench.evaluate import compare
+
+    try:
+        a, b = (load_records(Path(p)) for p in args.compare)
+    except UsageError as e:
+        return _fail(args, 2, f"--compare: {e}")
+    cmp = compare(a, b)
+    if args.json:
+        print(_dumps(cmp | {"a": args.compare[0], "b": args.compare[1]}))
+    else:
+        print(compare_lines(cmp, *args.compare))
+    return 1 if cmp["differ"] else 0
 
 
 # ----- run --------------------------------------------------------------------------------
@@ -370,6 +444,10 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
     from bench.progress import Progress
 
     single_blas_thread()
+    if args.compare is not None:
+        return _compare(args)
+    if args.cases is None:
+        return _fail(args, 2, "--cases N is required (or --compare A B)")
     if args.cases < 1:
         return _fail(args, 2, f"--cases {args.cases}: must be >= 1")
     if args.jobs < 1:
