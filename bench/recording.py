@@ -79,15 +79,15 @@ class Recording:
 
     @property
     def init_tensions(self) -> np.ndarray | None:
-        """Measured tensions at initialisation (mean of the init rows), or None."""
+        """Measured tensions at initialisation [N] (n,): each cable's mean over the init rows
+        that hold a reading of it (a logger's load cells sample only some rows), or None
+        when some cable has no reading there."""
         if not len(self.init_rows) or not self.has("tau"):
             return None
         tau = self.tau[self.init_rows]
-        if not np.isfinite(tau).all(axis=0).any():
+        if not np.isfinite(tau).any(axis=0).all():
             return None
-        with np.errstate(all="ignore"):
-            out = np.nanmean(tau, axis=0)
-        return out if np.all(np.isfinite(out)) else None
+        return np.nanmean(tau, axis=0)
 
 
     def table_rows(self) -> np.ndarray:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from bench.cli import main
 from bench.commands.evaluate import OUT_FORMAT
 from bench.evaluate import compare
@@ -79,5 +81,7 @@ def test_compare_refuses_what_cdpr_evaluate_did_not_write(tmp_path, capsys):
     assert f"{other}: a JSON object without 'cases'" in capsys.readouterr().err
     assert main(["evaluate", "--compare", str(tmp_path / "none.jsonl"), str(other)]) == 2
     assert "cannot read" in capsys.readouterr().err
-    assert main(["evaluate"]) == 2
-    assert "--cases N is required" in capsys.readouterr().err
+    for argv in (["evaluate"], ["evaluate", "--cases", "1", "--compare", "a", "b"]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2 and "--cases" in capsys.readouterr().err

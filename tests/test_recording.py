@@ -169,3 +169,21 @@ def test_streaming_writer_is_readable_while_it_runs(tmp_path):
     with RecordingWriter(tmp_path / "s", robot, [10, 8.56, 1, 0, 0, 0], cols) as w2:
         with pytest.raises(ValueError, match="3 columns"):
             w2.append([1.0])
+
+
+def test_init_tensions_average_each_cable_over_the_init_rows_that_read_it(tmp_path):
+    """A logger's load cells sample only some rows: each cable's mean over its own readings;
+    None when a cable was not read during the initialisation."""
+    robot = resolve_robot("rocaspect")
+    nan = np.nan
+    cols = {"t": np.arange(6.0), "x_des": np.array([10.0] * 4 + [11.0] * 2)}
+    for k, c in enumerate(robot.cable_ids):
+        cols[f"tau_{c}"] = np.array([nan, 100.0 + k, nan, 102.0 + k, nan, 500.0])
+    states = ["init"] * 4 + ["dwell"] * 2
+    rec = read_recording(write_recording(tmp_path / "r", robot, [10.0, 8.0, 1.0, 0, 0, 0],
+                                         cols, states=states))
+    np.testing.assert_allclose(rec.init_tensions, 101.0 + np.arange(robot.n_cables))
+    cols[f"tau_{robot.cable_ids[3]}"][:4] = nan  # one cable never read at initialisation
+    rec = read_recording(write_recording(tmp_path / "s", robot, [10.0, 8.0, 1.0, 0, 0, 0],
+                                         cols, states=states))
+    assert rec.init_tensions is None

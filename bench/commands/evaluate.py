@@ -45,8 +45,9 @@ OUT_FORMAT = "cdpr-evaluation/1"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--cases", type=int, metavar="N", help="number of cases")
-    p.add_argument("--compare", nargs=2, metavar=("A", "B"),
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--cases", type=int, metavar="N", help="number of cases")
+    what.add_argument("--compare", nargs=2, metavar=("A", "B"),
                    help="run nothing: compare two evaluations (--out files or --json "
                         "outputs), A before and B after a change: the cases whose answers "
                         "differ (effects named, unexplained declared, exact, parameters moved "
@@ -446,8 +447,6 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
     single_blas_thread()
     if args.compare is not None:
         return _compare(args)
-    if args.cases is None:
-        return _fail(args, 2, "--cases N is required (or --compare A B)")
     if args.cases < 1:
         return _fail(args, 2, f"--cases {args.cases}: must be >= 1")
     if args.jobs < 1:
