@@ -38,6 +38,9 @@ MEASURED = ("encoders", "load_cells", "tracker")
 GAP_PERIODS = 3.0
 #: a stream is slower than the rows when its median period exceeds the rows' by this factor
 SLOWER = 1.5
+#: column groups that are one measurement per row (the tracker's pose fix): interpolated
+#: whole or refused whole, never some axes of a fix without the others
+WHOLE_GROUPS = frozenset({"pose_meas"})
 #: an interpolated value is kept only while its estimated error stays below the stream's
 #: noise or this floor (lengths and positions [m], tensions [N], angles [rad])
 INTERP_FLOOR = {"l_meas": 5e-6, "tau": 0.2, "pose_meas": 5e-6, "exit_meas": 5e-6,
@@ -344,6 +347,8 @@ def _align_group(rec, g: str, stream: Stream, ref: np.ndarray, al: Alignment) ->
                             (GAP_PERIODS - 0.5) * stream.period_s)
         limit = np.maximum(_noise(flat[src]), INTERP_FLOOR[g])
         bad = ~(err <= limit)  # NaN errors (no neighbours) refused as well
+        if g in WHOLE_GROUPS:  # one fix: all its axes or none
+            bad[:] = bad.any(axis=1, keepdims=True)
         vals[bad] = np.nan
         taken = np.isfinite(vals).any(axis=1)
         out[need] = vals

@@ -119,3 +119,17 @@ def test_rows_of_moves_without_replicates_take_the_dwells_visit_to_visit_error(t
     visit = rm.sigma_k[0]["length"]
     assert rm.sigma_source == "replicate visits" and 0 < visit < 2e-4
     assert rm.sigma_k[1]["length"] == pytest.approx(visit)
+
+
+def test_a_dwell_without_a_whole_pose_fix_is_no_replicate_of_anything():
+    """Without commanded poses, dwells group by measured pose; a dwell whose pose is missing
+    (nan: no tracker fix) or partial is its own group, never the replicate of every other."""
+    from bench.diagnosis.samples import _targets
+
+    nan = np.nan
+    meas = np.array([[1.0, 2.0, 3.0, 0, 0, 0], [nan] * 6, [1.001, 2.0, 3.0, 0, 0, 0],
+                     [5.0, 2.0, 3.0, 0, 0, 0], [nan, nan, 3.0, nan, nan, nan],
+                     [5.0, 2.0, 3.001, 0, 0, 0], [9.0, 9.0, 3.0, 0, 0, 0]])
+    ids = _targets(np.full((7, 6), nan), meas)
+    assert ids[0] == ids[2] and ids[3] == ids[5]
+    assert len({ids[0], ids[1], ids[3], ids[4], ids[6]}) == 5

@@ -154,6 +154,21 @@ def test_interpolation_refused_where_the_motion_does_not_allow_it():
     assert err[1, 0] > 1e-3
 
 
+def test_a_tracker_fix_is_interpolated_whole_or_refused_whole(tmp_path, small):
+    """The load cells set the instants, the tracker's fixes are interpolated to them; where
+    one axis moves too fast to interpolate, the whole pose is refused: never a pose with x
+    and y missing and z kept (that row would be compared with a platform at x = y = 0)."""
+    rec = read_recording(_log(tmp_path, small, "whole", rows_hz=200.0, encoders_hz=200.0,
+                              load_cells_hz=25.0, tracker_hz=50.0))
+    rows = streams.describe(rec)["tracker"].rows
+    rec.pose_meas[rows[len(rows) // 2], 0] += 0.05  # one x reading off: x not interpolable
+    out, al = streams.align(rec)
+    assert al.reference == "load_cells"
+    seen = np.isfinite(out.pose_meas)
+    assert seen.any() and al.refused["tracker"] > 0
+    assert np.all(seen.all(axis=1) | ~seen.any(axis=1))
+
+
 @pytest.mark.parametrize("rate", [50.0, 100.0, 250.0])
 def test_quasi_static_rows_from_measured_poses_resist_tracker_noise(rate):
     # a platform moving at a steady 0.25 m/s, measured with 0.05 mm / 0.05 mrad noise:

@@ -738,6 +738,10 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
     have_des = np.isfinite(pose_des[:, cols]).all(axis=1) & cols.any()
     pose_des = np.where(cols, pose_des, 0.0)
     key = np.where(have_des[:, None], np.round(pose_des / 1e-4), np.nan)
+    # a measured pose groups only when whole (every axis the recording measures): a row
+    # between a slow tracker's fixes is nan there, and nan is near nothing
+    meas_cols = np.isfinite(pose_meas).any(axis=0)
+    whole = np.isfinite(pose_meas[:, meas_cols]).all(axis=1) & meas_cols[:3].all()
     ids = np.full(N, -1)
     reps: list[tuple[np.ndarray, bool]] = []
     lookup: dict[bytes, int] = {}
@@ -749,8 +753,8 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
                 continue
         else:
             for j, (rep, is_des) in enumerate(reps):
-                if (not is_des and np.isfinite(pose_meas[i, :3]).all()
-                        and np.all(np.nan_to_num(np.abs(pose_meas[i] - rep)) < 5e-3)):
+                if (not is_des and whole[i] and np.isfinite(rep[meas_cols]).all()
+                        and np.all(np.abs(pose_meas[i] - rep)[meas_cols] < 5e-3)):
                     ids[i] = j
                     break
         if ids[i] < 0:
