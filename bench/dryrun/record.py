@@ -127,21 +127,47 @@ def _in_child(child, path: str | Path | None, robot: Robot, init_pose: np.ndarra
     return rec if csv_rec is None else TeeRecorder(csv_rec, rec)
 
 
-class DryRunRecorder:
-    """Rows and events of a run into ``path`` (created; must be empty or absent)."""
+class CsvRecording:
+    """A ``cdpr-recording/1`` directory ``path`` written while a run goes (created; must be
+    empty or absent): the rows' :class:`~bench.recording.RecordingWriter` and ``events.csv``
+    (:data:`EVENT_COLUMNS`)."""
 
-    def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
-                 robot_header: str = "", flush_s: float = 1.0) -> None:
+    def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray,
+                 cols: list[str], meta: dict, states: bool, flush_s: float = 1.0,
+                 robot_header: str = "") -> None:
         self.path = Path(path)
-        self.n = robot.n_cables
-        self.writer = RecordingWriter(self.path, robot, init_pose, columns(robot), meta,
-                                      robot_header, states=True, flush_s=flush_s)
+        self.writer = RecordingWriter(self.path, robot, init_pose, cols, meta, robot_header,
+                                      states=states, flush_s=flush_s)
         self.events = CsvStream(self.path / "events.csv", EVENT_COLUMNS, flush_s)
-        self._row = np.empty(len(self.writer.columns))
 
     @property
     def rows(self) -> int:
         return self.writer.rows
+
+    def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
+              reaction: str, active: bool, text: str) -> None:
+        self.events.append(event_cells(t, device, address, cable, kind, code, reaction, active,
+                                       text))
+
+    def update_meta(self, **fields) -> None:
+        self.writer.update_meta(**fields)
+
+    def close(self) -> None:
+        try:
+            self.writer.close()
+        finally:
+            self.events.close()
+
+
+class DryRunRecorder(CsvRecording):
+    """Rows and events of a run into ``path`` (created; must be empty or absent)."""
+
+    def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray, meta: dict,
+                 robot_header: str = "", flush_s: float = 1.0) -> None:
+        super().__init__(path, robot, init_pose, columns(robot), meta, True, flush_s,
+                         robot_header)
+        self.n = robot.n_cables
+        self._row = np.empty(len(self.writer.columns))
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
@@ -163,17 +189,3 @@ class DryRunRecorder:
         r[16 + 4 * n] = pose_err
         r[17 + 4 * n:17 + 5 * n] = np.nan if drive_states is None else drive_states
         self.writer.append(r, state)
-
-    def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
-              reaction: str, active: bool, text: str) -> None:
-        self.events.append(event_cells(t, device, address, cable, kind, code, reaction, active,
-                                       text))
-
-    def update_meta(self, **fields) -> None:
-        self.writer.update_meta(**fields)
-
-    def close(self) -> None:
-        try:
-            self.writer.close()
-        finally:
-            self.events.close()

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.dryrun.record import DryRunRecorder, columns
+from bench.dryrun.record import CsvRecording, DryRunRecorder, columns
 from bench.mcap.can_tap import CanTap
 from bench.mcap.channels import MCAP_NAME
 from bench.mcap.writer import McapRecordingWriter
@@ -158,42 +158,16 @@ class TeeRecorder:
             raise errors[0]
 
 
-class CsvWriter:
-    """A ``cdpr-recording/1`` directory written while a run goes, with its ``events.csv``:
-    :class:`bench.recording.RecordingWriter` and the events the dry run's recorder writes
-    (the CSV format keeps no CAN frames: ``--candump``)."""
+class CsvWriter(CsvRecording):
+    """A ``cdpr-recording/1`` directory written while a run goes, with its ``events.csv``,
+    rows given whole (the CSV format keeps no CAN frames: ``--candump``)."""
 
     def __init__(self, path: str | Path, robot: Robot, init_pose: np.ndarray,
                  columns: list[str], meta: dict, states: bool, flush_s: float = 1.0) -> None:
-        from bench.dryrun.record import EVENT_COLUMNS
-        from bench.recording import CsvStream, RecordingWriter
-
-        self.writer = RecordingWriter(path, robot, init_pose, columns, meta, states=states,
-                                      flush_s=flush_s)
-        self.events = CsvStream(Path(path) / "events.csv", EVENT_COLUMNS, flush_s)
-
-    @property
-    def rows(self) -> int:
-        return self.writer.rows
+        super().__init__(path, robot, init_pose, columns, meta, states, flush_s)
 
     def append(self, values, state: str | None = None) -> None:
         self.writer.append(values, state)
-
-    def event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
-              reaction: str, active: bool, text: str) -> None:
-        from bench.dryrun.record import event_cells
-
-        self.events.append(event_cells(t, device, address, cable, kind, code, reaction,
-                                       active, text))
-
-    def update_meta(self, **fields) -> None:
-        self.writer.update_meta(**fields)
-
-    def close(self) -> None:
-        try:
-            self.writer.close()
-        finally:
-            self.events.close()
 
 
 def open_writer(path: str | Path | None, robot: Robot, init_pose: np.ndarray,
