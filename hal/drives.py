@@ -135,6 +135,7 @@ from hal.drives_config import (
     sdo_read,
     verify_identity,
 )
+from hal.rt_threads import raise_thread
 
 #: SDO answer timeout of the HAL's nodes [s] (start-up, recovery, fault-code reads)
 SDO_TIMEOUT_S = 1.0
@@ -152,6 +153,8 @@ CODE_BUS = 0x8100  # communication, generic: the bus refused our frames
 
 NMT_NAMES = {0x00: "BOOT-UP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 NMT_OPERATIONAL = 0x05
+#: NMT restarts of a drive that is not OPERATIONAL before the first enable (start-up)
+NMT_START_TRIES = 3
 EMCY_STRUCT = struct.Struct("<HB5s")
 #: a drive's place on the way to Operation Enabled (by DriveState value; -1: off that way)
 _ENABLE_RANK = np.full(len(DriveState), -1, np.int8)
@@ -226,7 +229,9 @@ class WinchDrives:
     (node ids, units, limits, bus timing); ``eds`` the drives' EDS file or object dictionary;
     ``bus_name`` how messages name the bus (default: the bus's channel info);
     ``tpdo_deadline_cycles``/``tpdo_deadline_min_s``: a drive is lost after this many SYNCs
-    in a row without its TPDO, silent for at least this long [s, master clock].
+    in a row without its TPDO, silent for at least this long [s, master clock];
+    ``producer_priority``: the master heartbeat thread's ``SCHED_FIFO`` priority where the
+    OS allows it (:func:`hal.rt_threads.raise_thread`; 0: normal scheduling).
     """
 
     def __init__(
@@ -239,6 +244,7 @@ class WinchDrives:
         bus_name: str | None = None,
         tpdo_deadline_cycles: int = TPDO_DEADLINE_CYCLES,
         tpdo_deadline_min_s: float = TPDO_DEADLINE_MIN_S,
+        producer_priority: int = 0,
     ) -> None:
         if tpdo_deadline_cycles < 1 or not tpdo_deadline_min_s >= 0:
             raise ValueError(f"tpdo_deadline_cycles {tpdo_deadline_cycles} must be >= 1 and "
@@ -255,6 +261,9 @@ class WinchDrives:
         self.period_s = winches.bus.sync_period_s
         self.hb_timeout_s = winches.bus.heartbeat_period_s * winches.bus.heartbeat_misses
         self._clock = self._pick_clock(clock)
+        self.producer_priority = int(producer_priority)
+        #: what the master heartbeat thread got (:func:`hal.rt_threads.raise_thread`)
+        self.producer_scheduling = "not started"
         self._init_state(network)
         self._subscribe(network)
 
@@ -352,6 +361,8 @@ class WinchDrives:
         self._mhb_thread: threading.Thread | None = None
         self._mhb_wall = -np.inf  # wall time of the last master heartbeat sent
         self._mhb_clock = -np.inf  # master clock of the last one sent by the cycle
+        self._mhb_gap_max = 0.0  # longest wall time between two master heartbeats [s]
+        self._mhb_late = 0  # gaps longer than the drives' consumer time
         self._closed = False
 
     def _subscribe(self, network: canopen.Network) -> None:
@@ -639,9 +650,40 @@ class WinchDrives:
                                                   is_extended_id=False))
         except (can.CanError, OSError):
             pass  # a dead link: the cycle reports it
-        self._mhb_wall = time.monotonic()
+        now = time.monotonic()
+        gap = now - self._mhb_wall
+        if gap < np.inf:
+            self._mhb_gap_max = max(self._mhb_gap_max, gap)
+            if gap > self.winches.bus.master_heartbeat_timeout_s > 0:
+                self._mhb_late += 1
+        self._mhb_wall = now
+
+    def producer_stats(self) -> dict:
+        """The master heartbeat producer so far: ``scheduling`` (what its thread got),
+        ``gap_max_s`` (longest wall time between two heartbeats sent [s]), ``late`` (gaps
+        longer than the drives' consumer time, ``master_heartbeat_timeout_s``: each one
+        let the drives conclude that their master is gone)."""
+        return {"scheduling": self.producer_scheduling,
+                "gap_max_s": float(self._mhb_gap_max), "late": int(self._mhb_late)}
+
+    def _producer_text(self) -> str:
+        st = self.producer_stats()
+        return (f"master heartbeat: longest gap {st['gap_max_s']:.3f} s, {st['late']} longer "
+                f"than the drives' consumer time {self.winches.bus.master_heartbeat_timeout_s:g}"
+                f" s; producer thread {st['scheduling']}")
+
+    def set_producer_priority(self, priority: int) -> str:
+        """The master heartbeat thread's SCHED_FIFO priority (0: normal scheduling, as it
+        is); applied at once when it runs, else when :meth:`start` starts it. Returns
+        :attr:`producer_scheduling`."""
+        self.producer_priority = int(priority)
+        t = self._mhb_thread
+        if t is not None and t.native_id is not None and priority > 0:
+            self.producer_scheduling = raise_thread(self.producer_priority, t.native_id)
+        return self.producer_scheduling
 
     def _mhb_loop(self) -> None:
+        self.producer_scheduling = raise_thread(self.producer_priority)
         period = self.winches.bus.master_heartbeat_period_s
         while not self._mhb_stop.wait(max(0.001, period - (time.monotonic() - self._mhb_wall))):
             if time.monotonic() - self._mhb_wall >= period - 1e-4:
@@ -1222,21 +1264,25 @@ class WinchDrives:
                 return True
         return False
 
-    def enable_and_wait(self, max_cycles: int = 50) -> None:
+    def enable_and_wait(self, max_cycles: int = 50, restart_tries: int = 0) -> None:
         """Enable all drives and cycle until they are Operation Enabled (blocks).
 
         Fails at once (nothing is sent) with BusLinkError when the link is down, and with
         DriveStartupError naming the drives that need :meth:`recover` first (reset, silent,
-        behind a lost link) or whose state is unknown."""
+        behind a lost link) or whose state is unknown. ``restart_tries`` > 0 (start-up,
+        before anything moved): such drives are restarted first, as a CANopen master
+        restarts a slave after an error control event (:meth:`restart_for_enable`)."""
         self._require_link("enable")
         self._drain()
         self._check_link()
         if self._link_down:
             raise BusLinkError(f"enable: {self._link_why()}")
+        if restart_tries > 0:
+            self.restart_for_enable(restart_tries)
         bad = [f"{self.who(k)}: {self._why_not_ready(k)}" for k in range(self.n)
                if self._why_not_ready(k)]
         if bad:
-            raise DriveStartupError(f"enable refused: {'; '.join(bad)}")
+            raise DriveStartupError(f"enable refused: {'; '.join(bad)} ({self._producer_text()})")
         self.enable()
         ok = self._blocking("enable", lambda: self.run_until(
             lambda d: bool(np.all(d.states() == ST.OPERATION_ENABLED) or d._lost.any()),
@@ -1264,6 +1310,67 @@ class WinchDrives:
                 raise BusLinkError(f"enable: {self._link_why()}")
             raise DriveStartupError(
                 f"not Operation Enabled after {max_cycles} cycles: {'; '.join(bad)}")
+
+    def restart_for_enable(self, tries: int = NMT_START_TRIES, timeout: float = 3.0
+                           ) -> list[int]:
+        """Restart the drives that are not ready to be enabled because they left NMT
+        OPERATIONAL, were reset or lost their heartbeat (e.g. their consumer heartbeat
+        expired while the host starved the master's producer) - at start-up, before
+        anything moved (blocking; SDO). Each try is :meth:`recover` (NMT reset, boot-up,
+        configuration, NMT start) and then waits up to :meth:`confirm_window_s` for their
+        heartbeats to say OPERATIONAL; at most ``tries`` tries. An event ``nmt_restart``
+        per drive and try. Returns the node ids restarted; raises DriveStartupError naming
+        each node, its NMT state and the master heartbeat's record when the last try
+        leaves some not OPERATIONAL."""
+        t0 = time.monotonic()
+        done: list[int] = []
+        left: list[int] = []
+        for attempt in range(1, tries + 1):
+            self._drain()
+            left = [int(k) for k in np.flatnonzero(self._needs_recovery() & self._started)]
+            if not left:
+                return done
+            for k in left:
+                self._event(k, "nmt_restart", CODE_HEARTBEAT,
+                            f"{self._why_not_ready(k) or 'not OPERATIONAL'} before enabling: "
+                            f"restart {attempt} of {tries} ({self._producer_text()})")
+            done += [self.node_ids[k] for k in left if self.node_ids[k] not in done]
+            self.recover(timeout)
+            left = self._confirm_operational(left)
+            if not left:
+                return done
+        raise DriveStartupError("not NMT OPERATIONAL after " f"{tries} restarts in "
+                                f"{time.monotonic() - t0:.1f} s: " + "; ".join(
+                                    f"{self.who(k)}: NMT {self._nmt_name(k)}" for k in left)
+                                + f" ({self._producer_text()})")
+
+    def confirm_window_s(self) -> float:
+        """How long [s, wall] :meth:`restart_for_enable` waits for a restarted drive's
+        heartbeat: two of its heartbeat periods and the master's consumer time."""
+        bus = self.winches.bus
+        return 2.0 * bus.heartbeat_period_s + bus.master_heartbeat_timeout_s
+
+    def _confirm_operational(self, ks: list[int]) -> list[int]:
+        """Of drives ``ks`` just NMT-started, those whose heartbeat did not say OPERATIONAL
+        within :meth:`confirm_window_s` (none when the drives send no heartbeat)."""
+        if self.winches.bus.heartbeat_period_s <= 0:
+            return []
+        deadline = time.monotonic() + self.confirm_window_s()
+        while True:
+            left = [k for k in ks if self._rx_hb_state[k] != NMT_OPERATIONAL]
+            if not left or time.monotonic() >= deadline:
+                break
+            time.sleep(min(0.01, max(0.0, deadline - time.monotonic())))
+        for k in left:  # what it said last (-1: nothing since the NMT start)
+            state = int(self._rx_hb_state[k])
+            if state >= 0:
+                self._nmt[k] = state
+        return left
+
+    def _nmt_name(self, k: int) -> str:
+        state = int(self._nmt[k]) if self._rx_hb_state[k] < 0 else int(self._rx_hb_state[k])
+        return NMT_NAMES.get(state, f"unknown (no heartbeat within "
+                             f"{self.confirm_window_s():.2f} s)" if state < 0 else hex(state))
 
     def _why_not_ready(self, k: int) -> str:
         if not self._started[k]:
@@ -1381,6 +1488,7 @@ __all__ = [
     "DriveFault",
     "DriveLostError",
     "DriveStartupError",
+    "NMT_START_TRIES",
     "DriveState",
     "WinchDrives",
 ]

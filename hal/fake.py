@@ -234,11 +234,13 @@ class FakeHardware(WinchHardware):
         self.target = self.pos.copy()
         self._sample(force=True)
 
-    def enable(self, max_cycles: int = 50) -> None:
+    def enable(self, max_cycles: int = 50, restart_tries: int = 0) -> None:
         if self.link_down:
             raise BusLinkError("enable: fake: CAN link down")
         if not self.started:
             raise DriveStartupError("enable() before start()")
+        if restart_tries > 0:
+            self.recover()  # start-up: restart what is not ready (the real HAL's tries)
         stale = [f"{self.who(k)}: behind a lost CAN link: recover() it first"
                  for k in np.flatnonzero(self.relink)]
         if stale:

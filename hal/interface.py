@@ -266,9 +266,18 @@ class WinchHardware(ABC):
         failed; load cells that do not answer show in the readings' statuses."""
 
     @abstractmethod
-    def enable(self, max_cycles: int = 50) -> None:
+    def enable(self, max_cycles: int = 50, restart_tries: int = 0) -> None:
         """Enable every drive (Operation Enabled, CSP), cycling until done; raises
-        :class:`~hal.drives.DriveStartupError` naming the drives that did not come."""
+        :class:`~hal.drives.DriveStartupError` naming the drives that did not come.
+        ``restart_tries`` > 0 (start-up, nothing moved yet): drives that left NMT
+        OPERATIONAL, were reset or lost their heartbeat are restarted first, at most that
+        many times (:meth:`hal.drives.WinchDrives.restart_for_enable`)."""
+
+    def set_thread_priority(self, priority: int) -> dict[str, str]:
+        """The HAL's time-critical producer threads (the master heartbeat) in SCHED_FIFO at
+        ``priority`` where the OS allows it (:func:`hal.rt_threads.raise_thread`; 0:
+        normal); returns what each got as text, by thread (none here)."""
+        return {}
 
     @abstractmethod
     def recover(self, timeout_s: float = 3.0) -> list[int]:
@@ -393,16 +402,20 @@ class CanModbusHardware(WinchHardware):
             # one sweep done before the first cycle: values, or statuses naming the units
             self.sample_tensions(timeout_s=max(timeout_s, 2 * self.cells.timeout_s * self.n))
 
-    def enable(self, max_cycles: int = 50) -> None:
+    def enable(self, max_cycles: int = 50, restart_tries: int = 0) -> None:
         if self._owes_receive:
             self.drives.receive()
             self._owes_receive = False
         try:
-            self.drives.enable_and_wait(max_cycles)  # lock-step cycles, ends after a SYNC
+            # lock-step cycles, ends after a SYNC
+            self.drives.enable_and_wait(max_cycles, restart_tries=restart_tries)
         finally:
             # also after a failure (e.g. a drive lost while enabling): the last SYNC's
             # answers are read by the next read() (a receive without a SYNC counts nothing)
             self._owes_receive = True
+
+    def set_thread_priority(self, priority: int) -> dict[str, str]:
+        return {"master_heartbeat": self.drives.set_producer_priority(priority)}
 
     def recover(self, timeout_s: float = 3.0) -> list[int]:
         if self._owes_receive:

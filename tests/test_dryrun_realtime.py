@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import os
+import subprocess
 import sys
 import threading
 
@@ -11,6 +12,7 @@ import pytest
 
 from bench.dryrun.realtime import (
     helper_priority,
+    helper_threads,
     realtime_interpreter,
     realtime_scheduling,
     simulator_scheduling,
@@ -40,7 +42,9 @@ def test_a_refused_real_time_policy_runs_normally_and_says_why(monkeypatch):
 
 
 def _policy(tid: int) -> tuple[int, int]:
-    return os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority
+    """(policy without SCHED_RESET_ON_FORK, priority) of a thread."""
+    flag = getattr(os, "SCHED_RESET_ON_FORK", 0)
+    return os.sched_getscheduler(tid) & ~flag, os.sched_getparam(tid).sched_priority
 
 
 @needs_sched
@@ -76,6 +80,47 @@ def test_fifo_for_the_loop_and_one_below_for_the_threads_it_waits_for_restored_a
         ask.set()
         release.set()
         t.join(5)
+    assert _policy(0) == before
+
+
+@needs_sched
+def test_threads_started_by_the_real_time_loop_run_normal_until_raised_as_helpers():
+    """A thread the loop starts inside (the HAL's start-up) does not inherit its FIFO
+    priority (SCHED_RESET_ON_FORK: neither does a process it spawns); helper_threads puts
+    it one below the loop, and restores it after."""
+    before = _policy(0)
+    ask, answered, release = threading.Event(), threading.Event(), threading.Event()
+    seen: dict = {}
+
+    def started_inside() -> None:
+        seen["tid"] = threading.get_native_id()
+        seen["at_start"] = _policy(0)
+        ask.wait(5)
+        seen["raised"] = _policy(0)
+        answered.set()
+        release.wait(5)
+
+    with realtime_scheduling(10) as got:
+        if not got.startswith("SCHED_FIFO"):
+            pytest.skip(f"real-time scheduling not permitted here: {got}")
+        t = threading.Thread(target=started_inside)
+        t.start()
+        try:
+            child = subprocess.run([sys.executable, "-c", "import os; print("
+                                    "os.sched_getscheduler(0))"], capture_output=True,
+                                   text=True, check=True)
+            assert int(child.stdout) == os.SCHED_OTHER
+            with helper_threads(10) as n:
+                assert n >= 1
+                ask.set()
+                assert answered.wait(5)
+            assert seen["at_start"] == (os.SCHED_OTHER, 0)
+            assert seen["raised"] == (os.SCHED_FIFO, 9)
+            assert _policy(seen["tid"]) == (os.SCHED_OTHER, 0)  # restored
+        finally:
+            ask.set()
+            release.set()
+            t.join(5)
     assert _policy(0) == before
 
 

@@ -40,7 +40,13 @@ from typing import Any
 
 import numpy as np
 
-from bench.dryrun.realtime import DEFAULT_RT_PRIORITY, realtime_interpreter, realtime_scheduling
+from bench.dryrun.realtime import (
+    DEFAULT_RT_PRIORITY,
+    helper_priority,
+    helper_threads,
+    realtime_interpreter,
+    realtime_scheduling,
+)
 from bench.dryrun.record import DryRunRecorder
 from controller.cycle import LengthController
 from controller.feedrate import FeedRate, ramp_time
@@ -54,7 +60,7 @@ from controller.supervisor import (
     SupervisorLimits,
 )
 from controller.trajectory import Trajectory
-from hal.drives import DriveStartupError
+from hal.drives import NMT_START_TRIES, DriveStartupError
 from hal.drives_cia402 import ST
 from hal.interface import Readings, WinchHardware
 from hal.tracker import Tracker
@@ -359,7 +365,9 @@ class ControlLoop:
                     f"p0 {np.round(p0, 4).tolist()} ({how}); referenced: offsets "
                     f"{np.round(1e3 * off, 2).tolist()} mm")
         try:
-            hw.enable()
+            # nothing moved yet: a drive that left NMT OPERATIONAL meanwhile (its consumer
+            # heartbeat expired on a busy host) is restarted, a bounded number of times
+            hw.enable(restart_tries=NMT_START_TRIES)
         except DriveStartupError as exc:
             self._enable_failed(exc)
             raise
@@ -401,6 +409,12 @@ class ControlLoop:
                     # the full collection comes before the drives are fed: once they have
                     # seen a setpoint, a pause of tens of milliseconds is a lost master
                     rt.enter_context(realtime_interpreter())
+                    # real time from start-up on: the drives watch the master's heartbeat
+                    # from their configuration, and a producer thread waiting for the
+                    # interpreter behind a preempted main thread is late all the same
+                    self._raise_producers()
+                    res.scheduling = rt.enter_context(
+                        realtime_scheduling(self.opt.rt_priority))
                 try:
                     p0, traj = self._initialise()
                 except PathRefused as exc:
@@ -413,9 +427,12 @@ class ControlLoop:
                     self._emergency_stop()
                     return res
                 if self.opt.realtime:
-                    sched = rt.enter_context(realtime_scheduling(self.opt.rt_priority))
-                    res.scheduling = sched
-                    self.on_event(f"real time: the loop's thread runs {sched}")
+                    self._raise_producers(say=True)
+                    # the threads started since (tracker reader, SDO worker, ...)
+                    rt.enter_context(helper_threads(self.opt.rt_priority)
+                                     if res.scheduling.startswith("SCHED_FIFO")
+                                     else contextlib.nullcontext())
+                    self.on_event(f"real time: the loop's thread runs {res.scheduling}")
                 self._cycle_loop(p0, traj)
         except KeyboardInterrupt:
             res.ended, res.message = "interrupted", "KeyboardInterrupt"
@@ -437,6 +454,17 @@ class ControlLoop:
                 finally:
                     self.recorder.close()
         return res
+
+    def _raise_producers(self, say: bool = False) -> None:
+        """The HAL's producer threads (master heartbeat) one priority below the loop's from
+        start-up on, where the OS allows it: the drives' consumer heartbeat runs from
+        their configuration, long before the loop's own thread goes real time. ``say``:
+        tell what they got (after start-up, when they run)."""
+        if self.opt.rt_priority <= 0:
+            return
+        got = self.hw.set_thread_priority(helper_priority(self.opt.rt_priority))
+        for name, text in got.items() if say else ():
+            self.on_event(f"real time: the HAL's {name.replace('_', ' ')} thread runs {text}")
 
     def _emergency_stop(self) -> None:
         """Quick-stop every drive (best effort, after an error or interruption)."""

@@ -70,14 +70,22 @@ def _other_threads() -> list[int]:
     return [t for t in tids if t != me]
 
 
-def _set_fifo(tids: list[int], priority: int) -> list[tuple[int, int, os.sched_param]]:
+def _fifo(reset_on_fork: bool = True) -> int:
+    """SCHED_FIFO, with SCHED_RESET_ON_FORK unless ``reset_on_fork`` is False: a thread or
+    process started from a real-time thread (the recorder's child, a HAL thread started
+    at start-up) then runs under the normal scheduler unless it is raised on purpose."""
+    return os.SCHED_FIFO | (getattr(os, "SCHED_RESET_ON_FORK", 0) if reset_on_fork else 0)
+
+
+def _set_fifo(tids: list[int], priority: int, reset_on_fork: bool = True
+              ) -> list[tuple[int, int, os.sched_param]]:
     """Threads ``tids`` to SCHED_FIFO at ``priority`` where permitted (a thread that ended
     meanwhile is skipped); their (tid, policy, param) before, for :func:`_restore`."""
     saved = []
     for tid in tids:
         try:
             before = os.sched_getscheduler(tid), os.sched_getparam(tid)
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            os.sched_setscheduler(tid, _fifo(reset_on_fork), os.sched_param(priority))
         except OSError:
             continue
         saved.append((tid, *before))
@@ -98,8 +106,10 @@ def _check_priority(priority: int) -> None:
                          f"{os.sched_get_priority_max(os.SCHED_FIFO)}, got {priority}")
 
 
-def _enter_fifo(priority: int) -> tuple[str | None, tuple | None]:
-    """The calling thread in ``SCHED_FIFO`` at ``priority``: ``(None, its policy and
+def _enter_fifo(priority: int, reset_on_fork: bool = True
+                ) -> tuple[str | None, tuple | None]:
+    """The calling thread in ``SCHED_FIFO`` at ``priority`` (threads it starts inherit it
+    unless ``reset_on_fork``): ``(None, its policy and
     parameters before)`` when done, else ``(why not, None)`` as the text the scheduling
     context managers yield (``"normal (...why...)"``)."""
     if priority <= 0:
@@ -109,7 +119,7 @@ def _enter_fifo(priority: int) -> tuple[str | None, tuple | None]:
     _check_priority(priority)
     before = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, _fifo(reset_on_fork), os.sched_param(priority))
     except OSError as exc:
         return (f"normal (SCHED_FIFO {priority} not permitted: {exc.strerror}; grant "
                 f"CAP_SYS_NICE or an rtprio limit)"), None
@@ -138,6 +148,22 @@ def realtime_scheduling(priority: int) -> Iterator[str]:
 
 
 @contextlib.contextmanager
+def helper_threads(priority: int) -> Iterator[int]:
+    """The process's threads but the calling one at :func:`helper_priority` of
+    ``priority`` inside, where permitted (again: threads started since
+    :func:`realtime_scheduling` began, e.g. by the HAL's start-up, run under the normal
+    scheduler); yields how many were raised; restored after. 0: nothing changes."""
+    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
+        yield 0
+        return
+    saved = _set_fifo(_other_threads(), helper_priority(priority))
+    try:
+        yield len(saved)
+    finally:
+        _restore(saved)
+
+
+@contextlib.contextmanager
 def simulator_scheduling(priority: int) -> Iterator[str]:
     """The simulated robot's process inside (enter before it starts its threads, which
     inherit the policy): the calling thread and any thread already running in
@@ -145,11 +171,11 @@ def simulator_scheduling(priority: int) -> Iterator[str]:
     the thread a frame wakes gets the interpreter quickly. Yields what it got as text,
     like :func:`realtime_scheduling`; restored after. 0: nothing changes."""
     me = threading.get_native_id()
-    refused, before = _enter_fifo(priority)
+    refused, before = _enter_fifo(priority, reset_on_fork=False)
     if refused is not None:
         yield refused
         return
-    saved = [(me, *before), *_set_fifo(_other_threads(), priority)]
+    saved = [(me, *before), *_set_fifo(_other_threads(), priority, reset_on_fork=False)]
     interval = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
@@ -159,5 +185,5 @@ def simulator_scheduling(priority: int) -> Iterator[str]:
         _restore(saved)
 
 
-__all__ = ["DEFAULT_RT_PRIORITY", "SWITCH_INTERVAL_S", "helper_priority",
+__all__ = ["DEFAULT_RT_PRIORITY", "SWITCH_INTERVAL_S", "helper_priority", "helper_threads",
            "realtime_interpreter", "realtime_scheduling", "simulator_scheduling"]
