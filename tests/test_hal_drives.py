@@ -513,3 +513,82 @@ def test_wall_clock_rig_and_master():
     finally:
         hal.close()
         bank.close()
+
+
+# ------------------------------------------------------------------ start-up on a busy host
+
+
+def _starve_producer(r: Rig) -> None:
+    """What a master heartbeat producer kept off the processor for longer than the drives'
+    consumer time does (as a busy host can): every drive's consumer heartbeat expires (its
+    own reaction, 0x6007 and 0x1029: pre-operational); then cycles (not enabled) until the
+    HAL has read the drives' heartbeats saying where they went."""
+    deadline = time.monotonic() + 10.0
+    while not all(d.nmt_state == 0x05 for d in r.bank.drives):  # the NMT start arrived
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    for d in r.bank.drives:  # expired now (the wall-time watch forgives a starved simulator)
+        with d.lock:
+            d._consumer_expired(W.bus.master_node_id, wall=False)
+    r.steps(int(W.bus.master_heartbeat_timeout_s / W.bus.sync_period_s) + 30)
+
+
+def test_drives_that_left_operational_before_the_first_enable_are_restarted():
+    r = Rig(enable=False)
+    try:
+        _starve_producer(r)
+        assert {f.kind for f in r.hal.faults()} == {"nmt_state"}
+        with pytest.raises(DriveStartupError, match=r"NMT PRE-OP.*master heartbeat: longest "
+                           r"gap"):
+            r.hal.enable_and_wait()  # without restarts: refused, naming the nodes
+        r.hal.enable_and_wait(restart_tries=3)
+        assert r.hal.state_names() == ["OPERATION_ENABLED"] * 8
+        restarts = [e for e in r.hal.events() if e.kind == "nmt_restart"]
+        assert sorted(e.node_id for e in restarts) == list(range(1, 9))
+        assert all("restart 1 of 3" in e.text for e in restarts)
+        assert r.hal.faults() == []
+    finally:
+        r.close()
+
+
+def test_nothing_is_restarted_when_every_drive_is_operational(rig):
+    rig.hal.disable()
+    rig.steps(5)
+    assert rig.hal.restart_for_enable() == []
+    rig.hal.enable_and_wait(restart_tries=3)
+    assert [e.kind for e in rig.hal.events()] == []
+
+
+def test_a_drive_that_stays_pre_operational_fails_naming_node_and_state():
+    r = Rig(enable=False)
+    try:
+        _starve_producer(r)
+        send = r.hal._send_nmt
+
+        def no_start_for_node_3(k: int, command: int) -> None:
+            if not (k == 2 and command == 0x01):  # node 3 never gets NMT start
+                send(k, command)
+
+        r.hal._send_nmt = no_start_for_node_3
+        with pytest.raises(DriveStartupError, match=r"not NMT OPERATIONAL after 2 restarts .*"
+                           r"node 3 \(cable 21\): NMT PRE-OPERATIONAL \(master heartbeat"):
+            r.hal.enable_and_wait(restart_tries=2)
+        tries = [e.text for e in r.hal.events() if e.kind == "nmt_restart" and e.node_id == 3]
+        assert len(tries) == 2
+        assert r.bank.drives[2].nmt_state == 0x7F
+    finally:
+        r.close()
+
+
+def test_the_producer_records_its_gaps_and_lateness(rig):
+    st = rig.hal.producer_stats()
+    assert st["late"] == 0 and 0 < st["gap_max_s"] < W.bus.master_heartbeat_timeout_s
+    assert st["scheduling"].startswith("normal (raised priority not requested")
+    rig.hal._master_heartbeat = lambda: None
+    time.sleep(W.bus.master_heartbeat_timeout_s * 1.5)  # the gap to record, not a timing
+    del rig.hal._master_heartbeat
+    deadline = time.monotonic() + 5.0
+    while rig.hal.producer_stats()["late"] == 0:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    assert rig.hal.producer_stats()["gap_max_s"] > W.bus.master_heartbeat_timeout_s
