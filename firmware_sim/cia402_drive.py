@@ -242,6 +242,9 @@ class SimulatedDrive:
         #: master sends no SYNC); off where the master cannot die apart from the drive
         #: (lock-step in one process), so that a starved heartbeat thread stops nothing
         self.watch_wall = True
+        #: a gap in our own activity longer than this [s] is starvation, not counted
+        #: against the master (:meth:`_forgive_starvation`; the bank sets it from its tick)
+        self.starved_s = self.STARVED_S if clock is None else self.CLOCK_STARVED_S
         #: (drive time [us], what, lag [s]) of each lost connection: lag from the last
         #: frame heard (master heartbeat, RPDO) to the reaction, for tests
         self.connection_losses: list[tuple[int, str, float | None]] = []
@@ -430,19 +433,31 @@ class SimulatedDrive:
         if self._clock is None:
             return
         with self.lock:
-            now_s = self._clock()
-            self._forgive_starvation(now_s)
-            self._advance_to(int(round(now_s * 1e6)))
+            self._catch_up()
+
+    def _catch_up(self) -> None:
+        """Clock mode (under the lock): forgive a gap in our own activity (ticks and frames
+        handled), then advance to the clock, deadlines included. A frame handled after the
+        process was starved was waiting in our socket: its deadline is judged after the
+        gap is forgiven, never before."""
+        now_s = self._clock()
+        self._forgive_starvation(now_s)
+        self._advance_to(int(round(now_s * 1e6)))
 
     #: a tick this much later than the previous one means this process was starved [s]
+    #: (the SYNC clock's wall-time duties, ticked every 10 ms)
     STARVED_S = 0.05
+    #: the same on a clock function, where the bank ticks every 2 ms and every frame
+    #: handled counts as activity too: shorter than the shortest RPDO deadline (20 ms)
+    CLOCK_STARVED_S = 0.008
 
     def _forgive_starvation(self, now_s: float) -> None:
-        """After a gap in our own ticks (the simulator's process did not run), do not count
-        the gap against the master: its frames may be waiting in our socket. A real drive
-        is never starved; a simulated one must not stop the robot because it was."""
+        """After a gap in our own activity longer than :attr:`starved_s` (the simulator's
+        process did not run), do not count the gap against the master: its frames may be
+        waiting in our socket. A real drive is never starved; a simulated one must not stop
+        the robot because it was. A master that is gone still is: our ticks go on."""
         prev, self._wall_prev = self._wall_prev, now_s
-        if prev is None or now_s - prev <= self.STARVED_S:
+        if prev is None or now_s - prev <= self.starved_s:
             return
         gap_s = now_s - prev
         gap_us = int(gap_s * 1e6)
@@ -793,7 +808,7 @@ class SimulatedDrive:
                 self._emcy(EMCY_PDO_LENGTH)
                 return
             if self._clock is not None:  # stamp with the time it arrived, not the last tick
-                self._advance_to(int(round(self._clock() * 1e6)))
+                self._catch_up()
             self._rpdo_seen = True
             self._last_rpdo_us = self.now_us
             if self._rpdo_timeout_active:
@@ -829,7 +844,9 @@ class SimulatedDrive:
             if self._clock is None:
                 now = self.now_us + self._cycle_us()
             else:
-                now = int(round(self._clock() * 1e6))
+                now_s = self._clock()
+                self._forgive_starvation(now_s)  # as _catch_up: a SYNC waiting meanwhile
+                now = int(round(now_s * 1e6))
             interval = now - self._last_sync_us if self._last_sync_us is not None else 0
             self._last_sync_us = now
             self._advance_to(now)
@@ -937,7 +954,7 @@ class SimulatedDrive:
             if not self.powered or self.silent or nid not in self._consumers or not data:
                 return
             if self._clock is not None:  # stamp with the time it arrived, not the last tick
-                self._advance_to(int(round(self._clock() * 1e6)))
+                self._catch_up()
             self._hb_heard_us[nid] = self.now_us
             if self._clock is None:  # for wall_tick(), which the bank calls with this clock
                 self._hb_heard_wall[nid] = time.monotonic()

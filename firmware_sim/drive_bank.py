@@ -58,6 +58,8 @@ class SimulatedWinchBank:
         ]
         for d in self.drives:
             d.attach(self.network)
+            if clock is not None:  # starvation: a few of our ticks missed (see the drive)
+                d.starved_s = max(SimulatedDrive.CLOCK_STARVED_S, 4.0 * tick_period_s)
         self._sync_callbacks: list[Callable[[SimulatedWinchBank], None]] = []
         self.network.subscribe(0x80, self._after_sync)
         self.network.connect()

@@ -26,9 +26,9 @@ START_COUNTS = round(AX.m_to_counts(10.0))
 
 
 class Harness:
-    def __init__(self) -> None:
+    def __init__(self, clock=None) -> None:
         ch = f"simdrive-{uuid.uuid4().hex}"
-        self.drive = SimulatedDrive(AX)
+        self.drive = SimulatedDrive(AX, clock=clock)
         self.drive.keep_sent = True
         self.rig = canopen.Network(can.Bus(interface="virtual", channel=ch))
         self.rig.NOTIFIER_CYCLE = 0.05

@@ -200,3 +200,63 @@ def test_a_starved_simulator_does_not_stop_the_robot(h):
     h.drive.wall_tick(t + 1.0)  # our own process did not run for 1 s
     assert h.drive.state == State.OPERATION_ENABLED
     assert AX.node_id == 1
+
+
+class FakeClock:
+    """The wall clock of a drive on a clock function, moved by the test [s]."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _wall_clock_drive_enabled(clock: FakeClock) -> Harness:
+    """A drive on a clock function in CSP, Operation Enabled, RPDO deadline 20 ms, fed an
+    RPDO + SYNC every 4 ms with the bank's tick every 2 ms between."""
+    h = Harness(clock=clock)
+    h.w(0x1400, 1, 0x201 | 1 << 31)
+    h.w(0x1400, 5, 20)
+    h.w(0x1400, 1, 0x201)
+    h.enable_csp()
+    for _ in range(10):
+        _cycle(h, clock)
+    assert h.drive.state == State.OPERATION_ENABLED
+    return h
+
+
+def _cycle(h: Harness, clock: FakeClock, rpdo: bool = True) -> None:
+    for _ in range(2):
+        clock.t += 0.002
+        h.drive.tick()
+    if rpdo:
+        h.rpdo(0x0F, h.drive.position_actual())
+    h.sync()
+
+
+def test_a_starved_wall_clock_simulator_judges_waiting_frames_after_the_gap():
+    """The simulator's process did not run for 30 ms (> the 20 ms RPDO deadline): the RPDO
+    waiting in its socket is handled first, and the gap is not the master's."""
+    clock = FakeClock()
+    h = _wall_clock_drive_enabled(clock)
+    try:
+        clock.t += 0.030  # no tick, no frame handled: starved
+        _cycle(h, clock)
+        assert h.drive.state == State.OPERATION_ENABLED
+        assert 0x8250 not in h.emcy_codes()
+    finally:
+        h.close()
+
+
+def test_a_wall_clock_drive_still_stops_when_the_setpoints_stop():
+    """Its own ticks go on (it runs), the RPDOs stop for 24 ms: RPDO timeout, stopped."""
+    clock = FakeClock()
+    h = _wall_clock_drive_enabled(clock)
+    try:
+        for _ in range(6):
+            _cycle(h, clock, rpdo=False)
+        h.wait_for(lambda: 0x8250 in h.emcy_codes())
+        assert h.drive.state != State.OPERATION_ENABLED  # 0x6007 as configured (fault)
+    finally:
+        h.close()

@@ -95,7 +95,7 @@ def listen_endpoint(option: str, text: str, schemes: tuple[str, ...]) -> tuple[s
     return scheme, host, p
 
 
-#: where ``--live`` serves when given without an address (:data:`bench.mcap.live.DEFAULT_ADDRESS`)
+#: where ``--live`` serves when given without an address (the one source of that default)
 LIVE_ADDRESS = "127.0.0.1:8765"
 
 

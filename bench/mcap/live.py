@@ -37,7 +37,6 @@ from bench.mcap.channels import (
 from bench.mcap.scene import Scene
 from controller.robot import Robot
 
-DEFAULT_ADDRESS = "127.0.0.1:8765"
 CAN_QUEUE = 4096  #: CAN frames kept between two publications (the newest)
 
 
