@@ -1421,6 +1421,11 @@ class WinchDrives:
         """Latest actual positions [counts] (0x6064), shape (n,)."""
         return self._pos.copy()
 
+    def feedback_age(self) -> np.ndarray:
+        """Per drive, the SYNCs in a row without its TPDO at the last :meth:`receive` (0: its
+        position answers the latest SYNC it could), shape (n,)."""
+        return self._miss_streak.copy()
+
     def lengths_m(self) -> np.ndarray:
         """Cable lengths [m] of the latest actual positions, shape (n,)."""
         return counts_to_m(self._pos, self.winches)

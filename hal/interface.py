@@ -320,6 +320,12 @@ class WinchHardware(ABC):
     def fault_reset(self, nodes: list[int] | None = None) -> None:
         """Reset faulted drives over the next cycles (they come back disabled)."""
 
+    def feedback_age(self) -> np.ndarray:
+        """Per drive, how many SYNCs in a row went unanswered before the position of the
+        last :meth:`read` (0: it answers the latest SYNC it could; k: it is k SYNCs older,
+        a late or missing TPDO), shape (n,). Here: none."""
+        return np.zeros(self.n, np.int64)
+
     # ---- lock-step helpers (block) --------------------------------------------------
     @abstractmethod
     def wait_feedback(self, timeout_s: float = 0.5) -> bool:
@@ -499,6 +505,9 @@ class CanModbusHardware(WinchHardware):
 
     def fault_reset(self, nodes: list[int] | None = None) -> None:
         self.drives.fault_reset(nodes)
+
+    def feedback_age(self) -> np.ndarray:
+        return self.drives.feedback_age()
 
     # ---- lock-step --------------------------------------------------------------------
     def wait_feedback(self, timeout_s: float = 0.5) -> bool:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
+from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused, reference_command
 from bench.dryrun.record import DryRunRecorder
 from bench.recording import read_recording
 from controller.effects import apply_effects
@@ -369,3 +369,18 @@ def test_real_time_collects_garbage_before_the_drives_are_fed(monkeypatch):
     full = [after for a, after in collections if not a or a[0] == 2]
     assert full and not any(full)  # every full collection before the drives were enabled
     assert gc.isenabled() == was
+
+
+def test_a_late_answer_is_judged_against_the_commands_of_its_sync():
+    """Real time: a position answers the SYNC before the latest (or the one before); a
+    drive that missed k SYNCs answers k earlier. A move of 10 mm per cycle: judged against
+    the latest commands, the late drive would seem 30 mm behind."""
+    sent = [np.full(3, 10.0 + 0.01 * i) for i in range(6)]  # 10.00 .. 10.05, newest last
+    lengths = np.array([10.04, 10.02, 10.0])  # on time; 2 SYNCs late; beyond the history
+    ref = reference_command(lengths, sent, np.array([0, 2, 9]))
+    np.testing.assert_allclose(ref, [10.04, 10.02, 10.0])
+    # a drive that answers on time but stands still is judged against its own SYNC's
+    # commands, never an older one: the error is still seen
+    ref = reference_command(np.array([10.0, 10.0, 10.0]), sent, np.zeros(3, int))
+    np.testing.assert_allclose(ref, [10.04] * 3)
+    assert reference_command(lengths, sent[:1], np.array([0, 2, 9])).tolist() == [10.0] * 3

@@ -34,6 +34,7 @@ import gc
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -200,6 +201,27 @@ class CycleClock:
     def slack(self) -> float:
         """Time left before the next deadline [s]."""
         return self.deadline - self.now()
+
+
+#: commands kept for the following-error reference of a late drive answer (cycles)
+FEEDBACK_HISTORY = 8
+
+
+def reference_command(lengths_m: np.ndarray, sent: deque[np.ndarray] | list[np.ndarray],
+                      age: np.ndarray) -> np.ndarray:
+    """The command [m] each drive's position ``lengths_m`` [m] is judged against in real
+    time: it answers the SYNC before the latest (or the one before that), and a drive that
+    missed ``age`` SYNCs in a row answers that many SYNCs earlier still. Of the two
+    commands sent then (``sent``: the commands sent, newest last), the nearer. An age
+    beyond the history takes the oldest two kept. Shape (n,)."""
+    h = np.asarray(sent)
+    m, n = h.shape
+    if m < 2:
+        return h[-1].copy()
+    a = m - 1 - np.clip(np.asarray(age, np.int64), 0, m - 2)
+    cols = np.arange(n)
+    newer, older = h[a, cols], h[a - 1, cols]
+    return np.where(np.abs(lengths_m - newer) < np.abs(lengths_m - older), newer, older)
 
 
 class CrossTrack:
@@ -506,6 +528,7 @@ class ControlLoop:
         cmd = r.lengths_m.copy()  # hold where they stand: the referenced lengths
         last_sent = cmd.copy()
         prev_sent: np.ndarray | None = None
+        sent: deque[np.ndarray] = deque([cmd], maxlen=FEEDBACK_HISTORY)  # newest last
         init_cycles = int(round(opt.init_dwell_s / T))
         if opt.mast_tensions not in ("measured", "planned"):
             raise ValueError(f"mast_tensions must be 'measured' or 'planned', got "
@@ -571,9 +594,9 @@ class ControlLoop:
             enabled = r.states == ST.OPERATION_ENABLED
             # positions answer the SYNC just sent (lock-step) or the one before (real time):
             # a following error exceeds the window against both
-            ref_cmd = last_sent if prev_sent is None else np.where(
-                np.abs(r.lengths_m - last_sent) < np.abs(r.lengths_m - prev_sent),
-                last_sent, prev_sent)
+            # (a late or missing TPDO: the SYNCs before, as many as it missed)
+            ref_cmd = last_sent if prev_sent is None else reference_command(
+                r.lengths_m, sent, hw.feedback_age())
             ob = Observation(t, r.tensions_N, valid, r.lengths_m, ref_cmd, enabled,
                              expect_enabled=not stopping, faults=_faults(r),
                              feasible=out.feasible, reason=out.reason, overrun=overrun,
@@ -616,6 +639,8 @@ class ControlLoop:
                     held_since = held_since if held_since is not None else t
                 prev_sent = last_sent if opt.realtime else None
                 last_sent = cmd
+                if opt.realtime:
+                    sent.append(cmd)
             # ---- measurements (at the recording's rate): tracker, error to the path
             xt.command(pose_des)
             drives = r.states.tobytes()  # and the drives' CiA 402 states when they change
