@@ -1331,8 +1331,8 @@ class WinchDrives:
             if not left:
                 return done
             for k in left:
-                self._event(k, "nmt_restart", CODE_HEARTBEAT,
-                            f"{self._why_not_ready(k) or 'not OPERATIONAL'} before enabling: "
+                why = self._why_not_ready(k).split(": recover()")[0] or "not OPERATIONAL"
+                self._event(k, "nmt_restart", CODE_HEARTBEAT, f"{why} before enabling: "
                             f"restart {attempt} of {tries} ({self._producer_text()})")
             done += [self.node_ids[k] for k in left if self.node_ids[k] not in done]
             self.recover(timeout)
