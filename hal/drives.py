@@ -74,7 +74,12 @@ Master heartbeat: from :meth:`start` on, the master produces its heartbeat (COB-
 from its own thread (on the wall clock, whatever the cycle does), and on a non-wall clock
 also from the cycle, once per period of that clock. The drives watch it (0x1016, written at
 :meth:`start` with the rest of :func:`~hal.drives_config.drive_settings`) and stop on their
-own, per 0x6007, when it is gone.
+own, per 0x6007, when it is gone. Its thread runs in ``SCHED_FIFO`` at ``producer_priority``
+where the OS allows it (:mod:`hal.rt_threads`; :meth:`set_producer_priority`), and
+:meth:`producer_stats` says its longest gap and how many gaps exceeded the drives'
+consumer time. At start-up, drives that left NMT OPERATIONAL before the first enable (a
+consumer heartbeat that expired on a busy host) are restarted a bounded number of times by
+``enable_and_wait(restart_tries=...)`` (:meth:`restart_for_enable`).
 
 Memory stays bounded whatever the drives send: EMCYs are not logged by canopen
 (``node.emcy.log`` stays empty), the event history keeps the last ``EVENTS_KEPT`` events.
@@ -83,21 +88,24 @@ Clock: ``clock="wall"`` (time.monotonic) for real drives, ``clock="sync"`` (numb
 sent x SYNC period) with a rig on the deterministic simulated clock, or any callable.
 
 A CAN log of the bus is replayed through the same code by :class:`hal.drives_replay.ReplayDrives`.
+
+Parts (one object, its state set by ``__init__`` here; the parts by concern):
+:mod:`hal.drives_base` (constants, errors, event and fault records),
+:mod:`hal.drives_rx` (receive callbacks, event queue and history),
+:mod:`hal.drives_nmt` (link, master heartbeat, start-up, recovery, fault-code SDO),
+:mod:`hal.drives_cycle` (the cycle: detection, CiA 402 states, RPDOs + SYNC; lock-step,
+enabling, shutdown); this module: construction, requests, readings.
 """
 
 from __future__ import annotations
 
-import logging
 import queue
-import struct
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from pathlib import Path
 
-import can
 import canopen
 import numpy as np
 
@@ -108,121 +116,47 @@ from hal.bus_watch import (
     TPDO_DEADLINE_CYCLES,
     TPDO_DEADLINE_MIN_S,
     ForeignFrameWatch,
-    feedback_lost,
 )
-from hal.can_bus import CanSpec, open_bus, send_frames
+from hal.can_bus import CanSpec, open_bus
+from hal.drives_base import (
+    CODE_BUS,
+    CODE_HEARTBEAT,
+    CODE_PDO_TIMEOUT,
+    EMCY_STRUCT,
+    EVENTS_KEPT,
+    FOREIGN_HOLD_S,
+    MISSING_WAIT_S,
+    NMT_NAMES,
+    NMT_OPERATIONAL,
+    NMT_START_TRIES,
+    QUEUE_KEPT,
+    SDO_TIMEOUT_S,
+    BusLinkError,
+    DriveEvent,
+    DriveFault,
+    DriveLostError,
+    DriveStartupError,
+)
 from hal.drives_cia402 import (
-    CW_FAULT_RESET,
     RQ,
     ST,
-    SW_INTERNAL_LIMIT,
     DriveState,
-    controlwords,
-    decode_states,
     emcy_text,
-    enabling,
     faulted,
 )
 from hal.drives_config import (
     RPDO_MAP,
     TPDO_MAP,
     DriveConfigError,
-    configure_node,
-    drive_settings,
-    holding_problems,
     load_eds,
     pdo_struct,
-    sdo_read,
-    verify_identity,
 )
-from hal.rt_threads import raise_thread
-
-#: SDO answer timeout of the HAL's nodes [s] (start-up, recovery, fault-code reads)
-SDO_TIMEOUT_S = 1.0
-#: a foreign master's frame is an active fault for this long after the last one [s, master
-#: clock] (the supervisor latches its quick stop)
-FOREIGN_HOLD_S = 0.5
-#: lock-step: wall time [s] waited for the TPDOs of drives that missed the SYNC before
-MISSING_WAIT_S = 0.05
-
-log = logging.getLogger(__name__)
-
-CODE_HEARTBEAT = 0x8130  # life guard / heartbeat error (CiA 301)
-CODE_PDO_TIMEOUT = 0x8250  # RPDO timeout, here: the master's receive PDO = drive's TPDO
-CODE_BUS = 0x8100  # communication, generic: the bus refused our frames
-
-NMT_NAMES = {0x00: "BOOT-UP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
-NMT_OPERATIONAL = 0x05
-#: NMT restarts of a drive that is not OPERATIONAL before the first enable (start-up)
-NMT_START_TRIES = 3
-EMCY_STRUCT = struct.Struct("<HB5s")
-#: a drive's place on the way to Operation Enabled (by DriveState value; -1: off that way)
-_ENABLE_RANK = np.full(len(DriveState), -1, np.int8)
-_ENABLE_RANK[[ST.NOT_READY_TO_SWITCH_ON, ST.SWITCH_ON_DISABLED, ST.READY_TO_SWITCH_ON,
-              ST.SWITCHED_ON, ST.OPERATION_ENABLED]] = [0, 0, 1, 2, 3]
-#: events kept by :meth:`WinchDrives.events` when nobody takes them (oldest dropped)
-EVENTS_KEPT = 10_000
-#: EMCYs waiting for the next cycle at most (a flood beyond is counted, not kept)
-QUEUE_KEPT = 10_000
+from hal.drives_cycle import CycleMixin
+from hal.drives_nmt import NmtMixin
+from hal.drives_rx import ReceiveMixin
 
 
-class DriveStartupError(RuntimeError):
-    """Drives did not come up (missing boot-up, no answer); the message names the nodes."""
-
-
-class DriveLostError(DriveStartupError):
-    """Drives lost while they were being enabled (their TPDOs stopped: ``drive_lost``);
-    ``node_ids`` names them. Their faults stay in :meth:`WinchDrives.faults`."""
-
-    def __init__(self, message: str, node_ids: tuple[int, ...]) -> None:
-        super().__init__(message)
-        self.node_ids = node_ids
-
-
-class BusLinkError(DriveStartupError):
-    """The CAN link is down (the socketcand server or the adapter went away, the bus refuses
-    frames): raised by the blocking calls, the message names the bus."""
-
-
-@dataclass(frozen=True)
-class DriveEvent:
-    """Something that happened on a drive, in order of detection."""
-
-    node_id: int
-    cable: str
-    kind: str  #: emcy, emcy_malformed, emcy_overflow, fault, fault_code, fault_cleared,
-    #: quick_stop, switched_off, heartbeat_lost, heartbeat_resumed, heartbeat_malformed,
-    #: boot_up, nmt_state, tpdo_missing, tpdo_late, tpdo_short, drive_lost, tpdo_resumed,
-    #: foreign_master, internal_limit, fault_reset_failed, recovered, sdo_error; node_id 0
-    #: (the bus): bus_error, link_lost, link_back, foreign_master (NMT to all nodes, SYNC)
-    code: int  #: EMCY / error code (0 when none applies)
-    text: str
-    source: str  #: "drive" (EMCY it sent) or "hal" (detected by the master)
-    cycle: int  #: exchange() count when processed
-    time_s: float  #: master clock [s]
-
-    def __str__(self) -> str:
-        return (f"node {self.node_id} (cable {self.cable}) {self.kind} 0x{self.code:04X}: "
-                f"{self.text} [{self.source}, cycle {self.cycle}]")
-
-
-@dataclass(frozen=True)
-class DriveFault:
-    """An active fault of one drive."""
-
-    node_id: int
-    cable: str
-    kind: str  #: drive_fault, quick_stop, heartbeat_lost, drive_lost, boot_up, nmt_state,
-    #: link_lost, foreign_master (node_id 0: a frame to the whole bus)
-    code: int
-    text: str
-
-    def __str__(self) -> str:
-        return (f"node {self.node_id} (cable {self.cable}) {self.kind} 0x{self.code:04X}: "
-                f"{self.text}")
-
-
-class WinchDrives:
+class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
     """All winch drives of one CAN bus, vectorised over winches (see the module docstring).
 
     ``network`` is a connected :class:`canopen.Network`; ``winches`` the winch parameters
@@ -233,6 +167,8 @@ class WinchDrives:
     ``producer_priority``: the master heartbeat thread's ``SCHED_FIFO`` priority where the
     OS allows it (:func:`hal.rt_threads.raise_thread`; 0: normal scheduling).
     """
+
+    # ------------------------------------------------------ construction
 
     def __init__(
         self,
@@ -389,8 +325,6 @@ class WinchDrives:
         #: frames only another master sends (see :mod:`hal.bus_watch`)
         self.foreign = ForeignFrameWatch(network, self.node_ids, rpdo_cobs)
 
-    # ------------------------------------------------------------------ construction
-
     @classmethod
     def open(
         cls,
@@ -450,437 +384,7 @@ class WinchDrives:
         """The master clock [s]."""
         return self._clock()
 
-    # ------------------------------------------------------------------ receive callbacks
-
-    def _tpdo_cb(self, k: int):
-        size = self._tpdo.size
-
-        def cb(can_id: int, data: bytearray, timestamp: float) -> None:
-            if len(data) < size:
-                self._queue.append(("short", k, len(data)))
-                return
-            sw, pos = self._tpdo.unpack_from(data)
-            with self._rx:
-                self._rx_sw[k] = sw
-                self._rx_pos[k] = pos
-                self._rx_count[k] += 1
-                self._rx.notify_all()
-
-        return cb
-
-    def _heartbeat_cb(self, k: int):
-        def cb(can_id: int, data: bytearray, timestamp: float) -> None:
-            if len(data) != 1:
-                self._post(("hb_bad", k, len(data)))
-                if not data:
-                    return
-            state = data[0] & 0x7F
-            t = self._clock()
-            self._rx_hb_t[k] = t
-            if state == 0:
-                with self._rx:
-                    self._boot_count[k] += 1
-                    self._rx.notify_all()
-            changed = state != self._rx_hb_state[k]
-            self._rx_hb_state[k] = state
-            if changed or state == 0:  # changes only: a bounded queue
-                self._queue.append(("hb", k, state, t))
-
-        return cb
-
-    def _emcy_cb(self, k: int):
-        def cb(can_id: int, data: bytearray, timestamp: float) -> None:
-            if len(data) != EMCY_STRUCT.size:
-                self._post(("emcy_bad", k, bytes(data)))
-                return
-            code, register, extra = EMCY_STRUCT.unpack(data)
-            self._post(("emcy", k, code, register, extra))
-
-        return cb
-
-    def _post(self, item: tuple) -> None:
-        """Queue an item for the next cycle; beyond QUEUE_KEPT (nobody cycles, a flood) it is
-        counted instead (reported as ``emcy_overflow`` by the next cycle)."""
-        if len(self._queue) >= QUEUE_KEPT:
-            self._queue_overflow[item[1]] += 1
-            return
-        self._queue.append(item)
-
-    # ------------------------------------------------------------------ events
-
-    def _keep(self, e: DriveEvent) -> None:
-        if len(self._events) == self._events.maxlen:
-            self.events_dropped += 1
-        self._events.append(e)
-
-    def _event(self, k: int, kind: str, code: int, text: str, source: str = "hal") -> None:
-        self._keep(DriveEvent(self.node_ids[k], self.winches.cables[k], kind, code, text,
-                              source, self.cycle, self._clock()))
-
-    def _bus_event(self, text: str, kind: str = "bus_error", code: int = CODE_BUS) -> None:
-        self._keep(DriveEvent(0, "-", kind, code, f"{self.bus_name}: {text}", "hal", self.cycle,
-                              self._clock()))
-
-    def events(self, clear: bool = True) -> list[DriveEvent]:
-        """Events since the last call (all of them with ``clear=False``: kept)."""
-        out = list(self._events)
-        if clear:
-            self._events.clear()
-        return out
-
-    def _drain(self) -> None:
-        over = self._queue_overflow
-        for k in np.flatnonzero(over) if np.count_nonzero(over) else ():
-            self._event(int(k), "emcy_overflow", 0, f"{self._queue_overflow[k]} EMCYs not kept "
-                        "(more than the master could take between two cycles)")
-            self._queue_overflow[k] = 0
-        while self._queue:
-            item = self._queue.popleft()
-            kind, k = item[0], item[1]
-            if kind == "hb":
-                self._heartbeat_in(k, item[2])
-            elif kind == "emcy":
-                code, register = item[2], item[3]
-                self._code[k] = code
-                if code == 0:
-                    self._event(k, "emcy", 0, "error reset (no error)", "drive")
-                else:
-                    if len(self._window[k]) < 16:
-                        self._window[k].append(code)
-                    self._event(k, "emcy", code, f"{emcy_text(code)} (error register "
-                                f"0x{register:02X})", "drive")
-            elif kind == "emcy_bad":
-                self._event(k, "emcy_malformed", 0, f"EMCY of {len(item[2])} bytes "
-                            f"({item[2].hex() or 'empty'}), expected {EMCY_STRUCT.size}: ignored")
-            elif kind == "hb_bad":
-                self._event(k, "heartbeat_malformed", CODE_HEARTBEAT,
-                            f"heartbeat of {item[2]} bytes, expected 1")
-            elif kind == "short":
-                self._event(k, "tpdo_short", CODE_PDO_TIMEOUT,
-                            f"TPDO of {item[2]} bytes, expected {self._tpdo.size}")
-            elif kind == "603f":
-                self._fault_code_read(k, item[2], item[3])
-
-    def _heartbeat_in(self, k: int, state: int) -> None:
-        if state == 0:
-            if self._started[k] and not self._rebooted[k]:
-                self._rebooted[k] = True
-                self._request[k] = RQ.DISABLE
-                self._setpoint_ok[k] = False
-                self._have[k] = False  # state UNKNOWN until recover() reads it
-                self._event(k, "boot_up", CODE_HEARTBEAT,
-                            "unexpected boot-up: the node was reset; recover() it")
-            self._nmt[k] = 0x7F
-            return
-        if state != NMT_OPERATIONAL and self._clock() <= self._nmt_wait[k]:
-            self._rx_hb_state[k] = -1  # the next one counts again
-            return  # sent before our NMT start reached it: not news
-        if state == NMT_OPERATIONAL:
-            self._nmt_wait[k] = -np.inf
-        if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
-            if state != NMT_OPERATIONAL:
-                # no PDO leaves a node outside OPERATIONAL: the statusword we hold is old,
-                # its power state unknown until a TPDO comes again (or recover()); the NMT
-                # state is the fault (no TPDO is owed: not drive_lost)
-                self._lost[k] = False
-                self._have[k] = False
-                self._setpoint_ok[k] = False
-                self._event(k, "nmt_state", CODE_HEARTBEAT,
-                            f"NMT state {NMT_NAMES.get(state, hex(state))}, "
-                            "expected OPERATIONAL: its power state is unknown")
-        self._nmt[k] = state
-
-    def _send_nmt(self, k: int, command: int) -> None:
-        self.network.send_message(0, bytes([command, self.node_ids[k]]))
-
-    # ------------------------------------------------------------------ the link
-
-    def link_up(self) -> bool:
-        """The bus is usable (a socketcand link that is connected; other buses: always)."""
-        return bool(getattr(self.network.bus, "link_up", True))
-
-    def _link_why(self) -> str:
-        why = getattr(self.network.bus, "link_error", "") or "link down"
-        return f"{self.bus_name}: CAN link down ({why})"
-
-    def _require_link(self, what: str) -> None:
-        if not self.link_up():
-            raise BusLinkError(f"{what}: {self._link_why()}")
-
-    def _blocking(self, what: str, fn: Callable[[], object]) -> object:
-        """Run a blocking operation; a bus that fails under it raises BusLinkError naming the
-        bus (never a raw OSError / CanError)."""
-        self._require_link(what)
-        try:
-            return fn()
-        except (can.CanError, OSError) as exc:
-            raise BusLinkError(f"{what}: {self.bus_name}: {type(exc).__name__}: {exc}") from exc
-        except DriveConfigError as exc:
-            if not self.link_up():
-                raise BusLinkError(f"{what}: {self._link_why()}: {exc}") from exc
-            raise
-
-    def _check_link(self) -> None:
-        """Per cycle: notice a lost or restored link (a reconnect counts as both)."""
-        up = self.link_up()
-        epoch = getattr(self.network.bus, "link_epoch", self._link_epoch)
-        if (not up or epoch != self._link_epoch) and not self._link_down:
-            self._link_down = True
-            why = getattr(self.network.bus, "link_error", "") or "reconnected"
-            self._bus_event(f"CAN link lost ({why}): drive states unknown", "link_lost")
-            lost = self._started.copy()
-            self._relink |= lost
-            self._have[:] = False
-            self._setpoint_ok[:] = False
-            self._request[lost] = RQ.QUICK_STOP  # hold, should anything still listen
-        if up and self._link_down:
-            self._link_down = False
-            self._bus_event("CAN link back: the drives stopped on their own (master lost); "
-                            "recover() them, then enable()", "link_back", 0)
-        self._link_epoch = epoch
-
-    # ------------------------------------------------------------------ master heartbeat
-
-    def _master_heartbeat(self) -> None:
-        mid = self.winches.bus.master_node_id
-        try:
-            with self._send_lock:
-                self.network.bus.send(can.Message(arbitration_id=0x700 + mid,
-                                                  data=bytes([NMT_OPERATIONAL]),
-                                                  is_extended_id=False))
-        except (can.CanError, OSError):
-            pass  # a dead link: the cycle reports it
-        now = time.monotonic()
-        gap = now - self._mhb_wall
-        if gap < np.inf:
-            self._mhb_gap_max = max(self._mhb_gap_max, gap)
-            if gap > self.winches.bus.master_heartbeat_timeout_s > 0:
-                self._mhb_late += 1
-        self._mhb_wall = now
-
-    def producer_stats(self) -> dict:
-        """The master heartbeat producer so far: ``scheduling`` (what its thread got),
-        ``gap_max_s`` (longest wall time between two heartbeats sent [s]), ``late`` (gaps
-        longer than the drives' consumer time, ``master_heartbeat_timeout_s``: each one
-        let the drives conclude that their master is gone)."""
-        return {"scheduling": self.producer_scheduling,
-                "gap_max_s": float(self._mhb_gap_max), "late": int(self._mhb_late)}
-
-    def _producer_text(self) -> str:
-        st = self.producer_stats()
-        return (f"master heartbeat: longest gap {st['gap_max_s']:.3f} s, {st['late']} longer "
-                f"than the drives' consumer time {self.winches.bus.master_heartbeat_timeout_s:g}"
-                f" s; producer thread {st['scheduling']}")
-
-    def set_producer_priority(self, priority: int) -> str:
-        """The master heartbeat thread's SCHED_FIFO priority (0: normal scheduling, as it
-        is); applied at once when it runs, else when :meth:`start` starts it. Returns
-        :attr:`producer_scheduling`."""
-        self.producer_priority = int(priority)
-        t = self._mhb_thread
-        if t is not None and t.native_id is not None and priority > 0:
-            self.producer_scheduling = raise_thread(self.producer_priority, t.native_id)
-        return self.producer_scheduling
-
-    def _mhb_loop(self) -> None:
-        self.producer_scheduling = raise_thread(self.producer_priority)
-        period = self.winches.bus.master_heartbeat_period_s
-        while not self._mhb_stop.wait(max(0.001, period - (time.monotonic() - self._mhb_wall))):
-            if time.monotonic() - self._mhb_wall >= period - 1e-4:
-                self._master_heartbeat()
-
-    def _start_master_heartbeat(self) -> None:
-        if self.winches.bus.master_heartbeat_period_s <= 0 or self._mhb_thread is not None:
-            return
-        self._mhb_stop.clear()
-        self._master_heartbeat()
-        self._mhb_thread = threading.Thread(target=self._mhb_loop, name="master-heartbeat",
-                                            daemon=True)
-        self._mhb_thread.start()
-
-    def _cycle_heartbeat(self) -> None:
-        """On a non-wall clock, also one heartbeat per period of that clock (the drives on
-        the same clock then hear it at the period, however fast the cycles run)."""
-        period = self.winches.bus.master_heartbeat_period_s
-        if self._wall_clock or period <= 0 or self._mhb_thread is None:
-            return
-        now = self._clock()
-        if now - self._mhb_clock >= period - 1e-9:
-            self._mhb_clock = now
-            self._master_heartbeat()
-
-    # ------------------------------------------------------------------ fault codes (SDO)
-
-    def _confirm_fault_code(self, k: int) -> None:
-        """Read 0x603F of drive ``k`` in the background (the cycle never waits for SDO)."""
-        if self._worker is None:
-            self._worker = threading.Thread(target=self._work, name="drive-sdo", daemon=True)
-            self._worker.start()
-        self._jobs.put(k)
-
-    def _work(self) -> None:
-        while True:
-            k = self._jobs.get()
-            if k is None or self._closed:
-                return
-            try:
-                with self._sdo_lock:
-                    code = int(sdo_read(self.nodes[k], 0x603F, 0, self.who(k)))
-                self._queue.append(("603f", k, code, ""))
-            except (DriveConfigError, can.CanError, OSError) as exc:
-                self._queue.append(("603f", k, None, str(exc)))
-
-    def _fault_code_read(self, k: int, code: int | None, err: str) -> None:
-        if not faulted(self._states[k:k + 1])[0]:
-            return  # reset meanwhile
-        if code is None:
-            self._event(k, "sdo_error", 0, f"reading 0x603F error code: {err}")
-            return
-        if code != self._fault_code[k]:
-            old = int(self._fault_code[k])
-            self._fault_code[k] = code
-            said = f"0x{old:04X}" if old else "no EMCY"
-            self._event(k, "fault_code", code, f"0x603F error code 0x{code:04X} "
-                        f"({emcy_text(code)}); the fault came with {said}")
-
-    # ------------------------------------------------------------------ start-up (blocking)
-
-    def start(self, timeout: float = 3.0, nodes: Iterable[int] | None = None) -> None:
-        """Bring drives to NMT OPERATIONAL with the CSP configuration (blocking; SDO).
-
-        NMT reset communication, wait for each boot-up, check identity against the EDS,
-        write and verify the configuration (master-loss monitoring included), read
-        statusword and position, NMT start; the master heartbeat runs from here on.
-        ``nodes`` are array indices (default: all). Raises DriveStartupError or
-        DriveConfigError naming the node, BusLinkError naming the bus.
-        """
-        if nodes is None:
-            for problem in holding_problems(self.winches):
-                log.warning("%s", problem)
-        self._blocking("start", lambda: self._start(timeout, nodes))
-
-    def _start(self, timeout: float, nodes: Iterable[int] | None) -> None:
-        ks = list(range(self.n)) if nodes is None else list(nodes)
-        self._start_master_heartbeat()
-        before = self._boot_count.copy()
-        for k in ks:
-            self._send_nmt(k, 0x82)  # reset communication
-        self._wait_bootups(ks, before, timeout)
-        with self._sdo_lock:
-            for k in ks:
-                node = self.nodes[k]
-                who = self.who(k)
-                verify_identity(node, who)
-                configure_node(node, drive_settings(self.winches, k, node.object_dictionary),
-                               who)
-                sw = int(sdo_read(node, 0x6041, 0, who))
-                pos = int(sdo_read(node, 0x6064, 0, who))
-                with self._rx:
-                    self._rx_sw[k] = sw
-                    self._rx_pos[k] = pos
-                    self._seen[k] = self._rx_count[k]
-                self._sw[k], self._pos[k], self._have[k] = sw, pos, True
-                self._target[k] = pos
-        self._drain_startup(ks)
-        now = self._clock()
-        self._link_down = False
-        self._link_epoch = getattr(self.network.bus, "link_epoch", self._link_epoch)
-        states = decode_states(self._sw, self._have)
-        for k in ks:
-            self._send_nmt(k, 0x01)  # start remote node
-            self._started[k] = True
-            self._armed[k] = False
-            self._rebooted[k] = False
-            self._relink[k] = False
-            self._hb_lost[k] = False
-            self._hb_last[k] = now
-            self._rx_hb_t[k] = max(self._rx_hb_t[k], now)
-            self._rx_hb_state[k] = -1  # the next heartbeat tells the state
-            self._nmt[k] = NMT_OPERATIONAL
-            self._nmt_wait[k] = now + max(self.hb_timeout_s, self.period_s)
-            self._miss_streak[k] = 0
-            self._lost[k] = False
-            self._last_tpdo_t[k] = now
-            # a drive holding in Quick Stop Active (it lost its master) keeps holding
-            held = states[k] == ST.QUICK_STOP_ACTIVE
-            self._request[k] = RQ.QUICK_STOP if held else RQ.DISABLE
-            self._self_stopped[k] = held
-            self._setpoint_ok[k] = False
-        self._states = states
-        for k in ks:
-            if faulted(self._states[k:k + 1])[0]:
-                if not self._window[k]:  # its EMCY may have gone out before we listened
-                    with self._sdo_lock:
-                        self._fault_code[k] = int(sdo_read(self.nodes[k], 0x603F, 0,
-                                                           self.who(k)))
-                else:
-                    self._fault_code[k] = self._cause(k)
-                code = int(self._fault_code[k])
-                text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
-                self._event(k, "fault", code, f"in {DriveState(self._states[k]).name} at "
-                            f"start-up: {text}")
-
-    def _wait_bootups(self, ks: list[int], before: np.ndarray, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        with self._rx:
-            while True:
-                missing = [k for k in ks if self._boot_count[k] <= before[k]]
-                left = deadline - time.monotonic()
-                if not missing:
-                    return
-                if left <= 0:
-                    who = ", ".join(self.who(k) for k in missing)
-                    raise DriveStartupError(
-                        f"no boot-up within {timeout:.1f} s after NMT reset from {who}")
-                self._rx.wait(left)
-
-    def _drain_startup(self, ks: list[int]) -> None:
-        """Consume events of the start-up (boot-ups we caused); keep EMCYs."""
-        keep = []
-        while self._queue:
-            item = self._queue.popleft()
-            if item[0] == "hb" and item[1] in ks:
-                continue
-            keep.append(item)
-        self._queue.extend(keep)
-        self._drain()
-
-    def _needs_recovery(self) -> np.ndarray:
-        return self._rebooted | self._relink | self._hb_lost | (
-            self._started & ~np.isin(self._nmt, (NMT_OPERATIONAL, -1)))
-
-    def recover(self, timeout: float = 3.0) -> list[int]:
-        """Restart drives that rebooted, went silent and are back, or were behind a lost
-        link (blocking; SDO). Returns the node ids restarted. They come back disabled, or
-        holding in Quick Stop Active if they stopped on their own: call :meth:`enable`.
-        BusLinkError while the link is down.
-        """
-        self._require_link("recover")
-        self._check_link()
-        self._drain()
-        ks = [int(k) for k in np.flatnonzero(self._needs_recovery())]
-        if not ks:
-            return []
-        self._blocking("recover", lambda: self._start(timeout, ks))
-        for k in ks:
-            self._event(k, "recovered", 0, "reconfigured and started")
-        return [self.node_ids[k] for k in ks]
-
-    def read_fault_codes(self) -> dict[int, int]:
-        """Read 0x603F error code of drives in Fault by SDO (blocking). {node id: code}."""
-
-        def read() -> dict[int, int]:
-            out = {}
-            for k in np.flatnonzero(faulted(self._states)):
-                with self._sdo_lock:
-                    code = int(sdo_read(self.nodes[k], 0x603F, 0, self.who(k)))
-                self._fault_code[k] = code
-                out[self.node_ids[k]] = code
-            return out
-
-        return self._blocking("read_fault_codes", read)
-
-    # ------------------------------------------------------------------ requests
+    # ---------------------------------------------------------- requests
 
     def _mask(self, nodes: Iterable[int] | None) -> np.ndarray:
         m = np.zeros(self.n, bool)
@@ -945,467 +449,7 @@ class WinchDrives:
             raise ValueError(f"set_positions_counts: expected shape ({self.n},), got {c.shape}")
         self._target = np.where(self._setpoint_ok, c, self._target)
 
-    # ------------------------------------------------------------------ the cycle
-
-    def _expected(self) -> np.ndarray:
-        """Drives that owe a TPDO per SYNC (started by us, operational as far as we know,
-        not lost)."""
-        op = (self._nmt == NMT_OPERATIONAL) | (self._nmt == -1)
-        return (self._started & self._armed & ~self._rebooted & ~self._hb_lost & ~self._relink
-                & ~self._lost & op)
-
-    def exchange(self) -> None:
-        """One control cycle: process what arrived, run the state machine, send RPDOs + SYNC.
-
-        Never blocks (no SDO, no sleep). Same as :meth:`receive` then :meth:`transmit`.
-        """
-        self.receive()
-        self.transmit()
-
-    def receive(self) -> None:
-        """First half of a cycle: process the TPDOs, heartbeats and EMCYs that arrived since
-        the last call (positions, states, detection). Never blocks. Call once per cycle,
-        before :meth:`transmit` (a TPDO is expected per SYNC sent)."""
-        self._window_mark = [len(w) for w in self._window]
-        self._drain()
-        self._check_link()
-        with self._rx:
-            counts = self._rx_count.copy()
-            sw = self._rx_sw.copy()
-            pos = self._rx_pos.copy()
-        fresh = counts > self._seen
-        n_new = counts - self._seen
-        self._seen = counts
-        # an answer is owed per SYNC sent since the last receive (none: nothing is missing)
-        expected = self._expected() if self._syncs != self._syncs_seen else self._no_one
-        self._syncs_seen = self._syncs
-        self._check_pdos(fresh, n_new, expected)
-        self._sw = np.where(fresh, sw, self._sw)
-        self._pos = np.where(fresh, pos, self._pos)
-        # a node its heartbeat says is outside OPERATIONAL sends no PDO: a TPDO counted now
-        # was sent before it left (its statusword is old news)
-        out_of_op = (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
-        self._heartbeats_back()
-        # the state is known only from fresh feedback of a node that is not lost: while its
-        # heartbeat is lost it is UNKNOWN every cycle, whatever TPDOs still come (the node
-        # needs recover() or its heartbeat back); a drive_lost node has no fresh TPDO
-        self._have |= fresh & ~self._relink & ~out_of_op & ~self._hb_lost
-        self._nmt_wait[fresh] = -np.inf  # PDOs only flow in OPERATIONAL
-        self._check_feedback(fresh, expected)
-        self._update_states(expected)
-        self._check_heartbeats()
-        self._check_foreign()
-
-    def _check_feedback(self, fresh: np.ndarray, expected: np.ndarray) -> None:
-        """TPDO deadline: a drive silent for the deadline is lost (state unknown, asked to
-        quick stop); its TPDOs back end it."""
-        now = self._clock()
-        if np.count_nonzero(fresh):
-            self._last_tpdo_t[fresh] = now
-        back = self._lost & fresh
-        for k in np.flatnonzero(back) if np.count_nonzero(back) else ():
-            self._lost[k] = False
-            self._event(k, "tpdo_resumed", CODE_PDO_TIMEOUT, "TPDOs back: state known again")
-        if not np.count_nonzero(self._miss_streak):
-            return
-        lost = feedback_lost(np.where(expected, self._miss_streak, 0), now - self._last_tpdo_t,
-                             self.tpdo_deadline_cycles, self.tpdo_deadline_min_s)
-        for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():
-            self._lost[k] = True
-            self._have[k] = False  # its state is unknown now, never its last live one
-            self._setpoint_ok[k] = False
-            self._request[k] = RQ.QUICK_STOP  # hold, if it still hears us
-            self._event(k, DRIVE_LOST, CODE_PDO_TIMEOUT, self._lost_text(k, now))
-
-    def _lost_text(self, k: int, now: float) -> str:
-        return (f"no TPDO for {self._miss_streak[k]} SYNCs ({now - self._last_tpdo_t[k]:.3f} "
-                f"s; deadline {self.tpdo_deadline_cycles} SYNCs and "
-                f"{self.tpdo_deadline_min_s:.3f} s): state unknown")
-
-    def _check_foreign(self) -> None:
-        """Frames another master sent (queued by :attr:`foreign`): an event when the
-        condition starts, a fault while it lasts."""
-        frames = self.foreign.take()
-        if not frames:
-            return
-        now = self._clock()
-        for f in frames:
-            if f.node_id in self.node_ids:
-                k = self.node_ids.index(f.node_id)
-                if now > self._foreign_until[k]:
-                    self._event(k, FOREIGN_MASTER, 0, f"{f.text} (another master on the bus)")
-                self._foreign_until[k] = now + FOREIGN_HOLD_S
-                self._foreign_text[k] = f.text
-            else:
-                if now > self._foreign_bus_until:
-                    self._bus_event(f"{f.text} (another master on the bus)", FOREIGN_MASTER, 0)
-                self._foreign_bus_until = now + FOREIGN_HOLD_S
-                self._foreign_bus_text = f.text
-
-    def transmit(self) -> None:
-        """Second half of a cycle: state machine requests, RPDOs (setpoints) + SYNC out.
-        Never blocks."""
-        self._send_outputs()
-        self._cycle_heartbeat()
-        self.cycle += 1
-
-    def _check_pdos(self, fresh: np.ndarray, n_new: np.ndarray, expected: np.ndarray) -> None:
-        if (np.count_nonzero(fresh) == fresh.size and not np.count_nonzero(self._miss_streak)
-                and not np.count_nonzero(n_new > 1)):
-            return  # every drive answered once, none was missing: nothing to report
-        for k in np.flatnonzero(expected & ~fresh):
-            if self._miss_streak[k] == 0:
-                self._event(k, "tpdo_missing", CODE_PDO_TIMEOUT,
-                            f"no TPDO for SYNC {self._syncs}")
-            self._miss_streak[k] += 1
-        for k in np.flatnonzero(fresh & (self._miss_streak > 0)):
-            if self._miss_streak[k] > 1:
-                self._event(k, "tpdo_missing", CODE_PDO_TIMEOUT,
-                            f"TPDOs back after {self._miss_streak[k]} missed SYNCs")
-            self._miss_streak[k] = 0
-        for k in np.flatnonzero(expected & (n_new > 1)):
-            self._event(k, "tpdo_late", CODE_PDO_TIMEOUT,
-                        f"{n_new[k]} TPDOs in one cycle: one arrived late")
-
-    def _cause(self, k: int) -> int:
-        """The EMCY that came with drive ``k``'s transition to Fault: of the EMCYs since it
-        was last seen not faulted, the first that is not a communication warning (0x81xx,
-        0x82xx), else the first; 0 if none came."""
-        codes = self._window[k]
-        for code in codes:
-            if code >> 8 not in (0x81, 0x82):
-                return code
-        return codes[0] if codes else 0
-
-    def _update_states(self, expected: np.ndarray) -> None:
-        old = self._states
-        new = decode_states(self._sw, self._have)
-        was_fault = faulted(old)
-        now_fault = faulted(new)
-        any_fault = bool(np.count_nonzero(was_fault) or np.count_nonzero(now_fault))
-        for k in np.flatnonzero(now_fault & ~was_fault) if any_fault else ():
-            code = self._cause(k)
-            self._fault_code[k] = code
-            text = emcy_text(code) if code else "fault without EMCY (read 0x603F)"
-            self._event(k, "fault", code, f"{DriveState(new[k]).name}: {text}")
-            self._request[k] = RQ.DISABLE
-            self._confirm_fault_code(int(k))
-        cleared = ~now_fault & was_fault & (new != ST.UNKNOWN) if any_fault else ()
-        for k in np.flatnonzero(cleared) if any_fault else ():
-            self._event(k, "fault_cleared", 0, f"now {DriveState(new[k]).name}")
-            self._fault_code[k] = 0
-        known_ok = ~now_fault & (new != ST.UNKNOWN)
-        for k in np.flatnonzero(known_ok) if any(self._window_mark) else ():
-            del self._window[k][:self._window_mark[k]]
-        # a drive that quick-stopped on its own (master lost, 0x6007) holds there until the
-        # controller enables it again: the master never re-enables it by itself
-        qs = new == ST.QUICK_STOP_ACTIVE
-        for k in np.flatnonzero(qs & (old != ST.QUICK_STOP_ACTIVE)
-                                & (self._request != RQ.QUICK_STOP)) if np.count_nonzero(qs) else ():
-            self._self_stopped[k] = True
-            self._request[k] = RQ.QUICK_STOP
-            code = next((c for c in reversed(self._window[k]) if c), int(self._code[k]))
-            why = emcy_text(code) if code else "no EMCY"
-            self._event(k, "quick_stop", code, f"the drive stopped on its own ({why}): held in "
-                        "Quick Stop Active until enable()")
-        self._self_stopped &= qs | (new == ST.UNKNOWN)
-        self._drop_enable(old, new)
-        oe = new == ST.OPERATION_ENABLED
-        entering = oe & ~self._setpoint_ok
-        self._target[entering] = self._pos[entering]  # hold where it stands
-        self._setpoint_ok = oe
-        limit = oe & ((self._sw & SW_INTERNAL_LIMIT) != 0)
-        for k in np.flatnonzero(limit & ~self._limit) if np.count_nonzero(limit) else ():
-            self._event(k, "internal_limit", 0, "software position limit reached (bit 11)")
-        self._limit = limit
-        self._states = new
-
-    def _drop_enable(self, old: np.ndarray, new: np.ndarray) -> None:
-        """A drive asked to be enabled that went back along the enable path (Operation
-        Enabled -> Switched On -> Ready To Switch On -> Switch On Disabled) without the master
-        asking: switched off by another master (an SDO write of 0x6040) or by itself. The
-        master stops asking (never enables it again by itself, until :meth:`enable`) and
-        leaves it where it is: an event ``switched_off``."""
-        back = (self._request == RQ.ENABLE) & (_ENABLE_RANK[new] >= 0) & (
-            _ENABLE_RANK[new] < _ENABLE_RANK[old])
-        for k in np.flatnonzero(back) if np.count_nonzero(back) else ():
-            off = new[k] in (ST.SWITCH_ON_DISABLED, ST.NOT_READY_TO_SWITCH_ON)
-            self._request[k] = RQ.OFF if off else RQ.DISABLE
-            self._event(k, "switched_off", 0, f"{DriveState(old[k]).name} -> "
-                        f"{DriveState(new[k]).name} without the master asking (another master? "
-                        "the drive itself?): not enabled again until enable()")
-
-    def _heartbeats_back(self) -> None:
-        """Heartbeats of lost nodes that came again (``heartbeat_resumed``): their TPDOs of
-        this cycle give their state again."""
-        if self.hb_timeout_s <= 0 or self._link_down:
-            return
-        now = self._clock()
-        self._hb_last = np.maximum(self._hb_last, self._rx_hb_t)
-        back = self._hb_lost & (now - self._hb_last <= self.hb_timeout_s + 1e-9)
-        for k in np.flatnonzero(back) if np.count_nonzero(back) else ():
-            self._hb_lost[k] = False
-            self._event(k, "heartbeat_resumed", CODE_HEARTBEAT, "heartbeat back")
-
-    def _check_heartbeats(self) -> None:
-        """Nodes silent beyond the heartbeat timeout: ``heartbeat_lost``, state UNKNOWN from
-        this cycle on until the heartbeat is back (or :meth:`recover`)."""
-        if self.hb_timeout_s <= 0 or self._link_down:
-            return
-        now = self._clock()
-        self._hb_last = np.maximum(self._hb_last, self._rx_hb_t)
-        watched = self._started & ~self._rebooted & ~self._relink
-        lost = watched & ~self._hb_lost & (now - self._hb_last > self.hb_timeout_s + 1e-9)
-        for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():
-            self._hb_lost[k] = True
-            self._have[k] = False  # its state is unknown now
-            self._states[k] = ST.UNKNOWN
-            self._setpoint_ok[k] = False
-            self._request[k] = RQ.QUICK_STOP  # hold, if it still hears us
-            self._event(k, "heartbeat_lost", CODE_HEARTBEAT,
-                        f"no heartbeat for {now - self._hb_last[k]:.3f} s "
-                        f"(> {self.winches.bus.heartbeat_misses} periods)")
-
-    def _send_outputs(self) -> None:
-        states = self._states
-        cw = controlwords(states, self._request).astype(np.int64)
-        # fault reset: bit 7 low for one cycle, then high while the drive is in Fault
-        resetting = self._reset_left > 0
-        if np.count_nonzero(resetting):
-            cw = np.where(resetting & ((self._last_cw & CW_FAULT_RESET) == 0) & faulted(states),
-                          CW_FAULT_RESET, cw)
-            hold = resetting & ((self._last_cw & CW_FAULT_RESET) != 0) & faulted(states)
-            cw = np.where(hold, CW_FAULT_RESET, cw)
-            done = resetting & ~faulted(states)
-            self._reset_left[done] = 0
-            self._reset_left[resetting & ~done] -= 1
-            for k in np.flatnonzero(resetting & ~done & (self._reset_left == 0)):
-                self._event(k, "fault_reset_failed", int(self._fault_code[k]),
-                            "still in Fault after the reset edge (cause persists?)")
-        # a drive not enabled, or being enabled now, gets its actual position as target
-        going = enabling(states, cw)
-        target = np.where(self._setpoint_ok & ~going, self._target, self._pos)
-        self._target = target
-        self._last_cw = cw
-        send = self._started & ~self._rebooted & ~self._relink
-        if self._link_down or not self.link_up():
-            self._syncs += 1  # the cycle happened; nothing can go out (see _check_link)
-            return
-        pack = self._rpdo.pack
-        cws, targets, ids = cw.tolist(), target.tolist(), self.node_ids  # plain ints
-        rpdos = [can.Message(arbitration_id=0x200 + ids[k], data=pack(cws[k], targets[k]),
-                             is_extended_id=False) for k in np.flatnonzero(send).tolist()]
-        sync = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
-        bus = self.network.bus
-        try:
-            with self._send_lock:
-                if hasattr(bus, "send_batch"):  # one write: nothing can answer in between
-                    with self._rx:
-                        self._expect = self._rx_count.copy()
-                    send_frames(bus, rpdos + [sync])
-                else:  # answers to the RPDOs (delivered at once in lock-step) come first
-                    send_frames(bus, rpdos)
-                    with self._rx:
-                        self._expect = self._rx_count.copy()
-                    bus.send(sync)
-        except (can.CanError, OSError) as exc:
-            # the bus refused the frames (bus off, link down): report once per streak and
-            # keep cycling; the drives' heartbeats and TPDOs tell what happened to them
-            if not self._bus_failing:
-                self._bus_event(f"sending RPDOs/SYNC failed: {exc}")
-            self._bus_failing = True
-        else:
-            if self._bus_failing:
-                self._bus_event("sending works again")
-            self._bus_failing = False
-        self._syncs += 1
-        self._armed |= send
-
-    def wait_feedback(self, timeout: float = 0.5, missing_timeout: float | None = None
-                      ) -> bool:
-        """Wait until every expected drive answered the last SYNC (lock-step; blocks at most
-        ``timeout`` [s, wall], or ``missing_timeout`` when every drive not yet answered
-        missed the SYNC before too: default :data:`MISSING_WAIT_S`, one SYNC period on the
-        wall clock). A miss counts towards the TPDO deadline, after which the drive is lost
-        and no longer waited for: the cycles go on at the master's pace."""
-        if missing_timeout is None:
-            missing_timeout = self.period_s if self._wall_clock else MISSING_WAIT_S
-        mask = self._expected()
-        if not np.count_nonzero(mask):
-            return True
-        missed_before = self._miss_streak != 0
-        deadline = time.monotonic() + timeout
-        short = False  # the short bound is set
-        with self._rx:
-            while True:
-                pending = mask & (self._rx_count <= self._expect)
-                if not np.count_nonzero(pending):
-                    return True
-                if not short and not np.count_nonzero(pending & ~missed_before):
-                    # only drives that missed the SYNC before: a short wait more
-                    deadline = min(deadline, time.monotonic() + missing_timeout)
-                    short = True
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._rx.wait(left)
-
-    def step(self, timeout: float = 0.5) -> bool:
-        """exchange() then wait_feedback(): one lock-step cycle (blocks)."""
-        self.exchange()
-        return self.wait_feedback(timeout)
-
-    def run_until(self, done: Callable[[WinchDrives], bool], max_cycles: int,
-                  timeout: float = 0.5) -> bool:
-        """Lock-step cycles until ``done(self)`` or ``max_cycles`` (blocks)."""
-        for _ in range(max_cycles):
-            self.step(timeout)
-            if done(self):
-                return True
-        return False
-
-    def enable_and_wait(self, max_cycles: int = 50, restart_tries: int = 0) -> None:
-        """Enable all drives and cycle until they are Operation Enabled (blocks).
-
-        Fails at once (nothing is sent) with BusLinkError when the link is down, and with
-        DriveStartupError naming the drives that need :meth:`recover` first (reset, silent,
-        behind a lost link) or whose state is unknown. ``restart_tries`` > 0 (start-up,
-        before anything moved): such drives are restarted first, as a CANopen master
-        restarts a slave after an error control event (:meth:`restart_for_enable`)."""
-        self._require_link("enable")
-        self._drain()
-        self._check_link()
-        if self._link_down:
-            raise BusLinkError(f"enable: {self._link_why()}")
-        if restart_tries > 0:
-            self.restart_for_enable(restart_tries)
-        bad = [f"{self.who(k)}: {self._why_not_ready(k)}" for k in range(self.n)
-               if self._why_not_ready(k)]
-        if bad:
-            raise DriveStartupError(f"enable refused: {'; '.join(bad)} ({self._producer_text()})")
-        self.enable()
-        ok = self._blocking("enable", lambda: self.run_until(
-            lambda d: bool(np.all(d.states() == ST.OPERATION_ENABLED) or d._lost.any()),
-            max_cycles))
-        if self._lost.any():
-            ks = np.flatnonzero(self._lost)
-            # the others: no pending enable; those already enabled quick-stop
-            oe = self._states == ST.OPERATION_ENABLED
-            self._request[~self._lost & ~oe & (self._request == RQ.ENABLE)] = RQ.DISABLE
-            self._request[~self._lost & oe] = RQ.QUICK_STOP
-            raise DriveLostError(
-                f"{DRIVE_LOST} while enabling: " + "; ".join(
-                    f"{self.who(k)}: {self._lost_text(k, self._clock())}" for k in ks),
-                tuple(self.node_ids[k] for k in ks))
-        if not ok:
-            bad = [f"{self.who(k)}: {DriveState(s).name}" for k, s in enumerate(self._states)
-                   if s != ST.OPERATION_ENABLED]
-            # the drives that did not come keep no pending enable: a later fault reset or
-            # recovery must not enable them behind the controller's back
-            late = self._states != ST.OPERATION_ENABLED
-            held = late & (self._states == ST.QUICK_STOP_ACTIVE)
-            self._request[late & ~held] = RQ.DISABLE
-            self._request[held] = RQ.QUICK_STOP
-            if not self.link_up():
-                raise BusLinkError(f"enable: {self._link_why()}")
-            raise DriveStartupError(
-                f"not Operation Enabled after {max_cycles} cycles: {'; '.join(bad)}")
-
-    def restart_for_enable(self, tries: int = NMT_START_TRIES, timeout: float = 3.0
-                           ) -> list[int]:
-        """Restart the drives that are not ready to be enabled because they left NMT
-        OPERATIONAL, were reset or lost their heartbeat (e.g. their consumer heartbeat
-        expired while the host starved the master's producer) - at start-up, before
-        anything moved (blocking; SDO). Each try is :meth:`recover` (NMT reset, boot-up,
-        configuration, NMT start) and then waits up to :meth:`confirm_window_s` for their
-        heartbeats to say OPERATIONAL; at most ``tries`` tries. An event ``nmt_restart``
-        per drive and try. Returns the node ids restarted; raises DriveStartupError naming
-        each node, its NMT state and the master heartbeat's record when the last try
-        leaves some not OPERATIONAL."""
-        t0 = time.monotonic()
-        done: list[int] = []
-        left: list[int] = []
-        for attempt in range(1, tries + 1):
-            self._drain()
-            left = [int(k) for k in np.flatnonzero(self._needs_recovery() & self._started)]
-            if not left:
-                return done
-            for k in left:
-                why = self._why_not_ready(k).split(": recover()")[0] or "not OPERATIONAL"
-                self._event(k, "nmt_restart", CODE_HEARTBEAT, f"{why} before enabling: "
-                            f"restart {attempt} of {tries} ({self._producer_text()})")
-            done += [self.node_ids[k] for k in left if self.node_ids[k] not in done]
-            self.recover(timeout)
-            left = self._confirm_operational(left)
-            if not left:
-                return done
-        raise DriveStartupError("not NMT OPERATIONAL after " f"{tries} restarts in "
-                                f"{time.monotonic() - t0:.1f} s: " + "; ".join(
-                                    f"{self.who(k)}: NMT {self._nmt_name(k)}" for k in left)
-                                + f" ({self._producer_text()})")
-
-    def confirm_window_s(self) -> float:
-        """How long [s, wall] :meth:`restart_for_enable` waits for a restarted drive's
-        heartbeat: two of its heartbeat periods and the master's consumer time."""
-        bus = self.winches.bus
-        return 2.0 * bus.heartbeat_period_s + bus.master_heartbeat_timeout_s
-
-    def _confirm_operational(self, ks: list[int]) -> list[int]:
-        """Of drives ``ks`` just NMT-started, those whose heartbeat did not say OPERATIONAL
-        within :meth:`confirm_window_s` (none when the drives send no heartbeat)."""
-        if self.winches.bus.heartbeat_period_s <= 0:
-            return []
-        deadline = time.monotonic() + self.confirm_window_s()
-        while True:
-            left = [k for k in ks if self._rx_hb_state[k] != NMT_OPERATIONAL]
-            if not left or time.monotonic() >= deadline:
-                break
-            time.sleep(min(0.01, max(0.0, deadline - time.monotonic())))
-        for k in left:  # what it said last (-1: nothing since the NMT start)
-            state = int(self._rx_hb_state[k])
-            if state >= 0:
-                self._nmt[k] = state
-        return left
-
-    def _nmt_name(self, k: int) -> str:
-        state = int(self._nmt[k]) if self._rx_hb_state[k] < 0 else int(self._rx_hb_state[k])
-        return NMT_NAMES.get(state, f"unknown (no heartbeat within "
-                             f"{self.confirm_window_s():.2f} s)" if state < 0 else hex(state))
-
-    def _why_not_ready(self, k: int) -> str:
-        if not self._started[k]:
-            return "not started (start() first)"
-        if self._relink[k]:
-            return "behind a lost CAN link: recover() it first"
-        if self._rebooted[k]:
-            return "was reset (boot-up): recover() it first"
-        if self._hb_lost[k]:
-            return "heartbeat lost: recover() it once it is back"
-        if self._lost[k]:
-            return "TPDOs lost (drive_lost): its state is unknown"
-        if self._nmt[k] not in (NMT_OPERATIONAL, -1):
-            return f"NMT {NMT_NAMES.get(int(self._nmt[k]), '?')}: recover() it first"
-        return ""
-
-    def shutdown(self, max_cycles: int = 20) -> None:
-        """Disable voltage on all drives (cycling until Switch On Disabled), then NMT pre-op.
-        BusLinkError (after marking the drives stopped) when the link is down."""
-        try:
-            self._require_link("shutdown")
-
-            def off() -> None:
-                self.off()
-                self.run_until(lambda d: bool(np.all(d.states() != ST.OPERATION_ENABLED)),
-                               max_cycles)
-                for k in range(self.n):
-                    if self._started[k]:
-                        self._send_nmt(k, 0x80)
-
-            self._blocking("shutdown", off)
-        finally:
-            self._started[:] = False
-
-    # ------------------------------------------------------------------ readings
+    # ---------------------------------------------------------- readings
 
     def states(self) -> np.ndarray:
         """CiA 402 state of each drive (:class:`DriveState` values), shape (n,)."""
@@ -1488,12 +532,23 @@ class WinchDrives:
 
 __all__ = [
     "BusLinkError",
+    "CODE_BUS",
+    "CODE_HEARTBEAT",
+    "CODE_PDO_TIMEOUT",
     "DriveConfigError",
     "DriveEvent",
     "DriveFault",
     "DriveLostError",
     "DriveStartupError",
-    "NMT_START_TRIES",
     "DriveState",
+    "EMCY_STRUCT",
+    "EVENTS_KEPT",
+    "FOREIGN_HOLD_S",
+    "MISSING_WAIT_S",
+    "NMT_NAMES",
+    "NMT_OPERATIONAL",
+    "NMT_START_TRIES",
+    "QUEUE_KEPT",
+    "SDO_TIMEOUT_S",
     "WinchDrives",
 ]

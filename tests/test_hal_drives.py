@@ -530,7 +530,11 @@ def _starve_producer(r: Rig) -> None:
     for d in r.bank.drives:  # expired now (the wall-time watch forgives a starved simulator)
         with d.lock:
             d._consumer_expired(W.bus.master_node_id, wall=False)
-    r.steps(int(W.bus.master_heartbeat_timeout_s / W.bus.sync_period_s) + 30)
+    for _ in range(500):  # cycles (not time) until their heartbeats said so
+        r.hal.step(timeout=0.05)
+        if all(f.kind == "nmt_state" for f in r.hal.faults()) and len(r.hal.faults()) == 8:
+            return
+    raise AssertionError(f"the HAL never saw the drives pre-operational: {r.hal.faults()}")
 
 
 def test_drives_that_left_operational_before_the_first_enable_are_restarted():
