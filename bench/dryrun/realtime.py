@@ -12,9 +12,11 @@
   waits for what they receive, and on a loaded machine a thread under the normal
   scheduler waits behind other runnable threads for tens of milliseconds now and then,
   long enough for the drives' answers to look late. Otherwise the normal scheduler, said
-  plainly. The loop never spins with the interpreter held (see
-  :class:`bench.dryrun.loop.CycleClock`), so a real-time thread cannot starve the threads
-  it needs.
+  plainly. The loop's policy carries ``SCHED_RESET_ON_FORK``: what it starts (a thread of
+  the HAL's start-up, the recorder's or the estimator's process) runs normally until
+  raised on purpose (:func:`helper_threads` for threads started since). The loop never
+  spins with the interpreter held (see :class:`bench.dryrun.loop.CycleClock`), so a
+  real-time thread cannot starve the threads it needs.
 - The simulated robot in its own process (:func:`simulator_scheduling`, ``cdpr sim
   --rt-priority``): all its threads in ``SCHED_FIFO`` one priority below the loop's (the
   simulator stands for hardware, which never waits for a busy host) and the same short
