@@ -154,6 +154,7 @@ from hal.drives_config import (
 from hal.drives_cycle import CycleMixin
 from hal.drives_nmt import NmtMixin
 from hal.drives_rx import ReceiveMixin
+from hal.rt_threads import check_priority
 
 
 class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
@@ -197,7 +198,7 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
         self.period_s = winches.bus.sync_period_s
         self.hb_timeout_s = winches.bus.heartbeat_period_s * winches.bus.heartbeat_misses
         self._clock = self._pick_clock(clock)
-        self.producer_priority = int(producer_priority)
+        self.producer_priority = check_priority(producer_priority)  # ValueError: range
         #: what the master heartbeat thread got (:func:`hal.rt_threads.raise_thread`)
         self.producer_scheduling = "not started"
         self._init_state(network)

@@ -38,7 +38,7 @@ from hal.drives_config import (
     sdo_read,
     verify_identity,
 )
-from hal.rt_threads import raise_thread
+from hal.rt_threads import check_priority, raise_thread
 
 log = logging.getLogger("hal.drives")
 
@@ -133,7 +133,7 @@ class NmtMixin:
         """The master heartbeat thread's SCHED_FIFO priority (0: normal scheduling, as it
         is); applied at once when it runs, else when :meth:`start` starts it. Returns
         :attr:`producer_scheduling`."""
-        self.producer_priority = int(priority)
+        self.producer_priority = check_priority(priority)  # ValueError naming the range
         t = self._mhb_thread
         if t is not None and t.native_id is not None and priority > 0:
             self.producer_scheduling = raise_thread(self.producer_priority, t.native_id)

@@ -38,6 +38,15 @@ def max_priority() -> int:
     return os.sched_get_priority_max(os.SCHED_FIFO)
 
 
+def check_priority(priority: int) -> int:
+    """``priority`` if it is 0 (normal) to :func:`max_priority`, else ValueError naming the
+    range."""
+    top = max_priority()
+    if priority < 0 or (top and priority > top):
+        raise ValueError(f"thread priority must be 0 (normal) to {top}, got {priority}")
+    return int(priority)
+
+
 def raise_thread(priority: int, tid: int | None = None) -> str:
     """Thread ``tid`` (kernel thread id; default the calling one) in ``SCHED_FIFO`` at
     ``priority`` (1..:func:`max_priority`) where permitted, else :data:`FALLBACK_NICE`, else
@@ -45,9 +54,8 @@ def raise_thread(priority: int, tid: int | None = None) -> str:
     ValueError for a priority out of range."""
     if priority <= 0:
         return "normal (raised priority not requested)"
+    check_priority(priority)
     top = max_priority()
-    if top and not 1 <= priority <= top:
-        raise ValueError(f"thread priority must be 0 (normal) to {top}, got {priority}")
     tid = threading.get_native_id() if tid is None else tid
     why = "this system has no SCHED_FIFO"
     if top:
@@ -65,4 +73,4 @@ def raise_thread(priority: int, tid: int | None = None) -> str:
                 "CAP_SYS_NICE or an rtprio limit)")
 
 
-__all__ = ["FALLBACK_NICE", "max_priority", "raise_thread"]
+__all__ = ["FALLBACK_NICE", "check_priority", "max_priority", "raise_thread"]

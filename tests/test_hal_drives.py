@@ -596,3 +596,6 @@ def test_the_producer_records_its_gaps_and_lateness(rig):
         assert time.monotonic() < deadline
         time.sleep(0.01)
     assert rig.hal.producer_stats()["gap_max_s"] > W.bus.master_heartbeat_timeout_s
+    with pytest.raises(ValueError, match=r"must be 0 \(normal\) to"):
+        rig.hal.set_producer_priority(1000)  # refused before the thread is touched
+    assert rig.hal.producer_priority == 0

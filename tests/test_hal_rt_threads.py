@@ -60,3 +60,9 @@ def test_fifo_refused_falls_back_to_nice_then_to_normal_saying_why(monkeypatch):
     assert text.startswith("normal (SCHED_FIFO 5 not permitted: Operation not permitted; "
                            f"nice {FALLBACK_NICE} not permitted")
     assert "CAP_SYS_NICE" in text
+
+
+def test_check_priority_names_the_range():
+    assert rt_threads.check_priority(0) == 0
+    with pytest.raises(ValueError, match=r"must be 0 \(normal\) to"):
+        rt_threads.check_priority(-1)
