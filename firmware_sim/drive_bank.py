@@ -92,9 +92,19 @@ class SimulatedWinchBank:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def _frames_waiting(self) -> bool:
+        """Frames received on the bus and not yet handed to the drives (a python-can
+        virtual bus's queue; other buses: unknown, False)."""
+        q = getattr(self.network.bus, "queue", None)
+        return bool(q is not None and hasattr(q, "qsize") and q.qsize())
+
     def _tick_loop(self) -> None:
         while not self._stop.wait(self._tick_period):
             if self.clock is not None:
+                if self._frames_waiting():
+                    # the master's frames are waiting for this process: their handling
+                    # judges the deadlines (after them), not this tick (before them)
+                    continue
                 for d in self.drives:
                     d.tick()
             else:

@@ -8,12 +8,15 @@ master's heartbeat is a raw frame 0x700 + 127 sent by the test.
 from __future__ import annotations
 
 import time
+import uuid
 
+import can
 import pytest
 from canopen.sdo import SdoAbortedError
 from test_sim_drive import AX, START_COUNTS, Harness
 
 from firmware_sim.cia402_drive import State
+from firmware_sim.drive_bank import SimulatedWinchBank
 
 MASTER = 127
 QS_DECEL = 4_000_000  # counts/s^2
@@ -260,3 +263,20 @@ def test_a_wall_clock_drive_still_stops_when_the_setpoints_stop():
         assert h.drive.state != State.OPERATION_ENABLED  # 0x6007 as configured (fault)
     finally:
         h.close()
+
+
+def test_the_bank_sees_frames_waiting_for_its_drives():
+    """The bank's ticker leaves the deadlines to frames waiting in its bus's queue (their
+    handling judges them after the gap): it must see them, and see none when none wait."""
+    clock = FakeClock()
+    bank = SimulatedWinchBank(can.Bus(interface="virtual", channel=f"bank-{uuid.uuid4().hex}"),
+                              clock=clock)  # not started: no ticker
+    try:
+        bank.network.notifier.stop()  # nothing takes the frames from the queue now
+        assert not bank._frames_waiting()
+        bank.network.bus.queue.put(can.Message(arbitration_id=0x80, data=b""))
+        assert bank._frames_waiting()
+        bank.network.bus.queue.get_nowait()
+        assert not bank._frames_waiting()
+    finally:
+        bank.close()
