@@ -26,6 +26,7 @@ sensor (files whose times interleave) is merged whole (:func:`bench.streams.merg
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -104,31 +105,42 @@ def iter_blocks(p: Path, header: list[str], block_bytes: int | None = None):
     """Consecutive blocks of the data rows of ``p`` (whose header is ``header``): yields
     (columns, states, bytes) as :func:`bench.streams.read_columns` gives them; a block the
     columnar parse does not take (or in a forked child: :func:`bench.streams._polars_usable`)
-    is read row by row, its errors naming the file's line."""
+    is read row by row, its errors naming the file's line. The file is mapped, not read:
+    each block is one copy of its bytes, cut at the last line end within ``block_bytes``
+    (a line longer than that extends its block). The mapped pages of a block are released
+    once copied (they would otherwise count in the process's resident memory: the whole
+    file by the end)."""
+    import mmap
+
     size = block_bytes or BLOCK_BYTES
-    line = 2
     with p.open("rb") as f:
-        f.readline()
-        rest = b""
-        while True:
-            chunk = f.read(size)
-            data = rest + chunk
-            if chunk:
-                cut = data.rfind(b"\n") + 1
-                if cut == 0:
-                    rest = data
-                    continue
-                data, rest = data[:cut], data[cut:]
-            elif not data.strip():
-                return
-            else:
-                rest = b""
-            if data.strip():
-                cols, states = _parse(p, header, data, line)
-                yield cols, states, len(data)
-            line += data.count(b"\n")
-            if not chunk:
-                return
+        if os.fstat(f.fileno()).st_size == 0:
+            return
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            start, end, line = mm.find(b"\n") + 1, len(mm), 2
+            while 0 < start < end:
+                stop = min(start + size, end)
+                cut = end if stop == end else mm.rfind(b"\n", start, stop) + 1
+                if cut <= start:  # a line longer than the block: up to its end
+                    nl = mm.find(b"\n", stop)
+                    cut = end if nl < 0 else nl + 1
+                data = mm[start:cut]
+                _release(mm, start, cut)
+                start = cut
+                if not data.isspace():  # (a copy-free test: strip() would copy the block)
+                    cols, states = _parse(p, header, data, line)
+                    yield cols, states, len(data)
+                line += data.count(b"\n")
+
+
+def _release(mm, start: int, stop: int) -> None:
+    """Drop the mapped pages of bytes ``[start, stop)`` of ``mm`` from the process (where
+    the system allows: they stay in the page cache)."""
+    import mmap
+
+    lo = start - start % mmap.PAGESIZE
+    if stop > lo and hasattr(mm, "madvise") and hasattr(mmap, "MADV_DONTNEED"):
+        mm.madvise(mmap.MADV_DONTNEED, lo, stop - lo)
 
 
 def _parse(p: Path, header: list[str], data: bytes, line: int):

@@ -1053,8 +1053,9 @@ def covers(rec: dict, linearised: bool = False) -> bool:
 def coverage(scores: list[dict]) -> dict:
     """Per effect kind (and ``all``), how often the 95 % intervals of the scored parameters
     hold the truth: the report's intervals and the linearised ones, with Wilson 95 %
-    intervals of the rates, and how many were widened by refits (``profiled``: profile or
-    jackknife). Every parameter
+    intervals of the rates, how many were widened by refits (``profiled``: profile or
+    jackknife, also where the selective interval then reached further) and how many by the
+    selection (``selective``). Every parameter
     counts once; ``cases`` counts the cases behind them (a case's parameters share its
     data: the rate's interval is a per-parameter one)."""
     groups: dict[str, list[tuple[int, dict]]] = {}
@@ -1070,9 +1071,15 @@ def coverage(scores: list[dict]) -> dict:
         out[e] = {"params": n, "cases": len({sd for sd, _ in recs}),
                   "covered": k / n, "covered_ci95": list(wilson(k, n)),
                   "covered_linearised": kl / n, "covered_linearised_ci95": list(wilson(kl, n)),
-                  "profiled": sum(r.get("method") in ("profile", "jackknife")
-                                  for _, r in recs)}
+                  "profiled": sum(bool(_methods(r) & {"profile", "jackknife"})
+                                  for _, r in recs),
+                  "selective": sum("selective" in _methods(r) for _, r in recs)}
     return out
+
+
+def _methods(rec: dict) -> set[str]:
+    """The ways an interval was found (its ``method``, e.g. ``profile+selective``)."""
+    return set((rec.get("method") or "").split("+"))
 
 
 def _zstats(z: np.ndarray) -> dict:

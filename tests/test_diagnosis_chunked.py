@@ -74,6 +74,26 @@ def test_blocks_hold_what_the_whole_file_holds(slipped, monkeypatch):
         np.testing.assert_array_equal(got[k], v)  # NaN where NaN, every value the same
 
 
+@pytest.mark.parametrize("block", [1, 50, 4096])
+def test_blocks_of_any_size_cut_at_line_ends(tmp_path, block):
+    """Blocks shorter than a line, a last line without its line end, a blank last line: the
+    rows are the file's, and a bad row's error names its line in the file."""
+    from bench.recording import RecordingError
+
+    header = ["t", "x"]
+    p = tmp_path / "s.csv"
+    p.write_bytes(b"t,x\n" + b"".join(b"%d,%d.5\n" % (i, i) for i in range(40)) + b"40,1")
+    t = np.concatenate([c["t"] for c, _, _ in ch.iter_blocks(p, header, block)])
+    np.testing.assert_array_equal(t, np.arange(41.0))
+    p.write_bytes(b"t,x\n0,1\n1,2\n\n")
+    assert [len(c["t"]) for c, _, _ in ch.iter_blocks(p, header, block)] in ([2], [1, 1])
+    p.write_bytes(b"t,x\n")
+    assert list(ch.iter_blocks(p, header, block)) == []
+    p.write_bytes(b"t,x\n0,1\n1,2\n2,oops\n3,4\n")
+    with pytest.raises(RecordingError, match=r"s\.csv:4: column 2"):
+        list(ch.iter_blocks(p, header, block))
+
+
 def test_a_forked_child_reads_blocks_row_by_row(slipped, monkeypatch):
     # in a process forked after its parent used polars, polars is never called: the blocks
     # are read row by row, and hold the same

@@ -237,3 +237,13 @@ def test_a_parameter_reported_just_past_its_threshold_gets_the_selective_interva
     far = _fit(p.neutral + 30e-3, 1e-3, 1e-3)
     lin = linearised_interval(far, 0)
     assert selective(far, 0, lin) == lin
+    # an interval a refit had widened keeps saying so, and the evaluation still counts it
+    prof = Interval(lin.lo - 1e-4, lin.hi, "profile")
+    got = selective(near, 0, Interval(near.phi[0] - 1e-3, near.phi[0] + 1e-3, "profile"))
+    assert got.method == "profile+selective"
+    assert selective(far, 0, prof).method == "profile"
+    cov = coverage([{"seed": 1, "intervals": [
+        _rec("mast_compliance", 0.0, 3.1e-3, 1e-3, [got.lo, got.hi], got.method),
+        _rec("mast_compliance", 0.0, 3.1e-3, 1e-3, [-1e-3, 7e-3], "selective")]}])
+    assert cov["mast_compliance"]["profiled"] == 1
+    assert cov["mast_compliance"]["selective"] == 2

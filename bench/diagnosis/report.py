@@ -240,7 +240,8 @@ def selective(fit: FitResult, k: int, iv: Interval, floor_var: float = 0.0) -> I
     """The interval ``iv`` of parameter ``k`` of ``fit`` widened to the one that allows for
     its having been reported for departing from the model's value
     (:func:`report_threshold`, :func:`bench.diagnosis.fit.selective_interval`): method
-    ``selective`` where that reaches further. Parameters reported jointly (no threshold of
+    ``selective`` where that reaches further (``profile+selective``, ``jackknife+selective``
+    where a refit had widened ``iv`` already). Parameters reported jointly (no threshold of
     their own passed) keep ``iv``."""
     from bench.diagnosis.fit import selective_interval
 
@@ -251,7 +252,8 @@ def selective(fit: FitResult, k: int, iv: Interval, floor_var: float = 0.0) -> I
         return iv
     lo, hi = max(got[0], p.lo), min(got[1], p.hi)
     if lo < iv.lo or hi > iv.hi:
-        return Interval(min(lo, iv.lo), max(hi, iv.hi), "selective")
+        method = "selective" if iv.method == "linearised" else f"{iv.method}+selective"
+        return Interval(min(lo, iv.lo), max(hi, iv.hi), method)
     return iv
 
 
