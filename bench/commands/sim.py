@@ -310,6 +310,13 @@ def _serve(args: argparse.Namespace, scheduling: str) -> int:
             print(f"  --control {control.endpoint}   (faults: one request per line; 'help')")
             if site_file:
                 print(f"  --site {site_file}")
+            if args.clock == "wall" and not scheduling.startswith("SCHED_FIFO"):
+                from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
+
+                print("  note: wall clock at normal priority: on a busy host the simulated "
+                      "drives miss their deadlines before the loop does; --rt-priority "
+                      f"{DEFAULT_RT_PRIORITY - 1} runs them just below a real-time dry run's "
+                      "loop (docs/guide/real-time.md)", file=sys.stderr)
             if schedule is not None:
                 print(f"  {len(schedule.faults)} scheduled fault(s) from {args.faults}")
             print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)
