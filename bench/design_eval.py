@@ -196,7 +196,7 @@ PAPER_SCENARIO = "bench/data/scenarios/paper-calibration.toml"
 MATCH_GROUPS = {"exit offsets x, y": ("dx_", "dy_"), "exit offsets z": ("dz_",),
                 "mast stiffnesses": ("kx_", "ky_", "kz_")}
 #: candidate poses a goal-(a) design chooses from
-MATCH_CANDIDATES = 400
+MATCH_CANDIDATES = 800
 
 
 def _report_stderr(report: dict[str, Any]) -> dict[str, float]:

@@ -377,3 +377,32 @@ def test_match_summary_groups_and_smallest_n():
     assert "exit offsets z" not in s["predicted"]
     assert s["smallest_n"] == 14
     assert match_summary(res[1:])["smallest_n"] is None
+
+
+@pytest.mark.parametrize("robot", ["ipanema", "hexa6"])
+def test_generated_cases_on_other_robots_lie_in_their_frame(robot):
+    """A goal-(b) case on another shipped robot: its effect's keys are that robot's cables,
+    its first campaign's 4-6 poses are feasible, at the init pose's height, inside the
+    frame's middle; ROCASPECT's cases keep their fixed geometry."""
+    from bench.design_eval import GEOMETRY, case_geometry, make_case
+    from bench.evaluate import feasible
+    from controller.paths import frame_box
+    from controller.robot import resolve_robot
+
+    model = resolve_robot(robot)
+    lo, hi = frame_box(model)
+    seen = set()
+    for seed in range(6):
+        case = make_case(seed, robot)
+        (effect, truth), = case["truth"].items()
+        seen.add(effect)
+        if effect != "cable_elasticity":
+            assert {k.split("_", 1)[1] for k in truth} == set(model.cable_ids)
+        pts = np.array(case["poses"]["list"])
+        assert 4 <= len(pts) <= 6 and all(feasible(model, p) for p in pts)
+        assert np.allclose(pts[:, 2], case["init_pose"][2])
+        mid = 0.5 * (lo + hi)
+        assert np.all(np.abs(pts[:, :2] - mid[:2]) < 0.3 * (hi[:2] - lo[:2]))
+    assert len(seen) >= 2
+    assert case_geometry("rocaspect") == GEOMETRY["rocaspect"]
+    assert make_case(9023)["init_pose"][:2] != make_case(9023, robot)["init_pose"][:2]
