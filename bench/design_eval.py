@@ -1,21 +1,29 @@
-"""Does one designed campaign settle what a diagnosis left open? Generated cases, measured.
+"""Goals (a) and (b) of designed campaigns, measured on generated cases.
 
-Each case (from its seed): ROCASPECT with a concealed effect that a small campaign confuses
-with another (:data:`AMBIGUOUS`: pulley radii, which exit-point offsets imitate on poses
-that swing the cables little; the cables' E*A and a gain shared by the load cells, which
-the load cells' gauge lets a mass or a common E*A imitate), a first
-campaign of a few poses close together around the initialisation pose at one height, and its
-diagnosis. A case counts when that report names an alternative. Then ``cdpr campaign
-design`` chooses ``poses`` poses, the simulator records them on the same truth, and the
-diagnosis runs again: **settled** when the new report names the concealed effect with no
-alternative left; a case whose design or designed campaign fails (the simulated plant
-cannot find a rest position) counts as not settled, its ``stage`` and ``error`` said.
-
-``evaluate(seeds)`` runs the cases one after another in this process; the figure in the
-docs comes from::
+**Goal (b): does one designed campaign settle what a diagnosis left open?** Each case (from
+its seed, on a shipped robot: ROCASPECT by default, any other from its frame,
+:func:`case_geometry`): a concealed effect that a small campaign confuses with another
+(:data:`AMBIGUOUS`: pulley radii, which exit-point offsets imitate on poses that swing the
+cables little; the cables' E*A and a gain shared by the load cells, which the load cells'
+gauge lets a mass or a common E*A imitate), a first campaign of a few poses close together
+around the initialisation pose at one height, and its diagnosis. A case counts when that
+report names an alternative. Then ``cdpr campaign design`` chooses ``poses`` poses, the
+simulator records them on the same truth, and the diagnosis runs again: **settled** when
+the new report names the concealed effect with no alternative left; a case whose design or
+designed campaign fails (the simulated plant cannot find a rest position) counts as not
+settled, its ``stage`` and ``error`` said. ``evaluate(seeds, robot=...)`` runs the cases one
+after another in this process; ``summary`` counts them::
 
     python -c "from bench.design_eval import evaluate, summary; \\
-               print(summary(evaluate(range(9300, 9350))))"
+               print(summary(evaluate(range(9400, 9420), robot='rocaspect')))"
+
+**Goal (a): how few designed poses give the paper campaign's standard errors?**
+:func:`match_case` per draw (a noise draw of the paper-calibration scenario and a draw of
+the candidates), :func:`match_summary` the ratios per parameter group, predicted at one
+noise level and diagnosed::
+
+    python -c "from bench.design_eval import match_evaluate, match_summary; \\
+               print(match_summary(match_evaluate(range(100, 108))))"
 """
 
 from __future__ import annotations
