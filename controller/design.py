@@ -40,8 +40,9 @@ raises ``Phi``: it ends).
 the poses whose standard errors of chosen parameters come closest to (below) those of a
 reference campaign, by the 8-norm of the ratios (a smooth largest ratio): exchange passes
 from several starts, one of them the heaviest candidates of the approximate design
-(:func:`relaxed_weights`: the best weighting of the candidates, a lower bound on what any
-set of poses reaches).
+(:func:`relaxed_weights`: iterated towards the best weighting of the candidates, whose
+cost bounds from below what any set of poses reaches; a few hundred iterations get its
+support, not its bound).
 
 **Only some cables measured** (:func:`measured_information`): an unmeasured cable's tension
 is a nuisance of every pose (and of the initialisation); its columns are fitted away from
