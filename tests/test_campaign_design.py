@@ -406,3 +406,31 @@ def test_generated_cases_on_other_robots_lie_in_their_frame(robot):
     assert len(seen) >= 2
     assert case_geometry("rocaspect") == GEOMETRY["rocaspect"]
     assert make_case(9023)["init_pose"][:2] != make_case(9023, robot)["init_pose"][:2]
+
+
+def test_cli_match_writes_the_poses_closest_to_a_reference_path(scenario, candidates,
+                                                                tmp_path, capsys):
+    """`--match PATH` with nothing to separate: the poses written are the matching design's
+    (`at_poses`), its ratios are those of its standard errors to the reference's, and the
+    fewest poses needed are counted on the same Fisher information."""
+    ref = candidates[:6]
+    path = tmp_path / "ref.toml"
+    path.write_text('format = "cdpr-path/1"\nname = "ref"\n\n[[segment]]\nkind = "visits"\n'
+                    'visits = 2\ndwell_s = 3.0\nposes = [\n'
+                    + "".join("  [" + ", ".join(f"{v:.6f}" for v in p) + "],\n" for p in ref)
+                    + "]\n")
+    rep = tmp_path / "r.json"
+    rep.write_text(json.dumps(_report([])))
+    rc = main(["campaign", "design", str(rep), "--scenario", str(scenario), "--poses", "6",
+               "--visits", "2", "--candidates", "16", "--match", str(path), "--json"])
+    got = json.loads(capsys.readouterr().out)
+    assert rc == 0
+    m = got["match"]
+    assert m["reference_poses"] == 6 and got["poses"] == m["at_poses"]["poses"]
+    assert len(got["poses"]) == 6
+    keys = list(m["stderr_reference"])
+    assert keys and all(k.startswith(cd.MATCH_PREFIXES) for k in keys)
+    ratio = [m["at_poses"]["stderr"][k] / m["stderr_reference"][k] for k in keys]
+    assert max(ratio) == pytest.approx(m["at_poses"]["worst_ratio"], rel=1e-6)
+    if m["poses_needed"] > 0:
+        assert len(m["poses"]) == m["poses_needed"] and m["worst_ratio"] <= 1.0 + 1e-9
