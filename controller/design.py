@@ -38,8 +38,11 @@ raises ``Phi``: it ends).
 
 **Match a reference's standard errors** (:func:`choose_matching`, :func:`fewest_to_match`):
 the poses whose standard errors of chosen parameters come closest to (below) those of a
-reference campaign, by the 8-norm of the ratios (a smooth largest ratio), greedy then
-exchange from several starts.
+reference campaign, by the 8-norm of the ratios (a smooth largest ratio): exchange passes
+from several starts, one of them the heaviest candidates of the approximate design
+(:func:`relaxed_weights`: iterated towards the best weighting of the candidates, whose
+cost bounds from below what any set of poses reaches; a few hundred iterations get its
+support, not its bound).
 
 **Only some cables measured** (:func:`measured_information`): an unmeasured cable's tension
 is a nuisance of every pose (and of the initialisation); its columns are fitted away from
@@ -270,8 +273,12 @@ def subset_standard_errors(G: np.ndarray, S: np.ndarray | list[int], k: int, vis
 
 #: the ratios' norm a matching design minimises (a smooth stand-in for the largest ratio)
 MATCH_NORM = 8
-#: starts of a matching design: the greedy one, then random ones
+#: starts of a matching design: the greedy one, the approximate design's, then random ones
 MATCH_STARTS = 4
+#: exchange passes of a matching design at most
+MATCH_PASSES = 10
+#: iterations of the approximate (weights) design's multiplicative algorithm
+RELAX_ITERS = 200
 
 
 def ratio_cost(M: np.ndarray, keys: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -285,14 +292,43 @@ def ratio_cost(M: np.ndarray, keys: np.ndarray, reference: np.ndarray) -> np.nda
     return top * np.sum((r2 / top[..., None]) ** MATCH_NORM, axis=-1) ** (1.0 / MATCH_NORM)
 
 
+def relaxed_weights(F: np.ndarray, keys: np.ndarray, reference: np.ndarray, total: float,
+                    prior: np.ndarray, iters: int = RELAX_ITERS) -> np.ndarray:
+    """(C,) the approximate design: weights ``w`` (summing to 1) over the C candidates that
+    minimise :func:`ratio_cost` of ``M(w) = prior + total sum_i w_i F_i`` (``total`` the
+    visits of the whole campaign), by the multiplicative algorithm ``w_i <- w_i (g_i /
+    sum_j w_j g_j)^(1/2)`` with ``g_i = -d cost / d w_i >= 0`` (at the optimum no candidate
+    has ``g_i`` above the weighted mean: the equivalence theorem). Its heaviest candidates
+    start an exchange (:func:`choose_matching`)."""
+    F = np.asarray(F, float)
+    C = F.shape[0]
+    keys = np.asarray(keys, dtype=int)
+    inv_ref2 = 1.0 / np.asarray(reference, float) ** 2
+    w = np.full(C, 1.0 / C)
+    for _ in range(iters):
+        Minv = np.linalg.inv(prior + total * np.einsum("c,cij->ij", w, F))
+        G = Minv[keys]  # (m,p): d var_k = -G_k dM G_k^T
+        r2 = np.maximum(np.diag(Minv)[keys], 0.0) * inv_ref2
+        top = max(float(r2.max()), 1e-300)
+        u = (r2 / top) ** (MATCH_NORM - 1) * inv_ref2  # d cost / d var_k, up to a factor
+        g = np.einsum("k,kp,cpq,kq->c", u, G, F, G, optimize=True)
+        mean = float(w @ g)
+        if mean <= 0:
+            break
+        w = w * np.sqrt(np.maximum(g, 0.0) / mean)
+        w /= w.sum()
+    return w
+
+
 def choose_matching(F: np.ndarray, n: int, keys: np.ndarray, reference: np.ndarray,
                     visits: int = 1, prior: np.ndarray | None = None,
                     starts: int = MATCH_STARTS, seed: int = 0) -> np.ndarray:
     """``n`` of the C candidates (``visits`` each) whose standard errors of the parameters
-    ``keys`` come closest to (below) ``reference``: :func:`ratio_cost` minimised by greedy
-    forward selection and, from it and from ``starts - 1`` random sets, exchange passes
-    (Fedorov: swap a chosen candidate for another while the cost falls). Returns the
-    indices of the best."""
+    ``keys`` come closest to (below) ``reference``: :func:`ratio_cost` minimised by exchange
+    passes (Fedorov: swap a chosen candidate for another while the cost falls) from the
+    greedy forward selection, from the ``n`` heaviest candidates of the approximate design
+    (:func:`relaxed_weights`) and from ``starts - 2`` random sets. Returns the indices of
+    the best."""
     F = np.asarray(F, float)
     C, p = F.shape[0], F.shape[1]
     if not 1 <= n <= C:
@@ -313,8 +349,10 @@ def choose_matching(F: np.ndarray, n: int, keys: np.ndarray, reference: np.ndarr
         j = int(np.argmin(costs(M, S)))
         S.append(j)
         M = M + vF[j]
+    w = relaxed_weights(F, keys, reference, float(n * visits), prior)
     rng = np.random.default_rng(seed)
-    tries = [S] + [rng.choice(C, n, replace=False).tolist() for _ in range(starts - 1)]
+    tries = [S, np.argsort(-w)[:n].tolist()] \
+        + [rng.choice(C, n, replace=False).tolist() for _ in range(starts - 2)]
     best_S, best = S, np.inf
     for T in tries:
         T, val = _exchange(costs, vF, prior, T, keys, reference)
@@ -325,12 +363,12 @@ def choose_matching(F: np.ndarray, n: int, keys: np.ndarray, reference: np.ndarr
 
 def _exchange(costs, vF: np.ndarray, prior: np.ndarray, S: list[int], keys: np.ndarray,
               reference: np.ndarray) -> tuple[list[int], float]:
-    """Exchange passes on ``S`` (at most :data:`EXCHANGE_PASSES`): each chosen candidate in
+    """Exchange passes on ``S`` (at most :data:`MATCH_PASSES`): each chosen candidate in
     turn is swapped for the candidate that lowers the cost most, while the cost falls."""
     S = [int(i) for i in S]
     M = prior + vF[S].sum(axis=0)
     val = float(ratio_cost(M, keys, reference))
-    for _ in range(EXCHANGE_PASSES):
+    for _ in range(MATCH_PASSES):
         improved = False
         for k in range(len(S)):
             base = M - vF[S[k]]

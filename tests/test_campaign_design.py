@@ -312,3 +312,125 @@ def test_matching_design_brings_the_largest_ratio_down():
     count, idx = design.fewest_to_match(F, ref, keys, 1)
     assert 0 < count < greedy_n and len(idx) == count  # exchange: 14 poses, greedy 17
     assert np.all(design.standard_errors(F, idx, 1, prior) <= ref)
+
+
+def test_relaxed_design_bounds_every_exact_design_of_the_same_visits():
+    """Pure property: the approximate design (weights) minimises the convex ratio cost over
+    all weightings, so no exact set of n poses (n visits in all) has a lower cost than it
+    (random sets, the greedy and the matching design); and its equivalence condition holds:
+    no candidate's gain above the weighted mean by more than a few per cent."""
+    rng = np.random.default_rng(11)
+    C, p, n = 60, 5, 8
+    v = rng.normal(size=(C, 2, p)) * np.array([1.0, 1.0, 0.4, 0.2, 0.1])
+    F = np.einsum("cri,crj->cij", v, v)
+    keys = np.array([0, 2, 3, 4])
+    prior = np.eye(p) * 1e-6
+    ref = design.standard_errors(F, np.arange(C)[:30], 1, prior)[keys]
+    w = design.relaxed_weights(F, keys, ref, float(n), prior, iters=2000)
+    assert np.all(w >= 0) and w.sum() == pytest.approx(1.0)
+    relaxed = float(design.ratio_cost(prior + n * np.einsum("c,cij->ij", w, F), keys, ref))
+    uniform = float(design.ratio_cost(prior + n * F.mean(axis=0), keys, ref))
+    assert relaxed < uniform
+    sets = [rng.choice(C, n, replace=False) for _ in range(200)]
+    sets.append(design.choose_matching(F, n, keys, ref, 1))
+    exact = [float(design.ratio_cost(design.information(F, S, 1, prior), keys, ref))
+             for S in sets]
+    assert relaxed <= min(exact) * (1 + 1e-3)
+    # and the matching design is near the bound (within a few per cent here)
+    assert exact[-1] <= relaxed * 1.25
+
+
+def test_matching_design_uses_the_relaxed_start():
+    """The exchange from the approximate design's heaviest candidates can only lower the
+    cost the greedy start reaches (the best of the starts is kept)."""
+    rng = np.random.default_rng(5)
+    C, p, n = 50, 6, 9
+    v = rng.normal(size=(C, p)) * np.geomspace(1.0, 0.05, p)
+    F = np.einsum("ci,cj->cij", v, v)
+    keys = np.arange(p)
+    prior = np.eye(p) * 1e-6
+    ref = design.standard_errors(F, np.arange(C)[:25], 1, prior)
+    got = design.choose_matching(F, n, keys, ref, 1, starts=2)
+    _, greedy = design.poses_to_match(F, ref * 1e-3, keys, 1, n_max=n)
+    cost = [float(design.ratio_cost(design.information(F, S, 1, prior), keys, ref))
+            for S in (got, greedy)]
+    assert cost[0] <= cost[1] + 1e-12
+
+
+def test_match_summary_groups_and_smallest_n():
+    """Pure: per group the median over draws of each parameter, the group's median and worst
+    of those; the smallest N is the upper median of the draws' counts (a draw that never
+    reaches counts as infinitely many)."""
+    from bench.design_eval import match_summary
+
+    def draw(d, need, kx, dx):
+        ratios = {"kx_1": kx, "dx_11": dx, "dy_11": 0.5}
+        return {"draw": d, "poses_needed": need, "predicted": ratios, "diagnosed": ratios,
+                "missing": []}
+
+    res = [draw(0, 12, 0.8, 0.9), draw(1, 14, 1.2, 0.7), draw(2, -1, 0.9, 1.1)]
+    s = match_summary(res)
+    assert s["predicted"]["mast stiffnesses"] == {"parameters": 1, "median": 0.9,
+                                                   "worst": 0.9, "worst_draw": 1.2}
+    xy = s["predicted"]["exit offsets x, y"]
+    assert xy["median"] == pytest.approx(0.7) and xy["worst"] == 0.9
+    assert "exit offsets z" not in s["predicted"]
+    assert s["smallest_n"] == 14
+    assert match_summary(res[1:])["smallest_n"] is None
+
+
+@pytest.mark.parametrize("robot", ["ipanema", "hexa6"])
+def test_generated_cases_on_other_robots_lie_in_their_frame(robot):
+    """A goal-(b) case on another shipped robot: its effect's keys are that robot's cables,
+    its first campaign's 4-6 poses are feasible, at the init pose's height, inside the
+    frame's middle; ROCASPECT's cases keep their fixed geometry."""
+    from bench.design_eval import GEOMETRY, case_geometry, make_case
+    from bench.evaluate import feasible
+    from controller.paths import frame_box
+    from controller.robot import resolve_robot
+
+    model = resolve_robot(robot)
+    lo, hi = frame_box(model)
+    seen = set()
+    for seed in range(6):
+        case = make_case(seed, robot)
+        (effect, truth), = case["truth"].items()
+        seen.add(effect)
+        if effect != "cable_elasticity":
+            assert {k.split("_", 1)[1] for k in truth} == set(model.cable_ids)
+        pts = np.array(case["poses"]["list"])
+        assert 4 <= len(pts) <= 6 and all(feasible(model, p) for p in pts)
+        assert np.allclose(pts[:, 2], case["init_pose"][2])
+        mid = 0.5 * (lo + hi)
+        assert np.all(np.abs(pts[:, :2] - mid[:2]) < 0.3 * (hi[:2] - lo[:2]))
+    assert len(seen) >= 2
+    assert case_geometry("rocaspect") == GEOMETRY["rocaspect"]
+    assert make_case(9023)["init_pose"][:2] != make_case(9023, robot)["init_pose"][:2]
+
+
+def test_cli_match_writes_the_poses_closest_to_a_reference_path(scenario, candidates,
+                                                                tmp_path, capsys):
+    """`--match PATH` with nothing to separate: the poses written are the matching design's
+    (`at_poses`), its ratios are those of its standard errors to the reference's, and the
+    fewest poses needed are counted on the same Fisher information."""
+    ref = candidates[:6]
+    path = tmp_path / "ref.toml"
+    path.write_text('format = "cdpr-path/1"\nname = "ref"\n\n[[segment]]\nkind = "visits"\n'
+                    'visits = 2\ndwell_s = 3.0\nposes = [\n'
+                    + "".join("  [" + ", ".join(f"{v:.6f}" for v in p) + "],\n" for p in ref)
+                    + "]\n")
+    rep = tmp_path / "r.json"
+    rep.write_text(json.dumps(_report([])))
+    rc = main(["campaign", "design", str(rep), "--scenario", str(scenario), "--poses", "6",
+               "--visits", "2", "--candidates", "16", "--match", str(path), "--json"])
+    got = json.loads(capsys.readouterr().out)
+    assert rc == 0
+    m = got["match"]
+    assert m["reference_poses"] == 6 and got["poses"] == m["at_poses"]["poses"]
+    assert len(got["poses"]) == 6
+    keys = list(m["stderr_reference"])
+    assert keys and all(k.startswith(cd.MATCH_PREFIXES) for k in keys)
+    ratio = [m["at_poses"]["stderr"][k] / m["stderr_reference"][k] for k in keys]
+    assert max(ratio) == pytest.approx(m["at_poses"]["worst_ratio"], rel=1e-6)
+    if m["poses_needed"] > 0:
+        assert len(m["poses"]) == m["poses_needed"] and m["worst_ratio"] <= 1.0 + 1e-9
