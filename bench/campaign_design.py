@@ -542,6 +542,30 @@ def check_path(text: str, ctx: Context) -> str:
             f"{np.round(chk.pose, 3).tolist()}: {chk.reason}")
 
 
+#: visiting orders (``shuffle`` seeds) tried for a designed path that passes the dry run's check
+ORDER_TRIES = 16
+
+
+def checked_document(res: Result, visits: int, report_path: str, ctx: Context,
+                     seed: int = 0) -> tuple[str, str]:
+    """The design as a path (:func:`path_document`) whose visiting order passes the dry
+    run's check (:func:`check_path`): the ``shuffle`` seeds ``seed``, ``seed + 1``, ... tried
+    in turn (at most :data:`ORDER_TRIES`; a straight move between two feasible poses can
+    leave the feasible workspace, another order avoids it). Returns the text and ``""``, or
+    the text of ``seed`` and why every order tried fails (the poses themselves are
+    feasible: a site may still move its init pose)."""
+    first = ""
+    for k in range(ORDER_TRIES):
+        text = path_document(res, visits, report_path, seed=seed + k)
+        problem = check_path(text, ctx)
+        if not problem:
+            return text, ""
+        first = first or problem
+    return (path_document(res, visits, report_path, seed=seed),
+            f"{first} (and with every visiting order of seeds {seed} to "
+            f"{seed + ORDER_TRIES - 1})")
+
+
 def path_document(res: Result, visits: int, report_path: str, dwell_s: float = 3.0,
                   seed: int = 0) -> str:
     """The design as a ``cdpr-path/1`` TOML text: one ``visits`` segment with the poses."""

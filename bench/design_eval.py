@@ -160,8 +160,9 @@ def _designed(first: dict[str, Any], sc: Any, d: Path, poses: int, visits: int, 
     res = cd.run_design(first, ctx, poses, visits=visits, seed=seed)
     out["predicted"] = {k: round(v, 1) for k, v in res.design.delta.items()}
     path = d / "designed.toml"
-    path.write_text(cd.path_document(res, visits, str(rpath), seed=seed))
-    out["path_check"] = cd.check_path(path.read_text(), ctx) or "ok"
+    text, problem = cd.checked_document(res, visits, str(rpath), ctx, seed=seed)
+    path.write_text(text)
+    out["path_check"] = problem or "ok"
     poses_, v = cd.path_poses(path)
     sc2 = dataclasses.replace(sc, poses=dataclasses.replace(sc.poses, visits=v))
     out["stage"] = "designed campaign"

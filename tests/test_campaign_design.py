@@ -5,6 +5,7 @@ campaign --path`` visits."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -165,6 +166,27 @@ def test_cli_writes_a_path_that_the_campaign_visits(scenario, tmp_path, capsys):
                "--quiet", "--json"])
     done = json.loads(capsys.readouterr().out)
     assert rc == 0 and done["poses"] == 3 and done["visits"] == 3
+
+
+def test_a_visiting_order_that_passes_the_path_check_is_chosen(ctx, monkeypatch):
+    """A straight move between two feasible poses can leave the workspace: another
+    ``shuffle`` seed is tried; where none passes, the first seed's text and why."""
+    res = cd.run_design(_report([_pulley([])]), ctx, 3, candidates=30)
+    tried = []
+
+    def check(text, ctx_):
+        seed = int(re.search(r"^seed = (\d+)$", text, re.M).group(1))
+        tried.append(seed)
+        return "" if seed == good else f"fails at seed {seed}"
+
+    monkeypatch.setattr(cd, "check_path", check)
+    good = 7
+    text, problem = cd.checked_document(res, 2, "r.json", ctx, seed=5)
+    assert problem == "" and "seed = 7" in text and tried == [5, 6, 7]
+    good, tried[:] = -1, []
+    text, problem = cd.checked_document(res, 2, "r.json", ctx, seed=5)
+    assert "seed = 5\n" in text and len(tried) == cd.ORDER_TRIES
+    assert problem.startswith("fails at seed 5") and "seeds 5 to 20" in problem
 
 
 def test_cli_refuses_what_it_cannot_use(scenario, tmp_path, capsys):

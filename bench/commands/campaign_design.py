@@ -63,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
             out["notes"].append(cd.identifiability_note(out["identifiability"]))
     except (cd.DesignError, ValueError) as e:
         return _fail(args.json, 2, str(e))
-    text = cd.path_document(res, visits, report_path, seed=seed)
-    problem = cd.check_path(text, ctx)
+    text, problem = cd.checked_document(res, visits, report_path, ctx, seed=seed)
     out["path_check"] = problem or "ok"
     if problem:  # said, and the file still written: a site may move the init pose
         out["notes"].append(problem)
