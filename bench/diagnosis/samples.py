@@ -357,26 +357,33 @@ def _quasi_static_rows(rec: Recording, rows: np.ndarray) -> np.ndarray:
 def _isolated(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which path ``rows`` are standing measurements of their own: the commanded (or
     measured) pose jumps to them and away from them faster than any motion, or they are
-    rows of a table of poses (:meth:`~bench.recording.Recording.table_rows`)."""
+    rows of a table of poses (:meth:`~bench.recording.Recording.table_rows`). A row without
+    that pose (between a slow tracker's fixes, or refused by the alignment) is judged by
+    nothing: it is no jump; a row with one is compared with the nearest rows that have one."""
     out = np.zeros(len(rows), dtype=bool)
     src = rec.pose_des if np.isfinite(rec.pose_des[:, :3]).any() else rec.pose_meas
     if not len(rows):
         return out
     out |= rec.table_rows()[rows]
-    if not np.isfinite(src[:, :3]).any():
+    has = np.isfinite(src[:, :3]).all(axis=1)
+    if not has.any():
         return out
-    N = rec.n_samples
     p = src[:, :3]
     t = rec.t
+    known = np.flatnonzero(has)
+    k = np.searchsorted(known, rows)  # rows with a pose: known[k] == row
+    prev = np.where(k > 0, known[np.maximum(k - 1, 0)], -1)
+    nxt_k = k + (has[rows] & (k < len(known))).astype(int)
+    nxt = np.where(nxt_k < len(known), known[np.minimum(nxt_k, len(known) - 1)], -1)
 
     def speed(i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        ok = (j >= 0) & (j < N)
-        jj = np.clip(j, 0, N - 1)
+        jj = np.maximum(j, 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             v = np.linalg.norm(p[i] - p[jj], axis=1) / np.abs(t[i] - t[jj])
-        return np.where(ok, np.nan_to_num(v, nan=np.inf, posinf=np.inf), np.inf)
+        return np.where(j >= 0, np.nan_to_num(v, nan=np.inf, posinf=np.inf), np.inf)
 
-    return out | ((speed(rows, rows - 1) > JUMP_M_S) & (speed(rows, rows + 1) > JUMP_M_S))
+    jump = (speed(rows, prev) > JUMP_M_S) & (speed(rows, nxt) > JUMP_M_S)
+    return out | (has[rows] & jump)
 
 
 #: with rows of moves, samples within this many consecutive moves may share errors

@@ -1,0 +1,59 @@
+"""Static samples of logs without the controller's columns (bench/diagnosis/samples.py):
+rows between a tracker's fixes (no pose: the alignment refused to interpolate one where the
+platform accelerates) are no standing measurements of their own, whereas a pose that really
+jumps to a row and away from it is one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bench.diagnosis import samples
+from bench.recording import Recording
+from controller.robot import resolve_robot
+
+
+def _bare(t: np.ndarray, pose: np.ndarray) -> Recording:
+    """A recording holding only the measured pose (no commanded pose, no state column)."""
+    robot = resolve_robot("rocaspect")
+    N, n = len(t), robot.n_cables
+    nan = np.full((N, n), np.nan)
+    return Recording(Path("."), robot, {}, pose[0], t, np.full((N, 6), np.nan), pose,
+                     nan, nan.copy(), nan.copy(), np.full((N, n, 3), np.nan))
+
+
+def _moves(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """50 Hz rows of a platform standing, moving 1 m at 0.25 m/s, standing, moving back."""
+    t = np.arange(0.0, 16.0, 0.02)
+    x = np.clip(0.25 * (t - 2.0), 0.0, 1.0) - np.clip(0.25 * (t - 10.0), 0.0, 1.0)
+    pose = np.zeros((len(t), 6))
+    pose[:, 0] = 10.0 + x + rng.normal(0, 5e-5, len(t))
+    pose[:, 1:3] = [8.0, 1.0]
+    return t, pose
+
+
+def test_rows_without_a_pose_are_no_jumps():
+    # rows around the moves' starts and ends lose their pose (one axis or all): none of them,
+    # nor their neighbours, is a standing measurement of its own
+    t, pose = _moves(np.random.default_rng(3))
+    accel = np.zeros(len(t), dtype=bool)
+    for t0 in (2.0, 6.0, 10.0, 14.0):
+        accel |= np.abs(t - t0) < 0.1
+    pose[accel] = np.nan
+    pose[np.flatnonzero(accel)[::3], 0] = 3.0  # some rows keep a wrong axis alone
+    pose[np.flatnonzero(accel)[::3], 1:] = np.nan
+    rec = _bare(t, pose)
+    rows = np.arange(len(t))
+    assert not samples._isolated(rec, rows).any()
+
+
+def test_a_pose_jumping_to_a_row_and_back_is_isolated():
+    # the detector still finds what it is for: one row 30 cm away from rows 20 ms on either
+    # side, also when the rows beside it have no pose
+    t, pose = _moves(np.random.default_rng(4))
+    pose[300, :3] += [0.3, 0.0, 0.0]
+    pose[[299, 301]] = np.nan
+    rec = _bare(t, pose)
+    rows = np.arange(len(t))
+    assert np.flatnonzero(samples._isolated(rec, rows)).tolist() == [300]
