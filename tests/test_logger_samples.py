@@ -57,3 +57,52 @@ def test_a_pose_jumping_to_a_row_and_back_is_isolated():
     rec = _bare(t, pose)
     rows = np.arange(len(t))
     assert np.flatnonzero(samples._isolated(rec, rows)).tolist() == [300]
+
+
+def _encoders_only(t: np.ndarray, lengths: np.ndarray) -> Recording:
+    """A recording holding only encoder readings (no tracker, no controller's columns)."""
+    robot = resolve_robot("rocaspect")
+    N, n = len(t), robot.n_cables
+    nan = np.full((N, n), np.nan)
+    return Recording(Path("."), robot, {}, np.array([10.0, 8.0, 1.0, 0, 0, 0]), t,
+                     np.full((N, 6), np.nan), np.full((N, 6), np.nan), nan, lengths,
+                     nan.copy(), np.full((N, n, 3), np.nan))
+
+
+def _ramp(t: np.ndarray, t0: float, t1: float, accel: float) -> np.ndarray:
+    """Distance [m] of a move from t0 to t1 accelerating at ``accel`` [m/s^2] for its first
+    and last quarter (a trapezoidal speed profile)."""
+    q = 0.25 * (t1 - t0)
+    v = accel * q
+    s = np.clip(t - t0, 0.0, t1 - t0)
+    up = 0.5 * accel * np.minimum(s, q) ** 2
+    mid = v * np.clip(s - q, 0.0, 2 * q)
+    down_t = np.clip(s - 3 * q, 0.0, q)
+    return up + mid + v * down_t - 0.5 * accel * down_t ** 2
+
+
+def test_without_any_pose_the_encoders_judge_acceleration():
+    # 8 cables paid out along a trapezoidal move (1 m/s^2 for 0.5 s at each end), 0.1 um
+    # encoders: rows inside the ramps accelerate, rows at constant speed and standing do not
+    t = np.arange(0.0, 8.0, 0.004)
+    d = _ramp(t, 2.0, 4.0, 1.0) - _ramp(t, 5.0, 7.0, 1.0)
+    share = np.linspace(-1.0, 1.0, 8)  # each cable's length moves by share x d
+    lengths = np.round((10.0 + d[:, None] * share[None, :]) / 1e-7) * 1e-7
+    rec = _encoders_only(t, lengths)
+    rows = np.arange(len(t))
+    qs = samples._quasi_static(rec, rows)
+    ramp = np.zeros(len(t), dtype=bool)
+    for t0 in (2.0, 3.5, 5.0, 6.5):
+        ramp |= (t > t0 + 0.1) & (t < t0 + 0.4)
+    steady = ((t > 2.75) & (t < 3.25)) | ((t > 5.75) & (t < 6.25)) | (t < 1.4) | (t > 7.6)
+    assert not qs[ramp].any()
+    assert qs[steady].all()
+
+
+def test_a_steady_move_without_any_pose_is_quasi_static():
+    # nothing accelerates: no row is refused, whatever the encoders' quantisation
+    t = np.arange(0.0, 6.0, 0.004) + np.random.default_rng(5).normal(0, 2e-4, 1500)
+    t.sort()
+    lengths = np.round((10.0 + 0.25 * t[:, None] * np.linspace(-1, 1, 8)) / 1e-6) * 1e-6
+    rec = _encoders_only(t, lengths)
+    assert samples._quasi_static(rec, np.arange(len(t))).all()

@@ -37,7 +37,7 @@ import numpy as np
 
 from bench.diagnosis.frame import pose_rates
 from bench.recording import Recording, RecordingError
-from bench.streams import jittered, measured_acceleration, still_rows
+from bench.streams import jittered, length_acceleration, measured_acceleration, still_rows
 
 #: states in which the platform stands by design
 STILL_STATES = {"init", "dwell"}
@@ -314,7 +314,9 @@ def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which path ``rows`` are quasi-static: the commanded (or measured) motion does not
     accelerate around them. Measured poses only, or jittered time stamps: the acceleration
     of a filter that tracker noise and jitter cannot fool (of the commanded pose where
-    there is one; :func:`bench.streams.measured_acceleration`), finite differences of
+    there is one; :func:`bench.streams.measured_acceleration`); rows without a commanded
+    or measured pose (no tracker, or between its fixes): the same filter's acceleration of
+    the encoder readings (:func:`bench.streams.length_acceleration`); finite differences of
     consecutive rows only where the rows are too sparse for the filter."""
     if len(rows) < 3:
         return np.ones(len(rows), dtype=bool)
@@ -322,11 +324,17 @@ def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
     des = bool(np.isfinite(rec.pose_des[rows, :3]).all())
     if not des or jittered(rec.t):
         acc = measured_acceleration(rec, rows, rec.pose_des if des else None)
+        judged = np.zeros(len(rows), dtype=bool)
         if acc is not None:
             judged = np.isfinite(acc[0]) & np.isfinite(acc[1])
             with np.errstate(invalid="ignore"):
                 filt = (acc[0] <= ACCEL_MAX) & (acc[1] <= ANG_ACCEL_MAX)
             ok = np.where(judged, filt, ok)
+        if not des:
+            lacc = length_acceleration(rec, rows)
+            if lacc is not None:
+                by_len = ~judged & np.isfinite(lacc)
+                ok = np.where(by_len, lacc <= ACCEL_MAX, ok)
     return ok
 
 
