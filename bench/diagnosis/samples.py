@@ -567,7 +567,8 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     first = np.array([r[0] for r in dwell_runs] + path.tolist(), dtype=int)
     direction = _directions(rec, first)
     # replicate groups: dwells by commanded pose; path rows by proximity on different moves
-    tg_d = _targets(pose_des[: len(dwell_runs)], pose_meas[: len(dwell_runs)])
+    tg_d = _targets(pose_des[: len(dwell_runs)], pose_meas[: len(dwell_runs)],
+                    l_meas[: len(dwell_runs)])
     tg_p = _near_groups(pose_meas[len(dwell_runs):], pose_des[len(dwell_runs):], seg_all)
     base = int(tg_d.max()) + 1 if len(tg_d) else 0
     target = np.concatenate([tg_d, tg_p + base])
@@ -686,7 +687,7 @@ def _dwell_samples(rec: Recording, runs: list[np.ndarray], init: np.ndarray) -> 
     res = {k: (np.array(v) if v else np.zeros(shapes[k])) for k, v in out.items()}
     res["count"] = np.array([len(r) for r in runs], dtype=int)
     res["is_init"] = np.array([bool(init[r].any()) for r in runs], dtype=bool)
-    res["target"] = _targets(res["pose_des"], res["pose_meas"])
+    res["target"] = _targets(res["pose_des"], res["pose_meas"], res["l_meas"])
     return res
 
 
@@ -743,9 +744,17 @@ def _tau_row_sd(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
     return None
 
 
-def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
+#: [m] dwells without a commanded or whole measured pose are one target where every
+#: cable's encoder reading is within this of the target's first visit (the lengths fix the
+#: pose; targets of a campaign are decimetres apart, a visit repeats within a millimetre)
+SAME_LENGTHS_M = 5e-3
+
+
+def _targets(pose_des: np.ndarray, pose_meas: np.ndarray,
+             l_meas: np.ndarray | None = None) -> np.ndarray:
     """Number target poses: equal desired poses (0.1 mm) or, without them, measured poses
-    within 5 mm / 5 mrad of each other."""
+    within 5 mm / 5 mrad of each other, or, without a whole measured pose either (no
+    tracker), encoder readings ``l_meas`` (N, n) within SAME_LENGTHS_M of each other."""
     N = len(pose_des)
     if N == 0:
         return np.zeros(0, dtype=int)
@@ -757,8 +766,10 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
     # between a slow tracker's fixes is nan there, and nan is near nothing
     meas_cols = np.isfinite(pose_meas).any(axis=0)
     whole = np.isfinite(pose_meas[:, meas_cols]).all(axis=1) & meas_cols[:3].all()
+    lens = np.full((N, 1), np.nan) if l_meas is None else np.asarray(l_meas, dtype=float)
+    by_len = ~have_des & ~whole & np.isfinite(lens).all(axis=1)
     ids = np.full(N, -1)
-    reps: list[tuple[np.ndarray, bool]] = []
+    reps: list[tuple[np.ndarray, str]] = []
     lookup: dict[bytes, int] = {}
     for i in range(N):
         if have_des[i]:
@@ -767,14 +778,19 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
                 ids[i] = lookup[kb]
                 continue
         else:
-            for j, (rep, is_des) in enumerate(reps):
-                if (not is_des and whole[i] and np.isfinite(rep[meas_cols]).all()
-                        and np.all(np.abs(pose_meas[i] - rep)[meas_cols] < 5e-3)):
+            for j, (rep, how) in enumerate(reps):
+                if (how == "meas" and whole[i]
+                        and np.all(np.abs(pose_meas[i] - rep)[meas_cols] < 5e-3)) or \
+                        (how == "len" and by_len[i]
+                         and np.all(np.abs(lens[i] - rep) < SAME_LENGTHS_M)):
                     ids[i] = j
                     break
         if ids[i] < 0:
             ids[i] = len(reps)
-            reps.append((key[i] if have_des[i] else pose_meas[i], bool(have_des[i])))
+            how = "des" if have_des[i] else "meas" if whole[i] else \
+                "len" if by_len[i] else "none"
+            reps.append(({"des": key[i], "meas": pose_meas[i], "len": lens[i],
+                          "none": key[i]}[how], how))
             if have_des[i]:
                 lookup[key[i].tobytes()] = ids[i]
     return ids
