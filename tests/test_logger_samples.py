@@ -106,3 +106,51 @@ def test_a_steady_move_without_any_pose_is_quasi_static():
     lengths = np.round((10.0 + 0.25 * t[:, None] * np.linspace(-1, 1, 8)) / 1e-6) * 1e-6
     rec = _encoders_only(t, lengths)
     assert samples._quasi_static(rec, np.arange(len(t))).all()
+
+
+def test_visits_without_any_pose_group_by_their_encoder_lengths():
+    # no commanded pose, no tracker: three visits of two targets whose readings repeat within
+    # a tenth of a millimetre are two replicate groups; a third target 1 cm off on one cable
+    # alone is a target of its own (nothing is pooled across targets)
+    rng = np.random.default_rng(6)
+    a, b = np.full(8, 10.0), np.full(8, 12.0)
+    c = a.copy()
+    c[3] += 0.01
+    lens = np.array([a, b, a, b, a, b, c]) + rng.normal(0, 1e-4, (7, 8))
+    nan = np.full((7, 6), np.nan)
+    tg = samples._targets(nan, nan, lens)
+    assert tg[0] == tg[2] == tg[4] and tg[1] == tg[3] == tg[5]
+    assert len({tg[0], tg[1], tg[6]}) == 3
+    # without lengths either, every dwell is its own target (as before)
+    assert len(set(samples._targets(nan, nan).tolist())) == 7
+
+
+def test_a_pose_without_a_commanded_one_is_estimated_metres_from_the_start():
+    # encoders and load cells only, the platform 3 m from its initial pose: the estimate
+    # from the readings and tensions reaches it (5 cm damped steps from the initial pose
+    # could not)
+    from bench.diagnosis.residuals import ResidualModel
+    from controller.cycle import reference_lengths
+    from controller.statics import batch_statics, init_unstretched
+
+    robot = resolve_robot("rocaspect")
+    p0 = np.array([10.0, 8.56, 1.0, 0.0, 0.0, 0.0])
+    far = np.array([12.5, 10.0, 2.5, 0.01, -0.02, 0.015])
+    poses = np.array([p0, far])
+    bs = batch_statics(robot, poses)
+    u0, _ = init_unstretched(robot, p0, bs.tensions[0])
+    reading = bs.unstretched - u0 + reference_lengths(robot, p0)
+    t = np.arange(0.0, 26.0, 0.1)  # stands 3 s, moves 20 s, stands 3 s
+    w = np.clip((t - 3.0) / 20.0, 0.0, 1.0)[:, None]
+    N, n = len(t), robot.n_cables
+    rec = Recording(Path("."), robot, {}, p0, t, np.full((N, 6), np.nan),
+                    np.full((N, 6), np.nan), np.full((N, n), np.nan),
+                    (1 - w) * reading[0] + w * reading[1],
+                    (1 - w) * bs.tensions[0] + w * bs.tensions[1], np.full((N, n, 3), np.nan))
+    rec.init_rows = np.flatnonzero(t < 3.0)
+    s = samples.prepare(rec)
+    dwell = np.flatnonzero(s.kind == 0)
+    assert len(dwell) == 2
+    rm = ResidualModel(s, robot, p0, bs.tensions[0])
+    est = rm.blocks(robot).poses[dwell]
+    assert np.abs(est[:, :3] - poses[:, :3]).max() < 1e-4
