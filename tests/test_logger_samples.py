@@ -154,3 +154,22 @@ def test_a_pose_without_a_commanded_one_is_estimated_metres_from_the_start():
     rm = ResidualModel(s, robot, p0, bs.tensions[0])
     est = rm.blocks(robot).poses[dwell]
     assert np.abs(est[:, :3] - poses[:, :3]).max() < 1e-4
+
+
+def _two_stands(gap_move_m: float) -> Recording:
+    """Encoders only: 3 s standing, no rows for 17 s, 3 s standing ``gap_move_m`` [m] longer
+    on every cable."""
+    t = np.r_[np.arange(0.0, 3.0, 0.1), np.arange(20.0, 23.0, 0.1)]
+    lengths = np.full((len(t), 8), 10.0) + np.where(t > 10, gap_move_m, 0.0)[:, None]
+    rng = np.random.default_rng(7)
+    return _encoders_only(t, np.round((lengths + rng.normal(0, 2e-7, lengths.shape)) / 1e-7)
+                          * 1e-7)
+
+
+def test_standing_on_either_side_of_a_gap_in_the_log_are_two_dwells_if_it_moved():
+    rec = _two_stands(0.5)
+    s = samples.prepare(rec)
+    assert s.n == 2 and (s.kind == 0).all()
+    assert np.ptp(s.l_meas[:, 0]) > 0.4
+    # the same pause in the log without a move between: one dwell
+    assert samples.prepare(_two_stands(0.0)).n == 1

@@ -37,7 +37,13 @@ import numpy as np
 
 from bench.diagnosis.frame import pose_rates
 from bench.recording import Recording, RecordingError
-from bench.streams import jittered, length_acceleration, measured_acceleration, still_rows
+from bench.streams import (
+    MOTION_WINDOW_S,
+    jittered,
+    length_acceleration,
+    measured_acceleration,
+    still_rows,
+)
 
 #: states in which the platform stands by design
 STILL_STATES = {"init", "dwell"}
@@ -253,10 +259,30 @@ def _keys(rec: Recording) -> np.ndarray:
     # where the measured motion can be judged (stretches of rows without gaps): a run of
     # standing rows is one key, a moving row its own (-(row + 1)), whatever the noise
     still, known = judged
-    run = np.cumsum(np.r_[True, still[1:] != still[:-1]]).astype(float)
+    run = np.cumsum(np.r_[True, (still[1:] != still[:-1]) | _moved_across_gap(rec)]
+                    ).astype(float)
     by_motion = np.where(still, run, -(np.arange(rec.n_samples) + 1.0))
     width = key.shape[1]
     return np.where(known[:, None], np.repeat(by_motion[:, None], width, axis=1) + 0.5, key)
+
+
+def _moved_across_gap(rec: Recording) -> np.ndarray:
+    """(N-1,) bool: between rows k and k+1 the log has a gap (longer than half the motion
+    filter's window: the filter judges each side apart) across which the encoder readings
+    (by more than STILL_M; else the measured position, by 1 mm) changed, or a reading is
+    missing on one side: standing rows on either side are no one dwell."""
+    N = rec.n_samples
+    gap = np.diff(rec.t) > 0.5 * MOTION_WINDOW_S
+    out = np.zeros(max(N - 1, 0), dtype=bool)
+    if not gap.any():
+        return out
+    for arr, tol in ((rec.l_meas, STILL_M), (rec.pose_meas[:, :3], 1e-3)):
+        cols = np.isfinite(arr).any(axis=0)
+        if cols.any():
+            d = np.abs(np.diff(arr[:, cols], axis=0))
+            with np.errstate(invalid="ignore"):
+                return gap & ~(np.nan_to_num(d, nan=np.inf) <= tol).all(axis=1)
+    return out
 
 
 def _commanded(rec: Recording) -> bool:
