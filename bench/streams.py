@@ -697,3 +697,16 @@ def measured_acceleration(rec, rows: np.ndarray, pose: np.ndarray | None = None
     lin = np.linalg.norm(a[:, :3], axis=1)
     ang = np.abs(a[:, 3:]).max(axis=1)
     return lin, ang  # NaN where the filter has no value (too few rows around)
+
+
+def length_acceleration(rec, rows: np.ndarray) -> np.ndarray | None:
+    """The largest acceleration [m/s^2] of any cable's encoder reading at ``rows``, filtered
+    as :func:`measured_acceleration` (NaN where the filter has no value); None without
+    encoder readings. A cable's length accelerates by the platform's acceleration along
+    the cable (plus the lever arm's share of the angular one): where no pose is measured
+    this judges the platform's motion from below."""
+    cols = np.isfinite(rec.l_meas).any(axis=0)
+    if not cols.any():
+        return None
+    a, _ = local_derivative(rec.t, rec.l_meas[:, cols], 2)
+    return np.abs(a[rows]).max(axis=1)

@@ -56,7 +56,7 @@ from controller import cables
 from controller.cycle import reference_lengths
 from controller.effects import tracker_error, tracker_points_to_base, tracker_to_base
 from controller.equilibrium import scaled_residual
-from controller.forward import forward_pose
+from controller.forward import forward_pose, forward_rigid
 from controller.kinematics import gravity_wrench, wrench_matrix
 from controller.masts import lever_arms
 from controller.pose import cross, euler_rate_matrix
@@ -182,6 +182,9 @@ class ResidualModel:
         # its load cells' tensions were taken at (:meth:`_estimate_poses` inside frozen)
         self._pose_lin = np.full((s.n, 6), np.nan)
         self._pose_t0 = np.full((s.n, 6), np.nan)
+        # per sample without a commanded pose: where its pose estimate starts (NaN until
+        # needed; :meth:`_kinematic_starts`)
+        self._kin_start = np.full((s.n, 6), np.nan)
         # per sample: the last fitted unmeasured tensions (warm start, NaN before the first)
         # and their faces (cables at zero, rows left out: a hint inside :meth:`frozen`)
         self._warm_tau = np.full((s.n, n), np.nan)
@@ -446,6 +449,22 @@ class ResidualModel:
             raise got
         return got
 
+    def _kinematic_starts(self, idx: np.ndarray) -> np.ndarray:
+        """(M,6) start poses of the samples ``idx`` for :meth:`_estimate_poses` without a
+        commanded pose: the recording's model's least-squares pose of rigid cables as long
+        as the encoder readings (the readings are the model's lengths at the
+        initialisation), from the initial pose; the initial pose where that fails. The
+        damped steps of the estimate (5 cm each) could not reach a target metres away
+        from the initial pose. Depends on the recording only (computed once per sample)."""
+        s = self.s
+        todo = [i for i in idx if not np.isfinite(self._kin_start[i]).all()]
+        for i in todo:
+            tau = s.tau[i] if np.isfinite(s.tau[i]).all() else None
+            res = forward_rigid(self.model, s.l_meas[i], self.init_pose, tensions=tau)
+            ok = bool(np.isfinite(res.pose).all()) and bool(res.residual < 0.05)
+            self._kin_start[i] = res.pose if ok else self.init_pose
+        return self._kin_start[idx]
+
     def _estimate_poses(self, H: Robot, read: np.ndarray, idx: np.ndarray,
                         iterations: int = 15) -> np.ndarray:
         """Poses (M,6) of the samples ``idx`` (M,) without a tracker pose: the needed
@@ -475,7 +494,8 @@ class ResidualModel:
                 if np.abs(dp).max() < 1e-10:
                     break
             return p
-        start = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx], self.init_pose)
+        start = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx],
+                         self._kinematic_starts(idx))
         p = start.copy()
         last = self._pose_est[idx]
         near = np.isfinite(last).all(axis=1) & \

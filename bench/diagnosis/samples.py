@@ -37,7 +37,13 @@ import numpy as np
 
 from bench.diagnosis.frame import pose_rates
 from bench.recording import Recording, RecordingError
-from bench.streams import jittered, measured_acceleration, still_rows
+from bench.streams import (
+    MOTION_WINDOW_S,
+    jittered,
+    length_acceleration,
+    measured_acceleration,
+    still_rows,
+)
 
 #: states in which the platform stands by design
 STILL_STATES = {"init", "dwell"}
@@ -253,10 +259,30 @@ def _keys(rec: Recording) -> np.ndarray:
     # where the measured motion can be judged (stretches of rows without gaps): a run of
     # standing rows is one key, a moving row its own (-(row + 1)), whatever the noise
     still, known = judged
-    run = np.cumsum(np.r_[True, still[1:] != still[:-1]]).astype(float)
+    run = np.cumsum(np.r_[True, (still[1:] != still[:-1]) | _moved_across_gap(rec)]
+                    ).astype(float)
     by_motion = np.where(still, run, -(np.arange(rec.n_samples) + 1.0))
     width = key.shape[1]
     return np.where(known[:, None], np.repeat(by_motion[:, None], width, axis=1) + 0.5, key)
+
+
+def _moved_across_gap(rec: Recording) -> np.ndarray:
+    """(N-1,) bool: between rows k and k+1 the log has a gap (longer than half the motion
+    filter's window: the filter judges each side apart) across which the encoder readings
+    (by more than STILL_M; else the measured position, by 1 mm) changed, or a reading is
+    missing on one side: standing rows on either side are no one dwell."""
+    N = rec.n_samples
+    gap = np.diff(rec.t) > 0.5 * MOTION_WINDOW_S
+    out = np.zeros(max(N - 1, 0), dtype=bool)
+    if not gap.any():
+        return out
+    for arr, tol in ((rec.l_meas, STILL_M), (rec.pose_meas[:, :3], 1e-3)):
+        cols = np.isfinite(arr).any(axis=0)
+        if cols.any():
+            d = np.abs(np.diff(arr[:, cols], axis=0))
+            with np.errstate(invalid="ignore"):
+                return gap & ~(np.nan_to_num(d, nan=np.inf) <= tol).all(axis=1)
+    return out
 
 
 def _commanded(rec: Recording) -> bool:
@@ -314,7 +340,9 @@ def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which path ``rows`` are quasi-static: the commanded (or measured) motion does not
     accelerate around them. Measured poses only, or jittered time stamps: the acceleration
     of a filter that tracker noise and jitter cannot fool (of the commanded pose where
-    there is one; :func:`bench.streams.measured_acceleration`), finite differences of
+    there is one; :func:`bench.streams.measured_acceleration`); rows without a commanded
+    or measured pose (no tracker, or between its fixes): the same filter's acceleration of
+    the encoder readings (:func:`bench.streams.length_acceleration`); finite differences of
     consecutive rows only where the rows are too sparse for the filter."""
     if len(rows) < 3:
         return np.ones(len(rows), dtype=bool)
@@ -322,11 +350,17 @@ def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
     des = bool(np.isfinite(rec.pose_des[rows, :3]).all())
     if not des or jittered(rec.t):
         acc = measured_acceleration(rec, rows, rec.pose_des if des else None)
+        judged = np.zeros(len(rows), dtype=bool)
         if acc is not None:
             judged = np.isfinite(acc[0]) & np.isfinite(acc[1])
             with np.errstate(invalid="ignore"):
                 filt = (acc[0] <= ACCEL_MAX) & (acc[1] <= ANG_ACCEL_MAX)
             ok = np.where(judged, filt, ok)
+        if not des:
+            lacc = length_acceleration(rec, rows)
+            if lacc is not None:
+                by_len = ~judged & np.isfinite(lacc)
+                ok = np.where(by_len, lacc <= ACCEL_MAX, ok)
     return ok
 
 
@@ -357,26 +391,33 @@ def _quasi_static_rows(rec: Recording, rows: np.ndarray) -> np.ndarray:
 def _isolated(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Which path ``rows`` are standing measurements of their own: the commanded (or
     measured) pose jumps to them and away from them faster than any motion, or they are
-    rows of a table of poses (:meth:`~bench.recording.Recording.table_rows`)."""
+    rows of a table of poses (:meth:`~bench.recording.Recording.table_rows`). A row without
+    that pose (between a slow tracker's fixes, or refused by the alignment) is judged by
+    nothing: it is no jump; a row with one is compared with the nearest rows that have one."""
     out = np.zeros(len(rows), dtype=bool)
     src = rec.pose_des if np.isfinite(rec.pose_des[:, :3]).any() else rec.pose_meas
     if not len(rows):
         return out
     out |= rec.table_rows()[rows]
-    if not np.isfinite(src[:, :3]).any():
+    has = np.isfinite(src[:, :3]).all(axis=1)
+    if not has.any():
         return out
-    N = rec.n_samples
     p = src[:, :3]
     t = rec.t
+    known = np.flatnonzero(has)
+    k = np.searchsorted(known, rows)  # rows with a pose: known[k] == row
+    prev = np.where(k > 0, known[np.maximum(k - 1, 0)], -1)
+    nxt_k = k + (has[rows] & (k < len(known))).astype(int)
+    nxt = np.where(nxt_k < len(known), known[np.minimum(nxt_k, len(known) - 1)], -1)
 
     def speed(i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        ok = (j >= 0) & (j < N)
-        jj = np.clip(j, 0, N - 1)
+        jj = np.maximum(j, 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             v = np.linalg.norm(p[i] - p[jj], axis=1) / np.abs(t[i] - t[jj])
-        return np.where(ok, np.nan_to_num(v, nan=np.inf, posinf=np.inf), np.inf)
+        return np.where(j >= 0, np.nan_to_num(v, nan=np.inf, posinf=np.inf), np.inf)
 
-    return out | ((speed(rows, rows - 1) > JUMP_M_S) & (speed(rows, rows + 1) > JUMP_M_S))
+    jump = (speed(rows, prev) > JUMP_M_S) & (speed(rows, nxt) > JUMP_M_S)
+    return out | (has[rows] & jump)
 
 
 #: with rows of moves, samples within this many consecutive moves may share errors
@@ -552,7 +593,8 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     first = np.array([r[0] for r in dwell_runs] + path.tolist(), dtype=int)
     direction = _directions(rec, first)
     # replicate groups: dwells by commanded pose; path rows by proximity on different moves
-    tg_d = _targets(pose_des[: len(dwell_runs)], pose_meas[: len(dwell_runs)])
+    tg_d = _targets(pose_des[: len(dwell_runs)], pose_meas[: len(dwell_runs)],
+                    l_meas[: len(dwell_runs)])
     tg_p = _near_groups(pose_meas[len(dwell_runs):], pose_des[len(dwell_runs):], seg_all)
     base = int(tg_d.max()) + 1 if len(tg_d) else 0
     target = np.concatenate([tg_d, tg_p + base])
@@ -671,7 +713,7 @@ def _dwell_samples(rec: Recording, runs: list[np.ndarray], init: np.ndarray) -> 
     res = {k: (np.array(v) if v else np.zeros(shapes[k])) for k, v in out.items()}
     res["count"] = np.array([len(r) for r in runs], dtype=int)
     res["is_init"] = np.array([bool(init[r].any()) for r in runs], dtype=bool)
-    res["target"] = _targets(res["pose_des"], res["pose_meas"])
+    res["target"] = _targets(res["pose_des"], res["pose_meas"], res["l_meas"])
     return res
 
 
@@ -728,9 +770,17 @@ def _tau_row_sd(rec: Recording, runs: list[np.ndarray], path: np.ndarray,
     return None
 
 
-def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
+#: [m] dwells without a commanded or whole measured pose are one target where every
+#: cable's encoder reading is within this of the target's first visit (the lengths fix the
+#: pose; targets of a campaign are decimetres apart, a visit repeats within a millimetre)
+SAME_LENGTHS_M = 5e-3
+
+
+def _targets(pose_des: np.ndarray, pose_meas: np.ndarray,
+             l_meas: np.ndarray | None = None) -> np.ndarray:
     """Number target poses: equal desired poses (0.1 mm) or, without them, measured poses
-    within 5 mm / 5 mrad of each other."""
+    within 5 mm / 5 mrad of each other, or, without a whole measured pose either (no
+    tracker), encoder readings ``l_meas`` (N, n) within SAME_LENGTHS_M of each other."""
     N = len(pose_des)
     if N == 0:
         return np.zeros(0, dtype=int)
@@ -742,8 +792,10 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
     # between a slow tracker's fixes is nan there, and nan is near nothing
     meas_cols = np.isfinite(pose_meas).any(axis=0)
     whole = np.isfinite(pose_meas[:, meas_cols]).all(axis=1) & meas_cols[:3].all()
+    lens = np.full((N, 1), np.nan) if l_meas is None else np.asarray(l_meas, dtype=float)
+    by_len = ~have_des & ~whole & np.isfinite(lens).all(axis=1)
     ids = np.full(N, -1)
-    reps: list[tuple[np.ndarray, bool]] = []
+    reps: list[tuple[np.ndarray, str]] = []
     lookup: dict[bytes, int] = {}
     for i in range(N):
         if have_des[i]:
@@ -752,14 +804,19 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray) -> np.ndarray:
                 ids[i] = lookup[kb]
                 continue
         else:
-            for j, (rep, is_des) in enumerate(reps):
-                if (not is_des and whole[i] and np.isfinite(rep[meas_cols]).all()
-                        and np.all(np.abs(pose_meas[i] - rep)[meas_cols] < 5e-3)):
+            for j, (rep, how) in enumerate(reps):
+                if (how == "meas" and whole[i]
+                        and np.all(np.abs(pose_meas[i] - rep)[meas_cols] < 5e-3)) or \
+                        (how == "len" and by_len[i]
+                         and np.all(np.abs(lens[i] - rep) < SAME_LENGTHS_M)):
                     ids[i] = j
                     break
         if ids[i] < 0:
             ids[i] = len(reps)
-            reps.append((key[i] if have_des[i] else pose_meas[i], bool(have_des[i])))
+            how = "des" if have_des[i] else "meas" if whole[i] else \
+                "len" if by_len[i] else "none"
+            reps.append(({"des": key[i], "meas": pose_meas[i], "len": lens[i],
+                          "none": key[i]}[how], how))
             if have_des[i]:
                 lookup[key[i].tobytes()] = ids[i]
     return ids
