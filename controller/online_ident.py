@@ -37,6 +37,7 @@ Pure: no I/O, no clock (times are arguments).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -76,8 +77,8 @@ class Measurement:
 @dataclass(frozen=True)
 class Event:
     """Something the operator must see: ``kind`` one of ``sudden_change``,
-    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``, ``drift``;
-    ``t`` [s];
+    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``, ``drift``,
+    ``drift_end`` (:class:`DriftReport`); ``t`` [s];
     ``detail``."""
 
     kind: str
@@ -114,6 +115,10 @@ class IdentOptions:
     persists, not outliers: when the correction they call for (with the covariance inflated
     as above) is within ``max_step_*``, a ``drift`` event and the batch learnt from (junk
     that persists asks for more: still not learnt);
+    ``report_move`` [m], ``report_hold_s`` [s], ``report_quiet_s`` [s]: what of the drift
+    detections above becomes an event (:class:`DriftReport`: the first detection, then a
+    move of an exit point by ``report_move`` since the last event, a step, the drift's end
+    after ``report_quiet_s`` without detection);
     ``untracked_ratio``: without the tracker's fixes (batches of untracked samples only),
     the estimate moves only along the directions the untracked samples since the tracker
     stopped determine: those whose standard deviation, from the covariance when the
@@ -141,6 +146,9 @@ class IdentOptions:
     drift_p: float = 1e-6
     drift_inflate: float = 4.0
     persist: int = 3
+    report_move: float = 1e-3
+    report_hold_s: float = 120.0
+    report_quiet_s: float = 600.0
     untracked_ratio: float = 0.3
 
 
@@ -155,6 +163,88 @@ class UpdateResult:
     events: list[Event] = field(default_factory=list)
     used: int = 0
     rejected: bool = False
+
+
+class DriftReport:
+    """What of the estimator's drift detections the operator sees as events: the first
+    detection (``drift``: the robot started changing, and when); then, while the drift goes
+    on, a ``drift`` event only when the model changed materially since the last event (its
+    length residual at the update's samples, what the setpoints follow, by ``move`` [m] or
+    more: a step, or a slow drift's accumulated change); the estimate's change during the ``hold_s`` [s] after an event is that event's (the
+    filter converging on the change it reported: no event); a ``drift_end`` event when no
+    detection came for ``quiet_s`` [s] (the next detection starts a new drift: hysteresis).
+    Every detection is counted (:meth:`summary`). The exit points alone are no measure of
+    the change: along a cable, an exit's move and a length offset are the same to the data,
+    and each of them wanders by millimetres while their sum is known to micrometres."""
+
+    def __init__(self, move: float = 1e-3, hold_s: float = 120.0,
+                 quiet_s: float = 600.0) -> None:
+        self.move, self.hold_s, self.quiet_s = float(move), float(hold_s), float(quiet_s)
+        self.active = False  #: a drift is going on
+        self.first_s: float | None = None  #: [s] the run's first detection
+        self.detections = 0  #: detections of the run
+        self.said = 0  #: ``drift`` events of the run
+        self.drifts = 0  #: drifts (first detection to ``drift_end``) of the run
+        self.moved = 0.0  #: [m] the largest length change from a drift's start, of the run
+        self._start: np.ndarray | None = None  #: the estimate at the drift's start
+        self._ref: np.ndarray | None = None  #: the estimate the next event's change is from
+        self._ref_s = self._last_event = self._last_detect = -np.inf
+        self._since = 0  #: detections since the last event
+
+    def observe(self, t: float, theta: np.ndarray, found: list[Event],
+                residual: Callable[[np.ndarray], np.ndarray]) -> list[Event]:
+        """The events to say at update time ``t`` [s] with the estimate ``theta`` (p,), the
+        update's detections ``found`` (kind ``drift``, or ``drift_step``: a change that
+        persisted over batches beyond the innovation test) and
+        ``residual``: the length residuals [m] of an estimate at the update's samples."""
+        self.detections += len(found)
+        self._since += len(found)
+        if found:
+            self._last_detect = t
+        if found and not self.active:
+            self.active, self.drifts = True, self.drifts + 1
+            self.first_s = t if self.first_s is None else self.first_s
+            self._start = theta.copy()
+            return self._say(t, theta, f"drift detected: {found[0].detail}")
+        if not self.active:
+            return []
+        if t - self._last_event <= self.hold_s:  # the last event's change, converging
+            self._ref, self._ref_s = theta.copy(), t
+            return []
+        now = residual(theta)
+        move = _largest_change(now, residual(self._ref))
+        self.moved = max(self.moved, _largest_change(now, residual(self._start)))
+        if move >= self.move:
+            return self._say(t, theta, f"the robot goes on changing: the model's lengths "
+                             f"changed by up to {1e3 * move:.1f} mm since t = "
+                             f"{self._ref_s:.1f} s ({self._since} detections since the last "
+                             f"event; the last: {found[-1].detail if found else 'none'})")
+        if t - self._last_detect >= self.quiet_s:
+            self.active = False
+            return [Event("drift_end", t, f"no drift detected for {self.quiet_s:.0f} s: the "
+                          f"model's lengths changed by up to {1e3 * self.moved:.1f} mm since "
+                          f"the first detection")]
+        return []
+
+    def _say(self, t: float, theta: np.ndarray, text: str) -> list[Event]:
+        self.said += 1
+        self._ref, self._ref_s, self._last_event, self._since = theta.copy(), t, t, 0
+        return [Event("drift", t, text)]
+
+    def summary(self) -> dict[str, float | int | bool | None]:
+        """``detected_at_s`` (the first detection, None: none), ``detections``, ``events``
+        (``drift`` events said), ``drifts``, ``active`` (a drift going on at the end),
+        ``length_change_mm`` (the model's largest length change from a drift's start, at the
+        samples of the updates after the hold of an event)."""
+        return {"detected_at_s": self.first_s, "detections": self.detections,
+                "events": self.said, "drifts": self.drifts, "active": self.active,
+                "length_change_mm": round(1e3 * self.moved, 3)}
+
+
+def _largest_change(a: np.ndarray, b: np.ndarray) -> float:
+    """[m] the largest difference of two residual arrays (0 where either is NaN)."""
+    d = np.abs(np.asarray(a) - np.asarray(b))
+    return float(np.max(np.where(np.isfinite(d), d, 0.0), initial=0.0))
 
 
 class OnlineIdentifier:
@@ -214,6 +304,11 @@ class OnlineIdentifier:
         self._grow = 0
         self._trace_last = float(np.trace(self.P))
         self.events: list[Event] = []
+        #: every drift detection (kinds ``drift`` and ``drift_step``); the events said of
+        #: them: :attr:`drift_report`
+        self.detections: list[Event] = []
+        self.drift_report = DriftReport(self.opt.report_move, self.opt.report_hold_s,
+                                        self.opt.report_quiet_s)
         self.updates = 0
         self._window: list[tuple[float, int]] = []  #: (nis, dof) of the last updates
         self._rejects = 0  #: batches in a row that failed the innovation test
@@ -287,6 +382,12 @@ class OnlineIdentifier:
         read = unstretched_from_readings(H, lengths, self.reference, u0)
         bs = batch_statics(H, poses, true_tensions(H, readings))
         return np.where(bs.feasible[:, None], bs.unstretched - read, np.nan)
+
+    def _residual_at(self, theta: np.ndarray, batch: list[Measurement]) -> np.ndarray:
+        """:meth:`residuals` (K,n) [m] of ``theta`` at the samples of ``batch``."""
+        return self.residuals(theta, np.array([b.pose for b in batch], float),
+                              np.array([b.tensions for b in batch], float),
+                              np.array([b.lengths for b in batch], float))
 
     # ----- Jacobians -------------------------------------------------------------------
     def _column_groups(self) -> list[np.ndarray]:
@@ -399,8 +500,7 @@ class OnlineIdentifier:
         events: list[Event] = []
         if len(nu) == 0:  # no sample gives an equation: nothing learnt, and said
             events.append(Event("unusable", t, self._unusable(batch)))
-            self.events.extend(events)
-            return UpdateResult(0.0, 0, events, 0, rejected=True)
+            return UpdateResult(0.0, 0, self._said(events, t, batch), 0, rejected=True)
         nis = self._innovation_test(nu, Jw, t, events)
         Pi = None
         if any(b.tracked for b in batch):
@@ -412,8 +512,7 @@ class OnlineIdentifier:
         if events and self.opt.gate and self._rejects < self.opt.persist:
             # not the model's noise: not learnt from, unless it persists
             self._check_drift(nis, len(nu), t, events)
-            self.events.extend(events)
-            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+            return UpdateResult(nis, len(nu), self._said(events, t, batch), 0, rejected=True)
         persistent = bool(events) and self.opt.gate
         saved = self.P.copy()
         if persistent:  # a change that persists: learnt again, if physically plausible
@@ -434,11 +533,10 @@ class OnlineIdentifier:
         if persistent and ratio > 1.0:  # no change the robot can make: not learnt
             self.P = saved
             self._check_drift(nis, len(nu), t, events)
-            self.events.extend(events)
-            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+            return UpdateResult(nis, len(nu), self._said(events, t, batch), 0, rejected=True)
         if persistent:
             self._window = []
-            events.append(Event("drift", t, f"{self._rejects} batches in a row beyond the "
+            events.append(Event("drift_step", t, f"{self._rejects} batches in a row beyond the "
                                 "innovation test: the robot changed; the model is "
                                 "learnt again"))
             self._rejects = 0
@@ -455,8 +553,19 @@ class OnlineIdentifier:
         self._check_drift(nis, q, t, events)
         self._check_moved(t, events)
         self.updates += 1
-        self.events.extend(events)
-        return UpdateResult(nis, q, events, int(ok.sum()))
+        return UpdateResult(nis, q, self._said(events, t, batch), int(ok.sum()))
+
+    def _said(self, events: list[Event], t: float, batch: list[Measurement]) -> list[Event]:
+        """An update's events as the operator sees them (kept in :attr:`events`): its drift
+        detections (kept in :attr:`detections`) through :attr:`drift_report` (the model's
+        change measured at the samples of ``batch``), the others as they are."""
+        drift = ("drift", "drift_step")
+        found = [e for e in events if e.kind in drift]
+        self.detections.extend(found)
+        out = [e for e in events if e.kind not in drift] + \
+            self.drift_report.observe(t, self.theta, found, lambda th: self._residual_at(th, batch))
+        self.events.extend(out)
+        return out
 
     def _unusable(self, batch: list[Measurement]) -> str:
         """Why no sample of ``batch`` gave an equation."""
