@@ -118,13 +118,18 @@ class IdentOptions:
     ``report_move`` [m], ``report_hold_s`` [s], ``report_quiet_s`` [s]: what of the drift
     detections above becomes an event (:class:`DriftReport`: the first detection, then a
     move of an exit point by ``report_move`` since the last event, a step, the drift's end
-    after ``report_quiet_s`` without detection);
+    after ``report_quiet_s`` without detection); ``drift_walk``: while a drift goes on (from
+    its first detection to its end, :attr:`DriftReport.active`), the random walk's variances
+    are multiplied by this (the estimate follows a change that goes on faster; 1: no);
     ``untracked_ratio``: without the tracker's fixes (batches of untracked samples only),
     the estimate moves only along the directions the untracked samples since the tracker
     stopped determine: those whose standard deviation, from the covariance when the
     tracker stopped (the prior when there never was one), their information alone brings
     below this ratio of it (:meth:`OnlineIdentifier.untracked_directions`); the others keep
-    the estimate of the tracker's time (0: off, every direction learnt)."""
+    the estimate of the tracker's time (0: off, every direction learnt);
+    ``untracked_visible``: of those, only the combinations that would move the platform by
+    at most this ratio of the change the untracked samples see (what moves the platform is
+    what they cannot check; 0: no such restriction)."""
 
     sigma_length: float = 5e-5
     sigma_tension: float = 0.5
@@ -149,7 +154,9 @@ class IdentOptions:
     report_move: float = 1e-3
     report_hold_s: float = 120.0
     report_quiet_s: float = 600.0
+    drift_walk: float = 1.0
     untracked_ratio: float = 0.3
+    untracked_visible: float = 0.1
 
 
 @dataclass
@@ -170,9 +177,10 @@ class DriftReport:
     detection (``drift``: the robot started changing, and when); then, while the drift goes
     on, a ``drift`` event only when the model changed materially since the last event (its
     length residual at the update's samples, what the setpoints follow, by ``move`` [m] or
-    more: a step, or a slow drift's accumulated change); the estimate's change during the ``hold_s`` [s] after an event is that event's (the
-    filter converging on the change it reported: no event); a ``drift_end`` event when no
-    detection came for ``quiet_s`` [s] (the next detection starts a new drift: hysteresis).
+    more: a step, or a slow drift's accumulated change); the estimate's change during the
+    ``hold_s`` [s] after an event is that event's (the filter converging on the change it
+    reported: no event); a ``drift_end`` event when no detection came for ``quiet_s`` [s]
+    (the next detection starts a new drift: hysteresis).
     Every detection is counted (:meth:`summary`). The exit points alone are no measure of
     the change: along a cable, an exit's move and a length offset are the same to the data,
     and each of them wanders by millimetres while their sum is known to micrometres."""
@@ -288,6 +296,9 @@ class OnlineIdentifier:
         self.P = np.diag(self.prior)
         self.P[-n:, -n:] = ref_cov
         self.P0 = self.P.copy()  #: the prior covariance
+        #: the covariance an inflation never opens beyond (:meth:`_inflate`)
+        self._cap = np.diag(np.r_[self.prior[:3 * n + 3 * m],
+                                  np.full(n, self.opt.prior_offset ** 2)])
         self._walk = np.r_[np.full(3 * n, self.opt.walk_offset ** 2),
                            np.full(3 * m, self.opt.walk_compliance ** 2),
                            np.full(n, self.opt.walk_length ** 2)]
@@ -317,6 +328,10 @@ class OnlineIdentifier:
         #: untracked learning: the covariance when the tracker stopped (None: tracked)
         self._anchor: np.ndarray | None = None
         self._info = np.zeros_like(self.P)  #: untracked information since then
+        #: the same of the residuals' parts a pose error can produce (the pose-visible part:
+        #: what moves the platform, which untracked samples cannot see)
+        self._seen = np.zeros_like(self.P)
+        self._visible = np.zeros((0, len(self.theta)))  #: the last :meth:`_rows`' of those
 
     # ----- the model ------------------------------------------------------------------
     def robot_at(self, theta: np.ndarray | None = None, name: str | None = None) -> Robot:
@@ -455,6 +470,7 @@ class OnlineIdentifier:
         the directions a pose error cannot produce (``nuis``: :meth:`nuisance` of the batch,
         computed when None)."""
         o = self.opt
+        visible = []
         poses = np.array([b.pose for b in batch], float)
         readings = np.array([b.tensions for b in batch], float)
         lengths = np.array([b.lengths for b in batch], float)
@@ -478,10 +494,12 @@ class OnlineIdentifier:
             else:  # the directions orthogonal to the pose's
                 q, _ = np.linalg.qr(Jpk, mode="complete")
                 Q2 = q[:, 6:]
+                visible.append(q[:, :6].T @ Jk / o.sigma_length)
                 rk, Jk, R = Q2.T @ rk, Q2.T @ Jk, Q2.T @ R @ Q2
             L = np.linalg.cholesky(R)
             nus.append(-np.linalg.solve(L, rk))
             Js.append(np.linalg.solve(L, Jk))
+        self._visible = np.vstack(visible) if visible else np.zeros((0, len(theta)))
         if not nus:
             return np.zeros(0), np.zeros((0, len(theta))), np.zeros(0), (Jp, Jt)
         return np.concatenate(nus), np.vstack(Js), np.ones(len(nus)), (Jp, Jt)
@@ -493,7 +511,8 @@ class OnlineIdentifier:
             return UpdateResult(0.0, 0)
         t = float(batch[-1].t)
         if self._t_last is not None:  # random walk since the last update
-            self.P = self.P + np.diag(self._walk * max(t - self._t_last, 0.0))
+            walk = self._walk * (self.opt.drift_walk if self.drift_report.active else 1.0)
+            self.P = self.P + np.diag(walk * max(t - self._t_last, 0.0))
         self._t_last = t
         prior = self.theta
         nu, Jw, ok, nuis = self._rows(batch, prior)
@@ -506,8 +525,9 @@ class OnlineIdentifier:
         if any(b.tracked for b in batch):
             self._anchor = None
         elif self.opt.untracked_ratio > 0:  # only the directions the untracked data fix
-            Pi = self._untracked_projector(Jw)
-            Jw = Jw @ Pi
+            self._add_untracked(Jw)
+            Pi = self._projector()
+        raw, Jw = Jw, (Jw if Pi is None else Jw @ Pi)
         self._rejects = self._rejects + 1 if events else 0
         if events and self.opt.gate and self._rejects < self.opt.persist:
             # not the model's noise: not learnt from, unless it persists
@@ -517,6 +537,9 @@ class OnlineIdentifier:
         saved = self.P.copy()
         if persistent:  # a change that persists: learnt again, if physically plausible
             self._inflate()
+            if Pi is not None:  # the projector is in the metric of the covariance: anew
+                Pi = self._projector()
+                Jw = raw @ Pi
         th, K, q = prior, None, len(nu)
         for it in range(self.opt.iterations):  # iterated EKF: relinearised at the update
             if it:
@@ -546,6 +569,8 @@ class OnlineIdentifier:
                                 f"{step[worst]:.3g} beyond {self._max_step[worst]:.3g} "
                                 f"(taken {1.0 / ratio:.2f} of it)"))
             K, step = K / ratio, step / ratio
+        if Pi is not None:  # untracked: shortened to the bounds, within the span
+            K, step = self._within_bounds(K, step, t, events)
         IKH = np.eye(len(prior)) - K @ Jw
         self.P = IKH @ self.P @ IKH.T + K @ K.T  # Joseph form: consistent for any gain
         self.theta = self._bounded(self.theta + step, t, events)
@@ -576,17 +601,23 @@ class OnlineIdentifier:
                 f"or fewer (nothing left once the pose's 6 directions are projected out), "
                 f"{len(batch) - few} with statics infeasible under the estimate")
 
-    def _untracked_projector(self, Jw: np.ndarray) -> np.ndarray:
-        """(p,p) for the whitened rows ``Jw`` (q,p) of an untracked batch: the projector
-        ``Pi`` (in the metric of the covariance) on the directions
-        :meth:`untracked_directions` finds with this batch's information added. The update
-        sees the rows ``Jw @ Pi``: its gain ``P Pi^T Jw^T S^-1`` lies in their span, the other
-        directions keep their estimate and their covariance (the Joseph form stays exact for
-        this gain)."""
+    def _add_untracked(self, Jw: np.ndarray) -> None:
+        """The information of an untracked batch's whitened rows ``Jw`` (q,p) (and of its
+        pose-visible rows, :meth:`_rows`) added to that since the tracker stopped."""
         if self._anchor is None:  # the tracker just stopped (or never ran)
             self._anchor = self.P.copy()
             self._info = np.zeros_like(self.P)
+            self._seen = np.zeros_like(self.P)
         self._info = self._info + Jw.T @ Jw
+        self._seen = self._seen + self._visible.T @ self._visible
+
+    def _projector(self) -> np.ndarray:
+        """(p,p) the projector ``Pi`` (in the metric of the covariance ``P``: computed anew
+        when ``P`` changes) on the directions :meth:`untracked_directions` finds. An untracked
+        update sees the rows ``Jw @ Pi``: its gain ``P Pi^T Jw^T S^-1`` lies in their span,
+        the other directions keep their estimate and their covariance (the Joseph form stays
+        exact for this gain). With a projector of another ``P`` (the covariance inflated after
+        it), the gain left the span: the undetermined directions moved."""
         D = self.untracked_directions()
         if D.shape[1] == 0:
             return np.zeros_like(self.P)
@@ -598,13 +629,28 @@ class OnlineIdentifier:
         stopped determine: the eigenvectors of their information scaled by the covariance
         of that time, ``L^T F L`` (``P = L L^T``), whose eigenvalue ``lambda`` shrinks the
         standard deviation below :attr:`IdentOptions.untracked_ratio` of its value then
-        (``1 / sqrt(1 + lambda)`` below it), mapped back by ``L``."""
+        (``1 / sqrt(1 + lambda)`` below it), mapped back by ``L``; of these, with
+        :attr:`IdentOptions.untracked_visible` > 0, only the combinations whose change of the
+        lengths a pose error could produce (what would move the platform, the part of the
+        residual the untracked samples project out and cannot check: ``G``, the same sum
+        over those rows) is at most ``untracked_visible`` of the change they see
+        (``d^T G d <= untracked_visible^2 d^T F d``)."""
         if self._anchor is None:
             return np.zeros((len(self.theta), 0))
         L = np.linalg.cholesky(self._anchor)
         lam, V = np.linalg.eigh(L.T @ self._info @ L)
         keep = lam > 1.0 / self.opt.untracked_ratio ** 2 - 1.0
-        return L @ V[:, keep]
+        D = L @ V[:, keep]
+        v = self.opt.untracked_visible
+        if v <= 0 or not D.shape[1]:
+            return D
+        # within span D: the generalised eigenvectors of (D^T G D, D^T F D)
+        Fd = D.T @ self._info @ D
+        Gd = D.T @ self._seen @ D
+        Lf = np.linalg.cholesky(0.5 * (Fd + Fd.T))
+        Li = np.linalg.inv(Lf)
+        mu, W = np.linalg.eigh(Li @ Gd @ Li.T)
+        return D @ Li.T @ W[:, mu <= v ** 2]
 
     def _innovation_test(self, nu: np.ndarray, Jw: np.ndarray, t: float,
                          events: list[Event]) -> float:
@@ -618,6 +664,25 @@ class OnlineIdentifier:
             events.append(Event("sudden_change", t, f"innovation chi-square {nis:.1f} > "
                                 f"{limit:.1f} ({len(nu)} dof)"))
         return nis
+
+    def _within_bounds(self, K: np.ndarray, step: np.ndarray, t: float,
+                       events: list[Event]) -> tuple[np.ndarray, np.ndarray]:
+        """An untracked update's gain ``K`` and ``step`` (p,) shortened so that the estimate
+        stays within the physical bounds: the step keeps its direction (in the span the
+        untracked samples determine; projecting the estimate on the bounds by its covariance
+        moved the others outside it); a ``bound`` event when shortened."""
+        th = self.theta + step
+        over = (th > self.upper) | (th < self.lower)
+        if not np.any(over):
+            return K, step
+        room = np.where(step > 0, self.upper - self.theta, self.lower - self.theta)
+        frac = np.clip(room[over] / step[over], 0.0, 1.0)
+        a = float(frac.min())
+        j = int(np.flatnonzero(over)[np.argmin(frac)])
+        events.append(Event("bound", t, f"{self.names[j]}: {th[j]:.3g} outside "
+                            f"[{self.lower[j]:.3g}, {self.upper[j]:.3g}] (untracked step "
+                            f"shortened to {a:.2f} of it)"))
+        return K * a, step * a
 
     def _bounded(self, theta: np.ndarray, t: float, events: list[Event]) -> np.ndarray:
         """``theta`` within the physical bounds: the parameters beyond them set on them and the
@@ -640,13 +705,24 @@ class OnlineIdentifier:
         return np.clip(theta, self.lower, self.upper)
 
     def _inflate(self) -> None:
-        """The whole covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading
-        memory: the correlations the data built are kept, so the update corrects along the
-        combinations they fixed rather than opening each parameter alone). The length offsets
-        too: a change after the initialisation (an exit point that moved) is, for the
-        encoders referenced before it, a change of the exit points and of the length offsets
-        that hold the old reference."""
-        self.P = self.P * self.opt.drift_inflate
+        """The covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading memory: the
+        correlations the data built are kept, so the update corrects along the combinations
+        they fixed rather than opening each parameter alone), but never beyond the priors
+        (:attr:`_cap`: the exits' and compliances' prior, and for the length offsets that of
+        an exit, ``prior_offset``: an exit that moves after the initialisation moves them by
+        as much; in each direction of ``P`` relative to it: the generalised eigenvalues are
+        multiplied, capped at 1, or kept when already beyond): a robot that keeps changing
+        opens the estimate back to what nothing was known of it, no further (repeated
+        inflations made the covariance, then the corrections, grow without bound).
+        The length offsets too: a change after the initialisation (an exit point that moved)
+        is, for the encoders referenced before it, a change of the exit points and of the
+        length offsets that hold the old reference."""
+        L0 = np.linalg.cholesky(self._cap)
+        A = np.linalg.solve(L0, np.linalg.solve(L0, self.P).T)
+        lam, V = np.linalg.eigh(0.5 * (A + A.T))
+        lam = np.minimum(lam * self.opt.drift_inflate, np.maximum(lam, 1.0))
+        LV = L0 @ V
+        self.P = (LV * lam) @ LV.T
 
     def _check_drift(self, nis: float, dof: int, t: float, events: list[Event]) -> None:
         """The windowed innovation test (:attr:`IdentOptions.drift_window`): a ``drift``
