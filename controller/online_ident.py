@@ -154,7 +154,7 @@ class IdentOptions:
     report_move: float = 1e-3
     report_hold_s: float = 120.0
     report_quiet_s: float = 600.0
-    drift_walk: float = 1.0
+    drift_walk: float = 9.0
     untracked_ratio: float = 0.3
     untracked_visible: float = 0.1
 
@@ -670,7 +670,8 @@ class OnlineIdentifier:
         """An untracked update's gain ``K`` and ``step`` (p,) shortened so that the estimate
         stays within the physical bounds: the step keeps its direction (in the span the
         untracked samples determine; projecting the estimate on the bounds by its covariance
-        moved the others outside it); a ``bound`` event when shortened."""
+        moved the others outside it); a ``bound`` event when shortened, unless a parameter
+        already on its bound stops the step (then nothing moves)."""
         th = self.theta + step
         over = (th > self.upper) | (th < self.lower)
         if not np.any(over):
@@ -679,9 +680,10 @@ class OnlineIdentifier:
         frac = np.clip(room[over] / step[over], 0.0, 1.0)
         a = float(frac.min())
         j = int(np.flatnonzero(over)[np.argmin(frac)])
-        events.append(Event("bound", t, f"{self.names[j]}: {th[j]:.3g} outside "
-                            f"[{self.lower[j]:.3g}, {self.upper[j]:.3g}] (untracked step "
-                            f"shortened to {a:.2f} of it)"))
+        if a > 0:  # (a parameter already on its bound, the step stopped: said before)
+            events.append(Event("bound", t, f"{self.names[j]}: {th[j]:.3g} outside "
+                                f"[{self.lower[j]:.3g}, {self.upper[j]:.3g}] (untracked step "
+                                f"shortened to {a:.2f} of it)"))
         return K * a, step * a
 
     def _bounded(self, theta: np.ndarray, t: float, events: list[Event]) -> np.ndarray:
