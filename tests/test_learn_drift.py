@@ -225,3 +225,25 @@ def test_drift_plan_scenario_and_models(tmp_path):
     assert fx.robot is lr.scenario.truth and lr.robot is lr.scenario.model
     assert lr.max_duration_s == 120.0 and lr.path.repeat >= 3
     assert dataclasses.replace(lr.scenario).nuisances().settle_m == 0.005
+
+
+def test_drift_report_says_the_start_material_changes_and_the_end():
+    """The operator's view of the detections, on a made-up model whose residual is its one
+    parameter [m]: the first detection at once; nothing while the estimate converges
+    (hold) or changes by less than ``move``; then one event per ``move``; the end after
+    ``quiet_s`` with no detection; a new detection starts a new drift."""
+    from controller.online_ident import DriftReport, Event
+
+    rep = DriftReport(move=1e-3, hold_s=10.0, quiet_s=50.0)
+    res = lambda th: np.array([[th[0]]])  # noqa: E731
+    det = [Event("drift", 0.0, "x")]
+    said = []
+    for t, x, found in [(1.0, 0.0, []), (2.0, 0.0, det), (5.0, 3e-3, det), (11.0, 4e-3, det),
+                        (20.0, 4.9e-3, det), (30.0, 5.1e-3, det), (40.0, 5.2e-3, []),
+                        (79.0, 5.2e-3, []), (81.0, 5.2e-3, []), (90.0, 5.2e-3, det)]:
+        said += [(t, e.kind) for e in rep.observe(t, np.array([x]), found, res)]
+    assert said == [(2.0, "drift"), (30.0, "drift"), (81.0, "drift_end"), (90.0, "drift")]
+    s = rep.summary()
+    assert s["detected_at_s"] == 2.0 and s["detections"] == 6 and s["events"] == 3
+    assert s["drifts"] == 2 and s["active"]
+    assert abs(s["length_change_mm"] - 5.2) < 1e-9
