@@ -203,7 +203,10 @@ def test_paper_drift_goals(monkeypatch):
     monkeypatch.setattr(pd, "pass_errors", lambda rec: (np.arange(5.0), per[rec]))
     results = [{"recording": m, "tags": {"model": m},
                 "learn": {"events": [{"t": 30.0, "kind": "drift", "text": "x"}],
-                          "warmup_s": 50.0} if m == "learned" else None}
+                          "warmup_s": 50.0,
+                          "drift": {"detected_at_s": 30.0, "detections": 7, "events": 1,
+                                    "drifts": 1, "active": True,
+                                    "length_change_mm": 4.5}} if m == "learned" else None}
                for m in per]
     res = pd.drift_result(results, [], 0.005, 3600.0)
     g = res["goals"]
@@ -212,6 +215,9 @@ def test_paper_drift_goals(monkeypatch):
     per["learned"] = per["learned"] * np.array([1, 1, 1, 2, 1])  # 6 mm: beyond 2x 2.2 mm
     assert not pd.drift_result(results, [], 0.005, 3600.0)["goals"]["learned_within_2x"]
     assert "drift detected at t = 30.0 s" in pd.drift_table(res)
+    assert res["runs"]["learned"]["drift"]["detections"] == 7
+    assert "7 drift detections, 1 events, 1 drift(s), the model's lengths changed up to " \
+        "4.5 mm, still drifting at the end" in pd.drift_table(res)
 
 
 def test_drift_plan_scenario_and_models(tmp_path):
