@@ -117,8 +117,9 @@ class IdentOptions:
     that persists asks for more: still not learnt);
     ``report_move`` [m], ``report_hold_s`` [s], ``report_quiet_s`` [s]: what of the drift
     detections above becomes an event (:class:`DriftReport`: the first detection, then a
-    move of an exit point by ``report_move`` since the last event, a step, the drift's end
-    after ``report_quiet_s`` without detection); ``drift_walk``: while a drift goes on (from
+    change of the model's lengths by ``report_move`` since the last event, none in the
+    ``report_hold_s`` after an event, the drift's end after ``report_quiet_s`` without
+    detection); ``drift_walk``: while a drift goes on (from
     its first detection to its end, :attr:`DriftReport.active`), the random walk's variances
     are multiplied by this (the estimate follows a change that goes on faster; 1: no);
     ``untracked_ratio``: without the tracker's fixes (batches of untracked samples only),
