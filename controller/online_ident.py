@@ -37,6 +37,7 @@ Pure: no I/O, no clock (times are arguments).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -76,8 +77,8 @@ class Measurement:
 @dataclass(frozen=True)
 class Event:
     """Something the operator must see: ``kind`` one of ``sudden_change``,
-    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``, ``drift``;
-    ``t`` [s];
+    ``large_correction``, ``bound``, ``covariance_growing``, ``unusable``, ``drift``,
+    ``drift_end`` (:class:`DriftReport`); ``t`` [s];
     ``detail``."""
 
     kind: str
@@ -114,12 +115,22 @@ class IdentOptions:
     persists, not outliers: when the correction they call for (with the covariance inflated
     as above) is within ``max_step_*``, a ``drift`` event and the batch learnt from (junk
     that persists asks for more: still not learnt);
+    ``report_move`` [m], ``report_hold_s`` [s], ``report_quiet_s`` [s]: what of the drift
+    detections above becomes an event (:class:`DriftReport`: the first detection, then a
+    change of the model's lengths by ``report_move`` since the last event, none in the
+    ``report_hold_s`` after an event, the drift's end after ``report_quiet_s`` without
+    detection); ``drift_walk``: while a drift goes on (from
+    its first detection to its end, :attr:`DriftReport.active`), the random walk's variances
+    are multiplied by this (the estimate follows a change that goes on faster; 1: no);
     ``untracked_ratio``: without the tracker's fixes (batches of untracked samples only),
     the estimate moves only along the directions the untracked samples since the tracker
     stopped determine: those whose standard deviation, from the covariance when the
     tracker stopped (the prior when there never was one), their information alone brings
     below this ratio of it (:meth:`OnlineIdentifier.untracked_directions`); the others keep
-    the estimate of the tracker's time (0: off, every direction learnt)."""
+    the estimate of the tracker's time (0: off, every direction learnt);
+    ``untracked_visible``: of those, only the combinations that would move the platform by
+    at most this ratio of the change the untracked samples see (what moves the platform is
+    what they cannot check; 0: no such restriction)."""
 
     sigma_length: float = 5e-5
     sigma_tension: float = 0.5
@@ -141,7 +152,12 @@ class IdentOptions:
     drift_p: float = 1e-6
     drift_inflate: float = 4.0
     persist: int = 3
+    report_move: float = 1e-3
+    report_hold_s: float = 120.0
+    report_quiet_s: float = 600.0
+    drift_walk: float = 9.0
     untracked_ratio: float = 0.3
+    untracked_visible: float = 0.1
 
 
 @dataclass
@@ -155,6 +171,89 @@ class UpdateResult:
     events: list[Event] = field(default_factory=list)
     used: int = 0
     rejected: bool = False
+
+
+class DriftReport:
+    """What of the estimator's drift detections the operator sees as events: the first
+    detection (``drift``: the robot started changing, and when); then, while the drift goes
+    on, a ``drift`` event only when the model changed materially since the last event (its
+    length residual at the update's samples, what the setpoints follow, by ``move`` [m] or
+    more: a step, or a slow drift's accumulated change); the estimate's change during the
+    ``hold_s`` [s] after an event is that event's (the filter converging on the change it
+    reported: no event); a ``drift_end`` event when no detection came for ``quiet_s`` [s]
+    (the next detection starts a new drift: hysteresis).
+    Every detection is counted (:meth:`summary`). The exit points alone are no measure of
+    the change: along a cable, an exit's move and a length offset are the same to the data,
+    and each of them wanders by millimetres while their sum is known to micrometres."""
+
+    def __init__(self, move: float = 1e-3, hold_s: float = 120.0,
+                 quiet_s: float = 600.0) -> None:
+        self.move, self.hold_s, self.quiet_s = float(move), float(hold_s), float(quiet_s)
+        self.active = False  #: a drift is going on
+        self.first_s: float | None = None  #: [s] the run's first detection
+        self.detections = 0  #: detections of the run
+        self.said = 0  #: ``drift`` events of the run
+        self.drifts = 0  #: drifts (first detection to ``drift_end``) of the run
+        self.moved = 0.0  #: [m] the largest length change from a drift's start, of the run
+        self._start: np.ndarray | None = None  #: the estimate at the drift's start
+        self._ref: np.ndarray | None = None  #: the estimate the next event's change is from
+        self._ref_s = self._last_event = self._last_detect = -np.inf
+        self._since = 0  #: detections since the last event
+
+    def observe(self, t: float, theta: np.ndarray, found: list[Event],
+                residual: Callable[[np.ndarray], np.ndarray]) -> list[Event]:
+        """The events to say at update time ``t`` [s] with the estimate ``theta`` (p,), the
+        update's detections ``found`` (kind ``drift``, or ``drift_step``: a change that
+        persisted over batches beyond the innovation test) and
+        ``residual``: the length residuals [m] of an estimate at the update's samples."""
+        self.detections += len(found)
+        self._since += len(found)
+        if found:
+            self._last_detect = t
+        if found and not self.active:
+            self.active, self.drifts = True, self.drifts + 1
+            self.first_s = t if self.first_s is None else self.first_s
+            self._start = theta.copy()
+            return self._say(t, theta, f"drift detected: {found[0].detail}")
+        if not self.active:
+            return []
+        if t - self._last_event <= self.hold_s:  # the last event's change, converging
+            self._ref, self._ref_s = theta.copy(), t
+            return []
+        now = residual(theta)
+        move = _largest_change(now, residual(self._ref))
+        self.moved = max(self.moved, _largest_change(now, residual(self._start)))
+        if move >= self.move:
+            return self._say(t, theta, f"the robot goes on changing: the model's lengths "
+                             f"changed by up to {1e3 * move:.1f} mm since t = "
+                             f"{self._ref_s:.1f} s ({self._since} detections since the last "
+                             f"event; the last: {found[-1].detail if found else 'none'})")
+        if t - self._last_detect >= self.quiet_s:
+            self.active = False
+            return [Event("drift_end", t, f"no drift detected for {self.quiet_s:.0f} s: the "
+                          f"model's lengths changed by up to {1e3 * self.moved:.1f} mm since "
+                          f"the first detection")]
+        return []
+
+    def _say(self, t: float, theta: np.ndarray, text: str) -> list[Event]:
+        self.said += 1
+        self._ref, self._ref_s, self._last_event, self._since = theta.copy(), t, t, 0
+        return [Event("drift", t, text)]
+
+    def summary(self) -> dict[str, float | int | bool | None]:
+        """``detected_at_s`` (the first detection, None: none), ``detections``, ``events``
+        (``drift`` events said), ``drifts``, ``active`` (a drift going on at the end),
+        ``length_change_mm`` (the model's largest length change from a drift's start, at the
+        samples of the updates after the hold of an event)."""
+        return {"detected_at_s": self.first_s, "detections": self.detections,
+                "events": self.said, "drifts": self.drifts, "active": self.active,
+                "length_change_mm": round(1e3 * self.moved, 3)}
+
+
+def _largest_change(a: np.ndarray, b: np.ndarray) -> float:
+    """[m] the largest difference of two residual arrays (0 where either is NaN)."""
+    d = np.abs(np.asarray(a) - np.asarray(b))
+    return float(np.max(np.where(np.isfinite(d), d, 0.0), initial=0.0))
 
 
 class OnlineIdentifier:
@@ -198,6 +297,9 @@ class OnlineIdentifier:
         self.P = np.diag(self.prior)
         self.P[-n:, -n:] = ref_cov
         self.P0 = self.P.copy()  #: the prior covariance
+        #: the covariance an inflation never opens beyond (:meth:`_inflate`)
+        self._cap = np.diag(np.r_[self.prior[:3 * n + 3 * m],
+                                  np.full(n, self.opt.prior_offset ** 2)])
         self._walk = np.r_[np.full(3 * n, self.opt.walk_offset ** 2),
                            np.full(3 * m, self.opt.walk_compliance ** 2),
                            np.full(n, self.opt.walk_length ** 2)]
@@ -214,6 +316,11 @@ class OnlineIdentifier:
         self._grow = 0
         self._trace_last = float(np.trace(self.P))
         self.events: list[Event] = []
+        #: every drift detection (kinds ``drift`` and ``drift_step``); the events said of
+        #: them: :attr:`drift_report`
+        self.detections: list[Event] = []
+        self.drift_report = DriftReport(self.opt.report_move, self.opt.report_hold_s,
+                                        self.opt.report_quiet_s)
         self.updates = 0
         self._window: list[tuple[float, int]] = []  #: (nis, dof) of the last updates
         self._rejects = 0  #: batches in a row that failed the innovation test
@@ -222,6 +329,10 @@ class OnlineIdentifier:
         #: untracked learning: the covariance when the tracker stopped (None: tracked)
         self._anchor: np.ndarray | None = None
         self._info = np.zeros_like(self.P)  #: untracked information since then
+        #: the same of the residuals' parts a pose error can produce (the pose-visible part:
+        #: what moves the platform, which untracked samples cannot see)
+        self._seen = np.zeros_like(self.P)
+        self._visible = np.zeros((0, len(self.theta)))  #: the last :meth:`_rows`' of those
 
     # ----- the model ------------------------------------------------------------------
     def robot_at(self, theta: np.ndarray | None = None, name: str | None = None) -> Robot:
@@ -287,6 +398,12 @@ class OnlineIdentifier:
         read = unstretched_from_readings(H, lengths, self.reference, u0)
         bs = batch_statics(H, poses, true_tensions(H, readings))
         return np.where(bs.feasible[:, None], bs.unstretched - read, np.nan)
+
+    def _residual_at(self, theta: np.ndarray, batch: list[Measurement]) -> np.ndarray:
+        """:meth:`residuals` (K,n) [m] of ``theta`` at the samples of ``batch``."""
+        return self.residuals(theta, np.array([b.pose for b in batch], float),
+                              np.array([b.tensions for b in batch], float),
+                              np.array([b.lengths for b in batch], float))
 
     # ----- Jacobians -------------------------------------------------------------------
     def _column_groups(self) -> list[np.ndarray]:
@@ -354,6 +471,7 @@ class OnlineIdentifier:
         the directions a pose error cannot produce (``nuis``: :meth:`nuisance` of the batch,
         computed when None)."""
         o = self.opt
+        visible = []
         poses = np.array([b.pose for b in batch], float)
         readings = np.array([b.tensions for b in batch], float)
         lengths = np.array([b.lengths for b in batch], float)
@@ -377,10 +495,12 @@ class OnlineIdentifier:
             else:  # the directions orthogonal to the pose's
                 q, _ = np.linalg.qr(Jpk, mode="complete")
                 Q2 = q[:, 6:]
+                visible.append(q[:, :6].T @ Jk / o.sigma_length)
                 rk, Jk, R = Q2.T @ rk, Q2.T @ Jk, Q2.T @ R @ Q2
             L = np.linalg.cholesky(R)
             nus.append(-np.linalg.solve(L, rk))
             Js.append(np.linalg.solve(L, Jk))
+        self._visible = np.vstack(visible) if visible else np.zeros((0, len(theta)))
         if not nus:
             return np.zeros(0), np.zeros((0, len(theta))), np.zeros(0), (Jp, Jt)
         return np.concatenate(nus), np.vstack(Js), np.ones(len(nus)), (Jp, Jt)
@@ -392,32 +512,35 @@ class OnlineIdentifier:
             return UpdateResult(0.0, 0)
         t = float(batch[-1].t)
         if self._t_last is not None:  # random walk since the last update
-            self.P = self.P + np.diag(self._walk * max(t - self._t_last, 0.0))
+            walk = self._walk * (self.opt.drift_walk if self.drift_report.active else 1.0)
+            self.P = self.P + np.diag(walk * max(t - self._t_last, 0.0))
         self._t_last = t
         prior = self.theta
         nu, Jw, ok, nuis = self._rows(batch, prior)
         events: list[Event] = []
         if len(nu) == 0:  # no sample gives an equation: nothing learnt, and said
             events.append(Event("unusable", t, self._unusable(batch)))
-            self.events.extend(events)
-            return UpdateResult(0.0, 0, events, 0, rejected=True)
+            return UpdateResult(0.0, 0, self._said(events, t, batch), 0, rejected=True)
         nis = self._innovation_test(nu, Jw, t, events)
         Pi = None
         if any(b.tracked for b in batch):
             self._anchor = None
         elif self.opt.untracked_ratio > 0:  # only the directions the untracked data fix
-            Pi = self._untracked_projector(Jw)
-            Jw = Jw @ Pi
+            self._add_untracked(Jw)
+            Pi = self._projector()
+        raw, Jw = Jw, (Jw if Pi is None else Jw @ Pi)
         self._rejects = self._rejects + 1 if events else 0
         if events and self.opt.gate and self._rejects < self.opt.persist:
             # not the model's noise: not learnt from, unless it persists
             self._check_drift(nis, len(nu), t, events)
-            self.events.extend(events)
-            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+            return UpdateResult(nis, len(nu), self._said(events, t, batch), 0, rejected=True)
         persistent = bool(events) and self.opt.gate
         saved = self.P.copy()
         if persistent:  # a change that persists: learnt again, if physically plausible
             self._inflate()
+            if Pi is not None:  # the projector is in the metric of the covariance: anew
+                Pi = self._projector()
+                Jw = raw @ Pi
         th, K, q = prior, None, len(nu)
         for it in range(self.opt.iterations):  # iterated EKF: relinearised at the update
             if it:
@@ -434,11 +557,10 @@ class OnlineIdentifier:
         if persistent and ratio > 1.0:  # no change the robot can make: not learnt
             self.P = saved
             self._check_drift(nis, len(nu), t, events)
-            self.events.extend(events)
-            return UpdateResult(nis, len(nu), events, 0, rejected=True)
+            return UpdateResult(nis, len(nu), self._said(events, t, batch), 0, rejected=True)
         if persistent:
             self._window = []
-            events.append(Event("drift", t, f"{self._rejects} batches in a row beyond the "
+            events.append(Event("drift_step", t, f"{self._rejects} batches in a row beyond the "
                                 "innovation test: the robot changed; the model is "
                                 "learnt again"))
             self._rejects = 0
@@ -448,6 +570,8 @@ class OnlineIdentifier:
                                 f"{step[worst]:.3g} beyond {self._max_step[worst]:.3g} "
                                 f"(taken {1.0 / ratio:.2f} of it)"))
             K, step = K / ratio, step / ratio
+        if Pi is not None:  # untracked: shortened to the bounds, within the span
+            K, step = self._within_bounds(K, step, t, events)
         IKH = np.eye(len(prior)) - K @ Jw
         self.P = IKH @ self.P @ IKH.T + K @ K.T  # Joseph form: consistent for any gain
         self.theta = self._bounded(self.theta + step, t, events)
@@ -455,8 +579,19 @@ class OnlineIdentifier:
         self._check_drift(nis, q, t, events)
         self._check_moved(t, events)
         self.updates += 1
-        self.events.extend(events)
-        return UpdateResult(nis, q, events, int(ok.sum()))
+        return UpdateResult(nis, q, self._said(events, t, batch), int(ok.sum()))
+
+    def _said(self, events: list[Event], t: float, batch: list[Measurement]) -> list[Event]:
+        """An update's events as the operator sees them (kept in :attr:`events`): its drift
+        detections (kept in :attr:`detections`) through :attr:`drift_report` (the model's
+        change measured at the samples of ``batch``), the others as they are."""
+        drift = ("drift", "drift_step")
+        found = [e for e in events if e.kind in drift]
+        self.detections.extend(found)
+        out = [e for e in events if e.kind not in drift] + \
+            self.drift_report.observe(t, self.theta, found, lambda th: self._residual_at(th, batch))
+        self.events.extend(out)
+        return out
 
     def _unusable(self, batch: list[Measurement]) -> str:
         """Why no sample of ``batch`` gave an equation."""
@@ -467,17 +602,23 @@ class OnlineIdentifier:
                 f"or fewer (nothing left once the pose's 6 directions are projected out), "
                 f"{len(batch) - few} with statics infeasible under the estimate")
 
-    def _untracked_projector(self, Jw: np.ndarray) -> np.ndarray:
-        """(p,p) for the whitened rows ``Jw`` (q,p) of an untracked batch: the projector
-        ``Pi`` (in the metric of the covariance) on the directions
-        :meth:`untracked_directions` finds with this batch's information added. The update
-        sees the rows ``Jw @ Pi``: its gain ``P Pi^T Jw^T S^-1`` lies in their span, the other
-        directions keep their estimate and their covariance (the Joseph form stays exact for
-        this gain)."""
+    def _add_untracked(self, Jw: np.ndarray) -> None:
+        """The information of an untracked batch's whitened rows ``Jw`` (q,p) (and of its
+        pose-visible rows, :meth:`_rows`) added to that since the tracker stopped."""
         if self._anchor is None:  # the tracker just stopped (or never ran)
             self._anchor = self.P.copy()
             self._info = np.zeros_like(self.P)
+            self._seen = np.zeros_like(self.P)
         self._info = self._info + Jw.T @ Jw
+        self._seen = self._seen + self._visible.T @ self._visible
+
+    def _projector(self) -> np.ndarray:
+        """(p,p) the projector ``Pi`` (in the metric of the covariance ``P``: computed anew
+        when ``P`` changes) on the directions :meth:`untracked_directions` finds. An untracked
+        update sees the rows ``Jw @ Pi``: its gain ``P Pi^T Jw^T S^-1`` lies in their span,
+        the other directions keep their estimate and their covariance (the Joseph form stays
+        exact for this gain). With a projector of another ``P`` (the covariance inflated after
+        it), the gain left the span: the undetermined directions moved."""
         D = self.untracked_directions()
         if D.shape[1] == 0:
             return np.zeros_like(self.P)
@@ -489,13 +630,28 @@ class OnlineIdentifier:
         stopped determine: the eigenvectors of their information scaled by the covariance
         of that time, ``L^T F L`` (``P = L L^T``), whose eigenvalue ``lambda`` shrinks the
         standard deviation below :attr:`IdentOptions.untracked_ratio` of its value then
-        (``1 / sqrt(1 + lambda)`` below it), mapped back by ``L``."""
+        (``1 / sqrt(1 + lambda)`` below it), mapped back by ``L``; of these, with
+        :attr:`IdentOptions.untracked_visible` > 0, only the combinations whose change of the
+        lengths a pose error could produce (what would move the platform, the part of the
+        residual the untracked samples project out and cannot check: ``G``, the same sum
+        over those rows) is at most ``untracked_visible`` of the change they see
+        (``d^T G d <= untracked_visible^2 d^T F d``)."""
         if self._anchor is None:
             return np.zeros((len(self.theta), 0))
         L = np.linalg.cholesky(self._anchor)
         lam, V = np.linalg.eigh(L.T @ self._info @ L)
         keep = lam > 1.0 / self.opt.untracked_ratio ** 2 - 1.0
-        return L @ V[:, keep]
+        D = L @ V[:, keep]
+        v = self.opt.untracked_visible
+        if v <= 0 or not D.shape[1]:
+            return D
+        # within span D: the generalised eigenvectors of (D^T G D, D^T F D)
+        Fd = D.T @ self._info @ D
+        Gd = D.T @ self._seen @ D
+        Lf = np.linalg.cholesky(0.5 * (Fd + Fd.T))
+        Li = np.linalg.inv(Lf)
+        mu, W = np.linalg.eigh(Li @ Gd @ Li.T)
+        return D @ Li.T @ W[:, mu <= v ** 2]
 
     def _innovation_test(self, nu: np.ndarray, Jw: np.ndarray, t: float,
                          events: list[Event]) -> float:
@@ -509,6 +665,27 @@ class OnlineIdentifier:
             events.append(Event("sudden_change", t, f"innovation chi-square {nis:.1f} > "
                                 f"{limit:.1f} ({len(nu)} dof)"))
         return nis
+
+    def _within_bounds(self, K: np.ndarray, step: np.ndarray, t: float,
+                       events: list[Event]) -> tuple[np.ndarray, np.ndarray]:
+        """An untracked update's gain ``K`` and ``step`` (p,) shortened so that the estimate
+        stays within the physical bounds: the step keeps its direction (in the span the
+        untracked samples determine; projecting the estimate on the bounds by its covariance
+        moved the others outside it); a ``bound`` event when shortened, unless a parameter
+        already on its bound stops the step (then nothing moves)."""
+        th = self.theta + step
+        over = (th > self.upper) | (th < self.lower)
+        if not np.any(over):
+            return K, step
+        room = np.where(step > 0, self.upper - self.theta, self.lower - self.theta)
+        frac = np.clip(room[over] / step[over], 0.0, 1.0)
+        a = float(frac.min())
+        j = int(np.flatnonzero(over)[np.argmin(frac)])
+        if a > 0:  # (a parameter already on its bound, the step stopped: said before)
+            events.append(Event("bound", t, f"{self.names[j]}: {th[j]:.3g} outside "
+                                f"[{self.lower[j]:.3g}, {self.upper[j]:.3g}] (untracked step "
+                                f"shortened to {a:.2f} of it)"))
+        return K * a, step * a
 
     def _bounded(self, theta: np.ndarray, t: float, events: list[Event]) -> np.ndarray:
         """``theta`` within the physical bounds: the parameters beyond them set on them and the
@@ -531,13 +708,24 @@ class OnlineIdentifier:
         return np.clip(theta, self.lower, self.upper)
 
     def _inflate(self) -> None:
-        """The whole covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading
-        memory: the correlations the data built are kept, so the update corrects along the
-        combinations they fixed rather than opening each parameter alone). The length offsets
-        too: a change after the initialisation (an exit point that moved) is, for the
-        encoders referenced before it, a change of the exit points and of the length offsets
-        that hold the old reference."""
-        self.P = self.P * self.opt.drift_inflate
+        """The covariance multiplied by :attr:`IdentOptions.drift_inflate` (fading memory: the
+        correlations the data built are kept, so the update corrects along the combinations
+        they fixed rather than opening each parameter alone), but never beyond the priors
+        (:attr:`_cap`: the exits' and compliances' prior, and for the length offsets that of
+        an exit, ``prior_offset``: an exit that moves after the initialisation moves them by
+        as much; in each direction of ``P`` relative to it: the generalised eigenvalues are
+        multiplied, capped at 1, or kept when already beyond): a robot that keeps changing
+        opens the estimate back to what nothing was known of it, no further (repeated
+        inflations made the covariance, then the corrections, grow without bound).
+        The length offsets too: a change after the initialisation (an exit point that moved)
+        is, for the encoders referenced before it, a change of the exit points and of the
+        length offsets that hold the old reference."""
+        L0 = np.linalg.cholesky(self._cap)
+        A = np.linalg.solve(L0, np.linalg.solve(L0, self.P).T)
+        lam, V = np.linalg.eigh(0.5 * (A + A.T))
+        lam = np.minimum(lam * self.opt.drift_inflate, np.maximum(lam, 1.0))
+        LV = L0 @ V
+        self.P = (LV * lam) @ LV.T
 
     def _check_drift(self, nis: float, dof: int, t: float, events: list[Event]) -> None:
         """The windowed innovation test (:attr:`IdentOptions.drift_window`): a ``drift``

@@ -124,7 +124,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="runs in parallel processes [2]")
     g.add_argument("--models", metavar="LIST", default=None,
                    help="controller models, of nominal, remeasured, compliant, diagnosed, "
-                        "learned, learned_warmup, learned_untracked, and for paper-paths "
+                        "learned, learned_warmup, learned_untracked, learned_notracker, and "
+                        "for paper-paths "
                         "planned (the measured-vs-planned tensions comparison) [paper-paths: "
                         "nominal, "
                         "remeasured, compliant, diagnosed, planned; paper-poses: "

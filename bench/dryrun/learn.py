@@ -340,7 +340,8 @@ class LoopLearner:
         return self.ident.robot_at(self.hand.target(), f"{self.ident.model.name}_identified")
 
     def report(self) -> dict:
-        """The summary with the estimate: exit offsets [mm] and their largest sd [mm]."""
+        """The summary with the estimate: exit offsets [mm] and their largest sd [mm]; the
+        drift detections' summary (:meth:`controller.online_ident.DriftReport.summary`)."""
         s = self.summary
         if self.ident is not None:
             n = self.ident.n_offsets
@@ -351,7 +352,8 @@ class LoopLearner:
         return {"updates": s.updates, "samples": s.samples, "rejected": s.rejected,
                 "handovers": s.handovers, "events": s.events, "offsets_mm": s.offsets_mm,
                 "offset_sd_mm_max": s.sd_mm_max, "identifiable": self.identifiable,
-                "untracked_directions": self._untracked_count()}
+                "untracked_directions": self._untracked_count(),
+                "drift": None if self.ident is None else self.ident.drift_report.summary()}
 
     def _untracked_count(self) -> int | None:
         """How many directions the untracked samples determined (None: no untracked

@@ -89,17 +89,21 @@ MODELS: dict[str, str] = {
                          "directions these determine",
     "learned_warmup": "as learned during the warm-up, then fixed: no learning on the path "
                       "(what learned_untracked starts from)",
+    "learned_notracker": "starts from the nominal model and learns from tensions and "
+                         "encoders only, warm-up and path (no tracker fix ever used; the "
+                         "tracker still gives the figures): only the directions these "
+                         "determine move",
 }
 #: the order models appear in tables and plots
 MODEL_ORDER = ("nominal", "remeasured", "compliant", "diagnosed", "learned",
-               "learned_warmup", "learned_untracked")
+               "learned_warmup", "learned_untracked", "learned_notracker")
 #: the models paper-paths runs when none are named
 DEFAULT_MODELS = ("nominal", "remeasured", "compliant", "diagnosed")
 #: the learning models: whether the estimator uses the tracker's fixes (True: all the run;
 #: "warmup": during the warm-up only, then tensions and encoders; "warmup_only": during the
-#: warm-up only, then no learning)
+#: warm-up only, then no learning; False: never, tensions and encoders all the run)
 LEARNED: dict[str, bool | str] = {"learned": True, "learned_untracked": "warmup",
-                                  "learned_warmup": "warmup_only"}
+                                  "learned_warmup": "warmup_only", "learned_notracker": False}
 #: the warm-up of the learning models: dwell poses offset from the init pose [m] (x, y, z
 #: from the init pose, clipped into :data:`WARMUP_BOX`), each visited once: toward each
 #: mast in turn, high and low alternately (large tension changes on every mast: its

@@ -5,7 +5,8 @@ plus ``--jobs``, ``--cycles``, ``--speeds``, ``--models``, ``--diagnosed-model``
 campaigns themselves: :mod:`bench.dryrun.paper`; the results: :mod:`bench.dryrun.paper_report`.
 
 ``paper-paths [--json] [--plots DIR] [--record DIR] [--jobs N] [--rate HZ] [--duration S]
-[--models nominal,remeasured,compliant,diagnosed,learned,learned_warmup,learned_untracked]
+[--models nominal,remeasured,compliant,diagnosed,learned,learned_warmup,learned_untracked,
+learned_notracker]
 [--diagnosed-model ROBOT.toml]``: the
 four path runs of Table 3 per model, the calibration campaign (``paper-calibration``
 scenario, ``calibration-quick`` path) recorded by a dry run and diagnosed by ``cdpr
@@ -34,8 +35,9 @@ max / nominal AT max), "paper_at_max_nominal_m", "paper_at_mean_nominal_m",
 "stiffness_fitted", "stiffness_truth", "stiffness_rel_error"}}, "runs": [{"label", "model",
 "mast_tensions", "simulated_s", "wall_s", "slack_events", "events", "recording"}],
 "failures": [{"label", "error"}], "learning": [{"label", "warmup_s", "updates", "samples",
-"rejected", "handovers", "event_counts", "identifiable", "offset_sd_mm_max"}] (the
-learning models' runs), "rate_hz", "reactions", "wall_s", "plots"}`` (m, s).
+"rejected", "handovers", "event_counts", "identifiable", "offset_sd_mm_max",
+"untracked_directions", "drift"}] (the learning models' runs), "rate_hz", "reactions",
+"wall_s", "plots"}`` (m, s).
 
 ``paper-poses --json``: ``{"scenario": "paper-poses", "cycles", "speeds_pct", "models",
 "rate_hz", "reactions", "runs": [{"set", "speed_pct", "model", "apx_m", "apy_m", "apz_m",
@@ -49,7 +51,8 @@ and again, learned controller against the fixed true model of t = 0
 (:mod:`bench.dryrun.paper_drift`); ``--json``: ``{"scenario": "paper-drift", "settle_m",
 "duration_s", "runs": {"learned"|"fixed": {"passes", "settled_m", "worst_m", "ratio",
 "first_m", "last_m", "per_pass": [[t_s, at_m]], "drift_events": [[t_s, text]] (learned),
-"learn_events", "warmup_s"}}, "goals": {"learned_ratio", "learned_within_2x",
+"learn_events", "warmup_s", "drift": {"detected_at_s", "detections", "events", "drifts",
+"active", "length_change_mm"}}}, "goals": {"learned_ratio", "learned_within_2x",
 "drift_detected_at_s", "fixed_ratio", "fixed_degrades"}, "failures", "wall_s"}``.
 
 Exit status: 0 every run completed, 1 a run failed (the others are reported), 2 bad input.

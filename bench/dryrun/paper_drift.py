@@ -93,7 +93,9 @@ def pass_errors(recording: str | Path) -> tuple[np.ndarray, np.ndarray]:
 def drift_summary(result: dict[str, Any]) -> dict[str, Any]:
     """One run's figures: ``passes``, ``settled_m``, ``worst_m``, ``ratio``, ``first_m`` /
     ``last_m`` (the largest of the first / last :data:`SETTLED_PASSES` passes), ``per_pass``
-    ([t_s, err_m]), and for the learned run its ``drift_events`` ([t_s, text])."""
+    ([t_s, err_m]), and for the learned run its ``drift_events`` ([t_s, text]), ``learn_events``
+    (count per kind) and ``drift`` (the detections' summary,
+    :meth:`controller.online_ident.DriftReport.summary`)."""
     t, e = pass_errors(result["recording"])
     k = SETTLED_PASSES
     out: dict[str, Any] = {"model": result["tags"]["model"], "passes": int(len(e))}
@@ -111,6 +113,7 @@ def drift_summary(result: dict[str, Any]) -> dict[str, Any]:
         out["learn_events"] = {k2: sum(1 for e in learn["events"] if e["kind"] == k2)
                                for k2 in sorted({e["kind"] for e in learn["events"]})}
         out["warmup_s"] = learn.get("warmup_s")
+        out["drift"] = learn.get("drift")
     return out
 
 
@@ -146,8 +149,14 @@ def drift_table(res: dict[str, Any]) -> str:
             continue
         lines.append(f"{m:10s} {r['passes']:6d} {1e3 * r['settled_m']:7.2f}mm "
                      f"{1e3 * r['worst_m']:7.2f}mm {r['ratio']:6.2f} {1e3 * r['last_m']:7.2f}mm")
-        for t, text in r.get("drift_events", []):
-            lines.append(f"  drift detected at t = {t:.1f} s: {text}")
+        for i, (t, text) in enumerate(r.get("drift_events", [])):
+            lines.append(f"  drift {'event' if i else 'detected'} at t = {t:.1f} s: {text}")
+        d = r.get("drift")
+        if d:
+            lines.append(f"  {d['detections']} drift detections, {d['events']} events, "
+                         f"{d['drifts']} drift(s), the model's lengths changed up to "
+                         f"{d['length_change_mm']:.1f} mm"
+                         f"{', still drifting at the end' if d['active'] else ''}")
     g = res["goals"]
     if "learned_within_2x" in g:
         lines.append(f"learned worst pass within {GOAL_RATIO:g}x its settled value: "

@@ -22,6 +22,7 @@ import numpy as np
 
 from bench.dryrun.paper import (
     GOAL_CUT,
+    LEARNED,
     MODEL_ORDER,
     MODELS,
     PAPER_TABLE3,
@@ -74,6 +75,10 @@ def diagnosis_vs_truth(model_file: str, truth: Robot,
             "stiffness_rel_error": [[_f(v) for v in row] for row in rel]}
 
 
+#: the models whose AT max cut against nominal is a goal
+CUT_MODELS = ("compliant", "diagnosed") + tuple(LEARNED)
+
+
 def _learning(r: dict) -> dict[str, Any]:
     """A learning run's summary: its label, warm-up [s], updates, samples, rejected batches,
     hand-overs, its events counted by kind, what it could identify (said before moving)."""
@@ -85,7 +90,8 @@ def _learning(r: dict) -> dict[str, Any]:
             "samples": lr["samples"], "rejected": lr["rejected"], "handovers": lr["handovers"],
             "event_counts": counts, "identifiable": lr.get("identifiable"),
             "offset_sd_mm_max": lr.get("offset_sd_mm_max"),
-            "untracked_directions": lr.get("untracked_directions")}
+            "untracked_directions": lr.get("untracked_directions"),
+            "drift": lr.get("drift")}
 
 
 def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOptions,
@@ -130,7 +136,7 @@ def paths_result(results: Sequence[dict], failures: Sequence[dict], opt: PathsOp
         goals["best_is_centre_path_centre_init"] = order[0] == ("centre", "centre")
         goals["paper_order"] = ["centre path, centre init", "centre path, side init",
                                 "side path, side init", "side path, centre init"]
-    for m in ("compliant", "diagnosed", "learned", "learned_warmup", "learned_untracked"):
+    for m in CUT_MODELS:
         cuts = [c.get(f"at_max_cut_{m}") for c in cases]
         if m in opt.models and cuts and all(v is not None for v in cuts):
             goals[f"min_at_max_cut_{m}"] = min(cuts)
@@ -228,7 +234,7 @@ def paths_table(res: dict[str, Any]) -> str:
     if "nominal_order" in g:
         lines.append(f"  nominal, best to worst: {'; '.join(g['nominal_order'])} (paper: "
                      f"{'; '.join(g['paper_order'])})")
-    for m in ("compliant", "diagnosed", "learned", "learned_warmup", "learned_untracked"):
+    for m in CUT_MODELS:
         if f"min_at_max_cut_{m}" in g:
             ok = g[f"{m}_cuts_at_max_by_80pct_everywhere"]
             lines.append(f"  {m}: AT max cut by {100 * g[f'min_at_max_cut_{m}']:.0f} % at "
