@@ -26,9 +26,11 @@ import threading
 FALLBACK_NICE = -10
 
 
-def _fifo_policy() -> int:
-    """SCHED_FIFO, with SCHED_RESET_ON_FORK where the platform has it."""
-    return os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+def fifo_policy(reset_on_fork: bool = True) -> int:
+    """SCHED_FIFO, with SCHED_RESET_ON_FORK (where the platform has it) unless
+    ``reset_on_fork`` is False: a thread or process started from a real-time thread then
+    runs under the normal scheduler unless it is raised on purpose."""
+    return os.SCHED_FIFO | (getattr(os, "SCHED_RESET_ON_FORK", 0) if reset_on_fork else 0)
 
 
 def max_priority() -> int:
@@ -60,7 +62,7 @@ def raise_thread(priority: int, tid: int | None = None) -> str:
     why = "this system has no SCHED_FIFO"
     if top:
         try:
-            os.sched_setscheduler(tid, _fifo_policy(), os.sched_param(priority))
+            os.sched_setscheduler(tid, fifo_policy(), os.sched_param(priority))
             return f"SCHED_FIFO {priority}"
         except OSError as exc:
             why = f"SCHED_FIFO {priority} not permitted: {exc.strerror}"
@@ -73,4 +75,4 @@ def raise_thread(priority: int, tid: int | None = None) -> str:
                 "CAP_SYS_NICE or an rtprio limit)")
 
 
-__all__ = ["FALLBACK_NICE", "check_priority", "max_priority", "raise_thread"]
+__all__ = ["FALLBACK_NICE", "check_priority", "fifo_policy", "max_priority", "raise_thread"]

@@ -278,10 +278,9 @@ def _moved_across_gap(rec: Recording) -> np.ndarray:
         return out
     for arr, tol in ((rec.l_meas, STILL_M), (rec.pose_meas[:, :3], 1e-3)):
         cols = np.isfinite(arr).any(axis=0)
-        if cols.any():
-            d = np.abs(np.diff(arr[:, cols], axis=0))
-            with np.errstate(invalid="ignore"):
-                return gap & ~(np.nan_to_num(d, nan=np.inf) <= tol).all(axis=1)
+        if cols.any():  # (a reading missing on one side: an infinite change)
+            d = np.nan_to_num(np.abs(np.diff(arr[:, cols], axis=0)), nan=np.inf)
+            return gap & (d > tol).any(axis=1)
     return out
 
 
@@ -356,7 +355,7 @@ def _quasi_static(rec: Recording, rows: np.ndarray) -> np.ndarray:
             with np.errstate(invalid="ignore"):
                 filt = (acc[0] <= ACCEL_MAX) & (acc[1] <= ANG_ACCEL_MAX)
             ok = np.where(judged, filt, ok)
-        if not des:
+        if not des and not judged.all():  # rows the pose's filter left: the encoders
             lacc = length_acceleration(rec, rows)
             if lacc is not None:
                 by_len = ~judged & np.isfinite(lacc)
@@ -815,8 +814,8 @@ def _targets(pose_des: np.ndarray, pose_meas: np.ndarray,
             ids[i] = len(reps)
             how = "des" if have_des[i] else "meas" if whole[i] else \
                 "len" if by_len[i] else "none"
-            reps.append(({"des": key[i], "meas": pose_meas[i], "len": lens[i],
-                          "none": key[i]}[how], how))
+            reps.append((pose_meas[i] if how == "meas" else lens[i] if how == "len"
+                         else key[i], how))
             if have_des[i]:
                 lookup[key[i].tobytes()] = ids[i]
     return ids

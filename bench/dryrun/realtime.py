@@ -32,6 +32,8 @@ import sys
 import threading
 from collections.abc import Iterator
 
+from hal.rt_threads import fifo_policy
+
 #: ``SCHED_FIFO`` priority of a real-time dry run's loop thread (1..99; 0: normal
 #: scheduling); ros2_control's default for its update thread is 50
 DEFAULT_RT_PRIORITY = 50
@@ -72,13 +74,6 @@ def _other_threads() -> list[int]:
     return [t for t in tids if t != me]
 
 
-def _fifo(reset_on_fork: bool = True) -> int:
-    """SCHED_FIFO, with SCHED_RESET_ON_FORK unless ``reset_on_fork`` is False: a thread or
-    process started from a real-time thread (the recorder's child, a HAL thread started
-    at start-up) then runs under the normal scheduler unless it is raised on purpose."""
-    return os.SCHED_FIFO | (getattr(os, "SCHED_RESET_ON_FORK", 0) if reset_on_fork else 0)
-
-
 def _set_fifo(tids: list[int], priority: int, reset_on_fork: bool = True
               ) -> list[tuple[int, int, os.sched_param]]:
     """Threads ``tids`` to SCHED_FIFO at ``priority`` where permitted (a thread that ended
@@ -87,7 +82,7 @@ def _set_fifo(tids: list[int], priority: int, reset_on_fork: bool = True
     for tid in tids:
         try:
             before = os.sched_getscheduler(tid), os.sched_getparam(tid)
-            os.sched_setscheduler(tid, _fifo(reset_on_fork), os.sched_param(priority))
+            os.sched_setscheduler(tid, fifo_policy(reset_on_fork), os.sched_param(priority))
         except OSError:
             continue
         saved.append((tid, *before))
@@ -121,7 +116,7 @@ def _enter_fifo(priority: int, reset_on_fork: bool = True
     _check_priority(priority)
     before = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
-        os.sched_setscheduler(0, _fifo(reset_on_fork), os.sched_param(priority))
+        os.sched_setscheduler(0, fifo_policy(reset_on_fork), os.sched_param(priority))
     except OSError as exc:
         return (f"normal (SCHED_FIFO {priority} not permitted: {exc.strerror}; grant "
                 f"CAP_SYS_NICE or an rtprio limit)"), None
