@@ -317,7 +317,7 @@ class NmtMixin:
             if not left:
                 return done
             for k in left:
-                why = self._why_not_ready(k).split(": recover()")[0] or "not OPERATIONAL"
+                why = self._not_ready(k)[0] or "not OPERATIONAL"
                 self._event(k, "nmt_restart", CODE_HEARTBEAT, f"{why} before enabling: "
                             f"restart {attempt} of {tries} ({self._producer_text()})")
             done += [self.node_ids[k] for k in left if self.node_ids[k] not in done]
@@ -359,19 +359,25 @@ class NmtMixin:
                              f"{self.confirm_window_s():.2f} s)" if state < 0 else hex(state))
 
     def _why_not_ready(self, k: int) -> str:
+        """Why drive ``k`` cannot be enabled, with what to do (``""``: ready)."""
+        why, advice = self._not_ready(k)
+        return f"{why}: {advice}" if why and advice else why
+
+    def _not_ready(self, k: int) -> tuple[str, str]:
+        """(why drive ``k`` cannot be enabled, what to do; ``""``: ready / nothing said)."""
         if not self._started[k]:
-            return "not started (start() first)"
+            return "not started (start() first)", ""
         if self._relink[k]:
-            return "behind a lost CAN link: recover() it first"
+            return "behind a lost CAN link", "recover() it first"
         if self._rebooted[k]:
-            return "was reset (boot-up): recover() it first"
+            return "was reset (boot-up)", "recover() it first"
         if self._hb_lost[k]:
-            return "heartbeat lost: recover() it once it is back"
+            return "heartbeat lost", "recover() it once it is back"
         if self._lost[k]:
-            return "TPDOs lost (drive_lost): its state is unknown"
+            return "TPDOs lost (drive_lost)", "its state is unknown"
         if self._nmt[k] not in (NMT_OPERATIONAL, -1):
-            return f"NMT {NMT_NAMES.get(int(self._nmt[k]), '?')}: recover() it first"
-        return ""
+            return f"NMT {NMT_NAMES.get(int(self._nmt[k]), '?')}", "recover() it first"
+        return "", ""
 
     # ------------------------------------------------- fault codes (SDO)
 
