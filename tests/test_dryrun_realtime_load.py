@@ -54,7 +54,7 @@ def test_a_sync_driven_drive_counts_its_rpdo_deadline_in_sync_periods():
 
 def test_sim_rt_priority_out_of_range_exit_2(capsys):
     assert main(["sim", "--rt-priority", "1000"]) == 2
-    assert "--rt-priority 1000: must be 0 (normal) to" in capsys.readouterr().err
+    assert "--rt-priority 1000: thread priority must be 0 (normal) to" in capsys.readouterr().err
     assert main(["sim", "--rt-priority", "-1", "--json"]) == 2
     assert "--rt-priority -1" in json.loads(capsys.readouterr().out)["error"]
 

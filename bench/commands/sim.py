@@ -180,11 +180,12 @@ def _endpoints(args: argparse.Namespace) -> str | None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.dryrun.realtime import simulator_scheduling
+    from hal.rt_threads import check_priority
 
-    top = (os.sched_get_priority_max(os.SCHED_FIFO)
-           if hasattr(os, "sched_get_priority_max") else 99)
-    if not 0 <= args.rt_priority <= top:
-        return _fail(args, 2, f"--rt-priority {args.rt_priority}: must be 0 (normal) to {top}")
+    try:
+        check_priority(args.rt_priority)
+    except ValueError as exc:
+        return _fail(args, 2, f"--rt-priority {args.rt_priority}: {exc}")
     with simulator_scheduling(args.rt_priority) as scheduling:
         return _serve(args, scheduling)
 

@@ -32,7 +32,7 @@ import sys
 import threading
 from collections.abc import Iterator
 
-from hal.rt_threads import fifo_policy
+from hal.rt_threads import check_priority, fifo_policy
 
 #: ``SCHED_FIFO`` priority of a real-time dry run's loop thread (1..99; 0: normal
 #: scheduling); ros2_control's default for its update thread is 50
@@ -97,12 +97,6 @@ def _restore(saved: list[tuple[int, int, os.sched_param]]) -> None:
             pass
 
 
-def _check_priority(priority: int) -> None:
-    if not 1 <= priority <= os.sched_get_priority_max(os.SCHED_FIFO):
-        raise ValueError(f"real-time priority must be 1 to "
-                         f"{os.sched_get_priority_max(os.SCHED_FIFO)}, got {priority}")
-
-
 def _enter_fifo(priority: int, reset_on_fork: bool = True
                 ) -> tuple[str | None, tuple | None]:
     """The calling thread in ``SCHED_FIFO`` at ``priority`` (threads it starts inherit it
@@ -113,7 +107,7 @@ def _enter_fifo(priority: int, reset_on_fork: bool = True
         return "normal (real-time priority not requested)", None
     if not hasattr(os, "sched_setscheduler"):
         return "normal (this system has no SCHED_FIFO)", None
-    _check_priority(priority)
+    check_priority(priority)
     before = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
         os.sched_setscheduler(0, fifo_policy(reset_on_fork), os.sched_param(priority))
