@@ -718,14 +718,22 @@ def oracle(rec_dir: Path, sc, streams: bool = False) -> dict[str, float]:
     return out
 
 
-def run_case(seed: int, workdir: str | None = None, keep: str | None = None, **kw) -> dict:
+def run_case(seed: int, workdir: str | None = None, keep: str | None = None,
+             reuse: bool = False, **kw) -> dict:
     """Generate, record and diagnose one case (a plain function for process pools and Dask).
 
     ``keep``: a folder where the case's recording (``<seed>/rec``) and its scenario with
-    the concealed truth (``<seed>/case.json``) are kept, to diagnose them again by hand."""
+    the concealed truth (``<seed>/case.json``) are kept, to diagnose them again by hand.
+    ``reuse``: a case kept there by a run of the same configuration (``kw``) is diagnosed
+    again from its recording, not drawn and recorded again (two diagnoses compared on the
+    same recordings; the recording is the one the simulator of that run made)."""
     from firmware_sim.plant import PlantError
 
     t_case = time.perf_counter()
+    if reuse and keep is not None:
+        kept = _kept_case(Path(keep) / str(seed), kw)
+        if kept is not None:
+            return _diagnose_case(seed, *kept, t_case)
     for attempt in range(5):
         try:
             return _run_case(seed, attempt, workdir, t_case, keep=keep, **kw)
@@ -761,11 +769,7 @@ def one_blas_thread() -> None:
 
 def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
               keep: str | None = None, **kw) -> dict:
-    from bench.diagnosis.report import diagnose
-    from controller import equilibrium
-
-    one_blas_thread()
-
+    config = dict(kw)
     tracker = kw.pop("tracker", None)
     try:
         if tracker:  # the tracker's own error alone (tracker_case)
@@ -808,22 +812,36 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
                 recordings += 1
                 record(case, rec)
                 strength = oracle(rec, sc, "logger" in case["case"]) if sc.effects else {}
-        t0 = time.perf_counter()
-        c0 = time.process_time()
-        made = {"recordings": recordings, "record_seconds": t0 - t_rec,
-                "record_cpu_seconds": c0 - c_rec}
-        equilibrium.STATS.reset()
-        dg = diagnose(rec)
-        seconds = time.perf_counter() - t0
-        cpu = time.process_time() - c0
-        eq = equilibrium.STATS.as_dict()
+        made = {"recordings": recordings, "record_seconds": time.perf_counter() - t_rec,
+                "record_cpu_seconds": time.process_time() - c_rec}
+        made |= {"attempt": attempt, "oracle": {e: round(v, 1) for e, v in strength.items()}}
+        out = _diagnose_case(seed, case, rec, made, t_case)
         if keep is not None:
-            _keep_case(Path(keep) / str(seed), rec, case)
+            _keep_case(Path(keep) / str(seed), rec, case, {"config": config, "made": made})
+    return out
+
+
+def _diagnose_case(seed: int, case: dict[str, Any], rec: Path, made: dict[str, Any],
+                   t_case: float) -> dict:
+    """Diagnose a case's recording ``rec`` and score it against the case's truth; ``made``:
+    how the case was made (attempt, oracle, recordings and their time), kept in ``info``."""
+    from bench.diagnosis.report import diagnose
+    from controller import equilibrium
+
+    one_blas_thread()
+    sc = scenario_of(case)
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    equilibrium.STATS.reset()
+    dg = diagnose(rec)
+    seconds = time.perf_counter() - t0
+    cpu = time.process_time() - c0
+    eq = equilibrium.STATS.as_dict()
     truth = {e: dict(p) for e, p in case["truth"].items()}
     s = score(dg.report, truth, sc.model, seed, seconds)
     s.info = dict(case["case"]) | {
-        "attempt": attempt,
-        "oracle": {e: round(v, 1) for e, v in strength.items()},
+        "attempt": made.get("attempt"),
+        "oracle": made.get("oracle", {}),
         "equilibrium": eq, "samples": dg.report["samples"],
         "rows": int(dg.recording.n_samples),
         "converged": bool(dg.report["fitted"].get("converged", True)),
@@ -836,7 +854,7 @@ def _run_case(seed: int, attempt: int, workdir: str | None, t_case: float,
         # (the plant's statics, recorded again for each strengthening of a weak effect):
         # ``seconds`` and ``cpu_seconds`` are the diagnosis's alone
         "named_params": {e["name"]: dict(e["params"]) for e in dg.report["effects"]},
-    } | made
+    } | {k: v for k, v in made.items() if k not in ("attempt", "oracle")}
     return s.as_dict()
 
 
@@ -920,14 +938,34 @@ def _csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
     return rows[0], rows[1:]
 
 
-def _keep_case(folder: Path, rec: Path, case: dict[str, Any]) -> None:
+def _keep_case(folder: Path, rec: Path, case: dict[str, Any],
+               kept: dict[str, Any] | None = None) -> None:
     """Copy a case's recording and write its scenario (truth included) into ``folder``
-    (replaced if it exists)."""
+    (replaced if it exists); ``kept``: the run's configuration and how the case was made,
+    written as the scenario's ``kept`` section (:func:`_kept_case` reads it back)."""
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     shutil.copytree(rec, folder / "rec")
-    (folder / "case.json").write_text(json.dumps(case, indent=1, default=float) + "\n")
+    body = case | ({"kept": kept} if kept is not None else {})
+    (folder / "case.json").write_text(json.dumps(body, indent=1, default=float) + "\n")
+
+
+def _kept_case(folder: Path, config: dict[str, Any]
+               ) -> tuple[dict[str, Any], Path, dict[str, Any]] | None:
+    """The case kept in ``folder`` by :func:`_keep_case` as ``(case, recording folder,
+    made)``, or None when there is none, it cannot be read, or it was made by a run of
+    another configuration than ``config`` (the case arguments of :func:`run_case`)."""
+    try:
+        case = json.loads((folder / "case.json").read_text())
+    except (OSError, ValueError):
+        return None
+    kept = case.pop("kept", None)
+    same = json.loads(json.dumps(config, default=float))
+    if not isinstance(kept, dict) or kept.get("config") != same \
+            or not (folder / "rec").is_dir():
+        return None
+    return case, folder / "rec", dict(kept.get("made", {}))
 
 
 def _duration(sc) -> float:

@@ -111,6 +111,32 @@ def test_keep_holds_each_case_to_diagnose_again(tmp_path, capsys):
     assert sorted(e["name"] for e in again["effects"]) == sorted(out["cases"][0]["named"])
 
 
+def _no_recording(*_a, **_k):
+    raise AssertionError("recorded again")
+
+
+def test_reuse_kept_diagnoses_the_kept_recording_again(tmp_path, capsys, monkeypatch):
+    keep = tmp_path / "kept"
+    args = ["--cases", "1", "--seed", "5", "--jobs", "1", "--keep", str(keep), *SMALL, *ONE]
+    rc, first, _ = run_json(capsys, *args)
+    assert rc == 0
+    monkeypatch.setattr(evaluate, "record", _no_recording)
+    rc, again, _ = run_json(capsys, *args, "--reuse-kept")
+    assert rc == 0 and not again["errors"]
+    a, b = first["cases"][0], again["cases"][0]
+    for k in ("truth", "named", "exact", "z", "intervals"):
+        assert a[k] == b[k]
+    assert a["info"]["oracle"] == b["info"]["oracle"]
+    # another configuration: the kept case is not taken for it (it is drawn and recorded)
+    rc, other, _ = run_json(capsys, *args[:-2], "--effects", "platform_mass", "--reuse-kept")
+    assert "recorded again" in other["errors"][0]["error"]
+
+
+def test_reuse_kept_needs_keep(capsys):
+    rc, out, err = run_json(capsys, "--cases", "1", "--reuse-kept", *SMALL, *ONE)
+    assert rc == 2 and "--keep" in out["error"]
+
+
 def test_keep_into_a_folder_that_cannot_be_made_exits_2(tmp_path, capsys):
     (tmp_path / "file").write_text("")
     rc, out, err = run_json(capsys, "--cases", "1", "--keep", str(tmp_path / "file" / "x"),

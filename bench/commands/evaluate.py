@@ -97,6 +97,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep", metavar="DIR",
                    help="keep each case's recording and scenario (truth included) in "
                         "DIR/<seed>/ (rec/, case.json), to diagnose it again by hand")
+    p.add_argument("--reuse-kept", action="store_true",
+                   help="with --keep: a case already kept in DIR by a run of the same "
+                        "configuration is diagnosed again from its recording, not drawn and "
+                        "recorded again (to compare two versions of the diagnosis on the "
+                        "same recordings)")
     p.add_argument("--retry-errors", action="store_true",
                    help="with --out: run again the seeds whose case raised")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -455,6 +460,8 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
         return _fail(args, 2, f"--connect-timeout {args.connect_timeout}: must be > 0")
     if args.retry_errors and not args.out:
         return _fail(args, 2, "--retry-errors needs --out FILE")
+    if args.reuse_kept and args.keep is None:
+        return _fail(args, 2, "--reuse-kept needs --keep DIR")
     try:
         config = case_config(args)
         from controller.robot import RobotFileError, resolve_robot
@@ -523,6 +530,7 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
             outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
                                 scheduler=args.scheduler,
                                 connect_timeout_s=args.connect_timeout, keep=args.keep,
+                                reuse=args.reuse_kept,
                                 on_start=on_start, **case_kwargs(config))
             with interrupt_on_term(), closing(outcomes), prog:
                 for done, o in enumerate(outcomes, 1):
