@@ -77,14 +77,19 @@ class Truth:
 
 
 def readings(model: Robot, true: Robot, campaign: Campaign, t: np.ndarray,
-             pretension_n: float, length_offset_m: np.ndarray) -> Truth:
-    """Noise-free readings at times t [s]; `true` is the real robot, `model` the toml's."""
+             pretension_n: float, length_offset_m: np.ndarray,
+             slip_at_s: float | None = None) -> Truth:
+    """Noise-free readings at times t [s]; `true` is the real robot, `model` the toml's.
+
+    The length offset appears at `slip_at_s` (default: half-way through the first move)."""
     poses = campaign.poses(t)
     tau = tensions(true, poses, pretension_n)
     l0 = unstretched(true, lengths(true, poses), tau)
     p0 = campaign.init_pose[None]
     l0_init = unstretched(true, lengths(true, p0), tensions(true, p0, pretension_n))[0]
     read = l0 - l0_init + lengths(model, p0)[0]
-    slipped = t > campaign.init_s
+    if slip_at_s is None:
+        slip_at_s = 0.5 * (campaign.segments[1][0] + campaign.segments[1][1])
+    slipped = t > slip_at_s
     read[slipped] -= length_offset_m
     return Truth(lengths_read=read, tensions=tau, poses=poses)
