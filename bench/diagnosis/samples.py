@@ -185,8 +185,9 @@ def check_values(rec: Recording, limit: int = 20) -> list[dict]:
         share = bad.sum() / max(finite.sum(), 1)
         if share > 0.5:
             k = int(np.argwhere(bad)[0][0])
+            k = int(rec.source_rows[k]) if rec.source_rows is not None else k
             raise RecordingError(
-                f"{rec.path / 'recording.csv'}: {group}: {bad.sum()} of {finite.sum()} values "
+                f"{_samples_file(rec)}: {group}: {bad.sum()} of {finite.sum()} values "
                 f"are impossible ({why}; e.g. line {k + 2}): wrong units or columns?")
         for idx in np.argwhere(bad):
             i = int(idx[0])
@@ -238,6 +239,14 @@ def check_values(rec: Recording, limit: int = 20) -> list[dict]:
     if count > limit:
         out.append({"more": count - limit})
     return out
+
+
+def _samples_file(rec: Recording) -> str:
+    """The samples file(s) meta.toml names (a split recording's lines are its merged rows')."""
+    files = rec.meta.get("samples", "recording.csv")
+    if isinstance(files, list):
+        return f"{rec.path / files[0]} (and the other files of the split recording)"
+    return str(rec.path / str(files))
 
 
 # ----- rows -> samples ------------------------------------------------------------------
