@@ -17,7 +17,8 @@ BOX = ((-3.0, -2.5, 1.2), (3.0, 2.5, 3.0), 0.04)
 def make_case(out: Path, habits: Habits, *, seed: int, targets: int = 10, passes: int = 2,
               dwell_s: float = 5.0, length_offset: dict | None = None,
               exit_moved: tuple[str, tuple] | None = None) -> Path:
-    """Write one recording; concealed: `length_offset` {cable: dl [m]}, `exit_moved` (cable, [m])."""
+    """Write one recording. Concealed: `length_offset` {cable: dl [m]} (a slip half-way
+    through the first move), `exit_moved` (cable, offset [m] in F_b)."""
     rng = np.random.default_rng(seed)
     model = load_robot(ROBOT_TOML)
     true = model if exit_moved is None else model.with_exit_moved(exit_moved[0],

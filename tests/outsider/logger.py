@@ -25,13 +25,15 @@ class Habits:
     encoders_hz: float = 200.0
     load_cells_hz: float = 50.0
     tracker_hz: float = 20.0
-    layout: str = "cycle"            # "cycle": rows at the encoder cycle; "sample": one row per sample
+    layout: str = "cycle"            # "cycle": rows at the encoder cycle; "sample": a row
+    #                                  per sample
     jitter_s: float = 3e-4
     t0_s: float = 1234.5678          # the logger's clock at the campaign's start
     empty: tuple = ("",)             # tokens for "no sample", drawn per field
     crlf: bool = False
     shuffle: bool = False            # a column order of its own (per file)
     extra: bool = False              # unknown columns: temperatures, drive speeds
+    controller_hz: float | None = None  # commanded pose (x_des ...) at this rate, else none
     split: str | None = None         # None, "time" (consecutive parts) or "sensor"
     parts: int = 3
     noise_l_m: float = 5e-6
@@ -66,7 +68,12 @@ def _streams(model: Robot, true: Robot, camp: Campaign, habits: Habits, pretensi
     pose = readings(model, true, camp, tt, pretension, offset).poses
     sd = np.array([habits.noise_pos_m] * 3 + [habits.noise_ang_rad] * 3)
     pose = pose + rng.normal(0, 1, pose.shape) * sd
-    return {
+    out = {}
+    if habits.controller_hz:  # the pose the controller aimed at: the true pose
+        tc = te[:: round(habits.encoders_hz / habits.controller_hz)]
+        des = readings(model, true, camp, tc, pretension, offset).poses
+        out["controller"] = (tc, {POSE[i].replace("_meas", "_des"): des[:, i] for i in range(6)})
+    return out | {
         "encoders": (te, {f"l_meas_{c}": enc[:, i] for i, c in enumerate(ids)}),
         "load_cells": (tl, {f"tau_{c}": tau[:, i] for i, c in enumerate(ids)}),
         "tracker": (tt, {POSE[i]: pose[:, i] for i in range(6)}),
@@ -75,7 +82,7 @@ def _streams(model: Robot, true: Robot, camp: Campaign, habits: Habits, pretensi
 
 def _extra(times: np.ndarray, rng: np.random.Generator) -> dict:
     """Unknown columns a lab logs: a temperature and a drive speed, sometimes missing."""
-    temp = 21.0 + 0.01 * np.arange(len(times)) / max(len(times), 1) + rng.normal(0, 0.05, len(times))
+    temp = 21.0 + 0.01 * np.linspace(0, 1, len(times)) + rng.normal(0, 0.05, len(times))
     vel = rng.normal(0, 1e-3, len(times))
     vel[rng.random(len(times)) < 0.1] = np.nan
     return {"temp_c": temp, "vel_11": vel}
@@ -121,13 +128,15 @@ def _write_csv(path: Path, times: np.ndarray, cols: dict, habits: Habits,
     data = {"t": times + habits.t0_s, **cols}
     text = {}
     for name in names:
-        fmt = "%.4f" if name == "t" else "%.7g" if name.startswith(("tau", "temp", "vel")) else "%.9f"
+        fmt = ("%.4f" if name == "t" else "%.7g" if name.startswith(("tau", "temp", "vel"))
+               else "%.9f")
         s = np.char.mod(fmt, data[name]).astype(object)
         gone = np.isnan(data[name])
         s[gone] = rng.choice(habits.empty, int(gone.sum()))
         text[name] = s
     eol = "\r\n" if habits.crlf else "\n"
-    lines = [",".join(names)] + [",".join(row) for row in zip(*(text[n] for n in names))]
+    rows = zip(*(text[n] for n in names), strict=True)
+    lines = [",".join(names)] + [",".join(row) for row in rows]
     path.write_bytes((eol.join(lines) + eol).encode())
 
 
