@@ -44,13 +44,13 @@ class Campaign:
 
     def poses(self, t: np.ndarray) -> np.ndarray:
         """True poses (k, 6) at times t [s from the campaign's start]."""
+        t = np.clip(t, 0.0, self.duration_s)  # (a jittered clock may tick before 0)
         out = np.empty((len(t), 6))
         for t0, t1, a, b in self.segments:
             sel = (t >= t0) & (t <= t1)
             s = np.clip((t[sel] - t0) / (t1 - t0), 0.0, 1.0)
             s = 10 * s**3 - 15 * s**4 + 6 * s**5
             out[sel] = a + s[:, None] * (b - a)
-        out[t > self.duration_s] = self.segments[-1][3]
         return out
 
 
