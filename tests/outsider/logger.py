@@ -34,6 +34,7 @@ class Habits:
     shuffle: bool = False            # a column order of its own (per file)
     extra: bool = False              # unknown columns: temperatures, drive speeds
     controller_hz: float | None = None  # commanded pose (x_des ...) at this rate, else none
+    drop: tuple = ()                 # streams this bench does not have ("tracker", ...)
     split: str | None = None         # None, "time" (consecutive parts) or "sensor"
     parts: int = 3
     noise_l_m: float = 5e-6
@@ -148,6 +149,7 @@ def write_recording(out: Path, model_toml: Path, model: Robot, true: Robot, camp
     out.mkdir(parents=True, exist_ok=True)
     (out / "robot.toml").write_text(Path(model_toml).read_text())
     streams = _streams(model, true, camp, habits, pretension_n, length_offset_m, rng)
+    streams = {k: v for k, v in streams.items() if k not in habits.drop}
     files: list[str] = []
     if habits.split == "sensor":
         for name in streams:
