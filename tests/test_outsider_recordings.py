@@ -17,7 +17,7 @@ import pytest
 from bench import chunked, streams
 from bench.chunked import read_conditioned
 from bench.diagnosis.report import diagnose
-from bench.recording import RecordingError, read_recording
+from bench.recording import RecordingError, _read_header, read_recording
 from tests.outsider.cases import make_case
 from tests.outsider.logger import Habits
 
@@ -208,3 +208,44 @@ def test_a_three_rate_log_of_300000_rows_names_the_slip(tmp_path):
     rows = sum(len(_lines(rec / "samples.csv")) for _ in [0]) - 2
     assert rows >= 300_000
     _named_offset(diagnose(rec).report)
+
+
+def test_load_cells_slower_than_the_tracker_give_no_numpy_warning(tmp_path):
+    """One row per sample, load cells (10 Hz) the slowest stream: aligning the others to
+    them estimates each column's noise without numpy's "All-NaN slice encountered"."""
+    rec_dir = make_case(tmp_path / "r", Habits(layout="sample", encoders_hz=100.0,
+                                               load_cells_hz=10.0, tracker_hz=50.0),
+                        seed=5, targets=2, passes=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec, report, _ = read_conditioned(rec_dir)
+    assert report["alignment"]["reference"] == "load_cells"
+    assert np.isfinite(rec.pose_meas).all(axis=1).mean() > 0.9
+
+
+@pytest.mark.parametrize("habit", ["bom", "text_column", "crlf", "nan_tokens"])
+def test_an_allowed_habit_reads_as_the_plain_file_in_blocks(plain, tmp_path, habit):
+    """The block reader of long files (blocks of 64 kB here) takes the habits as the
+    whole-file readers do."""
+    edits = {
+        "bom": lambda ls: ["\ufeff" + ls[0], *ls[1:]],
+        "text_column": lambda ls: [ls[0] + ",operator"] + [x + ",anna b." if x else x
+                                                           for x in ls[1:]],
+        "crlf": lambda ls: ["\r\n".join(ls)],
+        "nan_tokens": lambda ls: [ls[0]] + [",".join(f or "NaN" for f in x.split(","))
+                                            if x else x for x in ls[1:]],
+    }
+    rec = _edit(plain, tmp_path / "r", edits[habit])
+    whole = read_recording(plain)
+
+    def blocks(d: Path) -> dict:
+        p = d / "samples.csv"
+        header = _read_header(p, whole.robot)
+        got = [cols for cols, _, _ in chunked.iter_blocks(p, header, block_bytes=1 << 16)]
+        return {k: np.concatenate([g[k] for g in got]) for k in ("t", "l_meas_11", "tau_11",
+                                                                  "x_meas")}
+
+    a, b = blocks(rec), blocks(plain)
+    assert len(a["t"]) == whole.n_samples
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
