@@ -35,6 +35,8 @@ class Habits:
     extra: bool = False              # unknown columns: temperatures, drive speeds
     controller_hz: float | None = None  # commanded pose (x_des ...) at this rate, else none
     drop: tuple = ()                 # streams this bench does not have ("tracker", ...)
+    tracker_gaps: tuple = ()         # (start, duration) [s of the campaign]: line of sight lost
+    state_words: tuple | None = None  # a `state` column: (word standing, word moving)
     split: str | None = None         # None, "time" (consecutive parts) or "sensor"
     parts: int = 3
     noise_l_m: float = 5e-6
@@ -66,6 +68,8 @@ def _streams(model: Robot, true: Robot, camp: Campaign, habits: Habits, pretensi
     enc = enc + rng.normal(0, habits.noise_l_m, enc.shape)
     tau = readings(model, true, camp, tl, pretension, offset).tensions
     tau = tau + rng.normal(0, habits.noise_tau_n, tau.shape)
+    for start, dur in habits.tracker_gaps:
+        tt = tt[(tt < start) | (tt > start + dur)]
     pose = readings(model, true, camp, tt, pretension, offset).poses
     sd = np.array([habits.noise_pos_m] * 3 + [habits.noise_ang_rad] * 3)
     pose = pose + rng.normal(0, 1, pose.shape) * sd
@@ -120,6 +124,15 @@ def _table(streams: dict, names: list, habits: Habits, rng: np.random.Generator)
     return times, cols
 
 
+def _states(camp: Campaign, times: np.ndarray, words: tuple) -> np.ndarray:
+    """The lab's own state word per row: standing (init, dwells) or moving."""
+    moving = np.zeros(len(times), dtype=bool)
+    for t0, t1, a, b in camp.segments:
+        if np.any(a != b):
+            moving |= (times >= t0) & (times < t1)
+    return np.where(moving, words[1], words[0]).astype(object)
+
+
 def _write_csv(path: Path, times: np.ndarray, cols: dict, habits: Habits,
                rng: np.random.Generator) -> None:
     """One CSV file: header, then a row per time; empty tokens drawn per field."""
@@ -128,7 +141,9 @@ def _write_csv(path: Path, times: np.ndarray, cols: dict, habits: Habits,
         names = list(rng.permutation(names))
     data = {"t": times + habits.t0_s, **cols}
     text = {}
-    for name in names:
+    if "state" in cols:
+        text["state"] = cols["state"]
+    for name in (n for n in names if n != "state"):
         fmt = ("%.4f" if name == "t" else "%.7g" if name.startswith(("tau", "temp", "vel"))
                else "%.9f")
         s = np.char.mod(fmt, data[name]).astype(object)
@@ -158,6 +173,8 @@ def write_recording(out: Path, model_toml: Path, model: Robot, true: Robot, camp
             _write_csv(out / files[-1], times, cols, habits, rng)
     else:
         times, cols = _table(streams, list(streams), habits, rng)
+        if habits.state_words:
+            cols["state"] = _states(camp, times, habits.state_words)
         parts = habits.parts if habits.split == "time" else 1
         bounds = np.linspace(0, len(times), parts + 1).astype(int)
         for k in range(parts):
