@@ -299,6 +299,10 @@ def _no_time(header: list[str]) -> str:
     if first.lstrip().startswith("#"):
         return (f"the first line must be the header row naming the columns (t, ...), got "
                 f"the comment {shown!r}: comment lines are not part of the format")
+    sep = next((c for c in (";", "\t", "|") if len(header) == 1 and c in first), None)
+    if sep is not None:
+        return (f"column 't' (time) is missing from the header row ({shown!r}): its fields "
+                f"are separated by {sep!r}; the format separates them by ','")
     return f"column 't' (time) is missing from the header row ({shown!r})"
 
 

@@ -117,6 +117,9 @@ BAD = {
     "no time column": (lambda ls: [ls[0].replace("t,", "time,", 1), *ls[1:]],
                        r"samples\.csv:1: column 't' \(time\) is missing from the header row "
                        r"\('time,l_meas_11"),
+    "semicolons": (lambda ls: [x.replace(",", ";") for x in ls],
+                   r"samples\.csv:1: column 't' \(time\) is missing from the header row "
+                   r"\('t;l_meas_11;.*separated by ';'; the format separates them by ','"),
     "comment line": (lambda ls: ["# logger v2.1", *ls],
                      r"samples\.csv:1: the first line must be the header row .* comment"),
     "torn last line": (lambda ls: [*ls[:-2], ls[-2][:40]],
