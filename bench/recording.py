@@ -368,13 +368,11 @@ def _read_csv_rows(p: Path, header: list[str], text: str | None = None, first_li
 
 
 def _torn(p: Path, text: str | None, line_num: int) -> str:
-    """A note when the row just read is the file's last and has no line end (a logger
-    stopped while writing it), else ''."""
-    if text is not None:  # a block of a long file: its last line ends the block
-        return ""
+    """A note when the row just read (the ``line_num``-th line of the file, or of ``text``,
+    a block of its lines) is the last and has no line end (a logger stopped while writing
+    it), else ''. (A block ends at a line end, but for the file's last.)"""
     try:
-        with p.open("rb") as f:
-            data = f.read()
+        data = text.encode() if text is not None else p.read_bytes()
     except OSError:
         return ""
     if data.endswith((b"\n", b"\r")) or data.count(b"\n") + 1 != line_num:

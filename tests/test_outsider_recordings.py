@@ -140,6 +140,16 @@ def test_a_bad_file_is_refused_naming_its_line(plain, tmp_path, reader, bad):
         read_conditioned(_edit(plain, tmp_path / "r", edit))
 
 
+def test_a_torn_last_line_is_named_in_blocks(plain, tmp_path, monkeypatch):
+    monkeypatch.setattr(chunked, "CHUNKED_MIN_BYTES", 0)
+    monkeypatch.setattr(chunked, "BLOCK_BYTES", 1 << 16)
+    rec = _edit(plain, tmp_path / "r", lambda ls: [*ls[:-2], ls[-2][:40]])
+    last = len(_lines(rec / "samples.csv"))
+    with pytest.raises(RecordingError, match=rf"samples\.csv:{last}: \d+ fields, the header has "
+                                             rf"23: the last line is cut short"):
+        read_conditioned(rec)
+
+
 def test_time_going_back_across_blocks_names_the_line(plain, tmp_path, monkeypatch):
     """A long file read in blocks: the time going back at a block's first row."""
     monkeypatch.setattr(chunked, "CHUNKED_MIN_BYTES", 0)
