@@ -203,7 +203,7 @@ def test_a_slip_is_named_whatever_the_loggers_habits(tmp_path, habits):
 def test_a_moved_exit_point_is_named_with_the_truth_in_its_intervals(tmp_path):
     moved = (0.03, -0.02, 0.015)
     rep = diagnose(make_case(tmp_path / "r", Habits(extra=True, shuffle=True), seed=3,
-                             exit_moved=("32", moved))).report
+                             exit_moved=("32", moved), **SMALL)).report
     assert [e["name"] for e in rep["effects"]] == ["exit_point_offset"], rep["effects"]
     eff = rep["effects"][0]
     for ax, v in zip("xyz", moved, strict=True):
