@@ -16,9 +16,11 @@ BOX = ((-3.0, -2.5, 1.2), (3.0, 2.5, 3.0), 0.04)
 
 def make_case(out: Path, habits: Habits, *, seed: int, targets: int = 10, passes: int = 2,
               dwell_s: float = 5.0, length_offset: dict | None = None,
-              exit_moved: tuple[str, tuple] | None = None) -> Path:
+              exit_moved: tuple[str, tuple] | None = None,
+              slip_at_s: float | None = None) -> Path:
     """Write one recording. Concealed: `length_offset` {cable: dl [m]} (a slip half-way
-    through the first move), `exit_moved` (cable, offset [m] in F_b)."""
+    through the first move, or at `slip_at_s` [s of the campaign]), `exit_moved` (cable,
+    offset [m] in F_b)."""
     rng = np.random.default_rng(seed)
     model = load_robot(ROBOT_TOML)
     true = model if exit_moved is None else model.with_exit_moved(exit_moved[0],
@@ -30,4 +32,5 @@ def make_case(out: Path, habits: Habits, *, seed: int, targets: int = 10, passes
     for cable, dl in (length_offset or {}).items():
         offset[model.ids.index(cable)] = dl
     return write_recording(out, ROBOT_TOML, model, true, camp, habits,
-                           pretension_n=PRETENSION_N, length_offset_m=offset, seed=seed + 1)
+                           pretension_n=PRETENSION_N, length_offset_m=offset, seed=seed + 1,
+                           slip_at_s=slip_at_s)

@@ -53,7 +53,7 @@ def _clock(hz: float, duration: float, jitter: float, phase: float,
 
 
 def _streams(model: Robot, true: Robot, camp: Campaign, habits: Habits, pretension: float,
-             offset: np.ndarray, rng: np.random.Generator) -> dict:
+             offset: np.ndarray, rng: np.random.Generator, slip_at_s: float | None) -> dict:
     """{stream: (times, {column: values})} with noise, times from the campaign's start."""
     dur = camp.duration_s
     te = _clock(habits.encoders_hz, dur, habits.jitter_s, 0.0, rng)
@@ -64,19 +64,19 @@ def _streams(model: Robot, true: Robot, camp: Campaign, habits: Habits, pretensi
         tl = _clock(habits.load_cells_hz, dur, habits.jitter_s, 0.0031, rng)
         tt = _clock(habits.tracker_hz, dur, habits.jitter_s, 0.0173, rng)
     ids = model.ids
-    enc = readings(model, true, camp, te, pretension, offset).lengths_read
+    enc = readings(model, true, camp, te, pretension, offset, slip_at_s).lengths_read
     enc = enc + rng.normal(0, habits.noise_l_m, enc.shape)
-    tau = readings(model, true, camp, tl, pretension, offset).tensions
+    tau = readings(model, true, camp, tl, pretension, offset, slip_at_s).tensions
     tau = tau + rng.normal(0, habits.noise_tau_n, tau.shape)
     for start, dur in habits.tracker_gaps:
         tt = tt[(tt < start) | (tt > start + dur)]
-    pose = readings(model, true, camp, tt, pretension, offset).poses
+    pose = readings(model, true, camp, tt, pretension, offset, slip_at_s).poses
     sd = np.array([habits.noise_pos_m] * 3 + [habits.noise_ang_rad] * 3)
     pose = pose + rng.normal(0, 1, pose.shape) * sd
     out = {}
     if habits.controller_hz:  # the pose the controller aimed at: the true pose
         tc = te[:: round(habits.encoders_hz / habits.controller_hz)]
-        des = readings(model, true, camp, tc, pretension, offset).poses
+        des = readings(model, true, camp, tc, pretension, offset, slip_at_s).poses
         out["controller"] = (tc, {POSE[i].replace("_meas", "_des"): des[:, i] for i in range(6)})
     return out | {
         "encoders": (te, {f"l_meas_{c}": enc[:, i] for i, c in enumerate(ids)}),
@@ -158,12 +158,13 @@ def _write_csv(path: Path, times: np.ndarray, cols: dict, habits: Habits,
 
 def write_recording(out: Path, model_toml: Path, model: Robot, true: Robot, camp: Campaign,
                     habits: Habits, *, pretension_n: float, length_offset_m: np.ndarray,
-                    seed: int) -> Path:
+                    seed: int, slip_at_s: float | None = None) -> Path:
     """Write a cdpr-recording/1 directory `out` and return it."""
     rng = np.random.default_rng(seed)
     out.mkdir(parents=True, exist_ok=True)
     (out / "robot.toml").write_text(Path(model_toml).read_text())
-    streams = _streams(model, true, camp, habits, pretension_n, length_offset_m, rng)
+    streams = _streams(model, true, camp, habits, pretension_n, length_offset_m, rng,
+                       slip_at_s)
     streams = {k: v for k, v in streams.items() if k not in habits.drop}
     files: list[str] = []
     if habits.split == "sensor":
