@@ -72,6 +72,7 @@ def time_goes_back(t: np.ndarray) -> int | None:
     back = np.flatnonzero(np.diff(t) < 0)
     return int(back[0]) + 1 if len(back) else None
 
+
 #: the process that first used polars: its thread pool lives there only, and a process
 #: forked from it (the project's process pools fork) deadlocks in polars, so such a child
 #: reads row by row (polars' own warning on fork says the same)

@@ -331,7 +331,8 @@ def _spread_limit(chunk: np.ndarray, floor: float) -> np.ndarray:
 
 def _standing(rec: Recording, a: int, b: int) -> bool:
     """Whether the encoders (or, without them, the measured pose) stand still in rows a..b:
-    every reading spreads by at most STILL_M (1 mm, 1 mrad), or by what its noise gives."""
+    every reading spreads by at most STILL_M (encoders; the pose: 1 mm, 1 mrad), or by what
+    its own white noise gives over the rows (:func:`_spread_limit`)."""
     for arr, tol in ((rec.l_meas, STILL_M), (rec.pose_meas, 1e-3)):
         chunk = arr[a:b]
         ok = np.isfinite(chunk).all(axis=0)
