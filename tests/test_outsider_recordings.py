@@ -262,3 +262,19 @@ def test_an_allowed_habit_reads_as_the_plain_file_in_blocks(plain, tmp_path, hab
     assert len(a["t"]) == whole.n_samples
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_a_cables_direction_into_a_dwell_is_its_move_not_its_noise(plain):
+    """The direction of each cable's last move before a dwell (hysteresis is tested by it):
+    5 um encoder noise in the dwell's first rows must not set it."""
+    from bench.diagnosis.samples import prepare
+
+    rec, _, _ = read_conditioned(plain)
+    s = prepare(rec)
+    dwell = np.flatnonzero((s.kind == 0) & ~s.is_init)
+    dwell = dwell[np.argsort(s.t[dwell])]
+    before = np.concatenate([s.l_meas[s.is_init & (s.kind == 0)][:1], s.l_meas[dwell[:-1]]])
+    moved = s.l_meas[dwell] - before
+    big = np.abs(moved) > 1e-3
+    assert big.sum() > 40
+    assert np.mean(s.direction[dwell][big] == np.sign(moved[big])) > 0.95
