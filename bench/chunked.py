@@ -113,6 +113,7 @@ def iter_blocks(p: Path, header: list[str], block_bytes: int | None = None):
     import mmap
 
     size = block_bytes or BLOCK_BYTES
+    last_t, last_line = None, 0
     with p.open("rb") as f:
         if os.fstat(f.fileno()).st_size == 0:
             return
@@ -129,8 +130,29 @@ def iter_blocks(p: Path, header: list[str], block_bytes: int | None = None):
                 start = cut
                 if not data.isspace():  # (a copy-free test: strip() would copy the block)
                     cols, states = _parse(p, header, data, line)
+                    t = cols["t"]
+                    if last_t is not None and len(t) and t[0] < last_t:
+                        raise RecordingError(
+                            f"{p}:{_first_row_line(data, line)}: column "
+                            f"{header.index('t') + 1} 't': time goes back from {last_t:.6g} s "
+                            f"(line {last_line}) to {t[0]:.6g} s: the rows of a file must be in "
+                            f"time order (equal times allowed)")
+                    if len(t):
+                        last_t, last_line = float(t[-1]), _last_row_line(data, line)
                     yield cols, states, len(data)
                 line += data.count(b"\n")
+
+
+def _first_row_line(data: bytes, line: int) -> int:
+    """The file's line number of the first non-blank line of a block starting at ``line``."""
+    parts = data.split(b"\n", 64)  # (blank lines before it: a few at most)
+    return line + next((k for k, ln in enumerate(parts) if ln.strip()), 0)
+
+
+def _last_row_line(data: bytes, line: int) -> int:
+    """The file's line number of the last non-blank line of a block starting at ``line``."""
+    body = data.rstrip()
+    return line + body.count(b"\n")
 
 
 def _release(mm, start: int, stop: int) -> None:

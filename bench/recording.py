@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from bench.streams import loose_columns, time_goes_back
 from controller.robot import Robot, RobotFileError, dumps_robot, load_robot
 from controller.tomlfile import decode_utf8, read_toml
 
@@ -260,8 +261,8 @@ def _read_columns(p: Path, robot: Robot) -> tuple[list[str], dict[str, np.ndarra
 
 def _read_header(p: Path, robot: Robot) -> list[str]:
     """The validated header row of ``p`` (names stripped)."""
-    try:
-        f = p.open(newline="", encoding="utf-8")
+    try:  # (utf-8-sig: a byte-order mark, as spreadsheet programs write, is no part of 't')
+        f = p.open(newline="", encoding="utf-8-sig")
     except OSError as e:
         raise RecordingError(f"{p}: cannot read: {e.strerror or e}") from e
     with f:
@@ -275,7 +276,7 @@ def _read_header(p: Path, robot: Robot) -> list[str]:
         except csv.Error as e:
             raise RecordingError(f"{p}: not readable as CSV: {e}") from None
     if "t" not in header:
-        raise RecordingError(f"{p}:1: column 't' (time) is missing")
+        raise RecordingError(f"{p}:1: {_no_time(header)}")
     seen = set()
     for c, name in enumerate(header):
         if name in seen:
@@ -291,6 +292,20 @@ def _read_header(p: Path, robot: Robot) -> list[str]:
     return header
 
 
+def _no_time(header: list[str]) -> str:
+    """Why a first line without a column ``t`` is no header row (names the line's start)."""
+    first = ",".join(header)
+    shown = first if len(first) <= 60 else first[:57] + "..."
+    if first.lstrip().startswith("#"):
+        return (f"the first line must be the header row naming the columns (t, ...), got "
+                f"the comment {shown!r}: comment lines are not part of the format")
+    sep = next((c for c in (";", "\t", "|") if len(header) == 1 and c in first), None)
+    if sep is not None:
+        return (f"column 't' (time) is missing from the header row ({shown!r}): its fields "
+                f"are separated by {sep!r}; the format separates them by ','")
+    return f"column 't' (time) is missing from the header row ({shown!r})"
+
+
 def _read_csv_rows(p: Path, header: list[str], text: str | None = None, first_line: int = 2
                    ) -> tuple[list[str], dict[str, np.ndarray], list[str] | None]:
     """Row by row (errors name the line and column): header, columns, states. With ``text``
@@ -301,15 +316,17 @@ def _read_csv_rows(p: Path, header: list[str], text: str | None = None, first_li
         if text is None:
             next(reader)
         rows: list[list[float]] = []
+        lines: list[int] = []
         states: list[str] = []
         state_col = header.index("state") if "state" in header else -1
         numeric = [c for c, name in enumerate(header) if c != state_col]
+        loose = {header.index(h) for h in loose_columns(header)}
         for lineno, row in enumerate(reader, start=first_line):
             if not row or all(not x.strip() for x in row):
                 continue
             if len(row) != len(header):
                 raise RecordingError(f"{p}:{lineno}: {len(row)} fields, the header has "
-                                     f"{len(header)}")
+                                     f"{len(header)}{_torn(p, text, reader.line_num)}")
             vals = []
             for c in numeric:
                 s = row[c].strip()
@@ -319,13 +336,17 @@ def _read_csv_rows(p: Path, header: list[str], text: str | None = None, first_li
                 try:
                     v = float(s)
                 except ValueError:
+                    if c in loose:  # the lab's own column: kept and ignored
+                        vals.append(math.nan)
+                        continue
                     raise RecordingError(f"{p}:{lineno}: column {c + 1} '{header[c]}': not a "
                                          f"number: {s!r}") from None
-                if math.isinf(v):
+                if math.isinf(v) and c not in loose:
                     raise RecordingError(f"{p}:{lineno}: column {c + 1} '{header[c]}': "
                                          f"infinite value")
                 vals.append(v)
             rows.append(vals)
+            lines.append(lineno)
             if state_col >= 0:
                 states.append(row[state_col].strip())
     names = [header[c] for c in numeric]
@@ -336,8 +357,28 @@ def _read_csv_rows(p: Path, header: list[str], text: str | None = None, first_li
     if np.isnan(t).any():
         line = int(np.flatnonzero(np.isnan(t))[0]) + first_line
         raise RecordingError(f"{p}:{line}: column {header.index('t') + 1} 't': time missing")
+    back = time_goes_back(t)
+    if back is not None:
+        raise RecordingError(
+            f"{p}:{lines[back]}: column {header.index('t') + 1} 't': time goes back from "
+            f"{t[back - 1]:.6g} s (line {lines[back - 1]}) to {t[back]:.6g} s: the rows of a "
+            f"file must be in time order (equal times allowed)")
     return header, {name: data[:, k] for k, name in enumerate(names)}, \
         (states if state_col >= 0 else None)
+
+
+def _torn(p: Path, text: str | None, line_num: int) -> str:
+    """A note when the row just read (the ``line_num``-th line of the file, or of ``text``,
+    a block of its lines) is the last and has no line end (a logger stopped while writing
+    it), else ''. (A block ends at a line end, but for the file's last.)"""
+    try:
+        data = text.encode() if text is not None else p.read_bytes()
+    except OSError:
+        return ""
+    if data.endswith((b"\n", b"\r")) or data.count(b"\n") + 1 != line_num:
+        return ""
+    return (": the last line is cut short and has no line end (the logger stopped while "
+            "writing it?); delete that line to read the rest")
 
 
 def _from_columns(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndarray,
@@ -386,8 +427,9 @@ def _init_rows(rec: Recording) -> np.ndarray:
         first = pose[0]
         seen = np.isfinite(first)  # (columns a recording leaves out are nan)
         if seen.any() and np.all(np.abs(first - rec.init_pose)[seen] <= INIT_NEAR):
-            with np.errstate(invalid="ignore"):
-                off = np.nanmax(np.abs(pose - first), axis=1) > tol
+            # (a row without a desired pose (NaN) shows no sign of leaving; np.nanmax would
+            # warn "All-NaN slice encountered" on such rows)
+            off = np.max(np.nan_to_num(np.abs(pose - first), nan=0.0), axis=1) > tol
             leave = np.flatnonzero(off)
             if not len(leave):
                 return np.arange(rec.n_samples)

@@ -20,6 +20,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -53,6 +54,24 @@ ROW_BUDGET = 100_000
 EVENT_ROWS = 3
 
 NULLS = ["", "nan", "NaN", "NAN", "Nan"]
+#: the documented numeric columns (docs/formats/recording.md): any other column but
+#: ``state`` is the lab's own, kept and ignored, and may hold text
+DOCUMENTED = re.compile(r"^(t|(x|y|z|roll|pitch|yaw)_(des|meas)"
+                        r"|(l_cmd|l_meas|tau|ax_meas|ay_meas|az_meas|drive_state)_\w+)$")
+
+
+def loose_columns(header: list[str]) -> set[str]:
+    """The columns of ``header`` the format does not define (other than ``state``): read as
+    numbers where they are, a field that is not one is no value (NaN), never an error."""
+    return {h for h in header if h != "state" and not DOCUMENTED.match(h)}
+
+
+def time_goes_back(t: np.ndarray) -> int | None:
+    """Index of the first row whose time is earlier than the row before it, or None (equal
+    times are in order)."""
+    back = np.flatnonzero(np.diff(t) < 0)
+    return int(back[0]) + 1 if len(back) else None
+
 
 #: the process that first used polars: its thread pool lives there only, and a process
 #: forked from it (the project's process pools fork) deadlocks in polars, so such a child
@@ -93,7 +112,9 @@ def read_columns(p: Path, header: list[str]) -> tuple[dict[str, np.ndarray],
         return None
     import polars as pl
 
-    schema = {h: (pl.String if h == "state" else pl.Float64) for h in header}
+    loose = loose_columns(header)
+    schema = {h: (pl.String if h == "state" or h in loose else pl.Float64)
+              for h in header}
     try:
         df = pl.read_csv(p, has_header=False, skip_rows=1, new_columns=header, schema=schema,
                          null_values=NULLS,
@@ -114,7 +135,9 @@ def parse_block(data: bytes, header: list[str]) -> tuple[dict[str, np.ndarray],
 
     import polars as pl
 
-    schema = {h: (pl.String if h == "state" else pl.Float64) for h in header}
+    loose = loose_columns(header)
+    schema = {h: (pl.String if h == "state" or h in loose else pl.Float64)
+              for h in header}
     try:
         df = pl.read_csv(io.BytesIO(data), has_header=False, new_columns=header,
                          schema=schema, null_values=NULLS, raise_if_empty=False)
@@ -128,19 +151,27 @@ def parse_block(data: bytes, header: list[str]) -> tuple[dict[str, np.ndarray],
 def _frame_columns(df, header: list[str]) -> tuple[dict[str, np.ndarray],
                                                    list[str] | None] | None:
     """A polars frame's columns as float64 arrays and the states as strings; None on an
-    infinite value or a missing time (the row-by-row reader names them)."""
+    infinite value, a missing time or a time going back (the row-by-row reader names them).
+    The lab's own columns (:func:`loose_columns`) are numbers where they are, else NaN."""
+    import polars as pl
+
     cols: dict[str, np.ndarray] = {}
     states = None
+    loose = loose_columns(header)
     for name in header:
         c = df.get_column(name)
         if name == "state":
             states = c.fill_null("").str.strip_chars().to_list()
             continue
+        if name in loose:
+            cols[name] = c.str.strip_chars().cast(pl.Float64, strict=False).fill_null(
+                np.nan).to_numpy().astype(np.float64, copy=False)
+            continue
         v = c.to_numpy().astype(np.float64, copy=False)
         if np.isinf(v).any():
             return None
         cols[name] = v
-    if np.isnan(cols["t"]).any():
+    if np.isnan(cols["t"]).any() or time_goes_back(cols["t"]) is not None:
         return None
     return cols, states
 
@@ -326,10 +357,12 @@ def _noise(v: np.ndarray) -> np.ndarray:
     """Per column white noise of samples (K, d): robust second differences / sqrt(6)."""
     if len(v) < 5:
         return np.zeros(v.shape[1])
-    d2 = v[2:] - 2 * v[1:-1] + v[:-2]
-    with np.errstate(all="ignore"):
-        out = 1.4826 * np.nanmedian(np.abs(d2), axis=0) / np.sqrt(6.0)
-    return np.nan_to_num(out)
+    d2 = np.abs(v[2:] - 2 * v[1:-1] + v[:-2])
+    out = np.zeros(v.shape[1])
+    seen = np.isfinite(d2).any(axis=0)  # (a column without three samples in a row: 0;
+    if seen.any():                      # np.nanmedian would warn "All-NaN slice")
+        out[seen] = 1.4826 * np.nanmedian(d2[:, seen], axis=0) / np.sqrt(6.0)
+    return out
 
 
 def _align_group(rec, g: str, stream: Stream, ref: np.ndarray, al: Alignment) -> np.ndarray:

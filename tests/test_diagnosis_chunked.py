@@ -80,16 +80,16 @@ def test_blocks_of_any_size_cut_at_line_ends(tmp_path, block):
     rows are the file's, and a bad row's error names its line in the file."""
     from bench.recording import RecordingError
 
-    header = ["t", "x"]
+    header = ["t", "x_meas"]  # (a documented column: the lab's own may hold text)
     p = tmp_path / "s.csv"
-    p.write_bytes(b"t,x\n" + b"".join(b"%d,%d.5\n" % (i, i) for i in range(40)) + b"40,1")
+    p.write_bytes(b"t,x_meas\n" + b"".join(b"%d,%d.5\n" % (i, i) for i in range(40)) + b"40,1")
     t = np.concatenate([c["t"] for c, _, _ in ch.iter_blocks(p, header, block)])
     np.testing.assert_array_equal(t, np.arange(41.0))
-    p.write_bytes(b"t,x\n0,1\n1,2\n\n")
+    p.write_bytes(b"t,x_meas\n0,1\n1,2\n\n")
     assert [len(c["t"]) for c, _, _ in ch.iter_blocks(p, header, block)] in ([2], [1, 1])
-    p.write_bytes(b"t,x\n")
+    p.write_bytes(b"t,x_meas\n")
     assert list(ch.iter_blocks(p, header, block)) == []
-    p.write_bytes(b"t,x\n0,1\n1,2\n2,oops\n3,4\n")
+    p.write_bytes(b"t,x_meas\n0,1\n1,2\n2,oops\n3,4\n")
     with pytest.raises(RecordingError, match=r"s\.csv:4: column 2"):
         list(ch.iter_blocks(p, header, block))
 

@@ -42,6 +42,7 @@ from bench.streams import (
     jittered,
     length_acceleration,
     measured_acceleration,
+    signal_noise,
     still_rows,
 )
 
@@ -184,8 +185,9 @@ def check_values(rec: Recording, limit: int = 20) -> list[dict]:
         share = bad.sum() / max(finite.sum(), 1)
         if share > 0.5:
             k = int(np.argwhere(bad)[0][0])
+            k = int(rec.source_rows[k]) if rec.source_rows is not None else k
             raise RecordingError(
-                f"{rec.path / 'recording.csv'}: {group}: {bad.sum()} of {finite.sum()} values "
+                f"{_samples_file(rec)}: {group}: {bad.sum()} of {finite.sum()} values "
                 f"are impossible ({why}; e.g. line {k + 2}): wrong units or columns?")
         for idx in np.argwhere(bad):
             i = int(idx[0])
@@ -237,6 +239,14 @@ def check_values(rec: Recording, limit: int = 20) -> list[dict]:
     if count > limit:
         out.append({"more": count - limit})
     return out
+
+
+def _samples_file(rec: Recording) -> str:
+    """The samples file(s) meta.toml names (a split recording's lines are its merged rows')."""
+    files = rec.meta.get("samples", "recording.csv")
+    if isinstance(files, list):
+        return f"{rec.path / files[0]} (and the other files of the split recording)"
+    return str(rec.path / str(files))
 
 
 # ----- rows -> samples ------------------------------------------------------------------
@@ -310,13 +320,25 @@ def _runs(keys: np.ndarray, states: list[str] | None) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), list(starts[1:].tolist()) + [N], strict=True))
 
 
+def _spread_limit(chunk: np.ndarray, floor: float) -> np.ndarray:
+    """(d,) largest peak-to-peak spread [units of ``chunk``] of a standing signal's (K, d)
+    samples: ``floor``, or the spread its own white noise reaches over K samples
+    (2 sqrt(2 ln K) + 3 standard deviations), whichever is larger."""
+    k = max(len(chunk), 2)
+    return np.maximum(floor, (2.0 * np.sqrt(2.0 * np.log(k)) + 3.0)
+                      * signal_noise(np.arange(len(chunk), dtype=float), chunk))
+
+
 def _standing(rec: Recording, a: int, b: int) -> bool:
-    """Whether the encoders (or, without them, the measured pose) stand still in rows a..b."""
+    """Whether the encoders (or, without them, the measured pose) stand still in rows a..b:
+    every reading spreads by at most STILL_M (encoders; the pose: 1 mm, 1 mrad), or by what
+    its own white noise gives over the rows (:func:`_spread_limit`)."""
     for arr, tol in ((rec.l_meas, STILL_M), (rec.pose_meas, 1e-3)):
         chunk = arr[a:b]
         ok = np.isfinite(chunk).all(axis=0)
         if ok.any() and b - a >= 2:
-            return bool(np.ptp(chunk[:, ok], axis=0).max() <= tol)
+            x = chunk[:, ok]
+            return bool(np.all(np.ptp(x, axis=0) <= _spread_limit(x, tol)))
     return True
 
 
@@ -739,7 +761,11 @@ def _directions(rec: Recording, rows: np.ndarray) -> np.ndarray:
         return out
     d = np.zeros((N, n))
     d[1:] = np.diff(src, axis=0)
-    d = np.nan_to_num(np.where(np.abs(d) > STILL_M / 2, np.sign(d), 0.0))
+    # a change counts beyond STILL_M / 2 and beyond 3 standard deviations of the
+    # difference of two noisy readings (a reading's white noise must not set the sign)
+    lim = np.maximum(STILL_M / 2, 3.0 * np.sqrt(2.0) * signal_noise(rec.t, src))
+    with np.errstate(invalid="ignore"):
+        d = np.nan_to_num(np.where(np.abs(d) > lim, np.sign(d), 0.0))
     # carry the last nonzero sign forward: index of the last row with a move, per cable
     idx = np.where(d != 0, np.arange(N)[:, None], 0)
     np.maximum.accumulate(idx, axis=0, out=idx)
