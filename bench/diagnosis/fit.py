@@ -738,8 +738,8 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         groups = rm.entry_blocks(idx)
         errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx),
                                 rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff,
-                                rm.entry_directions(idx), rm.entry_knots(idx),
-                                (n_eff - lost) / max(n_eff, 1e-12))
+                                rm.entry_directions(idx), rm.entry_knots(idx, space.robot(x)),
+                                rm.entry_kept(idx))
         cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r, groups,
                                   errors)
     else:
@@ -913,7 +913,8 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
     if r is not None and errors is not None and len(errors.weights) == len(r):
-        dof = errors.n_eff / max(n_res, 1.0)
+        # (per-entry shares are scaled back inside error_meat)
+        dof = errors.n_eff / max(n_res, 1.0) if np.ndim(errors.kept) == 0 else 1.0
         cov = cov_s @ error_meat(Js, r, errors) @ cov_s * dof * np.outer(D, D)
     else:
         red = chi2 / max(n_res - p, 1)
@@ -963,8 +964,11 @@ class ErrorStructure:
     #: the unweighted whitened residuals, which the other components are estimated beside
     knots: np.ndarray | None = None
     #: share of the residuals' degrees of freedom per-sample unknowns leave (their moments
-    #: are that share of the errors'; the caller scales the meat back by its inverse)
-    kept: float = 1.0
+    #: are that share of the errors'; the caller scales the meat back by its inverse), or
+    #: that share entry by entry (:meth:`ResidualModel.entry_kept`: :func:`error_meat` scales
+    #: each entry back itself; lengths projected by an estimated pose keep ``r / n`` of
+    #: their error, the wrench beside them all of its own)
+    kept: float | np.ndarray = 1.0
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -1017,13 +1021,25 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     stats = np.array([kg.statistics(u) for kg in kinds]).ravel()
     knots = e.knots if e.knots is not None and len(e.knots) == len(r) and e.knots.any() \
         else None
-    theta = _unbiased_components(Js, sw, kinds, stats, knots, e.kept)
+    kept = np.asarray(e.kept, dtype=float)
+    if kept.ndim:
+        # entry by entry: a projected entry's moments are its share of the error's (its
+        # known part too); its pairs count back by that share, the wrench's whole. A share
+        # over all entries scaled the wrench's moments up with the lengths' and the lengths'
+        # short: without a tracker, length offsets half as uncertain as they were
+        ks = np.sqrt(np.clip(kept, 1e-6, 1.0))
+        theta = _unbiased_components(Js, sw, kinds, stats,
+                                     None if knots is None else knots * ks[:, None], 1.0)
+        whole, bg = 1.0, b / ks[:, None]
+    else:
+        theta = _unbiased_components(Js, sw, kinds, stats, knots, float(kept))
+        whole, bg = float(kept), b
     meat = np.zeros((p, p))
     if knots is not None:
         # the blended visit-to-visit error: known from the replicate dwells, in the readings'
         # units (the caller's scaling by 1 / kept undone: the score sees it whole)
         kb = knots.T @ b
-        meat += e.kept * (kb.T @ kb)
+        meat += whole * (kb.T @ kb)
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
     quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
@@ -1034,7 +1050,7 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         pooled = float(size[same] @ level[same] / size[same].sum())
         v = (level[j] * kg.n + PRIOR_ENTRIES * pooled) / (kg.n + PRIOR_ENTRIES)
         c = np.clip(theta[NCOMP * j + 1: NCOMP * (j + 1)], 0.0, v)
-        grams = kg.grams(b[kg.mask])
+        grams = kg.grams(bg[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
     return meat
 
