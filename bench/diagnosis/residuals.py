@@ -937,8 +937,8 @@ class ResidualModel:
         vector (``Samples.block``)."""
         return self._per_entry(self.s.block.astype(float), idx).astype(int)
 
-    def entry_knots(self, idx: np.ndarray | None = None,
-                    H: Robot | None = None) -> np.ndarray | None:
+    def entry_knots(self, idx: np.ndarray | None = None, H: Robot | None = None,
+                    steps: tuple[Blocks, list[Blocks]] | None = None) -> np.ndarray | None:
         """The visit-to-visit error of the lengths where the recording stops between moves
         (dwells and rows of moves both fitted): (entries of :meth:`whiten`'s vector, stops x
         cables), whitened. A cable's error changes from stop to stop (what replicate dwells
@@ -954,7 +954,7 @@ class ResidualModel:
         the lengths carry the same errors (:meth:`wrench_loadings`): a length error moves the
         estimated pose, and the measured tensions no longer balance gravity there. Without
         them the wrench counted as independent evidence on what the lengths' shared error
-        moves (a length offset without a tracker: standard errors a third of the spread)."""
+        moves. ``steps``: :meth:`length_steps` of ``H`` on ``idx`` (made when not given)."""
         s, n = self.s, self.model.n_cables
         sl = np.arange(s.n) if idx is None else np.asarray(idx)
         if not self.visit_sd or not (s.kind[sl] == 1).any():
@@ -974,7 +974,7 @@ class ResidualModel:
         out = [K[self.has_len[sl]].reshape(-1, S * n)]
         if self.any_tau:
             mm = self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl])
-            G = self.wrench_loadings(H, sl) if H is not None else None
+            G = self.wrench_loadings(H, sl, steps) if H is not None else None
             if G is None:
                 out.append(np.zeros((int(mm.sum()) * 6, S * n)))
             else:
@@ -987,38 +987,93 @@ class ResidualModel:
             out.append(np.zeros((int(self.has_exit[sl].sum()) * 3, S * n)))
         return np.concatenate(out)
 
-    #: [m] length step of :meth:`wrench_loadings`' finite differences
+    #: [m] length step of :meth:`length_steps`' finite differences
     LOADING_STEP_M = 1e-5
 
-    def wrench_loadings(self, H: Robot, sl: np.ndarray) -> np.ndarray | None:
-        """(M,6,n) [1/m] how each whitened (unweighted) wrench entry of the samples ``sl``
-        moves per metre of each cable's unstretched length, where the sample's pose is
-        estimated from its lengths and its tensions are measured (zero elsewhere: a measured
-        pose does not follow the lengths); None where no such sample is in ``sl``. Finite
-        differences of one length step on every sample at once (each sample's residuals
-        depend on its own lengths only), inside :meth:`frozen`."""
+    def length_steps(self, H: Robot, sl: np.ndarray) -> tuple[Blocks, list[Blocks]]:
+        """The blocks of ``H`` on the samples ``sl``, and with each cable's unstretched length
+        longer by :attr:`LOADING_STEP_M` on every sample at once (each sample's residuals
+        depend on its own lengths only: one evaluation per cable), inside :meth:`frozen`."""
         n = self.model.n_cables
-        est = self.est_pose[sl] & self.has_tau[sl]
-        if not est.any():
-            return None
         base = self.extra_length
         zero = np.zeros((self.s.n, n)) if base is None else base
         b0 = self.blocks(H, sl)
-        out = np.zeros((len(sl), 6, n))
-        sd = np.concatenate([np.repeat(self.sd["force"][sl][:, None], 3, axis=1),
-                             np.repeat(self.sd["moment"][sl][:, None], 3, axis=1)], axis=1)
-        h = self.LOADING_STEP_M
+        steps = []
         try:
             with self.frozen():
                 for j in range(n):
                     self.extra_length = zero.copy()
-                    self.extra_length[:, j] += h
-                    d = (self.blocks(H, sl).wrench[sl] - b0.wrench[sl]) / h / sd
-                    out[:, :, j] = np.where(np.isfinite(d), d, 0.0)
+                    self.extra_length[:, j] += self.LOADING_STEP_M
+                    steps.append(self.blocks(H, sl))
         finally:
             self.extra_length = base
+        return b0, steps
+
+    def wrench_loadings(self, H: Robot, sl: np.ndarray,
+                        steps: tuple[Blocks, list[Blocks]] | None = None) -> np.ndarray | None:
+        """(M,6,n) [1/m] how each whitened (unweighted) wrench entry of the samples ``sl``
+        moves per metre of each cable's unstretched length, where the sample's pose is
+        estimated from its lengths and its tensions are measured (zero elsewhere: a measured
+        pose does not follow the lengths); None where no such sample is in ``sl``.
+        ``steps``: :meth:`length_steps` of ``H`` on ``sl`` (made when not given)."""
+        n = self.model.n_cables
+        est = self.est_pose[sl] & self.has_tau[sl]
+        if not est.any():
+            return None
+        b0, bs = self.length_steps(H, sl) if steps is None else steps
+        sd = np.concatenate([np.repeat(self.sd["force"][sl][:, None], 3, axis=1),
+                             np.repeat(self.sd["moment"][sl][:, None], 3, axis=1)], axis=1)
+        out = np.zeros((len(sl), 6, n))
+        for j, b in enumerate(bs):
+            d = (b.wrench[sl] - b0.wrench[sl]) / self.LOADING_STEP_M / sd
+            out[:, :, j] = np.where(np.isfinite(d), d, 0.0)
         out[~est] = 0.0
         return out
+
+    def projects(self, idx: np.ndarray | None = None) -> bool:
+        """Whether per-sample unknowns project the length residual of some sample of ``idx``
+        (an estimated pose, fitted internal forces)."""
+        sl = slice(None) if idx is None else idx
+        return bool(((self.len_rank < self.model.n_cables) & self.has_len)[sl].any())
+
+    def direction_columns(self, H: Robot, idx: np.ndarray | None = None,
+                          steps: tuple[Blocks, list[Blocks]] | None = None
+                          ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Two (entries of :meth:`whiten`'s vector, n) [1/m] column sets, on the samples whose
+        length residual per-sample unknowns project (an estimated pose, fitted internal
+        forces: :attr:`len_rank` below n; zero elsewhere): how the whitened residuals move per
+        metre of a cable's length error
+
+        - by the direction of the cable's last move (+ after paying out, - after reeling in:
+          hysteresis, a winch's backlash), and
+        - the same on every sample after the initialisation (the encoders' reference: where
+          the cable's last move before it was is unknown, its error by direction there is
+          one sign or the other, the same for every later sample).
+
+        Projected, a cable's error spreads over every cable's residual, where the error
+        model's direction component (:func:`bench.diagnosis.fit.error_meat`) reads nothing
+        (:func:`bench.diagnosis.fit.direction_bias_var`). None where no such sample with a
+        known direction is among ``idx``."""
+        sl = np.arange(self.s.n) if idx is None else np.asarray(idx)
+        n = self.model.n_cables
+        proj = (self.len_rank[sl] < n) & self.has_len[sl]
+        sign = np.where(proj[:, None], np.sign(np.nan_to_num(self.s.direction[sl])), 0.0)
+        if not sign.any():
+            return None
+        b0, bs = self.length_steps(H, sl) if steps is None else steps
+        r0 = self.whiten(b0, sl)
+        signed, later = np.zeros((len(r0), n)), np.zeros((len(r0), n))
+        after = np.zeros(self.s.n)
+        after[sl] = proj & ~self.s.is_init[sl]
+        after = self._per_entry(after, sl)
+        for j, b in enumerate(bs):
+            d = (self.whiten(b, sl) - r0) / self.LOADING_STEP_M
+            d = np.where(np.abs(d) < 1e8, d, 0.0)  # (failed evaluations read 1e6)
+            along = np.zeros(self.s.n)
+            along[sl] = sign[:, j]
+            signed[:, j] = d * self._per_entry(along, sl)
+            later[:, j] = d * after
+        return (signed, later) if signed.any() else None
 
     def _dwell_knots(self, sl: np.ndarray) -> np.ndarray | None:
         """(samples ``sl``, stops): each sample's weights on the dwells' errors (its own for a
