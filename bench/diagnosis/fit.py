@@ -963,16 +963,17 @@ def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.
       (``(B d)^2 - diag(B S_hh B^T)``, clipped at 0; covariances by :func:`standard_errors`
       with the ``errors`` structure);
     - at the initialisation, where the encoders are referenced, each cable's error is
-      ``+-a_j`` (its last move before is unknown) and stays in every later sample: the
-      parameters follow it as the fit's linear response to those columns says, each
-      ``a_j^2`` estimated from the freed fit without bias (``a^2 - var(a)``, at least 0).
+      ``+-a`` (its last move before is unknown) and stays in every later sample: the
+      parameters follow it as the fit's linear response to those columns says.
 
     Projected by an estimated pose, a cable's error spreads over every cable's residual,
     where the error model's direction component reads nothing, and the initialisation's
     sign reads as a length offset common to every block of the recording, beyond its
     standard error and out of reach of a jackknife (an IPAnema-class continuous recording
     without a tracker, hysteresis 0.13 mm: offsets 0.15 mm off at z 4 to 6, the same with the
-    true offset 0.1, 5 or 10 mm; z about 1 with the hysteresis, but none at the reference)."""
+    true offset 0.1, 5 or 10 mm; z about 1 with the hysteresis, but none at the reference).
+    The level ``a^2`` is one for every cable: the mean over the cables of their unbiased
+    estimates (at least 0)."""
     p = J.shape[1]
     X, later = cols
     use = np.linalg.norm(X, axis=0) > 0
@@ -990,8 +991,10 @@ def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.
     Js = J * sc[:p]
     G = -(np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True) @ (Js.T @ later)) \
         * sc[:p, None]
-    a2 = np.clip(d ** 2 - np.diag(Shh), 0.0, None)
-    out = held + (G ** 2) @ a2
+    # one level for every cable (a cable's own estimate, a few visits of each direction, is
+    # noisier than the level it estimates)
+    a2 = max(float(np.mean(d ** 2 - np.diag(Shh))), 0.0)
+    out = held + a2 * np.sum(G ** 2, axis=1)
     return np.where(np.isfinite(out), out, 0.0)
 
 
