@@ -15,7 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.diagnosis.fit import ErrorStructure, direction_bias_var, fit_effects, standard_errors
+from bench.diagnosis.fit import (
+    ErrorStructure,
+    direction_bias_var,
+    direction_reference_var,
+    fit_effects,
+    standard_errors,
+)
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.samples import prepare
 from bench.diagnosis.space import ParamSpace
@@ -49,7 +55,8 @@ def _case(hysteresis_m: float) -> dict:
 
 def _offsets(tmp_path: Path, hysteresis_m: float) -> dict[str, tuple[float, float]]:
     """{key: (error, standard error)} [m] of the two slipped cables' offsets, fitted with the
-    other cables held."""
+    other cables held; the errors with the reference's error by direction as the report
+    adds it (:func:`direction_reference_var`)."""
     one_blas_thread()
     rec_dir = tmp_path / f"rec_{hysteresis_m:g}"
     record(_case(hysteresis_m), rec_dir)
@@ -61,7 +68,8 @@ def _offsets(tmp_path: Path, hysteresis_m: float) -> dict[str, tuple[float, floa
     hold = np.array([p.key not in TRUTH for p in space.params])
     fit = fit_effects(space, rm, np.arange(s.n), prune=False, hold=hold)
     got = space.values(fit.phi)["cable_length_offset"]
-    return {p.key: (got[p.key] - TRUTH[p.key], float(fit.stderr[k]))
+    se = np.sqrt(fit.stderr ** 2 + direction_reference_var(fit, rm, np.arange(s.n)))
+    return {p.key: (got[p.key] - TRUTH[p.key], float(se[k]))
             for k, p in enumerate(space.params) if not hold[k]}
 
 

@@ -147,6 +147,4 @@ def test_elasticity_without_tracker_is_not_biased_by_the_tensions_it_moves(
     assert res.success
     assert abs(ea - truth) < 3.0 * se
     ea_ls, se_ls, _ = _fit_ea(path, likelihood=False)
-    # what the term corrects (the test's own check): 3.2 standard errors of least squares
-    # once, 2.2 since each entry's kept share (2.7) and each cable's error by direction count
-    assert ea_ls - truth > 2.0 * se_ls
+    assert ea_ls - truth > 2.5 * se_ls  # what the term corrects (the test's own check)

@@ -736,19 +736,12 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     n_res = len(r)
     if free.any():
         groups = rm.entry_blocks(idx)
-        H = space.robot(x)
-        steps = rm.length_steps(H, idx) if rm.projects(idx) else None
         errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx),
                                 rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff,
-                                rm.entry_directions(idx), rm.entry_knots(idx, H, steps),
-                                rm.entry_kept(idx))
+                                rm.entry_directions(idx), rm.entry_knots(idx),
+                                (n_eff - lost) / max(n_eff, 1e-12))
         cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r, groups,
                                   errors)
-        cols = rm.direction_columns(H, idx, steps) if steps is not None else None
-        if cols is not None and len(cols[0]) == len(r):
-            hv = direction_bias_var(Jf, r, cols, n_eff - lost, space.scale[free], errors)
-            cov = cov + np.diag(hv)
-            se = np.sqrt(se ** 2 + hv)
     else:
         cov, se = np.zeros((0, 0)), np.zeros(0)
     se_all = np.full(len(x), np.inf)
@@ -920,8 +913,7 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
     if r is not None and errors is not None and len(errors.weights) == len(r):
-        # (per-entry shares are scaled back inside error_meat)
-        dof = errors.n_eff / max(n_res, 1.0) if np.ndim(errors.kept) == 0 else 1.0
+        dof = errors.n_eff / max(n_res, 1.0)
         cov = cov_s @ error_meat(Js, r, errors) @ cov_s * dof * np.outer(D, D)
     else:
         red = chi2 / max(n_res - p, 1)
@@ -1022,11 +1014,8 @@ class ErrorStructure:
     #: the unweighted whitened residuals, which the other components are estimated beside
     knots: np.ndarray | None = None
     #: share of the residuals' degrees of freedom per-sample unknowns leave (their moments
-    #: are that share of the errors'; the caller scales the meat back by its inverse), or
-    #: that share entry by entry (:meth:`ResidualModel.entry_kept`: :func:`error_meat` scales
-    #: each entry back itself; lengths projected by an estimated pose keep ``r / n`` of
-    #: their error, the wrench beside them all of its own)
-    kept: float | np.ndarray = 1.0
+    #: are that share of the errors'; the caller scales the meat back by its inverse)
+    kept: float = 1.0
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -1079,25 +1068,13 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     stats = np.array([kg.statistics(u) for kg in kinds]).ravel()
     knots = e.knots if e.knots is not None and len(e.knots) == len(r) and e.knots.any() \
         else None
-    kept = np.asarray(e.kept, dtype=float)
-    if kept.ndim:
-        # entry by entry: a projected entry's moments are its share of the error's (its
-        # known part too); its pairs count back by that share, the wrench's whole. A share
-        # over all entries scaled the wrench's moments up with the lengths' and the lengths'
-        # short: without a tracker, length offsets half as uncertain as they were
-        ks = np.sqrt(np.clip(kept, 1e-6, 1.0))
-        theta = _unbiased_components(Js, sw, kinds, stats,
-                                     None if knots is None else knots * ks[:, None], 1.0)
-        whole, bg = 1.0, b / ks[:, None]
-    else:
-        theta = _unbiased_components(Js, sw, kinds, stats, knots, float(kept))
-        whole, bg = float(kept), b
+    theta = _unbiased_components(Js, sw, kinds, stats, knots, e.kept)
     meat = np.zeros((p, p))
     if knots is not None:
         # the blended visit-to-visit error: known from the replicate dwells, in the readings'
         # units (the caller's scaling by 1 / kept undone: the score sees it whole)
         kb = knots.T @ b
-        meat += whole * (kb.T @ kb)
+        meat += e.kept * (kb.T @ kb)
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
     quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
@@ -1108,7 +1085,7 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         pooled = float(size[same] @ level[same] / size[same].sum())
         v = (level[j] * kg.n + PRIOR_ENTRIES * pooled) / (kg.n + PRIOR_ENTRIES)
         c = np.clip(theta[NCOMP * j + 1: NCOMP * (j + 1)], 0.0, v)
-        grams = kg.grams(bg[kg.mask])
+        grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
     return meat
 
@@ -1274,6 +1251,44 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     if np.any(level <= 0):
         return plain
     return theta
+
+
+def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) -> np.ndarray:
+    """Per fit parameter (fit units squared): :func:`direction_bias_var` of ``fit`` on the
+    samples ``idx`` for the length offsets that apply from the initialisation on (those a
+    reference error of the encoders looks like: ``bench.diagnosis.report``'s floor of their
+    errors); zero for the other parameters, and where per-sample unknowns project no
+    sample's length residual (:meth:`ResidualModel.projects`)."""
+    out = np.zeros(len(fit.phi))
+    space, ids = fit.space, rm.model.cable_ids
+    free = np.flatnonzero(np.isfinite(fit.stderr))
+    dl = np.array([p.key.startswith("dl_") and rm.slip_times[ids.index(p.key[3:])]
+                   <= rm.init_end for p in space.params], dtype=bool)
+    if not dl[free].any() or not rm.projects(idx):
+        return out
+    H = space.robot(fit.phi)
+    steps = rm.length_steps(H, idx)
+    cols = rm.direction_columns(H, idx, steps)
+    if cols is None:
+        return out
+    r = rm.whiten(steps[0], idx)
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        phi = fit.phi.copy()
+        phi[free] = z
+        return rm.whitened(space.robot(phi), idx)
+
+    J = fd_jacobian(fun, fit.phi[free], r, space.scale[free] * 1e-2, space.lo[free],
+                    space.hi[free], rm.frozen)
+    n_eff = float(rm.entry_weights(idx).sum())
+    lost = rm.dof_lost(idx)
+    errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx), rm.entry_columns(idx),
+                            rm.entry_moves(idx), rm.entry_blocks(idx), n_eff,
+                            rm.entry_directions(idx), rm.entry_knots(idx),
+                            (n_eff - lost) / max(n_eff, 1e-12))
+    v = direction_bias_var(J, r, cols, n_eff - lost, space.scale[free], errors)
+    out[free] = np.where(dl[free], v, 0.0)
+    return out
 
 
 # ----- 95 % intervals -----------------------------------------------------------------------

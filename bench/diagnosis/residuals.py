@@ -937,8 +937,7 @@ class ResidualModel:
         vector (``Samples.block``)."""
         return self._per_entry(self.s.block.astype(float), idx).astype(int)
 
-    def entry_knots(self, idx: np.ndarray | None = None, H: Robot | None = None,
-                    steps: tuple[Blocks, list[Blocks]] | None = None) -> np.ndarray | None:
+    def entry_knots(self, idx: np.ndarray | None = None) -> np.ndarray | None:
         """The visit-to-visit error of the lengths where the recording stops between moves
         (dwells and rows of moves both fitted): (entries of :meth:`whiten`'s vector, stops x
         cables), whitened. A cable's error changes from stop to stop (what replicate dwells
@@ -948,13 +947,7 @@ class ResidualModel:
         when there is nothing to blend (no rows of moves, or no dwell replicates told the
         level). The initialisation's stops carry none: the encoders are referenced there.
         A recording that never stops has its knots where the moves meet
-        (``Samples.turns``), its level from rows near each other on different moves.
-
-        With a hypothesis ``H``, the wrench entries of samples whose pose is estimated from
-        the lengths carry the same errors (:meth:`wrench_loadings`): a length error moves the
-        estimated pose, and the measured tensions no longer balance gravity there. Without
-        them the wrench counted as independent evidence on what the lengths' shared error
-        moves. ``steps``: :meth:`length_steps` of ``H`` on ``idx`` (made when not given)."""
+        (``Samples.turns``), its level from rows near each other on different moves."""
         s, n = self.s, self.model.n_cables
         sl = np.arange(s.n) if idx is None else np.asarray(idx)
         if not self.visit_sd or not (s.kind[sl] == 1).any():
@@ -974,15 +967,7 @@ class ResidualModel:
         out = [K[self.has_len[sl]].reshape(-1, S * n)]
         if self.any_tau:
             mm = self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl])
-            G = self.wrench_loadings(H, sl, steps) if H is not None else None
-            if G is None:
-                out.append(np.zeros((int(mm.sum()) * 6, S * n)))
-            else:
-                # (M,6,n) per unit length error -> (M,6,S,n): the stops' blend on each cable;
-                # the sign of the length entries' (their residual falls as a length grows)
-                Kw = -self.visit_sd * hat[:, None, :, None] * G[:, :, None, :]
-                out.append(Kw[mm][:, :3].reshape(-1, S * n))
-                out.append(Kw[mm][:, 3:].reshape(-1, S * n))
+            out.append(np.zeros((int(mm.sum()) * 6, S * n)))
         if self.has_exit.any():
             out.append(np.zeros((int(self.has_exit[sl].sum()) * 3, S * n)))
         return np.concatenate(out)
@@ -1008,27 +993,6 @@ class ResidualModel:
         finally:
             self.extra_length = base
         return b0, steps
-
-    def wrench_loadings(self, H: Robot, sl: np.ndarray,
-                        steps: tuple[Blocks, list[Blocks]] | None = None) -> np.ndarray | None:
-        """(M,6,n) [1/m] how each whitened (unweighted) wrench entry of the samples ``sl``
-        moves per metre of each cable's unstretched length, where the sample's pose is
-        estimated from its lengths and its tensions are measured (zero elsewhere: a measured
-        pose does not follow the lengths); None where no such sample is in ``sl``.
-        ``steps``: :meth:`length_steps` of ``H`` on ``sl`` (made when not given)."""
-        n = self.model.n_cables
-        est = self.est_pose[sl] & self.has_tau[sl]
-        if not est.any():
-            return None
-        b0, bs = self.length_steps(H, sl) if steps is None else steps
-        sd = np.concatenate([np.repeat(self.sd["force"][sl][:, None], 3, axis=1),
-                             np.repeat(self.sd["moment"][sl][:, None], 3, axis=1)], axis=1)
-        out = np.zeros((len(sl), 6, n))
-        for j, b in enumerate(bs):
-            d = (b.wrench[sl] - b0.wrench[sl]) / self.LOADING_STEP_M / sd
-            out[:, :, j] = np.where(np.isfinite(d), d, 0.0)
-        out[~est] = 0.0
-        return out
 
     def projects(self, idx: np.ndarray | None = None) -> bool:
         """Whether per-sample unknowns project the length residual of some sample of ``idx``
@@ -1129,17 +1093,6 @@ class ResidualModel:
                                    side="right")
         moving = self._per_entry(np.clip(self.s.kind, 0, 1).astype(float), idx)
         return quantity + 4 * moving.astype(int)
-
-    def entry_kept(self, idx: np.ndarray | None = None) -> np.ndarray:
-        """Per entry of :meth:`whiten`'s vector, the share of its error's variance that the
-        per-sample unknowns leave in it: ``r / n`` for a length entry projected onto the
-        ``r`` of ``n`` directions an estimated pose or fitted internal forces leave
-        (:attr:`len_rank`), 1 for the wrench and exit points (nothing is fitted to them per
-        sample). Weighted by the entries' weights, their mean is the share of degrees of
-        freedom :meth:`dof_lost` leaves; entry by entry, it scales each moment back to its
-        error (the wrench kept whole, the lengths by ``n / r``)."""
-        share = self._per_entry(self.len_rank / self.model.n_cables, idx)
-        return np.where(self.entry_kinds(idx) % 4 == 0, share, 1.0)
 
     def entry_columns(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The column of each entry of :meth:`whiten`'s vector (a cable's length, a force or
