@@ -939,6 +939,57 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     return cov, se
 
 
+#: [m] scale of a cable's length error by direction in :func:`direction_bias_var`
+DIRECTION_SCALE_M = 1e-4
+
+
+def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.ndarray],
+                       n_res: float, scale: np.ndarray, errors: ErrorStructure) -> np.ndarray:
+    """Per free parameter, the variance that each cable's length error by its direction of
+    approach (hysteresis, backlash; ``cols`` its whitened columns by direction and after the
+    initialisation, :meth:`ResidualModel.direction_columns`) adds where per-sample unknowns
+    project the lengths:
+
+    - held at zero by the fit, what it moves into the parameters: :func:`pruning_bias_var`'s
+      estimate with the errors freed beside the parameters as the full fit
+      (``(B d)^2 - diag(B S_hh B^T)``, clipped at 0; covariances by :func:`standard_errors`
+      with the ``errors`` structure);
+    - at the initialisation, where the encoders are referenced, each cable's error is
+      ``+-a`` (its last move before is unknown) and stays in every later sample: the
+      parameters follow it as the fit's linear response to those columns says.
+
+    Projected by an estimated pose, a cable's error spreads over every cable's residual,
+    where the error model's direction component reads nothing, and the initialisation's
+    sign reads as a length offset common to every block of the recording, beyond its
+    standard error and out of reach of a jackknife (an IPAnema-class continuous recording
+    without a tracker, hysteresis 0.13 mm: offsets 0.15 mm off at z 4 to 6, the same with the
+    true offset 0.1, 5 or 10 mm; z about 1 with the hysteresis, but none at the reference).
+    The level ``a^2`` is one for every cable: the mean over the cables of their unbiased
+    estimates (at least 0)."""
+    p = J.shape[1]
+    X, later = cols
+    use = np.linalg.norm(X, axis=0) > 0
+    if p == 0 or not use.any():
+        return np.zeros(p)
+    X, later = X[:, use], later[:, use]
+    Ja = np.hstack([J, X])
+    sc = np.concatenate([np.asarray(scale, dtype=float), np.full(X.shape[1], DIRECTION_SCALE_M)])
+    S, _ = standard_errors(Ja, float(r @ r), n_res, sc, r, None, errors)
+    d = np.linalg.lstsq(Ja * sc, r, rcond=None)[0][p:] * sc[p:]
+    Shh = S[p:, p:]
+    B = S[:p, p:] @ np.linalg.pinv(Shh, rcond=1e-12, hermitian=True)
+    held = np.clip((B @ d) ** 2 - np.einsum("ij,jk,ik->i", B, Shh, B), 0.0, None)
+    # the fit's response to the initialisation's error of each cable (per metre)
+    Js = J * sc[:p]
+    G = -(np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True) @ (Js.T @ later)) \
+        * sc[:p, None]
+    # one level for every cable (a cable's own estimate, a few visits of each direction, is
+    # noisier than the level it estimates)
+    a2 = max(float(np.mean(d ** 2 - np.diag(Shh))), 0.0)
+    out = held + a2 * np.sum(G ** 2, axis=1)
+    return np.where(np.isfinite(out), out, 0.0)
+
+
 @dataclass
 class ErrorStructure:
     """What the entries of a whitened residual vector may share, entry by entry:
@@ -1200,6 +1251,44 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     if np.any(level <= 0):
         return plain
     return theta
+
+
+def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) -> np.ndarray:
+    """Per fit parameter (fit units squared): :func:`direction_bias_var` of ``fit`` on the
+    samples ``idx`` for the length offsets that apply from the initialisation on (those a
+    reference error of the encoders looks like: ``bench.diagnosis.report``'s floor of their
+    errors); zero for the other parameters, and where per-sample unknowns project no
+    sample's length residual (:meth:`ResidualModel.projects`)."""
+    out = np.zeros(len(fit.phi))
+    space, ids = fit.space, rm.model.cable_ids
+    free = np.flatnonzero(np.isfinite(fit.stderr))
+    dl = np.array([p.key.startswith("dl_") and rm.slip_times[ids.index(p.key[3:])]
+                   <= rm.init_end for p in space.params], dtype=bool)
+    if not dl[free].any() or not rm.projects(idx):
+        return out
+    H = space.robot(fit.phi)
+    steps = rm.length_steps(H, idx)
+    cols = rm.direction_columns(H, idx, steps)
+    if cols is None:
+        return out
+    r = rm.whiten(steps[0], idx)
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        phi = fit.phi.copy()
+        phi[free] = z
+        return rm.whitened(space.robot(phi), idx)
+
+    J = fd_jacobian(fun, fit.phi[free], r, space.scale[free] * 1e-2, space.lo[free],
+                    space.hi[free], rm.frozen)
+    n_eff = float(rm.entry_weights(idx).sum())
+    lost = rm.dof_lost(idx)
+    errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx), rm.entry_columns(idx),
+                            rm.entry_moves(idx), rm.entry_blocks(idx), n_eff,
+                            rm.entry_directions(idx), rm.entry_knots(idx),
+                            (n_eff - lost) / max(n_eff, 1e-12))
+    v = direction_bias_var(J, r, cols, n_eff - lost, space.scale[free], errors)
+    out[free] = np.where(dl[free], v, 0.0)
+    return out
 
 
 # ----- 95 % intervals -----------------------------------------------------------------------

@@ -20,7 +20,13 @@ import numpy as np
 
 from bench.chunked import read_conditioned
 from bench.diagnosis import frame, gauge, locate, noise, probes, slips, unexplained
-from bench.diagnosis.fit import FitResult, Interval, fit_effects, split_columns
+from bench.diagnosis.fit import (
+    FitResult,
+    Interval,
+    direction_reference_var,
+    fit_effects,
+    split_columns,
+)
 from bench.diagnosis.residuals import Forward, ResidualModel
 from bench.diagnosis.samples import Samples, pooled_std, prepare
 from bench.diagnosis.select import (
@@ -315,10 +321,12 @@ def _jointly_differing(fit: FitResult, effect: str, undetermined: list[str],
     return out
 
 
-def _reference_var(rm: ResidualModel, fit: FitResult) -> np.ndarray:
+def _reference_var(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> np.ndarray:
     """Per fit parameter, the variance of the encoder reference (:meth:`ResidualModel.
-    reference_sd` under the fitted robot) for a length offset that applies from the
-    initialisation on (no step found later): the two are the same signature."""
+    reference_sd` under the fitted robot, and each cable's error by direction of approach
+    at the reference where poses are estimated: :func:`direction_reference_var` on the
+    fit's samples ``idx``) for a length offset that applies from the initialisation on (no
+    step found later): the two are the same signature."""
     out = np.zeros(len(fit.space.params))
     keys = [p.key for p in fit.space.params]
     if not any(k.startswith("dl_") for k in keys):
@@ -330,7 +338,7 @@ def _reference_var(rm: ResidualModel, fit: FitResult) -> np.ndarray:
             c = ids.index(k[3:])
             if rm.slip_times[c] <= rm.init_end:
                 out[j] = ref[c] ** 2
-    return out
+    return out + direction_reference_var(fit, rm, idx)
 
 
 def cleaned_robot(fit: FitResult) -> Robot:
@@ -814,7 +822,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
                                      say, pool)
     fit_idx = np.union1d(train, valid)
     final = _final_fit(selector, sel, fit_idx, say)
-    floor = _reference_var(rm, final)
+    floor = _reference_var(rm, final, fit_idx)
     params, errs, undet = effect_entries(final, sel.effects, floor)
     # an effect whose parameters all vanish or cannot be fixed is not reported: the least
     # important such effect goes, the others are refitted without it (what it shared with
@@ -846,7 +854,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
             sel.rejected = rejected
             sel.effects = [c for c in sel.effects if c != e]
         final = _final_fit(selector, sel, fit_idx, say)
-        floor = _reference_var(rm, final)
+        floor = _reference_var(rm, final, fit_idx)
         params, errs, undet = effect_entries(final, sel.effects, floor)
     sel.fit = final
     intervals = effect_intervals(final, rm, fit_idx, sel.effects, params, floor, pool, say)

@@ -972,6 +972,73 @@ class ResidualModel:
             out.append(np.zeros((int(self.has_exit[sl].sum()) * 3, S * n)))
         return np.concatenate(out)
 
+    #: [m] length step of :meth:`length_steps`' finite differences
+    LOADING_STEP_M = 1e-5
+
+    def length_steps(self, H: Robot, sl: np.ndarray) -> tuple[Blocks, list[Blocks]]:
+        """The blocks of ``H`` on the samples ``sl``, and with each cable's unstretched length
+        longer by :attr:`LOADING_STEP_M` on every sample at once (each sample's residuals
+        depend on its own lengths only: one evaluation per cable), inside :meth:`frozen`."""
+        n = self.model.n_cables
+        base = self.extra_length
+        zero = np.zeros((self.s.n, n)) if base is None else base
+        b0 = self.blocks(H, sl)
+        steps = []
+        try:
+            with self.frozen():
+                for j in range(n):
+                    self.extra_length = zero.copy()
+                    self.extra_length[:, j] += self.LOADING_STEP_M
+                    steps.append(self.blocks(H, sl))
+        finally:
+            self.extra_length = base
+        return b0, steps
+
+    def projects(self, idx: np.ndarray | None = None) -> bool:
+        """Whether per-sample unknowns project the length residual of some sample of ``idx``
+        (an estimated pose, fitted internal forces)."""
+        sl = slice(None) if idx is None else idx
+        return bool(((self.len_rank < self.model.n_cables) & self.has_len)[sl].any())
+
+    def direction_columns(self, H: Robot, idx: np.ndarray | None = None,
+                          steps: tuple[Blocks, list[Blocks]] | None = None
+                          ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Two (entries of :meth:`whiten`'s vector, n) [1/m] column sets, on the samples whose
+        length residual per-sample unknowns project (an estimated pose, fitted internal
+        forces: :attr:`len_rank` below n; zero elsewhere): how the whitened residuals move per
+        metre of a cable's length error
+
+        - by the direction of the cable's last move (+ after paying out, - after reeling in:
+          hysteresis, a winch's backlash), and
+        - the same on every sample after the initialisation (the encoders' reference: where
+          the cable's last move before it was is unknown, its error by direction there is
+          one sign or the other, the same for every later sample).
+
+        Projected, a cable's error spreads over every cable's residual, where the error
+        model's direction component (:func:`bench.diagnosis.fit.error_meat`) reads nothing
+        (:func:`bench.diagnosis.fit.direction_bias_var`). None where no such sample with a
+        known direction is among ``idx``."""
+        sl = np.arange(self.s.n) if idx is None else np.asarray(idx)
+        n = self.model.n_cables
+        proj = (self.len_rank[sl] < n) & self.has_len[sl]
+        sign = np.where(proj[:, None], np.sign(np.nan_to_num(self.s.direction[sl])), 0.0)
+        if not sign.any():
+            return None
+        b0, bs = self.length_steps(H, sl) if steps is None else steps
+        r0 = self.whiten(b0, sl)
+        signed, later = np.zeros((len(r0), n)), np.zeros((len(r0), n))
+        after = np.zeros(self.s.n)
+        after[sl] = proj & ~self.s.is_init[sl]
+        after = self._per_entry(after, sl)
+        for j, b in enumerate(bs):
+            d = (self.whiten(b, sl) - r0) / self.LOADING_STEP_M
+            d = np.where(np.abs(d) < 1e8, d, 0.0)  # (failed evaluations read 1e6)
+            along = np.zeros(self.s.n)
+            along[sl] = sign[:, j]
+            signed[:, j] = d * self._per_entry(along, sl)
+            later[:, j] = d * after
+        return (signed, later) if signed.any() else None
+
     def _dwell_knots(self, sl: np.ndarray) -> np.ndarray | None:
         """(samples ``sl``, stops): each sample's weights on the dwells' errors (its own for a
         dwell; the two stops around it, linear in time, for a row of a move); none on the
