@@ -44,6 +44,9 @@ from bench.diagnosis.residuals import Blocks, ResidualModel
 P_SYSTEMATIC = 1e-12
 #: ... and where it is at least this large against the deviations' spread after it
 MIN_SIZE = 3.0
+#: ... for a step of all the length columns together (:func:`_joint_step`): each column moves
+#: by less than its noise alone, significance comes from their number
+MIN_JOINT_SIZE = 1.0
 #: at most this many split times are scanned (evenly over the candidates)
 MAX_SPLITS = 64
 #: a split time is scanned where at least this many replicate groups span it
@@ -72,6 +75,9 @@ class Change:
     before_s: float | None = None
     after_s: float | None = None
     named: dict | None = field(default=None)
+    #: found by the columns together (:func:`_joint_step`), none alone: a change of every
+    #: cable (the platform's load), no one cable's slip
+    joint: bool = False
 
     def entry(self) -> dict:
         """The report's object (``unexplained.changes[]``; ``mismatch.noise.systematic``)."""
@@ -80,6 +86,8 @@ class Change:
                "size_over_noise": _round(self.size, 1)}
         if self.kind == "step":
             out["between_s"] = [_round(self.before_s), _round(self.after_s)]
+        if self.joint:
+            out["joint"] = True
         if self.named is not None:
             out["named"] = dict(self.named)
         return out
@@ -115,13 +123,14 @@ def _centre(x: np.ndarray, g: np.ndarray) -> np.ndarray:
     return x - means[g]
 
 
-def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
-           ) -> tuple[float, float] | None:
-    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,), both centred within their
-    replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
+def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+              ) -> tuple[float, float, float, np.ndarray] | None:
+    """Least squares of deviations ``x`` (m,) on regressors ``U`` (m, q), both centred within
+    their replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
     independent, the samples of one are not. ``dof0`` the units' degrees of freedom before;
-    the residual variance floored at ``floor2`` per sample. Returns (p-value, RMS of the
-    fitted part over its residual spread)."""
+    the residual variance floored at ``floor2`` per sample. Returns (the sum of squares the
+    regressors take, the residual variance per unit, its degrees of freedom, the fitted part
+    per unit); None where nothing is fitted or fewer than two degrees of freedom are left."""
     q = U.shape[1]
     dof = dof0 - q
     if dof < 2 or not np.any(U):
@@ -137,11 +146,25 @@ def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: 
     gain = float(np.sum(xs * xs)) - rss1
     if gain <= 0:
         return None
-    s2 = max(rss1 / dof, floor2 * float(np.mean(size_u)))
-    p = float(stats.f.sf(gain / q / s2, q, dof))
+    return gain, max(rss1 / dof, floor2 * float(np.mean(size_u))), dof, fitted
+
+
+def _size(fitted: np.ndarray, s2: float) -> float:
+    """RMS of a fitted part over the units it moves, in units of the spread ``sqrt(s2)``."""
     moved = np.abs(fitted) > 0
-    size = math.sqrt(float(np.mean(fitted[moved] ** 2)) / s2) if moved.any() else 0.0
-    return p, size
+    return math.sqrt(float(np.mean(fitted[moved] ** 2)) / s2) if moved.any() else 0.0
+
+
+def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+           ) -> tuple[float, float] | None:
+    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,) (:func:`_unit_fit`).
+    Returns (p-value, RMS of the fitted part over its residual spread)."""
+    got = _unit_fit(x, U, unit, dof0, floor2)
+    if got is None:
+        return None
+    gain, s2, dof, fitted = got
+    q = U.shape[1]
+    return float(stats.f.sf(gain / q / s2, q, dof)), _size(fitted, s2)
 
 
 def _column(x: np.ndarray, g: np.ndarray, unit: np.ndarray, ok: np.ndarray
@@ -241,6 +264,59 @@ def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: 
     return min(best[0] * len(mids), 1.0), best[1], best[2]
 
 
+def _joint_step(cols: list[tuple], t: np.ndarray, pos: np.ndarray, rank: float
+                ) -> tuple[float, float, float, list[int]] | None:
+    """The most significant step of a block's columns together, the same time in each:
+    (p-value Bonferroni-corrected over the times, size, time [s], the columns in the order of
+    their share, those above what noise gives). A change of the platform (its load) moves
+    every cable's length residual by a fraction of the noise, each column alone short of
+    significance; summed, the columns' whitened gains ``sum_j gain_j / s2_j`` are a
+    chi-square of ``q r`` degrees of freedom under noise, ``r`` (``rank``) the independent
+    directions among the columns (a sample's length residual without tensions: 6 of n),
+    tested as F(q r, dof r). ``cols``: per column :func:`_column`'s indices, group and unit
+    labels, deviations and units' degrees of freedom, and the floor of its variance;
+    ``t`` (N,) [s] and ``pos`` (N, 3) [m] of every sample."""
+    if len(cols) < 2 or rank < 1:
+        return None
+    widest = max(cols, key=lambda c: len(c[0]))  # (its groups say which times are spanned)
+    mids = _splits(t[widest[0]], widest[1])
+    if not len(mids):
+        return None
+    dof_min = min(c[4] for c in cols)
+    best = None
+    for tm in mids:
+        stat, dof_sum, q, shares, sizes = 0.0, 0.0, 0, [], []
+        for idx, inv, uinv, x, dof0, floor2 in cols:
+            feats = _pose_features(pos[idx])
+            if dof_min - feats.shape[1] < 8:
+                feats = feats[:, :1]
+            got = _unit_fit(x, _centre(feats * (t[idx] >= tm)[:, None], inv), uinv, dof0,
+                            floor2)
+            q = feats.shape[1]
+            if got is None:
+                shares.append(0.0)
+                dof_sum += dof0 - q
+                continue
+            gain, s2, dof, fitted = got
+            stat += gain / s2
+            dof_sum += dof
+            shares.append(gain / s2)
+            sizes.append(_size(fitted, s2) ** 2)
+        if not sizes:
+            continue
+        r = min(float(rank), float(len(cols)))
+        d2 = dof_sum / len(cols) * r
+        if d2 < 2:
+            continue
+        p = float(stats.f.sf(stat / (q * r), q * r, d2))
+        if best is None or p < best[0]:
+            order = [int(k) for k in np.argsort(shares)[::-1] if shares[k] > q]
+            best = (p, math.sqrt(float(np.mean(sizes))), float(tm), order)
+    if best is None:
+        return None
+    return min(best[0] * len(mids), 1.0), best[1], best[2], best[3]
+
+
 def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | None = None
                  ) -> list[Change]:
     """Systematic differences between the replicate visits of ``rm``'s samples under the
@@ -267,12 +343,14 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
         white2 = (kind_white[np.clip(s.kind, 0, 1)] ** 2 / count)
         hits: dict[str, list[tuple[float, float, float | None, str]]] = {}
         m = v.shape[1]
+        cols = []
         for j in range(m):
             col = _column(v[:, j], G[name][:, j], unit, live)
             if col is None:
                 continue
             idx, inv, uinv, x, dof0 = col
             floor2 = float(np.mean(white2[idx]))
+            cols.append((j, (*col, floor2)))
             t = s.t[idx]
             got = _step(x, inv, uinv, t, pos[idx], dof0, floor2)
             if got is not None:
@@ -294,7 +372,26 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
             top = min(sig, key=lambda r: r[0])
             found.append(Change(kind, name, [r[3] for r in sorted(sig, key=lambda r: r[0])],
                                 top[2], _z_of(top[0]), top[1]))
+        if name == "length" and not any(c.block == name and c.kind == "step" for c in found):
+            joint = _joint(rm, cols, names, s.t, pos)
+            if joint is not None:
+                found.append(joint)
     return _prefer_steps(found, s.t[live])
+
+
+def _joint(rm: ResidualModel, cols: list[tuple[int, tuple]], names: list[str], t: np.ndarray,
+           pos: np.ndarray) -> Change | None:
+    """The length block's columns tested together for a step (:func:`_joint_step`) where no
+    column alone shows one: a ``joint`` step where significant (the Bonferroni factor 2: one
+    more test beside the columns') and at least :data:`MIN_JOINT_SIZE` of the noise."""
+    if len(cols) < 2:
+        return None
+    idx = np.unique(np.concatenate([c[1][0] for c in cols]))
+    got = _joint_step([c[1] for c in cols], t, pos, float(np.mean(rm.len_rank[idx])))
+    if got is None or 2.0 * got[0] >= P_SYSTEMATIC or got[1] < MIN_JOINT_SIZE:
+        return None
+    return Change("step", "length", [names[cols[k][0]] for k in got[3]], got[2],
+                  _z_of(2.0 * got[0]), got[1], joint=True)
 
 
 def _prefer_steps(found: list[Change], t: np.ndarray) -> list[Change]:
@@ -346,7 +443,8 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
                 break
         # (where a sample's pose or tensions are estimated, one cable's slip moves every
         # cable's residual: the slipped cable need not show most)
-        mine = [cid for cid in c.columns if cid in offsets]
+        # (a joint step is every cable's: a named offset of one of them says nothing of it)
+        mine = [cid for cid in c.columns if cid in offsets and not c.joint]
         if c.named is None and mine:
             c.named = {"effect": "cable_length_offset", "cable": mine[0], "t_s": _round(c.t_s)}
 
