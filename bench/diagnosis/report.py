@@ -617,6 +617,8 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     flagged = model.replace(init_internal=np.zeros(k))
     best: tuple[float, tuple[str, ...]] | None = None
     rests = [tuple(sorted(c for c in sel.effects if c != e)) for e in sel.effects]
+    whole = tuple(sorted(sel.effects))
+    rests.append(whole)  # beside every chosen effect (it pays its parameters' BIC)
     jobs = []
     for rest in rests:
         phi0 = _warm(rest, sel.fit)
@@ -631,8 +633,10 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     for rest, f in zip(rests, fits, strict=True):
         say(f"{' + '.join(rest) or 'the model'} with the tensions at initialisation fitted: "
             f"BIC {f.bic:.1f} against {sel.fit.bic:.1f}")
-        # (the nuisance enters free; an effect stays only by the selection's bar over it)
-        if f.bic < sel.fit.bic + BIC_ENTER and (best is None or f.bic < best[0]):
+        # (the nuisance enters free in an effect's place, an effect stays only by the
+        # selection's bar over it; beside them all it must lower the BIC)
+        bar = sel.fit.bic if rest == whole else sel.fit.bic + BIC_ENTER
+        if f.bic < bar and (best is None or f.bic < best[0]):
             best = (f.bic, rest)
     sparse = _sparse_offsets(rm, sel.fit, flagged, train)
     if sparse is not None:
