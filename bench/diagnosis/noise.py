@@ -264,18 +264,62 @@ def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: 
     return min(best[0] * len(mids), 1.0), best[1], best[2]
 
 
-def _joint_step(cols: list[tuple], t: np.ndarray, pos: np.ndarray, rank: float
-                ) -> tuple[float, float, float, list[int]] | None:
+def _independent(resid: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """How many independent columns the residuals per error unit ``resid`` (per column: the
+    units' sorted labels and residuals) hold: the participation ratio ``(sum l)^2 / sum l^2``
+    of the eigenvalues ``l`` (negative ones as zero) of their correlation matrix, each pair
+    over the units both have (m for independent columns, 1 for one error common to all; a
+    pair with fewer than three units in common counts as independent)."""
+    m = len(resid)
+    C = np.eye(m)
+    for a in range(m):
+        for b in range(a + 1, m):
+            common, ia, ib = np.intersect1d(resid[a][0], resid[b][0], return_indices=True)
+            if len(common) < 3:
+                continue
+            xa, xb = resid[a][1][ia], resid[b][1][ib]
+            if np.std(xa) > 0 and np.std(xb) > 0:
+                C[a, b] = C[b, a] = float(np.corrcoef(xa, xb)[0, 1])
+    lam = np.clip(np.linalg.eigvalsh(C), 0.0, None)
+    return float(lam.sum() ** 2 / np.sum(lam ** 2))
+
+
+def _unit_spanned(col: tuple, unit: np.ndarray, t: np.ndarray, mids: np.ndarray
+                  ) -> np.ndarray:
+    """(len(mids),) bool: whether the replicate groups of column ``col`` (:func:`_column`'s
+    indices and groups) that have samples on both sides of each time in ``mids`` [s] hold at
+    least :data:`MIN_SPANNING` distinct error units ``unit`` (N,) on each side of it."""
+    idx, inv = col[0], col[1]
+    tt, uu = t[idx], unit[idx]
+    k = int(inv.max()) + 1
+    ok = np.zeros(len(mids), dtype=bool)
+    for i, tm in enumerate(mids):
+        before = tt < tm
+        spans = np.zeros(k, dtype=bool)
+        spans[np.intersect1d(inv[before], inv[~before])] = True
+        sel = spans[inv]
+        ok[i] = (len(np.unique(uu[sel & before])) >= MIN_SPANNING
+                 and len(np.unique(uu[sel & ~before])) >= MIN_SPANNING)
+    return ok
+
+
+def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
+                rank: float) -> tuple[float, float, float, list[int]] | None:
     """The most significant step of a block's columns together, the same time in each:
     (p-value Bonferroni-corrected over the times, size, time [s], the columns in the order of
     their share, those above what noise gives). A change of the platform (its load) moves
     every cable's length residual by a fraction of the noise, each column alone short of
     significance; summed, the columns' whitened gains ``sum_j gain_j / s2_j`` are a
-    chi-square of ``q r`` degrees of freedom under noise, ``r`` (``rank``) the independent
-    directions among the columns (a sample's length residual without tensions: 6 of n),
-    tested as F(q r, dof r). ``cols``: per column :func:`_column`'s indices, group and unit
-    labels, deviations and units' degrees of freedom, and the floor of its variance;
-    ``t`` (N,) [s] and ``pos`` (N, 3) [m] of every sample."""
+    chi-square of ``q r`` degrees of freedom under noise, ``r`` the independent columns:
+    at most ``rank`` (the directions a sample's length residual keeps: 6 of n without
+    tensions), at most what the residuals after the step show (:func:`_independent`: an
+    error common to the cables counts once), tested as F(q r, dof r); only at times where
+    the groups that span them do so with :data:`MIN_SPANNING` error units on each side
+    (:func:`_unit_spanned`: the rows of two moves are one difference, whichever the cable).
+    ``cols``:
+    per column :func:`_column`'s indices, group and unit labels, deviations and units'
+    degrees of freedom, and the floor of its variance; ``unit`` (N,) the error units'
+    labels, ``t`` (N,) [s] and ``pos`` (N, 3) [m] of every sample."""
     if len(cols) < 2 or rank < 1:
         return None
     widest = max(cols, key=lambda c: len(c[0]))  # (its groups say which times are spanned)
@@ -284,29 +328,30 @@ def _joint_step(cols: list[tuple], t: np.ndarray, pos: np.ndarray, rank: float
         return None
     dof_min = min(c[4] for c in cols)
     best = None
-    for tm in mids:
-        stat, dof_sum, q, shares, sizes = 0.0, 0.0, 0, [], []
+    for tm in mids[_unit_spanned(widest, unit, t, mids)]:
+        stat, dof_sum, q, shares, sizes, resid = 0.0, 0.0, 0, [], [], []
         for idx, inv, uinv, x, dof0, floor2 in cols:
             feats = _pose_features(pos[idx])
             if dof_min - feats.shape[1] < 8:
                 feats = feats[:, :1]
+            q = feats.shape[1]
             got = _unit_fit(x, _centre(feats * (t[idx] >= tm)[:, None], inv), uinv, dof0,
                             floor2)
-            q = feats.shape[1]
+            xs = np.bincount(uinv, weights=x)
             if got is None:
                 shares.append(0.0)
                 dof_sum += dof0 - q
+                resid.append((np.unique(unit[idx]), xs))
                 continue
             gain, s2, dof, fitted = got
             stat += gain / s2
             dof_sum += dof
             shares.append(gain / s2)
             sizes.append(_size(fitted, s2) ** 2)
-        if not sizes:
-            continue
-        r = min(float(rank), float(len(cols)))
+            resid.append((np.unique(unit[idx]), xs - fitted))
+        r = min(float(rank), _independent(resid))
         d2 = dof_sum / len(cols) * r
-        if d2 < 2:
+        if not sizes or r < 1 or d2 < 2:
             continue
         p = float(stats.f.sf(stat / (q * r), q * r, d2))
         if best is None or p < best[0]:
@@ -372,22 +417,25 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
             top = min(sig, key=lambda r: r[0])
             found.append(Change(kind, name, [r[3] for r in sorted(sig, key=lambda r: r[0])],
                                 top[2], _z_of(top[0]), top[1]))
-        if name == "length" and not any(c.block == name and c.kind == "step" for c in found):
-            joint = _joint(rm, cols, names, s.t, pos)
+        if name == "length" and not any(c.block == name and c.kind != "direction"
+                                        for c in found):
+            joint = _joint(rm, cols, names, unit, pos)
             if joint is not None:
                 found.append(joint)
     return _prefer_steps(found, s.t[live])
 
 
-def _joint(rm: ResidualModel, cols: list[tuple[int, tuple]], names: list[str], t: np.ndarray,
-           pos: np.ndarray) -> Change | None:
+def _joint(rm: ResidualModel, cols: list[tuple[int, tuple]], names: list[str],
+           unit: np.ndarray, pos: np.ndarray) -> Change | None:
     """The length block's columns tested together for a step (:func:`_joint_step`) where no
-    column alone shows one: a ``joint`` step where significant (the Bonferroni factor 2: one
-    more test beside the columns') and at least :data:`MIN_JOINT_SIZE` of the noise."""
+    column alone shows a step or a trend: a ``joint`` step where significant (the Bonferroni
+    factor 2: one more test beside the columns') and at least :data:`MIN_JOINT_SIZE` of the
+    noise."""
     if len(cols) < 2:
         return None
     idx = np.unique(np.concatenate([c[1][0] for c in cols]))
-    got = _joint_step([c[1] for c in cols], t, pos, float(np.mean(rm.len_rank[idx])))
+    got = _joint_step([c[1] for c in cols], unit, rm.s.t, pos,
+                      float(np.mean(rm.len_rank[idx])))
     if got is None or 2.0 * got[0] >= P_SYSTEMATIC or got[1] < MIN_JOINT_SIZE:
         return None
     return Change("step", "length", [names[cols[k][0]] for k in got[3]], got[2],
