@@ -15,6 +15,9 @@ its replicate group's mean) are first tested for what noise cannot do:
 - **by direction of travel**: a length residual that differs with the sign of its
   cable's last move (hysteresis, backlash).
 
+- **by time, every cable together**: where no length column alone shows a step or a trend,
+  the columns' gains summed (a new load moves every cable by less than its noise).
+
 Each test is an F-test against the deviations' own spread after it (scale-free: the
 contaminated noise estimate is never the yardstick), Bonferroni-corrected over the
 times scanned and the columns, floored by the row-to-row (white) noise, on independent
