@@ -13,8 +13,7 @@ its replicate group's mean) are first tested for what noise cannot do:
   over the campaign's times;
 - **by time, slowly**: a trend over the campaign (creep, a drift);
 - **by direction of travel**: a length residual that differs with the sign of its
-  cable's last move (hysteresis, backlash).
-
+  cable's last move (hysteresis, backlash);
 - **by time, every cable together**: where no length column alone shows a step or a trend,
   the columns' gains summed (a new load moves every cable by less than its noise).
 
