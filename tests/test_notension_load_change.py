@@ -103,3 +103,23 @@ def test_a_load_change_without_load_cells_is_a_step_and_no_change_is_none(tmp_pa
     assert steps, "the load change was not found"
     before = rm.s.t[(rm.s.t < t0) & ~rm.s.is_init].max()
     assert before < steps[0].t_s <= t0
+
+
+@pytest.mark.parametrize("size", [0.0, 40.0])
+def test_a_uniform_step_at_a_few_poses_is_found_and_noise_is_not(size):
+    """Four poses visited four times, the load changed after the first round (case 61111 of
+    `cdpr evaluate --kind load_change`: the force balance's z steps by 47 N, 40 times its
+    noise): a step smooth in the pose takes four parameters, which four replicate groups
+    nearly saturate (p 3e-10 after the correction); a uniform step is one parameter and is
+    tried too. Without a step nothing is found."""
+    rng = np.random.default_rng(3)
+    target = np.tile(np.arange(4), 4)
+    t = np.arange(16) * 25.0
+    pos = rng.uniform([-2, -2, 2], [2, 2, 3], size=(4, 3))[target]
+    x = rng.normal(0, 1.0, 16) + size * (t >= 100.0)
+    inv, unit = target, np.arange(16)
+    got = noise._step(noise._centre(x, inv), inv, unit, t, pos, 16.0 - 4.0, 1e-6)
+    if size == 0.0:
+        assert got is None or got[0] > noise.P_SYSTEMATIC
+    else:
+        assert got[0] < noise.P_SYSTEMATIC and 75.0 < got[2] < 100.0

@@ -246,24 +246,27 @@ def _pose_features(pos: np.ndarray) -> np.ndarray:
 def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
           dof0: float, floor2: float) -> tuple[float, float, float] | None:
     """The most significant step of deviations ``x`` over the candidate times: (p-value
-    Bonferroni-corrected over the times, size, time [s]). The step is the same at every
-    pose or a smooth function of it (``[1, x, y, z]`` from the step on, where the
-    degrees of freedom allow it)."""
+    Bonferroni-corrected over the times and the forms tried, size, time [s]). The step is
+    the same at every pose, or a smooth function of it (``[1, x, y, z]`` from the step on,
+    where the degrees of freedom allow it): both are tried (a uniform step, a new load in
+    the force balance, is tested by one parameter, not spread over four that a few
+    replicate groups would nearly saturate)."""
     mids = _splits(t, inv)
     if not len(mids):
         return None
     feats = _pose_features(pos)
-    if dof0 - feats.shape[1] < 8:
-        feats = feats[:, :1]
+    forms = [feats[:, :1]] if dof0 - feats.shape[1] < 8 or feats.shape[1] == 1 \
+        else [feats[:, :1], feats]
     best = None
     for tm in mids:
-        U = _centre(feats * (t >= tm)[:, None], inv)
-        got = _ftest(x, U, unit, dof0, floor2)
-        if got is not None and (best is None or got[0] < best[0]):
-            best = (got[0], got[1], float(tm))
+        after = (t >= tm)[:, None]
+        for f in forms:
+            got = _ftest(x, _centre(f * after, inv), unit, dof0, floor2)
+            if got is not None and (best is None or got[0] < best[0]):
+                best = (got[0], got[1], float(tm))
     if best is None:
         return None
-    return min(best[0] * len(mids), 1.0), best[1], best[2]
+    return min(best[0] * len(mids) * len(forms), 1.0), best[1], best[2]
 
 
 def _independent(resid: list[tuple[np.ndarray, np.ndarray]]) -> float:
