@@ -393,14 +393,12 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
         white2 = (kind_white[np.clip(s.kind, 0, 1)] ** 2 / count)
         hits: dict[str, list[tuple[float, float, float | None, str]]] = {}
         m = v.shape[1]
-        cols = []
         for j in range(m):
             col = _column(v[:, j], G[name][:, j], unit, live)
             if col is None:
                 continue
             idx, inv, uinv, x, dof0 = col
             floor2 = float(np.mean(white2[idx]))
-            cols.append((j, (*col, floor2)))
             t = s.t[idx]
             got = _step(x, inv, uinv, t, pos[idx], dof0, floor2)
             if got is not None:
@@ -424,18 +422,27 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
                                 top[2], _z_of(top[0]), top[1]))
         if name == "length" and not any(c.block == name and c.kind != "direction"
                                         for c in found):
-            joint = _joint(rm, cols, names, unit, pos)
+            joint = _joint(rm, v, G[name], names, unit, live & (s.kind == 0), white2, pos)
             if joint is not None:
                 found.append(joint)
     return _prefer_steps(found, s.t[live])
 
 
-def _joint(rm: ResidualModel, cols: list[tuple[int, tuple]], names: list[str],
-           unit: np.ndarray, pos: np.ndarray) -> Change | None:
-    """The length block's columns tested together for a step (:func:`_joint_step`) where no
-    column alone shows a step or a trend: a ``joint`` step where significant (the Bonferroni
-    factor 2: one more test beside the columns') and at least :data:`MIN_JOINT_SIZE` of the
-    noise."""
+def _joint(rm: ResidualModel, v: np.ndarray, groups: np.ndarray, names: list[str],
+           unit: np.ndarray, ok: np.ndarray, white2: np.ndarray, pos: np.ndarray
+           ) -> Change | None:
+    """The length block's columns ``v`` (N, m) in their replicate ``groups`` (N, m) tested
+    together for a step (:func:`_joint_step`) where no column alone shows a step or a
+    trend, on the samples ``ok`` (N,) (dwells: rows of moves share slow errors along the
+    move and blend those of its two stops, which the columns' sum would count as
+    independent: continuous recordings read as steps of z 7): a ``joint`` step where
+    significant (the Bonferroni factor 2: one more test beside the columns') and at least
+    :data:`MIN_JOINT_SIZE` of the noise. ``white2`` (N,) the row noise's floor per sample."""
+    cols = []
+    for j in range(v.shape[1]):
+        col = _column(v[:, j], groups[:, j], unit, ok)
+        if col is not None:
+            cols.append((j, (*col, float(np.mean(white2[col[0]])))))
     if len(cols) < 2:
         return None
     idx = np.unique(np.concatenate([c[1][0] for c in cols]))
