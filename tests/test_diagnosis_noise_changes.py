@@ -189,6 +189,7 @@ class _FakeRM:
     def __init__(self, x: np.ndarray, s: _FakeSamples) -> None:
         self.s, self.x, self.model = s, x, _FakeModel()
         self.white_k = {0: {"length": 1e-6}, 1: {"length": 1e-6}}
+        self.len_rank = np.full(len(s.t), float(x.shape[1]))  # independent columns
 
     def block_values(self, b):
         return {"length": self.x}

@@ -13,7 +13,9 @@ its replicate group's mean) are first tested for what noise cannot do:
   over the campaign's times;
 - **by time, slowly**: a trend over the campaign (creep, a drift);
 - **by direction of travel**: a length residual that differs with the sign of its
-  cable's last move (hysteresis, backlash).
+  cable's last move (hysteresis, backlash);
+- **by time, every cable together**: where no length column alone shows a step or a trend,
+  the columns' gains summed (a new load moves every cable by less than its noise).
 
 Each test is an F-test against the deviations' own spread after it (scale-free: the
 contaminated noise estimate is never the yardstick), Bonferroni-corrected over the
@@ -44,6 +46,9 @@ from bench.diagnosis.residuals import Blocks, ResidualModel
 P_SYSTEMATIC = 1e-12
 #: ... and where it is at least this large against the deviations' spread after it
 MIN_SIZE = 3.0
+#: ... for a step of all the length columns together (:func:`_joint_step`): each column moves
+#: by less than its noise alone, significance comes from their number
+MIN_JOINT_SIZE = 1.0
 #: at most this many split times are scanned (evenly over the candidates)
 MAX_SPLITS = 64
 #: a split time is scanned where at least this many replicate groups span it
@@ -72,6 +77,9 @@ class Change:
     before_s: float | None = None
     after_s: float | None = None
     named: dict | None = field(default=None)
+    #: found by the columns together (:func:`_joint_step`), none alone: a change of every
+    #: cable (the platform's load), no one cable's slip
+    joint: bool = False
 
     def entry(self) -> dict:
         """The report's object (``unexplained.changes[]``; ``mismatch.noise.systematic``)."""
@@ -80,6 +88,8 @@ class Change:
                "size_over_noise": _round(self.size, 1)}
         if self.kind == "step":
             out["between_s"] = [_round(self.before_s), _round(self.after_s)]
+        if self.joint:
+            out["joint"] = True
         if self.named is not None:
             out["named"] = dict(self.named)
         return out
@@ -115,13 +125,14 @@ def _centre(x: np.ndarray, g: np.ndarray) -> np.ndarray:
     return x - means[g]
 
 
-def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
-           ) -> tuple[float, float] | None:
-    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,), both centred within their
-    replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
+def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+              ) -> tuple[float, float, float, np.ndarray] | None:
+    """Least squares of deviations ``x`` (m,) on regressors ``U`` (m, q), both centred within
+    their replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
     independent, the samples of one are not. ``dof0`` the units' degrees of freedom before;
-    the residual variance floored at ``floor2`` per sample. Returns (p-value, RMS of the
-    fitted part over its residual spread)."""
+    the residual variance floored at ``floor2`` per sample. Returns (the sum of squares the
+    regressors take, the residual variance per unit, its degrees of freedom, the fitted part
+    per unit); None where nothing is fitted or fewer than two degrees of freedom are left."""
     q = U.shape[1]
     dof = dof0 - q
     if dof < 2 or not np.any(U):
@@ -137,11 +148,25 @@ def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: 
     gain = float(np.sum(xs * xs)) - rss1
     if gain <= 0:
         return None
-    s2 = max(rss1 / dof, floor2 * float(np.mean(size_u)))
-    p = float(stats.f.sf(gain / q / s2, q, dof))
+    return gain, max(rss1 / dof, floor2 * float(np.mean(size_u))), dof, fitted
+
+
+def _size(fitted: np.ndarray, s2: float) -> float:
+    """RMS of a fitted part over the units it moves, in units of the spread ``sqrt(s2)``."""
     moved = np.abs(fitted) > 0
-    size = math.sqrt(float(np.mean(fitted[moved] ** 2)) / s2) if moved.any() else 0.0
-    return p, size
+    return math.sqrt(float(np.mean(fitted[moved] ** 2)) / s2) if moved.any() else 0.0
+
+
+def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+           ) -> tuple[float, float] | None:
+    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,) (:func:`_unit_fit`).
+    Returns (p-value, RMS of the fitted part over its residual spread)."""
+    got = _unit_fit(x, U, unit, dof0, floor2)
+    if got is None:
+        return None
+    gain, s2, dof, fitted = got
+    q = U.shape[1]
+    return float(stats.f.sf(gain / q / s2, q, dof)), _size(fitted, s2)
 
 
 def _column(x: np.ndarray, g: np.ndarray, unit: np.ndarray, ok: np.ndarray
@@ -221,24 +246,125 @@ def _pose_features(pos: np.ndarray) -> np.ndarray:
 def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
           dof0: float, floor2: float) -> tuple[float, float, float] | None:
     """The most significant step of deviations ``x`` over the candidate times: (p-value
-    Bonferroni-corrected over the times, size, time [s]). The step is the same at every
-    pose or a smooth function of it (``[1, x, y, z]`` from the step on, where the
-    degrees of freedom allow it)."""
+    Bonferroni-corrected over the times and the forms tried, size, time [s]). The step is
+    the same at every pose, or a smooth function of it (``[1, x, y, z]`` from the step on,
+    where the degrees of freedom allow it): both are tried (a uniform step, a new load in
+    the force balance, is tested by one parameter, not spread over four that a few
+    replicate groups would nearly saturate)."""
     mids = _splits(t, inv)
     if not len(mids):
         return None
     feats = _pose_features(pos)
-    if dof0 - feats.shape[1] < 8:
-        feats = feats[:, :1]
+    forms = [feats[:, :1]] if dof0 - feats.shape[1] < 8 or feats.shape[1] == 1 \
+        else [feats[:, :1], feats]
     best = None
     for tm in mids:
-        U = _centre(feats * (t >= tm)[:, None], inv)
-        got = _ftest(x, U, unit, dof0, floor2)
-        if got is not None and (best is None or got[0] < best[0]):
-            best = (got[0], got[1], float(tm))
+        after = (t >= tm)[:, None]
+        for f in forms:
+            got = _ftest(x, _centre(f * after, inv), unit, dof0, floor2)
+            if got is not None and (best is None or got[0] < best[0]):
+                best = (got[0], got[1], float(tm))
     if best is None:
         return None
-    return min(best[0] * len(mids), 1.0), best[1], best[2]
+    return min(best[0] * len(mids) * len(forms), 1.0), best[1], best[2]
+
+
+def _independent(resid: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """How many independent columns the residuals per error unit ``resid`` (per column: the
+    units' sorted labels and residuals) hold: the participation ratio ``(sum l)^2 / sum l^2``
+    of the eigenvalues ``l`` (negative ones as zero) of their correlation matrix, each pair
+    over the units both have (m for independent columns, 1 for one error common to all; a
+    pair with fewer than three units in common counts as independent)."""
+    m = len(resid)
+    C = np.eye(m)
+    for a in range(m):
+        for b in range(a + 1, m):
+            common, ia, ib = np.intersect1d(resid[a][0], resid[b][0], return_indices=True)
+            if len(common) < 3:
+                continue
+            xa, xb = resid[a][1][ia], resid[b][1][ib]
+            if np.std(xa) > 0 and np.std(xb) > 0:
+                C[a, b] = C[b, a] = float(np.corrcoef(xa, xb)[0, 1])
+    lam = np.clip(np.linalg.eigvalsh(C), 0.0, None)
+    return float(lam.sum() ** 2 / np.sum(lam ** 2))
+
+
+def _unit_spanned(col: tuple, unit: np.ndarray, t: np.ndarray, mids: np.ndarray
+                  ) -> np.ndarray:
+    """(len(mids),) bool: whether the replicate groups of column ``col`` (:func:`_column`'s
+    indices and groups) that have samples on both sides of each time in ``mids`` [s] hold at
+    least :data:`MIN_SPANNING` distinct error units ``unit`` (N,) on each side of it."""
+    idx, inv = col[0], col[1]
+    tt, uu = t[idx], unit[idx]
+    k = int(inv.max()) + 1
+    ok = np.zeros(len(mids), dtype=bool)
+    for i, tm in enumerate(mids):
+        before = tt < tm
+        spans = np.zeros(k, dtype=bool)
+        spans[np.intersect1d(inv[before], inv[~before])] = True
+        sel = spans[inv]
+        ok[i] = (len(np.unique(uu[sel & before])) >= MIN_SPANNING
+                 and len(np.unique(uu[sel & ~before])) >= MIN_SPANNING)
+    return ok
+
+
+def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
+                rank: float) -> tuple[float, float, float, list[int]] | None:
+    """The most significant step of a block's columns together, the same time in each:
+    (p-value Bonferroni-corrected over the times, size, time [s], the columns in the order of
+    their share, those above what noise gives). A change of the platform (its load) moves
+    every cable's length residual by a fraction of the noise, each column alone short of
+    significance; summed, the columns' whitened gains ``sum_j gain_j / s2_j`` are a
+    chi-square of ``q r`` degrees of freedom under noise, ``r`` the independent columns:
+    at most ``rank`` (the directions a sample's length residual keeps: 6 of n without
+    tensions), at most what the residuals after the step show (:func:`_independent`: an
+    error common to the cables counts once), tested as F(q r, dof r); only at times where
+    the groups that span them do so with :data:`MIN_SPANNING` error units on each side
+    (:func:`_unit_spanned`: the rows of two moves are one difference, whichever the cable).
+    ``cols``:
+    per column :func:`_column`'s indices, group and unit labels, deviations and units'
+    degrees of freedom, and the floor of its variance; ``unit`` (N,) the error units'
+    labels, ``t`` (N,) [s] and ``pos`` (N, 3) [m] of every sample."""
+    if len(cols) < 2 or rank < 1:
+        return None
+    widest = max(cols, key=lambda c: len(c[0]))  # (its groups say which times are spanned)
+    mids = _splits(t[widest[0]], widest[1])
+    if not len(mids):
+        return None
+    dof_min = min(c[4] for c in cols)
+    best = None
+    for tm in mids[_unit_spanned(widest, unit, t, mids)]:
+        stat, dof_sum, q, shares, sizes, resid = 0.0, 0.0, 0, [], [], []
+        for idx, inv, uinv, x, dof0, floor2 in cols:
+            feats = _pose_features(pos[idx])
+            if dof_min - feats.shape[1] < 8:
+                feats = feats[:, :1]
+            q = feats.shape[1]
+            got = _unit_fit(x, _centre(feats * (t[idx] >= tm)[:, None], inv), uinv, dof0,
+                            floor2)
+            xs = np.bincount(uinv, weights=x)
+            if got is None:
+                shares.append(0.0)
+                dof_sum += dof0 - q
+                resid.append((np.unique(unit[idx]), xs))
+                continue
+            gain, s2, dof, fitted = got
+            stat += gain / s2
+            dof_sum += dof
+            shares.append(gain / s2)
+            sizes.append(_size(fitted, s2) ** 2)
+            resid.append((np.unique(unit[idx]), xs - fitted))
+        r = min(float(rank), _independent(resid))
+        d2 = dof_sum / len(cols) * r
+        if not sizes or r < 1 or d2 < 2:
+            continue
+        p = float(stats.f.sf(stat / (q * r), q * r, d2))
+        if best is None or p < best[0]:
+            order = [int(k) for k in np.argsort(shares)[::-1] if shares[k] > q]
+            best = (p, math.sqrt(float(np.mean(sizes))), float(tm), order)
+    if best is None:
+        return None
+    return min(best[0] * len(mids), 1.0), best[1], best[2], best[3]
 
 
 def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | None = None
@@ -294,7 +420,38 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
             top = min(sig, key=lambda r: r[0])
             found.append(Change(kind, name, [r[3] for r in sorted(sig, key=lambda r: r[0])],
                                 top[2], _z_of(top[0]), top[1]))
+        if name == "length" and not any(c.block == name and c.kind != "direction"
+                                        for c in found):
+            joint = _joint(rm, v, G[name], names, unit, live & (s.kind == 0), white2, pos)
+            if joint is not None:
+                found.append(joint)
     return _prefer_steps(found, s.t[live])
+
+
+def _joint(rm: ResidualModel, v: np.ndarray, groups: np.ndarray, names: list[str],
+           unit: np.ndarray, ok: np.ndarray, white2: np.ndarray, pos: np.ndarray
+           ) -> Change | None:
+    """The length block's columns ``v`` (N, m) in their replicate ``groups`` (N, m) tested
+    together for a step (:func:`_joint_step`) where no column alone shows a step or a
+    trend, on the samples ``ok`` (N,) (dwells: rows of moves share slow errors along the
+    move and blend those of its two stops, which the columns' sum would count as
+    independent: continuous recordings read as steps of z 7): a ``joint`` step where
+    significant (the Bonferroni factor 2: one more test beside the columns') and at least
+    :data:`MIN_JOINT_SIZE` of the noise. ``white2`` (N,) the row noise's floor per sample."""
+    cols = []
+    for j in range(v.shape[1]):
+        col = _column(v[:, j], groups[:, j], unit, ok)
+        if col is not None:
+            cols.append((j, (*col, float(np.mean(white2[col[0]])))))
+    if len(cols) < 2:
+        return None
+    idx = np.unique(np.concatenate([c[1][0] for c in cols]))
+    got = _joint_step([c[1] for c in cols], unit, rm.s.t, pos,
+                      float(np.mean(rm.len_rank[idx])))
+    if got is None or 2.0 * got[0] >= P_SYSTEMATIC or got[1] < MIN_JOINT_SIZE:
+        return None
+    return Change("step", "length", [names[cols[k][0]] for k in got[3]], got[2],
+                  _z_of(2.0 * got[0]), got[1], joint=True)
 
 
 def _prefer_steps(found: list[Change], t: np.ndarray) -> list[Change]:
@@ -346,7 +503,8 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
                 break
         # (where a sample's pose or tensions are estimated, one cable's slip moves every
         # cable's residual: the slipped cable need not show most)
-        mine = [cid for cid in c.columns if cid in offsets]
+        # (a joint step is every cable's: a named offset of one of them says nothing of it)
+        mine = [cid for cid in c.columns if cid in offsets and not c.joint]
         if c.named is None and mine:
             c.named = {"effect": "cable_length_offset", "cable": mine[0], "t_s": _round(c.t_s)}
 

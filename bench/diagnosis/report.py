@@ -614,10 +614,12 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     take up. Where one chosen effect, dropped, is replaced by such internal forces
     (:attr:`~controller.robot.Robot.init_internal`, fitted beside the others) at a BIC
     less than :data:`BIC_ENTER` higher (the nuisance comes free, an effect stays by the
-    selection's bar over it), or the chosen length offsets are fewer with them
-    (:func:`_sparse_offsets`), the selection runs again with them in every fit (from the
-    other effects) and is kept where its BIC, charged BIC_ENTER per effect, is lower;
-    else the first selection stands."""
+    selection's bar over it), or fitted beside all the chosen effects at a lower BIC (off
+    the initialisation pose a pretension's stretch reads as scale-like errors of a few
+    cables: drum scales beside the true one), or the chosen length offsets are fewer with
+    them (:func:`_sparse_offsets`; the chosen effects then start from that gauge), the
+    selection runs again with them in every fit (from the other effects) and is kept where
+    its BIC, charged BIC_ENTER per effect, is lower; else the first selection stands."""
     k = rm.init_basis.shape[1]
     if rm.tau0 is not None or k == 0 or not sel.effects or rm.model.init_internal is not None:
         return selector, sel
@@ -625,6 +627,8 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     flagged = model.replace(init_internal=np.zeros(k))
     best: tuple[float, tuple[str, ...]] | None = None
     rests = [tuple(sorted(c for c in sel.effects if c != e)) for e in sel.effects]
+    whole = tuple(sel.fit.space.effects)
+    rests.append(whole)  # beside every chosen effect (it pays its parameters' BIC)
     jobs = []
     for rest in rests:
         phi0 = _warm(rest, sel.fit)
@@ -639,18 +643,19 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     for rest, f in zip(rests, fits, strict=True):
         say(f"{' + '.join(rest) or 'the model'} with the tensions at initialisation fitted: "
             f"BIC {f.bic:.1f} against {sel.fit.bic:.1f}")
-        # (the nuisance enters free; an effect stays only by the selection's bar over it)
-        if f.bic < sel.fit.bic + BIC_ENTER and (best is None or f.bic < best[0]):
+        # (the nuisance enters free in an effect's place, an effect stays only by the
+        # selection's bar over it; beside them all it must lower the BIC)
+        bar = sel.fit.bic if rest == whole else sel.fit.bic + BIC_ENTER
+        if f.bic < bar and (best is None or f.bic < best[0]):
             best = (f.bic, rest)
     sparse = _sparse_offsets(rm, sel.fit, flagged, train)
     if sparse is not None:
         say(f"{' + '.join(sel.fit.space.effects)} with the tensions at initialisation fitted "
             f"and fewer length offsets: BIC {sparse.bic:.1f} against {sel.fit.bic:.1f}")
-        if sparse.bic < sel.fit.bic and (best is None
-                                         or sparse.bic + BIC_ENTER < best[0]):
-            best = (sparse.bic + BIC_ENTER, tuple(sel.fit.space.effects))
-        else:
+        if sparse.bic >= sel.fit.bic:
             sparse = None
+        elif best is None or sparse.bic + BIC_ENTER < best[0]:
+            best = (sparse.bic + BIC_ENTER, whole)
     if best is None:
         return selector, sel
     say("the tensions at initialisation are not the distribution's: the selection again "
@@ -658,8 +663,10 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     rm.model = flagged
     again = Selector(rm, train, holdouts, progress=say, pool=pool)
     again.restarted = set(selector.restarted)
-    if sparse is not None and best[1] == tuple(sel.fit.space.effects):
-        again.cache[best[1]] = sparse  # (the search starts from the fit in that gauge)
+    if sparse is not None and best[1] == whole:
+        # (the search starts from the fit in that gauge: the same effects with the tensions
+        # fitted, its offsets the fewest)
+        again.cache[best[1]] = sparse
     sel2 = again.run(candidates, best[1])
     if sel2.fit.bic + BIC_ENTER * len(sel2.effects) < sel.fit.bic + BIC_ENTER * len(sel.effects):
         return again, sel2
