@@ -35,8 +35,9 @@ def _log(end: np.ndarray) -> tuple[Recording, ResidualModel]:
         tau.append(ps.tensions)
     N, n = len(t), robot.n_cables
     nan = np.full((N, 6), np.nan)
-    rec = Recording(Path("."), robot, {}, P0, t, nan, nan.copy(), np.array(tau),
-                    np.array(lengths), np.full((N, n), np.nan), np.full((N, n, 3), np.nan))
+    rec = Recording(Path("."), robot, {}, P0, t, nan, nan.copy(), np.full((N, n), np.nan),
+                    np.array(lengths), np.array(tau), np.full((N, n, 3), np.nan),
+                    init_rows=np.flatnonzero(t < 3.0))
     s = prepare(rec)
     return rec, ResidualModel(s, robot, rec.init_pose, rec.init_tensions, rows=s.triples)
 
