@@ -61,6 +61,8 @@ WHAT = {
                  "(backlash or friction in the winch?)",
     "stretch": "the stretch is not proportional to the tension (a rope that stiffens or "
                "softens with load?)",
+    "cell_friction": "friction at the load cells (their readings, and the stretch computed "
+                     "from them, differ by the direction of each cable's last move)",
 }
 
 
@@ -153,16 +155,18 @@ class Stand:
 
 
 def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
-           idx: np.ndarray | None = None) -> tuple[list[ProbeResult], list[Stand]]:
+           idx: np.ndarray | None = None,
+           cols: list[tuple[str, str | None, np.ndarray]] | None = None
+           ) -> tuple[list[ProbeResult], list[Stand]]:
     """Each probe column fitted beside the fitted parameters of ``space`` (at ``phi``; the
     ones the fit held at the model's values stay held), linearised there, on the samples
     ``idx`` (all by default): its fitted value, BIC change and size, the findings marked
     (:data:`PROBE_BIC`, :data:`PROBE_SIZE`). Then each effect of ``space`` with a probe in
     its place: the effects a probe of size above the noise replaces within
-    ``select.BIC_TIE``."""
+    ``select.BIC_TIE``. ``cols`` replaces the probes' columns (:func:`columns`)."""
     from bench.diagnosis.select import BIC_TIE, _bounded_lstsq
 
-    cols = columns(rm)
+    cols = columns(rm) if cols is None else cols
     if not cols:
         return [], []
     robot = space.robot(phi)
@@ -326,6 +330,44 @@ def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> l
                    f"{WHAT[p.name]}{where} explains the data as well or better {place} (BIC "
                    f"{st.delta_bic:+.0f}, {p.size_over_noise:.1f} times the noise)")
     return out
+
+
+def friction_column(rm: ResidualModel, cables: list[str]
+                    ) -> tuple[str, str | None, np.ndarray] | None:
+    """The ``cell_friction`` probe's column: the load cells of ``cables`` read one friction
+    force [N] lower or higher by the direction of each cable's last move, and the stretch
+    the residual model computes from their readings (``tau L / EA``) with them: a length
+    change (N, n) [m per N of the difference between paying out and reeling in] of
+    ``0.5 sign(direction) L / EA`` on those cables' samples with a reading. None where it
+    changes no length (inextensible cables, no readings or directions)."""
+    s, model = rm.s, rm.model
+    n = model.n_cables
+    if s.direction.shape != (s.n, n) or np.asarray(s.tau).shape != (s.n, n):
+        return None
+    on = np.zeros(n, dtype=bool)
+    on[[model.cable_ids.index(c) for c in cables if c in model.cable_ids]] = True
+    ea = np.asarray(model.ea, float)
+    on &= np.isfinite(ea) & (ea > 0)
+    read = np.isfinite(np.asarray(s.tau, float)) & ~s.is_init[:, None] & on[None, :]
+    lengths = np.where(np.isfinite(s.l_meas), np.abs(s.l_meas), 0.0)
+    x = np.where(read, 0.5 * np.sign(s.direction) * lengths / np.where(on, ea, 1.0), 0.0)
+    x = np.nan_to_num(x)
+    if not np.any(x[rm.has_len] != 0.0):
+        return None
+    return ("cell_friction", None, x)
+
+
+def friction_stands(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
+                    cables: list[str]) -> list[Stand]:
+    """The named effects (``space`` at ``phi``) that the load cells' friction, found on
+    ``cables`` (the residual tests' direction-dependent readings), replaces about as well
+    through the stretch computed from the readings (:func:`friction_column`,
+    :func:`screen`'s test): a stretch misread by direction follows the moves, as a
+    tracker's latency or a length offset of each cable can."""
+    col = friction_column(rm, cables)
+    if col is None:
+        return []
+    return screen(rm, space, phi, cols=[col])[1]
 
 
 def through_lookalike(rm: ResidualModel, effect: str, lookalike: str, fit_space: ParamSpace,

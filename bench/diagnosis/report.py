@@ -878,6 +878,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     probed = _lookalike_stands(rm, selector, sel, params, candidates, probed, say)
     leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
                                    model.pivots, model.mast_ids, fitted, probed)
+    leftover = _friction_in_question(rm, final, leftover, probed)
     leftover = unexplained.with_changes(leftover, changes, {
         c: float(t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
         if t > rm.init_end}, {k[len("dl_"):] for k in params.get("cable_length_offset", {})})
@@ -1015,6 +1016,28 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     }
     return Diagnosis(plain(report), rec, s, rm, sel, fitted, base_fw, fit_fw, test,
                      write_error)
+
+
+def _friction_in_question(rm: ResidualModel, final: FitResult, leftover: dict | None,
+                          probed) -> dict | None:
+    """``leftover`` with the named effects that the load cells' friction it found
+    (``load_cell_direction_cables``) stands for (:func:`probes.friction_stands`) put in
+    question: a finding each, and ``effects_in_question``."""
+    cables = (leftover or {}).get("load_cell_direction_cables")
+    if not cables:
+        return leftover
+    seen = {st.effect for st in (probed[1] if probed else [])}
+    try:
+        more = [st for st in probes.friction_stands(rm, final.space, final.phi, cables)
+                if st.effect not in seen]
+    except (ValueError, np.linalg.LinAlgError):  # a check beside the answer
+        return leftover
+    if not more:
+        return leftover
+    findings = leftover["findings"] + probes.findings([], more)
+    asked = leftover.get("effects_in_question", []) + [st.as_dict() for st in more]
+    return leftover | {"findings": findings, "summary": "; ".join(findings),
+                       "effects_in_question": asked}
 
 
 def _lookalike_stands(rm: ResidualModel, selector: Selector, sel: Selection,

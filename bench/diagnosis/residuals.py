@@ -451,18 +451,11 @@ class ResidualModel:
 
     def _kinematic_starts(self, idx: np.ndarray) -> np.ndarray:
         """(M,6) start poses of the samples ``idx`` for :meth:`_estimate_poses` without a
-        commanded pose: the recording's model's least-squares pose of rigid cables as long
-        as the encoder readings (the readings are the model's lengths at the
-        initialisation), from the initial pose; the initial pose where that fails. The
-        damped steps of the estimate (5 cm each) could not reach a target metres away
-        from the initial pose. Depends on the recording only (computed once per sample)."""
-        s = self.s
-        todo = [i for i in idx if not np.isfinite(self._kin_start[i]).all()]
-        for i in todo:
-            tau = s.tau[i] if np.isfinite(s.tau[i]).all() else None
-            res = forward_rigid(self.model, s.l_meas[i], self.init_pose, tensions=tau)
-            ok = bool(np.isfinite(res.pose).all()) and bool(res.residual < 0.05)
-            self._kin_start[i] = res.pose if ok else self.init_pose
+        commanded pose (:func:`kinematic_starts`; the damped steps of the estimate, 5 cm
+        each, could not reach a target metres away from the initial pose). Depends on the
+        recording only: computed for every sample at the first call."""
+        if not np.isfinite(self._kin_start).all():
+            self._kin_start = kinematic_starts(self.model, self.s, self.init_pose)
         return self._kin_start[idx]
 
     def _estimate_poses(self, H: Robot, read: np.ndarray, idx: np.ndarray,
@@ -494,8 +487,10 @@ class ResidualModel:
                 if np.abs(dp).max() < 1e-10:
                     break
             return p
-        start = np.where(np.isfinite(s.pose_des[idx]), s.pose_des[idx],
-                         self._kinematic_starts(idx))
+        start = s.pose_des[idx].copy()
+        none = ~np.isfinite(start).all(axis=1)
+        if none.any():
+            start[none] = self._kinematic_starts(idx[none])
         p = start.copy()
         last = self._pose_est[idx]
         near = np.isfinite(last).all(axis=1) & \
@@ -1207,6 +1202,34 @@ class ResidualModel:
                 e[~self.has_exit[i]] = np.nan
                 exit_err[i] = e
         return Forward(pose_err, tension_err, exit_err, ok)
+
+
+#: [m] RMS of the rigid forward kinematics' length misfit above which no start is kept
+KIN_RESIDUAL_M = 0.05
+
+
+def kinematic_starts(model: Robot, s: Samples, init_pose: np.ndarray) -> np.ndarray:
+    """(N,6) least-squares poses of rigid cables as long as each sample's encoder readings
+    (the readings are ``model``'s lengths at the initialisation), the initial pose where
+    that fails (misfit above :data:`KIN_RESIDUAL_M` RMS). Each sample is solved in time
+    order from two starts, ``init_pose`` and the solution of the sample before it (the
+    platform moves continuously: the branch the recording is on), and the solution of
+    the smaller misfit kept: from the initial pose alone, a target metres away can land
+    on a mirrored branch (the platform turned over, its slack cables read long: 16 mm RMS
+    where the platform's own pose fits to 1.2 mm)."""
+    out = np.tile(np.asarray(init_pose, float), (s.n, 1))
+    prev: np.ndarray | None = None
+    for i in np.argsort(np.asarray(s.t, float), kind="stable"):
+        tau = s.tau[i] if np.isfinite(s.tau[i]).all() else None
+        best = None
+        for start in (init_pose,) if prev is None else (init_pose, prev):
+            res = forward_rigid(model, s.l_meas[i], start, tensions=tau)
+            if np.isfinite(res.pose).all() and res.residual < KIN_RESIDUAL_M and (
+                    best is None or res.residual < best.residual):
+                best = res
+        if best is not None:
+            out[i] = prev = best.pose
+    return out
 
 
 def _blend(ts: np.ndarray, t: np.ndarray) -> np.ndarray:
