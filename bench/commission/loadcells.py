@@ -50,10 +50,15 @@ class RawMean:
 def measure_raw(client, k: int, samples: int, timeout_s: float = 10.0,
                 period_s: float = 0.02) -> RawMean:
     """Mean of ``samples`` fresh raw readings of cell ``k`` (``client`` with the identity
-    calibration, not started: polled here). CommissionError when the cell is not OK or its
-    counter does not advance within ``timeout_s``."""
+    calibration, not started: polled here). A poll without an answer (a frame lost on the
+    line, a unit slow to answer) is polled again until ``timeout_s``; CommissionError when the
+    cell reports a fault (sensor fault, out of range, a Modbus exception, not a number), when
+    no valid reading came within ``timeout_s`` (naming the last problem), or when its counter
+    does not advance within ``timeout_s``."""
     from hal.loadcell_client import CableStatus
 
+    transient = {CableStatus.NO_DATA, CableStatus.STALE, CableStatus.TIMEOUT,
+                 CableStatus.COMM_ERROR}
     values: list[float] = []
     last_counter = None
     deadline = time.monotonic() + timeout_s
@@ -62,7 +67,13 @@ def measure_raw(client, k: int, samples: int, timeout_s: float = 10.0,
         r = client.read()
         st = CableStatus(int(r.status[k]))
         if st is not CableStatus.OK:
-            raise CommissionError(f"{r.messages[k] or client.map.describe(k)}: no valid reading")
+            what = r.messages[k] or client.map.describe(k)
+            if st not in transient:
+                raise CommissionError(f"{what}: no valid reading")
+            if time.monotonic() > deadline:
+                raise CommissionError(f"{what}: no valid reading within {timeout_s:g} s")
+            time.sleep(period_s)
+            continue
         counter = int(r.counter[k])
         if counter != last_counter:
             if last_counter is not None:  # the first value may predate the load
