@@ -273,6 +273,7 @@ def interruption(exc: BaseException) -> tuple[int, str]:
     """The exit status and the message of an interruption: ``(130, "interrupted (SIGINT)")``
     for Ctrl-C (KeyboardInterrupt), ``(143, "terminated (SIGTERM)")`` for SIGTERM (128 + the
     signal's number, as a shell reports a process the signal killed)."""
+    _PENDING.clear()
     if isinstance(exc, Terminated):
         try:
             name = signal.Signals(exc.signum).name
@@ -290,26 +291,49 @@ def signal_exit(signum: int) -> tuple[int, str]:
     return interruption(Terminated(signum))
 
 
+#: signals :func:`interrupt_on_term` raised as exceptions and no handler has yet taken
+#: (:func:`raise_pending`)
+_PENDING: list[int] = []
+
+
 @contextlib.contextmanager
 def interrupt_on_term():
     """Within the block, SIGTERM and SIGHUP raise :class:`Terminated` (a KeyboardInterrupt) in
-    the main thread, so that ``finally`` blocks run and worker processes are ended."""
+    the main thread, so that ``finally`` blocks run and worker processes are ended; SIGINT
+    raises KeyboardInterrupt as Python's own handler does. Each signal is also remembered
+    until :func:`interruption` takes it: an exception raised while a garbage-collector
+    callback or a ``__del__`` runs is lost (Python prints it and goes on), and a loop that
+    calls :func:`raise_pending` raises it again."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum, frame):
+        _PENDING.append(signum)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
         raise Terminated(signum)
 
     old = {}
-    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT):
         if sig is not None:
             old[sig] = signal.signal(sig, handler)
+    _PENDING.clear()
     try:
         yield
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
+        _PENDING.clear()
+
+
+def raise_pending() -> None:
+    """Raise again the interruption of a signal whose exception was lost (see
+    :func:`interrupt_on_term`); nothing when none is pending. For the loops of long-running
+    commands, once per iteration."""
+    if _PENDING:
+        signum = _PENDING[-1]
+        raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
 
 
 class SchedulerError(RuntimeError):

@@ -49,6 +49,7 @@ from bench.commission.common import (
     winches_of,
 )
 from bench.commission.report import Section
+from bench.parallel import raise_pending
 from hal.event_log import SEVERITIES
 
 STATE_SHORT = {"NOT_READY_TO_SWITCH_ON": "not ready", "SWITCH_ON_DISABLED": "disabled",
@@ -370,6 +371,7 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                                 "bus_load": counter.load(w.bus.bitrate, now),
                                 "frames": counter.frames,
                                 "events_new": [e.as_dict() for e in new]}), flush=True)
+                        raise_pending()  # a signal whose exception a gc callback lost
                         if t_end is not None and now >= t_end:
                             why = f"--duration {args.duration:g} s"
                             break
