@@ -751,6 +751,30 @@ def _thin_targets(target: np.ndarray, is_init: np.ndarray, room: int) -> np.ndar
     return np.array(sorted(set(keep))[:room], dtype=int)
 
 
+#: rows standing (every reading's change within the first noise estimate's reach) needed to
+#: estimate the readings' noise from them alone
+STANDING_ROWS_MIN = 20
+
+
+def _standing_noise(t: np.ndarray, src: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(n,) white noise [m] of the readings ``src`` (N, n) from the rows where they stand:
+    the second differences of :func:`signal_noise` also hold the motion's accelerations
+    where rows are slow against the moves (15 Hz rows of a continuous recording read 60 um
+    for 5 um of noise), so the rows whose change ``d`` (N, n) stays within 3 such standard
+    deviations of a difference are taken again, their changes' robust spread / sqrt(2)
+    kept, and the rows taken again with that (three times: the slow ends of the moves drop
+    out); zeros (no noise known) with fewer than :data:`STANDING_ROWS_MIN` such rows."""
+    sd = signal_noise(t, src)
+    for _ in range(3):
+        with np.errstate(invalid="ignore"):
+            still = np.all(np.abs(d[1:]) <= 3.0 * np.sqrt(2.0) * sd, axis=1)
+        if still.sum() < STANDING_ROWS_MIN:
+            return np.zeros(src.shape[1])
+        x = d[1:][still]
+        sd = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0) / np.sqrt(2.0)
+    return sd
+
+
 def _directions(rec: Recording, rows: np.ndarray) -> np.ndarray:
     """Sign of each cable's last length change before each of ``rows`` (encoder readings, or
     commanded lengths)."""
@@ -763,7 +787,7 @@ def _directions(rec: Recording, rows: np.ndarray) -> np.ndarray:
     d[1:] = np.diff(src, axis=0)
     # a change counts beyond STILL_M / 2 and beyond 3 standard deviations of the
     # difference of two noisy readings (a reading's white noise must not set the sign)
-    lim = np.maximum(STILL_M / 2, 3.0 * np.sqrt(2.0) * signal_noise(rec.t, src))
+    lim = np.maximum(STILL_M / 2, 3.0 * np.sqrt(2.0) * _standing_noise(rec.t, src, d))
     with np.errstate(invalid="ignore"):
         d = np.nan_to_num(np.where(np.abs(d) > lim, np.sign(d), 0.0))
     # carry the last nonzero sign forward: index of the last row with a move, per cable
