@@ -735,13 +735,9 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         Jf = Jf[:-lik.n_extra] if len(Jf) else Jf
     n_res = len(r)
     if free.any():
-        groups = rm.entry_blocks(idx)
-        errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx),
-                                rm.entry_columns(idx), rm.entry_moves(idx), groups, n_eff,
-                                rm.entry_directions(idx), rm.entry_knots(idx),
-                                (n_eff - lost) / max(n_eff, 1e-12))
-        cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r, groups,
-                                  errors)
+        errors = error_structure(rm, idx, lost)
+        cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r,
+                                  errors.stretches, errors)
     else:
         cov, se = np.zeros((0, 0)), np.zeros(0)
     se_all = np.full(len(x), np.inf)
@@ -1029,6 +1025,17 @@ MIN_KEPT_SHARED = 0.5
 NCOMP = 5
 
 
+def error_structure(rm, idx: np.ndarray, lost: float | None = None) -> ErrorStructure:
+    """The :class:`ErrorStructure` of the entries of ``rm``'s (a ResidualModel) whitened
+    residuals on the samples ``idx``: ``n_eff`` their weights summed; ``lost`` the degrees of
+    freedom per-sample unknowns take (``kept`` their complement's share; None: 1)."""
+    w = rm.entry_weights(idx)
+    n_eff = float(w.sum())
+    kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
+    return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
+                          rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
+                          rm.entry_knots(idx), kept)
+
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a
     variance-components model of the unweighted whitened residuals ``u = r / sqrt(weight)``.
@@ -1280,13 +1287,9 @@ def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) 
 
     J = fd_jacobian(fun, fit.phi[free], r, space.scale[free] * 1e-2, space.lo[free],
                     space.hi[free], rm.frozen)
-    n_eff = float(rm.entry_weights(idx).sum())
     lost = rm.dof_lost(idx)
-    errors = ErrorStructure(rm.entry_weights(idx), rm.entry_kinds(idx), rm.entry_columns(idx),
-                            rm.entry_moves(idx), rm.entry_blocks(idx), n_eff,
-                            rm.entry_directions(idx), rm.entry_knots(idx),
-                            (n_eff - lost) / max(n_eff, 1e-12))
-    v = direction_bias_var(J, r, cols, n_eff - lost, space.scale[free], errors)
+    errors = error_structure(rm, idx, lost)
+    v = direction_bias_var(J, r, cols, errors.n_eff - lost, space.scale[free], errors)
     out[free] = np.where(dl[free], v, 0.0)
     return out
 

@@ -29,9 +29,9 @@ import numpy as np
 from bench.diagnosis import gauge
 from bench.diagnosis.fit import (
     MAX_NFEV,
-    ErrorStructure,
     FitResult,
     error_meat,
+    error_structure,
     fd_jacobian,
     fit_effects,
 )
@@ -507,10 +507,7 @@ class Selector:
         if d <= 0.0 or len(diff) != len(r):
             return 2.0 * np.sqrt(max(d, 0.0))
         rm = self.rm
-        w = rm.entry_weights(idx)
-        errors = ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx),
-                                rm.entry_moves(idx), rm.entry_blocks(idx), float(w.sum()),
-                                rm.entry_directions(idx), rm.entry_knots(idx))
+        errors = error_structure(rm, idx)
         beside = r - diff * float(diff @ r) / d
         try:
             var = float(error_meat(diff[:, None], beside, errors)[0, 0])
