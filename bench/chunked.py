@@ -133,10 +133,8 @@ def iter_blocks(p: Path, header: list[str], block_bytes: int | None = None):
                     t = cols["t"]
                     if last_t is not None and len(t) and t[0] < last_t:
                         raise RecordingError(
-                            f"{p}:{_first_row_line(data, line)}: column "
-                            f"{header.index('t') + 1} 't': time goes back from {last_t:.6g} s "
-                            f"(line {last_line}) to {t[0]:.6g} s: the rows of a file must be in "
-                            f"time order (equal times allowed)")
+                            f"{p}:{_first_row_line(data, line)}: "
+                            f"{st.time_back_message(header, last_t, last_line, t[0])}")
                     if len(t):
                         last_t, last_line = float(t[-1]), _last_row_line(data, line)
                     yield cols, states, len(data)

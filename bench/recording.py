@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from bench.streams import loose_columns, time_goes_back
+from bench.streams import loose_columns, time_back_message, time_goes_back
 from controller.robot import Robot, RobotFileError, dumps_robot, load_robot
 from controller.tomlfile import decode_utf8, read_toml
 
@@ -359,10 +359,8 @@ def _read_csv_rows(p: Path, header: list[str], text: str | None = None, first_li
         raise RecordingError(f"{p}:{line}: column {header.index('t') + 1} 't': time missing")
     back = time_goes_back(t)
     if back is not None:
-        raise RecordingError(
-            f"{p}:{lines[back]}: column {header.index('t') + 1} 't': time goes back from "
-            f"{t[back - 1]:.6g} s (line {lines[back - 1]}) to {t[back]:.6g} s: the rows of a "
-            f"file must be in time order (equal times allowed)")
+        raise RecordingError(f"{p}:{lines[back]}: "
+                             f"{time_back_message(header, t[back - 1], lines[back - 1], t[back])}")
     return header, {name: data[:, k] for k, name in enumerate(names)}, \
         (states if state_col >= 0 else None)
 

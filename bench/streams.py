@@ -73,6 +73,14 @@ def time_goes_back(t: np.ndarray) -> int | None:
     return int(back[0]) + 1 if len(back) else None
 
 
+def time_back_message(header: list[str], t_from: float, line_from: int, t_to: float) -> str:
+    """What is wrong with a row whose time ``t_to`` [s] is earlier than ``t_from`` [s] of the
+    row at line ``line_from`` (the caller puts the file and the row's line before it)."""
+    return (f"column {header.index('t') + 1} 't': time goes back from {t_from:.6g} s (line "
+            f"{line_from}) to {t_to:.6g} s: the rows of a file must be in time order (equal "
+            f"times allowed)")
+
+
 #: the process that first used polars: its thread pool lives there only, and a process
 #: forked from it (the project's process pools fork) deadlocks in polars, so such a child
 #: reads row by row (polars' own warning on fork says the same)
