@@ -854,7 +854,7 @@ def _diagnose_case(seed: int, case: dict[str, Any], rec: Path, made: dict[str, A
         # (the plant's statics, recorded again for each strengthening of a weak effect):
         # ``seconds`` and ``cpu_seconds`` are the diagnosis's alone
         "named_params": {e["name"]: dict(e["params"]) for e in dg.report["effects"]},
-    } | {k: v for k, v in made.items() if k not in ("attempt", "oracle")}
+    } | made
     return s.as_dict()
 
 
