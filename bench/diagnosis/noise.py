@@ -243,6 +243,22 @@ def _pose_features(pos: np.ndarray) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+def _forms(feats: np.ndarray, dof0: float) -> list[np.ndarray]:
+    """The forms a step takes at samples of pose features ``feats`` (m, f)
+    (:func:`_pose_features`), simplest first: the same at every pose (``[1]``), and a smooth
+    function of the pose (``[1, x, y, z]``) only where the units' degrees of freedom ``dof0``
+    leave at least 8 beside it and some axis varies."""
+    if dof0 - feats.shape[1] < 8 or feats.shape[1] == 1:
+        return [feats[:, :1]]
+    return [feats[:, :1], feats]
+
+
+def _step_regressors(form: np.ndarray, inv: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """A step's regressors: the form (m, q) (:func:`_forms`) on the samples at or after the
+    step (``after`` (m,) bool), centred within the replicate groups ``inv`` (m,)."""
+    return _centre(form * after[:, None], inv)
+
+
 def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
           dof0: float, floor2: float) -> tuple[float, float, float] | None:
     """The most significant step of deviations ``x`` over the candidate times: (p-value
@@ -254,14 +270,12 @@ def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: 
     mids = _splits(t, inv)
     if not len(mids):
         return None
-    feats = _pose_features(pos)
-    forms = [feats[:, :1]] if dof0 - feats.shape[1] < 8 or feats.shape[1] == 1 \
-        else [feats[:, :1], feats]
+    forms = _forms(_pose_features(pos), dof0)
     best = None
     for tm in mids:
-        after = (t >= tm)[:, None]
+        after = t >= tm
         for f in forms:
-            got = _ftest(x, _centre(f * after, inv), unit, dof0, floor2)
+            got = _ftest(x, _step_regressors(f, inv, after), unit, dof0, floor2)
             if got is not None and (best is None or got[0] < best[0]):
                 best = (got[0], got[1], float(tm))
     if best is None:
@@ -308,6 +322,22 @@ def _unit_spanned(col: tuple, unit: np.ndarray, t: np.ndarray, mids: np.ndarray
     return ok
 
 
+def _joint_column(col: tuple, form: np.ndarray, units: np.ndarray, after: np.ndarray
+                  ) -> tuple[float, float, float | None, tuple[np.ndarray, np.ndarray]]:
+    """One column's part of a joint step (:func:`_joint_step`) at one time: its whitened
+    gain ``gain / s2``, its degrees of freedom left, the squared size of its fitted part
+    (None where nothing is fitted) and its residuals per error unit (the units' sorted
+    labels ``units`` and the sums). ``col`` as in :func:`_joint_step`, ``form`` the step's
+    form at its samples (:func:`_forms`), ``after`` (m,) its samples at or after the step."""
+    idx, inv, uinv, x, dof0, floor2 = col
+    got = _unit_fit(x, _step_regressors(form, inv, after), uinv, dof0, floor2)
+    xs = np.bincount(uinv, weights=x)
+    if got is None:
+        return 0.0, dof0 - form.shape[1], None, (units, xs)
+    gain, s2, dof, fitted = got
+    return gain / s2, dof, _size(fitted, s2) ** 2, (units, xs - fitted)
+
+
 def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
                 rank: float) -> tuple[float, float, float, list[int]] | None:
     """The most significant step of a block's columns together, the same time in each:
@@ -332,33 +362,22 @@ def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndar
     if not len(mids):
         return None
     dof_min = min(c[4] for c in cols)
+    # (the richest form the fewest degrees of freedom allow; the test counts the last
+    # column's parameters)
+    forms = [_forms(_pose_features(pos[c[0]]), dof_min)[-1] for c in cols]
+    units = [np.unique(unit[c[0]]) for c in cols]
+    q = forms[-1].shape[1]
     best = None
     for tm in mids[_unit_spanned(widest, unit, t, mids)]:
-        stat, dof_sum, q, shares, sizes, resid = 0.0, 0.0, 0, [], [], []
-        for idx, inv, uinv, x, dof0, floor2 in cols:
-            feats = _pose_features(pos[idx])
-            if dof_min - feats.shape[1] < 8:
-                feats = feats[:, :1]
-            q = feats.shape[1]
-            got = _unit_fit(x, _centre(feats * (t[idx] >= tm)[:, None], inv), uinv, dof0,
-                            floor2)
-            xs = np.bincount(uinv, weights=x)
-            if got is None:
-                shares.append(0.0)
-                dof_sum += dof0 - q
-                resid.append((np.unique(unit[idx]), xs))
-                continue
-            gain, s2, dof, fitted = got
-            stat += gain / s2
-            dof_sum += dof
-            shares.append(gain / s2)
-            sizes.append(_size(fitted, s2) ** 2)
-            resid.append((np.unique(unit[idx]), xs - fitted))
-        r = min(float(rank), _independent(resid))
-        d2 = dof_sum / len(cols) * r
+        parts = [_joint_column(c, f, u, t[c[0]] >= tm)
+                 for c, f, u in zip(cols, forms, units, strict=True)]
+        shares = [pt[0] for pt in parts]
+        sizes = [pt[2] for pt in parts if pt[2] is not None]
+        r = min(float(rank), _independent([pt[3] for pt in parts]))
+        d2 = sum(pt[1] for pt in parts) / len(cols) * r
         if not sizes or r < 1 or d2 < 2:
             continue
-        p = float(stats.f.sf(stat / (q * r), q * r, d2))
+        p = float(stats.f.sf(sum(shares) / (q * r), q * r, d2))
         if best is None or p < best[0]:
             order = [int(k) for k in np.argsort(shares)[::-1] if shares[k] > q]
             best = (p, math.sqrt(float(np.mean(sizes))), float(tm), order)
