@@ -336,6 +336,18 @@ def raise_pending() -> None:
         raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
 
 
+def hand_over_pending(handler: Callable[[int, Any], None]) -> None:
+    """For a command that installs its own SIGINT / SIGTERM handler (one that asks its loop
+    to stop instead of raising, as ``cdpr dry-run`` and ``cdpr sim`` do), called once it is
+    installed: a signal whose exception was lost before (see :func:`interrupt_on_term`) is
+    given to ``handler(signum, None)`` as if it had arrived now, and is no longer pending.
+    Nothing when none is pending."""
+    if _PENDING:
+        signum = _PENDING[-1]
+        _PENDING.clear()
+        handler(signum, None)
+
+
 class SchedulerError(RuntimeError):
     """The Dask scheduler cannot be reached (or Dask is not installed); names the address."""
 

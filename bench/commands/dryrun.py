@@ -503,8 +503,11 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         stop.set()
 
     if threading.current_thread() is threading.main_thread():
+        from bench.parallel import hand_over_pending
+
         for s in (signal.SIGINT, signal.SIGTERM):
             previous[s] = signal.signal(s, on_signal)
+        hand_over_pending(on_signal)  # a Ctrl-C a gc callback swallowed before: stop too
     tty = sys.stderr.isatty()
     events_out: list[str] = []
 

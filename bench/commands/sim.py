@@ -263,8 +263,11 @@ def _serve(args: argparse.Namespace, scheduling: str) -> int:
         stop.set()
 
     if threading.current_thread() is threading.main_thread():
+        from bench.parallel import hand_over_pending
+
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, on_signal)
+        hand_over_pending(on_signal)  # a Ctrl-C a gc callback swallowed before: stop too
     try:
         try:
             rig.start()
