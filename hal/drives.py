@@ -110,6 +110,7 @@ import canopen
 import numpy as np
 
 from controller.winch import WinchSet, counts_to_m, m_to_counts
+from hal import drives_base
 from hal.bus_watch import (
     DRIVE_LOST,
     FOREIGN_MASTER,
@@ -118,24 +119,17 @@ from hal.bus_watch import (
     ForeignFrameWatch,
 )
 from hal.can_bus import CanSpec, open_bus
+from hal.drives_base import *  # noqa: F403  (its public names, re-exported: __all__ below)
 from hal.drives_base import (
     CODE_BUS,
     CODE_HEARTBEAT,
     CODE_PDO_TIMEOUT,
-    EMCY_STRUCT,
     EVENTS_KEPT,
-    FOREIGN_HOLD_S,
-    MISSING_WAIT_S,
     NMT_NAMES,
     NMT_OPERATIONAL,
-    NMT_START_TRIES,
-    QUEUE_KEPT,
     SDO_TIMEOUT_S,
-    BusLinkError,
     DriveEvent,
     DriveFault,
-    DriveLostError,
-    DriveStartupError,
 )
 from hal.drives_cia402 import (
     RQ,
@@ -531,25 +525,5 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
         return out
 
 
-__all__ = [
-    "BusLinkError",
-    "CODE_BUS",
-    "CODE_HEARTBEAT",
-    "CODE_PDO_TIMEOUT",
-    "DriveConfigError",
-    "DriveEvent",
-    "DriveFault",
-    "DriveLostError",
-    "DriveStartupError",
-    "DriveState",
-    "EMCY_STRUCT",
-    "EVENTS_KEPT",
-    "FOREIGN_HOLD_S",
-    "MISSING_WAIT_S",
-    "NMT_NAMES",
-    "NMT_OPERATIONAL",
-    "NMT_START_TRIES",
-    "QUEUE_KEPT",
-    "SDO_TIMEOUT_S",
-    "WinchDrives",
-]
+#: drives_base's public names, and this module's
+__all__ = [*drives_base.__all__, "DriveConfigError", "DriveState", "WinchDrives"]
