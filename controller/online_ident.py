@@ -220,9 +220,9 @@ class DriftReport:
         if t - self._last_event <= self.hold_s:  # the last event's change, converging
             self._ref, self._ref_s = theta.copy(), t
             return []
-        now = residual(theta)
-        move = _largest_change(now, residual(self._ref))
-        self.moved = max(self.moved, _largest_change(now, residual(self._start)))
+        now, ref, start = _each_once(residual, [theta, self._ref, self._start])
+        move = _largest_change(now, ref)
+        self.moved = max(self.moved, _largest_change(now, start))
         if move >= self.move:
             return self._say(t, theta, f"the robot goes on changing: the model's lengths "
                              f"changed by up to {1e3 * move:.1f} mm since t = "
@@ -248,6 +248,19 @@ class DriftReport:
         return {"detected_at_s": self.first_s, "detections": self.detections,
                 "events": self.said, "drifts": self.drifts, "active": self.active,
                 "length_change_mm": round(1e3 * self.moved, 3)}
+
+
+def _each_once(residual: Callable[[np.ndarray], np.ndarray], thetas: list[np.ndarray]
+               ) -> list[np.ndarray]:
+    """``residual(th)`` of each estimate in ``thetas``, an estimate equal to an earlier one
+    not evaluated again (its statics at the batch's samples are the same): the estimates at
+    a drift's start, at the last event and now coincide where the estimate stood still (a
+    rejected update) or no update fell in an event's hold."""
+    out: list[np.ndarray] = []
+    for k, th in enumerate(thetas):
+        same = next((i for i in range(k) if np.array_equal(thetas[i], th)), None)
+        out.append(residual(th) if same is None else out[same])
+    return out
 
 
 def _largest_change(a: np.ndarray, b: np.ndarray) -> float:
