@@ -53,7 +53,7 @@ def run_json(capsys, *argv: str) -> tuple[int, dict, str]:
 
 
 def without_seconds(case: dict) -> dict:
-    out = {k: v for k, v in case.items() if k not in ("seconds", "pid")}
+    out = {k: v for k, v in case.items() if k not in ("seconds", "pid", "run")}
     if "info" in out:
         out["info"] = {k: v for k, v in out["info"].items()
                        if k not in ("case_seconds", "cpu_seconds", "record_seconds",
@@ -80,6 +80,11 @@ def test_two_cases_on_the_local_process_pool(capsys, monkeypatch):
     assert s == json.loads(json.dumps(evaluate.summarise(out["cases"])
                                       | {"errors": 0, "requested": 2}))
     assert s["cases"] == 2 and s["median_case_s"] > 0
+    # each record names where it was diagnosed (the evaluation page reads it)
+    from bench.version import build_commit
+
+    assert {c["run"]["commit"] for c in out["cases"]} == {build_commit()}
+    assert all(c["run"]["date"].endswith("UTC") and c["run"]["cpu"] for c in out["cases"])
     assert out["config"] == {"robot": "rocaspect", "effects": ["drum_scale"],
                              "poses": {"n": [3, 2, 1], "visits": 2}, "kind": "dwell",
                              "sensors": "all", "oov": "none"}

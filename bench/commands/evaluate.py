@@ -242,6 +242,15 @@ def _open_out(path: Path, config: dict, header: dict | None,
     return f
 
 
+def run_stamp() -> dict[str, str]:
+    """Where a case was diagnosed, kept with its record (``run``): the commit of the
+    diagnosis, the date (UTC) and the machine (CPU model and count)."""
+    from bench.benchmarks.page import machine
+
+    m = machine()
+    return {"commit": m["commit"], "date": m["date"], "cpu": m["cpu"]}
+
+
 def _append(f: TextIO, rec: dict) -> None:
     f.write(_dumps(rec) + "\n")
     f.flush()
@@ -525,6 +534,7 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
                  f"{args.seed}) {where}")
 
     interrupted: KeyboardInterrupt | None = None
+    stamp = run_stamp()
     try:
         if todo:
             outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
@@ -536,7 +546,7 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
                 for done, o in enumerate(outcomes, 1):
                     rec = (o.value if o.ok else
                            {"seed": o.item, "error": o.error, "trace": o.trace})
-                    rec = json.loads(_dumps(rec))  # plain types, as read back from --out
+                    rec = json.loads(_dumps(rec | {"run": stamp}))  # as read back from --out
                     results[o.item] = rec
                     if out is not None:
                         _append(out, rec)
