@@ -795,7 +795,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     if s.stream is not None and rm.has_len.any():
         seen = {st["cable"] for st in steps}
         steps += [j for j in stream_slips(rec, s, rm) if j["cable"] not in seen]
-    steps = slips.choose_alike(rm, steps)
+    steps = slips.choose_alike(rm, slips.without_loads(rm, base_blocks, steps, say))
     if steps:
         slip_at = np.full(model.n_cables, rm.init_end)
         for st in steps:
