@@ -10,6 +10,10 @@ other effects are named to absorb that. Here the selected fit is asked where its
 should start: the samples are split in time at every gap, those before the split
 evaluated without the offset, and the offset's size refitted (to first order) on those
 after. A split that lowers the chi-square by more than the bar is the slip's time.
+
+A step of one cable's length reading is no slip where the platform's load changed at its
+time (:func:`load_change`: the force balance steps with it): the tensions then change what
+they hold up, a slip only shares the same load among the cables otherwise.
 """
 
 from __future__ import annotations
