@@ -8,6 +8,7 @@ from __future__ import annotations
 import pytest
 
 from bench.chunked import read_conditioned
+from bench.diagnosis.report import diagnose
 from bench.diagnosis.samples import prepare
 from tests.outsider.cases import make_case
 from tests.outsider.logger import Habits
@@ -32,6 +33,15 @@ def test_a_labs_words_with_stop_are_read_from_the_data(tmp_path, plain, words):
         assert info[k] == plain[k], k
     assert set(info["states_unknown"]) == set(words)
     assert all(v > 0 for v in info["states_unknown"].values())
+
+
+def test_the_diagnosis_says_which_words_it_read_from_the_data(tmp_path):
+    path = make_case(tmp_path / "rec", Habits(state_words=("stopped", "nonstop")), **SMALL)
+    said: list[str] = []
+    rep = diagnose(path, progress=said.append).report
+    assert rep["mismatch"]["samples"]["states_unknown"].keys() == {"stopped", "nonstop"}
+    line = next(m for m in said if m.startswith("state words"))
+    assert "stopped (" in line and "nonstop (" in line
 
 
 def test_a_recording_without_a_state_column_lists_no_word(plain):
