@@ -555,7 +555,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     unknown: dict[str, int] = {}  # a lab's own state words and their rows
     for a, b in runs:
         st = states[a] if states is not None else None
-        if st is not None and not known_state(st):
+        if st is not None and st.strip() and not known_state(st):
             unknown[st] = unknown.get(st, 0) + b - a
         if st is not None and st not in STILL_STATES | MOVE_STATES and not reaction_state(st):
             st = None  # a state the format does not define, or "end": the data decide
