@@ -22,7 +22,10 @@ from bench.diagnosis.samples import prepare
 def _recorded(tmp: Path, seed: int, attempt: int = 0, **kw) -> Path:
     """A case of the evaluation's generator recorded into ``tmp`` (slip times drawn as
     ``cdpr evaluate`` draws them)."""
-    case = ev.make_case(seed, attempt=attempt, **kw)
+    return _record(tmp, ev.make_case(seed, attempt=attempt, **kw), seed, attempt)
+
+
+def _record(tmp: Path, case: dict, seed: int, attempt: int) -> Path:
     bare = copy.deepcopy(case)
     for p in bare["truth"].values():
         for k in [k for k in p if k.startswith("slip_time_")]:
@@ -52,11 +55,13 @@ def test_a_lighter_platform_is_a_load_change_not_a_slip_of_cable_42(tmp_path):
     """61108 (CoGiRo class, compliant mast 4, the platform 10 % lighter from the second visit
     on): cable 42's length reading steps with the load (z 8) at the time the force balance
     steps by the weight lost; the step is the load's, not a slip."""
-    rm, b, steps = _steps(_recorded(tmp_path, 61108, attempt=1, kind="load_change"))
+    case = ev.make_case(61108, attempt=1, kind="load_change")
+    rm, b, steps = _steps(_record(tmp_path, case, 61108, 1))
     assert [st["cable"] for st in steps] == ["42"]  # what the slip test alone reads
     load = slips.load_change(rm, b, steps[0])
     assert load is not None and load["load_share"] > 0.8
-    lost = (1.0 - 0.9009995) * 123.8194 * 9.81  # the case's mass factor and mass [kg]
+    mass = case["robot"]["platform"]["mass"] * case["case"]["change"]["mass_factor"]
+    lost = (case["robot"]["platform"]["mass"] - mass) * 9.81  # [N]
     assert load["load_force_n"][2] == pytest.approx(-lost, rel=0.05)
     said: list[str] = []
     assert slips.without_loads(rm, b, steps, said.append) == []
