@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from bench.streams import loose_columns, time_back_message, time_goes_back
+from bench.streams import loose_columns, signal_noise, time_back_message, time_goes_back
 from controller.robot import Robot, RobotFileError, dumps_robot, load_robot
 from controller.tomlfile import decode_utf8, read_toml
 
@@ -414,35 +414,78 @@ def _from_columns(d: Path, p: Path, robot: Robot, meta: dict, init_pose: np.ndar
 
 def _init_rows(rec: Recording) -> np.ndarray:
     """Rows taken at initialisation: those before the first row where the platform leaves
-    init_pose (by the desired pose if recorded, else the measured one).
+    init_pose (by the desired pose if recorded, else by the encoders or the measured pose,
+    whichever shows it first: :func:`_left_by_encoders`, :func:`_left_by_tracker`).
 
     ``init_pose`` is the *measured* pose; a controller may log as its desired pose at
     initialisation the nominal target it stands at (7.5 m where the tracker read 7.50002):
     where the first row's desired pose is within :data:`INIT_NEAR` of ``init_pose``, the
     platform leaves when the desired pose leaves that first row's."""
     if rec.has("pose_des"):
-        pose, tol = rec.pose_des, INIT_TOL_DES
-        first = pose[0]
+        first = rec.pose_des[0]
         seen = np.isfinite(first)  # (columns a recording leaves out are nan)
-        if seen.any() and np.all(np.abs(first - rec.init_pose)[seen] <= INIT_NEAR):
-            # (a row without a desired pose (NaN) shows no sign of leaving; np.nanmax would
-            # warn "All-NaN slice encountered" on such rows)
-            off = np.max(np.nan_to_num(np.abs(pose - first), nan=0.0), axis=1) > tol
-            leave = np.flatnonzero(off)
-            if not len(leave):
-                return np.arange(rec.n_samples)
-            return np.flatnonzero(rec.t < rec.t[leave[0]])
-    elif rec.has("pose_meas"):
-        pose, tol = rec.pose_meas, INIT_TOL_MEAS
-    else:
+        near = seen.any() and np.all(np.abs(first - rec.init_pose)[seen] <= INIT_NEAR)
+        # (a row without a desired pose (NaN) shows no sign of leaving; np.nanmax would
+        # warn "All-NaN slice encountered" on such rows)
+        off = np.max(np.nan_to_num(np.abs(rec.pose_des - (first if near else rec.init_pose)),
+                                   nan=0.0), axis=1) > INIT_TOL_DES
+        leave = np.flatnonzero(off)
+        return np.flatnonzero(rec.t < rec.t[leave[0]]) if len(leave) \
+            else np.arange(rec.n_samples)
+    # without a desired pose: the encoders leave first (their noise is micrometres), the
+    # tracker's pose where they cannot tell (no encoders); the earlier of the two
+    leaves = [t for t in (_left_by_encoders(rec), _left_by_tracker(rec)) if t is not None]
+    if not leaves and not (rec.has("pose_meas") or rec.has("l_meas")):
         return np.zeros(0, dtype=int)
-    with np.errstate(invalid="ignore"):  # rows without a fix (NaN): no sign of leaving
-        off = np.max(np.nan_to_num(np.abs(pose - rec.init_pose), nan=0.0), axis=1) > tol
-    leave = np.flatnonzero(off)
-    if not len(leave):
+    if not leaves:
         return np.arange(rec.n_samples)
-    t_leave = rec.t[leave[0]]
-    return np.flatnonzero(rec.t < t_leave)
+    return np.flatnonzero(rec.t < min(leaves))
+
+
+def _left_by_tracker(rec: Recording) -> float | None:
+    """Time [s] of the first row whose measured pose is farther than :data:`INIT_TOL_MEAS`
+    from ``init_pose``; None without a tracker or where it never is."""
+    if not rec.has("pose_meas"):
+        return None
+    with np.errstate(invalid="ignore"):  # rows without a fix (NaN): no sign of leaving
+        off = np.max(np.nan_to_num(np.abs(rec.pose_meas - rec.init_pose), nan=0.0),
+                     axis=1) > INIT_TOL_MEAS
+    leave = np.flatnonzero(off)
+    return float(rec.t[leave[0]]) if len(leave) else None
+
+
+#: rows [s] from the first on whose encoder readings are the initialisation's reference ...
+INIT_REF_S = 1.0
+#: ... and consecutive rows that must all stand off it for the platform to have left
+INIT_LEFT_ROWS = 3
+#: [m] a reading's change always within its resolution (encoders without noise)
+INIT_FLOOR_M = 1e-6
+
+
+def _left_by_encoders(rec: Recording) -> float | None:
+    """Time [s] of the first row from which :data:`INIT_LEFT_ROWS` rows in a row have an
+    encoder reading off the initialisation's: off the median of the readings of the first
+    :data:`INIT_REF_S` by more than their own white noise reaches over the rows
+    (``sqrt(2 ln N) + 3`` standard deviations, :func:`bench.streams.signal_noise` on those
+    first rows; at least :data:`INIT_FLOOR_M`). A slip as the platform leaves moves them too,
+    and the rows before it are the initialisation's. None without encoders, with fewer than
+    five reference rows, or where the readings never leave."""
+    cols = np.isfinite(rec.l_meas).any(axis=0)
+    if not cols.any():
+        return None
+    rows = np.flatnonzero(np.isfinite(rec.l_meas[:, cols]).all(axis=1))
+    if len(rows) < 5 + INIT_LEFT_ROWS:
+        return None
+    x, t = rec.l_meas[rows][:, cols], rec.t[rows]
+    ref = t <= t[0] + INIT_REF_S
+    if ref.sum() < 5:
+        return None
+    sd = signal_noise(t[ref], x[ref])
+    limit = np.maximum((np.sqrt(2.0 * np.log(len(rows))) + 3.0) * sd, INIT_FLOOR_M)
+    off = (np.abs(x - np.median(x[ref], axis=0)) > limit).any(axis=1)
+    run = np.convolve(off.astype(int), np.ones(INIT_LEFT_ROWS, dtype=int), "valid")
+    left = np.flatnonzero(run == INIT_LEFT_ROWS)
+    return float(t[left[0]]) if len(left) else None
 
 
 def write_header_files(d: Path, robot: Robot, init_pose: np.ndarray,

@@ -124,8 +124,9 @@ def test_initialisation_rows_where_the_desired_pose_is_the_nominal_target(tmp_pa
 
 def test_unknown_state_names_are_read_from_the_data(tmp_path):
     """State names are free: another controller's ``track`` rows along a path are rows of
-    moves, its ``measure`` rows standing measurements; a reaction (``feed_hold``) counts
-    only while the platform stands."""
+    moves, its ``measure`` rows standing measurements, a lab's ``feed_hold`` is its own word
+    (read from the data too); a reaction the format defines (``hold``) counts only while the
+    platform stands."""
     from bench.diagnosis.samples import prepare, reaction_state
 
     robot = resolve_robot("rocaspect")
@@ -136,17 +137,20 @@ def test_unknown_state_names_are_read_from_the_data(tmp_path):
     cols = {"t": t, "x_des": x, "y_des": np.full(n, 8.0), "z_des": np.ones(n),
             "x_meas": x, "y_meas": np.full(n, 8.0), "z_meas": np.ones(n), **ls}
     named = {}
-    for word in ("move", "track", "feed_hold"):
+    for word in ("move", "track", "feed_hold", "hold"):
         states = ["init"] * 5 + [word] * (n - 5)
         rec = read_recording(write_recording(tmp_path / word, robot, [10, 8, 1, 0, 0, 0],
                                              cols, states=states))
         named[word] = prepare(rec).info
     assert named["track"]["path_samples"] == named["move"]["path_samples"] > 0
     assert named["track"]["rows_in_other_states"] == 0
-    assert named["feed_hold"]["path_samples"] == 0
-    assert named["feed_hold"]["rows_in_other_states"] == n - 5
-    assert reaction_state("quick_stop") and reaction_state("FAULT")
+    assert named["feed_hold"]["path_samples"] == named["move"]["path_samples"]
+    assert named["feed_hold"]["states_unknown"] == {"feed_hold": n - 5}
+    assert named["hold"]["path_samples"] == 0
+    assert named["hold"]["rows_in_other_states"] == n - 5
+    assert reaction_state("quick_stop") and reaction_state("HOLD")
     assert not reaction_state("track") and not reaction_state("measure")
+    assert not reaction_state("FAULT") and not reaction_state("feed_hold")
 
 
 def test_streaming_writer_is_readable_while_it_runs(tmp_path):

@@ -778,6 +778,9 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     inf = s.info
     say(f"{rec.n_samples} rows -> {s.n} samples ({inf['dwell_samples']} dwells, "
         f"{inf['path_samples']} rows of moves) in {s.n_targets} replicate groups")
+    if inf.get("states_unknown"):
+        say("state words the format does not define, read from the data: " + ", ".join(
+            f"{w} ({k} rows)" for w, k in inf["states_unknown"].items()))
     rm = ResidualModel(s, model, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.stamp_period_s = frame.stamp_period_s(rec.t, streams)
     rm.estimate_noise(model)
@@ -795,7 +798,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     if s.stream is not None and rm.has_len.any():
         seen = {st["cable"] for st in steps}
         steps += [j for j in stream_slips(rec, s, rm) if j["cable"] not in seen]
-    steps = slips.choose_alike(rm, steps)
+    steps = slips.choose_alike(rm, slips.without_loads(rm, base_blocks, steps, say))
     if steps:
         slip_at = np.full(model.n_cables, rm.init_end)
         for st in steps:

@@ -13,11 +13,12 @@ the static samples the diagnosis fits:
   dwells) are quasi-static where the commanded motion does not accelerate
   (inertial forces below a few percent of the weight); they are kept as single
   rows, spread evenly in time, up to a budget.
-- rows in a state that names a reaction or a fault (``hold``, ``quick_stop``,
-  ``fault``, ...: :func:`reaction_state`) count only while the platform stands still
-  (encoders and pose do not move). The format leaves state names free: rows in a state
-  this reader does not know (another controller's ``track``, ``measure``, ``approach``)
-  are read as rows without a state column, the data deciding whether they stand.
+- rows in a state of a supervisor's reaction (``hold``, ``quick_stop``:
+  :func:`reaction_state`) count only while the platform stands still (encoders and pose
+  do not move). The format leaves state names free: rows in ``end`` or in a state the
+  format does not define (another controller's ``track``, ``measure``, ``approach``, a
+  lab's ``stopped`` or ``estop_reset``) are read as rows without a state column, the
+  data deciding whether they stand; the words are listed (``info["states_unknown"]``).
 
 Replicate groups (``target``) gather visits of one commanded pose, and path
 rows that pass within a few millimetres of each other on different moves:
@@ -50,16 +51,25 @@ from bench.streams import (
 STILL_STATES = {"init", "dwell"}
 #: states of the commanded motion
 MOVE_STATES = {"move"}
-#: words in a state name that say the platform is not following its commanded motion (a
-#: supervisor's reaction, a fault): such rows count only while the platform stands still
-REACTION_WORDS = ("hold", "stop", "fault", "halt", "error", "abort", "emergency", "disable",
-                  "alarm", "pause")
+#: states in which the platform is not following its commanded motion (a supervisor's
+#: reaction: docs/formats/recording.md): such rows count only while the platform stands still
+REACTION_STATES = {"hold", "quick_stop"}
+#: the other state the format defines (the run has ended): its rows are read from the data
+END_STATES = {"end"}
 
 
 def reaction_state(name: str) -> bool:
-    """Whether the state ``name`` is a reaction or a fault (:data:`REACTION_WORDS`)."""
-    low = name.lower()
-    return any(w in low for w in REACTION_WORDS)
+    """Whether the state ``name`` is a supervisor's reaction (:data:`REACTION_STATES`, in any
+    letter case). A lab's own words are no reaction, whatever they contain ("stopped",
+    "estop_reset", "nonstop"): their rows are read from the data (:func:`known_state`)."""
+    return name.strip().lower() in REACTION_STATES
+
+
+def known_state(name: str) -> bool:
+    """Whether the format defines the state ``name`` (docs/formats/recording.md)."""
+    return name.strip().lower() in STILL_STATES | MOVE_STATES | REACTION_STATES | END_STATES
+
+
 #: commanded acceleration [m/s^2] above which a moving row is not quasi-static
 ACCEL_MAX = 0.2
 #: angular acceleration [rad/s^2] above which a moving row is not quasi-static
@@ -542,10 +552,13 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     path_rows: list[int] = []
     dropped_states = 0
     moving = _moving(rec)
+    unknown: dict[str, int] = {}  # a lab's own state words and their rows
     for a, b in runs:
         st = states[a] if states is not None else None
+        if st is not None and st.strip() and not known_state(st):
+            unknown[st] = unknown.get(st, 0) + b - a
         if st is not None and st not in STILL_STATES | MOVE_STATES and not reaction_state(st):
-            st = None  # a state this reader does not know: the data decide
+            st = None  # a state the format does not define, or "end": the data decide
         if st is not None and st not in STILL_STATES | MOVE_STATES:
             # supervisor reactions: only where the platform stands still
             if b - a >= 2 and _standing(rec, a, b):
@@ -639,7 +652,8 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     s.turns = turns
     s.info = {"rows": N, "dwell_samples": len(dwell_runs), "path_samples": len(path),
               "dwells_available": n_dwell, "path_rows_accelerating": n_accel,
-              "path_rows_stale": n_stale, "rows_in_other_states": dropped_states}
+              "path_rows_stale": n_stale, "rows_in_other_states": dropped_states,
+              "states_unknown": dict(sorted(unknown.items()))}
     return s
 
 

@@ -10,14 +10,21 @@ other effects are named to absorb that. Here the selected fit is asked where its
 should start: the samples are split in time at every gap, those before the split
 evaluated without the offset, and the offset's size refitted (to first order) on those
 after. A split that lowers the chi-square by more than the bar is the slip's time.
+
+A step of one cable's length reading is no slip where the platform's load changed at its
+time (:func:`load_change`: the force balance steps with it): the tensions then change what
+they hold up, a slip only shares the same load among the cables otherwise.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
+from scipy import stats
 
 from bench.diagnosis.fit import FitResult
-from bench.diagnosis.residuals import ResidualModel
+from bench.diagnosis.residuals import Blocks, ResidualModel
 
 #: the effect whose parameters are slips
 OFFSET = "cable_length_offset"
@@ -101,6 +108,88 @@ def later_starts(rm: ResidualModel, fit: FitResult, idx: np.ndarray, bar: float,
             out[c] = (float(0.5 * (t[jj - 1] + t[jj])), float(space.params[k].to_value(
                 space.neutral[k] + size)), float(gain[best]))
     return out
+
+
+#: a step in time is the platform's load, not a slip, where the force balance steps at its time
+#: by more than this share of the measured tensions' step (:func:`load_changes`): a slip
+#: changes the tensions among themselves (the load is the same; what the force balance sees
+#: of it is the cells' calibration, a few percent), a new load changes what they hold up
+LOAD_SHARE = 0.3
+#: ... and where the force balance's step, the same at every target, stands out of its
+#: scatter over the targets beyond this p-value (a t-test per axis, times the three axes)
+LOAD_P = 1e-6
+
+
+def load_change(rm: ResidualModel, b: Blocks, step: dict) -> dict | None:
+    """Whether a change of the platform's load explains a step in time of one cable's length
+    residual (``step``: :func:`bench.diagnosis.locate.steps_in_time` or a row jump, a
+    candidate slip): at its time the force balance ``b.wrench`` (residuals of ``rm``'s
+    model, the measured tensions at the measured or estimated poses) steps, the same at every
+    target (p < :data:`LOAD_P`), by more than :data:`LOAD_SHARE` of the measured tensions'
+    step. Each step compares the visits of a target after its time with those before
+    (targets visited on both sides, load cells read). A slip moves one cable's length
+    residual and changes the tensions among themselves; a new load moves them all and the
+    force they hold up (and, through tension-dependent model errors such as compliant masts,
+    some cables' length residuals: 61108, a 10 % lighter platform read as a slip of cable
+    42). Returns ``{"load_share": , "load_force_n": (3,) [N]}`` where it does, else None."""
+    s = rm.s
+    live = ~s.is_init & np.isfinite(s.tau).all(axis=1) & np.isfinite(b.wrench[:, :3]).all(axis=1)
+    got = _force_and_tensions(s.t, s.target, s.tau, b.wrench[:, :3], live, step["t_s"])
+    if got is None:
+        return None
+    dF, dT = got
+    mean = dF.mean(axis=0)
+    share = float(np.linalg.norm(mean) / max(np.sqrt(np.mean(np.sum(dT ** 2, axis=1))), 1e-9))
+    if share > LOAD_SHARE and _consistent(dF) < LOAD_P:
+        return {"load_share": share, "load_force_n": [float(v) for v in mean]}
+    return None
+
+
+def without_loads(rm: ResidualModel, b: Blocks, steps: list[dict],
+                  say: Callable[[str], None] = lambda m: None) -> list[dict]:
+    """``steps`` less those a change of the platform's load explains (:func:`load_change`),
+    each of those said: the replicate groups are not split at them as at a slip (the change
+    is located by the replicate visits' test, :func:`bench.diagnosis.noise.separate`)."""
+    out = []
+    for st in steps:
+        load = load_change(rm, b, st)
+        if load is None:
+            out.append(st)
+            continue
+        f = float(np.linalg.norm(load["load_force_n"]))
+        say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s as the "
+            f"force balance does by {f:.1f} N ({load['load_share']:.0%} of the tensions' "
+            f"step): the platform's load changed, no slip")
+    return out
+
+
+def _force_and_tensions(t: np.ndarray, target: np.ndarray, tau: np.ndarray, force: np.ndarray,
+                        live: np.ndarray, t0: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per target visited on both sides of ``t0`` [s] among the ``live`` samples: the mean of
+    ``force`` (N,3) after less before, and the same of the tensions ``tau`` (N,n) [N]. None
+    with fewer than three such targets."""
+    dF, dT = [], []
+    for g in np.unique(target[live]):
+        i = np.flatnonzero(live & (target == g))
+        a, c = i[t[i] < t0], i[t[i] >= t0]
+        if len(a) and len(c):
+            dF.append(force[c].mean(axis=0) - force[a].mean(axis=0))
+            dT.append(tau[c].mean(axis=0) - tau[a].mean(axis=0))
+    if len(dF) < 3:
+        return None
+    return np.array(dF), np.array(dT)
+
+
+def _consistent(d: np.ndarray) -> float:
+    """p-value of the most consistent axis of the per-target steps ``d`` (T,3): the mean over
+    the targets against its standard error (two-sided t-test of T - 1 degrees of freedom),
+    times the axes."""
+    T = len(d)
+    se = d.std(axis=0, ddof=1) / np.sqrt(T)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tt = np.abs(d.mean(axis=0)) / se
+    tt = np.where(se > 0, tt, np.where(np.abs(d.mean(axis=0)) > 0, np.inf, 0.0))
+    return float(min(1.0, 2.0 * stats.t.sf(float(tt.max()), T - 1) * d.shape[1]))
 
 
 #: a candidate alike (:func:`choose_alike`) stays beside the best while its offset leaves a
