@@ -46,16 +46,18 @@ def campaign_targets(sc: Scenario, poses: np.ndarray | None = None) -> tuple[np.
     return targets, rng
 
 
-def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None) -> Plant:
+def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None,
+                   predict: bool = False) -> Plant:
     """The plant of the scenario's campaign. ``referenced`` (n,) [m]: the truth's unstretched
     lengths when the encoders were referenced, where that was before this campaign (one that
     continues another after a change on the robot: the encoders keep their reference);
-    default: at this campaign's initialisation (:attr:`Plant.u0`)."""
+    default: at this campaign's initialisation (:attr:`Plant.u0`). ``predict``: the rest
+    searches along a move start from the extrapolated rest (:attr:`Plant.predict`)."""
     # a length offset is a slip after initialisation: never before the init dwell ends
     slips = np.maximum(sc.slip_times, sc.poses.init_s)
     plant = Plant(sc.model, sc.truth, sc.init_pose, sc.nuisances(process=True),
                   slip_times=slips, rng=np.random.default_rng(sc.seed + 1),
-                  check_every=10 if sc.recording.kind == "continuous" else 1)
+                  check_every=10 if sc.recording.kind == "continuous" else 1, predict=predict)
     if referenced is not None:
         plant.u0 = np.asarray(referenced, dtype=float).copy()
     return plant
@@ -64,7 +66,7 @@ def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None) -> Plant:
 def run_campaign(sc: Scenario, out: str | Path | None,
                  progress: Callable[[int, int], None] | None = None,
                  poses: np.ndarray | None = None, sink: Callable[..., None] | None = None,
-                 referenced: np.ndarray | None = None) -> Path | None:
+                 referenced: np.ndarray | None = None, predict: bool = False) -> Path | None:
     """Simulate the scenario's campaign and write the recording directory ``out``.
 
     With ``sink``, nothing is written and no measurement noise is drawn: every row's truth is
@@ -72,13 +74,14 @@ def run_campaign(sc: Scenario, out: str | Path | None,
     the plant's :class:`~firmware_sim.plant.PlantState`, ``tau_read`` what noise-free load
     cells read [N]), for a logger that samples it its own way (:mod:`bench.logger_sim`).
     ``referenced``: see :func:`campaign_plant` (the initialisation's rows then stand on the
-    old reference: a continuation leaves them out)."""
+    old reference: a continuation leaves them out). ``predict``: see :func:`campaign_plant`
+    (the same rests within the plant's force tolerance, found in fewer steps)."""
     model, n = sc.model, sc.model.n_cables
     nz = sc.noise
     ps = sc.poses
     spec = sc.recording
     targets, rng = campaign_targets(sc, poses)
-    plant = campaign_plant(sc, referenced)
+    plant = campaign_plant(sc, referenced, predict)
     tau0_meas = plant.measured_tensions(plant.init_tensions)
     ctl = LengthController(model, sc.init_pose, init_tensions=None)
     exit_idx = [model.cable_ids.index(c) for c in ps.exit_points] if spec.tracker else []
