@@ -187,6 +187,12 @@ class Plant:
         #: the last two settles (time [s], rest) for :meth:`_predicted`
         self._trail: list[tuple[float, PlantState]] = []
 
+    def slip_at(self, times: np.ndarray) -> None:
+        """Set the times (n,) [s] at which the truth's length offsets take effect (see
+        ``slip_times``; a campaign that continues another learns them once it started)."""
+        self.slip_times = np.asarray(times, dtype=float).copy()
+        self._slip = self.slip_times.copy()
+
     def _pretension(self, size: float) -> np.ndarray:
         """Tensions [N] at initialisation: the distribution's plus internal forces of
         ``size`` [N] in a random null-space direction, shortened to keep every tension
