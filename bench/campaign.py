@@ -46,16 +46,18 @@ def campaign_targets(sc: Scenario, poses: np.ndarray | None = None) -> tuple[np.
     return targets, rng
 
 
-def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None) -> Plant:
+def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None,
+                   predict: bool = False) -> Plant:
     """The plant of the scenario's campaign. ``referenced`` (n,) [m]: the truth's unstretched
     lengths when the encoders were referenced, where that was before this campaign (one that
     continues another after a change on the robot: the encoders keep their reference);
-    default: at this campaign's initialisation (:attr:`Plant.u0`)."""
+    default: at this campaign's initialisation (:attr:`Plant.u0`). ``predict``: the rest
+    searches along a move start from the extrapolated rest (:attr:`Plant.predict`)."""
     # a length offset is a slip after initialisation: never before the init dwell ends
     slips = np.maximum(sc.slip_times, sc.poses.init_s)
     plant = Plant(sc.model, sc.truth, sc.init_pose, sc.nuisances(process=True),
                   slip_times=slips, rng=np.random.default_rng(sc.seed + 1),
-                  check_every=10 if sc.recording.kind == "continuous" else 1)
+                  check_every=10 if sc.recording.kind == "continuous" else 1, predict=predict)
     if referenced is not None:
         plant.u0 = np.asarray(referenced, dtype=float).copy()
     return plant
@@ -64,7 +66,9 @@ def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None) -> Plant:
 def run_campaign(sc: Scenario, out: str | Path | None,
                  progress: Callable[[int, int], None] | None = None,
                  poses: np.ndarray | None = None, sink: Callable[..., None] | None = None,
-                 referenced: np.ndarray | None = None) -> Path | None:
+                 referenced: np.ndarray | None = None, predict: bool = False,
+                 plant: Plant | None = None,
+                 first_row: Callable[[float, Plant], None] | None = None) -> Path | None:
     """Simulate the scenario's campaign and write the recording directory ``out``.
 
     With ``sink``, nothing is written and no measurement noise is drawn: every row's truth is
@@ -72,13 +76,18 @@ def run_campaign(sc: Scenario, out: str | Path | None,
     the plant's :class:`~firmware_sim.plant.PlantState`, ``tau_read`` what noise-free load
     cells read [N]), for a logger that samples it its own way (:mod:`bench.logger_sim`).
     ``referenced``: see :func:`campaign_plant` (the initialisation's rows then stand on the
-    old reference: a continuation leaves them out)."""
+    old reference: a continuation leaves them out). ``predict``: see :func:`campaign_plant`
+    (the same rests within the plant's force tolerance, found in fewer steps). ``plant``:
+    the campaign's plant when the caller made it (:func:`campaign_plant` of ``sc``; then
+    ``referenced`` and ``predict`` are its own). ``first_row(t, plant)`` is called once with
+    the time [s] of the first row after the initialisation, before the plant settles for it
+    (a campaign continuing another sets its later slips by it: :meth:`Plant.slip_at`)."""
     model, n = sc.model, sc.model.n_cables
     nz = sc.noise
     ps = sc.poses
     spec = sc.recording
     targets, rng = campaign_targets(sc, poses)
-    plant = campaign_plant(sc, referenced)
+    plant = campaign_plant(sc, referenced, predict) if plant is None else plant
     tau0_meas = plant.measured_tensions(plant.init_tensions)
     ctl = LengthController(model, sc.init_pose, init_tensions=None)
     exit_idx = [model.cable_ids.index(c) for c in ps.exit_points] if spec.tracker else []
@@ -152,6 +161,9 @@ def run_campaign(sc: Scenario, out: str | Path | None,
         for i in order:
             p_des = targets[i]
             noise_next = plant.visit_noise()
+            if first_row is not None and done == 0:
+                first_row(t + (dt if continuous else _travel_s(prev, p_des, ps.speed_m_s)),
+                          plant)
             if continuous:
                 t, state, measured = _move(ctl, plant, prev, p_des, t, dt, ps.speed_m_s,
                                            measured, noise_prev, noise_next, quantise, row,
@@ -162,7 +174,7 @@ def run_campaign(sc: Scenario, out: str | Path | None,
                 if not cyc.feasible:
                     raise ValueError(f"campaign pose {np.round(p_des, 3).tolist()} is not "
                                      f"feasible for the model: {cyc.reason}")
-                t += float(np.linalg.norm(p_des[:3] - prev[:3])) / max(ps.speed_m_s, 1e-6)
+                t += _travel_s(prev, p_des, ps.speed_m_s)
                 state = plant.settle(quantise(cyc.lengths), t=t, visit_noise=noise_next,
                                      guess=p_des)
                 measured = plant.measured_tensions(state.tensions)
@@ -183,6 +195,11 @@ def run_campaign(sc: Scenario, out: str | Path | None,
     return write_recording(out, model, sc.init_pose, arrays, meta,
                            states=states if spec.state_column else None,
                            robot_header=f"model the controller ran with ({model.name})")
+
+
+def _travel_s(start: np.ndarray, end: np.ndarray, speed: float) -> float:
+    """Time [s] a dwell campaign takes from pose ``start`` to ``end`` (6,) at ``speed`` [m/s]."""
+    return float(np.linalg.norm(end[:3] - start[:3])) / max(speed, 1e-6)
 
 
 def _move(ctl: LengthController, plant: Plant, start: np.ndarray, end: np.ndarray, t: float,

@@ -906,23 +906,23 @@ def _record_change(case: dict[str, Any], rec: Path) -> None:
     sc = scenario_of(case)
     mass = float(apply_effects(sc.model, sc.effects).mass) * info["change"]["mass_factor"]
     second["truth"].setdefault("platform_mass", {})["mass"] = mass
-    referenced = campaign_plant(scenario_of(first)).u0
+    sc_a = scenario_of(first)
+    plant_a = campaign_plant(sc_a)
     with tempfile.TemporaryDirectory(dir=rec.parent) as d:
         a, b = Path(d) / "a", Path(d) / "b"
-        run_campaign(scenario_of(first), a)
+        run_campaign(sc_a, a, plant=plant_a)
         head, rows_a = _csv_rows(a / "recording.csv")
         st = head.index("state")
-        t_end = float(rows_a[-1][0])
-        t0 = t_end + CHANGE_GAP_S
-        shift = t0  # the second's rows move by this (known once it ran: at most two runs)
-        for _ in range(2):
-            later = _continued_slips(case, second, t0, shift)
-            run_campaign(scenario_of(second), b, referenced=referenced)
-            _, rows_b = _csv_rows(b / "recording.csv")
-            rows_b = [r for r in rows_b if r[st] != "init"]
-            exact, shift = shift, t0 - float(rows_b[0][0])
-            if not later or exact == shift:
-                break
+        t0 = float(rows_a[-1][0]) + CHANGE_GAP_S
+        _continued_slips(case, second, t0)
+        # the second's rows move by ``t0`` less its first row's time: its later slips are
+        # set in its own clock when that time is known (before its plant settles there)
+        sc_b = scenario_of(second)
+        run_campaign(sc_b, b, referenced=plant_a.u0, first_row=lambda t, plant: plant.slip_at(
+            _second_slips(case, sc_b, t0, t0 - t)))
+        _, rows_b = _csv_rows(b / "recording.csv")
+        rows_b = [r for r in rows_b if r[st] != "init"]
+        shift = t0 - float(rows_b[0][0])
         for r in rows_b:
             r[0] = repr(float(r[0]) + shift)
         keep = [i for i, h in enumerate(head)
@@ -938,20 +938,28 @@ def _record_change(case: dict[str, Any], rec: Path) -> None:
     info["change"]["t_s"] = t0
 
 
-def _continued_slips(case: dict[str, Any], second: dict[str, Any], t0: float,
-                     shift: float) -> bool:
+def _continued_slips(case: dict[str, Any], second: dict[str, Any], t0: float) -> None:
     """Set the second campaign's slip times (its own clock) from the case's (the whole
-    recording's clock) [s]: a slip before ``t0`` (the change) from the start, a later one at
-    its time less ``shift`` (what the second's rows are moved by). Returns whether some slip
-    falls after ``t0``."""
+    recording's clock) [s]: a slip before ``t0`` (the change) from the start; a later one,
+    whose time in the second's clock is known once it runs (:func:`_second_slips`), for now
+    at its time in the whole recording (after the second's initialisation)."""
     offsets = case["truth"].get("cable_length_offset", {})
     own = second["truth"].get("cable_length_offset", {})
-    later = False
     for k, v in offsets.items():
         if k.startswith("slip_time_"):
-            later |= v >= t0
-            own[k] = max(float(v) - shift, 0.0) if v >= t0 else 0.0
-    return later
+            own[k] = float(v) if v >= t0 else 0.0
+
+
+def _second_slips(case: dict[str, Any], sc, t0: float, shift: float) -> np.ndarray:
+    """The second campaign's slip times (n,) [s] as its plant takes them
+    (:func:`bench.campaign.campaign_plant`): the case's slips after ``t0`` at their time
+    less ``shift`` (what the second's rows are moved by), the others from the start."""
+    times = np.array(sc.slip_times, dtype=float)
+    offsets = case["truth"].get("cable_length_offset", {})
+    for k, v in offsets.items():
+        if k.startswith("slip_time_") and v >= t0:
+            times[sc.model.cable_ids.index(k[len("slip_time_"):])] = max(float(v) - shift, 0.0)
+    return np.maximum(times, sc.poses.init_s)
 
 
 def _csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:

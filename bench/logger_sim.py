@@ -78,10 +78,14 @@ class _Horizon(Exception):
     """The campaign reached the horizon of :func:`simulate_truth`."""
 
 
-def simulate_truth(sc: Scenario, physics_hz: float, until_s: float | None = None) -> Truth:
+def simulate_truth(sc: Scenario, physics_hz: float, until_s: float | None = None,
+                   predict: bool = True) -> Truth:
     """Run the scenario's campaign as a continuous log at ``physics_hz`` (its dwells kept)
     and collect the truth of every step, up to ``until_s`` [s] when given. A run of equal
-    steps (a dwell) is kept as its first and last step: the truth is linear between steps."""
+    steps (a dwell) is kept as its first and last step: the truth is linear between steps.
+    ``predict``: the plant starts each rest search along a move from the rest extrapolated
+    from the last two (:attr:`firmware_sim.plant.Plant.predict`: the same rests within its
+    force tolerance, several times faster); False searches from the last rest."""
     rows: list[tuple] = []
 
     def same(a: tuple, b: tuple) -> bool:
@@ -101,7 +105,7 @@ def simulate_truth(sc: Scenario, physics_hz: float, until_s: float | None = None
     sc2 = replace(sc, recording=RecordingSpec(kind="continuous", dwell_at_targets=True,
                                               rate_hz=physics_hz))
     try:
-        run_campaign(sc2, None, sink=sink)
+        run_campaign(sc2, None, sink=sink, predict=predict)
     except _Horizon:
         pass
     cols = list(zip(*rows, strict=True))

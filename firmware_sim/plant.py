@@ -25,7 +25,7 @@ very stiff stand-in (``RIGID_EA``) so that their tensions are defined.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import minimize
@@ -122,6 +122,11 @@ class Plant:
     start. ``rng`` draws the per-visit process noise. ``check_every``: every k-th rest
     position is checked against finite differences of the energy (1: all of them; rows
     of a continuous recording, close to each other, are checked one in ``k``).
+    ``predict``: a settle that continues a steady motion (its time one step after the last
+    two settles', equally spaced) starts its rest search from the rest extrapolated
+    linearly from those two (pose and mast rotations), not from the last: a few steps of
+    the search instead of many for the same rest position (within the search's force
+    tolerance); a search from there that loses its way starts again from the last rest.
     """
 
     model: Robot
@@ -133,6 +138,11 @@ class Plant:
     #: check the rest position against finite differences of the energy on every n-th rest
     #: (1: every one; a long simulation may thin the check out, the first is always checked)
     check_every: int = 1
+    #: start the searches of a steady motion from the extrapolated rest (see above)
+    predict: bool = False
+    #: force tolerance of a rest search as a fraction of the platform's weight (scaled
+    #: gradient of the energy; rests agree to about 1e-8 m and 1e-3 N at the default)
+    tol: float = 1e-7
 
     def __post_init__(self) -> None:
         t = self.truth
@@ -174,6 +184,14 @@ class Plant:
         ps_exits = self._exits(np.zeros((t.n_masts, 3)))
         self.state = PlantState(self.init_pose.copy(), self.init_tensions.copy(), ps_exits,
                                 np.zeros((t.n_masts, 3)), self.u0.copy())
+        #: the last two settles (time [s], rest) for :meth:`_predicted`
+        self._trail: list[tuple[float, PlantState]] = []
+
+    def slip_at(self, times: np.ndarray) -> None:
+        """Set the times (n,) [s] at which the truth's length offsets take effect (see
+        ``slip_times``; a campaign that continues another learns them once it started)."""
+        self.slip_times = np.asarray(times, dtype=float).copy()
+        self._slip = self.slip_times.copy()
 
     def _pretension(self, size: float) -> np.ndarray:
         """Tensions [N] at initialisation: the distribution's plus internal forces of
@@ -277,16 +295,23 @@ class Plant:
             H[:, i] = (self._gradient(yp, *args) - g0) / h
         return 0.5 * (H + H.T)
 
-    def rest(self, l0: np.ndarray, guess: np.ndarray | None = None) -> PlantState:
+    def rest(self, l0: np.ndarray, guess: np.ndarray | None = None,
+             predicted: PlantState | None = None) -> PlantState:
         """Where the platform rests with true unstretched lengths ``l0`` (n,) [m].
 
         The search starts from the last rest position, or from the pose ``guess``
         (6,) when the platform moved far since (e.g. the pose the controller aimed at).
         When that search loses its way after a long move (it finds no rest position, or
         one turned over: :data:`MAX_TURN_RAD`), the plant follows the move through the
-        rest positions in between instead (:meth:`_follow_move`).
+        rest positions in between instead (:meth:`_follow_move`). ``predicted``: a rest
+        expected near the answer (:meth:`_predicted`), tried first.
         """
         hess_inv = self._hess_inv
+        if predicted is not None:
+            try:
+                return self._search(predicted, l0, None)
+            except _Lost:
+                self._hess_inv = hess_inv
         try:
             return self._search(self.state, l0, guess)
         except _Lost as lost:
@@ -375,9 +400,9 @@ class Plant:
         args = (pose0, l0, e0)
         if self._hess_inv is None:
             self._hess_inv = _safe_inverse(self._hessian(y0, *args))
-        # force tolerance: 1e-7 of the weight, relaxed for very stiff cables so that the
+        # force tolerance: ``tol`` of the weight, relaxed for very stiff cables so that the
         # position it allows (force / stiffness) stays far below a micrometre
-        gtol = 1e-7 * self.truth.weight * max(1.0, float(np.max(self.truth.ea)) / 1e6)
+        gtol = self.tol * self.truth.weight * max(1.0, float(np.max(self.truth.ea)) / 1e6)
         accept = max(100 * gtol, self._approx_n)
         y, ok = self._chord(y0, args, gtol, max_iter=8)
         if not ok:  # slow contraction: refresh the finite-difference Hessian where we are
@@ -469,8 +494,21 @@ class Plant:
         if nz.settle_m:  # the ropes' creep: the settled exits at time t
             self._a_star = self._a_star0 + self._settle_dir * (nz.settle_m * t / nz.settle_s)
             self._r = lever_arms(self._a_star, self.truth.pivots, self.truth.mast_index)
-        self.state = self.rest(self.unstretched(readings, t, visit_noise), guess)
+        predicted = self._predicted(t) if guess is None else None
+        self.state = self.rest(self.unstretched(readings, t, visit_noise), guess, predicted)
+        self._trail = [*self._trail[-1:], (float(t), self.state)]
         return self.state
+
+    def _predicted(self, t: float) -> PlantState | None:
+        """With :attr:`predict`, the rest at time ``t`` [s] extrapolated linearly (pose and
+        mast rotations) from the last two settles when ``t`` continues their spacing (a
+        steady motion, settled at equal steps); else None."""
+        if not self.predict or len(self._trail) < 2:
+            return None
+        (t0, a), (t1, b) = self._trail
+        if not t1 > t0 or abs((t - t1) - (t1 - t0)) > 1e-9 * max(1.0, abs(t)):
+            return None
+        return replace(b, pose=2.0 * b.pose - a.pose, theta=2.0 * b.theta - a.theta)
 
     def platform_point(self, state: PlantState, point: np.ndarray) -> np.ndarray:
         """A platform point (F_p) in F_b for ``state`` [m]."""
