@@ -1275,23 +1275,18 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     return theta
 
 
-def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
-                            offsets_only: bool = True) -> np.ndarray:
+def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) -> np.ndarray:
     """Per fit parameter (fit units squared): :func:`direction_bias_var` of ``fit`` on the
     samples ``idx`` for the length offsets that apply from the initialisation on (those a
     reference error of the encoders looks like: ``bench.diagnosis.report``'s floor of their
-    errors); zero for the other parameters (with ``offsets_only``; else for every free
-    parameter: what the same errors move into a drum scale, a gain, a stiffness: their
-    intervals), and where per-sample unknowns project no sample's length residual
-    (:meth:`ResidualModel.projects`)."""
+    errors); zero for the other parameters, and where per-sample unknowns project no
+    sample's length residual (:meth:`ResidualModel.projects`)."""
     out = np.zeros(len(fit.phi))
     space, ids = fit.space, rm.model.cable_ids
     free = np.flatnonzero(np.isfinite(fit.stderr))
     dl = np.array([p.key.startswith("dl_") and rm.slip_times[ids.index(p.key[3:])]
                    <= rm.init_end for p in space.params], dtype=bool)
-    if not offsets_only:
-        dl[:] = True
-    if not len(free) or not dl[free].any() or not rm.projects(idx):
+    if not dl[free].any() or not rm.projects(idx):
         return out
     H = space.robot(fit.phi)
     steps = rm.length_steps(H, idx)

@@ -341,17 +341,6 @@ def _reference_var(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> np.nda
     return out + direction_reference_var(fit, rm, idx)
 
 
-def _interval_var(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> np.ndarray:
-    """Per fit parameter, the variance the cables' errors by direction of approach add to its
-    interval beside :func:`_reference_var` where poses are estimated
-    (:func:`direction_reference_var` for every parameter but the length offsets, whose
-    floor holds it from the initialisation on): a drum scale, a gain or a stiffness
-    follows the reference's error as the fit's linear response says."""
-    extra = direction_reference_var(fit, rm, idx, offsets_only=False)
-    dl = np.array([p.key.startswith("dl_") for p in fit.space.params], dtype=bool)
-    return np.where(dl, 0.0, extra)
-
-
 def cleaned_robot(fit: FitResult) -> Robot:
     """The fitted robot (every parameter at its fitted value: where the data cannot fix a
     parameter alone, the fit still holds the combination they do fix)."""
@@ -875,8 +864,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         floor = _reference_var(rm, final, fit_idx)
         params, errs, undet = effect_entries(final, sel.effects, floor)
     sel.fit = final
-    intervals = effect_intervals(final, rm, fit_idx, sel.effects, params,
-                                 floor + _interval_var(rm, final, fit_idx), pool, say)
+    intervals = effect_intervals(final, rm, fit_idx, sel.effects, params, floor, pool, say)
     fitted = cleaned_robot(final)
     say("fitted: equilibrium of every sample under the corrected model")
     fit_fw = rm.forward(fitted)
