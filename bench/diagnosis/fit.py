@@ -909,8 +909,7 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
     if r is not None and errors is not None and len(errors.weights) == len(r):
-        # per-sample unknowns: taken out entry by entry (``shares``), else as a whole
-        dof = 1.0 if errors.shares is not None else errors.n_eff / max(n_res, 1.0)
+        dof = errors.n_eff / max(n_res, 1.0)
         cov = cov_s @ error_meat(Js, r, errors) @ cov_s * dof * np.outer(D, D)
     else:
         red = chi2 / max(n_res - p, 1)
@@ -1011,14 +1010,8 @@ class ErrorStructure:
     #: the unweighted whitened residuals, which the other components are estimated beside
     knots: np.ndarray | None = None
     #: share of the residuals' degrees of freedom per-sample unknowns leave (their moments
-    #: are that share of the errors'; the caller scales the meat back by its inverse), one
-    #: for every entry where ``shares`` is None
+    #: are that share of the errors'; the caller scales the meat back by its inverse)
     kept: float = 1.0
-    #: per entry, the share of its error's variance per-sample unknowns leave in it
-    #: (:meth:`ResidualModel.entry_shares`: an estimated pose leaves ``(n - 6) / n`` of a
-    #: length entry's, all of a force's): the components are estimated from the residuals
-    #: scaled back by it, entry by entry, in place of ``kept`` (None: ``kept``)
-    shares: np.ndarray | None = None
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -1035,18 +1028,17 @@ NCOMP = 5
 def error_structure(rm, idx: np.ndarray, lost: float | None = None,
                     H=None) -> ErrorStructure:
     """The :class:`ErrorStructure` of the entries of ``rm``'s (a ResidualModel) whitened
-    residuals on the samples ``idx``: ``n_eff`` their weights summed; with ``lost`` (the
-    degrees of freedom per-sample unknowns take) the share each entry keeps of its error
-    (``shares``, :meth:`ResidualModel.entry_shares`); None: every entry taken whole. With
-    the hypothesis ``H`` (a Robot), the stops' length errors are followed into the force and
+    residuals on the samples ``idx``: ``n_eff`` their weights summed; ``lost`` the degrees of
+    freedom per-sample unknowns take (``kept`` their complement's share; None: 1). With the
+    hypothesis ``H`` (a Robot), the stops' length errors are followed into the force and
     moment entries where poses are estimated (:meth:`ResidualModel.entry_knots`)."""
     w = rm.entry_weights(idx)
     n_eff = float(w.sum())
-    shares = None if lost is None else rm.entry_shares(idx)
+    kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
                           rm.entry_knots(idx) if H is None else rm.entry_knots(idx, H),
-                          1.0, shares)
+                          kept)
 
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a
@@ -1081,26 +1073,19 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     b = Js * sw[:, None]
     ncol = int(e.columns.max()) + 1 if len(e.columns) else 1
     nmove = int(e.moves.max()) + 1 if len(e.moves) else 1
-    # per-sample unknowns leave each entry ``shares`` of its error: the components are the
-    # errors' own, from the residuals scaled back entry by entry (``kept`` then 1)
-    kept = e.kept
-    se = sw
-    if e.shares is not None and len(e.shares) == len(r):
-        kept = 1.0
-        se = sw * np.sqrt(np.clip(e.shares, 1e-6, 1.0))
-    u = r / se
+    u = r / sw
     kinds = [_KindGroups(e.kinds == k, e, ncol, nmove) for k in np.unique(e.kinds)]
     # the moment statistics u^T P_l u of every kind and component, and the pairs behind each
     stats = np.array([kg.statistics(u) for kg in kinds]).ravel()
     knots = e.knots if e.knots is not None and len(e.knots) == len(r) and e.knots.any() \
         else None
-    theta = _unbiased_components(Js, se, kinds, stats, knots, kept)
+    theta = _unbiased_components(Js, sw, kinds, stats, knots, e.kept)
     meat = np.zeros((p, p))
     if knots is not None:
         # the blended visit-to-visit error: known from the replicate dwells, in the readings'
         # units (the caller's scaling by 1 / kept undone: the score sees it whole)
         kb = knots.T @ b
-        meat += kept * (kb.T @ kb)
+        meat += e.kept * (kb.T @ kb)
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
     quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])

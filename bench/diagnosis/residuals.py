@@ -1109,16 +1109,6 @@ class ResidualModel:
         parts = [q for q in parts if q.size]
         return np.concatenate(parts) if parts else np.zeros(0)
 
-    def entry_shares(self, idx: np.ndarray | None = None) -> np.ndarray:
-        """The share of its error's variance that per-sample unknowns leave in each entry of
-        :meth:`whiten`'s vector: ``r / n`` for a length entry of a sample whose length
-        residual is projected onto ``r`` of ``n`` directions (:attr:`len_rank`: an estimated
-        pose, internal forces), 1 for the others (forces, moments, exit points: the unknowns
-        are solved from the lengths, or from nothing but the tracker). The whitening divides
-        by the readings' noise, so a projected length entry has ``r / n`` of its variance."""
-        share = self._per_entry(self.len_rank / self.model.n_cables, idx)
-        return np.where(self.entry_kinds(idx) % 4 == 0, share, 1.0)
-
     def entry_kinds(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The kind of each entry of :meth:`whiten`'s vector, by quantity (0 a cable length,
         1 a force axis, 2 a moment axis, 3 an exit point's axis) and by sample (a dwell's
