@@ -735,7 +735,7 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         Jf = Jf[:-lik.n_extra] if len(Jf) else Jf
     n_res = len(r)
     if free.any():
-        errors = error_structure(rm, idx, lost)
+        errors = error_structure(rm, idx, lost, space.robot(x))
         cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r,
                                   errors.stretches, errors)
     else:
@@ -1025,16 +1025,20 @@ MIN_KEPT_SHARED = 0.5
 NCOMP = 5
 
 
-def error_structure(rm, idx: np.ndarray, lost: float | None = None) -> ErrorStructure:
+def error_structure(rm, idx: np.ndarray, lost: float | None = None,
+                    H=None) -> ErrorStructure:
     """The :class:`ErrorStructure` of the entries of ``rm``'s (a ResidualModel) whitened
     residuals on the samples ``idx``: ``n_eff`` their weights summed; ``lost`` the degrees of
-    freedom per-sample unknowns take (``kept`` their complement's share; None: 1)."""
+    freedom per-sample unknowns take (``kept`` their complement's share; None: 1). With the
+    hypothesis ``H`` (a Robot), the stops' length errors are followed into the force and
+    moment entries where poses are estimated (:meth:`ResidualModel.entry_knots`)."""
     w = rm.entry_weights(idx)
     n_eff = float(w.sum())
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
-                          rm.entry_knots(idx), kept)
+                          rm.entry_knots(idx) if H is None else rm.entry_knots(idx, H),
+                          kept)
 
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a

@@ -932,7 +932,8 @@ class ResidualModel:
         vector (``Samples.block``)."""
         return self._per_entry(self.s.block.astype(float), idx).astype(int)
 
-    def entry_knots(self, idx: np.ndarray | None = None) -> np.ndarray | None:
+    def entry_knots(self, idx: np.ndarray | None = None,
+                    H: Robot | None = None) -> np.ndarray | None:
         """The visit-to-visit error of the lengths where the recording stops between moves
         (dwells and rows of moves both fitted): (entries of :meth:`whiten`'s vector, stops x
         cables), whitened. A cable's error changes from stop to stop (what replicate dwells
@@ -942,7 +943,14 @@ class ResidualModel:
         when there is nothing to blend (no rows of moves, or no dwell replicates told the
         level). The initialisation's stops carry none: the encoders are referenced there.
         A recording that never stops has its knots where the moves meet
-        (``Samples.turns``), its level from rows near each other on different moves."""
+        (``Samples.turns``), its level from rows near each other on different moves.
+
+        With the hypothesis ``H`` and poses estimated from the lengths, the force and moment
+        entries carry the same errors too: a cable's error moves the estimated pose, and the
+        balance of the measured tensions there (:meth:`_wrench_knots`). Without them, the
+        wrench entries' share of a visit's error is left out of the errors and out of their
+        correlation with the lengths' (drum scales' errors 0.7 of their spread over replicate
+        recordings, IPAnema-class, continuous with dwells, no tracker)."""
         s, n = self.s, self.model.n_cables
         sl = np.arange(s.n) if idx is None else np.asarray(idx)
         if not self.visit_sd or not (s.kind[sl] == 1).any():
@@ -962,10 +970,32 @@ class ResidualModel:
         out = [K[self.has_len[sl]].reshape(-1, S * n)]
         if self.any_tau:
             mm = self.has_tau[sl] & (self.has_pose[sl] | self.est_pose[sl])
-            out.append(np.zeros((int(mm.sum()) * 6, S * n)))
+            W = None if H is None else self._wrench_knots(H, sl, hat)
+            if W is None:
+                out.append(np.zeros((int(mm.sum()) * 6, S * n)))
+            else:  # whiten's layout: every sample's force axes, then every moment axes
+                out += [W[mm, :3].reshape(-1, S * n), W[mm, 3:].reshape(-1, S * n)]
         if self.has_exit.any():
             out.append(np.zeros((int(self.has_exit[sl].sum()) * 3, S * n)))
         return np.concatenate(out)
+
+    def _wrench_knots(self, H: Robot, sl: np.ndarray, hat: np.ndarray) -> np.ndarray | None:
+        """(samples ``sl``, 6, stops x cables): the whitened force and moment residuals' share
+        of the stops' length errors (``hat`` each sample's weights on the stops, at
+        ``visit_sd``) where poses are estimated from the lengths: each cable's error moves the
+        estimated pose and with it the balance of the measured tensions
+        (:meth:`length_steps`, per metre). None where no pose is estimated."""
+        est = self.est_pose[sl] & self.has_len[sl]
+        if not est.any() or not self.visit_sd:
+            return None
+        b0, steps = self.length_steps(H, sl)
+        sd = np.concatenate([np.repeat(self.sd["force"][sl][:, None], 3, axis=1),
+                             np.repeat(self.sd["moment"][sl][:, None], 3, axis=1)], axis=1)
+        dw = np.stack([(st.wrench[sl] - b0.wrench[sl]) for st in steps], axis=-1) \
+            / self.LOADING_STEP_M / sd[..., None]  # (M, 6, n) per metre of each cable
+        dw = np.where(est[:, None, None] & np.isfinite(dw), dw, 0.0)
+        W = hat[:, None, :, None] * dw[:, :, None, :] * self.visit_sd  # (M, 6, S, n)
+        return W.reshape(len(sl), 6, -1)
 
     #: [m] length step of :meth:`length_steps`' finite differences
     LOADING_STEP_M = 1e-5
