@@ -53,7 +53,7 @@ def _where(cases: list[dict]) -> list[str]:
     cpus = sorted({r.get("cpu", "not recorded") for r in runs})
     span = f"{dates[0]} to {dates[-1]}" if dates else "not recorded"
     return [f"| diagnosis commit | {', '.join(f'`{c}`' for c in commits)} |",
-            f"| diagnosed | {span} |", f"| CPU | {'; '.join(cpus)} |"]
+            f"| evaluation run started | {span} |", f"| CPU | {'; '.join(cpus)} |"]
 
 
 def _headline(s: dict) -> list[str]:
@@ -100,8 +100,10 @@ def _coverage(cov: dict) -> list[str]:
     return out
 
 
-def page(header: dict, cases: list[dict], errors: int, made: str) -> str:
-    """The Markdown page of the scored ``cases`` of one ``--out`` file (its ``header``)."""
+def page(header: dict, cases: list[dict], errors: int, made: str, source: str | None = None
+         ) -> str:
+    """The Markdown page of the scored ``cases`` of one ``--out`` file (its ``header``;
+    ``source`` its path as the page names it)."""
     from bench.evaluate import summarise
 
     s = summarise(cases)
@@ -117,6 +119,7 @@ def page(header: dict, cases: list[dict], errors: int, made: str) -> str:
         "| | |", "| --- | --- |",
         f"| cases | `{command(header.get('config') or {}, seeds)}` |",
         *_where(cases),
+        *([f"| records | `{source}` |"] if source else []),
         f"| cases that raised | {errors} |",
         f"| page made | {made} |", "",
         *_headline(s), "",
@@ -136,7 +139,9 @@ def page(header: dict, cases: list[dict], errors: int, made: str) -> str:
         "Regenerate (about ten minutes at `--jobs 2` once the cases are kept and only "
         "diagnosed again, `--keep DIR --reuse-kept`; hours to record them):", "",
         "```sh", "cdpr evaluate --cases 200 --seed 12800 --jobs 2 --keep cases --out eval.jsonl",
-        "python -m bench.evaluation_page eval.jsonl --out docs/evaluation.md", "```", ""]
+        "cp eval.jsonl docs/data/evaluation.jsonl",
+        "python -m bench.evaluation_page docs/data/evaluation.jsonl --out docs/evaluation.md",
+        "```", ""]
     return "\n".join(lines)
 
 
@@ -165,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     cases = [r for _, r in sorted(records.items()) if "error" not in r]
     errors = len(records) - len(cases)
-    text = page(header, cases, errors, datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"))
+    text = page(header, cases, errors, datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+                argv[0])
     if out is None:
         sys.stdout.write(text)
     else:

@@ -51,7 +51,7 @@ def test_page_gives_the_figures_and_where_they_were_measured(tmp_path, capsys):
     text = out.read_text(encoding="utf-8")
     assert "`cdpr evaluate --cases 3 --seed 1 --robot ipanema" in text
     assert "| diagnosis commit | `abc1234567` |" in text
-    assert "2026-12-05 10:01 UTC to 2026-12-05 10:03 UTC" in text
+    assert "| evaluation run started | 2026-12-05 10:01 UTC to 2026-12-05 10:03 UTC |" in text
     assert "| cases that raised | 1 |" in text
     assert "| exact detection | 66.7 % " in text
     # coverage: two exact cases, one interval holds the truth
