@@ -44,6 +44,7 @@ tensions: the headline.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -755,6 +756,7 @@ class ResidualModel:
         self.sigma_source = "defaults (no replicate visits)"
         self.replicate_dof = 0.0
         found: dict[int, dict[str, float]] = {0: {}, 1: {}}
+        rep_rows = np.zeros(self.s.n, dtype=bool)
         dof_len = np.zeros(self.model.n_cables)
         for kind in (0, 1):
             of_kind = self.s.kind == kind
@@ -768,6 +770,8 @@ class ResidualModel:
                 sd, rep, dof = _pooled_columns(v, g, w)
                 if sd is None:
                     continue
+                if name == "length" and kind == 1:
+                    rep_rows = rep
                 white = self.white_k[kind][name] ** 2 * float(np.mean(1.0 / count[rep]))
                 var = float(np.nanmean(sd ** 2)) - white
                 found[kind][name] = float(np.sqrt(max(var, 0.0)))
@@ -783,6 +787,8 @@ class ResidualModel:
             # no dwells: the spread of rows near each other on different moves tells the
             # level (the lengths change from stop to stop; between stops, rows blend it)
             self.visit_sd = found[1].get("length")
+            if self.visit_sd is not None:
+                self.visit_sd /= math.sqrt(self._blend_share(rep_rows))
         if self.visit_sd is None and "length" not in found[1]:
             # nothing measured the level: the declared repeatability changes from stop to
             # stop as the diagonal's default says it does (a continuous recording without
@@ -806,6 +812,19 @@ class ResidualModel:
         self.sigma = dict(self.sigma_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
         self._update_sd()
         return self.noise_summary()
+
+    def _blend_share(self, rows: np.ndarray) -> float:
+        """Mean over the rows ``rows`` (mask, N) of the sum of their squared weights on the
+        turns (:meth:`_turn_knots`): the share of the stops' visit-to-visit variance a row of
+        a move carries (1 at a turn, 1/2 midway between two). The spread of replicate rows
+        on different moves measures the visit level times this share (2/3 for rows spread
+        evenly along the moves); 1 where the recording has no turns or no such rows."""
+        s = self.s
+        sl = np.flatnonzero(rows & (s.kind == 1))
+        if s.turns is None or not len(s.turns) or not len(sl):
+            return 1.0
+        hat = self._turn_knots(sl)
+        return float(np.clip(np.mean(np.sum(hat ** 2, axis=1)), 0.5, 1.0))
 
     def replicate_groups(self, groups: np.ndarray | None) -> dict[str, np.ndarray]:
         """Replicate group ids per block column (see :meth:`estimate_noise`): ``length`` (N,n),
