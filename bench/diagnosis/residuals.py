@@ -175,6 +175,9 @@ class ResidualModel:
         self.replicate_dof = 0.0
         #: visit-to-visit length error of dwells [m] measured on replicates (None unmeasured)
         self.visit_sd: float | None = None
+        #: the visit level was measured on rows of moves (no dwell replicates): the lengths'
+        #: error changes at the turns (:meth:`entry_knots`)
+        self.visit_rows = False
         # per sample (NaN before the first): the last deflected exits and estimated poses
         # (warm starts)
         self._warm_exits = np.full((s.n, n, 3), np.nan)
@@ -783,12 +786,16 @@ class ResidualModel:
             # groups, rows near each other on few moves, can miss it
             found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
         self.visit_sd = found[0].get("length")
-        if self.visit_sd is None and not (self.s.kind == 0)[~self.s.is_init].any():
-            # no dwells: the spread of rows near each other on different moves tells the
-            # level (the lengths change from stop to stop; between stops, rows blend it)
+        self.visit_rows = False
+        if self.visit_sd is None and "length" in found[1] and self.s.turns is not None \
+                and len(self.s.turns):
+            # no dwell replicates (no dwells, or a stray one where the platform stood a
+            # moment): the spread of rows near each other on different moves tells the level
+            # (the lengths change from turn to turn; between turns, rows blend it)
+            self.visit_sd = found[1]["length"] / math.sqrt(self._blend_share(rep_rows))
+            self.visit_rows = True
+        elif self.visit_sd is None and not (self.s.kind == 0)[~self.s.is_init].any():
             self.visit_sd = found[1].get("length")
-            if self.visit_sd is not None:
-                self.visit_sd /= math.sqrt(self._blend_share(rep_rows))
         if self.visit_sd is None and "length" not in found[1]:
             # nothing measured the level: the declared repeatability changes from stop to
             # stop as the diagonal's default says it does (a continuous recording without
@@ -974,7 +981,7 @@ class ResidualModel:
         sl = np.arange(s.n) if idx is None else np.asarray(idx)
         if not self.visit_sd or not (s.kind[sl] == 1).any():
             return None
-        if (s.kind == 0)[~s.is_init].any():
+        if (s.kind == 0)[~s.is_init].any() and not self.visit_rows:
             hat = self._dwell_knots(sl)
         elif s.turns is not None and len(s.turns):
             hat = self._turn_knots(sl)
