@@ -30,15 +30,15 @@ SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "continuous_drum_offsets_ipanema_12866.json")
 
 
-def _visit_level(tmp_path: Path, seed: int) -> tuple[float | None, float]:
-    """(visit_sd [m], replicate dof) of the scenario recorded with noise ``seed``."""
+def _visit_level(tmp_path: Path, seed: int) -> ResidualModel:
+    """The residual model of the scenario recorded with noise ``seed``, its noise measured."""
     scenario = json.loads(SCENARIO.read_text())
     scenario["seed"] = seed
     rec = read_recording(run_campaign(parse_scenario(scenario), tmp_path / str(seed)))
     s = prepare(rec)
     rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.estimate_noise(rec.robot)
-    return rm.visit_sd, rm.replicate_dof
+    return rm
 
 
 def test_blend_share_of_rows_between_turns():
@@ -47,11 +47,16 @@ def test_blend_share_of_rows_between_turns():
     assert np.allclose(np.sum(hat ** 2, axis=1), [1.0, 0.5, 1.0, 0.625])
 
 
-@pytest.mark.parametrize("seed", [1286600, 1286601, 1286603])
+@pytest.mark.parametrize("seed", [1286600, 1286601, 1286603, 1286606, 1286608])
 def test_visit_level_of_rows_is_the_turns_level(tmp_path, seed):
-    """Measured on replicate rows, the level is the turns' (0.6 mm), not 0.8 of it."""
+    """Measured on replicate rows, the level is the turns' (0.6 mm), not 0.8 of it. Noise
+    seeds 1286606 and 1286608 hold one stray dwell (the platform stood a moment) without
+    replicates: the rows' level holds all the same, and changes at the turns (it was
+    dropped: no visit-to-visit error at all in the standard errors)."""
     one_blas_thread()
     truth = json.loads(SCENARIO.read_text())["noise"]["process_m"]
-    level, dof = _visit_level(tmp_path, seed)
-    assert dof > 0 and level is not None  # measured, not the declared default
-    assert 0.88 < level / truth < 1.25, (level, truth)
+    rm = _visit_level(tmp_path, seed)
+    assert rm.replicate_dof > 0 and rm.visit_sd is not None  # measured, not the default
+    assert 0.88 < rm.visit_sd / truth < 1.25, (rm.visit_sd, truth)
+    assert rm.visit_rows
+    assert rm.entry_knots() is not None
