@@ -968,8 +968,9 @@ class ResidualModel:
         and with the rows of the moves before and after: its covariance is ``K K^T``. None
         when there is nothing to blend (no rows of moves, or no dwell replicates told the
         level). The initialisation's stops carry none: the encoders are referenced there.
-        A recording that never stops has its knots where the moves meet
-        (``Samples.turns``), its level from rows near each other on different moves.
+        A recording that never stops (or whose dwells have no replicates) has its knots where
+        the moves meet (``Samples.turns``), its level from rows near each other on different
+        moves (their spread over their mean share of the turns' variance, ``visit_rows``).
 
         With the hypothesis ``H`` and poses estimated from the lengths, the force and moment
         entries carry the same errors too: a cable's error moves the estimated pose, and the
