@@ -44,6 +44,7 @@ tensions: the headline.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -174,6 +175,9 @@ class ResidualModel:
         self.replicate_dof = 0.0
         #: visit-to-visit length error of dwells [m] measured on replicates (None unmeasured)
         self.visit_sd: float | None = None
+        #: the visit level was measured on rows of moves (no dwell replicates): the lengths'
+        #: error changes at the turns (:meth:`entry_knots`)
+        self.visit_rows = False
         # per sample (NaN before the first): the last deflected exits and estimated poses
         # (warm starts)
         self._warm_exits = np.full((s.n, n, 3), np.nan)
@@ -755,6 +759,7 @@ class ResidualModel:
         self.sigma_source = "defaults (no replicate visits)"
         self.replicate_dof = 0.0
         found: dict[int, dict[str, float]] = {0: {}, 1: {}}
+        rep_rows = np.zeros(self.s.n, dtype=bool)
         dof_len = np.zeros(self.model.n_cables)
         for kind in (0, 1):
             of_kind = self.s.kind == kind
@@ -768,6 +773,8 @@ class ResidualModel:
                 sd, rep, dof = _pooled_columns(v, g, w)
                 if sd is None:
                     continue
+                if name == "length" and kind == 1:
+                    rep_rows = rep
                 white = self.white_k[kind][name] ** 2 * float(np.mean(1.0 / count[rep]))
                 var = float(np.nanmean(sd ** 2)) - white
                 found[kind][name] = float(np.sqrt(max(var, 0.0)))
@@ -779,9 +786,15 @@ class ResidualModel:
             # groups, rows near each other on few moves, can miss it
             found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
         self.visit_sd = found[0].get("length")
-        if self.visit_sd is None and not (self.s.kind == 0)[~self.s.is_init].any():
-            # no dwells: the spread of rows near each other on different moves tells the
-            # level (the lengths change from stop to stop; between stops, rows blend it)
+        self.visit_rows = False
+        if self.visit_sd is None and "length" in found[1] and self.s.turns is not None \
+                and len(self.s.turns):
+            # no dwell replicates (no dwells, or a stray one where the platform stood a
+            # moment): the spread of rows near each other on different moves tells the level
+            # (the lengths change from turn to turn; between turns, rows blend it)
+            self.visit_sd = found[1]["length"] / math.sqrt(self._blend_share(rep_rows))
+            self.visit_rows = True
+        elif self.visit_sd is None and not (self.s.kind == 0)[~self.s.is_init].any():
             self.visit_sd = found[1].get("length")
         if self.visit_sd is None and "length" not in found[1]:
             # nothing measured the level: the declared repeatability changes from stop to
@@ -806,6 +819,19 @@ class ResidualModel:
         self.sigma = dict(self.sigma_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
         self._update_sd()
         return self.noise_summary()
+
+    def _blend_share(self, rows: np.ndarray) -> float:
+        """Mean over the rows ``rows`` (mask, N) of the sum of their squared weights on the
+        turns (:meth:`_turn_knots`): the share of the stops' visit-to-visit variance a row of
+        a move carries (1 at a turn, 1/2 midway between two). The spread of replicate rows
+        on different moves measures the visit level times this share (2/3 for rows spread
+        evenly along the moves); 1 where the recording has no turns or no such rows."""
+        s = self.s
+        sl = np.flatnonzero(rows & (s.kind == 1))
+        if s.turns is None or not len(s.turns) or not len(sl):
+            return 1.0
+        hat = self._turn_knots(sl)
+        return float(np.clip(np.mean(np.sum(hat ** 2, axis=1)), 0.5, 1.0))
 
     def replicate_groups(self, groups: np.ndarray | None) -> dict[str, np.ndarray]:
         """Replicate group ids per block column (see :meth:`estimate_noise`): ``length`` (N,n),
@@ -942,8 +968,9 @@ class ResidualModel:
         and with the rows of the moves before and after: its covariance is ``K K^T``. None
         when there is nothing to blend (no rows of moves, or no dwell replicates told the
         level). The initialisation's stops carry none: the encoders are referenced there.
-        A recording that never stops has its knots where the moves meet
-        (``Samples.turns``), its level from rows near each other on different moves.
+        A recording that never stops (or whose dwells have no replicates) has its knots where
+        the moves meet (``Samples.turns``), its level from rows near each other on different
+        moves (their spread over their mean share of the turns' variance, ``visit_rows``).
 
         With the hypothesis ``H`` and poses estimated from the lengths, the force and moment
         entries carry the same errors too: a cable's error moves the estimated pose, and the
@@ -955,7 +982,7 @@ class ResidualModel:
         sl = np.arange(s.n) if idx is None else np.asarray(idx)
         if not self.visit_sd or not (s.kind[sl] == 1).any():
             return None
-        if (s.kind == 0)[~s.is_init].any():
+        if (s.kind == 0)[~s.is_init].any() and not self.visit_rows:
             hat = self._dwell_knots(sl)
         elif s.turns is not None and len(s.turns):
             hat = self._turn_knots(sl)
