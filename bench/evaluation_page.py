@@ -149,33 +149,25 @@ def main(argv: list[str] | None = None) -> int:
     """``EVAL.jsonl [--out PAGE]``: the page on stdout, or written to PAGE."""
     from datetime import UTC, datetime
 
+    from bench.benchmarks.page import page_arguments, write_page
     from bench.commands.evaluate import UsageError, read_results
 
-    argv = list(sys.argv[1:] if argv is None else argv)
-    out = None
-    if len(argv) == 3 and argv[1] == "--out":
-        out = Path(argv.pop(2))
-        argv.pop(1)
-    if len(argv) != 1:
-        print("usage: python -m bench.evaluation_page EVAL.jsonl [--out docs/evaluation.md]",
-              file=sys.stderr)
+    args = page_arguments(argv, "python -m bench.evaluation_page EVAL.jsonl "
+                                "[--out docs/evaluation.md]")
+    if args is None:
         return 2
+    src, out = args
     try:
-        header, records = read_results(Path(argv[0]))
+        header, records = read_results(Path(src))
     except UsageError as e:
         print(str(e), file=sys.stderr)
         return 1
     if header is None or not records:
-        print(f"{argv[0]}: no cases: not an --out file of `cdpr evaluate`", file=sys.stderr)
+        print(f"{src}: no cases: not an --out file of `cdpr evaluate`", file=sys.stderr)
         return 1
     cases = [r for _, r in sorted(records.items()) if "error" not in r]
-    errors = len(records) - len(cases)
-    text = page(header, cases, errors, datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-                argv[0])
-    if out is None:
-        sys.stdout.write(text)
-    else:
-        out.write_text(text, encoding="utf-8")
+    made = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    write_page(page(header, cases, len(records) - len(cases), made, src), out)
     return 0
 
 

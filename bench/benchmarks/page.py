@@ -148,31 +148,45 @@ def page(results: dict[str, object], where: dict[str, str]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``BENCH.json [--out PAGE]``: the page on stdout, or written to PAGE once made (the
-    commit is read before the page is touched, so it is not marked dirty by it)."""
+def page_arguments(argv: list[str] | None, usage: str) -> tuple[str, Path | None] | None:
+    """A page generator's arguments ``INPUT [--out PAGE]`` (``sys.argv`` when None): the
+    input and the page's path (None: stdout); None, the usage printed, when they are not."""
     argv = list(sys.argv[1:] if argv is None else argv)
     out = None
     if len(argv) == 3 and argv[1] == "--out":
         out = Path(argv.pop(2))
         argv.pop(1)
     if len(argv) != 1:
-        print("usage: python -m bench.benchmarks.page BENCH.json [--out docs/benchmarks.md]",
-              file=sys.stderr)
-        return 2
-    try:
-        results = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
-        print(f"{argv[0]}: cannot read the benchmark results: {e}", file=sys.stderr)
-        return 1
-    if not isinstance(results, dict) or "error" in results:
-        print(f"{argv[0]}: not the output of `cdpr bench --json`", file=sys.stderr)
-        return 1
-    text = page(results, machine())
+        print(f"usage: {usage}", file=sys.stderr)
+        return None
+    return argv[0], out
+
+
+def write_page(text: str, out: Path | None) -> None:
+    """The page on stdout, or written to ``out``."""
     if out is None:
         sys.stdout.write(text)
     else:
         out.write_text(text, encoding="utf-8")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``BENCH.json [--out PAGE]``: the page on stdout, or written to PAGE once made (the
+    commit is read before the page is touched, so it is not marked dirty by it)."""
+    args = page_arguments(argv, "python -m bench.benchmarks.page BENCH.json "
+                                "[--out docs/benchmarks.md]")
+    if args is None:
+        return 2
+    src, out = args
+    try:
+        results = json.loads(Path(src).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as e:
+        print(f"{src}: cannot read the benchmark results: {e}", file=sys.stderr)
+        return 1
+    if not isinstance(results, dict) or "error" in results:
+        print(f"{src}: not the output of `cdpr bench --json`", file=sys.stderr)
+        return 1
+    write_page(page(results, machine()), out)
     return 0
 
 
