@@ -98,6 +98,7 @@ def test_a_profile_refit_holds_its_parameter_at_the_end_not_at_the_models_value(
         s = slip_times = sqrt_w = len_rank = reference = None
         sd: dict = {}
         visit_sd = slack_threshold = cells_at = None
+        visit_rows = False
 
     idx, hold = np.arange(3), np.ones(len(space), dtype=bool)
     assert _memo_key(space, _RM(), idx, values, 10, hold, False) != _memo_key(

@@ -181,8 +181,7 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             a = np.ascontiguousarray(a)
             h.update(str((a.dtype, a.shape)).encode())
             h.update(a.tobytes())
-    h.update(repr((rm.visit_sd, getattr(rm, "visit_rows", False), rm.slack_threshold,
-                   rm.cells_at)).encode())
+    h.update(repr((rm.visit_sd, rm.visit_rows, rm.slack_threshold, rm.cells_at)).encode())
     settings = (MAX_NFEV, RETRIES, FIT_TOL, SECANT_MIN, SECANT_RATIO, SECANT_STEPS, SETTLED,
                 PRUNE_HOPELESS,
                 id(least_squares), id(fd_jacobian))
