@@ -20,7 +20,7 @@ def _selector(n_moves: int, rows: int) -> Selector:
         entry_weights=lambda idx: np.ones(n), entry_kinds=lambda idx: np.full(n, 4),
         entry_columns=lambda idx: cols, entry_moves=lambda idx: moves,
         entry_blocks=lambda idx: moves, entry_directions=lambda idx: np.zeros(n),
-        entry_knots=lambda idx: None)
+        entry_knots=lambda idx, H=None: None)
     sel = Selector.__new__(Selector)
     sel.rm = rm
     return sel

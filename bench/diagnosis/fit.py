@@ -465,6 +465,16 @@ def unfixed_parameters(space: ParamSpace, stderr: np.ndarray) -> np.ndarray:
                      for p, se in zip(space.params, stderr, strict=True)], dtype=bool)
 
 
+def held_error(Skh: np.ndarray, Shh: np.ndarray, d: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """How kept parameters follow held ones (``B = S_kh S_hh^-1``, from the covariance blocks
+    of a fit that frees both) and the squared error holding them moves into each kept one,
+    estimated without bias from their departures ``d``: ``(B d)^2 - diag(B S_hh B^T)``,
+    clipped at 0."""
+    B = Skh @ np.linalg.pinv(Shh, rcond=1e-12, hermitian=True)
+    return B, np.clip((B @ d) ** 2 - np.einsum("ij,jk,ik->i", B, Shh, B), 0.0, None)
+
+
 def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray,
                      unfixed: np.ndarray | None = None) -> np.ndarray:
     """Per parameter, the squared error that holding the ``weak`` parameters at ``neutral``
@@ -489,11 +499,7 @@ def pruning_bias_var(full: FitResult, weak: np.ndarray, neutral: np.ndarray,
         return out
     S = full.cov
     Shh = S[np.ix_(weak, weak)]
-    B = S[np.ix_(kept, weak)] @ np.linalg.pinv(Shh, rcond=1e-12, hermitian=True)
-    d = (full.phi - neutral)[weak]
-    bias = B @ d
-    var = np.einsum("ij,jk,ik->i", B, Shh, B)
-    out[kept] = np.clip(bias ** 2 - var, 0.0, None)
+    B, out[kept] = held_error(S[np.ix_(kept, weak)], Shh, (full.phi - neutral)[weak])
     if unfixed is not None and (unfixed & weak).any():
         u = unfixed[weak]
         Bu = B[:, u]
@@ -973,8 +979,7 @@ def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.
     S, _ = standard_errors(Ja, float(r @ r), n_res, sc, r, None, errors)
     d = np.linalg.lstsq(Ja * sc, r, rcond=None)[0][p:] * sc[p:]
     Shh = S[p:, p:]
-    B = S[:p, p:] @ np.linalg.pinv(Shh, rcond=1e-12, hermitian=True)
-    held = np.clip((B @ d) ** 2 - np.einsum("ij,jk,ik->i", B, Shh, B), 0.0, None)
+    _, held = held_error(S[:p, p:], Shh, d)
     # the fit's response to the initialisation's error of each cable (per metre)
     Js = J * sc[:p]
     G = -(np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True) @ (Js.T @ later)) \
@@ -1037,8 +1042,8 @@ def error_structure(rm, idx: np.ndarray, lost: float | None = None,
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
-                          rm.entry_knots(idx) if H is None else rm.entry_knots(idx, H),
-                          kept)
+                          rm.entry_knots(idx, H), kept)
+
 
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a
