@@ -15,6 +15,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from bench.commands.evaluate import _pct
+
 #: options of ``cdpr evaluate`` for the keys of a case configuration (the --out header)
 _OPTIONS = {"robot": "--robot", "kind": "--kind", "sensors": "--sensors", "oov": "--oov",
             "tracker": "--tracker-error"}
@@ -35,10 +37,6 @@ def command(config: dict, seeds: list[int]) -> str:
     if "visits" in poses:
         parts.append(f"--visits {poses['visits']}")
     return " ".join(parts)
-
-
-def _pct(x: float | None) -> str:
-    return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
 def _ci(ci: list[float]) -> str:
