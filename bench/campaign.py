@@ -66,7 +66,6 @@ def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None,
 def run_campaign(sc: Scenario, out: str | Path | None,
                  progress: Callable[[int, int], None] | None = None,
                  poses: np.ndarray | None = None, sink: Callable[..., None] | None = None,
-                 referenced: np.ndarray | None = None, predict: bool = False,
                  plant: Plant | None = None,
                  first_row: Callable[[float, Plant], None] | None = None) -> Path | None:
     """Simulate the scenario's campaign and write the recording directory ``out``.
@@ -75,11 +74,9 @@ def run_campaign(sc: Scenario, out: str | Path | None,
     handed to ``sink(t, pose_des, l_cmd, l_meas, state, tau_read, label)`` instead (``state``
     the plant's :class:`~firmware_sim.plant.PlantState`, ``tau_read`` what noise-free load
     cells read [N]), for a logger that samples it its own way (:mod:`bench.logger_sim`).
-    ``referenced``: see :func:`campaign_plant` (the initialisation's rows then stand on the
-    old reference: a continuation leaves them out). ``predict``: see :func:`campaign_plant`
-    (the same rests within the plant's force tolerance, found in fewer steps). ``plant``:
-    the campaign's plant when the caller made it (:func:`campaign_plant` of ``sc``; then
-    ``referenced`` and ``predict`` are its own). ``first_row(t, plant)`` is called once with
+    ``plant``: the campaign's plant when the caller made it (:func:`campaign_plant` of ``sc``
+    with its own reference or rest searches); default: ``campaign_plant(sc)``.
+    ``first_row(t, plant)`` is called once with
     the time [s] of the first row after the initialisation, before the plant settles for it
     (a campaign continuing another sets its later slips by it: :meth:`Plant.slip_at`)."""
     model, n = sc.model, sc.model.n_cables
@@ -87,7 +84,7 @@ def run_campaign(sc: Scenario, out: str | Path | None,
     ps = sc.poses
     spec = sc.recording
     targets, rng = campaign_targets(sc, poses)
-    plant = campaign_plant(sc, referenced, predict) if plant is None else plant
+    plant = campaign_plant(sc) if plant is None else plant
     tau0_meas = plant.measured_tensions(plant.init_tensions)
     ctl = LengthController(model, sc.init_pose, init_tensions=None)
     exit_idx = [model.cable_ids.index(c) for c in ps.exit_points] if spec.tracker else []

@@ -918,8 +918,9 @@ def _record_change(case: dict[str, Any], rec: Path) -> None:
         # the second's rows move by ``t0`` less its first row's time: its later slips are
         # set in its own clock when that time is known (before its plant settles there)
         sc_b = scenario_of(second)
-        run_campaign(sc_b, b, referenced=plant_a.u0, first_row=lambda t, plant: plant.slip_at(
-            _second_slips(case, sc_b, t0, t0 - t)))
+        run_campaign(sc_b, b, plant=campaign_plant(sc_b, plant_a.u0),
+                     first_row=lambda t, plant: plant.slip_at(
+                         _second_slips(case, sc_b, t0, t0 - t)))
         _, rows_b = _csv_rows(b / "recording.csv")
         rows_b = [r for r in rows_b if r[st] != "init"]
         shift = t0 - float(rows_b[0][0])

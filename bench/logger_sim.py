@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.campaign import run_campaign
+from bench.campaign import campaign_plant, run_campaign
 from bench.recording import FORMAT, POSE_AXES, write_header_files
 from firmware_sim.scenario import RecordingSpec, Scenario
 
@@ -105,7 +105,7 @@ def simulate_truth(sc: Scenario, physics_hz: float, until_s: float | None = None
     sc2 = replace(sc, recording=RecordingSpec(kind="continuous", dwell_at_targets=True,
                                               rate_hz=physics_hz))
     try:
-        run_campaign(sc2, None, sink=sink, predict=predict)
+        run_campaign(sc2, None, sink=sink, plant=campaign_plant(sc2, predict=predict))
     except _Horizon:
         pass
     cols = list(zip(*rows, strict=True))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import bench.campaign as campaign
+import bench.logger_sim as logger_sim
 from bench.evaluate import make_case, scenario_of
 from bench.logger_sim import LoggerSpec, sample_log, simulate_truth
 from firmware_sim.plant import Plant
@@ -41,7 +42,7 @@ def _truths(monkeypatch, sc, tol: float | None):
             p.tol = tol
         return p
 
-    monkeypatch.setattr(campaign, "campaign_plant", plant)
+    monkeypatch.setattr(logger_sim, "campaign_plant", plant)  # the logger's truth makes it
     monkeypatch.setattr(Plant, "_gradient", counted)
     out = []
     for predict in (False, True):

@@ -45,11 +45,11 @@ def test_a_slip_after_the_change_one_run_per_campaign(tmp_path, monkeypatch):
     (its first row's time in its own clock to ``t0``); the encoders keep the first's
     reference."""
     case = ev.make_case(61100, kind="load_change")
-    runs, firsts, slips, plants = [], [], [], []
+    runs, firsts, slips, plants, refs = [], [], [], [], []
     run, slip_at, made = campaign.run_campaign, Plant.slip_at, campaign.campaign_plant
 
     def counted(*a, **k):
-        runs.append(k.get("referenced"))
+        runs.append(k.get("plant"))
         hook = k.get("first_row")
         if hook is not None:
             k["first_row"] = lambda t, plant: (firsts.append(t), hook(t, plant))
@@ -60,6 +60,7 @@ def test_a_slip_after_the_change_one_run_per_campaign(tmp_path, monkeypatch):
         return slip_at(self, times)
 
     def plant(*a, **k):
+        refs.append(a[1] if len(a) > 1 else k.get("referenced"))
         plants.append(made(*a, **k))
         return plants[-1]
 
@@ -71,8 +72,9 @@ def test_a_slip_after_the_change_one_run_per_campaign(tmp_path, monkeypatch):
     case["truth"]["cable_length_offset"]["slip_time_41"] = late
     ev.record(case, tmp_path / "rec")
     assert case["case"]["change"]["t_s"] == t0
-    assert len(runs) == 2 and runs[0] is None
-    assert np.array_equal(runs[1], plants[0].u0)  # the first campaign's own plant
+    assert len(runs) == 2 and refs[0] is None
+    assert np.array_equal(refs[1], plants[0].u0)  # the first campaign's own plant
+    assert runs == plants[-2:]  # each campaign runs on the plant made for it
     assert len(firsts) == 1 and len(slips) == 1
     sc = ev.scenario_of(case)
     k = sc.model.cable_ids.index("41")
