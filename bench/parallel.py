@@ -310,9 +310,7 @@ def interrupt_on_term():
 
     def handler(signum, frame):
         _PENDING.append(signum)
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        raise Terminated(signum)
+        raise_pending()
 
     old = {}
     for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT):
