@@ -322,16 +322,17 @@ def _unit_spanned(col: tuple, unit: np.ndarray, t: np.ndarray, mids: np.ndarray
     return ok
 
 
-def _joint_column(col: tuple, form: np.ndarray, units: np.ndarray, after: np.ndarray
+def _joint_column(col: tuple, form: np.ndarray, units: np.ndarray, xs: np.ndarray,
+                  after: np.ndarray
                   ) -> tuple[float, float, float | None, tuple[np.ndarray, np.ndarray]]:
     """One column's part of a joint step (:func:`_joint_step`) at one time: its whitened
     gain ``gain / s2``, its degrees of freedom left, the squared size of its fitted part
     (None where nothing is fitted) and its residuals per error unit (the units' sorted
     labels ``units`` and the sums). ``col`` as in :func:`_joint_step`, ``form`` the step's
-    form at its samples (:func:`_forms`), ``after`` (m,) its samples at or after the step."""
+    form at its samples (:func:`_forms`), ``xs`` its deviations summed per error unit,
+    ``after`` (m,) its samples at or after the step."""
     idx, inv, uinv, x, dof0, floor2 = col
     got = _unit_fit(x, _step_regressors(form, inv, after), uinv, dof0, floor2)
-    xs = np.bincount(uinv, weights=x)
     if got is None:
         return 0.0, dof0 - form.shape[1], None, (units, xs)
     gain, s2, dof, fitted = got
@@ -366,11 +367,12 @@ def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndar
     # column's parameters)
     forms = [_forms(_pose_features(pos[c[0]]), dof_min)[-1] for c in cols]
     units = [np.unique(unit[c[0]]) for c in cols]
+    sums = [np.bincount(c[2], weights=c[3]) for c in cols]  # (the same at every time)
     q = forms[-1].shape[1]
     best = None
     for tm in mids[_unit_spanned(widest, unit, t, mids)]:
-        parts = [_joint_column(c, f, u, t[c[0]] >= tm)
-                 for c, f, u in zip(cols, forms, units, strict=True)]
+        parts = [_joint_column(c, f, u, xs, t[c[0]] >= tm)
+                 for c, f, u, xs in zip(cols, forms, units, sums, strict=True)]
         shares = [pt[0] for pt in parts]
         sizes = [pt[2] for pt in parts if pt[2] is not None]
         r = min(float(rank), _independent([pt[3] for pt in parts]))
