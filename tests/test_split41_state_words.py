@@ -46,3 +46,15 @@ def test_the_diagnosis_says_which_words_it_read_from_the_data(tmp_path):
 
 def test_a_recording_without_a_state_column_lists_no_word(plain):
     assert plain["states_unknown"] == {} and plain["rows_in_other_states"] == 0
+
+
+def test_the_formats_words_count_in_any_letter_case(tmp_path):
+    """``Dwell`` / ``MOVE`` are the format's ``dwell`` / ``move`` (as ``HOLD`` is ``hold``):
+    read as such, not left to the data and not listed as a lab's own."""
+    infos = []
+    for words in (("dwell", "move"), ("Dwell", "MOVE")):
+        rec, _, _ = read_conditioned(make_case(tmp_path / words[0], Habits(state_words=words),
+                                               **SMALL))
+        infos.append(prepare(rec).info)
+    for k in ("dwell_samples", "path_samples", "dwells_available", "states_unknown"):
+        assert infos[1][k] == infos[0][k], k

@@ -557,6 +557,7 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
         st = states[a] if states is not None else None
         if st is not None and st.strip() and not known_state(st):
             unknown[st] = unknown.get(st, 0) + b - a
+        st = None if st is None else st.strip().lower()  # the format's words in any case
         if st is not None and st not in STILL_STATES | MOVE_STATES and not reaction_state(st):
             st = None  # a state the format does not define, or "end": the data decide
         if st is not None and st not in STILL_STATES | MOVE_STATES:
