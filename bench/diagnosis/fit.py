@@ -1269,6 +1269,15 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     return theta
 
 
+def referenced_offsets(space: ParamSpace, rm: ResidualModel) -> np.ndarray:
+    """Per parameter of ``space``: whether it is a length offset that applies from the
+    initialisation on (its cable's slip time at the encoders' reference: what an error of
+    that reference looks like)."""
+    ids = rm.model.cable_ids
+    return np.array([p.key.startswith("dl_") and rm.slip_times[ids.index(p.key[3:])]
+                     <= rm.init_end for p in space.params], dtype=bool)
+
+
 def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) -> np.ndarray:
     """Per fit parameter (fit units squared): :func:`direction_bias_var` of ``fit`` on the
     samples ``idx`` for the length offsets that apply from the initialisation on (those a
@@ -1276,10 +1285,9 @@ def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) 
     errors); zero for the other parameters, and where per-sample unknowns project no
     sample's length residual (:meth:`ResidualModel.projects`)."""
     out = np.zeros(len(fit.phi))
-    space, ids = fit.space, rm.model.cable_ids
+    space = fit.space
     free = np.flatnonzero(np.isfinite(fit.stderr))
-    dl = np.array([p.key.startswith("dl_") and rm.slip_times[ids.index(p.key[3:])]
-                   <= rm.init_end for p in space.params], dtype=bool)
+    dl = referenced_offsets(space, rm)
     if not dl[free].any() or not rm.projects(idx):
         return out
     H = space.robot(fit.phi)

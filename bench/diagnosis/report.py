@@ -25,6 +25,7 @@ from bench.diagnosis.fit import (
     Interval,
     direction_reference_var,
     fit_effects,
+    referenced_offsets,
     split_columns,
 )
 from bench.diagnosis.residuals import Forward, ResidualModel
@@ -328,16 +329,12 @@ def _reference_var(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> np.nda
     fit's samples ``idx``) for a length offset that applies from the initialisation on (no
     step found later): the two are the same signature."""
     out = np.zeros(len(fit.space.params))
-    keys = [p.key for p in fit.space.params]
-    if not any(k.startswith("dl_") for k in keys):
+    if not any(p.key.startswith("dl_") for p in fit.space.params):
         return out
     ref = rm.reference_sd(cleaned_robot(fit))
     ids = rm.model.cable_ids
-    for j, k in enumerate(keys):
-        if k.startswith("dl_"):
-            c = ids.index(k[3:])
-            if rm.slip_times[c] <= rm.init_end:
-                out[j] = ref[c] ** 2
+    for j in np.flatnonzero(referenced_offsets(fit.space, rm)):
+        out[j] = ref[ids.index(fit.space.params[j].key[3:])] ** 2
     return out + direction_reference_var(fit, rm, idx)
 
 
