@@ -158,9 +158,9 @@ def run_campaign(sc: Scenario, out: str | Path | None,
         for i in order:
             p_des = targets[i]
             noise_next = plant.visit_noise()
+            travel = dt if continuous else _travel_s(prev, p_des, ps.speed_m_s)
             if first_row is not None and done == 0:
-                first_row(t + (dt if continuous else _travel_s(prev, p_des, ps.speed_m_s)),
-                          plant)
+                first_row(t + travel, plant)
             if continuous:
                 t, state, measured = _move(ctl, plant, prev, p_des, t, dt, ps.speed_m_s,
                                            measured, noise_prev, noise_next, quantise, row,
@@ -171,7 +171,7 @@ def run_campaign(sc: Scenario, out: str | Path | None,
                 if not cyc.feasible:
                     raise ValueError(f"campaign pose {np.round(p_des, 3).tolist()} is not "
                                      f"feasible for the model: {cyc.reason}")
-                t += _travel_s(prev, p_des, ps.speed_m_s)
+                t += travel
                 state = plant.settle(quantise(cyc.lengths), t=t, visit_noise=noise_next,
                                      guess=p_des)
                 measured = plant.measured_tensions(state.tensions)
