@@ -51,16 +51,14 @@ def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None,
     """The plant of the scenario's campaign. ``referenced`` (n,) [m]: the truth's unstretched
     lengths when the encoders were referenced, where that was before this campaign (one that
     continues another after a change on the robot: the encoders keep their reference);
-    default: at this campaign's initialisation (:attr:`Plant.u0`). ``predict``: the rest
+    default: at this campaign's initialisation (:attr:`Plant.referenced`). ``predict``: the rest
     searches along a move start from the extrapolated rest (:attr:`Plant.predict`)."""
     # a length offset is a slip after initialisation: never before the init dwell ends
     slips = np.maximum(sc.slip_times, sc.poses.init_s)
-    plant = Plant(sc.model, sc.truth, sc.init_pose, sc.nuisances(process=True),
-                  slip_times=slips, rng=np.random.default_rng(sc.seed + 1),
-                  check_every=10 if sc.recording.kind == "continuous" else 1, predict=predict)
-    if referenced is not None:
-        plant.u0 = np.asarray(referenced, dtype=float).copy()
-    return plant
+    return Plant(sc.model, sc.truth, sc.init_pose, sc.nuisances(process=True),
+                 slip_times=slips, rng=np.random.default_rng(sc.seed + 1),
+                 check_every=10 if sc.recording.kind == "continuous" else 1, predict=predict,
+                 referenced=referenced)
 
 
 def run_campaign(sc: Scenario, out: str | Path | None,

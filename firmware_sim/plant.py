@@ -127,6 +127,10 @@ class Plant:
     linearly from those two (pose and mast rotations), not from the last: a few steps of
     the search instead of many for the same rest position (within the search's force
     tolerance); a search from there that loses its way starts again from the last rest.
+    ``referenced`` (n,) [m]: the truth's unstretched lengths when the encoders were
+    referenced, where that was before this plant's initialisation (a campaign continuing
+    another after a change on the robot keeps its encoders' reference); default: at its
+    initialisation (:attr:`u0`).
     """
 
     model: Robot
@@ -143,6 +147,9 @@ class Plant:
     #: force tolerance of a rest search as a fraction of the platform's weight (scaled
     #: gradient of the energy; rests agree to about 1e-8 m and 1e-3 N at the default)
     tol: float = 1e-7
+    #: truth's unstretched lengths [m] at the encoders' reference, if before this plant's
+    #: initialisation (see above; None: at it)
+    referenced: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         t = self.truth
@@ -151,10 +158,13 @@ class Plant:
         self.truth = t
         self.init_pose = np.asarray(self.init_pose, dtype=float)
         self.reference = reference_lengths(self.model, self.init_pose)  # d_model(p0)
-        self.u0, self.init_tensions = init_unstretched(t, self.init_pose)
+        u_init, self.init_tensions = init_unstretched(t, self.init_pose)
         if self.nuisances.init_pretension_n:
-            self.u0, self.init_tensions = init_unstretched(
+            u_init, self.init_tensions = init_unstretched(
                 t, self.init_pose, self._pretension(self.nuisances.init_pretension_n))
+        #: truth's unstretched lengths (n,) [m] when the encoders were referenced
+        self.u0 = u_init.copy() if self.referenced is None \
+            else np.asarray(self.referenced, dtype=float).copy()
         self._a_star0 = self._a_star = settled_exits(t)
         self._r = lever_arms(self._a_star, t.pivots, t.mast_index)
         inward = t.pivots.mean(axis=0) - t.pivots
@@ -179,11 +189,10 @@ class Plant:
                                                        1.0)
         self._last_readings = self.reference.copy()
         self._direction = np.zeros(t.n_cables)
-        n = t.n_cables
-        self._slip = np.zeros(n) if self.slip_times is None else np.asarray(self.slip_times, float)
+        self.slip_at(np.zeros(t.n_cables) if self.slip_times is None else self.slip_times)
         ps_exits = self._exits(np.zeros((t.n_masts, 3)))
         self.state = PlantState(self.init_pose.copy(), self.init_tensions.copy(), ps_exits,
-                                np.zeros((t.n_masts, 3)), self.u0.copy())
+                                np.zeros((t.n_masts, 3)), u_init)
         #: the last two settles (time [s], rest) for :meth:`_predicted`
         self._trail: list[tuple[float, PlantState]] = []
 
