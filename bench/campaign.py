@@ -53,12 +53,17 @@ def campaign_plant(sc: Scenario, referenced: np.ndarray | None = None,
     continues another after a change on the robot: the encoders keep their reference);
     default: at this campaign's initialisation (:attr:`Plant.referenced`). ``predict``: the rest
     searches along a move start from the extrapolated rest (:attr:`Plant.predict`)."""
-    # a length offset is a slip after initialisation: never before the init dwell ends
-    slips = np.maximum(sc.slip_times, sc.poses.init_s)
     return Plant(sc.model, sc.truth, sc.init_pose, sc.nuisances(process=True),
-                 slip_times=slips, rng=np.random.default_rng(sc.seed + 1),
+                 slip_times=plant_slips(sc), rng=np.random.default_rng(sc.seed + 1),
                  check_every=10 if sc.recording.kind == "continuous" else 1, predict=predict,
                  referenced=referenced)
+
+
+def plant_slips(sc: Scenario, times: np.ndarray | None = None) -> np.ndarray:
+    """The slip times (n,) [s] as the scenario's plant takes them: ``times`` (default the
+    scenario's ``slip_times``), none before the initialisation's dwell ends (``init_s``): a
+    length offset is a slip after the encoders were referenced."""
+    return np.maximum(sc.slip_times if times is None else times, sc.poses.init_s)
 
 
 def run_campaign(sc: Scenario, out: str | Path | None,

@@ -681,6 +681,7 @@ def oracle(rec_dir: Path, sc, streams: bool = False) -> dict[str, float]:
     true values: what they can imitate of it does not count) minus those of the truth
     (noise estimated on the truth). With ``streams``, the recording is read as the
     diagnosis reads a logger's (:func:`bench.streams.condition`)."""
+    from bench.campaign import plant_slips
     from bench.diagnosis.fit import fit_effects
     from bench.diagnosis.residuals import ResidualModel
     from bench.diagnosis.samples import check_values, prepare
@@ -694,7 +695,7 @@ def oracle(rec_dir: Path, sc, streams: bool = False) -> dict[str, float]:
 
         rec, _ = condition(rec)
     s = prepare(rec)
-    slips = np.maximum(sc.slip_times, sc.poses.init_s)
+    slips = plant_slips(sc)
     truth = apply_effects(sc.model, sc.effects)
     rm = ResidualModel(s, sc.model, rec.init_pose, rec.init_tensions, slip_times=slips,
                        rows=s.triples)
@@ -914,9 +915,9 @@ def _record_change(case: dict[str, Any], rec: Path) -> None:
         head, rows_a = _csv_rows(a / "recording.csv")
         st = head.index("state")
         t0 = float(rows_a[-1][0]) + CHANGE_GAP_S
-        _continued_slips(case, second, t0)
-        # the second's rows move by ``t0`` less its first row's time: its later slips are
-        # set in its own clock when that time is known (before its plant settles there)
+        # the second's rows move by ``t0`` less its first row's time: its slips are set in
+        # its own clock when that time is known (before its plant settles there; its
+        # initialisation comes before any slip, whatever the times it starts with)
         sc_b = scenario_of(second)
         run_campaign(sc_b, b, plant=campaign_plant(sc_b, plant_a.u0),
                      first_row=lambda t, plant: plant.slip_at(
@@ -939,28 +940,18 @@ def _record_change(case: dict[str, Any], rec: Path) -> None:
     info["change"]["t_s"] = t0
 
 
-def _continued_slips(case: dict[str, Any], second: dict[str, Any], t0: float) -> None:
-    """Set the second campaign's slip times (its own clock) from the case's (the whole
-    recording's clock) [s]: a slip before ``t0`` (the change) from the start; a later one,
-    whose time in the second's clock is known once it runs (:func:`_second_slips`), for now
-    at its time in the whole recording (after the second's initialisation)."""
-    offsets = case["truth"].get("cable_length_offset", {})
-    own = second["truth"].get("cable_length_offset", {})
-    for k, v in offsets.items():
-        if k.startswith("slip_time_"):
-            own[k] = float(v) if v >= t0 else 0.0
-
-
 def _second_slips(case: dict[str, Any], sc, t0: float, shift: float) -> np.ndarray:
-    """The second campaign's slip times (n,) [s] as its plant takes them
-    (:func:`bench.campaign.campaign_plant`): the case's slips after ``t0`` at their time
-    less ``shift`` (what the second's rows are moved by), the others from the start."""
-    times = np.array(sc.slip_times, dtype=float)
-    offsets = case["truth"].get("cable_length_offset", {})
-    for k, v in offsets.items():
+    """The second campaign's slip times (n,) [s] in its own clock, as its plant takes them
+    (:func:`bench.campaign.plant_slips`), from the case's (the whole recording's clock): a
+    slip after ``t0`` (the change) at its time less ``shift`` (what the second's rows are
+    moved by), the others from the start."""
+    from bench.campaign import plant_slips
+
+    times = np.zeros(sc.model.n_cables)
+    for k, v in case["truth"].get("cable_length_offset", {}).items():
         if k.startswith("slip_time_") and v >= t0:
             times[sc.model.cable_ids.index(k[len("slip_time_"):])] = max(float(v) - shift, 0.0)
-    return np.maximum(times, sc.poses.init_s)
+    return plant_slips(sc, times)
 
 
 def _csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
