@@ -14,19 +14,17 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
-from firmware_sim.scenario import parse_scenario
 
 SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "continuous_no_tracker_cells_mass_cogiro_11486.json")
 
 
-def test_shared_errors_of_the_moves_are_no_per_cable_stretch(tmp_path):
+def test_shared_errors_of_the_moves_are_no_per_cable_stretch(record_scenario, tmp_path):
     one_blas_thread()
     scenario = json.loads(SCENARIO.read_text())
-    rep = diagnose(run_campaign(parse_scenario(scenario), tmp_path / "rec")).report
+    rep = diagnose(record_scenario(scenario, tmp_path / "rec")).report
     named = {e["name"]: e for e in rep["effects"]}
     assert set(named) == {"load_cell_calibration", "platform_mass"}, rep["mismatch"]["summary"]
     truth = scenario["truth"]

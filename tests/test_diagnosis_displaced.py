@@ -11,19 +11,17 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
-from firmware_sim.scenario import parse_scenario
 
 SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "sag_displaces_mass_rocaspect_11931.json")
 
 
-def test_the_sag_takes_the_place_of_the_mass(tmp_path):
+def test_the_sag_takes_the_place_of_the_mass(record_scenario, tmp_path):
     one_blas_thread()
     scenario = json.loads(SCENARIO.read_text())
-    rep = diagnose(run_campaign(parse_scenario(scenario), tmp_path / "rec")).report
+    rep = diagnose(record_scenario(scenario, tmp_path / "rec")).report
     named = {e["name"]: e for e in rep["effects"]}
     assert set(named) == {"cable_sag"}, rep["mismatch"]["summary"]
     rho = scenario["truth"]["cable_sag"]["rho"]

@@ -15,22 +15,22 @@ from pathlib import Path
 
 import pytest
 
-from bench.campaign import run_campaign
 from bench.diagnosis.report import stream_slips
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.samples import prepare
 from bench.diagnosis.slips import choose_alike
 from bench.evaluate import one_blas_thread
 from bench.recording import read_recording
-from firmware_sim.scenario import parse_scenario
 
 SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "slip_no_tracker_continuous_rocaspect_12935.json")
 
 
-def _slips(scenario: dict, folder: Path, choose: bool = False) -> list[dict]:
+def _slips(folder: Path, choose: bool = False) -> list[dict]:
+    """The slips the raw rows show in the recording ``folder`` (with ``choose``: those the
+    candidates' offsets over every sample keep)."""
     one_blas_thread()
-    rec = read_recording(run_campaign(parse_scenario(scenario), folder))
+    rec = read_recording(folder)
     s = prepare(rec)
     rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
     found = stream_slips(rec, s, rm)
@@ -45,12 +45,18 @@ def scenario() -> dict:
     return json.loads(SCENARIO.read_text())
 
 
-def test_the_slip_is_found_at_its_row(scenario, tmp_path):
+@pytest.fixture(scope="module")
+def slipped(scenario, record_scenario, tmp_path_factory) -> Path:
+    """The scenario's recording (the slip included), shared by the tests that read it."""
+    return record_scenario(scenario, tmp_path_factory.mktemp("slip") / "rec")
+
+
+def test_the_slip_is_found_at_its_row(scenario, slipped):
     """Found at its row, at its size. ROCASPECT's odd cables' patterns are nearly parallel
     in the two directions an estimated pose leaves: 31's accounts for the jump within the
     noise too, and is a candidate alike (the selection's fit of the offsets tells whose)."""
     truth = scenario["truth"]["cable_length_offset"]
-    found = {f["cable"]: f for f in _slips(scenario, tmp_path / "rec")}
+    found = {f["cable"]: f for f in _slips(slipped)}
     assert "41" in found and set(found) <= {"11", "21", "31", "41"}
     for f in found.values():
         assert abs(f["t_s"] - truth["slip_time_41"]) < 0.2
@@ -58,16 +64,16 @@ def test_the_slip_is_found_at_its_row(scenario, tmp_path):
     assert abs(found["41"]["step_m"] - truth["dl_41"]) < 5e-4
 
 
-def test_the_candidates_offsets_over_every_sample_choose_the_slipped_cable(scenario, tmp_path):
+def test_the_candidates_offsets_over_every_sample_choose_the_slipped_cable(slipped):
     """Each candidate's offset from the step on, sized to first order, over every sample
     (each at its own pose, where the patterns differ): cable 41's fits best by far; the
     others' steps are dropped."""
-    found = _slips(scenario, tmp_path / "rec", choose=True)
+    found = _slips(slipped, choose=True)
     assert [f["cable"] for f in found] == ["41"] and "alike" not in found[0]
 
 
-def test_no_slip_no_jump(scenario, tmp_path):
+def test_no_slip_no_jump(scenario, record_scenario, tmp_path):
     """Must find nothing: the same campaign without the slip (the reversals between the
     targets, the readings' hysteresis, the estimated poses' noise)."""
     plain = dict(scenario, truth={})
-    assert _slips(plain, tmp_path / "rec") == []
+    assert _slips(record_scenario(plain, tmp_path / "rec")) == []
