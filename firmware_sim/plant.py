@@ -189,7 +189,7 @@ class Plant:
                                                        1.0)
         self._last_readings = self.reference.copy()
         self._direction = np.zeros(t.n_cables)
-        self.slip_at(np.zeros(t.n_cables) if self.slip_times is None else self.slip_times)
+        self._set_slips(np.zeros(t.n_cables) if self.slip_times is None else self.slip_times)
         ps_exits = self._exits(np.zeros((t.n_masts, 3)))
         self.state = PlantState(self.init_pose.copy(), self.init_tensions.copy(), ps_exits,
                                 np.zeros((t.n_masts, 3)), u_init)
@@ -199,6 +199,10 @@ class Plant:
     def slip_at(self, times: np.ndarray) -> None:
         """Set the times (n,) [s] at which the truth's length offsets take effect (see
         ``slip_times``; a campaign that continues another learns them once it started)."""
+        self._set_slips(times)
+
+    def _set_slips(self, times: np.ndarray) -> None:
+        """``slip_times`` and the copy the plant reads, from ``times`` (n,) [s]."""
         self.slip_times = np.asarray(times, dtype=float).copy()
         self._slip = self.slip_times.copy()
 
