@@ -36,13 +36,13 @@ def scenario(nuisance: dict) -> dict:
 
 
 @pytest.fixture(scope="module")
-def diagnosed(tmp_path_factory):
+def diagnosed(tmp_path_factory, record_scenario):
     """{name: diagnosis} of the continuous recording with and without a thermal drift."""
     one_blas_thread()
     out = {}
     for name, nuis in (("plain", {}), ("thermal", {"thermal_strain_per_h": 6e-3})):
-        sc = parse_scenario(scenario(nuis))
-        out[name] = diagnose(run_campaign(sc, tmp_path_factory.mktemp(name) / "rec"))
+        rec = record_scenario(scenario(nuis), tmp_path_factory.mktemp(name) / "rec")
+        out[name] = diagnose(rec)
     return out
 
 
