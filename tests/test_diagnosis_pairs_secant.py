@@ -10,18 +10,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
-from firmware_sim.scenario import parse_scenario
 
 SCENARIO = Path(__file__).parent / "data" / "scenarios" / "sag_and_ea_continuous_10923.json"
 
 
-def test_sag_and_ea_are_named_not_a_heavier_platform(tmp_path):
+def test_sag_and_ea_are_named_not_a_heavier_platform(record_scenario, tmp_path):
     one_blas_thread()
-    sc = parse_scenario(json.loads(SCENARIO.read_text()))
-    rep = diagnose(run_campaign(sc, tmp_path / "rec")).report
+    rep = diagnose(record_scenario(json.loads(SCENARIO.read_text()), tmp_path / "rec")).report
     named = {e["name"]: e for e in rep["effects"]}
     assert set(named) == {"cable_sag", "cable_elasticity"}, rep["mismatch"]["summary"]
     rho = named["cable_sag"]["params"]["rho"]  # the truth's 0.05606 kg/m
