@@ -29,7 +29,6 @@ settings.load_profile(os.environ.get("CDPR_HYPOTHESIS")
                       or os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
-
 @pytest.fixture(scope="session")
 def record_scenario() -> Callable[[dict, Path], Path]:
     """``record(scenario, folder)``: the campaign of a scenario (its JSON text as a dict)
