@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.campaign import run_campaign
+from bench.campaign import campaign_plant, run_campaign
 from bench.cli import main
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread, score
@@ -82,7 +82,9 @@ def continuous(tmp_path_factory):
     sc = parse_scenario(scenario(truth=truth, poses=poses, recording={
         "kind": "continuous", "dwell_at_targets": False, "rate_hz": 10.0,
         "state_column": True}))
-    return sc, run_campaign(sc, tmp_path_factory.mktemp("continuous") / "rec")
+    # rest searches along a move from the extrapolated rest: the same rows within 1e-8 m
+    return sc, run_campaign(sc, tmp_path_factory.mktemp("continuous") / "rec",
+                            plant=campaign_plant(sc, predict=True))
 
 
 @pytest.mark.parametrize("state", [True, False])

@@ -10,7 +10,7 @@ import copy
 import numpy as np
 import pytest
 
-from bench.campaign import run_campaign
+from bench.campaign import campaign_plant, run_campaign
 from bench.diagnosis.residuals import DEFAULTS, ResidualModel
 from bench.diagnosis.samples import prepare
 from bench.recording import read_recording
@@ -25,7 +25,8 @@ def _model(tmp_path, recording: dict, poses: dict | None = None) -> ResidualMode
                          "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0], "truth": {},
                          "nuisance": {"hysteresis_m": 5e-5, "drift_m_per_h": 2e-5},
                          "poses": copy.deepcopy(poses or POSES), "recording": recording})
-    rec = read_recording(run_campaign(sc, tmp_path / "rec"))
+    # rest searches along a move from the extrapolated rest: the same rows within 1e-8 m
+    rec = read_recording(run_campaign(sc, tmp_path / "rec", plant=campaign_plant(sc, predict=True)))
     s = prepare(rec)
     rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.estimate_noise(rec.robot)
