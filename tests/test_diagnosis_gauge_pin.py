@@ -13,17 +13,19 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
+from firmware_sim.scenario import parse_scenario
 
 SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "gauge_majority_cogiro_continuous_11693.json")
 
 
-def test_the_scale_is_fixed_where_most_cells_agree(record_scenario, tmp_path):
+def test_the_scale_is_fixed_where_most_cells_agree(tmp_path):
     one_blas_thread()
     scenario = json.loads(SCENARIO.read_text())
-    rep = diagnose(record_scenario(scenario, tmp_path / "rec")).report
+    rep = diagnose(run_campaign(parse_scenario(scenario), tmp_path / "rec")).report
     named = {e["name"]: e for e in rep["effects"]}
     # without a tracker, length offsets are tested too (since 2f51b45): one cable's softer
     # stretch and an offset on it are a near tie there, which must be declared
