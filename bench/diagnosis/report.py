@@ -39,6 +39,7 @@ from bench.diagnosis.select import (
     _warm,
     candidate_effects,
     compatible,
+    lost_beside,
     untested_effects,
 )
 from bench.diagnosis.space import (
@@ -645,6 +646,15 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
         bar = sel.fit.bic if rest == whole else sel.fit.bic + BIC_ENTER
         if f.bic < bar and (best is None or f.bic < best[0]):
             best = (f.bic, rest)
+    # (an effect that does not stand out by its own errors beside them: the BIC's bar
+    # counted the rows' shared errors as evidence; the nuisance takes its place)
+    lost = lost_beside(fits[rests.index(whole)], sel.effects, rm)
+    for e in lost:
+        rest = tuple(sorted(c for c in sel.effects if c != e))
+        f = fits[rests.index(rest)]
+        say(f"{report_name(e)} does not stand out beside the tensions at initialisation")
+        if best is None or f.bic < best[0]:
+            best = (f.bic, rest)
     sparse = _sparse_offsets(rm, sel.fit, flagged, train)
     if sparse is not None:
         say(f"{' + '.join(sel.fit.space.effects)} with the tensions at initialisation fitted "
@@ -665,7 +675,8 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
         # fitted, its offsets the fewest)
         again.cache[best[1]] = sparse
     sel2 = again.run(candidates, best[1])
-    if sel2.fit.bic + BIC_ENTER * len(sel2.effects) < sel.fit.bic + BIC_ENTER * len(sel.effects):
+    if sel2.fit.bic + BIC_ENTER * len(sel2.effects) < sel.fit.bic + BIC_ENTER * len(sel.effects) \
+            or (lost and set(sel.effects) - set(sel2.effects) <= set(lost)):
         return again, sel2
     say(f"it fits no better (BIC {sel2.fit.bic:.1f} against {sel.fit.bic:.1f}): the first "
         f"selection stands")
