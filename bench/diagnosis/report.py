@@ -612,7 +612,10 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     take up. Where one chosen effect, dropped, is replaced by such internal forces
     (:attr:`~controller.robot.Robot.init_internal`, fitted beside the others) at a BIC
     less than :data:`BIC_ENTER` higher (the nuisance comes free, an effect stays by the
-    selection's bar over it), or fitted beside all the chosen effects at a lower BIC (off
+    selection's bar over it; or at any BIC where the effect's parameters, fitted beside
+    them, no longer stand out by their own errors: :func:`~.select.lost_beside`, and the
+    selection again is then kept where it drops only such effects), or fitted beside all
+    the chosen effects at a lower BIC (off
     the initialisation pose a pretension's stretch reads as scale-like errors of a few
     cables: drum scales beside the true one), or the chosen length offsets are fewer with
     them (:func:`_sparse_offsets`; the chosen effects then start from that gauge), the
