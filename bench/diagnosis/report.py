@@ -39,6 +39,7 @@ from bench.diagnosis.select import (
     _warm,
     candidate_effects,
     compatible,
+    lost_beside,
     untested_effects,
 )
 from bench.diagnosis.space import (
@@ -611,7 +612,10 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
     take up. Where one chosen effect, dropped, is replaced by such internal forces
     (:attr:`~controller.robot.Robot.init_internal`, fitted beside the others) at a BIC
     less than :data:`BIC_ENTER` higher (the nuisance comes free, an effect stays by the
-    selection's bar over it), or fitted beside all the chosen effects at a lower BIC (off
+    selection's bar over it; or at any BIC where the effect's parameters, fitted beside
+    them, no longer stand out by their own errors: :func:`~.select.lost_beside`, and the
+    selection again is then kept where it drops only such effects), or fitted beside all
+    the chosen effects at a lower BIC (off
     the initialisation pose a pretension's stretch reads as scale-like errors of a few
     cables: drum scales beside the true one), or the chosen length offsets are fewer with
     them (:func:`_sparse_offsets`; the chosen effects then start from that gauge), the
@@ -645,6 +649,15 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
         bar = sel.fit.bic if rest == whole else sel.fit.bic + BIC_ENTER
         if f.bic < bar and (best is None or f.bic < best[0]):
             best = (f.bic, rest)
+    # (an effect that does not stand out by its own errors beside them: the BIC's bar
+    # counted the rows' shared errors as evidence; the nuisance takes its place)
+    lost = lost_beside(fits[rests.index(whole)], sel.effects, rm)
+    for e in lost:
+        rest = tuple(sorted(c for c in sel.effects if c != e))
+        f = fits[rests.index(rest)]
+        say(f"{report_name(e)} does not stand out beside the tensions at initialisation")
+        if best is None or f.bic < best[0]:
+            best = (f.bic, rest)
     sparse = _sparse_offsets(rm, sel.fit, flagged, train)
     if sparse is not None:
         say(f"{' + '.join(sel.fit.space.effects)} with the tensions at initialisation fitted "
@@ -665,7 +678,8 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
         # fitted, its offsets the fewest)
         again.cache[best[1]] = sparse
     sel2 = again.run(candidates, best[1])
-    if sel2.fit.bic + BIC_ENTER * len(sel2.effects) < sel.fit.bic + BIC_ENTER * len(sel.effects):
+    if sel2.fit.bic + BIC_ENTER * len(sel2.effects) < sel.fit.bic + BIC_ENTER * len(sel.effects) \
+            or (lost and set(sel.effects) - set(sel2.effects) <= set(lost)):
         return again, sel2
     say(f"it fits no better (BIC {sel2.fit.bic:.1f} against {sel.fit.bic:.1f}): the first "
         f"selection stands")
