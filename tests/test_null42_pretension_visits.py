@@ -18,29 +18,27 @@ from pathlib import Path
 
 import pytest
 
-from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
-from firmware_sim.scenario import parse_scenario
 
 SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "null_ipanema_continuous_no_tensions_12876.json")
 
 
-def _report(tmp_path: Path, truth: dict) -> dict:
+def _report(record, tmp_path: Path, truth: dict) -> dict:
     one_blas_thread()
     scenario = json.loads(SCENARIO.read_text())
     scenario["truth"] = truth
-    return diagnose(run_campaign(parse_scenario(scenario), tmp_path / "rec")).report
+    return diagnose(record(scenario, tmp_path / "rec")).report
 
 
-def test_nothing_concealed_names_nothing(tmp_path):
-    rep = _report(tmp_path, {})
+def test_nothing_concealed_names_nothing(record_scenario, tmp_path):
+    rep = _report(record_scenario, tmp_path, {})
     assert [e["name"] for e in rep["effects"]] == [], rep["mismatch"]["summary"]
 
 
 @pytest.mark.parametrize("offsets", [{"dx_31": 0.006, "dz_12": -0.005}])
-def test_a_true_exit_offset_beside_the_pretension_stays(tmp_path, offsets):
-    rep = _report(tmp_path, {"exit_point_offset": offsets})
+def test_a_true_exit_offset_beside_the_pretension_stays(record_scenario, tmp_path, offsets):
+    rep = _report(record_scenario, tmp_path, {"exit_point_offset": offsets})
     named = {e["name"]: e["params"] for e in rep["effects"]}
     assert "exit_point_offset" in named, rep["mismatch"]["summary"]
