@@ -133,19 +133,24 @@ def columns(rm: ResidualModel) -> list[tuple[str, str | None, np.ndarray]]:
     return [c for c in out if np.any(c[2][rm.has_len] != 0.0)]
 
 
-def companions(rm: ResidualModel, name: str, cable: str | None) -> list[np.ndarray]:
-    """Length changes (N, n) [m per unit] that go with probe ``name`` on ``cable`` when it
-    stands as the structure an effect must be needed beyond: a ``direction`` error is
-    referenced at the initialisation, whose direction of last move the recording need not
-    say, so relative to the reference it is the probe's column plus a constant change of
-    that cable's length after the initialisation (its half-difference times the reference's
-    sign). The other probes are zero at the reference by their form: none."""
-    if name != "direction" or cable is None:
+def companions(rm: ResidualModel, name: str, x: np.ndarray) -> list[np.ndarray]:
+    """Length changes (N, n) [m per unit] that go with probe ``name`` (its column ``x``)
+    when it stands as the structure an effect must be needed beyond. An error that depends
+    on the direction of each cable's last move is referenced at the initialisation, whose
+    direction the recording need not say: relative to the reference it is the probe's
+    column plus a constant of each cable it touches, times what the error changes there (a
+    ``direction`` error: the cable's length after the initialisation; ``cell_friction``:
+    the stretch computed from the cell's readings, ``L / EA`` per newton). The other probes
+    are zero at the reference by their form: none."""
+    if name not in ("direction", "cell_friction"):
         return []
-    s = rm.s
-    x = np.zeros((s.n, rm.model.n_cables))
-    x[:, rm.model.cable_ids.index(cable)] = np.where(s.is_init, 0.0, 1.0)
-    return [x]
+    after = ~rm.s.is_init
+    out = []
+    for k in np.flatnonzero(np.any(x != 0.0, axis=0)):
+        c = np.zeros_like(x)
+        c[:, k] = np.where(after, 1.0, 0.0) if name == "direction" else 2.0 * np.abs(x[:, k])
+        out.append(c)
+    return out
 
 
 @dataclass
@@ -164,11 +169,14 @@ class Stand:
     #: the BIC ``effect`` gains beside the probe (the probe free in both fits; positive: the
     #: data need the effect beyond it); None where not measured (a look-alike's stand)
     beyond: float | None = None
+    #: whether the probe is itself a finding (the structure it stands for is declared)
+    found: bool = False
 
     def as_dict(self) -> dict:
         via = {} if self.via is None else {"via": self.via,
                                            "via_delta_bic": _r(self.via_delta_bic)}
-        more = {} if self.beyond is None else {"needed_beyond_bic": _r(self.beyond)}
+        more = ({} if self.beyond is None else {"needed_beyond_bic": _r(self.beyond)}) \
+            | {"probe_finding": bool(self.found)}
         return {"effect": self.effect, "delta_bic": _r(self.delta_bic)} | via | more | {
             k: v for k, v in self.probe.as_dict().items() if k != "finding"}
 
@@ -176,12 +184,13 @@ class Stand:
 def unneeded(in_question: list[dict]) -> list[dict]:
     """The stands (:meth:`Stand.as_dict`, the ``unexplained`` object's
     ``effects_in_question``) whose effect is not needed beyond the probe: a direct stand (not
-    through a look-alike) beside whose probe the effect lowers the BIC by less than an effect
+    through a look-alike) of a probe that is a finding itself, beside which (with its
+    companions) the effect lowers the BIC by less than an effect
     needs to enter the selection (``select.BIC_ENTER``). Such an effect holds only what
     physics outside the vocabulary left: it is not named."""
     from bench.diagnosis.select import BIC_ENTER
 
-    return [q for q in in_question if "via" not in q
+    return [q for q in in_question if "via" not in q and q.get("probe_finding")
             and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER]
 
 
@@ -234,8 +243,8 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         # beside the probe
         Jq: list[np.ndarray] = []
         with rm.frozen():
-            for name, cid, _ in cols:
-                comp = companions(rm, name, cid)
+            for name, _, col in cols:
+                comp = companions(rm, name, col)
                 Jq.append(np.empty((n_res, len(comp))))
                 for i, x in enumerate(comp):
                     unit = STEP_M / max(float(np.max(np.abs(x))), 1e-12)
@@ -307,6 +316,9 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         others = [abs(o.value) for o in dirs if o is not r]
         if others and abs(r.value) <= DIRECTION_RATIO * float(np.median(others)):
             r.finding = False
+    found = {j: r.finding for j, r in zip(
+        [j for j in range(len(cols)) if ok[j] and float(Pp[:, j] @ Pp[:, j]) > 0], out,
+        strict=True)}
     stands: list[Stand] = []
     pos = {k: i for i, k in enumerate(act)}
     for e in space.effects:
@@ -333,11 +345,15 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         for j, (name, cid, _) in enumerate(cols):
             if not ok[j]:
                 continue
-            chi, value, _ = solve(keep, j, r_wo)
-            size = abs(value) * sizes[j] / noise
-            d_bic = (chi - chi0) / inflation + (1 - len(mine)) * log_n
-            if size > PROBE_SIZE and d_bic < BIC_TIE and (best is None
-                                                           or d_bic < best.delta_bic):
+            # the probe in the effect's place, alone and with its companions
+            for comp in (False, True) if Jq[j].shape[1] else (False,):
+                chi, value, _ = solve(keep, j, r_wo, comp)
+                size = abs(value) * sizes[j] / noise
+                d_bic = (chi - chi0) / inflation \
+                    + (1 + (Jq[j].shape[1] if comp else 0) - len(mine)) * log_n
+                if not (size > PROBE_SIZE and d_bic < BIC_TIE
+                        and (best is None or d_bic < best.delta_bic)):
+                    continue
                 # what the effect's named parameters add beside the probe (both fits with
                 # the probe and its companions free)
                 without = solve(keep, j, r_wo, True)[0] if r_said is None else \
@@ -345,7 +361,7 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
                 beyond = (without - solve(every, j, r0, True)[0]) / inflation \
                     - len(said) * log_n
                 best = Stand(e, ProbeResult(name, cid, value, d_bic, size), d_bic,
-                             beyond=float(beyond))
+                             beyond=float(beyond), found=found.get(j, False))
         if best is not None:
             stands.append(best)
     return out, stands
@@ -434,7 +450,10 @@ def friction_stands(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
     col = friction_column(rm, cables)
     if col is None:
         return []
-    return screen(rm, space, phi, cols=[col], named=named)[1]
+    stands = screen(rm, space, phi, cols=[col], named=named)[1]
+    for st in stands:  # (the cells' direction test found the friction)
+        st.found = True
+    return stands
 
 
 def through_lookalike(rm: ResidualModel, effect: str, lookalike: str, fit_space: ParamSpace,
