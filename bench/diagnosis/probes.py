@@ -197,7 +197,7 @@ def unneeded(in_question: list[dict]) -> list[dict]:
 def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
            idx: np.ndarray | None = None,
            cols: list[tuple[str, str | None, np.ndarray]] | None = None,
-           named: dict[str, dict] | None = None
+           named: dict[str, dict] | None = None, declared: bool = False
            ) -> tuple[list[ProbeResult], list[Stand]]:
     """Each probe column fitted beside the fitted parameters of ``space`` (at ``phi``; the
     ones the fit held at the model's values stay held), linearised there, on the samples
@@ -207,7 +207,9 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
     ``select.BIC_TIE``, and what the effect's parameters the report names (``named``:
     effect -> {key: value}; all its free parameters without it) lower the BIC by beside
     the probe (:attr:`Stand.beyond`). ``cols`` replaces the probes' columns
-    (:func:`columns`)."""
+    (:func:`columns`); ``declared``: another test found what they stand for (each counts as
+    a finding). A probe that is a finding stands with its companions too
+    (:func:`companions`)."""
     from bench.diagnosis.select import BIC_TIE, _bounded_lstsq
 
     cols = columns(rm) if cols is None else cols
@@ -316,7 +318,7 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         others = [abs(o.value) for o in dirs if o is not r]
         if others and abs(r.value) <= DIRECTION_RATIO * float(np.median(others)):
             r.finding = False
-    found = {j: r.finding for j, r in zip(
+    found = {j: r.finding or declared for j, r in zip(
         [j for j in range(len(cols)) if ok[j] and float(Pp[:, j] @ Pp[:, j]) > 0], out,
         strict=True)}
     stands: list[Stand] = []
@@ -345,8 +347,8 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         for j, (name, cid, _) in enumerate(cols):
             if not ok[j]:
                 continue
-            # the probe in the effect's place, alone and with its companions
-            for comp in (False, True) if Jq[j].shape[1] else (False,):
+            # the probe in the effect's place, alone and, a finding, with its companions
+            for comp in (False, True) if Jq[j].shape[1] and found.get(j) else (False,):
                 chi, value, _ = solve(keep, j, r_wo, comp)
                 size = abs(value) * sizes[j] / noise
                 d_bic = (chi - chi0) / inflation \
@@ -450,10 +452,8 @@ def friction_stands(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
     col = friction_column(rm, cables)
     if col is None:
         return []
-    stands = screen(rm, space, phi, cols=[col], named=named)[1]
-    for st in stands:  # (the cells' direction test found the friction)
-        st.found = True
-    return stands
+    # (the cells' direction test found the friction)
+    return screen(rm, space, phi, cols=[col], named=named, declared=True)[1]
 
 
 def through_lookalike(rm: ResidualModel, effect: str, lookalike: str, fit_space: ParamSpace,
