@@ -489,13 +489,15 @@ def with_not_named(leftover: dict | None, gone: list[dict]) -> dict | None:
     them no longer shows it)."""
     if not gone:
         return leftover
+    from bench.diagnosis.select import BIC_ENTER
     from bench.diagnosis.space import report_name
 
     out = dict(leftover) if leftover is not None else {}
     found = [f"{report_name(q['effect'])} is not named: {WHAT[q['probe']]}"
              + ("" if q.get("cable") is None else f" on cable {q['cable']}")
-             + f" explains the data as well in its place (BIC {q['delta_bic']:+.0f}) and "
-             f"beside it the effect lowers the BIC by {q['needed_beyond_bic']:.0f} only"
+             + f" explains the data as well in its place (BIC {q['delta_bic']:+.0f}); beside "
+             f"it the effect changes the BIC by {-q['needed_beyond_bic']:+.0f} (to enter, an "
+             f"effect lowers it by more than {BIC_ENTER:.0f})"
              for q in gone]
     out["findings"] = list(out.get("findings", [])) + found
     out["summary"] = "; ".join(out["findings"])

@@ -1066,11 +1066,11 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, sel: Selection, gon
     rejected = dict(sel.rejected)
     for q in gone:
         say(f"not naming {report_name(q['effect'])}: a {q['probe']} probe for physics outside "
-            f"the vocabulary fits as well in its place (BIC {q['delta_bic']:+.0f}) and it "
-            f"adds {q['needed_beyond_bic']:.0f} beside the probe")
+            f"the vocabulary fits as well in its place (BIC {q['delta_bic']:+.0f}); beside "
+            f"the probe it changes the BIC by {-q['needed_beyond_bic']:+.0f}")
         rejected[report_name(q["effect"])] = (
-            f"physics outside the vocabulary ({q['probe']} probe) explains it as well and "
-            f"the data need it by BIC {q['needed_beyond_bic']:.0f} only beside that")
+            f"beside physics outside the vocabulary that explains it as well ({q['probe']} "
+            f"probe) it changes the BIC by {-q['needed_beyond_bic']:+.0f} only")
     left_out += names
     sel.effects = [c for c in sel.effects if c not in names]
     sel.fit = selector.fit(tuple(sel.effects), sel.fit)
