@@ -133,6 +133,26 @@ def columns(rm: ResidualModel) -> list[tuple[str, str | None, np.ndarray]]:
     return [c for c in out if np.any(c[2][rm.has_len] != 0.0)]
 
 
+def companions(rm: ResidualModel, name: str, x: np.ndarray) -> list[np.ndarray]:
+    """Length changes (N, n) [m per unit] that go with probe ``name`` (its column ``x``)
+    when it stands as the structure an effect must be needed beyond. An error that depends
+    on the direction of each cable's last move is referenced at the initialisation, whose
+    direction the recording need not say: relative to the reference it is the probe's
+    column plus a constant of each cable it touches, times what the error changes there (a
+    ``direction`` error: the cable's length after the initialisation; ``cell_friction``:
+    the stretch computed from the cell's readings, ``L / EA`` per newton). The other probes
+    are zero at the reference by their form: none."""
+    if name not in ("direction", "cell_friction"):
+        return []
+    after = ~rm.s.is_init
+    out = []
+    for k in np.flatnonzero(np.any(x != 0.0, axis=0)):
+        c = np.zeros_like(x)
+        c[:, k] = np.where(after, 1.0, 0.0) if name == "direction" else 2.0 * np.abs(x[:, k])
+        out.append(c)
+    return out
+
+
 @dataclass
 class Stand:
     """A named effect that a probe replaces about as well (``delta_bic`` of the probe in
@@ -146,24 +166,50 @@ class Stand:
     #: look-alike's BIC change in ``effect``'s place; None where it replaced ``effect``
     via: str | None = None
     via_delta_bic: float | None = None
+    #: the BIC ``effect`` gains beside the probe (the probe free in both fits; positive: the
+    #: data need the effect beyond it); None where not measured (a look-alike's stand)
+    beyond: float | None = None
+    #: whether the probe is itself a finding (the structure it stands for is declared)
+    found: bool = False
 
     def as_dict(self) -> dict:
         via = {} if self.via is None else {"via": self.via,
                                            "via_delta_bic": _r(self.via_delta_bic)}
-        return {"effect": self.effect, "delta_bic": _r(self.delta_bic)} | via | {
+        more = ({} if self.beyond is None else {"needed_beyond_bic": _r(self.beyond)}) \
+            | {"probe_finding": bool(self.found)}
+        return {"effect": self.effect, "delta_bic": _r(self.delta_bic)} | via | more | {
             k: v for k, v in self.probe.as_dict().items() if k != "finding"}
+
+
+def unneeded(in_question: list[dict]) -> list[dict]:
+    """The stands (:meth:`Stand.as_dict`, the ``unexplained`` object's
+    ``effects_in_question``) whose effect is not needed beyond the probe: a direct stand (not
+    through a look-alike) of a probe that is a finding itself, beside which (with its
+    companions) the effect lowers the BIC by less than an effect
+    needs to enter the selection (``select.BIC_ENTER``). Such an effect holds only what
+    physics outside the vocabulary left: it is not named."""
+    from bench.diagnosis.select import BIC_ENTER
+
+    return [q for q in in_question if "via" not in q and q.get("probe_finding")
+            and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER]
 
 
 def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
            idx: np.ndarray | None = None,
-           cols: list[tuple[str, str | None, np.ndarray]] | None = None
+           cols: list[tuple[str, str | None, np.ndarray]] | None = None,
+           named: dict[str, dict] | None = None, declared: bool = False
            ) -> tuple[list[ProbeResult], list[Stand]]:
     """Each probe column fitted beside the fitted parameters of ``space`` (at ``phi``; the
     ones the fit held at the model's values stay held), linearised there, on the samples
     ``idx`` (all by default): its fitted value, BIC change and size, the findings marked
     (:data:`PROBE_BIC`, :data:`PROBE_SIZE`). Then each effect of ``space`` with a probe in
     its place: the effects a probe of size above the noise replaces within
-    ``select.BIC_TIE``. ``cols`` replaces the probes' columns (:func:`columns`)."""
+    ``select.BIC_TIE``, and what the effect's parameters the report names (``named``:
+    effect -> {key: value}; all its free parameters without it) lower the BIC by beside
+    the probe (:attr:`Stand.beyond`). ``cols`` replaces the probes' columns
+    (:func:`columns`); ``declared``: another test found what they stand for (each counts as
+    a finding). A probe that is a finding stands with its companions too
+    (:func:`companions`)."""
     from bench.diagnosis.select import BIC_TIE, _bounded_lstsq
 
     cols = columns(rm) if cols is None else cols
@@ -195,19 +241,36 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
                 rm.extra_length = x * unit
                 r = rm.whitened(robot, idx)
                 Jp[:, j] = (r - r0) / unit if r.shape == r0.shape else np.nan
+        # each probe's companions (:func:`companions`), for the test of what an effect adds
+        # beside the probe
+        Jq: list[np.ndarray] = []
+        with rm.frozen():
+            for name, _, col in cols:
+                comp = companions(rm, name, col)
+                Jq.append(np.empty((n_res, len(comp))))
+                for i, x in enumerate(comp):
+                    unit = STEP_M / max(float(np.max(np.abs(x))), 1e-12)
+                    rm.extra_length = x * unit
+                    r = rm.whitened(robot, idx)
+                    Jq[-1][:, i] = (r - r0) / unit if r.shape == r0.shape else np.nan
     finally:
         rm.extra_length = None
     ok = np.isfinite(Jp).all(axis=0) & np.isfinite(Jc).all()
     noise = _length_noise(rm)
     log_n = math.log(n_res)
 
-    def solve(keep: np.ndarray, j: int | None, r_at: np.ndarray = r0) -> tuple[float, float]:
+    def solve(keep: np.ndarray, j: int | None, r_at: np.ndarray = r0,
+              with_companions: bool = False) -> tuple[float, float, np.ndarray]:
         """chi-square of the linearised fit from the residuals ``r_at`` with the ``keep``
-        columns of the effects (and probe column ``j``) free; the probe's value."""
-        A = Jc[:, keep] if j is None else np.hstack([Jc[:, keep], Jp[:, j:j + 1]])
-        x0 = phi[act][keep] if j is None else np.concatenate([phi[act][keep], [0.0]])
-        a = lo[keep] if j is None else np.concatenate([lo[keep], [-np.inf]])
-        b = hi[keep] if j is None else np.concatenate([hi[keep], [np.inf]])
+        columns of the effects (and probe column ``j``, with its companions when asked)
+        free; the probe's value; the residuals."""
+        extra = np.zeros((n_res, 0)) if j is None else np.hstack(
+            [Jq[j] if with_companions else np.zeros((n_res, 0)), Jp[:, j:j + 1]])
+        m = extra.shape[1]
+        A = np.hstack([Jc[:, keep], extra])
+        x0 = np.concatenate([phi[act][keep], np.zeros(m)])
+        a = np.concatenate([lo[keep], np.full(m, -np.inf)])
+        b = np.concatenate([hi[keep], np.full(m, np.inf)])
         d = _bounded_lstsq(A, -r_at, x0, a, b) if A.shape[1] else np.zeros(0)
         r = r_at + A @ d
         return float(r @ r), float(d[-1]) if j is not None else 0.0, r
@@ -255,12 +318,23 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         others = [abs(o.value) for o in dirs if o is not r]
         if others and abs(r.value) <= DIRECTION_RATIO * float(np.median(others)):
             r.finding = False
+    found = {j: r.finding or declared for j, r in zip(
+        [j for j in range(len(cols)) if ok[j] and float(Pp[:, j] @ Pp[:, j]) > 0], out,
+        strict=True)}
     stands: list[Stand] = []
     pos = {k: i for i, k in enumerate(act)}
     for e in space.effects:
         mine = [pos[k] for k in space.indices(e) if k in pos]
         if not mine:
             continue
+        keys = set((named or {}).get(e, {}))
+        said = [pos[k] for k in space.indices(e)
+                if k in pos and space.params[k].key in keys] or mine
+        held = every.copy()
+        held[said] = False
+        p_said = phi.copy()
+        p_said[act[said]] = space.neutral[act[said]]
+        r_said = rm.whitened(space.robot(p_said), idx) if said != mine else None
         keep = every.copy()
         keep[mine] = False
         # without the effect: its parameters back at the model's values
@@ -273,12 +347,23 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         for j, (name, cid, _) in enumerate(cols):
             if not ok[j]:
                 continue
-            chi, value, _ = solve(keep, j, r_wo)
-            size = abs(value) * sizes[j] / noise
-            d_bic = (chi - chi0) / inflation + (1 - len(mine)) * log_n
-            if size > PROBE_SIZE and d_bic < BIC_TIE and (best is None
-                                                           or d_bic < best.delta_bic):
-                best = Stand(e, ProbeResult(name, cid, value, d_bic, size), d_bic)
+            # the probe in the effect's place, alone and, a finding, with its companions
+            for comp in (False, True) if Jq[j].shape[1] and found.get(j) else (False,):
+                chi, value, _ = solve(keep, j, r_wo, comp)
+                size = abs(value) * sizes[j] / noise
+                d_bic = (chi - chi0) / inflation \
+                    + (1 + (Jq[j].shape[1] if comp else 0) - len(mine)) * log_n
+                if not (size > PROBE_SIZE and d_bic < BIC_TIE
+                        and (best is None or d_bic < best.delta_bic)):
+                    continue
+                # what the effect's named parameters add beside the probe (both fits with
+                # the probe and its companions free)
+                without = solve(keep, j, r_wo, True)[0] if r_said is None else \
+                    solve(held, j, r_said, True)[0]
+                beyond = (without - solve(every, j, r0, True)[0]) / inflation \
+                    - len(said) * log_n
+                best = Stand(e, ProbeResult(name, cid, value, d_bic, size), d_bic,
+                             beyond=float(beyond), found=found.get(j, False))
         if best is not None:
             stands.append(best)
     return out, stands
@@ -358,16 +443,17 @@ def friction_column(rm: ResidualModel, cables: list[str]
 
 
 def friction_stands(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
-                    cables: list[str]) -> list[Stand]:
+                    cables: list[str], named: dict[str, dict] | None = None) -> list[Stand]:
     """The named effects (``space`` at ``phi``) that the load cells' friction, found on
     ``cables`` (the residual tests' direction-dependent readings), replaces about as well
     through the stretch computed from the readings (:func:`friction_column`,
     :func:`screen`'s test): a stretch misread by direction follows the moves, as a
-    tracker's latency or a length offset of each cable can."""
+    tracker's latency or a length offset of each cable can (``named``: :func:`screen`'s)."""
     col = friction_column(rm, cables)
     if col is None:
         return []
-    return screen(rm, space, phi, cols=[col])[1]
+    # (the cells' direction test found the friction)
+    return screen(rm, space, phi, cols=[col], named=named, declared=True)[1]
 
 
 def through_lookalike(rm: ResidualModel, effect: str, lookalike: str, fit_space: ParamSpace,
@@ -394,3 +480,26 @@ def _length_noise(rm: ResidualModel) -> float:
 
 def _r(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(f"{x:.4g}")
+
+
+def with_not_named(leftover: dict | None, gone: list[dict]) -> dict | None:
+    """``leftover`` (the ``unexplained`` object or None) with the effects not named because
+    physics outside the vocabulary stands for them (``gone``, :func:`unneeded`): a finding
+    each and ``effects_not_named`` (the structure stays declared where the refit without
+    them no longer shows it)."""
+    if not gone:
+        return leftover
+    from bench.diagnosis.select import BIC_ENTER
+    from bench.diagnosis.space import report_name
+
+    out = dict(leftover) if leftover is not None else {}
+    found = [f"{report_name(q['effect'])} is not named: {WHAT[q['probe']]}"
+             + ("" if q.get("cable") is None else f" on cable {q['cable']}")
+             + f" explains the data as well in its place (BIC {q['delta_bic']:+.0f}); beside "
+             f"it the effect changes the BIC by {-q['needed_beyond_bic']:+.0f} (to enter, an "
+             f"effect lowers it by more than {BIC_ENTER:.0f})"
+             for q in gone]
+    out["findings"] = list(out.get("findings", [])) + found
+    out["summary"] = "; ".join(out["findings"])
+    out["effects_not_named"] = gone
+    return out

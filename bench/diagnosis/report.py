@@ -842,60 +842,17 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     selector, sel = _cells_at_anchor(rm, selector, sel, candidates, train, [valid, region],
                                      say, pool)
     fit_idx = np.union1d(train, valid)
-    final = _final_fit(selector, sel, fit_idx, say)
-    floor = _reference_var(rm, final, fit_idx)
-    params, errs, undet = effect_entries(final, sel.effects, floor)
-    # an effect whose parameters all vanish or cannot be fixed is not reported: the least
-    # important such effect goes, the others are refitted without it (what it shared with
-    # them may become measurable), and so on. When the data need what it took (the others
-    # alone fit far worse), the selection goes on from the others without it: effects it
-    # imitated, whose parameters the poses can fix, may take its place
-    left_out: list[str] = []
-    while True:
-        empty = [e for e in sel.effects if not params[e]]
-        if not empty:
-            break
-        e = empty[-1]  # effects are sorted by importance
-        say(f"dropping {report_name(e)}: no parameter differs from the model")
-        rest = tuple(c for c in sel.effects if c != e)
-        # (an offset within the encoder reference's uncertainty is that uncertainty: what
-        # the data need there is no effect to look for)
-        by_reference = bool(effect_entries(final, [e])[0][e])
-        needed = not by_reference and selector.fit(rest, sel.fit).bic - sel.fit.bic > BIC_ENTER
-        rejected = dict(sel.rejected)
-        rejected[report_name(e)] = "no parameter differs measurably from the model"
-        again = e in left_out  # dropped before: never select on from it twice
-        left_out.append(e)
-        if needed and not again:
-            say(f"the others fit far worse without {report_name(e)}: selecting on from them "
-                f"without it")
-            sel = selector.run([c for c in candidates if c not in left_out], rest)
-            sel.rejected = rejected | sel.rejected
-        else:
-            sel.rejected = rejected
-            sel.effects = [c for c in sel.effects if c != e]
-        final = _final_fit(selector, sel, fit_idx, say)
-        floor = _reference_var(rm, final, fit_idx)
-        params, errs, undet = effect_entries(final, sel.effects, floor)
-    sel.fit = final
-    intervals = effect_intervals(final, rm, fit_idx, sel.effects, params, floor, pool, say)
-    fitted = cleaned_robot(final)
-    say("fitted: equilibrium of every sample under the corrected model")
-    fit_fw = rm.forward(fitted)
-    fit_blocks = rm.blocks(fitted)
-    say("probing for physics outside the vocabulary beside the named effects")
-    try:
-        probed = probes.screen(rm, final.space, final.phi)
-    except (ValueError, np.linalg.LinAlgError) as e:  # a check beside the answer: say so
-        say(f"the probes could not be evaluated: {e}")
-        probed = None
-    probed = _lookalike_stands(rm, selector, sel, params, candidates, probed, say)
-    leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
-                                   model.pivots, model.mast_ids, fitted, probed)
-    leftover = _friction_in_question(rm, final, leftover, probed)
-    leftover = unexplained.with_changes(leftover, changes, {
-        c: float(t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
-        if t > rm.init_end}, {k[len("dl_"):] for k in params.get("cable_length_offset", {})})
+    left_out: list[str] = []  # effects dropped: never selected again
+    got = _settle(rm, selector, sel, candidates, fit_idx, left_out, rec, changes, pool, say)
+    not_named: list[dict] = []
+    while gone := [q for q in probes.unneeded((got.leftover or {}).get(
+            "effects_in_question", [])) if q["effect"] in got.sel.effects]:
+        got = _without_unneeded(rm, selector, got.sel, gone, candidates, fit_idx, left_out,
+                                rec, changes, pool, say)
+        not_named += gone
+    sel, final, params, errs, undet = got.sel, got.final, got.params, got.errs, got.undet
+    intervals, fitted, fit_fw, leftover = got.intervals, got.fitted, got.fit_fw, got.leftover
+    leftover = probes.with_not_named(leftover, not_named)
     if leftover is not None:
         say("unexplained: " + leftover["summary"])
 
@@ -1032,8 +989,111 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
                      write_error)
 
 
+@dataclass
+class _Settled:
+    """The named effects settled by :func:`_settle`: the selection, its final fit, the
+    effects' entries and intervals, the corrected robot and what it leaves unexplained."""
+
+    sel: Selection
+    final: FitResult
+    params: dict[str, dict]
+    errs: dict[str, dict]
+    undet: dict[str, list]
+    intervals: dict[str, dict]
+    fitted: Robot
+    fit_fw: Forward
+    leftover: dict | None
+
+
+def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: list[str],
+            fit_idx: np.ndarray, left_out: list[str], rec: Recording, changes: list,
+            pool: Executor | None, say: Progress) -> _Settled:
+    """The final fit of ``sel`` on ``fit_idx`` with the effects whose parameters all vanish
+    dropped (``left_out`` grows with them), the intervals, and what the corrected model
+    leaves: the probes beside the named effects and the residual tests."""
+    model = rm.model
+    s = rm.s
+    final = _final_fit(selector, sel, fit_idx, say)
+    floor = _reference_var(rm, final, fit_idx)
+    params, errs, undet = effect_entries(final, sel.effects, floor)
+    # an effect whose parameters all vanish or cannot be fixed is not reported: the least
+    # important such effect goes, the others are refitted without it (what it shared with
+    # them may become measurable), and so on. When the data need what it took (the others
+    # alone fit far worse), the selection goes on from the others without it: effects it
+    # imitated, whose parameters the poses can fix, may take its place
+    while True:
+        empty = [e for e in sel.effects if not params[e]]
+        if not empty:
+            break
+        e = empty[-1]  # effects are sorted by importance
+        say(f"dropping {report_name(e)}: no parameter differs from the model")
+        rest = tuple(c for c in sel.effects if c != e)
+        # (an offset within the encoder reference's uncertainty is that uncertainty: what
+        # the data need there is no effect to look for)
+        by_reference = bool(effect_entries(final, [e])[0][e])
+        needed = not by_reference and selector.fit(rest, sel.fit).bic - sel.fit.bic > BIC_ENTER
+        rejected = dict(sel.rejected)
+        rejected[report_name(e)] = "no parameter differs measurably from the model"
+        again = e in left_out  # dropped before: never select on from it twice
+        left_out.append(e)
+        if needed and not again:
+            say(f"the others fit far worse without {report_name(e)}: selecting on from them "
+                f"without it")
+            sel = selector.run([c for c in candidates if c not in left_out], rest)
+            sel.rejected = rejected | sel.rejected
+        else:
+            sel.rejected = rejected
+            sel.effects = [c for c in sel.effects if c != e]
+        final = _final_fit(selector, sel, fit_idx, say)
+        floor = _reference_var(rm, final, fit_idx)
+        params, errs, undet = effect_entries(final, sel.effects, floor)
+    sel.fit = final
+    intervals = effect_intervals(final, rm, fit_idx, sel.effects, params, floor, pool, say)
+    fitted = cleaned_robot(final)
+    say("fitted: equilibrium of every sample under the corrected model")
+    fit_fw = rm.forward(fitted)
+    fit_blocks = rm.blocks(fitted)
+    say("probing for physics outside the vocabulary beside the named effects")
+    try:
+        probed = probes.screen(rm, final.space, final.phi, named=params)
+    except (ValueError, np.linalg.LinAlgError) as e:  # a check beside the answer: say so
+        say(f"the probes could not be evaluated: {e}")
+        probed = None
+    probed = _lookalike_stands(rm, selector, sel, params, candidates, probed, say)
+    leftover = unexplained.analyse(rm, fit_blocks, final.n_free, s, rec.init_pose,
+                                   model.pivots, model.mast_ids, fitted, probed)
+    leftover = _friction_in_question(rm, final, leftover, probed, params)
+    leftover = unexplained.with_changes(leftover, changes, {
+        c: float(t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
+        if t > rm.init_end}, {k[len("dl_"):] for k in params.get("cable_length_offset", {})})
+    return _Settled(sel, final, params, errs, undet, intervals, fitted, fit_fw, leftover)
+
+
+def _without_unneeded(rm: ResidualModel, selector: Selector, sel: Selection, gone: list[dict],
+                      candidates: list[str], fit_idx: np.ndarray, left_out: list[str],
+                      rec: Recording, changes: list, pool: Executor | None,
+                      say: Progress) -> _Settled:
+    """:func:`_settle` again without the named effects that physics outside the vocabulary
+    stands for and that the data do not need beyond it (``gone``,
+    :func:`probes.unneeded`): they go to ``sel.rejected`` and ``left_out``."""
+    names = [q["effect"] for q in gone]
+    rejected = dict(sel.rejected)
+    for q in gone:
+        say(f"not naming {report_name(q['effect'])}: a {q['probe']} probe for physics outside "
+            f"the vocabulary fits as well in its place (BIC {q['delta_bic']:+.0f}); beside "
+            f"the probe it changes the BIC by {-q['needed_beyond_bic']:+.0f}")
+        rejected[report_name(q["effect"])] = (
+            f"beside physics outside the vocabulary that explains it as well ({q['probe']} "
+            f"probe) it changes the BIC by {-q['needed_beyond_bic']:+.0f} only")
+    left_out += names
+    sel.effects = [c for c in sel.effects if c not in names]
+    sel.fit = selector.fit(tuple(sel.effects), sel.fit)
+    sel.rejected = rejected
+    return _settle(rm, selector, sel, candidates, fit_idx, left_out, rec, changes, pool, say)
+
+
 def _friction_in_question(rm: ResidualModel, final: FitResult, leftover: dict | None,
-                          probed) -> dict | None:
+                          probed, named: dict[str, dict] | None = None) -> dict | None:
     """``leftover`` with the named effects that the load cells' friction it found
     (``load_cell_direction_cables``) stands for (:func:`probes.friction_stands`) put in
     question: a finding each, and ``effects_in_question``."""
@@ -1042,7 +1102,8 @@ def _friction_in_question(rm: ResidualModel, final: FitResult, leftover: dict | 
         return leftover
     seen = {st.effect for st in (probed[1] if probed else [])}
     try:
-        more = [st for st in probes.friction_stands(rm, final.space, final.phi, cables)
+        more = [st for st in probes.friction_stands(rm, final.space, final.phi, cables,
+                                                           named)
                 if st.effect not in seen]
     except (ValueError, np.linalg.LinAlgError):  # a check beside the answer
         return leftover
