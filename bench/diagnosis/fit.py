@@ -78,6 +78,9 @@ class FitResult:
     #: ``(J^T J)^-1`` (zero elsewhere): how the chi-square rises away from the minimum
     #: (:func:`pruning_cost`), where ``cov`` is how far the data may put it
     curvature_cov: np.ndarray | None = None
+    #: per parameter, the degrees of freedom of ``stderr`` (Welch-Satterthwaite over the
+    #: error model's components, :func:`effective_dof`); None: as many as a normal's
+    stderr_dof: np.ndarray | None = None
 
     @property
     def reported_stderr(self) -> np.ndarray:
@@ -181,7 +184,8 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             a = np.ascontiguousarray(a)
             h.update(str((a.dtype, a.shape)).encode())
             h.update(a.tobytes())
-    h.update(repr((rm.visit_sd, rm.visit_rows, rm.slack_threshold, rm.cells_at)).encode())
+    h.update(repr((rm.visit_sd, rm.visit_rows, getattr(rm, "visit_dof", None),
+                   rm.slack_threshold, rm.cells_at)).encode())
     settings = (MAX_NFEV, RETRIES, FIT_TOL, SECANT_MIN, SECANT_RATIO, SECANT_STEPS, SETTLED,
                 PRUNE_HOPELESS,
                 id(least_squares), id(fd_jacobian))
@@ -193,7 +197,8 @@ def _copy(res: FitResult) -> FitResult:
     """A copy of ``res`` whose arrays its user may change (``bias_var`` is added to in place)."""
     return replace(res, phi=res.phi.copy(), stderr=res.stderr.copy(), cov=res.cov.copy(),
                    bias_var=None if res.bias_var is None else res.bias_var.copy(),
-                   curvature_cov=None if res.curvature_cov is None else res.curvature_cov.copy())
+                   curvature_cov=None if res.curvature_cov is None else res.curvature_cov.copy(),
+                   stderr_dof=None if res.stderr_dof is None else res.stderr_dof.copy())
 
 
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
@@ -742,10 +747,14 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     n_res = len(r)
     if free.any():
         errors = error_structure(rm, idx, lost, space.robot(x))
+        nu: list[np.ndarray] = []
         cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r,
-                                  errors.stretches, errors)
+                                  errors.stretches, errors, nu)
     else:
-        cov, se = np.zeros((0, 0)), np.zeros(0)
+        cov, se, nu = np.zeros((0, 0)), np.zeros(0), []
+    dof_all = np.full(len(x), np.inf)
+    if nu:
+        dof_all[free] = nu[0]
     se_all = np.full(len(x), np.inf)
     se_all[free] = se
     cov_all = np.zeros((len(x), len(x)))
@@ -757,7 +766,7 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         curv[np.ix_(free, free)] = np.linalg.pinv(Js.T @ Js, rcond=1e-12,
                                                   hermitian=True) * np.outer(D, D)
     return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_eff), se_all,
-                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff, None, curv)
+                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff, None, curv, dof_all)
 
 
 class _SecantJacobian:
@@ -885,7 +894,8 @@ NULL_LOADING = 1e-6
 def standard_errors(J: np.ndarray, chi2: float, n_res: float,
                     scale: np.ndarray | None = None, r: np.ndarray | None = None,
                     groups: np.ndarray | None = None,
-                    errors: ErrorStructure | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    errors: ErrorStructure | None = None,
+                    dof: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Covariance and standard errors from the whitened Jacobian ``J`` (computed in parameter
     units of ``scale``) at the whitened residuals ``r``; ``n_res`` the residuals' degrees of
     freedom before the fit's own parameters.
@@ -902,7 +912,10 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     With the entries' ``groups`` (stretches that may share errors), each standard error is
     at least the cluster-robust (sandwich) one when there are groups enough: residuals
     that depart from the model of their errors in places do not make the fit look surer
-    than it is."""
+    than it is.
+
+    With a list ``dof``, the standard errors' degrees of freedom (:func:`effective_dof`, with
+    ``errors``) are appended to it."""
     p = J.shape[1]
     if p == 0:
         return np.zeros((0, 0)), np.zeros(0)
@@ -915,8 +928,11 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
     if r is not None and errors is not None and len(errors.weights) == len(r):
-        dof = errors.n_eff / max(n_res, 1.0)
-        cov = cov_s @ error_meat(Js, r, errors) @ cov_s * dof * np.outer(D, D)
+        parts: list[tuple[np.ndarray, float]] | None = [] if dof is not None else None
+        share = errors.n_eff / max(n_res, 1.0)
+        cov = cov_s @ error_meat(Js, r, errors, parts) @ cov_s * share * np.outer(D, D)
+        if dof is not None and parts is not None:
+            dof.append(effective_dof(cov_s, parts))
     else:
         red = chi2 / max(n_res - p, 1)
         cov = cov_s * np.outer(D, D) * max(red, 1.0)
@@ -1017,6 +1033,8 @@ class ErrorStructure:
     #: share of the residuals' degrees of freedom per-sample unknowns leave (their moments
     #: are that share of the errors'; the caller scales the meat back by its inverse)
     kept: float = 1.0
+    #: degrees of freedom of the level behind ``knots`` (``ResidualModel.visit_dof``)
+    knots_dof: float = math.inf
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -1042,10 +1060,11 @@ def error_structure(rm, idx: np.ndarray, lost: float | None = None,
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
-                          rm.entry_knots(idx, H), kept)
+                          rm.entry_knots(idx, H), kept, float(getattr(rm, "visit_dof", math.inf)))
 
 
-def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
+def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
+               parts: list[tuple[np.ndarray, float]] | None = None) -> np.ndarray:
     """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a
     variance-components model of the unweighted whitened residuals ``u = r / sqrt(weight)``.
 
@@ -1072,7 +1091,10 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     recordings with dwells, against the spread over replicate recordings).
 
     Entry ``i`` of ``r`` is ``sqrt(w_i) u_i``: a pair adds ``sqrt(w_i w_j) cov(u_i, u_j) J_i
-    J_j^T`` (rows a move weighs down but whose errors are independent count as such)."""
+    J_j^T`` (rows a move weighs down but whose errors are independent count as such).
+
+    With a list ``parts``, each term of the sum is appended to it with the degrees of freedom
+    of its level (:func:`component_dof`; the knots' from ``e.knots_dof``)."""
     p = Js.shape[1]
     sw = np.sqrt(np.clip(e.weights, 1e-12, None))
     b = Js * sw[:, None]
@@ -1091,6 +1113,8 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         # units (the caller's scaling by 1 / kept undone: the score sees it whole)
         kb = knots.T @ b
         meat += e.kept * (kb.T @ kb)
+        if parts is not None:
+            parts.append((e.kept * (kb.T @ kb), e.knots_dof))
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
     quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
@@ -1103,7 +1127,43 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         c = np.clip(theta[NCOMP * j + 1: NCOMP * (j + 1)], 0.0, v)
         grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
+        if parts is not None:
+            nu = component_dof(kg, e, p, len(r))
+            parts += [(th * g, d) for th, g, d in zip([v, *c], grams, nu, strict=True)]
     return meat
+
+
+def component_dof(kg: _KindGroups, e: ErrorStructure, p: int, n: int) -> list[float]:
+    """Degrees of freedom of the components of :func:`error_meat` of one kind ``kg`` (of
+    ``n`` entries, ``p`` fitted parameters): the level's its entries' weights summed (rows of
+    a move count together) with the :data:`PRIOR_ENTRIES` it leans on, less the parameters'
+    share; a shared covariance's the number of its groups (a cable's move, a cable's
+    stretch, a cable over the recording; the direction's: the cables). Each times the share
+    of the residuals per-sample unknowns leave (``e.kept``); at least 1."""
+    w = float(np.sum(np.clip(e.weights[kg.mask], 0.0, 1.0)))
+    groups = [float(m.shape[0]) for m in kg.ind]
+    raw = [w + PRIOR_ENTRIES - p * kg.n / max(n, 1)] + groups + [groups[-1]]
+    return [max(e.kept * d, 1.0) for d in raw]
+
+
+def effective_dof(cov_s: np.ndarray, parts: list[tuple[np.ndarray, float]]) -> np.ndarray:
+    """Per parameter, the Welch-Satterthwaite degrees of freedom of the sandwich variance
+    ``diag(cov_s M cov_s)`` with ``M`` the sum of the ``parts`` (each a term of the meat and
+    the degrees of freedom of its level): ``(sum_c t_c)^2 / sum_c t_c^2 / nu_c``, ``t_c`` a
+    term's share of the variance. A variance that leans on a level estimated from few
+    differences (the visit level of a recording with few replicate visits, the lengths'
+    level where estimated poses take most of their degrees of freedom) has few; inf where
+    nothing contributes."""
+    p = cov_s.shape[0]
+    tot, den = np.zeros(p), np.zeros(p)
+    for M, nu in parts:
+        t = np.einsum("ij,jk,ki->i", cov_s, M, cov_s)
+        tot += t
+        if math.isfinite(nu):
+            den += t ** 2 / max(nu, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(den > 0, tot ** 2 / np.where(den > 0, den, 1.0), np.inf)
+    return np.where(np.isfinite(out), np.maximum(out, 1.0), np.inf)
 
 
 class _KindGroups:
@@ -1342,12 +1402,30 @@ class Interval:
 
 
 def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0) -> Interval:
-    """The estimate +- :data:`Z95` reported standard errors (with ``extra_var``, fit units
-    squared: an uncertainty the fit cannot see), within the parameter's bounds."""
+    """The estimate +- a 95 % quantile times the reported standard error (with
+    ``extra_var``, fit units squared: an uncertainty the fit cannot see), within the
+    parameter's bounds: :func:`interval_quantile`."""
     se = math.sqrt(float(fit.reported_stderr[k]) ** 2 + extra_var)
+    q = interval_quantile(fit, k, se ** 2)
     p = fit.space.params[k]
-    return Interval(max(float(fit.phi[k]) - Z95 * se, p.lo),
-                    min(float(fit.phi[k]) + Z95 * se, p.hi), "linearised")
+    return Interval(max(float(fit.phi[k]) - q * se, p.lo),
+                    min(float(fit.phi[k]) + q * se, p.hi), "linearised")
+
+
+def interval_quantile(fit: FitResult, k: int, var: float) -> float:
+    """The two-sided 95 % quantile for parameter ``k`` of ``fit`` whose variance is ``var``
+    (fit units squared): Student's with the Welch-Satterthwaite degrees of freedom of
+    ``var``, the fit's own error at its ``stderr_dof`` and the rest (what pruning may have
+    moved in, an uncertainty the fit cannot see) known; :data:`Z95` where they are many."""
+    from scipy.stats import t as student
+
+    if fit.stderr_dof is None:
+        return Z95
+    nu, se2 = float(fit.stderr_dof[k]), float(fit.stderr[k]) ** 2
+    if not (math.isfinite(nu) and se2 > 0 and math.isfinite(var) and var > 0):
+        return Z95
+    nu_all = var ** 2 / (se2 ** 2 / nu)
+    return float(student.ppf(0.975, nu_all)) if nu_all < 1e6 else Z95
 
 
 @dataclass(frozen=True)
