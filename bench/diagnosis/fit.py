@@ -962,7 +962,8 @@ DIRECTION_SCALE_M = 1e-4
 
 
 def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.ndarray],
-                       n_res: float, scale: np.ndarray, errors: ErrorStructure) -> np.ndarray:
+                       n_res: float, scale: np.ndarray, errors: ErrorStructure,
+                       dof: list[float] | None = None) -> np.ndarray:
     """Per free parameter, the variance that each cable's length error by its direction of
     approach (hysteresis, backlash; ``cols`` its whitened columns by direction and after the
     initialisation, :meth:`ResidualModel.direction_columns`) adds where per-sample unknowns
@@ -983,13 +984,16 @@ def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.
     without a tracker, hysteresis 0.13 mm: offsets 0.15 mm off at z 4 to 6, the same with the
     true offset 0.1, 5 or 10 mm; z about 1 with the hysteresis, but none at the reference).
     The level ``a^2`` is one for every cable: the mean over the cables of their unbiased
-    estimates (at least 0)."""
+    estimates (at least 0). With a list ``dof``, the degrees of freedom of the result (the
+    number of cables behind the level) are appended to it."""
     p = J.shape[1]
     X, later = cols
     use = np.linalg.norm(X, axis=0) > 0
     if p == 0 or not use.any():
         return np.zeros(p)
     X, later = X[:, use], later[:, use]
+    if dof is not None:
+        dof.append(float(X.shape[1]))
     Ja = np.hstack([J, X])
     sc = np.concatenate([np.asarray(scale, dtype=float), np.full(X.shape[1], DIRECTION_SCALE_M)])
     S, _ = standard_errors(Ja, float(r @ r), n_res, sc, r, None, errors)
@@ -1338,12 +1342,14 @@ def referenced_offsets(space: ParamSpace, rm: ResidualModel) -> np.ndarray:
                      <= rm.init_end for p in space.params], dtype=bool)
 
 
-def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) -> np.ndarray:
+def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
+                            dof: list[float] | None = None) -> np.ndarray:
     """Per fit parameter (fit units squared): :func:`direction_bias_var` of ``fit`` on the
     samples ``idx`` for the length offsets that apply from the initialisation on (those a
     reference error of the encoders looks like: ``bench.diagnosis.report``'s floor of their
     errors); zero for the other parameters, and where per-sample unknowns project no
-    sample's length residual (:meth:`ResidualModel.projects`)."""
+    sample's length residual (:meth:`ResidualModel.projects`). With a list ``dof``, the
+    degrees of freedom of the variances (:func:`direction_bias_var`) are appended to it."""
     out = np.zeros(len(fit.phi))
     space = fit.space
     free = np.flatnonzero(np.isfinite(fit.stderr))
@@ -1366,7 +1372,7 @@ def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) 
                     space.hi[free], rm.frozen)
     lost = rm.dof_lost(idx)
     errors = error_structure(rm, idx, lost)
-    v = direction_bias_var(J, r, cols, errors.n_eff - lost, space.scale[free], errors)
+    v = direction_bias_var(J, r, cols, errors.n_eff - lost, space.scale[free], errors, dof)
     out[free] = np.where(dl[free], v, 0.0)
     return out
 
@@ -1401,30 +1407,36 @@ class Interval:
     method: str
 
 
-def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0) -> Interval:
+def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0,
+                        extra_dof: float = math.inf) -> Interval:
     """The estimate +- a 95 % quantile times the reported standard error (with
-    ``extra_var``, fit units squared: an uncertainty the fit cannot see), within the
-    parameter's bounds: :func:`interval_quantile`."""
+    ``extra_var``, fit units squared: an uncertainty the fit cannot see, estimated with
+    ``extra_dof`` degrees of freedom), within the parameter's bounds:
+    :func:`interval_quantile`."""
     se = math.sqrt(float(fit.reported_stderr[k]) ** 2 + extra_var)
-    q = interval_quantile(fit, k, se ** 2)
+    q = interval_quantile(fit, k, extra_var, extra_dof)
     p = fit.space.params[k]
     return Interval(max(float(fit.phi[k]) - q * se, p.lo),
                     min(float(fit.phi[k]) + q * se, p.hi), "linearised")
 
 
-def interval_quantile(fit: FitResult, k: int, var: float) -> float:
-    """The two-sided 95 % quantile for parameter ``k`` of ``fit`` whose variance is ``var``
-    (fit units squared): Student's with the Welch-Satterthwaite degrees of freedom of
-    ``var``, the fit's own error at its ``stderr_dof`` and the rest (what pruning may have
-    moved in, an uncertainty the fit cannot see) known; :data:`Z95` where they are many."""
+def interval_quantile(fit: FitResult, k: int, extra_var: float = 0.0,
+                      extra_dof: float = math.inf) -> float:
+    """The two-sided 95 % quantile for parameter ``k`` of ``fit`` with ``extra_var`` (fit
+    units squared, at ``extra_dof`` degrees of freedom) added to its reported variance:
+    Student's with the Welch-Satterthwaite degrees of freedom of the sum, the fit's own error
+    at its ``stderr_dof``, what pruning may have moved in known; :data:`Z95` where they are
+    many (or unknown)."""
     from scipy.stats import t as student
 
-    if fit.stderr_dof is None:
+    se2 = float(fit.stderr[k]) ** 2
+    var = float(fit.reported_stderr[k]) ** 2 + extra_var
+    nu = math.inf if fit.stderr_dof is None else float(fit.stderr_dof[k])
+    if not (se2 > 0 and math.isfinite(var) and var > 0):
         return Z95
-    nu, se2 = float(fit.stderr_dof[k]), float(fit.stderr[k]) ** 2
-    if not (math.isfinite(nu) and se2 > 0 and math.isfinite(var) and var > 0):
-        return Z95
-    nu_all = var ** 2 / (se2 ** 2 / nu)
+    den = (se2 ** 2 / nu if math.isfinite(nu) else 0.0) \
+        + (extra_var ** 2 / max(extra_dof, 1.0) if math.isfinite(extra_dof) else 0.0)
+    nu_all = var ** 2 / den if den > 0 else math.inf
     return float(student.ppf(0.975, nu_all)) if nu_all < 1e6 else Z95
 
 
@@ -1507,8 +1519,11 @@ def _profile_job(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np
 def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
                          which: np.ndarray, extra_var: np.ndarray | None = None,
                          pool: object = None,
-                         say: Callable[[str], None] | None = None) -> dict[int, Interval]:
-    """95 % intervals of the parameters ``which`` of ``fit`` (on the samples ``idx``).
+                         say: Callable[[str], None] | None = None,
+                         extra_dof: np.ndarray | None = None) -> dict[int, Interval]:
+    """95 % intervals of the parameters ``which`` of ``fit`` (on the samples ``idx``), with
+    ``extra_var`` (per parameter, fit units squared) at ``extra_dof`` degrees of freedom
+    added to the reported variances.
 
     Each starts linearised (:func:`linearised_interval`), and is widened (never narrowed)
     where that is in doubt (:func:`interval_checks`):
@@ -1532,7 +1547,8 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
     The refits run on ``pool`` (an executor) where there is one."""
     say = say or (lambda m: None)
     ev = np.zeros(len(fit.phi)) if extra_var is None else extra_var
-    out = {int(k): linearised_interval(fit, int(k), float(ev[k])) for k in which}
+    ed = np.full(len(fit.phi), np.inf) if extra_dof is None else extra_dof
+    out = {int(k): linearised_interval(fit, int(k), float(ev[k]), float(ed[k])) for k in which}
     checks = interval_checks(fit, rm, idx, np.asarray(which, dtype=int))
     curved = [c.index for c in sorted(checks, key=lambda c: -c.nonlinear) if c.nonlinear > 1.0]
     curved = curved[:PROFILE_REFITS // 2]
