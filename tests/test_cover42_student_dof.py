@@ -21,10 +21,12 @@ from bench.diagnosis.fit import (
     Z95,
     ErrorStructure,
     FitResult,
+    Interval,
     effective_dof,
     interval_quantile,
     linearised_interval,
     standard_errors,
+    stretched,
 )
 from bench.diagnosis.space import ParamSpace
 from controller.robot import resolve_robot
@@ -131,3 +133,21 @@ def test_the_quantile_counts_an_extra_variance_of_few_dof():
         float(student.ppf(0.975, 4.0 / (1 / 100))))
     iv = linearised_interval(fit, 0, 1e-8, 8.0)
     assert iv.hi - 0.1 == pytest.approx(q * math.sqrt(2e-8))
+
+
+def test_a_stretched_interval_is_the_linearised_one_at_the_student_quantile():
+    """Stretching the normal-quantile interval by q / 1.96 is the interval at q (both ends,
+    within the bounds, the method kept): what a profile-widened interval gets on top of its
+    refits, so that the Student quantile never narrows what they found."""
+    fit = _fit(0.1, 1e-4, 5.0)
+    q = interval_quantile(fit, 0)
+    plain = linearised_interval(fit, 0, quantile=Z95)
+    got = stretched(fit, 0, plain, q / Z95)
+    want = linearised_interval(fit, 0)
+    assert (got.lo, got.hi) == pytest.approx((want.lo, want.hi))
+    assert got.method == "linearised" and q > 2.5
+    profile = Interval(0.1 - 5e-4, 0.1 + 2e-4, "profile")
+    wide = stretched(fit, 0, profile, 1.5)
+    assert (wide.lo, wide.hi) == pytest.approx((0.1 - 7.5e-4, 0.1 + 3e-4))
+    assert wide.method == "profile"
+    assert stretched(fit, 0, Interval(-0.5, 0.2, "linearised"), 2.0).lo == fit.space.lo[0] == -1.0

@@ -1408,13 +1408,13 @@ class Interval:
 
 
 def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0,
-                        extra_dof: float = math.inf) -> Interval:
+                        extra_dof: float = math.inf, quantile: float | None = None) -> Interval:
     """The estimate +- a 95 % quantile times the reported standard error (with
     ``extra_var``, fit units squared: an uncertainty the fit cannot see, estimated with
-    ``extra_dof`` degrees of freedom), within the parameter's bounds:
-    :func:`interval_quantile`."""
+    ``extra_dof`` degrees of freedom), within the parameter's bounds: the ``quantile``
+    given, else :func:`interval_quantile`'s."""
     se = math.sqrt(float(fit.reported_stderr[k]) ** 2 + extra_var)
-    q = interval_quantile(fit, k, extra_var, extra_dof)
+    q = interval_quantile(fit, k, extra_var, extra_dof) if quantile is None else quantile
     p = fit.space.params[k]
     return Interval(max(float(fit.phi[k]) - q * se, p.lo),
                     min(float(fit.phi[k]) + q * se, p.hi), "linearised")
@@ -1535,6 +1535,12 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
       the variance the reported error adds to the curvature's); a refit that rises by less
       (a flat or curved valley) moves the end out to where a quadratic through its rise
       reaches it (within the bounds). At most :data:`PROFILE_REFITS` refits;
+    - a variance that leans on levels estimated from few differences: both ends' distances
+      from the estimate times the Student quantile of its degrees of freedom over 1.96
+      (:func:`interval_quantile`, :func:`stretched`; exact where the valley is quadratic).
+      Stretched after the profile refits, which look where the normal quantile puts the
+      ends: a refit further out, past a valley that steepens, would move an end out less
+      than the quadratic through a nearer one says;
     - a parameter that nearly trades with another (correlation of at least
       :data:`JACKKNIFE_CORRELATION`): the estimate +- a Student quantile of its jackknife
       standard error (:func:`jackknife`, one refit per group of blocks), where that reaches
@@ -1548,12 +1554,14 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
     say = say or (lambda m: None)
     ev = np.zeros(len(fit.phi)) if extra_var is None else extra_var
     ed = np.full(len(fit.phi), np.inf) if extra_dof is None else extra_dof
-    out = {int(k): linearised_interval(fit, int(k), float(ev[k]), float(ed[k])) for k in which}
+    q = {int(k): interval_quantile(fit, int(k), float(ev[k]), float(ed[k])) for k in which}
+    out = {k: linearised_interval(fit, k, float(ev[k]), quantile=Z95) for k in q}
     checks = interval_checks(fit, rm, idx, np.asarray(which, dtype=int))
     curved = [c.index for c in sorted(checks, key=lambda c: -c.nonlinear) if c.nonlinear > 1.0]
     curved = curved[:PROFILE_REFITS // 2]
     if curved:
         _widen_by_profiles(fit, rm, idx, curved, out, pool, say)
+    out = {k: stretched(fit, k, iv, q[k] / Z95) for k, iv in out.items()}
     trading = [c.index for c in checks if c.correlation >= JACKKNIFE_CORRELATION]
     if trading:
         jk = jackknife(fit, rm, idx, pool, say)
@@ -1566,6 +1574,14 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
                 if lo < iv.lo or hi > iv.hi:
                     out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi), "jackknife")
     return out
+
+
+def stretched(fit: FitResult, k: int, iv: Interval, factor: float) -> Interval:
+    """``iv`` of parameter ``k`` with each end's distance from the estimate times
+    ``factor`` (within the parameter's bounds; its method kept)."""
+    x, p = float(fit.phi[k]), fit.space.params[k]
+    return Interval(max(x - (x - iv.lo) * factor, p.lo), min(x + (iv.hi - x) * factor, p.hi),
+                    iv.method)
 
 
 def _widen_by_profiles(fit: FitResult, rm: ResidualModel, idx: np.ndarray, ks: list[int],
