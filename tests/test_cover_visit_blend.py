@@ -57,6 +57,10 @@ def test_visit_level_of_rows_is_the_turns_level(tmp_path, seed):
     truth = json.loads(SCENARIO.read_text())["noise"]["process_m"]
     rm = _visit_level(tmp_path, seed)
     assert rm.replicate_dof > 0 and rm.visit_sd is not None  # measured, not the default
+    # its degrees of freedom (the intervals' Student quantile): the rows' replicate
+    # differences over the cables, not the default's
+    n = rm.model.n_cables
+    assert 0 < rm.visit_dof <= rm.replicate_dof * n + 1e-9 and rm.visit_dof != 6.0
     assert 0.88 < rm.visit_sd / truth < 1.25, (rm.visit_sd, truth)
     assert rm.visit_rows
     assert rm.entry_knots() is not None

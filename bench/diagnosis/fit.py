@@ -78,6 +78,9 @@ class FitResult:
     #: ``(J^T J)^-1`` (zero elsewhere): how the chi-square rises away from the minimum
     #: (:func:`pruning_cost`), where ``cov`` is how far the data may put it
     curvature_cov: np.ndarray | None = None
+    #: per parameter, the degrees of freedom of ``stderr`` (Welch-Satterthwaite over the
+    #: error model's components, :func:`effective_dof`); None: as many as a normal's
+    stderr_dof: np.ndarray | None = None
 
     @property
     def reported_stderr(self) -> np.ndarray:
@@ -181,7 +184,8 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             a = np.ascontiguousarray(a)
             h.update(str((a.dtype, a.shape)).encode())
             h.update(a.tobytes())
-    h.update(repr((rm.visit_sd, rm.visit_rows, rm.slack_threshold, rm.cells_at)).encode())
+    h.update(repr((rm.visit_sd, rm.visit_rows, getattr(rm, "visit_dof", None),
+                   rm.slack_threshold, rm.cells_at)).encode())
     settings = (MAX_NFEV, RETRIES, FIT_TOL, SECANT_MIN, SECANT_RATIO, SECANT_STEPS, SETTLED,
                 PRUNE_HOPELESS,
                 id(least_squares), id(fd_jacobian))
@@ -193,7 +197,8 @@ def _copy(res: FitResult) -> FitResult:
     """A copy of ``res`` whose arrays its user may change (``bias_var`` is added to in place)."""
     return replace(res, phi=res.phi.copy(), stderr=res.stderr.copy(), cov=res.cov.copy(),
                    bias_var=None if res.bias_var is None else res.bias_var.copy(),
-                   curvature_cov=None if res.curvature_cov is None else res.curvature_cov.copy())
+                   curvature_cov=None if res.curvature_cov is None else res.curvature_cov.copy(),
+                   stderr_dof=None if res.stderr_dof is None else res.stderr_dof.copy())
 
 
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
@@ -742,10 +747,14 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     n_res = len(r)
     if free.any():
         errors = error_structure(rm, idx, lost, space.robot(x))
+        nu: list[np.ndarray] = []
         cov, se = standard_errors(Jf, float(r @ r), n_eff - lost, space.scale[free], r,
-                                  errors.stretches, errors)
+                                  errors.stretches, errors, nu)
     else:
-        cov, se = np.zeros((0, 0)), np.zeros(0)
+        cov, se, nu = np.zeros((0, 0)), np.zeros(0), []
+    dof_all = np.full(len(x), np.inf)
+    if nu:
+        dof_all[free] = nu[0]
     se_all = np.full(len(x), np.inf)
     se_all[free] = se
     cov_all = np.zeros((len(x), len(x)))
@@ -757,7 +766,7 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
         curv[np.ix_(free, free)] = np.linalg.pinv(Js.T @ Js, rcond=1e-12,
                                                   hermitian=True) * np.outer(D, D)
     return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_eff), se_all,
-                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff, None, curv)
+                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff, None, curv, dof_all)
 
 
 class _SecantJacobian:
@@ -885,7 +894,8 @@ NULL_LOADING = 1e-6
 def standard_errors(J: np.ndarray, chi2: float, n_res: float,
                     scale: np.ndarray | None = None, r: np.ndarray | None = None,
                     groups: np.ndarray | None = None,
-                    errors: ErrorStructure | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    errors: ErrorStructure | None = None,
+                    dof: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Covariance and standard errors from the whitened Jacobian ``J`` (computed in parameter
     units of ``scale``) at the whitened residuals ``r``; ``n_res`` the residuals' degrees of
     freedom before the fit's own parameters.
@@ -902,7 +912,10 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     With the entries' ``groups`` (stretches that may share errors), each standard error is
     at least the cluster-robust (sandwich) one when there are groups enough: residuals
     that depart from the model of their errors in places do not make the fit look surer
-    than it is."""
+    than it is.
+
+    With a list ``dof``, the standard errors' degrees of freedom (:func:`effective_dof`, with
+    ``errors``) are appended to it."""
     p = J.shape[1]
     if p == 0:
         return np.zeros((0, 0)), np.zeros(0)
@@ -915,8 +928,11 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
     if r is not None and errors is not None and len(errors.weights) == len(r):
-        dof = errors.n_eff / max(n_res, 1.0)
-        cov = cov_s @ error_meat(Js, r, errors) @ cov_s * dof * np.outer(D, D)
+        parts: list[tuple[np.ndarray, float]] | None = [] if dof is not None else None
+        share = errors.n_eff / max(n_res, 1.0)
+        cov = cov_s @ error_meat(Js, r, errors, parts) @ cov_s * share * np.outer(D, D)
+        if dof is not None and parts is not None:
+            dof.append(effective_dof(cov_s, parts))
     else:
         red = chi2 / max(n_res - p, 1)
         cov = cov_s * np.outer(D, D) * max(red, 1.0)
@@ -946,7 +962,8 @@ DIRECTION_SCALE_M = 1e-4
 
 
 def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.ndarray],
-                       n_res: float, scale: np.ndarray, errors: ErrorStructure) -> np.ndarray:
+                       n_res: float, scale: np.ndarray, errors: ErrorStructure,
+                       dof: list[float] | None = None) -> np.ndarray:
     """Per free parameter, the variance that each cable's length error by its direction of
     approach (hysteresis, backlash; ``cols`` its whitened columns by direction and after the
     initialisation, :meth:`ResidualModel.direction_columns`) adds where per-sample unknowns
@@ -967,13 +984,16 @@ def direction_bias_var(J: np.ndarray, r: np.ndarray, cols: tuple[np.ndarray, np.
     without a tracker, hysteresis 0.13 mm: offsets 0.15 mm off at z 4 to 6, the same with the
     true offset 0.1, 5 or 10 mm; z about 1 with the hysteresis, but none at the reference).
     The level ``a^2`` is one for every cable: the mean over the cables of their unbiased
-    estimates (at least 0)."""
+    estimates (at least 0). With a list ``dof``, the degrees of freedom of the result (the
+    number of cables behind the level) are appended to it."""
     p = J.shape[1]
     X, later = cols
     use = np.linalg.norm(X, axis=0) > 0
     if p == 0 or not use.any():
         return np.zeros(p)
     X, later = X[:, use], later[:, use]
+    if dof is not None:
+        dof.append(float(X.shape[1]))
     Ja = np.hstack([J, X])
     sc = np.concatenate([np.asarray(scale, dtype=float), np.full(X.shape[1], DIRECTION_SCALE_M)])
     S, _ = standard_errors(Ja, float(r @ r), n_res, sc, r, None, errors)
@@ -1017,6 +1037,8 @@ class ErrorStructure:
     #: share of the residuals' degrees of freedom per-sample unknowns leave (their moments
     #: are that share of the errors'; the caller scales the meat back by its inverse)
     kept: float = 1.0
+    #: degrees of freedom of the level behind ``knots`` (``ResidualModel.visit_dof``)
+    knots_dof: float = math.inf
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -1042,10 +1064,11 @@ def error_structure(rm, idx: np.ndarray, lost: float | None = None,
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
-                          rm.entry_knots(idx, H), kept)
+                          rm.entry_knots(idx, H), kept, float(getattr(rm, "visit_dof", math.inf)))
 
 
-def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
+def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
+               parts: list[tuple[np.ndarray, float]] | None = None) -> np.ndarray:
     """``J^T C J`` for the whitened residuals ``r`` (Jacobian ``Js``), with ``C`` from a
     variance-components model of the unweighted whitened residuals ``u = r / sqrt(weight)``.
 
@@ -1072,7 +1095,10 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
     recordings with dwells, against the spread over replicate recordings).
 
     Entry ``i`` of ``r`` is ``sqrt(w_i) u_i``: a pair adds ``sqrt(w_i w_j) cov(u_i, u_j) J_i
-    J_j^T`` (rows a move weighs down but whose errors are independent count as such)."""
+    J_j^T`` (rows a move weighs down but whose errors are independent count as such).
+
+    With a list ``parts``, each term of the sum is appended to it with the degrees of freedom
+    of its level (:func:`component_dof`; the knots' from ``e.knots_dof``)."""
     p = Js.shape[1]
     sw = np.sqrt(np.clip(e.weights, 1e-12, None))
     b = Js * sw[:, None]
@@ -1091,6 +1117,8 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         # units (the caller's scaling by 1 / kept undone: the score sees it whole)
         kb = knots.T @ b
         meat += e.kept * (kb.T @ kb)
+        if parts is not None:
+            parts.append((e.kept * (kb.T @ kb), e.knots_dof))
     # a kind with few entries (the initialisation's dwell in a continuous recording) leans
     # on its quantity's level over every sample
     quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
@@ -1103,7 +1131,43 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure) -> np.ndarray:
         c = np.clip(theta[NCOMP * j + 1: NCOMP * (j + 1)], 0.0, v)
         grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
+        if parts is not None:
+            nu = component_dof(kg, e, p, len(r))
+            parts += [(th * g, d) for th, g, d in zip([v, *c], grams, nu, strict=True)]
     return meat
+
+
+def component_dof(kg: _KindGroups, e: ErrorStructure, p: int, n: int) -> list[float]:
+    """Degrees of freedom of the components of :func:`error_meat` of one kind ``kg`` (of
+    ``n`` entries, ``p`` fitted parameters): the level's its entries' weights summed (rows of
+    a move count together) with the :data:`PRIOR_ENTRIES` it leans on, less the parameters'
+    share; a shared covariance's the number of its groups (a cable's move, a cable's
+    stretch, a cable over the recording; the direction's: the cables). Each times the share
+    of the residuals per-sample unknowns leave (``e.kept``); at least 1."""
+    w = float(np.sum(np.clip(e.weights[kg.mask], 0.0, 1.0)))
+    groups = [float(m.shape[0]) for m in kg.ind]
+    raw = [w + PRIOR_ENTRIES - p * kg.n / max(n, 1)] + groups + [groups[-1]]
+    return [max(e.kept * d, 1.0) for d in raw]
+
+
+def effective_dof(cov_s: np.ndarray, parts: list[tuple[np.ndarray, float]]) -> np.ndarray:
+    """Per parameter, the Welch-Satterthwaite degrees of freedom of the sandwich variance
+    ``diag(cov_s M cov_s)`` with ``M`` the sum of the ``parts`` (each a term of the meat and
+    the degrees of freedom of its level): ``(sum_c t_c)^2 / sum_c t_c^2 / nu_c``, ``t_c`` a
+    term's share of the variance. A variance that leans on a level estimated from few
+    differences (the visit level of a recording with few replicate visits, the lengths'
+    level where estimated poses take most of their degrees of freedom) has few; inf where
+    nothing contributes."""
+    p = cov_s.shape[0]
+    tot, den = np.zeros(p), np.zeros(p)
+    for M, nu in parts:
+        t = np.einsum("ij,jk,ki->i", cov_s, M, cov_s)
+        tot += t
+        if math.isfinite(nu):
+            den += t ** 2 / max(nu, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(den > 0, tot ** 2 / np.where(den > 0, den, 1.0), np.inf)
+    return np.where(np.isfinite(out), np.maximum(out, 1.0), np.inf)
 
 
 class _KindGroups:
@@ -1278,12 +1342,14 @@ def referenced_offsets(space: ParamSpace, rm: ResidualModel) -> np.ndarray:
                      <= rm.init_end for p in space.params], dtype=bool)
 
 
-def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) -> np.ndarray:
+def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
+                            dof: list[float] | None = None) -> np.ndarray:
     """Per fit parameter (fit units squared): :func:`direction_bias_var` of ``fit`` on the
     samples ``idx`` for the length offsets that apply from the initialisation on (those a
     reference error of the encoders looks like: ``bench.diagnosis.report``'s floor of their
     errors); zero for the other parameters, and where per-sample unknowns project no
-    sample's length residual (:meth:`ResidualModel.projects`)."""
+    sample's length residual (:meth:`ResidualModel.projects`). With a list ``dof``, the
+    degrees of freedom of the variances (:func:`direction_bias_var`) are appended to it."""
     out = np.zeros(len(fit.phi))
     space = fit.space
     free = np.flatnonzero(np.isfinite(fit.stderr))
@@ -1306,7 +1372,7 @@ def direction_reference_var(fit: FitResult, rm: ResidualModel, idx: np.ndarray) 
                     space.hi[free], rm.frozen)
     lost = rm.dof_lost(idx)
     errors = error_structure(rm, idx, lost)
-    v = direction_bias_var(J, r, cols, errors.n_eff - lost, space.scale[free], errors)
+    v = direction_bias_var(J, r, cols, errors.n_eff - lost, space.scale[free], errors, dof)
     out[free] = np.where(dl[free], v, 0.0)
     return out
 
@@ -1341,13 +1407,37 @@ class Interval:
     method: str
 
 
-def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0) -> Interval:
-    """The estimate +- :data:`Z95` reported standard errors (with ``extra_var``, fit units
-    squared: an uncertainty the fit cannot see), within the parameter's bounds."""
+def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0,
+                        extra_dof: float = math.inf, quantile: float | None = None) -> Interval:
+    """The estimate +- a 95 % quantile times the reported standard error (with
+    ``extra_var``, fit units squared: an uncertainty the fit cannot see, estimated with
+    ``extra_dof`` degrees of freedom), within the parameter's bounds: the ``quantile``
+    given, else :func:`interval_quantile`'s."""
     se = math.sqrt(float(fit.reported_stderr[k]) ** 2 + extra_var)
+    q = interval_quantile(fit, k, extra_var, extra_dof) if quantile is None else quantile
     p = fit.space.params[k]
-    return Interval(max(float(fit.phi[k]) - Z95 * se, p.lo),
-                    min(float(fit.phi[k]) + Z95 * se, p.hi), "linearised")
+    return Interval(max(float(fit.phi[k]) - q * se, p.lo),
+                    min(float(fit.phi[k]) + q * se, p.hi), "linearised")
+
+
+def interval_quantile(fit: FitResult, k: int, extra_var: float = 0.0,
+                      extra_dof: float = math.inf) -> float:
+    """The two-sided 95 % quantile for parameter ``k`` of ``fit`` with ``extra_var`` (fit
+    units squared, at ``extra_dof`` degrees of freedom) added to its reported variance:
+    Student's with the Welch-Satterthwaite degrees of freedom of the sum, the fit's own error
+    at its ``stderr_dof``, what pruning may have moved in known; :data:`Z95` where they are
+    many (or unknown)."""
+    from scipy.stats import t as student
+
+    se2 = float(fit.stderr[k]) ** 2
+    var = float(fit.reported_stderr[k]) ** 2 + extra_var
+    nu = math.inf if fit.stderr_dof is None else float(fit.stderr_dof[k])
+    if not (se2 > 0 and math.isfinite(var) and var > 0):
+        return Z95
+    den = (se2 ** 2 / nu if math.isfinite(nu) else 0.0) \
+        + (extra_var ** 2 / max(extra_dof, 1.0) if math.isfinite(extra_dof) else 0.0)
+    nu_all = var ** 2 / den if den > 0 else math.inf
+    return float(student.ppf(0.975, nu_all)) if nu_all < 1e6 else Z95
 
 
 @dataclass(frozen=True)
@@ -1429,8 +1519,11 @@ def _profile_job(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np
 def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
                          which: np.ndarray, extra_var: np.ndarray | None = None,
                          pool: object = None,
-                         say: Callable[[str], None] | None = None) -> dict[int, Interval]:
-    """95 % intervals of the parameters ``which`` of ``fit`` (on the samples ``idx``).
+                         say: Callable[[str], None] | None = None,
+                         extra_dof: np.ndarray | None = None) -> dict[int, Interval]:
+    """95 % intervals of the parameters ``which`` of ``fit`` (on the samples ``idx``), with
+    ``extra_var`` (per parameter, fit units squared) at ``extra_dof`` degrees of freedom
+    added to the reported variances.
 
     Each starts linearised (:func:`linearised_interval`), and is widened (never narrowed)
     where that is in doubt (:func:`interval_checks`):
@@ -1442,6 +1535,12 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
       the variance the reported error adds to the curvature's); a refit that rises by less
       (a flat or curved valley) moves the end out to where a quadratic through its rise
       reaches it (within the bounds). At most :data:`PROFILE_REFITS` refits;
+    - a variance that leans on levels estimated from few differences: both ends' distances
+      from the estimate times the Student quantile of its degrees of freedom over 1.96
+      (:func:`interval_quantile`, :func:`stretched`; exact where the valley is quadratic).
+      Stretched after the profile refits, which look where the normal quantile puts the
+      ends: a refit further out, past a valley that steepens, would move an end out less
+      than the quadratic through a nearer one says;
     - a parameter that nearly trades with another (correlation of at least
       :data:`JACKKNIFE_CORRELATION`): the estimate +- a Student quantile of its jackknife
       standard error (:func:`jackknife`, one refit per group of blocks), where that reaches
@@ -1454,12 +1553,15 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
     The refits run on ``pool`` (an executor) where there is one."""
     say = say or (lambda m: None)
     ev = np.zeros(len(fit.phi)) if extra_var is None else extra_var
-    out = {int(k): linearised_interval(fit, int(k), float(ev[k])) for k in which}
+    ed = np.full(len(fit.phi), np.inf) if extra_dof is None else extra_dof
+    q = {int(k): interval_quantile(fit, int(k), float(ev[k]), float(ed[k])) for k in which}
+    out = {k: linearised_interval(fit, k, float(ev[k]), quantile=Z95) for k in q}
     checks = interval_checks(fit, rm, idx, np.asarray(which, dtype=int))
     curved = [c.index for c in sorted(checks, key=lambda c: -c.nonlinear) if c.nonlinear > 1.0]
     curved = curved[:PROFILE_REFITS // 2]
     if curved:
         _widen_by_profiles(fit, rm, idx, curved, out, pool, say)
+    out = {k: stretched(fit, k, iv, q[k] / Z95) for k, iv in out.items()}
     trading = [c.index for c in checks if c.correlation >= JACKKNIFE_CORRELATION]
     if trading:
         jk = jackknife(fit, rm, idx, pool, say)
@@ -1472,6 +1574,14 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
                 if lo < iv.lo or hi > iv.hi:
                     out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi), "jackknife")
     return out
+
+
+def stretched(fit: FitResult, k: int, iv: Interval, factor: float) -> Interval:
+    """``iv`` of parameter ``k`` with each end's distance from the estimate times
+    ``factor`` (within the parameter's bounds; its method kept)."""
+    x, p = float(fit.phi[k]), fit.space.params[k]
+    return Interval(max(x - (x - iv.lo) * factor, p.lo), min(x + (iv.hi - x) * factor, p.hi),
+                    iv.method)
 
 
 def _widen_by_profiles(fit: FitResult, rm: ResidualModel, idx: np.ndarray, ks: list[int],

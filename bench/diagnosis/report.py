@@ -216,21 +216,22 @@ def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | N
 
 def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects: list[str],
                      params: dict[str, dict], floor_var: np.ndarray, pool: Executor | None,
-                     say: Progress) -> dict[str, dict[str, tuple[float | None, float | None,
-                                                                  str]]]:
+                     say: Progress, floor_dof: np.ndarray | None = None
+                     ) -> dict[str, dict[str, tuple[float | None, float | None, str]]]:
     """Per chosen candidate, the 95 % interval of each reported parameter (``params``) in
     the conventions' units and how it was found (:func:`bench.diagnosis.fit.
     confidence_intervals`: linearised, or widened by profile refits where parameters
     correlate or the chi-square is not quadratic); ``floor_var`` as in
-    :func:`effect_entries`, in the interval. An unbounded end (a stiffness as rigid as the
-    data allow) is None."""
+    :func:`effect_entries`, in the interval (at ``floor_dof`` degrees of freedom). An
+    unbounded end (a stiffness as rigid as the data allow) is None."""
     from bench.diagnosis.fit import confidence_intervals, value_interval
 
     where = {(report_name(e), fit.space.params[k].key): int(k)
              for e in effects for k in fit.space.indices(e)}
     which = np.array(sorted({where[(report_name(e), key)] for e in effects
                              for key in params[e] if (report_name(e), key) in where}), dtype=int)
-    ivs = confidence_intervals(fit, rm, idx, which, floor_var, pool, say) if len(which) else {}
+    ivs = confidence_intervals(fit, rm, idx, which, floor_var, pool, say, floor_dof) \
+        if len(which) else {}
     for k in ivs:
         ivs[k] = selective(fit, k, ivs[k], float(floor_var[k]))
     out: dict[str, dict[str, tuple[float | None, float | None, str]]] = {}
@@ -323,20 +324,30 @@ def _jointly_differing(fit: FitResult, effect: str, undetermined: list[str],
     return out
 
 
-def _reference_var(rm: ResidualModel, fit: FitResult, idx: np.ndarray) -> np.ndarray:
+def _reference_var(rm: ResidualModel, fit: FitResult, idx: np.ndarray,
+                   dof: list[np.ndarray] | None = None) -> np.ndarray:
     """Per fit parameter, the variance of the encoder reference (:meth:`ResidualModel.
     reference_sd` under the fitted robot, and each cable's error by direction of approach
     at the reference where poses are estimated: :func:`direction_reference_var` on the
     fit's samples ``idx``) for a length offset that applies from the initialisation on (no
-    step found later): the two are the same signature."""
+    step found later): the two are the same signature. With a list ``dof``, the variances'
+    degrees of freedom (Welch-Satterthwaite; the reference's taken as known) are appended."""
     out = np.zeros(len(fit.space.params))
     if not any(p.key.startswith("dl_") for p in fit.space.params):
+        if dof is not None:
+            dof.append(np.full(len(out), np.inf))
         return out
     ref = rm.reference_sd(cleaned_robot(fit))
     ids = rm.model.cable_ids
     for j in np.flatnonzero(referenced_offsets(fit.space, rm)):
         out[j] = ref[ids.index(fit.space.params[j].key[3:])] ** 2
-    return out + direction_reference_var(fit, rm, idx)
+    nu: list[float] = []
+    by_dir = direction_reference_var(fit, rm, idx, nu)
+    if dof is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = (out + by_dir) ** 2 / (by_dir ** 2 / (nu[0] if nu else np.inf))
+        dof.append(np.where(by_dir > 0, d, np.inf))
+    return out + by_dir
 
 
 def cleaned_robot(fit: FitResult) -> Robot:
@@ -1014,7 +1025,8 @@ def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: l
     model = rm.model
     s = rm.s
     final = _final_fit(selector, sel, fit_idx, say)
-    floor = _reference_var(rm, final, fit_idx)
+    floor_dof: list[np.ndarray] = []
+    floor = _reference_var(rm, final, fit_idx, floor_dof)
     params, errs, undet = effect_entries(final, sel.effects, floor)
     # an effect whose parameters all vanish or cannot be fixed is not reported: the least
     # important such effect goes, the others are refitted without it (what it shared with
@@ -1045,10 +1057,12 @@ def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: l
             sel.rejected = rejected
             sel.effects = [c for c in sel.effects if c != e]
         final = _final_fit(selector, sel, fit_idx, say)
-        floor = _reference_var(rm, final, fit_idx)
+        floor_dof = []
+        floor = _reference_var(rm, final, fit_idx, floor_dof)
         params, errs, undet = effect_entries(final, sel.effects, floor)
     sel.fit = final
-    intervals = effect_intervals(final, rm, fit_idx, sel.effects, params, floor, pool, say)
+    intervals = effect_intervals(final, rm, fit_idx, sel.effects, params, floor, pool, say,
+                                 floor_dof[-1])
     fitted = cleaned_robot(final)
     say("fitted: equilibrium of every sample under the corrected model")
     fit_fw = rm.forward(fitted)

@@ -79,6 +79,10 @@ from controller.statics import (
 FLOORS = {"length": 2e-5, "force": 0.05, "moment": 0.05, "exit": 2e-5}
 #: repeatability assumed when the recording has no replicates (declared in the report)
 DEFAULTS = {"length": 3e-4, "force": 2.0, "moment": 2.0, "exit": 1e-3}
+#: degrees of freedom given the declared visit-to-visit level where nothing measured it: a
+#: level known within a factor of about two either way (0.2-0.6 mm of process noise against
+#: the 0.3 mm default; a chi-square of 6 dof puts 95 % of s^2 / sigma^2 in 0.21-2.4)
+VISIT_DEFAULT_DOF = 6.0
 #: white noise assumed when no raw rows tell it
 WHITE_DEFAULTS = {"length": 5e-5, "force": 0.5, "moment": 0.5, "exit": 1e-4}
 BLOCKS = ("length", "force", "moment", "exit")
@@ -178,6 +182,9 @@ class ResidualModel:
         #: the visit level was measured on rows of moves (no dwell replicates): the lengths'
         #: error changes at the turns (:meth:`entry_knots`)
         self.visit_rows = False
+        #: degrees of freedom of ``visit_sd`` (independent replicate differences over every
+        #: cable; :data:`VISIT_DEFAULT_DOF` for the declared default)
+        self.visit_dof = VISIT_DEFAULT_DOF
         # per sample (NaN before the first): the last deflected exits and estimated poses
         # (warm starts)
         self._warm_exits = np.full((s.n, n, 3), np.nan)
@@ -761,6 +768,7 @@ class ResidualModel:
         found: dict[int, dict[str, float]] = {0: {}, 1: {}}
         rep_rows = np.zeros(self.s.n, dtype=bool)
         dof_len = np.zeros(self.model.n_cables)
+        dof_kind = {0: 0.0, 1: 0.0}  # the length level's dof over every cable, per kind
         for kind in (0, 1):
             of_kind = self.s.kind == kind
             if not of_kind.any():
@@ -780,12 +788,14 @@ class ResidualModel:
                 found[kind][name] = float(np.sqrt(max(var, 0.0)))
                 if name == "length":
                     dof_len += dof
+                    dof_kind[kind] = float(np.sum(dof))
         if found[0] and found[1]:
             # rows of moves carry at least the visit-to-visit error of the dwells (the lengths
             # change between visits whether the platform stands or moves); their own replicate
             # groups, rows near each other on few moves, can miss it
             found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
         self.visit_sd = found[0].get("length")
+        self.visit_dof = dof_kind[0]
         self.visit_rows = False
         if self.visit_sd is None and "length" in found[1] and self.s.turns is not None \
                 and len(self.s.turns):
@@ -793,9 +803,11 @@ class ResidualModel:
             # moment): the spread of rows near each other on different moves tells the level
             # (the lengths change from turn to turn; between turns, rows blend it)
             self.visit_sd = found[1]["length"] / math.sqrt(self._blend_share(rep_rows))
+            self.visit_dof = dof_kind[1]
             self.visit_rows = True
         elif self.visit_sd is None and not (self.s.kind == 0)[~self.s.is_init].any():
             self.visit_sd = found[1].get("length")
+            self.visit_dof = dof_kind[1]
         if self.visit_sd is None and "length" not in found[1]:
             # nothing measured the level: the declared repeatability changes from stop to
             # stop as the diagonal's default says it does (a continuous recording without
@@ -804,6 +816,7 @@ class ResidualModel:
             # residuals' moments instead told it from a move's shared error no better
             # than the default (a third of the truth there) and named the stretch again
             self.visit_sd = DEFAULTS["length"]
+            self.visit_dof = VISIT_DEFAULT_DOF
         for kind in (0, 1):
             if found[kind]:
                 self.sigma_k[kind].update(found[kind])
