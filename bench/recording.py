@@ -16,6 +16,7 @@ import os
 import re
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -524,10 +525,12 @@ class BackgroundWriter:
 
     def _start(self, flush_s: float, name: str) -> None:
         self.flush_s = float(flush_s)
-        self._queue: list[tuple] = []
+        # (a deque, appended here and emptied from the left by the thread, needs no lock: a
+        # Ctrl-C's exception raised just after a lock's acquisition could leave it held and
+        # the close waiting for the thread for ever)
+        self._queue: deque[tuple] = deque()
         self._appended = 0
         self._written = 0
-        self._lock = threading.Lock()
         self._wake = threading.Event()
         self._closed = False
         self._error: BaseException | None = None
@@ -547,13 +550,11 @@ class BackgroundWriter:
     def _queue_item(self, item: tuple, check: bool = True) -> None:
         if check:
             self._check()
-        with self._lock:
-            self._queue.append(item)
-            self._appended += 1
+        self._queue.append(item)
+        self._appended += 1
 
     def _write_taken(self) -> None:
-        with self._lock:
-            items, self._queue = self._queue, []
+        items = [self._queue.popleft() for _ in range(len(self._queue))]
         self._write(items)
         self._written += len(items)
 
