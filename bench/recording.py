@@ -532,7 +532,8 @@ class BackgroundWriter:
         self._appended = 0
         self._written = 0
         self._wake = threading.Event()
-        self._closed = False
+        self._closed = False  # (the thread is asked to end)
+        self._done = False  # (the rest written, the file closed)
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
@@ -577,12 +578,14 @@ class BackgroundWriter:
         self._check()
 
     def close(self) -> None:
-        """Write the rest and close the file (idempotent)."""
-        if self._closed:
+        """Write the rest and close the file (idempotent; a close that a Ctrl-C interrupted
+        while it waited for the writer thread is done whole by the next call)."""
+        if self._done:
             return
         self._closed = True
         self._wake.set()
         self._thread.join()
+        self._done = True
         try:
             if self._error is None:
                 self._write_taken()

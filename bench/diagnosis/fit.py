@@ -281,10 +281,19 @@ def _fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             # when its tension varies little): fifty times the spread of the values over the
             # evaluation
             pruned.stderr = np.where(weak, full.stderr, pruned.stderr)
+            pruned.stderr_dof = _held_dof(weak, full, pruned)
             unfixed = unfixed_parameters(space, full.stderr) | shared_mode(full, weak)
             pruned.bias_var = pruning_bias_var(full, weak, space.neutral, weak & unfixed)
             return pruned
     return full
+
+
+def _held_dof(held: np.ndarray, full: FitResult, refit: FitResult) -> np.ndarray | None:
+    """The degrees of freedom of ``refit``'s errors where its ``held`` parameters keep the
+    errors of ``full`` (theirs with them); ``refit``'s own where either fit has none."""
+    if full.stderr_dof is None or refit.stderr_dof is None:
+        return refit.stderr_dof
+    return np.where(held, full.stderr_dof, refit.stderr_dof)
 
 
 def shared_mode(full: FitResult, weak: np.ndarray) -> np.ndarray:
@@ -623,6 +632,7 @@ def profile_pruning(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
             names = ", ".join(space.params[int(k)].key for k in np.flatnonzero(mask))
             say(f"held at the model's values (the refits' likelihood ratio): {names}")
             tried.stderr = np.where(mask | base_hold, fit.stderr, tried.stderr)
+            tried.stderr_dof = _held_dof(mask | base_hold, fit, tried)
             tried.bias_var = None if fit.bias_var is None else fit.bias_var.copy()
             out = tried
         else:
@@ -927,12 +937,14 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
     weak = w < 1e-12 * top
     inv_w = np.where(weak, 0.0, 1.0 / np.where(weak, 1.0, w))
     cov_s = (V * inv_w) @ V.T
+    widen_dof = False  # (the dof of this call's sandwich in dof[-1])
     if r is not None and errors is not None and len(errors.weights) == len(r):
         parts: list[tuple[np.ndarray, float]] | None = [] if dof is not None else None
         share = errors.n_eff / max(n_res, 1.0)
         cov = cov_s @ error_meat(Js, r, errors, parts) @ cov_s * share * np.outer(D, D)
         if dof is not None and parts is not None:
             dof.append(effective_dof(cov_s, parts))
+            widen_dof = True
     else:
         red = chi2 / max(n_res - p, 1)
         cov = cov_s * np.outer(D, D) * max(red, 1.0)
@@ -946,6 +958,8 @@ def standard_errors(J: np.ndarray, chi2: float, n_res: float,
             cov_r = cov_s @ meat @ cov_s * np.outer(D, D)
             d = np.sqrt(np.clip(np.diag(cov_r) / np.maximum(np.diag(cov), 1e-300), 1.0, None))
             cov = cov * np.outer(d, d)
+            if widen_dof:  # (a variance widened to the groups' own: their G - 1 dof)
+                dof[-1] = np.where(d > 1.0, np.minimum(dof[-1], G - 1.0), dof[-1])
     # directions without information are left out of the covariance, whose inverse they
     # would make infinite; a parameter that moves along one (its finite-difference column
     # only rounding noise, or a combination of parameters the residuals do not see at
@@ -1132,9 +1146,24 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
         grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
         if parts is not None:
-            nu = component_dof(kg, e, p, len(r))
-            parts += [(th * g, d) for th, g, d in zip([v, *c], grams, nu, strict=True)]
+            parts += _nested_parts(v, c, grams, component_dof(kg, e, p, len(r)))
     return meat
+
+
+def _nested_parts(v: float, c: np.ndarray, grams: list[np.ndarray], nu: list[float]
+                  ) -> list[tuple[np.ndarray, float]]:
+    """The terms of one kind's meat ``v G_0 + c_1 G_1 + c_2 G_2 + c_3 G_3 + c_d G_4`` as
+    positive semi-definite increments for :func:`effective_dof`: ``(v - c_1) S_0 + (c_1 -
+    c_2) S_1 + (c_2 - c_3) S_2 + c_3 S_3`` with ``S_l = G_0 + ... + G_l`` (the squared sums
+    over level-``l`` groups; the same meat). ``G_1..G_3`` alone pair different entries and
+    can be negative: a parameter whose column changes sign within a move would see its
+    well-measured level cancelled by them and its dof fall to 1. Increments below zero
+    (components not nested in size) count as nothing here; ``nu`` each term's dof."""
+    cum = list(np.cumsum(np.array(grams[:4]), axis=0))
+    coef = [v, *c[:3]]
+    inc = [max(coef[lv] - (coef[lv + 1] if lv < 3 else 0.0), 0.0) for lv in range(4)]
+    out = [(a * S, d) for a, S, d in zip(inc, cum, nu[:4], strict=True)]
+    return out + [(c[3] * grams[4], nu[4])]
 
 
 def component_dof(kg: _KindGroups, e: ErrorStructure, p: int, n: int) -> list[float]:
@@ -1158,13 +1187,19 @@ def effective_dof(cov_s: np.ndarray, parts: list[tuple[np.ndarray, float]]) -> n
     differences (the visit level of a recording with few replicate visits, the lengths'
     level where estimated poses take most of their degrees of freedom) has few; inf where
     nothing contributes."""
-    p = cov_s.shape[0]
-    tot, den = np.zeros(p), np.zeros(p)
-    for M, nu in parts:
-        t = np.einsum("ij,jk,ki->i", cov_s, M, cov_s)
-        tot += t
-        if math.isfinite(nu):
-            den += t ** 2 / max(nu, 1.0)
+    terms = [np.clip(np.einsum("ij,jk,ki->i", cov_s, M, cov_s), 0.0, None) for M, _ in parts]
+    return satterthwaite(terms, [nu for _, nu in parts]) if parts \
+        else np.full(cov_s.shape[0], np.inf)
+
+
+def satterthwaite(terms: list, dofs: list[float]) -> np.ndarray:
+    """Welch-Satterthwaite degrees of freedom of a sum of variance ``terms`` (arrays or
+    numbers, each >= 0, at ``dofs``; inf: known): ``(sum t)^2 / sum t^2 / nu``, at least 1;
+    inf where no term of finite dof contributes."""
+    tot = sum(np.asarray(t, dtype=float) for t in terms)
+    den = sum(np.asarray(t, dtype=float) ** 2 / max(nu, 1.0)
+              for t, nu in zip(terms, dofs, strict=True) if math.isfinite(nu))
+    den = np.zeros_like(tot) + den
     with np.errstate(divide="ignore", invalid="ignore"):
         out = np.where(den > 0, tot ** 2 / np.where(den > 0, den, 1.0), np.inf)
     return np.where(np.isfinite(out), np.maximum(out, 1.0), np.inf)
@@ -1434,9 +1469,8 @@ def interval_quantile(fit: FitResult, k: int, extra_var: float = 0.0,
     nu = math.inf if fit.stderr_dof is None else float(fit.stderr_dof[k])
     if not (se2 > 0 and math.isfinite(var) and var > 0):
         return Z95
-    den = (se2 ** 2 / nu if math.isfinite(nu) else 0.0) \
-        + (extra_var ** 2 / max(extra_dof, 1.0) if math.isfinite(extra_dof) else 0.0)
-    nu_all = var ** 2 / den if den > 0 else math.inf
+    nu_all = float(satterthwaite([se2, var - se2 - extra_var, extra_var],
+                                 [nu, math.inf, extra_dof]))
     return float(student.ppf(0.975, nu_all)) if nu_all < 1e6 else Z95
 
 

@@ -32,6 +32,7 @@ the initialisation (the encoders are referenced there):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -194,6 +195,21 @@ def unneeded(in_question: list[dict]) -> list[dict]:
             and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER]
 
 
+def _valid(r: np.ndarray, like: np.ndarray) -> np.ndarray | None:
+    """``r`` where it has ``like``'s shape and is finite (every sample solved), else None."""
+    return r if r.shape == like.shape and np.isfinite(r).all() else None
+
+
+def _beyond(solve: Callable, j: int, without: tuple[np.ndarray, np.ndarray | None],
+            full: tuple[np.ndarray, np.ndarray]) -> float:
+    """The chi-square the probe ``j`` with its companions leaves from ``without`` (the
+    columns kept free, the residuals there) less the one from ``full``; nan where the
+    residuals without could not be evaluated (a sample lost)."""
+    if without[1] is None:
+        return math.nan
+    return solve(without[0], j, without[1], True)[0] - solve(full[0], j, full[1], True)[0]
+
+
 def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
            idx: np.ndarray | None = None,
            cols: list[tuple[str, str | None, np.ndarray]] | None = None,
@@ -334,7 +350,7 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         held[said] = False
         p_said = phi.copy()
         p_said[act[said]] = space.neutral[act[said]]
-        r_said = rm.whitened(space.robot(p_said), idx) if said != mine else None
+        r_said: list[np.ndarray | None] = []  # (evaluated once, where a probe stands)
         keep = every.copy()
         keep[mine] = False
         # without the effect: its parameters back at the model's values
@@ -348,7 +364,8 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
             if not ok[j]:
                 continue
             # the probe in the effect's place, alone and, a finding, with its companions
-            for comp in (False, True) if Jq[j].shape[1] and found.get(j) else (False,):
+            with_comp = Jq[j].shape[1] and found.get(j) and np.isfinite(Jq[j]).all()
+            for comp in (False, True) if with_comp else (False,):
                 chi, value, _ = solve(keep, j, r_wo, comp)
                 size = abs(value) * sizes[j] / noise
                 d_bic = (chi - chi0) / inflation \
@@ -358,12 +375,14 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
                     continue
                 # what the effect's named parameters add beside the probe (both fits with
                 # the probe and its companions free)
-                without = solve(keep, j, r_wo, True)[0] if r_said is None else \
-                    solve(held, j, r_said, True)[0]
-                beyond = (without - solve(every, j, r0, True)[0]) / inflation \
+                if said != mine and not r_said:
+                    r_said.append(_valid(rm.whitened(space.robot(p_said), idx), r0))
+                beyond = _beyond(solve, j, (keep, r_wo) if said == mine else
+                                 (held, r_said[0]), (every, r0)) / inflation \
                     - len(said) * log_n
                 best = Stand(e, ProbeResult(name, cid, value, d_bic, size), d_bic,
-                             beyond=float(beyond), found=found.get(j, False))
+                             beyond=None if math.isnan(beyond) else float(beyond),
+                             found=found.get(j, False))
         if best is not None:
             stands.append(best)
     return out, stands

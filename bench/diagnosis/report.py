@@ -26,6 +26,7 @@ from bench.diagnosis.fit import (
     direction_reference_var,
     fit_effects,
     referenced_offsets,
+    satterthwaite,
     split_columns,
 )
 from bench.diagnosis.residuals import Forward, ResidualModel
@@ -344,9 +345,7 @@ def _reference_var(rm: ResidualModel, fit: FitResult, idx: np.ndarray,
     nu: list[float] = []
     by_dir = direction_reference_var(fit, rm, idx, nu)
     if dof is not None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            d = (out + by_dir) ** 2 / (by_dir ** 2 / (nu[0] if nu else np.inf))
-        dof.append(np.where(by_dir > 0, d, np.inf))
+        dof.append(satterthwaite([out, by_dir], [math.inf, nu[0] if nu else math.inf]))
     return out + by_dir
 
 
@@ -689,8 +688,9 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
         # fitted, its offsets the fewest)
         again.cache[best[1]] = sparse
     sel2 = again.run(candidates, best[1])
+    dropped = set(sel.effects) - set(sel2.effects)  # (none dropped: no reason to switch)
     if sel2.fit.bic + BIC_ENTER * len(sel2.effects) < sel.fit.bic + BIC_ENTER * len(sel.effects) \
-            or (lost and set(sel.effects) - set(sel2.effects) <= set(lost)):
+            or (lost and dropped and dropped <= set(lost)):
         return again, sel2
     say(f"it fits no better (BIC {sel2.fit.bic:.1f} against {sel.fit.bic:.1f}): the first "
         f"selection stands")

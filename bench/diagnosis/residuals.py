@@ -817,6 +817,8 @@ class ResidualModel:
             # than the default (a third of the truth there) and named the stretch again
             self.visit_sd = DEFAULTS["length"]
             self.visit_dof = VISIT_DEFAULT_DOF
+        if self.visit_sd is None:  # (no level, no knots: nothing leans on its dof)
+            self.visit_dof = math.inf
         for kind in (0, 1):
             if found[kind]:
                 self.sigma_k[kind].update(found[kind])

@@ -1203,7 +1203,7 @@ def lost_beside(fit: FitResult, effects: list[str], rm: ResidualModel | None = N
     recording share the per-visit change of the lengths, which their own errors count
     (IPAnema-class continuous recording, nothing concealed, a pretension of 75 N and 0.6 mm
     per visit: six exit-point offsets 1.3-4.6 mm lowered the BIC by 64 below the
-    pretension's alone, Wald 34 on 24 parameters beside it). None where ``fit`` is far
+    pretension's alone, Wald 34 on 24 parameters beside it). Nothing where ``fit`` is far
     from the data (:data:`FAR`: its errors measure a misfit, not the noise)."""
     if not np.isfinite(fit.reduced_chi2) or fit.reduced_chi2 > FAR:
         return []
