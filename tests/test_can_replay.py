@@ -115,12 +115,16 @@ def test_original_timing_takes_the_log_s_time(live_run):
     mcap, _ = live_run
     frames = list(read_log(mcap))
     t0 = frames[0].timestamp
-    # the frames up to the first one 0.25 s after the start (a loaded host may leave a gap
-    # in the log, so a fixed window's last frame could be anywhere in it)
-    end = next(i for i, m in enumerate(frames) if m.timestamp - t0 >= 0.25)
+    span = frames[-1].timestamp - t0
+    assert span > 0.1, (span, len(frames))
+    # the frames up to the first one a window after the start (a loaded host may leave a
+    # gap in the log, so a fixed window's last frame could be anywhere in it; on a loaded
+    # host the logged frames of the run's ~1 s once spanned less than 0.25 s)
+    window = min(0.25, 0.5 * span)
+    end = next(i for i, m in enumerate(frames) if m.timestamp - t0 >= window)
     short = frames[: end + 1]
     got = replay(short, load_winches(), fast=False, period_s=_period(mcap))
-    assert got.log_s > 0.2 and got.wall_s >= 0.95 * got.log_s
+    assert got.log_s > 0.8 * window and got.wall_s >= 0.95 * got.log_s
 
 
 def test_bad_logs_are_refused_naming_the_file(tmp_path, capsys):

@@ -46,4 +46,7 @@ def test_a_slip_as_the_platform_leaves_is_named_alone(tmp_path, drop):
     assert set(eff["params"]) == {"dl_21"}
     lo, hi = eff["interval95"]["dl_21"]
     assert lo <= SLIP["21"] <= hi
+    # the Student quantile each interval's standard errors were taken at: 1.96 or more
+    assert set(eff["interval_quantile"]) == set(eff["interval95"])
+    assert all(1.9599 < q < 15.0 for q in eff["interval_quantile"].values())
     assert rep["unexplained"] is None, rep["unexplained"]

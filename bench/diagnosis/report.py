@@ -218,14 +218,16 @@ def effect_entries(fit: FitResult, effects: list[str], floor_var: np.ndarray | N
 def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects: list[str],
                      params: dict[str, dict], floor_var: np.ndarray, pool: Executor | None,
                      say: Progress, floor_dof: np.ndarray | None = None
-                     ) -> dict[str, dict[str, tuple[float | None, float | None, str]]]:
+                     ) -> dict[str, dict[str, tuple[float | None, float | None, str, float]]]:
     """Per chosen candidate, the 95 % interval of each reported parameter (``params``) in
-    the conventions' units and how it was found (:func:`bench.diagnosis.fit.
+    the conventions' units, how it was found (:func:`bench.diagnosis.fit.
     confidence_intervals`: linearised, or widened by profile refits where parameters
-    correlate or the chi-square is not quadratic); ``floor_var`` as in
+    correlate or the chi-square is not quadratic) and the Student quantile its standard
+    errors were taken at (:func:`bench.diagnosis.fit.interval_quantile`; 1.96 where the
+    error model's levels rest on many differences); ``floor_var`` as in
     :func:`effect_entries`, in the interval (at ``floor_dof`` degrees of freedom). An
     unbounded end (a stiffness as rigid as the data allow) is None."""
-    from bench.diagnosis.fit import confidence_intervals, value_interval
+    from bench.diagnosis.fit import confidence_intervals, interval_quantile, value_interval
 
     where = {(report_name(e), fit.space.params[k].key): int(k)
              for e in effects for k in fit.space.indices(e)}
@@ -235,14 +237,16 @@ def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects
         if len(which) else {}
     for k in ivs:
         ivs[k] = selective(fit, k, ivs[k], float(floor_var[k]))
-    out: dict[str, dict[str, tuple[float | None, float | None, str]]] = {}
+    out: dict[str, dict[str, tuple[float | None, float | None, str, float]]] = {}
     for e in effects:
         out[e] = {}
         for key in params[e]:
             k = where.get((report_name(e), key))
             if k is not None and k in ivs:
                 lo, hi = value_interval(fit.space.params[k], ivs[k])
-                out[e][key] = (_f(lo), _f(hi), ivs[k].method)
+                q = interval_quantile(fit, k, float(floor_var[k]), math.inf
+                                      if floor_dof is None else float(floor_dof[k]))
+                out[e][key] = (_f(lo), _f(hi), ivs[k].method, round(q, 4))
     return out
 
 
@@ -887,6 +891,7 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
             "stderr": errs[e],
             "interval95": {k: list(v[:2]) for k, v in intervals[e].items()},
             "interval_method": {k: v[2] for k, v in intervals[e].items()},
+            "interval_quantile": {k: v[3] for k, v in intervals[e].items()},
             "explains": EXPLAINS[name],
             "evidence": {"heldout_pose_rms_before_m": before,
                          "heldout_pose_rms_after_m": after,
