@@ -195,6 +195,18 @@ def unneeded(in_question: list[dict]) -> list[dict]:
             and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER]
 
 
+def _length_column(rm: ResidualModel, robot, idx: np.ndarray, r0: np.ndarray,
+                   x: np.ndarray) -> np.ndarray | float:
+    """The derivative of the whitened residuals ``r0`` of ``robot`` on samples ``idx`` along
+    an extra length ``x`` [m per sample and cable], by a forward difference of
+    :data:`STEP_M` at the largest entry (``rm.extra_length`` is left set: the caller
+    clears it); nan where a sample is lost."""
+    unit = STEP_M / max(float(np.max(np.abs(x))), 1e-12)
+    rm.extra_length = x * unit
+    r = rm.whitened(robot, idx)
+    return (r - r0) / unit if r.shape == r0.shape else np.nan
+
+
 def _valid(r: np.ndarray, like: np.ndarray) -> np.ndarray | None:
     """``r`` where it has ``like``'s shape and is finite (every sample solved), else None."""
     return r if r.shape == like.shape and np.isfinite(r).all() else None
@@ -253,10 +265,7 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
         with rm.frozen():
             for j, (_, _, x) in enumerate(cols):
                 sizes[j] = float(np.max(np.abs(x)))
-                unit = STEP_M / max(sizes[j], 1e-12)
-                rm.extra_length = x * unit
-                r = rm.whitened(robot, idx)
-                Jp[:, j] = (r - r0) / unit if r.shape == r0.shape else np.nan
+                Jp[:, j] = _length_column(rm, robot, idx, r0, x)
         # each probe's companions (:func:`companions`), for the test of what an effect adds
         # beside the probe
         Jq: list[np.ndarray] = []
@@ -265,10 +274,7 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
                 comp = companions(rm, name, col)
                 Jq.append(np.empty((n_res, len(comp))))
                 for i, x in enumerate(comp):
-                    unit = STEP_M / max(float(np.max(np.abs(x))), 1e-12)
-                    rm.extra_length = x * unit
-                    r = rm.whitened(robot, idx)
-                    Jq[-1][:, i] = (r - r0) / unit if r.shape == r0.shape else np.nan
+                    Jq[-1][:, i] = _length_column(rm, robot, idx, r0, x)
     finally:
         rm.extra_length = None
     ok = np.isfinite(Jp).all(axis=0) & np.isfinite(Jc).all()
