@@ -789,9 +789,73 @@ def diagnose(path: str | Path, progress: Progress | None = None, pool: Executor 
 
 def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None,
               write_model: str | Path | None) -> Diagnosis:
+    """:func:`diagnose` in this process: read, noise, steps, selection, the named effects
+    settled, then the report's sections."""
     say = progress or (lambda m: None)
-    rec, streams, excluded = read_conditioned(path)  # long logs block by block
+    rec, streams, excluded, s = _read(path, say)
+    rm, reference = _noise_model(rec, s, streams, say)
     model = rec.robot
+    base_blocks = rm.blocks(model)
+    steps = _steps(rec, s, rm, base_blocks, say)
+    changes = noise.separate(rm, say)  # systematic differences of replicates: not noise
+    high_freq = noise.floor_assumed(rm, say)
+    nz = rm.noise_summary()
+    say("baseline: equilibrium of every sample under the recording's model")
+    base_fw = rm.forward(model)
+    pose_noise = _pose_noise(s, base_fw)
+
+    train, valid, test, region = split_samples(s, rec.init_pose)
+    candidates = candidate_effects(rm)
+    selector, sel = _select(rm, candidates, train, [valid, region], steps, say, pool)
+    fit_idx = np.union1d(train, valid)
+    got, not_named = _named(rm, selector, sel, candidates, fit_idx, rec, changes, pool, say)
+    sel, final, fitted, fit_fw = got.sel, got.final, got.fitted, got.fit_fw
+    leftover = probes.with_not_named(got.leftover, not_named)
+    if leftover is not None:
+        say("unexplained: " + leftover["summary"])
+
+    notes: list[str] = []  # said at the end of the summary
+    if len(sel.effects) > 1:  # (each effect's "without" fit below, side by side)
+        selector.prefetch([tuple(c for c in sel.effects if c != e) for e in sel.effects],
+                          sel.fit, refits=True)
+    effects = [_effect_entry(rm, selector, got, e, candidates, fit_idx, test, notes)
+               for e in sel.effects]
+    if leftover is not None:
+        for entry in effects:
+            entry["provisional"] = True
+    noise.annotate(effects, changes)
+    _provisional_by_frame(effects)
+
+    baseline = pose_figures(base_fw)
+    baseline["wrench_rms"] = wrench_rms(model, s, raw=True)
+    baseline["exit_point_rms_m"] = exit_rms(rm, model)
+    mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
+                         pose_noise, excluded, effects)
+    mismatch["encoder_reference"] = {"reading": reference, "means": REFERENCES[reference]}
+    mismatch["noise"] |= {"high_frequency": high_freq,
+                          "systematic": [c.entry() for c in changes]}
+    mismatch["streams"] = streams
+    _summary_notes(mismatch, rm, reference, notes)
+    model_path, write_error = _write_corrected(model, effects, path, write_model, say)
+    report = {
+        "format": FORMAT,
+        "recording": str(path),
+        "samples": int(s.n),
+        "baseline": baseline,
+        "mismatch": mismatch,
+        "effects": effects,
+        "unexplained": leftover,
+        "fitted": _fitted_figures(rm, final, fitted, fit_fw, fit_idx, test, baseline),
+        "model": model_path,
+    }
+    return Diagnosis(plain(report), rec, s, rm, sel, fitted, base_fw, fit_fw, test,
+                     write_error)
+
+
+def _read(path: str | Path, say: Progress) -> tuple[Recording, dict, list[dict], Samples]:
+    """The recording at ``path`` (long logs block by block), its streams, the values
+    excluded (the first five said) and its static samples; a RecordingError without any."""
+    rec, streams, excluded = read_conditioned(path)
     for e in excluded[:5]:
         if "row" in e:
             say(f"excluded: recording.csv line {e['row']}, column {e['column']}: "
@@ -807,56 +871,77 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     if inf.get("states_unknown"):
         say("state words the format does not define, read from the data: " + ", ".join(
             f"{w} ({k} rows)" for w, k in inf["states_unknown"].items()))
-    rm = ResidualModel(s, model, rec.init_pose, rec.init_tensions, rows=s.triples)
+    return rec, streams, excluded, s
+
+
+def _noise_model(rec: Recording, s: Samples, streams: dict, say: Progress
+                 ) -> tuple[ResidualModel, str]:
+    """The residual model of ``s`` under the recording's model, its noise estimated, and
+    the encoder reference that fits the recording."""
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.stamp_period_s = frame.stamp_period_s(rec.t, streams)
-    rm.estimate_noise(model)
+    rm.estimate_noise(rec.robot)
     reference = _encoder_reference(rec, rm, say)
     nz = rm.noise_summary()
     say(f"noise ({rm.sigma_source}): lengths {nz['length'] * 1e3:.3f} mm, forces "
         f"{nz['force']:.2f} N, exit points {nz['exit'] * 1e3:.2f} mm")
+    return rm, reference
 
-    # where: baseline residuals, steps in time
-    base_blocks = rm.blocks(model)
+
+def _steps(rec: Recording, s: Samples, rm: ResidualModel, base_blocks, say: Progress
+           ) -> list[dict]:
+    """The steps in time of the cables' length readings (dwells and, with a stream, jumps
+    during moves; load changes and look-alikes sorted out): ``rm.slip_times`` set at them
+    and the noise estimated again with the slipped cables' replicate groups split."""
+    model = rec.robot
+    if not rm.has_len.any():
+        return []
     one_sided = base_blocks.slack if base_blocks.slack is not None else False
     steps = locate.steps_in_time(s, np.where(one_sided, np.nan, base_blocks.length),
-                                 nz["length"], model.cable_ids,
-                                 t_after=rm.init_end) if rm.has_len.any() else []
-    if s.stream is not None and rm.has_len.any():
+                                 rm.noise_summary()["length"], model.cable_ids,
+                                 t_after=rm.init_end)
+    if s.stream is not None:
         seen = {st["cable"] for st in steps}
         steps += [j for j in stream_slips(rec, s, rm) if j["cable"] not in seen]
     steps = slips.choose_alike(rm, slips.without_loads(rm, base_blocks, steps, say))
-    if steps:
-        slip_at = np.full(model.n_cables, rm.init_end)
-        for st in steps:
-            slip_at[model.cable_ids.index(st["cable"])] = max(st["t_s"], rm.init_end)
-            say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s"
-                + (f" (or cable {', '.join(st['alike'])}'s: alike through the estimated poses;"
-                   " the fit tells whose)" if st.get("alike") else ""))
-        rm.slip_times = slip_at
-        # the visits of a target on both sides of a step differ by the slip: estimate the noise
-        # again (the slipped cable's replicate groups split at its step)
-        rm.estimate_noise(model)
-        nz = rm.noise_summary()
-        say(f"noise, the replicate groups split at the steps: lengths "
-            f"{nz['length'] * 1e3:.3f} mm, forces {nz['force']:.2f} N")
-    changes = noise.separate(rm, say)  # systematic differences of replicates: not noise
-    high_freq = noise.floor_assumed(rm, say)
+    if not steps:
+        return steps
+    slip_at = np.full(model.n_cables, rm.init_end)
+    for st in steps:
+        slip_at[model.cable_ids.index(st["cable"])] = max(st["t_s"], rm.init_end)
+        say(f"cable {st['cable']}: its length reading steps at t = {st['t_s']:.1f} s"
+            + (f" (or cable {', '.join(st['alike'])}'s: alike through the estimated poses;"
+               " the fit tells whose)" if st.get("alike") else ""))
+    rm.slip_times = slip_at
+    # the visits of a target on both sides of a step differ by the slip: estimate the noise
+    # again (the slipped cable's replicate groups split at its step)
+    rm.estimate_noise(model)
     nz = rm.noise_summary()
-    say("baseline: equilibrium of every sample under the recording's model")
-    base_fw = rm.forward(model)
-    pose_noise = _pose_noise(s, base_fw)
+    say(f"noise, the replicate groups split at the steps: lengths "
+        f"{nz['length'] * 1e3:.3f} mm, forces {nz['force']:.2f} N")
+    return steps
 
-    train, valid, test, region = split_samples(s, rec.init_pose)
-    candidates = candidate_effects(rm)
-    selector = Selector(rm, train, [valid, region], progress=say, pool=pool)
+
+def _select(rm: ResidualModel, candidates: list[str], train: np.ndarray,
+            checks: list[np.ndarray], steps: list[dict], say: Progress,
+            pool: Executor | None) -> tuple[Selector, Selection]:
+    """The selection on ``train`` (judged on ``checks``), then its second looks: the
+    slips after the initialisation, the pretension without load cells, the cells read at
+    the anchors."""
+    selector = Selector(rm, train, checks, progress=say, pool=pool)
     sel = selector.run(candidates)
-    selector, sel = _later_slips(rm, selector, sel, candidates, train, [valid, region],
-                                 steps, say, pool)
-    selector, sel = _pretension(rm, selector, sel, candidates, train, [valid, region], say,
-                                pool)
-    selector, sel = _cells_at_anchor(rm, selector, sel, candidates, train, [valid, region],
-                                     say, pool)
-    fit_idx = np.union1d(train, valid)
+    selector, sel = _later_slips(rm, selector, sel, candidates, train, checks, steps, say,
+                                 pool)
+    selector, sel = _pretension(rm, selector, sel, candidates, train, checks, say, pool)
+    return _cells_at_anchor(rm, selector, sel, candidates, train, checks, say, pool)
+
+
+def _named(rm: ResidualModel, selector: Selector, sel: Selection, candidates: list[str],
+           fit_idx: np.ndarray, rec: Recording, changes: list, pool: Executor | None,
+           say: Progress) -> tuple[_Settled, list[dict]]:
+    """The effects settled on ``fit_idx`` (:func:`_settle`), again without those that
+    physics outside the vocabulary stands for (:func:`probes.unneeded`) until none is
+    left; and the stands of the effects not named so."""
     left_out: list[str] = []  # effects dropped: never selected again
     got = _settle(rm, selector, sel, candidates, fit_idx, left_out, rec, changes, pool, say)
     not_named: list[dict] = []
@@ -865,108 +950,118 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
         got = _without_unneeded(rm, selector, got.sel, gone, candidates, fit_idx, left_out,
                                 rec, changes, pool, say)
         not_named += gone
-    sel, final, params, errs, undet = got.sel, got.final, got.params, got.errs, got.undet
-    intervals, fitted, fit_fw, leftover = got.intervals, got.fitted, got.fit_fw, got.leftover
-    leftover = probes.with_not_named(leftover, not_named)
-    if leftover is not None:
-        say("unexplained: " + leftover["summary"])
+    return got, not_named
 
-    effects = []
-    notes: list[str] = []  # said at the end of the summary
-    names = [report_name(e) for e in sel.effects]
-    if len(sel.effects) > 1:  # (each effect's "without" fit below, side by side)
-        selector.prefetch([tuple(c for c in sel.effects if c != e) for e in sel.effects],
-                          sel.fit, refits=True)
-    for e in sel.effects:
-        name = report_name(e)
-        rest = tuple(c for c in sel.effects if c != e)
-        without = posable_robot(selector.fit(rest, sel.fit))
-        before = pose_figures(rm.forward(without, test), test)["pose_rms_m"] \
-            if len(test) else None
-        after = pose_figures(fit_fw, test)["pose_rms_m"] if len(test) else None
-        ho = sel.heldout.get(e, {})
-        entry = {
-            "name": name,
-            "params": params[e],
-            "stderr": errs[e],
-            "interval95": {k: list(v[:2]) for k, v in intervals[e].items()},
-            "interval_method": {k: v[2] for k, v in intervals[e].items()},
-            "interval_quantile": {k: v[3] for k, v in intervals[e].items()},
-            "explains": EXPLAINS[name],
-            "evidence": {"heldout_pose_rms_before_m": before,
-                         "heldout_pose_rms_after_m": after,
-                         "delta_bic": _f(ho.get("delta_bic"))},
-            "undetermined": undet[e],
-            "alternatives": [{"name": report_name(a), "delta_bic": d}
-                             for a, d in sel.alternatives.get(e, [])
-                             if report_name(a) != name],
-        }
-        motion = None
-        if name == "exit_point_offset":
-            motion = frame.frame_motion(model, params[e], params.get("drum_scale"))
-            if motion is not None:
-                entry["frame_motion"] = motion
-                notes.append(frame.sentence(motion))
-        for declared in (frame.gauge_alternative(selector, sel, e, candidates, motion),
-                         frame.translation_alternative(selector, sel, e, params[e],
-                                                       candidates)):
-            if declared is not None:
-                entry["alternatives"] = [a for a in entry["alternatives"]
-                                         if a["name"] != declared["name"]] + [declared]
-        if rm.any_tau and ((name == "platform_mass" and "mass" in params[e]) or (
-                name == "load_cell_calibration" and "platform_mass" not in names
-                and any(k.startswith("gain_") for k in params[e]))):
-            alt = _common_gain_alternative(rm, final, fit_idx, name)
-            if alt is not None and alt["delta_bic"] < BIC_TIE:
-                same = [a for a in entry["alternatives"] if a["name"] == alt["name"]]
-                if same:  # the selection's refit of it: what it is, said
-                    same[0]["note"] = alt["note"]
-                else:
-                    entry["alternatives"].append(alt)
-        if name == "cable_length_offset":
-            late = [(c, t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
-                    if t > rm.init_end and f"dl_{c}" in params[e]]
-            if late:
-                entry["explains"] += "; from " + ", ".join(f"t = {t:.1f} s on cable {c}"
-                                                         for c, t in late)
-        if not final.success:
-            entry["converged"] = False
-        if leftover is not None:
-            entry["provisional"] = True
-        effects.append(entry)
-    noise.annotate(effects, changes)
-    # exit offsets (and drum scales) that a tracker's registration or scale would read are
-    # provisional: the tracker is checked before exit points or drums are moved
+
+def _effect_entry(rm: ResidualModel, selector: Selector, got: _Settled, e: str,
+                  candidates: list[str], fit_idx: np.ndarray, test: np.ndarray,
+                  notes: list[str]) -> dict:
+    """The report's entry of the named effect ``e``: its parameters, errors and intervals,
+    the held-out evidence (the corrected model without ``e`` on ``test``), and the
+    alternatives declared; a frame motion's sentence goes to ``notes``."""
+    sel, params, intervals = got.sel, got.params, got.intervals
+    name = report_name(e)
+    rest = tuple(c for c in sel.effects if c != e)
+    without = posable_robot(selector.fit(rest, sel.fit))
+    before = pose_figures(rm.forward(without, test), test)["pose_rms_m"] if len(test) else None
+    after = pose_figures(got.fit_fw, test)["pose_rms_m"] if len(test) else None
+    ho = sel.heldout.get(e, {})
+    entry = {
+        "name": name,
+        "params": params[e],
+        "stderr": got.errs[e],
+        "interval95": {k: list(v[:2]) for k, v in intervals[e].items()},
+        "interval_method": {k: v[2] for k, v in intervals[e].items()},
+        "interval_quantile": {k: v[3] for k, v in intervals[e].items()},
+        "explains": EXPLAINS[name],
+        "evidence": {"heldout_pose_rms_before_m": before,
+                     "heldout_pose_rms_after_m": after,
+                     "delta_bic": _f(ho.get("delta_bic"))},
+        "undetermined": got.undet[e],
+        "alternatives": [{"name": report_name(a), "delta_bic": d}
+                         for a, d in sel.alternatives.get(e, [])
+                         if report_name(a) != name],
+    }
+    _declare_alternatives(rm, selector, got, e, entry, candidates, fit_idx, notes)
+    if name == "cable_length_offset":
+        model = rm.model
+        late = [(c, t) for c, t in zip(model.cable_ids, rm.slip_times, strict=True)
+                if t > rm.init_end and f"dl_{c}" in params[e]]
+        if late:
+            entry["explains"] += "; from " + ", ".join(f"t = {t:.1f} s on cable {c}"
+                                                     for c, t in late)
+    if not got.final.success:
+        entry["converged"] = False
+    return entry
+
+
+def _declare_alternatives(rm: ResidualModel, selector: Selector, got: _Settled, e: str,
+                          entry: dict, candidates: list[str], fit_idx: np.ndarray,
+                          notes: list[str]) -> None:
+    """The alternatives of ``entry`` (effect ``e``) the gauge declares beside the
+    selection's: the rigid frame motion exit offsets form (said in ``notes``), the
+    tracker's frame or a translation, a common gain of the load cells."""
+    sel, params, name = got.sel, got.params, entry["name"]
+    motion = None
+    if name == "exit_point_offset":
+        motion = frame.frame_motion(rm.model, params[e], params.get("drum_scale"))
+        if motion is not None:
+            entry["frame_motion"] = motion
+            notes.append(frame.sentence(motion))
+    for declared in (frame.gauge_alternative(selector, sel, e, candidates, motion),
+                     frame.translation_alternative(selector, sel, e, params[e], candidates)):
+        if declared is not None:
+            entry["alternatives"] = [a for a in entry["alternatives"]
+                                     if a["name"] != declared["name"]] + [declared]
+    names = [report_name(c) for c in sel.effects]
+    if rm.any_tau and ((name == "platform_mass" and "mass" in params[e]) or (
+            name == "load_cell_calibration" and "platform_mass" not in names
+            and any(k.startswith("gain_") for k in params[e]))):
+        alt = _common_gain_alternative(rm, got.final, fit_idx, name)
+        if alt is not None and alt["delta_bic"] < BIC_TIE:
+            same = [a for a in entry["alternatives"] if a["name"] == alt["name"]]
+            if same:  # the selection's refit of it: what it is, said
+                same[0]["note"] = alt["note"]
+            else:
+                entry["alternatives"].append(alt)
+
+
+def _provisional_by_frame(effects: list[dict]) -> None:
+    """Exit offsets (and drum scales) that a tracker's registration or scale would read
+    are provisional: the tracker is checked before exit points or drums are moved."""
     motion = next((e["frame_motion"] for e in effects if "frame_motion" in e), None)
-    if motion is not None:
-        for entry in effects:
-            if entry["name"] == "exit_point_offset" or (
-                    motion.get("scale") and entry["name"] == "drum_scale"):
-                entry["provisional"] = True
+    if motion is None:
+        return
+    for entry in effects:
+        if entry["name"] == "exit_point_offset" or (
+                motion.get("scale") and entry["name"] == "drum_scale"):
+            entry["provisional"] = True
 
-    baseline = pose_figures(base_fw)
-    baseline["wrench_rms"] = wrench_rms(model, s, raw=True)
-    baseline["exit_point_rms_m"] = exit_rms(rm, model)
-    fitted_fig = pose_figures(fit_fw)
-    fitted_out = {
-        "pose_rms_m": fitted_fig["pose_rms_m"],
-        "angle_rms_rad": fitted_fig["angle_rms_rad"],
-        "tension_rms_n": fitted_fig["tension_rms_n"],
+
+def _fitted_figures(rm: ResidualModel, final: FitResult, fitted: Robot, fit_fw: Forward,
+                    fit_idx: np.ndarray, test: np.ndarray, baseline: dict) -> dict:
+    """The report's ``fitted`` section: the corrected model's pose, angle, tension and
+    exit-point RMS, on the held-out samples too, and the sample counts."""
+    fig = pose_figures(fit_fw)
+    out = {
+        "pose_rms_m": fig["pose_rms_m"],
+        "angle_rms_rad": fig["angle_rms_rad"],
+        "tension_rms_n": fig["tension_rms_n"],
         "exit_point_rms_m": exit_rms(rm, fitted),
         "heldout_pose_rms_m": pose_figures(fit_fw, test)["pose_rms_m"] if len(test)
         else None,
         "converged": bool(final.success),
         "samples": {"fit": int(len(fit_idx)), "test": int(len(test))},
     }
-    if fitted_out["pose_rms_m"] is None and baseline["pose_rms_m"] is None:
-        fitted_out["heldout_pose_rms_m"] = None
+    if out["pose_rms_m"] is None and baseline["pose_rms_m"] is None:
+        out["heldout_pose_rms_m"] = None
+    return out
 
-    mismatch = _mismatch(rec, s, rm, base_blocks, base_fw, steps, sel, leftover, nz,
-                         pose_noise, excluded, effects)
-    mismatch["encoder_reference"] = {"reading": reference, "means": REFERENCES[reference]}
-    mismatch["noise"] |= {"high_frequency": high_freq,
-                          "systematic": [c.entry() for c in changes]}
-    mismatch["streams"] = streams
+
+def _summary_notes(mismatch: dict, rm: ResidualModel, reference: str,
+                   notes: list[str]) -> None:
+    """The load cells' place and the encoder reference in ``mismatch``; ``notes`` (with
+    those) appended to its summary."""
     if rm.any_tau:
         mismatch["load_cells"] = {"at": rm.cells_at}
         if rm.cells_at == "anchor":
@@ -978,31 +1073,26 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
                         "reading of d_model(p0) that fits the recording)")
     if notes:
         mismatch["summary"] = "; ".join([mismatch["summary"].rstrip(". "), *notes]) + "."
-    model_path = write_error = None
-    if write_model is not None:
-        named = ", ".join(f"{e['name']} ({', '.join(e['params'])})" for e in effects) or "none"
-        header = (f"corrected model written by cdpr diagnose from {path}\n"
-                  f"effects and parameters named by the report: {named}\n"
-                  "parameters the report did not name keep the recording's model values")
-        try:
-            model_path = str(save_robot(named_robot(model, effects).replace(
-                name=f"{model.name}-corrected"), write_model, header))
-        except OSError as e:  # checked before the fit; a disk that filled since: say so
-            write_error = f"--write-model {write_model}: cannot write: {e.strerror or e}"
-            say(write_error)
-    report = {
-        "format": FORMAT,
-        "recording": str(path),
-        "samples": int(s.n),
-        "baseline": baseline,
-        "mismatch": mismatch,
-        "effects": effects,
-        "unexplained": leftover,
-        "fitted": fitted_out,
-        "model": model_path,
-    }
-    return Diagnosis(plain(report), rec, s, rm, sel, fitted, base_fw, fit_fw, test,
-                     write_error)
+
+
+def _write_corrected(model: Robot, effects: list[dict], path: str | Path,
+                     write_model: str | Path | None, say: Progress
+                     ) -> tuple[str | None, str | None]:
+    """The corrected model (the named parameters on ``model``) written to ``write_model``
+    when asked: its path, or why it could not be written (said)."""
+    if write_model is None:
+        return None, None
+    named = ", ".join(f"{e['name']} ({', '.join(e['params'])})" for e in effects) or "none"
+    header = (f"corrected model written by cdpr diagnose from {path}\n"
+              f"effects and parameters named by the report: {named}\n"
+              "parameters the report did not name keep the recording's model values")
+    try:
+        return str(save_robot(named_robot(model, effects).replace(
+            name=f"{model.name}-corrected"), write_model, header)), None
+    except OSError as e:  # checked before the fit; a disk that filled since: say so
+        write_error = f"--write-model {write_model}: cannot write: {e.strerror or e}"
+        say(write_error)
+        return None, write_error
 
 
 @dataclass
