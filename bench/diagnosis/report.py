@@ -543,41 +543,7 @@ def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
     lower than the first selection's by :data:`BIC_ENTER` (the same noise, so the two
     compare); else the first selection stands and the slip times are as they were."""
     charge = float(np.log(max(sel.fit.n_eff or 2.0, 2.0)))
-    later: dict[int, tuple[float, float, float]] = {}
-    if "cable_length_offset" in sel.effects:
-        fits = (sel.fit, selector.fit(("cable_length_offset",), sel.fit))
-        over_drift = None
-    else:
-        # no offset chosen: one beside the chosen effects, starting later, may be a slip
-        # they took up in another form (a drum scale, a softer cable; without a tracker, a
-        # drift on the slipped cable) where it beats a drift of that cable too
-        # (every cable's offset free: a slip's constant part can be too small to keep)
-        key = tuple(sorted((*sel.effects, "cable_length_offset")))
-        # (from the search's fit of that set where it has one: the same minimum without the
-        # pruning, a few steps away; 12973: 8 of 90 s from the chosen set's values)
-        near = selector.cache.get(key)
-        phi0 = near.phi if near is not None and near.chi2 <= sel.fit.chi2 \
-            else _warm(key, sel.fit)
-        fits = (fit_effects(ParamSpace(selector.model, key), rm, train, phi0, prune=False),)
-        over_drift = BIC_ENTER
-    # the cables whose offsets the set named; and from the offset alone (which moves every
-    # cable) the strongest later start at each time, named or not: the chosen set may have
-    # held the slipped cable's offset and taken up its misfit in other forms (case 12450,
-    # no tracker: a 6 mm slip of cable 41 fitted as offsets on the seven others and two
-    # cables' E*A; from the offset alone 41's later start gains 296, cable 31's 62 at the
-    # same time, its smear through the estimated poses)
-    named = set(slips.offset_cables(fits[0], rm.model.cable_ids).values())
-    for n_fit, f in enumerate(fits):
-        found = slips.later_starts(rm, f, train, BIC_ENTER + charge, over_drift)
-        if n_fit > 0:
-            top: dict[float, int] = {}
-            for c, got in found.items():
-                if got[0] not in top or got[2] > found[top[got[0]]][2]:
-                    top[got[0]] = c
-            found = {c: found[c] for c in top.values()}
-        for c, got in found.items():
-            if (c in named or n_fit > 0) and (c not in later or got[2] > later[c][2]):
-                later[c] = got
+    later = _later_offsets(rm, selector, sel, train, charge)
     if not later:
         return selector, sel
     before = rm.slip_times.copy()
@@ -615,6 +581,49 @@ def _later_slips(rm: ResidualModel, selector: Selector, sel: Selection,
     rm.slip_times = before
     return selector, sel
 
+
+def _later_offsets(rm: ResidualModel, selector: Selector, sel: Selection, train: np.ndarray,
+                   charge: float) -> dict[int, tuple[float, float, float]]:
+    """The cables (index) whose length offset fits better from a later time on by more
+    than :data:`BIC_ENTER` plus ``charge`` (one slip time's BIC): (time [s], size [m],
+    chi-square gain), from the chosen set and from the offset alone
+    (:func:`bench.diagnosis.slips.later_starts`)."""
+    later: dict[int, tuple[float, float, float]] = {}
+    if "cable_length_offset" in sel.effects:
+        fits = (sel.fit, selector.fit(("cable_length_offset",), sel.fit))
+        over_drift = None
+    else:
+        # no offset chosen: one beside the chosen effects, starting later, may be a slip
+        # they took up in another form (a drum scale, a softer cable; without a tracker, a
+        # drift on the slipped cable) where it beats a drift of that cable too
+        # (every cable's offset free: a slip's constant part can be too small to keep)
+        key = tuple(sorted((*sel.effects, "cable_length_offset")))
+        # (from the search's fit of that set where it has one: the same minimum without the
+        # pruning, a few steps away; 12973: 8 of 90 s from the chosen set's values)
+        near = selector.cache.get(key)
+        phi0 = near.phi if near is not None and near.chi2 <= sel.fit.chi2 \
+            else _warm(key, sel.fit)
+        fits = (fit_effects(ParamSpace(selector.model, key), rm, train, phi0, prune=False),)
+        over_drift = BIC_ENTER
+    # the cables whose offsets the set named; and from the offset alone (which moves every
+    # cable) the strongest later start at each time, named or not: the chosen set may have
+    # held the slipped cable's offset and taken up its misfit in other forms (case 12450,
+    # no tracker: a 6 mm slip of cable 41 fitted as offsets on the seven others and two
+    # cables' E*A; from the offset alone 41's later start gains 296, cable 31's 62 at the
+    # same time, its smear through the estimated poses)
+    named = set(slips.offset_cables(fits[0], rm.model.cable_ids).values())
+    for n_fit, f in enumerate(fits):
+        found = slips.later_starts(rm, f, train, BIC_ENTER + charge, over_drift)
+        if n_fit > 0:
+            top: dict[float, int] = {}
+            for c, got in found.items():
+                if got[0] not in top or got[2] > found[top[got[0]]][2]:
+                    top[got[0]] = c
+            found = {c: found[c] for c in top.values()}
+        for c, got in found.items():
+            if (c in named or n_fit > 0) and (c not in later or got[2] > later[c][2]):
+                later[c] = got
+    return later
 
 def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidates: list[str],
                 train: np.ndarray, holdouts: list[np.ndarray], say: Progress,
