@@ -40,13 +40,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import signal
 import sys
 import threading
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from bench.commands.argtypes import add_format_and_live, positive_float
 from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
+
+if TYPE_CHECKING:
+    from bench.dryrun.session import SessionSpec
 
 NAME = "dry-run"
 HELP = "run the controller in the loop with the simulated robot along a path"
@@ -247,17 +254,6 @@ def _bus_inputs(args: argparse.Namespace):
     return settings, label, args.path or path_ref, model, react
 
 
-def _preflight_text(pf) -> list[str]:
-    lines = [f"preflight: {'ok' if pf.ok else 'REFUSED'}: "
-             f"{sum(d['status'] == 'ok' for d in pf.drives)}/{len(pf.drives)} drives, "
-             f"{sum(c['status'] == 'ok' for c in pf.load_cells)}/{len(pf.load_cells)} "
-             f"load cells, tracker "
-             f"{'locked' if (pf.tracker or {}).get('locked') else 'not locked'}"]
-    lines += [f"preflight: problem: {p}" for p in pf.problems]
-    lines += [f"preflight: warning: {w}" for w in pf.warnings]
-    return lines
-
-
 def _confirm(question: str) -> bool:
     """Ask on the terminal; True for 'yes'."""
     print(f"{question} Type 'yes' to go on: ", end="", file=sys.stderr, flush=True)
@@ -286,20 +282,77 @@ def _run(args: argparse.Namespace, created: list) -> int:
     return _run_checked(args, created, on_buses)
 
 
+class _BadInput(Exception):
+    """A command-line value or input file refused before anything runs (exit 2)."""
+
+
+@dataclass
+class _Inputs:
+    """The checked inputs: the session's spec, the bus's top rate [Hz], the speed [% of
+    the path's] asked or the site's first-run limit (None: the path's own), the scenario's
+    own reactions (said), and the scratch directory of ``--plots`` without ``--record``."""
+
+    spec: SessionSpec
+    top_hz: float
+    speed_pct: float | None
+    scenario_react: dict
+    scratch: Any | None
+
+
 def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int:
-    import numpy as np
+    from bench.dryrun.session import PreflightRefused, Session, StartFailed
 
-    from bench.dryrun.scenarios import max_rate_hz, sync_period_us
+    try:
+        inp = _inputs(args, created, on_buses)
+    except _BadInput as exc:
+        return _fail(args, 2, str(exc))
+    _announce(args, inp, on_buses)
+    tty = sys.stderr.isatty()
+    events_out: list[str] = []
+
+    def on_event(line: str) -> None:
+        events_out.append(line)
+        if not args.quiet:
+            print(("\r\033[K" if tty else "") + line, file=sys.stderr, flush=True)
+
+    session = Session(inp.spec, _options(args, on_buses))
+    with _stopping() as (stop, caught):
+        try:
+            res = session.run(stop, on_event, _progress_printer(args.quiet, args.duration))
+        except PreflightRefused as exc:
+            return _refused(args, exc.preflight)
+        except StartFailed as exc:
+            return _fail(args, 1, str(exc))
+    if tty and not args.quiet:
+        print(file=sys.stderr)
+    out = _result(args, inp, session, res, on_buses)
+    if args.json:
+        print(json.dumps(out))
+    else:
+        from bench.dryrun.report import summary_text
+        print(summary_text(out))
+    if res.ended == "refused":
+        print(f"cdpr dry-run: {res.message}", file=sys.stderr)
+    if caught:  # SIGINT 130, SIGTERM 143, the last line on stderr says which (recording kept)
+        from bench.parallel import signal_exit
+        code, msg = signal_exit(caught[0])
+        print(f"cdpr dry-run: {msg}", file=sys.stderr, flush=True)
+        return code
+    return 0 if res.ended == "completed" else 1
+
+
+def _scenario_inputs(args: argparse.Namespace, on_buses: bool):
+    """(settings, scenario, its path, the path's reference, the model, the scenario's
+    reactions): from the given buses' site and the positional argument, or from the
+    scenario the simulated robot plays. On buses with drives on the wall clock the run
+    is made real time (said)."""
     from controller.robot import RobotFileError
-    from controller.winch import load_winches
 
-    sc = settings = None
     if on_buses:
         try:
             settings, sc_label, path_ref, model, sc_react = _bus_inputs(args)
         except (ValueError, FileNotFoundError) as exc:
-            return _fail(args, 2, str(exc))
-        sc_path = Path(sc_label)
+            raise _BadInput(str(exc)) from exc
         if settings.hal_clock == "wall" and not args.realtime:
             # drives on the wall clock take each SYNC as one period: a loop as fast as
             # possible would move them faster than planned
@@ -307,190 +360,168 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
             if not args.quiet:
                 print("cdpr dry-run: the drives run on the wall clock (the site's clock, or "
                       "--hal-clock wall): the dry run runs in real time", file=sys.stderr)
-    else:
-        from bench.dryrun.scenarios import resolve_scenario
-        from controller.robot import resolve_robot
-        from firmware_sim.scenario import ScenarioError, load_scenario
+        return settings, None, Path(sc_label), path_ref, model, sc_react
+    from bench.dryrun.scenarios import resolve_scenario
+    from controller.robot import resolve_robot
+    from firmware_sim.scenario import ScenarioError, load_scenario
 
-        try:
-            sc_path = resolve_scenario(args.scenario)
-            sc = load_scenario(sc_path)
-            model = resolve_robot(args.robot) if args.robot else sc.model
-        except (FileNotFoundError, ScenarioError, RobotFileError) as exc:
-            return _fail(args, 2, str(exc))
-        sc_react = dict(sc.react)
-        path_ref = args.path or sc.run_path
-        if not path_ref:
-            return _fail(args, 2, f"{sc_path}: the scenario names no path (path = ...): give "
-                                  f"--path FILE")
-    from controller.paths import (
-        PathFileError,
-        build_trajectory,
-        check_times,
-        check_trajectory,
-        load_path,
-    )
+    try:
+        sc_path = resolve_scenario(args.scenario)
+        sc = load_scenario(sc_path)
+        model = resolve_robot(args.robot) if args.robot else sc.model
+    except (FileNotFoundError, ScenarioError, RobotFileError) as exc:
+        raise _BadInput(str(exc)) from exc
+    path_ref = args.path or sc.run_path
+    if not path_ref:
+        raise _BadInput(f"{sc_path}: the scenario names no path (path = ...): give --path FILE")
+    return None, sc, sc_path, path_ref, model, dict(sc.react)
+
+
+def _inputs(args: argparse.Namespace, created: list, on_buses: bool) -> _Inputs:
+    """Every input read and checked before anything runs; :class:`_BadInput` naming the
+    option or file and the allowed range otherwise."""
+    from bench.dryrun.hardware import with_rate
+    from bench.dryrun.scenarios import max_rate_hz, sync_period_us
+    from bench.dryrun.session import SessionSpec
+    from controller.paths import PathFileError, load_path
+    from controller.winch import load_winches
+
+    settings, sc, sc_path, path_ref, model, sc_react = _scenario_inputs(args, on_buses)
     try:
         spec = load_path(path_ref)
-    except (FileNotFoundError, PathFileError) as exc:
-        return _fail(args, 2, str(exc))
-    try:
         winches = load_winches(settings.winches if settings is not None else None)
-    except ValueError as exc:
-        return _fail(args, 2, str(exc))
+    except (FileNotFoundError, PathFileError, ValueError) as exc:
+        raise _BadInput(str(exc)) from exc
     top = max_rate_hz(winches)
     rate = top if args.rate is None else float(args.rate)
-    if not (rate > 0 and np.isfinite(rate)):
-        return _fail(args, 2, f"--rate {args.rate}: must be a positive number of Hz")
+    if not (rate > 0 and math.isfinite(rate)):
+        raise _BadInput(f"--rate {args.rate}: must be a positive number of Hz")
     if rate > top * (1 + 1e-9):
-        return _fail(args, 2, f"--rate {rate:g} Hz: above the {top:.1f} Hz the CAN bus allows "
-                              f"for {len(winches)} drives at {winches.bus.bitrate} bit/s "
-                              f"(bus load 50 %, hal/bus_load.py)")
-    if args.speed_pct is not None and not 0 < args.speed_pct <= 100:
-        return _fail(args, 2, f"--speed-pct {args.speed_pct}: must be in (0, 100]")
+        raise _BadInput(f"--rate {rate:g} Hz: above the {top:.1f} Hz the CAN bus allows for "
+                        f"{len(winches)} drives at {winches.bus.bitrate} bit/s (bus load 50 %, "
+                        f"hal/bus_load.py)")
+    reactions = _check_options(args, sc_react)
+    record_dir, scratch = _output_dirs(args, created)
+    winches = with_rate(winches, sync_period_us(rate) * 1e-6)
+    speed_pct = args.speed_pct
+    if speed_pct is None and settings is not None and settings.site is not None:
+        # a first run on a site: at most the site's speed (unless --speed-pct says)
+        speed_pct = min(spec.limits.speed_pct, settings.site.limits.first_run_speed_pct)
+    limits = None if speed_pct is None else \
+        dataclasses.replace(spec.limits, speed_pct=float(speed_pct))
+    decimate = args.decimate or max(1, int(round(1.0 / winches.bus.sync_period_s / 50.0)))
+    faults = _faults(args, winches)
+    return _Inputs(SessionSpec(model, spec, path_ref, sc_path, sc, settings, winches, decimate,
+                               limits, reactions, faults, args.faults, record_dir),
+                   top, speed_pct, sc_react, scratch)
+
+
+def _check_options(args: argparse.Namespace, sc_react: dict) -> dict:
+    """The numeric options checked; the supervisor's reactions (the scenario's ``react``
+    table, then the command line's)."""
     from controller.supervisor import parse_reactions
-    try:  # the scenario's own (its ``react`` table), then the command line's
+
+    if args.speed_pct is not None and not 0 < args.speed_pct <= 100:
+        raise _BadInput(f"--speed-pct {args.speed_pct}: must be in (0, 100]")
+    try:
         reactions = parse_reactions([f"{k}={v}" for k, v in sc_react.items()])
         reactions.update(parse_reactions(args.react))
     except ValueError as exc:
-        return _fail(args, 2, f"--react {exc}")
+        raise _BadInput(f"--react {exc}") from exc
     if args.live is not None:
         from bench.mcap.live import parse_address
         try:
             parse_address(args.live)
         except ValueError as exc:
-            return _fail(args, 2, str(exc))
+            raise _BadInput(str(exc)) from exc
     if not args.learn_period > 0:
-        return _fail(args, 2, f"--learn-period: {args.learn_period} s, must be > 0")
+        raise _BadInput(f"--learn-period: {args.learn_period} s, must be > 0")
     if args.decimate is not None and args.decimate < 1:
-        return _fail(args, 2, f"--decimate {args.decimate}: must be >= 1")
+        raise _BadInput(f"--decimate {args.decimate}: must be >= 1")
     if not args.plant_rate > 0:
-        return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
+        raise _BadInput(f"--plant-rate {args.plant_rate}: must be > 0")
+    return reactions
+
+
+def _output_dirs(args: argparse.Namespace, created: list) -> tuple[str | None, Any | None]:
+    """The recording's directory, checked (with ``--plots`` alone: a scratch directory,
+    returned to be cleaned up)."""
     for d, what in ((args.record, "--record"), (args.plots, "--plots")):
         if d is not None and (msg := _check_dir(d, args.force or what == "--plots", what,
                                                 created)):
-            return _fail(args, 2, msg)
-    # --plots without --record: the plots are drawn from a recording in a scratch directory
-    scratch = None
-    record_dir = args.record
-    if args.plots and record_dir is None:
-        import tempfile
+            raise _BadInput(msg)
+    if not (args.plots and args.record is None):
+        return args.record, None
+    import tempfile
 
-        scratch = tempfile.TemporaryDirectory(prefix="cdpr-dryrun-")
-        record_dir = str(Path(scratch.name) / "rec")
-    faults = None
-    if args.faults:
-        from controller.loadcell_map import DEFAULT_MAP
-        from firmware_sim.faults import FaultSchedule, FaultScheduleError
-        try:
-            faults = FaultSchedule.load(args.faults,
-                                        node_ids=tuple(int(x) for x in winches.node_id),
-                                        unit_ids=tuple(DEFAULT_MAP.unit_ids))
-        except (OSError, FaultScheduleError) as exc:
-            return _fail(args, 2, str(exc))
+    scratch = tempfile.TemporaryDirectory(prefix="cdpr-dryrun-")
+    return str(Path(scratch.name) / "rec"), scratch
 
-    from bench.dryrun.hardware import with_rate
-    from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
-    from bench.dryrun.record import open_recorder as open_record_format
 
-    winches = with_rate(winches, sync_period_us(rate) * 1e-6)
-    period = winches.bus.sync_period_s
-    rate = 1.0 / period
-    decimate = args.decimate or max(1, int(round(rate / 50.0)))
-    speed_pct = args.speed_pct
+def _faults(args: argparse.Namespace, winches):
+    """The fault schedule of ``--faults`` (its CAN nodes and Modbus units checked against
+    the drives and the load cells), or None."""
+    if not args.faults:
+        return None
+    from controller.loadcell_map import DEFAULT_MAP
+    from firmware_sim.faults import FaultSchedule, FaultScheduleError
+    try:
+        return FaultSchedule.load(args.faults, node_ids=tuple(int(x) for x in winches.node_id),
+                                  unit_ids=tuple(DEFAULT_MAP.unit_ids))
+    except (OSError, FaultScheduleError) as exc:
+        raise _BadInput(str(exc)) from exc
 
-    def site_of():
-        return settings.site if settings is not None else None
 
-    if speed_pct is None and on_buses and settings.site is not None:
-        # a first run on a site: at most the site's speed (unless --speed-pct says)
-        speed_pct = min(spec.limits.speed_pct, settings.site.limits.first_run_speed_pct)
-    limits = None
-    if speed_pct is not None:
-        limits = dataclasses.replace(spec.limits, speed_pct=float(speed_pct))
-    preflight = None  # the run on buses: its checks (bench.dryrun.preflight.Preflight)
-    ask = on_buses and not args.yes
+def _options(args: argparse.Namespace, on_buses: bool):
+    """The session's options from the command line."""
+    from bench.dryrun.session import SessionOptions
 
-    def plan(p0):
-        if preflight is not None:
-            _stage_two(preflight)
-        traj = build_trajectory(spec, p0, limits)
-        chk = check_trajectory(model, traj, winches)
-        if not chk.ok:
-            raise PathRefused(f"path {spec.name or path_ref} refused before moving: at "
-                              f"t = {chk.t_s:.2f} s, pose {np.round(chk.pose, 3).tolist()}: "
-                              f"{chk.reason}")
-        site = site_of()
-        if site is not None:
-            ts = check_times(traj)
-            poses = traj.sample(ts).pose
-            out = [k for k in range(len(ts)) if site.limits.outside_box(poses[k, :3])]
-            if out:
-                k = out[0]
-                raise PathRefused(
-                    f"path {spec.name or path_ref} refused before moving: at t = {ts[k]:.2f} "
-                    f"s, position {np.round(poses[k, :3], 3).tolist()} m is outside the "
-                    f"site's workspace box {list(site.limits.workspace_min_m)} .. "
-                    f"{list(site.limits.workspace_max_m)} ({site.path})")
-        if ask and not _confirm(
-                f"cdpr dry-run: move the robot on {settings.can} along "
-                f"{spec.name or path_ref} ({traj.duration_s:.1f} s at "
-                f"{limits.speed_pct if limits else spec.limits.speed_pct:g} % speed) from "
-                f"p0 {np.round(p0, 3).tolist()}?"):
-            raise PathRefused("not confirmed: nothing moved")
-        return traj
-
-    def _stage_two(pf) -> None:
-        from bench.dryrun.preflight import check_readings
-
-        site = site_of()
-        window = ((site.limits.tension_min_N, site.limits.tension_max_N)
-                  if site is not None else None)
-        check_readings(world.hw, world.tracker, window,
-                       require_tracker=site.require_tracker if site is not None else True,
-                       out=pf)
+    def say(line: str) -> None:
         if not args.quiet:
-            for line in _preflight_text(pf):
-                print(line, file=sys.stderr)
-        if pf.problems:
-            raise PathRefused("preflight refused the run before anything moved: "
-                              + "; ".join(pf.problems))
+            print(line, file=sys.stderr)
 
-    def open_recorder(p0):
-        if record_dir is None and args.live is None:
-            return None
-        import shutil
+    return SessionOptions(
+        rig=args.rig, on_buses=on_buses, realtime=args.realtime,
+        ask=on_buses and not args.yes, force=args.force, fmt=args.format, live=args.live,
+        plant_rate_hz=args.plant_rate, init_pose_given=args.init_pose == "given",
+        duration_s=args.duration, rt_priority=args.rt_priority, learn=args.learn,
+        learn_period_s=args.learn_period, learn_sigma_length_m=args.learn_sigma_length,
+        cells={"loadcell_rate_hz": args.loadcell_rate,
+               "loadcell_timeout_s": args.loadcell_timeout,
+               "loadcell_stale_s": args.loadcell_stale,
+               "loadcell_max_age_s": args.loadcell_max_age},
+        say=say, confirm=_confirm)
 
-        rec = Path(record_dir) if record_dir is not None else None
-        if rec is not None and rec.exists() and args.force:
-            shutil.rmtree(rec)
-        if on_buses or args.rig == "process":
-            src = {"pose_source": "laser tracker " + str(world.info.get("tracker")),
-                   "tension_source": "load cells " + str(world.info.get("modbus"))}
-        else:
-            src = {"pose_source": "simulated laser tracker",
-                   "tension_source": "simulated load cells"}
-        meta = {**src, "notes": "dry run in progress", "scenario": str(sc_path),
-                "path": str(path_ref), "rate_hz": rate, "decimate": decimate}
-        return open_record_format(rec, model, p0, meta,
-                                  robot_header=f"model the controller ran with ({model.name})",
-                                  fmt=args.format, can=world.info.get("can"),
-                                  live=args.live, child=child)
 
-    where = (f"site {settings.site.path}" if on_buses and settings.site is not None
-             else f"--can {settings.can}" if on_buses else f"rig {args.rig}")
-    if not args.quiet:
-        print(f"cdpr dry-run: {sc_path.name} with model {model.name}, path "
-              f"{spec.name or path_ref}, {rate:.1f} Hz (bus limit {top:.1f} Hz), "
-              f"{'real time' if args.realtime else 'lock-step, as fast as possible'}, "
-              f"{where}" + (f", speed {speed_pct:g} % (the site's first-run limit; "
-                            f"--speed-pct to change)" if args.speed_pct is None
-                            and speed_pct is not None else ""), file=sys.stderr)
-        if reactions:
-            print("cdpr dry-run: supervisor reactions changed: " + ", ".join(
-                f"{k}={r.label}" for k, r in reactions.items())
-                + (f" (scenario: {', '.join(f'{k}={v}' for k, v in sc_react.items())})"
-                   if sc_react else ""), file=sys.stderr)
+def _announce(args: argparse.Namespace, inp: _Inputs, on_buses: bool) -> None:
+    """The run's first lines on stderr: what runs where, at what rate and speed, and the
+    supervisor's reactions changed."""
+    if args.quiet:
+        return
+    sp = inp.spec
+    site = sp.settings.site if sp.settings is not None else None
+    where = (f"site {site.path}" if on_buses and site is not None
+             else f"--can {sp.settings.can}" if on_buses else f"rig {args.rig}")
+    speed = inp.speed_pct
+    print(f"cdpr dry-run: {sp.scenario_path.name} with model {sp.model.name}, path "
+          f"{sp.path.name or sp.path_ref}, {sp.rate_hz:.1f} Hz (bus limit {inp.top_hz:.1f} Hz), "
+          f"{'real time' if args.realtime else 'lock-step, as fast as possible'}, "
+          f"{where}" + (f", speed {speed:g} % (the site's first-run limit; "
+                        f"--speed-pct to change)" if args.speed_pct is None
+                        and speed is not None else ""), file=sys.stderr)
+    if sp.reactions:
+        react = inp.scenario_react
+        print("cdpr dry-run: supervisor reactions changed: " + ", ".join(
+            f"{k}={r.label}" for k, r in sp.reactions.items())
+            + (f" (scenario: {', '.join(f'{k}={v}' for k, v in react.items())})"
+               if react else ""), file=sys.stderr)
+
+
+@contextmanager
+def _stopping():
+    """SIGINT and SIGTERM set the run's stop event (a second one gives up waiting:
+    KeyboardInterrupt or :class:`bench.parallel.Terminated`); yields (the event, the
+    signals caught); the previous handlers are back after."""
     stop = threading.Event()
     previous = {}
     caught: list[int] = []  # the signals that stopped the run (exit status 130 / 143)
@@ -508,120 +539,26 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         for s in (signal.SIGINT, signal.SIGTERM):
             previous[s] = signal.signal(s, on_signal)
         hand_over_pending(on_signal)  # a Ctrl-C a gc callback swallowed before: stop too
-    tty = sys.stderr.isatty()
-    events_out: list[str] = []
-
-    def on_event(line: str) -> None:
-        events_out.append(line)
-        if not args.quiet:
-            print(("\r\033[K" if tty else "") + line, file=sys.stderr, flush=True)
-
-    sim_args: tuple[str, ...] = ()
-    if faults is not None and args.rig == "process":
-        sim_args = ("--faults", str(args.faults))
-    sim = None
-    child = None  # real time: the MCAP recording and the live view in a child process,
-    # started before the robot (docs/guide/mcap-and-replay.md)
-    if args.realtime and (args.live is not None or (record_dir is not None
-                                                    and args.format != "csv")):
-        from bench.mcap.child import Spawned
-
-        child = Spawned()
     try:
-        try:
-            if args.rig == "process" and not on_buses:
-                from bench.dryrun.world import SimProcess
-                from hal.site import load_site, merge_site
-
-                # exactly the hardware path, on the site the simulated robot wrote
-                sim = SimProcess(sc.path if sc.path.name != "<memory>" else None,
-                                 args.realtime, args.plant_rate, sim_args,
-                                 rt_priority=args.rt_priority)
-                settings = merge_site(load_site(sim.site))
-            if settings is not None:
-                preflight, world = _open_buses(args, settings, winches)
-            else:
-                from bench.dryrun.world import start_world
-
-                world = start_world(sc, winches, args.rig, args.realtime, args.plant_rate,
-                                    sim_args=sim_args, rt_priority=args.rt_priority)
-        except _PreflightRefused as exc:
-            if sim is not None:
-                sim.stop()
-            return _refused(args, exc.preflight)
-        except Exception as exc:
-            if sim is not None:
-                sim.stop()
-            what = "the simulated robot" if settings is None or sim is not None else \
-                "the buses"
-            return _fail(args, 1, f"cannot start {what}: {exc}")
-        injector = None
-        try:
-            tick = world.tick if (world.rig is not None and not args.realtime) else None
-            if faults is not None and world.rig is not None:
-                from firmware_sim.faults import FaultInjector
-                injector = FaultInjector(world.rig, faults)
-                if tick is not None:
-                    base_tick = tick
-
-                    def tick(_b=base_tick, _i=injector, _rig=world.rig):
-                        _i.advance(_rig.time_s())
-                        _b()
-                else:
-                    injector.start()
-            opts = LoopOptions(realtime=args.realtime, decimate=decimate,
-                               init_pose=(sc.init_pose if sc is not None
-                                          and args.init_pose == "given" else None),
-                               max_duration_s=args.duration, reactions=reactions,
-                               rt_priority=args.rt_priority)
-            learner = None
-            if args.learn:
-                from bench.dryrun.learn import LoopLearner
-                from controller.online_ident import IdentOptions
-                # on the wall clock the estimator runs in its own process (the cycle
-                # never waits for it); lock-step: in the cycle, reproducible
-                learner = LoopLearner(world.tracker, args.learn_period,
-                                      IdentOptions(sigma_length=args.learn_sigma_length,
-                                                   prior_offset=0.05),
-                                      threaded=args.realtime, process=True,
-                                      shared_clock=getattr(world, "rig", None) is not None)
-            loop = ControlLoop(world.hw, world.tracker, model, plan, opts, open_recorder,
-                               tick=tick, on_event=on_event,
-                               on_progress=_progress_printer(args.quiet, args.duration), stop=stop,
-                               on_cycle=learner)
-            if learner is not None:  # its identifiability said before the platform moves
-                learner.trajectory = lambda: loop.trajectory
-                rig = getattr(world, "rig", None)
-                if rig is not None:  # quasi-static samples at the plant's settles
-                    learner.state_time = lambda: rig.last.t_s
-            try:
-                res = loop.run()
-            finally:
-                if learner is not None:
-                    learner.close()
-        finally:
-            if injector is not None:
-                injector.stop()
-            try:
-                world.close()
-            finally:
-                if sim is not None:
-                    sim.stop()
+        yield stop, caught
     finally:
-        if child is not None:
-            child.close()
         for s, h in previous.items():
             signal.signal(s, h)
-    if tty and not args.quiet:
-        print(file=sys.stderr)
+
+
+def _result(args: argparse.Namespace, inp: _Inputs, session, res, on_buses: bool) -> dict:
+    """The ``--json`` object (and the summary's source): the loop's figures, the plots
+    drawn, the preflight, the learner's report (its model written with --learn-out)."""
+    sp = inp.spec
     plots = None
-    if args.plots and record_dir and res.ended != "refused":
+    if args.plots and sp.record_dir and res.ended != "refused":
         from bench.dryrun.report import plot_run
-        plots = [str(p) for p in plot_run(record_dir, args.plots)]
-    if scratch is not None:
-        scratch.cleanup()
+        plots = [str(p) for p in plot_run(sp.record_dir, args.plots)]
+    if inp.scratch is not None:
+        inp.scratch.cleanup()
+    settings = session.settings
     out = {
-        "scenario": str(args.scenario), "robot": model.name, "cycles": res.cycles,
+        "scenario": str(args.scenario), "robot": sp.model.name, "cycles": res.cycles,
         "rate_hz": res.rate_hz, "simulated_s": res.simulated_s, "wall_s": res.wall_s,
         "overruns": res.overruns,
         "events": [e for e in res.events if e["reaction"] != "event" or e["kind"] in
@@ -635,59 +572,24 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
         "scheduling": res.scheduling,
         "site": (str(settings.site.path) if on_buses and settings is not None
                  and settings.site is not None else None),
-        "speed_pct": speed_pct,
-        "preflight": preflight.as_dict() if preflight is not None else None,
+        "speed_pct": inp.speed_pct,
+        "preflight": session.preflight.as_dict() if session.preflight is not None else None,
     }
+    learner = session.learner
     if learner is not None:
         out["learn"] = learner.report()
         if args.learn_out and learner.identified() is not None:
             from controller.robot import save_robot
             out["learn"]["robot"] = str(save_robot(
                 learner.identified(), args.learn_out,
-                header=f"identified online by cdpr dry-run --learn from {model.name}"))
-    if args.json:
-        print(json.dumps(out))
-    else:
-        from bench.dryrun.report import summary_text
-        print(summary_text(out))
-    if res.ended == "refused":
-        print(f"cdpr dry-run: {res.message}", file=sys.stderr)
-    if caught:  # SIGINT 130, SIGTERM 143, the last line on stderr says which (recording kept)
-        from bench.parallel import signal_exit
-        code, msg = signal_exit(caught[0])
-        print(f"cdpr dry-run: {msg}", file=sys.stderr, flush=True)
-        return code
-    return 0 if res.ended == "completed" else 1
-
-
-class _PreflightRefused(Exception):
-    def __init__(self, preflight) -> None:
-        super().__init__("; ".join(preflight.problems))
-        self.preflight = preflight
-
-
-def _open_buses(args: argparse.Namespace, settings, winches):
-    """The preflight's first stage on the bus, then the :class:`HardwareWorld` (raises
-    :class:`_PreflightRefused` before opening it when the drives are not as configured)."""
-    from bench.dryrun.hardware import HardwareWorld
-    from bench.dryrun.preflight import check_drives
-
-    site = settings.site
-    pf = check_drives(settings.can, winches, settings.eds,
-                      require_stored_safety=site.require_stored_safety if site else True)
-    if pf.problems:
-        raise _PreflightRefused(pf)
-    cells = None  # lock-step: patient timing (bench.dryrun.hardware.cell_timing)
-    if args.realtime or settings.hal_clock == "wall":
-        cells = {"loadcell_rate_hz": args.loadcell_rate,
-                 "loadcell_timeout_s": args.loadcell_timeout,
-                 "loadcell_stale_s": args.loadcell_stale,
-                 "loadcell_max_age_s": args.loadcell_max_age}
-    return pf, HardwareWorld(settings, winches, args.realtime, cells)
+                header=f"identified online by cdpr dry-run --learn from {sp.model.name}"))
+    return out
 
 
 def _refused(args: argparse.Namespace, pf) -> int:
-    for line in _preflight_text(pf):
+    from bench.dryrun.preflight import preflight_text
+
+    for line in preflight_text(pf):
         print(f"cdpr dry-run: {line}", file=sys.stderr)
     msg = "preflight refused the run before anything moved: " + "; ".join(pf.problems)
     print(f"cdpr dry-run: {msg}", file=sys.stderr)

@@ -59,6 +59,19 @@ class Preflight:
                 "tracker": self.tracker, "other_master": self.other_master}
 
 
+def preflight_text(pf: Preflight) -> list[str]:
+    """The operator's lines of the checks: the counts found ok, then each problem and
+    warning."""
+    lines = [f"preflight: {'ok' if pf.ok else 'REFUSED'}: "
+             f"{sum(d['status'] == 'ok' for d in pf.drives)}/{len(pf.drives)} drives, "
+             f"{sum(c['status'] == 'ok' for c in pf.load_cells)}/{len(pf.load_cells)} "
+             f"load cells, tracker "
+             f"{'locked' if (pf.tracker or {}).get('locked') else 'not locked'}"]
+    lines += [f"preflight: problem: {p}" for p in pf.problems]
+    lines += [f"preflight: warning: {w}" for w in pf.warnings]
+    return lines
+
+
 def check_drives(can, winches: WinchSet, eds: str | Path, window_s: float = 0.3,
                  sdo_timeout_s: float = 0.3, require_stored_safety: bool = True,
                  out: Preflight | None = None) -> Preflight:
