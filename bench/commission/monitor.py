@@ -228,23 +228,26 @@ def _init_pose(args, robot, lengths: np.ndarray) -> tuple[np.ndarray, str]:
 
 
 def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
-    import can
+    """``cdpr commission monitor``: the table refreshed every ``1/--rate`` s until
+    ``--duration``, ``q`` or a signal; the section's facts and the ``--json`` object."""
+    _check(args)
+    m = _Monitor(args, section)
+    with network_of(args) as net:
+        m.attach(net)
+        try:
+            m.start_cells()
+            m.loop(_Screen(sys.stderr if args.json_lines else ui.out))
+        finally:
+            m.detach(net)
+    return m.report(ui)
 
-    from bench.mcap.recorders import open_writer
-    from controller.robot import resolve_robot
-    from controller.winch import WinchConfigError
-    from hal.drive_monitor import DriveMonitor
-    from hal.loadcell_calibration import load_calibration
-    from hal.loadcell_client import LoadCellClient
-    from hal.scan import FrameCounter
 
+def _check(args: argparse.Namespace) -> None:
+    """The options checked before the bus is opened (:class:`CommissionError`, exit 2)."""
     if not 0 < args.rate <= 50:
         raise CommissionError(f"--rate {args.rate}: must be in (0, 50] Hz", 2)
     if args.duration is not None and not args.duration > 0:
         raise CommissionError(f"--duration {args.duration}: must be > 0", 2)
-    w = winches_of(args)
-    rmap = register_map_of(args)
-    robot = None
     if args.live is not None:
         from bench.mcap.live import parse_address
 
@@ -252,39 +255,61 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
             parse_address(args.live)
         except ValueError as exc:
             raise CommissionError(str(exc), 2) from None
-    if args.record or args.live is not None:
-        robot = resolve_robot(args.robot)
-        if tuple(robot.cable_ids) != tuple(w.cables):
-            raise WinchConfigError(f"robot {robot.name} has cables {robot.cable_ids}, the "
-                                   f"winches {w.source} {w.cables}")
     if args.record:
         rec_dir = Path(args.record)
         if rec_dir.exists() and any(rec_dir.iterdir()):
             raise CommissionError(f"--record {rec_dir}: not empty; choose a new directory", 2)
-    section.fact("winch file", w.source)
-    window = tension_window_of(args)
-    section.fact("tension window", str(window))
-    period = 1.0 / args.rate
-    counter = FrameCounter(window_s=1.0)
-    writer = None
-    frames = (_FrameSink() if (args.record and args.format != "csv") or args.live is not None
-              else None)
-    logger = None
-    cells = None
-    polls = 0
-    why = ""
-    stopped: tuple[int, str] | None = None  # (exit status, message) of a signal that ended it
-    last_lines: list[str] = []
-    samples = []
-    reading = None
-    with network_of(args) as net:
-        bus = net.bus
-        send = bus.send
+
+
+class _Monitor:
+    """One monitor run: the bus's frames counted (and logged, recorded), the drives and
+    the load cells polled, the recording written, the last table kept for the report."""
+
+    def __init__(self, args: argparse.Namespace, section: Section) -> None:
+        from controller.robot import resolve_robot
+        from controller.winch import WinchConfigError
+        from hal.scan import FrameCounter
+
+        self.args, self.section = args, section
+        self.w = w = winches_of(args)
+        self.rmap = register_map_of(args)
+        self.robot = None
+        if args.record or args.live is not None:
+            self.robot = resolve_robot(args.robot)
+            if tuple(self.robot.cable_ids) != tuple(w.cables):
+                raise WinchConfigError(f"robot {self.robot.name} has cables "
+                                       f"{self.robot.cable_ids}, the winches {w.source} "
+                                       f"{w.cables}")
+        section.fact("winch file", w.source)
+        self.window = tension_window_of(args)
+        section.fact("tension window", str(self.window))
+        self.counter = FrameCounter(window_s=1.0)
+        self.frames = (_FrameSink() if (args.record and args.format != "csv")
+                       or args.live is not None else None)
+        self.writer = self.logger = self.cells = self.mon = self.reading = None
+        self.polls = 0
+        self.why = ""
+        self.stopped: tuple[int, str] | None = None  # (exit status, message) of a signal
+        self.last_lines: list[str] = []
+        self.samples: list = []
+        self._send = None
+
+    # ----- the bus ----------------------------------------------------------------------
+
+    def attach(self, net) -> None:
+        """Count (log, record) every frame heard and sent on ``net``; the drive monitor."""
+        import can
+
+        from hal.drive_monitor import DriveMonitor
+
+        args, bus = self.args, net.bus
         if args.candump:
             try:
-                logger = _LockedLogger(can.Logger(args.candump))
+                self.logger = _LockedLogger(can.Logger(args.candump))
             except (ValueError, OSError) as exc:
                 raise CommissionError(f"--candump {args.candump}: {exc}", 2) from None
+        self._send = send = bus.send
+        counter, logger, frames = self.counter, self.logger, self.frames
 
         def send_and_count(msg, timeout=None):
             send(msg, timeout)
@@ -296,147 +321,174 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
                 frames(msg)
 
         bus.send = send_and_count
-        net.notifier.add_listener(counter)
-        if logger is not None:
-            net.notifier.add_listener(logger)
-        if frames is not None:
-            net.notifier.add_listener(frames)
-        mon = DriveMonitor(net, w, args.eds)
+        for listener in (counter, logger, frames):
+            if listener is not None:
+                net.notifier.add_listener(listener)
+        self.mon = DriveMonitor(net, self.w, args.eds)
+
+    def detach(self, net) -> None:
+        """Everything closed and the bus as it was (also after an error)."""
+        net.bus.send = self._send
+        if self.cells is not None:
+            self.cells.stop()
+        if self.mon is not None:
+            self.mon.close()
+        if self.frames is not None:
+            net.notifier.remove_listener(self.frames)
+            self.frames.detach()
+        if self.writer is not None:
+            self.writer.close()
+        net.notifier.remove_listener(self.counter)
+        if self.logger is not None:
+            net.notifier.remove_listener(self.logger)
+            self.logger.stop()
+
+    def start_cells(self) -> None:
+        """The load cells' poller (``--modbus``), after one whole sweep (a unit that does
+        not answer shows its timeout status instead)."""
+        from hal.loadcell_calibration import load_calibration
+        from hal.loadcell_client import LoadCellClient
+
+        args, rmap = self.args, self.rmap
+        if args.modbus is None:
+            return
+        cal = load_calibration(args.loadcell_calibration, rmap.cables) \
+            if args.loadcell_calibration else None
+        self.cells = LoadCellClient(args.modbus, register_map=rmap, calibration=cal,
+                                    rate_hz=args.loadcell_rate,
+                                    timeout_s=args.loadcell_timeout,
+                                    stale_s=args.loadcell_stale,
+                                    max_age_s=args.loadcell_max_age).start()
+        self.cells.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
+
+    # ----- the refreshes ----------------------------------------------------------------
+
+    def loop(self, screen: _Screen) -> None:
+        """Refresh every period until ``--duration``, the operator's key or a signal
+        (Ctrl-C, SIGTERM: ``stopped``)."""
+        args = self.args
+        self.t0, self.wall_t0 = time.monotonic(), time.time()
+        t_end = None if args.duration is None else self.t0 + args.duration
+        keys = None
+        if sys.stdin.isatty() and not args.json:
+            from bench.commission.keys import KeyReader, cbreak
+            keys = KeyReader(enter_quits=True)
+        self.n_seen = self.n_recorded = 0
+        period = 1.0 / args.rate
         try:
-            if args.modbus is not None:
-                cal = load_calibration(args.loadcell_calibration, rmap.cables) \
-                    if args.loadcell_calibration else None
-                cells = LoadCellClient(args.modbus, register_map=rmap, calibration=cal,
-                                       rate_hz=args.loadcell_rate,
-                                       timeout_s=args.loadcell_timeout,
-                                       stale_s=args.loadcell_stale,
-                                       max_age_s=args.loadcell_max_age).start()
-                # The first row holds every cell that answers: wait for one whole sweep
-                # (a unit that does not answer shows its timeout status instead).
-                cells.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
-            screen = _Screen(sys.stderr if args.json_lines else ui.out)
-            n_seen = n_recorded = 0
-            t0, wall_t0 = time.monotonic(), time.time()
-            t_end = None if args.duration is None else t0 + args.duration
-            keys = None
-            if sys.stdin.isatty() and not args.json:
-                from bench.commission.keys import KeyReader, cbreak
-                keys = KeyReader(enter_quits=True)
-            cols = None
-            try:
-                ctx = cbreak() if keys is not None else _Null()
-                with ctx:
-                    if keys is not None:
-                        keys.start()
-                    next_t = t0
-                    while True:
-                        samples = mon.poll()
-                        reading = cells.read() if cells is not None else None
-                        now = time.monotonic()
-                        polls += 1
-                        if robot is not None and writer is None:
-                            lengths = np.array([np.nan if s.length_m is None else s.length_m
-                                                for s in samples])
-                            pose, note = _init_pose(args, robot, lengths)
-                            cols = _columns(w.cables, mon.has_current)
-                            writer = open_writer(
-                                args.record, robot, pose, cols,
-                                {"pose_source": "none (cdpr commission monitor)",
-                                 "tension_source": "load cells" if cells else "none",
-                                 "notes": f"cdpr commission monitor on {args.can}; {note}; "
-                                          f"winches {w.source}"},
-                                fmt=args.format, live=args.live, can_t0=wall_t0)
-                            if frames is not None:
-                                frames.attach(writer.can_frame)
-                            section.fact("init pose", f"{np.round(pose, 4).tolist()} ({note})")
-                        if writer is not None:
-                            writer.append(_row(now - t0, samples, reading, w, rmap,
-                                               mon.has_current))
-                            new, n_recorded = _new_events(mon, n_recorded)
-                            for e in new:
-                                record_event(writer, e, wall_t0)
-                        header = (f"cdpr commission monitor {time.strftime('%H:%M:%S')} "
-                                  f"{args.can}")
-                        last_lines = render(samples, reading, rmap,
-                                            counter.load(w.bus.bitrate, now), counter.frames,
-                                            mon.last_events(4), header, mon.has_current,
-                                            window, screen.out)
-                        screen.show(last_lines)
-                        if args.json_lines:
-                            new, n_seen = _new_events(mon, n_seen)
-                            print(json.dumps({
-                                "t_s": round(now - t0, 4), "drives": [x.as_dict()
-                                                                       for x in samples],
-                                "load_cells": cells_json(reading, window),
-                                "bus_load": counter.load(w.bus.bitrate, now),
-                                "frames": counter.frames,
-                                "events_new": [e.as_dict() for e in new]}), flush=True)
-                        raise_pending()  # a signal whose exception a gc callback lost
-                        if t_end is not None and now >= t_end:
-                            why = f"--duration {args.duration:g} s"
-                            break
-                        if keys is not None and keys.poll() is not None:
-                            why = "operator"
-                            break
-                        next_t += period
-                        delay = next_t - time.monotonic()
-                        if delay > 0:
-                            time.sleep(delay if t_end is None else min(delay,
-                                       max(0.0, t_end - time.monotonic())))
-                        else:
-                            next_t = time.monotonic()
-            except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: reported, then 130 / 143
-                from bench.parallel import interruption
-                stopped = interruption(exc)
-                why = "Ctrl-C" if stopped[0] == 130 else stopped[1]
-        finally:
-            bus.send = send
-            if cells is not None:
-                cells.stop()
-            mon.close()
-            if frames is not None:
-                net.notifier.remove_listener(frames)
-                frames.detach()
-            if writer is not None:
-                writer.close()
-            net.notifier.remove_listener(counter)
-            if logger is not None:
-                net.notifier.remove_listener(logger)
-                logger.stop()
-    events = [str(e) for e in mon.events]
-    dropped = mon.events.dropped()
-    section.fact("result", f"{polls} refreshes, ended by {why}, {counter.frames} frames, "
-                 f"{len(events)} event(s)")
-    if any(dropped.values()):
-        section.fact("events dropped", ", ".join(f"{v} {k}" for k, v in dropped.items()))
-    if args.record:
-        section.fact("recording", f"{args.record} ({writer.rows if writer else 0} rows, "
-                     f"{args.format})")
-    if args.candump:
-        section.fact("CAN log", args.candump)
-    section.bullets(events)
-    if last_lines:
-        section.text("Last table:\n\n```\n" + "\n".join(last_lines) + "\n```")
-    ui.say(f"monitor: {polls} refreshes, ended by {why}"
-           + (f"; recording {args.record} ({writer.rows} rows)" if args.record and writer
-              else "")
-           + (f"; CAN log {args.candump}" if args.candump else ""))
-    if any(dropped.values()):
-        ui.say("events dropped (oldest first, by severity): "
-               + ", ".join(f"{v} {k}" for k, v in dropped.items()))
-    ui.emit({"refreshes": polls, "ended_by": why, "frames": counter.frames,
-             "drives": [s.as_dict() for s in samples],
-             "load_cells": cells_json(reading, window),
-             "events": events,
-             "events_by_severity": {sev: [e.as_dict() for e in mon.events.items(sev)]
-                                    for sev in SEVERITIES},
-             "events_dropped": dropped, "tension_window_n": [window.low_n, window.high_n],
-             "record": args.record, "format": args.format, "live": args.live,
-             "rows": writer.rows if args.record and writer else 0,
-             "candump": args.candump})
-    if stopped is not None:  # 130 / 143: dispatch's last line on stderr says which signal
-        return stopped[0]
-    return 0
+            with cbreak() if keys is not None else _Null():
+                if keys is not None:
+                    keys.start()
+                next_t = self.t0
+                while True:
+                    now = self._refresh(screen)
+                    raise_pending()  # a signal whose exception a gc callback lost
+                    if t_end is not None and now >= t_end:
+                        self.why = f"--duration {args.duration:g} s"
+                        break
+                    if keys is not None and keys.poll() is not None:
+                        self.why = "operator"
+                        break
+                    next_t += period
+                    delay = next_t - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay if t_end is None else min(delay,
+                                   max(0.0, t_end - time.monotonic())))
+                    else:
+                        next_t = time.monotonic()
+        except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: reported, then 130 / 143
+            from bench.parallel import interruption
+            self.stopped = interruption(exc)
+            self.why = "Ctrl-C" if self.stopped[0] == 130 else self.stopped[1]
+
+    def _refresh(self, screen: _Screen) -> float:
+        """One refresh: poll, record, draw the table, a JSON line; the monotonic time."""
+        args, mon, w = self.args, self.mon, self.w
+        self.samples = mon.poll()
+        self.reading = self.cells.read() if self.cells is not None else None
+        now = time.monotonic()
+        self.polls += 1
+        if self.robot is not None and self.writer is None:
+            self._open_writer()
+        if self.writer is not None:
+            self.writer.append(_row(now - self.t0, self.samples, self.reading, w, self.rmap,
+                                    mon.has_current))
+            new, self.n_recorded = _new_events(mon, self.n_recorded)
+            for e in new:
+                record_event(self.writer, e, self.wall_t0)
+        load = self.counter.load(w.bus.bitrate, now)
+        header = f"cdpr commission monitor {time.strftime('%H:%M:%S')} {args.can}"
+        self.last_lines = render(self.samples, self.reading, self.rmap, load,
+                                 self.counter.frames, mon.last_events(4), header,
+                                 mon.has_current, self.window, screen.out)
+        screen.show(self.last_lines)
+        if args.json_lines:
+            new, self.n_seen = _new_events(mon, self.n_seen)
+            print(json.dumps({
+                "t_s": round(now - self.t0, 4), "drives": [x.as_dict() for x in self.samples],
+                "load_cells": cells_json(self.reading, self.window), "bus_load": load,
+                "frames": self.counter.frames, "events_new": [e.as_dict() for e in new]}),
+                flush=True)
+        return now
+
+    def _open_writer(self) -> None:
+        """The recording, at the first sample (its init pose from it or ``--init-pose``)."""
+        from bench.mcap.recorders import open_writer
+
+        args, w = self.args, self.w
+        lengths = np.array([np.nan if s.length_m is None else s.length_m
+                            for s in self.samples])
+        pose, note = _init_pose(args, self.robot, lengths)
+        self.writer = open_writer(
+            args.record, self.robot, pose, _columns(w.cables, self.mon.has_current),
+            {"pose_source": "none (cdpr commission monitor)",
+             "tension_source": "load cells" if self.cells else "none",
+             "notes": f"cdpr commission monitor on {args.can}; {note}; winches {w.source}"},
+            fmt=args.format, live=args.live, can_t0=self.wall_t0)
+        if self.frames is not None:
+            self.frames.attach(self.writer.can_frame)
+        self.section.fact("init pose", f"{np.round(pose, 4).tolist()} ({note})")
+
+    # ----- the report -------------------------------------------------------------------
+
+    def report(self, ui: Ui) -> int:
+        """The section's facts, the line said and the ``--json`` object; the exit status
+        (130 / 143 after a signal: dispatch's last line on stderr says which)."""
+        args, section, mon, writer = self.args, self.section, self.mon, self.writer
+        events = [str(e) for e in mon.events]
+        dropped = mon.events.dropped()
+        frames = self.counter.frames
+        section.fact("result", f"{self.polls} refreshes, ended by {self.why}, {frames} "
+                     f"frames, {len(events)} event(s)")
+        lost = ", ".join(f"{v} {k}" for k, v in dropped.items())
+        if any(dropped.values()):
+            section.fact("events dropped", lost)
+        if args.record:
+            section.fact("recording", f"{args.record} ({writer.rows if writer else 0} rows, "
+                         f"{args.format})")
+        if args.candump:
+            section.fact("CAN log", args.candump)
+        section.bullets(events)
+        if self.last_lines:
+            section.text("Last table:\n\n```\n" + "\n".join(self.last_lines) + "\n```")
+        ui.say(f"monitor: {self.polls} refreshes, ended by {self.why}"
+               + (f"; recording {args.record} ({writer.rows} rows)" if args.record and writer
+                  else "")
+               + (f"; CAN log {args.candump}" if args.candump else ""))
+        if any(dropped.values()):
+            ui.say("events dropped (oldest first, by severity): " + lost)
+        window = self.window
+        ui.emit({"refreshes": self.polls, "ended_by": self.why, "frames": frames,
+                 "drives": [s.as_dict() for s in self.samples],
+                 "load_cells": cells_json(self.reading, window),
+                 "events": events,
+                 "events_by_severity": {sev: [e.as_dict() for e in mon.events.items(sev)]
+                                        for sev in SEVERITIES},
+                 "events_dropped": dropped, "tension_window_n": [window.low_n, window.high_n],
+                 "record": args.record, "format": args.format, "live": args.live,
+                 "rows": writer.rows if args.record and writer else 0,
+                 "candump": args.candump})
+        return self.stopped[0] if self.stopped is not None else 0
 
 
 def _new_events(mon, n_seen: int) -> tuple[list, int]:
