@@ -298,6 +298,43 @@ def mean_tensions(hw: WinchHardware, sweeps: int = 5) -> tuple[np.ndarray, np.nd
         return np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan), cnt > 0
 
 
+_NAN6 = np.full(6, np.nan)
+
+
+@dataclass
+class _CycleState:
+    """What the control loop carries from cycle to cycle. Lengths [m] are the
+    controller's (the drives' plus the reference offset); times [s] from the loop's start
+    (``t_traj``: along the trajectory, slowed by holds)."""
+
+    cmd: np.ndarray  # the setpoints sent with the next SYNC
+    last_sent: np.ndarray
+    sent: deque  # the setpoints sent, newest last (real time: a late TPDO's reference)
+    pose_des: np.ndarray
+    out_tensions: np.ndarray  # the controller's last feasible tensions [N]
+    prev_sent: np.ndarray | None = None
+    k: int = 0  # cycles run
+    t_traj: float = 0.0
+    stopping: int = 0  # cycles since a quick stop was sent
+    held_since: float | None = None  # a hold began (the feed ramps down)
+    state: str = INIT
+    path_cycle: int = -1
+    substituted: int = 0  # load cells whose planned tension stood in this cycle
+    last_state: str = ""
+    last_drives: bytes = b""
+    last_track_t: float = -math.inf
+    overrun: bool = False
+
+    @classmethod
+    def held_at(cls, lengths_m: np.ndarray, p0: np.ndarray,
+                tensions_N: np.ndarray) -> _CycleState:
+        """The state before the first cycle: hold where the cables stand (the referenced
+        lengths), the desired pose ``p0``."""
+        cmd = lengths_m.copy()
+        return cls(cmd=cmd, last_sent=cmd.copy(), sent=deque([cmd], maxlen=FEEDBACK_HISTORY),
+                   pose_des=p0.copy(), out_tensions=tensions_N)
+
+
 class ControlLoop:
     """One dry run (see the module docstring).
 
@@ -512,200 +549,216 @@ class ControlLoop:
         return t - self._stood_since > self.opt.hold_timeout_s
 
     def _cycle_loop(self, p0: np.ndarray, traj: Trajectory) -> None:
+        """The cycles from the referenced lengths along ``traj`` until it ends, a hold
+        times out or a quick stop (or ``stop``) stands the drives still: each cycle sends
+        the last setpoints with the SYNC, reads, advances the trajectory, asks the
+        controller and the supervisor, acts, measures and records."""
         hw, opt, res = self.hw, self.opt, self.result
-        ctl = self.controller
-        assert ctl is not None
         T = hw.period_s
-        w = hw.winches
         sup = self._supervisor()
         for kind, reaction in opt.reactions.items():
             self._event(0.0, "controller", 0, "", "reaction_override", 0, reaction.label, True,
                         f"supervisor: {kind} -> {reaction.label} (default "
                         f"{REACTIONS[kind].label})")
-        feed = FeedRate(ramp_time(traj.limits.speed_m_s, traj.limits.max_accel_m_s2))
-        xt = CrossTrack(T)
-        r = hw.read()
-        cmd = r.lengths_m.copy()  # hold where they stand: the referenced lengths
-        last_sent = cmd.copy()
-        prev_sent: np.ndarray | None = None
-        sent: deque[np.ndarray] = deque([cmd], maxlen=FEEDBACK_HISTORY)  # newest last
-        init_cycles = int(round(opt.init_dwell_s / T))
         if opt.mast_tensions not in ("measured", "planned"):
             raise ValueError(f"mast_tensions must be 'measured' or 'planned', got "
                              f"{opt.mast_tensions!r}")
-        measured_masts = opt.mast_tensions == "measured"
+        feed = FeedRate(ramp_time(traj.limits.speed_m_s, traj.limits.max_accel_m_s2))
+        xt = CrossTrack(T)
+        c = _CycleState.held_at(hw.read().lengths_m, p0, self.controller.init_tensions)
         end_at = traj.duration_s + opt.end_dwell_s
         if opt.max_duration_s is not None:
             end_at = min(end_at, opt.max_duration_s)
-        t_traj = 0.0
-        stopping = 0  # cycles since a quick stop was sent
-        held_since: float | None = None  # a hold began (the feed ramps down)
         self._stood_since: float | None = None  # the held platform stands still
-        last_track_t = -math.inf
-        nan6 = np.full(6, np.nan)
-        pose_des = p0.copy()
-        out_tensions = ctl.init_tensions
-        substituted = 0
-        state = INIT
-        last_state, last_drives = "", b""
-        path_cycle = -1
-        k = 0
         next_progress = time.perf_counter()
         # a real-time thread wakes on time (no timer slack) and must not hold a core
         # spinning; under the normal scheduler the last millisecond is spun
         fifo = (self.result.scheduling or "").startswith("SCHED_FIFO")
         clock = CycleClock(T, spin_s=1e-4 if fifo else 1e-3) if opt.realtime else None
-        overrun = False
         while True:
             # ---- output: the setpoints of the last cycle go out with the SYNC
             if clock is not None:
                 res.lateness_s.append(clock.wait())
-            hw.write_lengths(None if stopping else cmd)
+            hw.write_lengths(None if c.stopping else c.cmd)
             if not opt.realtime:  # lock-step: the drives' answers to this SYNC, then the world
                 hw.wait_feedback()
                 if self.tick is not None:
                     self.tick()
             r = hw.read()
-            k += 1
-            res.cycles = k
+            c.k += 1
+            res.cycles = c.k
             t = r.t_s - self._t0
-            # ---- the trajectory advances (feed hold slows it down)
-            if k > init_cycles and not stopping:
-                hold = held_since is not None
-                t_traj += feed.advance(T, hold)
-                smp = traj.sample(t_traj)
-                pose_des = smp.pose
-                label = smp.label
-                path_cycle = traj.segments[smp.segment].cycle if smp.segment >= 0 else 0
-                if path_cycle < 0 and label == "move":
-                    label = APPROACH  # the move from p0 to the path's start
-                state = HOLD if (hold or feed.rate < 1.0) else (
-                    END if t_traj >= traj.duration_s else label)
-            elif stopping:
-                state = QUICK_STOP
-            # ---- controller
-            valid = r.tensions_ok
-            out = ctl.step(pose_des, r.tensions_N if measured_masts else None, valid)
-            if out.feasible:
-                out_tensions = out.tensions
-            substituted = int(out.substituted.sum()) if out.substituted.size else 0
-            res.substituted_cycles += substituted > 0
-            # ---- supervisor
-            enabled = r.states == ST.OPERATION_ENABLED
-            # positions answer the SYNC just sent (lock-step) or the one before (real time):
-            # a following error exceeds the window against both
-            # (a late or missing TPDO: the SYNCs before, as many as it missed)
-            ref_cmd = last_sent if prev_sent is None else reference_command(
-                r.lengths_m, sent, hw.feedback_age())
-            ob = Observation(t, r.tensions_N, valid, r.lengths_m, ref_cmd, enabled,
-                             expect_enabled=not stopping, faults=_faults(r),
-                             feasible=out.feasible, reason=out.reason, overrun=overrun,
-                             cables=hw.cables, node_ids=hw.node_ids, unit_ids=hw.unit_ids)
-            d = sup.step(ob)
-            for e in d.events:
-                self._event(e.t_s, e.device, e.address, e.cable, e.kind, e.code,
-                            e.reaction.label, e.active, e.text)
-            if k % 5 == 0 or r.faults:
-                self._hw_events()
-            # ---- act
-            if (d.stop or self.stop.is_set()) and not stopping:
-                hw.quick_stop()
-                stopping = 1
-                if self.stop.is_set() and not d.stop:
-                    self._event(t, "controller", 0, "", "interrupted", 0, "quick_stop", True,
-                                "stop requested (SIGINT/SIGTERM)")
-                state = QUICK_STOP
-            elif stopping:
-                stopping += 1
-            elif d.hold:
-                if held_since is None:
-                    held_since = t
-                if not out.feasible:
-                    cmd = last_sent  # never send a setpoint the controller refused
-                else:
-                    cmd = out.lengths
-            else:
-                held_since = self._stood_since = None
-                cmd = out.lengths if out.feasible else last_sent
-            if not stopping:
-                raw = cmd - hw.reference_offset_m  # the drives' lengths
-                bad = ~np.isfinite(cmd) | (raw < w.min_length_m) | (raw > w.max_length_m)
-                if np.count_nonzero(bad):  # the winch limits: checked again before sending
-                    j = int(np.flatnonzero(bad)[0])
-                    self._event(t, "drive", hw.node_ids[j], hw.cables[j], "workspace", 0,
-                                "hold", True, f"setpoint {cmd[j]:.4f} m outside the winch's "
-                                f"length limits: not sent")
-                    cmd = last_sent
-                    held_since = held_since if held_since is not None else t
-                prev_sent = last_sent if opt.realtime else None
-                last_sent = cmd
-                if opt.realtime:
-                    sent.append(cmd)
-            # ---- measurements (at the recording's rate): tracker, error to the path
-            xt.command(pose_des)
-            drives = r.states.tobytes()  # and the drives' CiA 402 states when they change
-            if k % opt.decimate == 0 or state != last_state or drives != last_drives:
-                last_state, last_drives = state, drives
-                tr = self.tracker.read()
-                pose_meas = nan6
-                err = math.nan  # the error counted on this row (recorded: the plots')
-                if tr.valid and np.all(np.isfinite(tr.pose)):
-                    pose_meas = tr.pose
-                    if tr.t_s > last_track_t and state not in (INIT, QUICK_STOP):
-                        err = xt.error(tr.pose)
-                        res.pose_errors += 1
-                        res.pose_error_sq += err * err
-                        res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
-                    last_track_t = tr.t_s
-                if self.recorder is not None:
-                    self.recorder.row(t, pose_des, last_sent, r.lengths_m, r.tensions_N,
-                                      pose_meas, out_tensions, substituted, path_cycle,
-                                      res.overruns, state, err, drive_states=r.states)
-            if self.on_cycle is not None and state not in (INIT, QUICK_STOP) and not stopping:
-                for kind, text in self.on_cycle(t, r, pose_des, ctl):
+            self._advance(c, traj, feed)
+            out, d = self._decide(c, r, sup, t)
+            self._act(c, d, out, t)
+            self._measure(c, r, xt, t)
+            if self.on_cycle is not None and c.state not in (INIT, QUICK_STOP) \
+                    and not c.stopping:
+                for kind, text in self.on_cycle(t, r, c.pose_des, self.controller):
                     self._event(t, "controller", 0, "", kind, 0, "event", True, text)
-            res.simulated_s = k * T
-            res.trajectory_s = t_traj
-            # ---- end conditions
-            if stopping:
-                standing = not np.any(r.states == ST.OPERATION_ENABLED)
-                if standing or stopping * T > opt.stop_timeout_s:
-                    res.ended = "interrupted" if self.stop.is_set() and not d.stop \
-                        else "quick_stop"
-                    if not standing:
-                        res.message = (f"drives still Operation Enabled {opt.stop_timeout_s} s "
-                                       f"after the quick stop")
-                    elif not res.message:
-                        res.message = next((e["text"] for e in reversed(res.events)
-                                            if e["reaction"] in ("quick_stop",)
-                                            and e["active"]), "")
-                    break
-            elif held_since is not None and self._stood_too_long(feed, t):
-                res.ended = "hold_timeout"
-                res.message = (f"held for {opt.hold_timeout_s} s: "
-                               f"{', '.join(d.conditions) or 'condition'} did not clear")
-                if any(c.startswith("slack:") for c in d.conditions):
-                    res.message += (" (a cable stays slack there with this model; "
-                                    "--react slack=log records it and goes on)")
-                self._finish()
-                break
-            elif t_traj >= end_at:
-                res.ended = "completed"
-                self._finish()
+            res.simulated_s = c.k * T
+            res.trajectory_s = c.t_traj
+            if self._ended(c, d, r, feed, t, end_at):
                 break
             # ---- timing
             if clock is not None:
-                overrun = clock.done()
+                c.overrun = clock.done()
                 res.overruns = clock.overruns
-                if not overrun and k % 64 == 0 and clock.slack() > 0.5 * T:
+                if not c.overrun and c.k % 64 == 0 and clock.slack() > 0.5 * T:
                     gc.collect(0)  # the young generation, in the slack of a cycle
             if self.on_progress is not None and time.perf_counter() >= next_progress:
-                self.on_progress(res, t_traj)
+                self.on_progress(res, c.t_traj)
                 next_progress = time.perf_counter() + 0.25
         if not self._finished:
             self._hw_events()
         if self.on_progress is not None:
-            self.on_progress(res, t_traj)
+            self.on_progress(res, c.t_traj)
+
+    def _advance(self, c: _CycleState, traj: Trajectory, feed: FeedRate) -> None:
+        """The trajectory advances after the initial dwell (a feed hold slows it down):
+        the desired pose, the path's cycle and the state label."""
+        if c.stopping:
+            c.state = QUICK_STOP
+            return
+        if c.k <= int(round(self.opt.init_dwell_s / self.hw.period_s)):
+            return
+        hold = c.held_since is not None
+        c.t_traj += feed.advance(self.hw.period_s, hold)
+        smp = traj.sample(c.t_traj)
+        c.pose_des = smp.pose
+        label = smp.label
+        c.path_cycle = traj.segments[smp.segment].cycle if smp.segment >= 0 else 0
+        if c.path_cycle < 0 and label == "move":
+            label = APPROACH  # the move from p0 to the path's start
+        c.state = HOLD if (hold or feed.rate < 1.0) else (
+            END if c.t_traj >= traj.duration_s else label)
+
+    def _decide(self, c: _CycleState, r: Readings, sup: Supervisor, t: float):
+        """The controller's lengths for the desired pose (the masts moved by the measured
+        tensions, or the planned ones), then the supervisor's decision on what was read;
+        its events logged."""
+        hw, res = self.hw, self.result
+        valid = r.tensions_ok
+        measured = self.opt.mast_tensions == "measured"
+        out = self.controller.step(c.pose_des, r.tensions_N if measured else None, valid)
+        if out.feasible:
+            c.out_tensions = out.tensions
+        c.substituted = int(out.substituted.sum()) if out.substituted.size else 0
+        res.substituted_cycles += c.substituted > 0
+        enabled = r.states == ST.OPERATION_ENABLED
+        # positions answer the SYNC just sent (lock-step) or the one before (real time):
+        # a following error exceeds the window against both
+        # (a late or missing TPDO: the SYNCs before, as many as it missed)
+        ref_cmd = c.last_sent if c.prev_sent is None else reference_command(
+            r.lengths_m, c.sent, hw.feedback_age())
+        ob = Observation(t, r.tensions_N, valid, r.lengths_m, ref_cmd, enabled,
+                         expect_enabled=not c.stopping, faults=_faults(r),
+                         feasible=out.feasible, reason=out.reason, overrun=c.overrun,
+                         cables=hw.cables, node_ids=hw.node_ids, unit_ids=hw.unit_ids)
+        d = sup.step(ob)
+        for e in d.events:
+            self._event(e.t_s, e.device, e.address, e.cable, e.kind, e.code,
+                        e.reaction.label, e.active, e.text)
+        if c.k % 5 == 0 or r.faults:
+            self._hw_events()
+        return out, d
+
+    def _act(self, c: _CycleState, d, out, t: float) -> None:
+        """The supervisor's decision acted on: a quick stop (or ``stop``), a hold (never a
+        setpoint the controller refused), or the controller's lengths; then the winch
+        limits checked again before sending."""
+        hw = self.hw
+        if (d.stop or self.stop.is_set()) and not c.stopping:
+            hw.quick_stop()
+            c.stopping = 1
+            if self.stop.is_set() and not d.stop:
+                self._event(t, "controller", 0, "", "interrupted", 0, "quick_stop", True,
+                            "stop requested (SIGINT/SIGTERM)")
+            c.state = QUICK_STOP
+        elif c.stopping:
+            c.stopping += 1
+        elif d.hold:
+            if c.held_since is None:
+                c.held_since = t
+            c.cmd = out.lengths if out.feasible else c.last_sent
+        else:
+            c.held_since = self._stood_since = None
+            c.cmd = out.lengths if out.feasible else c.last_sent
+        if c.stopping:
+            return
+        w = hw.winches
+        raw = c.cmd - hw.reference_offset_m  # the drives' lengths
+        bad = ~np.isfinite(c.cmd) | (raw < w.min_length_m) | (raw > w.max_length_m)
+        if np.count_nonzero(bad):  # the winch limits: checked again before sending
+            j = int(np.flatnonzero(bad)[0])
+            self._event(t, "drive", hw.node_ids[j], hw.cables[j], "workspace", 0, "hold", True,
+                        f"setpoint {c.cmd[j]:.4f} m outside the winch's length limits: not "
+                        f"sent")
+            c.cmd = c.last_sent
+            c.held_since = c.held_since if c.held_since is not None else t
+        c.prev_sent = c.last_sent if self.opt.realtime else None
+        c.last_sent = c.cmd
+        if self.opt.realtime:
+            c.sent.append(c.cmd)
+
+    def _measure(self, c: _CycleState, r: Readings, xt: CrossTrack, t: float) -> None:
+        """At the recording's rate (and whenever the state or the drives' CiA 402 states
+        change): the tracker read, the error to the path counted, the row recorded."""
+        res = self.result
+        xt.command(c.pose_des)
+        drives = r.states.tobytes()
+        if not (c.k % self.opt.decimate == 0 or c.state != c.last_state
+                or drives != c.last_drives):
+            return
+        c.last_state, c.last_drives = c.state, drives
+        tr = self.tracker.read()
+        pose_meas = _NAN6
+        err = math.nan  # the error counted on this row (recorded: the plots')
+        if tr.valid and np.all(np.isfinite(tr.pose)):
+            pose_meas = tr.pose
+            if tr.t_s > c.last_track_t and c.state not in (INIT, QUICK_STOP):
+                err = xt.error(tr.pose)
+                res.pose_errors += 1
+                res.pose_error_sq += err * err
+                res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
+            c.last_track_t = tr.t_s
+        if self.recorder is not None:
+            self.recorder.row(t, c.pose_des, c.last_sent, r.lengths_m, r.tensions_N,
+                              pose_meas, c.out_tensions, c.substituted, c.path_cycle,
+                              res.overruns, c.state, err, drive_states=r.states)
+
+    def _ended(self, c: _CycleState, d, r: Readings, feed: FeedRate, t: float,
+               end_at: float) -> bool:
+        """Whether the run ends this cycle (``result.ended`` and its message set): the
+        drives stand after a quick stop (or it timed out), a hold did not clear in time,
+        or the trajectory (with its end dwell, or ``max_duration_s``) is done."""
+        opt, res = self.opt, self.result
+        if c.stopping:
+            standing = not np.any(r.states == ST.OPERATION_ENABLED)
+            if not (standing or c.stopping * self.hw.period_s > opt.stop_timeout_s):
+                return False
+            res.ended = "interrupted" if self.stop.is_set() and not d.stop else "quick_stop"
+            if not standing:
+                res.message = (f"drives still Operation Enabled {opt.stop_timeout_s} s "
+                               f"after the quick stop")
+            elif not res.message:
+                res.message = next((e["text"] for e in reversed(res.events)
+                                    if e["reaction"] in ("quick_stop",) and e["active"]), "")
+            return True
+        if c.held_since is not None and self._stood_too_long(feed, t):
+            res.ended = "hold_timeout"
+            res.message = (f"held for {opt.hold_timeout_s} s: "
+                           f"{', '.join(d.conditions) or 'condition'} did not clear")
+            if any(cond.startswith("slack:") for cond in d.conditions):
+                res.message += (" (a cable stays slack there with this model; "
+                                "--react slack=log records it and goes on)")
+            self._finish()
+            return True
+        if c.t_traj >= end_at:
+            res.ended = "completed"
+            self._finish()
+            return True
+        return False
 
     def _finish(self) -> None:
         """Normal end: the last events, then the drives disabled (brakes hold)."""
