@@ -346,6 +346,36 @@ def hand_over_pending(handler: Callable[[int, Any], None]) -> None:
         handler(signum, None)
 
 
+@contextlib.contextmanager
+def stopping_on_signals(second_raises: bool = True
+                        ) -> Iterator[tuple[threading.Event, list[int]]]:
+    """SIGINT and SIGTERM set a stop event instead of raising, for a command whose loop
+    stops itself (``cdpr dry-run``, ``cdpr sim``); yields (the event, the signals caught,
+    first first). With ``second_raises`` a second signal gives up waiting
+    (KeyboardInterrupt, or :class:`Terminated`). A signal pending from before is handed
+    over (:func:`hand_over_pending`); the previous handlers are back after. Outside the
+    main thread nothing is installed."""
+    stop = threading.Event()
+    previous = {}
+    caught: list[int] = []
+
+    def on_signal(signum, frame) -> None:
+        if second_raises and stop.is_set():  # a second Ctrl-C: give up waiting
+            raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
+        caught.append(signum)
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        for s in (signal.SIGINT, signal.SIGTERM):
+            previous[s] = signal.signal(s, on_signal)
+        hand_over_pending(on_signal)  # a Ctrl-C a gc callback swallowed before: stop too
+    try:
+        yield stop, caught
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
 class SchedulerError(RuntimeError):
     """The Dask scheduler cannot be reached (or Dask is not installed); names the address."""
 

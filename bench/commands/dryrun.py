@@ -41,10 +41,7 @@ import argparse
 import dataclasses
 import json
 import math
-import signal
 import sys
-import threading
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -301,6 +298,7 @@ class _Inputs:
 
 def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int:
     from bench.dryrun.session import PreflightRefused, Session, StartFailed
+    from bench.parallel import stopping_on_signals
 
     try:
         inp = _inputs(args, created, on_buses)
@@ -316,7 +314,7 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
             print(("\r\033[K" if tty else "") + line, file=sys.stderr, flush=True)
 
     session = Session(inp.spec, _options(args, on_buses))
-    with _stopping() as (stop, caught):
+    with stopping_on_signals() as (stop, caught):
         try:
             res = session.run(stop, on_event, _progress_printer(args.quiet, args.duration))
         except PreflightRefused as exc:
@@ -515,35 +513,6 @@ def _announce(args: argparse.Namespace, inp: _Inputs, on_buses: bool) -> None:
             f"{k}={r.label}" for k, r in sp.reactions.items())
             + (f" (scenario: {', '.join(f'{k}={v}' for k, v in react.items())})"
                if react else ""), file=sys.stderr)
-
-
-@contextmanager
-def _stopping():
-    """SIGINT and SIGTERM set the run's stop event (a second one gives up waiting:
-    KeyboardInterrupt or :class:`bench.parallel.Terminated`); yields (the event, the
-    signals caught); the previous handlers are back after."""
-    stop = threading.Event()
-    previous = {}
-    caught: list[int] = []  # the signals that stopped the run (exit status 130 / 143)
-
-    def on_signal(signum, frame):
-        if stop.is_set():  # a second Ctrl-C: give up waiting
-            from bench.parallel import Terminated
-            raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
-        caught.append(signum)
-        stop.set()
-
-    if threading.current_thread() is threading.main_thread():
-        from bench.parallel import hand_over_pending
-
-        for s in (signal.SIGINT, signal.SIGTERM):
-            previous[s] = signal.signal(s, on_signal)
-        hand_over_pending(on_signal)  # a Ctrl-C a gc callback swallowed before: stop too
-    try:
-        yield stop, caught
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def _result(args: argparse.Namespace, inp: _Inputs, session, res, on_buses: bool) -> dict:

@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import sys
 import threading
 
@@ -190,156 +189,42 @@ def run(args: argparse.Namespace) -> int:
         return _serve(args, scheduling)
 
 
+class _Refused(Exception):
+    """An input or a listening socket refused: the exit status and the message."""
+
+    def __init__(self, code: int, msg: str) -> None:
+        super().__init__(msg)
+        self.code = code
+
+
 def _serve(args: argparse.Namespace, scheduling: str) -> int:
-    for name in ("tracker-port", "control-port"):
-        if (msg := _port(args, name)) is not None:
-            return _fail(args, 2, msg)
-    if (msg := _endpoints(args)) is not None:
-        return _fail(args, 2, msg)
-    if not args.plant_rate > 0:
-        return _fail(args, 2, f"--plant-rate {args.plant_rate}: must be > 0")
-    import numpy as np
+    """Check the options, open the simulated robot, its fault injector and control
+    channel, say where they listen, and serve until a signal (or stdin's end)."""
+    from bench.parallel import stopping_on_signals
 
-    from bench.dryrun.scenarios import resolve_scenario
-    from firmware_sim.faults import (
-        FaultControlServer,
-        FaultInjector,
-        FaultSchedule,
-        FaultScheduleError,
-    )
-    from firmware_sim.rig import SimRig
-    from firmware_sim.scenario import ScenarioError, load_scenario
-    from hal.can_bus import CanSpecError, open_bus, parse_can_spec
-
-    try:  # a file, or a shipped scenario's name (paper-centre)
-        scenario = load_scenario(resolve_scenario(args.scenario)) if args.scenario else None
-    except (ScenarioError, FileNotFoundError) as exc:
-        return _fail(args, 2, str(exc))
-    bus = None
-    if args.can:
+    try:
+        _check(args)
+        rig, bus, schedule, injector, control = _open(args)
+    except _Refused as exc:
+        return _fail(args, exc.code, str(exc))
+    with stopping_on_signals(second_raises=False) as (stop, caught):
         try:
-            spec = parse_can_spec(args.can)
-            bus = open_bus(spec)
-        except CanSpecError as exc:
-            return _fail(args, 2, str(exc))
-        except Exception as exc:  # CanInitializationError, OSError
-            return _fail(args, 1, str(exc))
-    try:
-        rig = SimRig(scenario, clock=args.clock, bus=bus,
-                     hub_port=None if bus is not None else args.hub_port,
-                     hub_host=args.hub_host, modbus_host=args.modbus_host,
-                     modbus_port=args.modbus_port, rtu=args.rtu,
-                     plant_rate_hz=args.plant_rate, tracker_port=args.tracker_port,
-                     tracker_host=args.host)
-    except OSError as exc:
-        if bus is not None:
-            bus.shutdown()
-        return _fail(args, 1, f"cannot listen on {args.hub_host}:{args.hub_port} or "
-                     f"{args.modbus_host}:{args.modbus_port}: {exc}")
-    except ValueError as exc:
-        if bus is not None:
-            bus.shutdown()
-        return _fail(args, 2, str(exc))
-    try:
-        schedule = FaultSchedule.load(
-            args.faults, node_ids=tuple(int(x) for x in rig.winches.node_id),
-            unit_ids=tuple(rig.cells.map.unit_ids)) if args.faults else None
-    except FaultScheduleError as exc:
-        rig.close()
-        return _fail(args, 2, str(exc))
-    injector = FaultInjector(rig, schedule)
-    try:
-        control = FaultControlServer(injector, host=args.host, port=args.control_port)
-    except OSError as exc:
-        rig.close()
-        return _fail(args, 1, f"cannot listen on {args.host}:{args.control_port}: {exc}")
-
-    stop = threading.Event()
-    previous = {}
-    caught: list[int] = []  # the signal that stopped the simulator (exit status 130 / 143)
-
-    def on_signal(signum, frame) -> None:
-        caught.append(signum)
-        stop.set()
-
-    if threading.current_thread() is threading.main_thread():
-        from bench.parallel import hand_over_pending
-
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, on_signal)
-        hand_over_pending(on_signal)  # a Ctrl-C a gc callback swallowed before: stop too
-    try:
-        try:
-            rig.start()
-        except (RuntimeError, TimeoutError, OSError) as exc:
-            return _fail(args, 1, str(exc))
-        injector.start()
-        control.start()
-        can_spec = rig.can_spec if bus is None else str(parse_can_spec(args.can))
-        sc = rig.scenario
-        site_file = None
-        if args.write_site:
             try:
-                site_file = write_sim_site(args.write_site, rig, can_spec, args.clock,
-                                           args.scenario, control.endpoint)
-            except (OSError, ValueError) as exc:
-                return _fail(args, 2, f"--write-site {args.write_site}: {exc}")
-        info = {
-            "can": can_spec,
-            "modbus": rig.modbus_spec,
-            "tracker": rig.tracker_spec,
-            "node_ids": [int(x) for x in rig.winches.node_id],
-            "unit_ids": list(rig.cells.map.unit_ids),
-            "cables": list(rig.winches.cables),
-            "clock": args.clock,
-            "scheduling": scheduling,
-            "scenario": str(args.scenario) if args.scenario else None,
-            "robot": sc.model.name,
-            "init_pose": [float(v) for v in sc.init_pose],
-            "reference_m": [float(v) for v in rig.reference_m],
-            "pid": os.getpid(),
-            "control": control.endpoint,
-            "faults": str(args.faults) if args.faults else None,
-            "site": site_file,
-        }
-        if args.json:
-            print(json.dumps(info), flush=True)
-        else:
-            where = args.scenario or "default: rocaspect as the truth"
-            print(f"simulated robot {sc.model.name} (scenario {where}), {args.clock} clock, "
-                  f"init pose {np.round(sc.init_pose, 4).tolist()}; threads {scheduling}")
-            print(f"  --can {can_spec}")
-            print(f"  --modbus {rig.modbus_spec}")
-            print(f"  --tracker {rig.tracker_spec}")
-            print(f"  --control {control.endpoint}   (faults: one request per line; 'help')")
-            if site_file:
-                print(f"  --site {site_file}")
-            if args.clock == "wall" and not scheduling.startswith("SCHED_FIFO"):
-                from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
-
-                print("  note: wall clock at normal priority: on a busy host the simulated "
-                      "drives miss their deadlines before the loop does; --rt-priority "
-                      f"{DEFAULT_RT_PRIORITY - 1} runs them just below a real-time dry run's "
-                      "loop (docs/guide/real-time.md)", file=sys.stderr)
-            if schedule is not None:
-                print(f"  {len(schedule.faults)} scheduled fault(s) from {args.faults}")
-            print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)
-        if args.exit_on_stdin_eof:
-            def _watch() -> None:
-                try:
-                    sys.stdin.read()
-                except (OSError, ValueError):
-                    pass
-                stop.set()
-            threading.Thread(target=_watch, name="stdin-eof", daemon=True).start()
-        while not stop.wait(0.5):
-            pass
-    finally:
-        control.close()
-        injector.stop()
-        rig.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+                rig.start()
+            except (RuntimeError, TimeoutError, OSError) as exc:
+                return _fail(args, 1, str(exc))
+            injector.start()
+            control.start()
+            try:
+                info = _info(args, rig, bus, control, scheduling)
+            except _Refused as exc:
+                return _fail(args, exc.code, str(exc))
+            _announce(args, info, rig, schedule, scheduling)
+            _wait(args, stop)
+        finally:
+            control.close()
+            injector.stop()
+            rig.close()
     print(f"cdpr sim: stopped ({rig.settles} plant settles, {len(rig.plant_errors)} without "
           f"a rest position, {sum(r.action == 'apply' for r in injector.log)} fault(s) "
           "injected)", file=sys.stderr)
@@ -349,3 +234,157 @@ def _serve(args: argparse.Namespace, scheduling: str) -> int:
         print(f"cdpr sim: {msg}", file=sys.stderr, flush=True)
         return code
     return 0
+
+
+def _check(args: argparse.Namespace) -> None:
+    """The ports, the endpoints and the plant rate checked (:class:`_Refused`, exit 2)."""
+    for name in ("tracker-port", "control-port"):
+        if (msg := _port(args, name)) is not None:
+            raise _Refused(2, msg)
+    if (msg := _endpoints(args)) is not None:
+        raise _Refused(2, msg)
+    if not args.plant_rate > 0:
+        raise _Refused(2, f"--plant-rate {args.plant_rate}: must be > 0")
+
+
+def _open(args: argparse.Namespace):
+    """The simulated robot (on ``--can``'s bus or a socketcand hub), its fault schedule,
+    injector and control server, not started: (rig, bus or None, schedule or None,
+    injector, control). What was opened is closed again on a refusal."""
+    from bench.dryrun.scenarios import resolve_scenario
+    from firmware_sim.faults import (
+        FaultControlServer,
+        FaultInjector,
+        FaultSchedule,
+        FaultScheduleError,
+    )
+    from firmware_sim.scenario import ScenarioError, load_scenario
+    from hal.can_bus import CanSpecError, open_bus, parse_can_spec
+
+    try:  # a file, or a shipped scenario's name (paper-centre)
+        scenario = load_scenario(resolve_scenario(args.scenario)) if args.scenario else None
+    except (ScenarioError, FileNotFoundError) as exc:
+        raise _Refused(2, str(exc)) from exc
+    bus = None
+    if args.can:
+        try:
+            bus = open_bus(parse_can_spec(args.can))
+        except CanSpecError as exc:
+            raise _Refused(2, str(exc)) from exc
+        except Exception as exc:  # CanInitializationError, OSError
+            raise _Refused(1, str(exc)) from exc
+    rig = _rig(args, scenario, bus)
+    try:
+        schedule = FaultSchedule.load(
+            args.faults, node_ids=tuple(int(x) for x in rig.winches.node_id),
+            unit_ids=tuple(rig.cells.map.unit_ids)) if args.faults else None
+    except FaultScheduleError as exc:
+        rig.close()
+        raise _Refused(2, str(exc)) from exc
+    injector = FaultInjector(rig, schedule)
+    try:
+        control = FaultControlServer(injector, host=args.host, port=args.control_port)
+    except OSError as exc:
+        rig.close()
+        raise _Refused(1, f"cannot listen on {args.host}:{args.control_port}: {exc}") from exc
+    return rig, bus, schedule, injector, control
+
+
+def _rig(args: argparse.Namespace, scenario, bus):
+    """The :class:`firmware_sim.rig.SimRig` listening where the options say (the bus shut
+    down again when it cannot)."""
+    from firmware_sim.rig import SimRig
+
+    try:
+        return SimRig(scenario, clock=args.clock, bus=bus,
+                      hub_port=None if bus is not None else args.hub_port,
+                      hub_host=args.hub_host, modbus_host=args.modbus_host,
+                      modbus_port=args.modbus_port, rtu=args.rtu,
+                      plant_rate_hz=args.plant_rate, tracker_port=args.tracker_port,
+                      tracker_host=args.host)
+    except OSError as exc:
+        if bus is not None:
+            bus.shutdown()
+        raise _Refused(1, f"cannot listen on {args.hub_host}:{args.hub_port} or "
+                          f"{args.modbus_host}:{args.modbus_port}: {exc}") from exc
+    except ValueError as exc:
+        if bus is not None:
+            bus.shutdown()
+        raise _Refused(2, str(exc)) from exc
+
+
+def _info(args: argparse.Namespace, rig, bus, control, scheduling: str) -> dict:
+    """Where the started robot listens and what it is (the ``--json`` object); the site
+    file written with ``--write-site``."""
+    from hal.can_bus import parse_can_spec
+
+    can_spec = rig.can_spec if bus is None else str(parse_can_spec(args.can))
+    sc = rig.scenario
+    site_file = None
+    if args.write_site:
+        try:
+            site_file = write_sim_site(args.write_site, rig, can_spec, args.clock,
+                                       args.scenario, control.endpoint)
+        except (OSError, ValueError) as exc:
+            raise _Refused(2, f"--write-site {args.write_site}: {exc}") from exc
+    return {
+        "can": can_spec,
+        "modbus": rig.modbus_spec,
+        "tracker": rig.tracker_spec,
+        "node_ids": [int(x) for x in rig.winches.node_id],
+        "unit_ids": list(rig.cells.map.unit_ids),
+        "cables": list(rig.winches.cables),
+        "clock": args.clock,
+        "scheduling": scheduling,
+        "scenario": str(args.scenario) if args.scenario else None,
+        "robot": sc.model.name,
+        "init_pose": [float(v) for v in sc.init_pose],
+        "reference_m": [float(v) for v in rig.reference_m],
+        "pid": os.getpid(),
+        "control": control.endpoint,
+        "faults": str(args.faults) if args.faults else None,
+        "site": site_file,
+    }
+
+
+def _announce(args: argparse.Namespace, info: dict, rig, schedule, scheduling: str) -> None:
+    """``info`` as one JSON line (``--json``) or as the options a client gives."""
+    import numpy as np
+
+    if args.json:
+        print(json.dumps(info), flush=True)
+        return
+    sc = rig.scenario
+    where = args.scenario or "default: rocaspect as the truth"
+    print(f"simulated robot {sc.model.name} (scenario {where}), {args.clock} clock, "
+          f"init pose {np.round(sc.init_pose, 4).tolist()}; threads {scheduling}")
+    print(f"  --can {info['can']}")
+    print(f"  --modbus {rig.modbus_spec}")
+    print(f"  --tracker {rig.tracker_spec}")
+    print(f"  --control {info['control']}   (faults: one request per line; 'help')")
+    if info["site"]:
+        print(f"  --site {info['site']}")
+    if args.clock == "wall" and not scheduling.startswith("SCHED_FIFO"):
+        from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
+
+        print("  note: wall clock at normal priority: on a busy host the simulated "
+              "drives miss their deadlines before the loop does; --rt-priority "
+              f"{DEFAULT_RT_PRIORITY - 1} runs them just below a real-time dry run's "
+              "loop (docs/guide/real-time.md)", file=sys.stderr)
+    if schedule is not None:
+        print(f"  {len(schedule.faults)} scheduled fault(s) from {args.faults}")
+    print("running; SIGINT (Ctrl-C) or SIGTERM stops it", flush=True)
+
+
+def _wait(args: argparse.Namespace, stop: threading.Event) -> None:
+    """Until ``stop`` is set (a signal), or stdin ends with ``--exit-on-stdin-eof``."""
+    if args.exit_on_stdin_eof:
+        def _watch() -> None:
+            try:
+                sys.stdin.read()
+            except (OSError, ValueError):
+                pass
+            stop.set()
+        threading.Thread(target=_watch, name="stdin-eof", daemon=True).start()
+    while not stop.wait(0.5):
+        pass
