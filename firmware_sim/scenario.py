@@ -239,168 +239,34 @@ def _table(p: Path, name: str, value: Any) -> dict:
 def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>",
                    text: str = "") -> Scenario:
     """Validate a parsed scenario mapping (``text``: the file's, for line numbers)."""
-    p = Path(path)
-    loc = Locator(text)
-
-    def num(where: str, v: Any, positive: bool = False, nonneg: bool = False,
-            component: int | None = None) -> float:
-        return _num(p, where, v, positive, nonneg, loc, component)
-
+    r = _Reader(Path(path), Locator(text))
+    p = r.p
     for k in data:
         if k not in _TOP:
             raise ScenarioError(f"{p}: {k}: unknown key (allowed: {', '.join(sorted(_TOP))})")
     if data.get("format") != FORMAT:
         raise ScenarioError(f"{p}: format: expected {FORMAT!r}, got {data.get('format')!r}")
-    robot_ref = data.get("robot", "rocaspect")
-    try:
-        if isinstance(robot_ref, dict):  # an inline robot.toml
-            model = parse_robot(robot_ref, f"{p} [robot]")
-        else:
-            robot_ref = str(robot_ref)
-            candidate = (p.parent / robot_ref) if p.name != "<memory>" else Path(robot_ref)
-            model = resolve_robot(candidate if candidate.exists() else robot_ref)
-    except RobotFileError as e:
-        raise ScenarioError(f"{p}: robot: {e}") from e
+    model = r.model(data.get("robot", "rocaspect"))
     ip = data.get("init_pose", [10.0, 8.56, 1.0, 0.0, 0.0, 0.0])
     if not isinstance(ip, list) or len(ip) != 6:
         raise ScenarioError(f"{p}: init_pose: must be 6 numbers")
-    init_pose = np.array([num("init_pose", v, component=i) for i, v in enumerate(ip)])
-
-    effects: dict[str, dict[str, float]] = {}
-    slips = np.zeros(model.n_cables)
-    truth_tab = data.get("truth", {})
-    if not isinstance(truth_tab, dict):
-        raise ScenarioError(f"{p}: truth: must be a table of effects")
-    for eff, params in truth_tab.items():
-        if eff not in EFFECT_NAMES:
-            raise ScenarioError(f"{p}: truth.{eff}: unknown effect (known: "
-                                f"{', '.join(EFFECT_NAMES)})")
-        if not isinstance(params, dict):
-            raise ScenarioError(f"{p}: truth.{eff}: must be a table of parameters")
-        vals: dict[str, float] = {}
-        for key, v in params.items():
-            where = f"truth.{eff}.{key}"
-            if eff == "mast_compliance" and key == "k":
-                if not isinstance(v, list) or len(v) != 3:
-                    raise ScenarioError(f"{p}: {where}: must be [kx, ky, kz]")
-                for mid in model.mast_ids:
-                    for ax, kv in zip("xyz", v, strict=True):
-                        vals[f"k{ax}_{mid}"] = num(where, kv, positive=True)
-            elif eff == "cable_length_offset" and key.startswith("slip_time_"):
-                cid = key[len("slip_time_"):]
-                if cid not in model.cable_ids:
-                    raise ScenarioError(f"{p}: {where}: no cable {cid!r}")
-                slips[model.cable_ids.index(cid)] = num(where, v, nonneg=True)
-            else:
-                vals[key] = num(where, v)
-        effects[eff] = vals
-    try:
-        truth = apply_effects(model, effects, name=f"{model.name} (truth)")
-    except (KeyError, ValueError) as e:
-        raise ScenarioError(f"{p}: truth: {e.args[0] if e.args else e}") from e
-    bad = robot_problems(truth)
-    if bad:
-        raise ScenarioError(f"{p}: truth: the robot its effects describe is not physical: "
-                            f"{bad[0]}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""))
-
-    noise_tab = _table(p, "noise", data.get("noise", {}))
-    known = set(Noise.__dataclass_fields__)
-    for k in noise_tab:
-        if k not in known:
-            raise ScenarioError(f"{p}: noise.{k}: unknown key "
-                                f"(allowed: {', '.join(sorted(known))})")
-    noise = Noise(**{k: num(f"noise.{k}", v, nonneg=True) for k, v in noise_tab.items()})
-
+    init_pose = np.array([r.num("init_pose", v, component=i) for i, v in enumerate(ip)])
+    truth, effects, slips = r.truth(model, data.get("truth", {}))
+    noise = r.noise(data.get("noise", {}))
     nz = _table(p, "nuisance", data.get("nuisance", {}))
     for k in nz:
         if k not in _NUISANCE:
             raise ScenarioError(f"{p}: nuisance.{k}: unknown key (allowed: "
                                 f"{', '.join(sorted(_NUISANCE))})")
+    num = r.num
     hyst = num("nuisance.hysteresis_m", nz.get("hysteresis_m", 0.0), nonneg=True)
     drift = num("nuisance.drift_m_per_h", nz.get("drift_m_per_h", 0.0)) / 3600.0
     thermal = num("nuisance.thermal_strain_per_h", nz.get("thermal_strain_per_h", 0.0)) \
         / 3600.0
-
-    def per_cable(key: str, cables_key: str, default_all: bool) -> np.ndarray:
-        v = num(f"nuisance.{key}", nz.get(key, 0.0), nonneg=True)
-        ids = nz.get(cables_key)
-        if ids is None:
-            ids = list(model.cable_ids) if default_all else []
-        if not isinstance(ids, list):
-            raise ScenarioError(f"{p}: nuisance.{cables_key}: must be a list of cable ids")
-        out = np.zeros(model.n_cables)
-        for c in ids:
-            if str(c) not in model.cable_ids:
-                raise ScenarioError(f"{p}: nuisance.{cables_key}: no cable {c!r}")
-            out[model.cable_ids.index(str(c))] = v
-        return out
-
-    backlash = per_cable("backlash_m", "backlash_cables", False)
-    friction = per_cable("friction_n", "friction_cables", True)
-
-    rt = data.get("recording", {})
-    if not isinstance(rt, dict):
-        raise ScenarioError(f"{p}: recording: must be a table")
-    for k in rt:
-        if k not in _RECORDING:
-            raise ScenarioError(f"{p}: recording.{k}: unknown key (allowed: "
-                                f"{', '.join(sorted(_RECORDING))})")
-    rkw: dict[str, Any] = {}
-    if "kind" in rt:
-        if rt["kind"] not in ("dwell", "continuous"):
-            raise ScenarioError(f"{p}: recording.kind: must be dwell or continuous")
-        rkw["kind"] = rt["kind"]
-    for k in ("dwell_at_targets", "state_column", "tracker", "load_cells"):
-        if k in rt:
-            if not isinstance(rt[k], bool):
-                raise ScenarioError(f"{p}: recording.{k}: must be true or false")
-            rkw[k] = rt[k]
-    if "rate_hz" in rt:
-        rkw["rate_hz"] = num("recording.rate_hz", rt["rate_hz"], positive=True)
-    if not rkw.get("tracker", True) and not rkw.get("load_cells", True):
-        raise ScenarioError(f"{p}: recording: a recording needs the tracker or the load cells")
-
-    ps = _table(p, "poses", data.get("poses", {}))
-    pknown = {"kind", "x", "y", "z", "n", "rpy_deg", "list", "visits", "dwell_s", "rate_hz",
-              "init_s", "speed_m_s", "exit_points"}
-    for k in ps:
-        if k not in pknown:
-            raise ScenarioError(f"{p}: poses.{k}: unknown key "
-                                f"(allowed: {', '.join(sorted(pknown))})")
-    kw: dict[str, Any] = {}
-    for k in ("x", "y", "z"):
-        if k in ps:
-            v = ps[k]
-            if not isinstance(v, list) or len(v) != 2:
-                raise ScenarioError(f"{p}: poses.{k}: must be [min, max]")
-            kw[k] = (num(f"poses.{k}", v[0]), num(f"poses.{k}", v[1]))
-    if "n" in ps:
-        n = ps["n"] if isinstance(ps["n"], list) else [ps["n"]]
-        kw["n"] = tuple(int(num("poses.n", v, positive=True)) for v in n)
-    if "list" in ps:
-        lst = ps["list"]
-        if not isinstance(lst, list) or not all(isinstance(r, list) and len(r) == 6 for r in lst):
-            raise ScenarioError(f"{p}: poses.list: must be a list of [x, y, z, roll, pitch, yaw]")
-        kw["poses"] = tuple(tuple(num("poses.list", v, component=i) for i, v in enumerate(r))
-                            for r in lst)
-        kw["kind"] = "list"
-    if "kind" in ps:
-        if ps["kind"] not in ("grid", "random", "list"):
-            raise ScenarioError(f"{p}: poses.kind: must be grid, random or list")
-        kw["kind"] = ps["kind"]
-    for k in ("rpy_deg", "dwell_s", "rate_hz", "init_s", "speed_m_s"):
-        if k in ps:
-            kw[k] = num(f"poses.{k}", ps[k], nonneg=True)
-    if "visits" in ps:
-        kw["visits"] = int(num("poses.visits", ps["visits"], positive=True))
-    if "exit_points" in ps:
-        if not isinstance(ps["exit_points"], list):
-            raise ScenarioError(f"{p}: poses.exit_points: must be a list of cable ids")
-        ep = [str(c) for c in ps["exit_points"]]
-        for c in ep:
-            if c not in model.cable_ids:
-                raise ScenarioError(f"{p}: poses.exit_points: no cable {c!r}")
-        kw["exit_points"] = tuple(ep)
+    backlash = r.per_cable(model, nz, "backlash_m", "backlash_cables", False)
+    friction = r.per_cable(model, nz, "friction_n", "friction_cables", True)
+    recording = r.recording(data.get("recording", {}))
+    poses = r.poses(model, _table(p, "poses", data.get("poses", {})))
     run_path = data.get("path", "")
     if not isinstance(run_path, str):
         raise ScenarioError(f"{p}: path: must be a path file name or relative path (string)")
@@ -408,13 +274,193 @@ def parse_scenario(data: dict[str, Any], path: str | Path = "<memory>",
         run_path = str(p.parent / run_path)
     return Scenario(p, model, truth, effects, slips, init_pose,
                     int(num("seed", data.get("seed", 0), nonneg=True)), noise, hyst, drift,
-                    PoseSet(**kw), str(data.get("notes", "")), run_path, backlash, thermal,
-                    friction, RecordingSpec(**rkw), _react(p, data.get("react", {})),
+                    poses, str(data.get("notes", "")), run_path, backlash, thermal,
+                    friction, recording, _react(p, data.get("react", {})),
                     num("nuisance.init_pretension_n", nz.get("init_pretension_n", 0.0),
-                         nonneg=True),
+                        nonneg=True),
                     num("nuisance.rope_settle_m", nz.get("rope_settle_m", 0.0), nonneg=True),
                     3600.0 * num("nuisance.rope_settle_h", nz.get("rope_settle_h", 1.0),
                                  positive=True))
+
+
+#: the keys of the ``poses`` table
+_POSES = {"kind", "x", "y", "z", "n", "rpy_deg", "list", "visits", "dwell_s", "rate_hz",
+          "init_s", "speed_m_s", "exit_points"}
+
+
+@dataclass
+class _Reader:
+    """The tables of one scenario file checked: ``p`` names it in errors, ``loc`` finds
+    a field's line."""
+
+    p: Path
+    loc: Locator
+
+    def num(self, where: str, v: Any, positive: bool = False, nonneg: bool = False,
+            component: int | None = None) -> float:
+        """:func:`_num` on this file."""
+        return _num(self.p, where, v, positive, nonneg, self.loc, component)
+
+    def model(self, robot_ref: Any) -> Robot:
+        """The scenario's robot: an inline robot.toml table, a file beside the scenario,
+        or a shipped robot's name."""
+        p = self.p
+        try:
+            if isinstance(robot_ref, dict):  # an inline robot.toml
+                return parse_robot(robot_ref, f"{p} [robot]")
+            robot_ref = str(robot_ref)
+            candidate = (p.parent / robot_ref) if p.name != "<memory>" else Path(robot_ref)
+            return resolve_robot(candidate if candidate.exists() else robot_ref)
+        except RobotFileError as e:
+            raise ScenarioError(f"{p}: robot: {e}") from e
+
+    def truth(self, model: Robot, truth_tab: Any
+              ) -> tuple[Robot, dict[str, dict[str, float]], np.ndarray]:
+        """The ``truth`` table: the robot its effects make (checked physical), the effects'
+        parameters, and the cables' slip times [s] (0: none)."""
+        p = self.p
+        slips = np.zeros(model.n_cables)
+        if not isinstance(truth_tab, dict):
+            raise ScenarioError(f"{p}: truth: must be a table of effects")
+        effects: dict[str, dict[str, float]] = {}
+        for eff, params in truth_tab.items():
+            if eff not in EFFECT_NAMES:
+                raise ScenarioError(f"{p}: truth.{eff}: unknown effect (known: "
+                                    f"{', '.join(EFFECT_NAMES)})")
+            if not isinstance(params, dict):
+                raise ScenarioError(f"{p}: truth.{eff}: must be a table of parameters")
+            effects[eff] = self._effect(model, eff, params, slips)
+        try:
+            truth = apply_effects(model, effects, name=f"{model.name} (truth)")
+        except (KeyError, ValueError) as e:
+            raise ScenarioError(f"{p}: truth: {e.args[0] if e.args else e}") from e
+        bad = robot_problems(truth)
+        if bad:
+            raise ScenarioError(f"{p}: truth: the robot its effects describe is not physical: "
+                                f"{bad[0]}"
+                                + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""))
+        return truth, effects, slips
+
+    def _effect(self, model: Robot, eff: str, params: dict, slips: np.ndarray
+                ) -> dict[str, float]:
+        """One effect's parameters (a mast stiffness [kx, ky, kz] for every mast; a
+        length offset's ``slip_time_<cable>`` into ``slips``)."""
+        vals: dict[str, float] = {}
+        for key, v in params.items():
+            where = f"truth.{eff}.{key}"
+            if eff == "mast_compliance" and key == "k":
+                if not isinstance(v, list) or len(v) != 3:
+                    raise ScenarioError(f"{self.p}: {where}: must be [kx, ky, kz]")
+                for mid in model.mast_ids:
+                    for ax, kv in zip("xyz", v, strict=True):
+                        vals[f"k{ax}_{mid}"] = self.num(where, kv, positive=True)
+            elif eff == "cable_length_offset" and key.startswith("slip_time_"):
+                cid = key[len("slip_time_"):]
+                if cid not in model.cable_ids:
+                    raise ScenarioError(f"{self.p}: {where}: no cable {cid!r}")
+                slips[model.cable_ids.index(cid)] = self.num(where, v, nonneg=True)
+            else:
+                vals[key] = self.num(where, v)
+        return vals
+
+    def noise(self, tab: Any) -> Noise:
+        """The ``noise`` table."""
+        noise_tab = _table(self.p, "noise", tab)
+        known = set(Noise.__dataclass_fields__)
+        for k in noise_tab:
+            if k not in known:
+                raise ScenarioError(f"{self.p}: noise.{k}: unknown key "
+                                    f"(allowed: {', '.join(sorted(known))})")
+        return Noise(**{k: self.num(f"noise.{k}", v, nonneg=True)
+                        for k, v in noise_tab.items()})
+
+    def per_cable(self, model: Robot, nz: dict, key: str, cables_key: str,
+                  default_all: bool) -> np.ndarray:
+        """A nuisance's size on the cables ``cables_key`` lists (without the list: every
+        cable or none, by ``default_all``), zero elsewhere."""
+        v = self.num(f"nuisance.{key}", nz.get(key, 0.0), nonneg=True)
+        ids = nz.get(cables_key)
+        if ids is None:
+            ids = list(model.cable_ids) if default_all else []
+        if not isinstance(ids, list):
+            raise ScenarioError(f"{self.p}: nuisance.{cables_key}: must be a list of cable ids")
+        out = np.zeros(model.n_cables)
+        for c in ids:
+            if str(c) not in model.cable_ids:
+                raise ScenarioError(f"{self.p}: nuisance.{cables_key}: no cable {c!r}")
+            out[model.cable_ids.index(str(c))] = v
+        return out
+
+    def recording(self, rt: Any) -> RecordingSpec:
+        """The ``recording`` table: kind, rate and the column groups written."""
+        p = self.p
+        if not isinstance(rt, dict):
+            raise ScenarioError(f"{p}: recording: must be a table")
+        for k in rt:
+            if k not in _RECORDING:
+                raise ScenarioError(f"{p}: recording.{k}: unknown key (allowed: "
+                                    f"{', '.join(sorted(_RECORDING))})")
+        rkw: dict[str, Any] = {}
+        if "kind" in rt:
+            if rt["kind"] not in ("dwell", "continuous"):
+                raise ScenarioError(f"{p}: recording.kind: must be dwell or continuous")
+            rkw["kind"] = rt["kind"]
+        for k in ("dwell_at_targets", "state_column", "tracker", "load_cells"):
+            if k in rt:
+                if not isinstance(rt[k], bool):
+                    raise ScenarioError(f"{p}: recording.{k}: must be true or false")
+                rkw[k] = rt[k]
+        if "rate_hz" in rt:
+            rkw["rate_hz"] = self.num("recording.rate_hz", rt["rate_hz"], positive=True)
+        if not rkw.get("tracker", True) and not rkw.get("load_cells", True):
+            raise ScenarioError(f"{p}: recording: a recording needs the tracker or the load "
+                                f"cells")
+        return RecordingSpec(**rkw)
+
+    def poses(self, model: Robot, ps: dict) -> PoseSet:
+        """The ``poses`` table: a grid, random poses or a list, visits and timing."""
+        p, num = self.p, self.num
+        for k in ps:
+            if k not in _POSES:
+                raise ScenarioError(f"{p}: poses.{k}: unknown key "
+                                    f"(allowed: {', '.join(sorted(_POSES))})")
+        kw: dict[str, Any] = {}
+        for k in ("x", "y", "z"):
+            if k in ps:
+                v = ps[k]
+                if not isinstance(v, list) or len(v) != 2:
+                    raise ScenarioError(f"{p}: poses.{k}: must be [min, max]")
+                kw[k] = (num(f"poses.{k}", v[0]), num(f"poses.{k}", v[1]))
+        if "n" in ps:
+            n = ps["n"] if isinstance(ps["n"], list) else [ps["n"]]
+            kw["n"] = tuple(int(num("poses.n", v, positive=True)) for v in n)
+        if "list" in ps:
+            lst = ps["list"]
+            if not isinstance(lst, list) or not all(isinstance(r, list) and len(r) == 6
+                                                    for r in lst):
+                raise ScenarioError(f"{p}: poses.list: must be a list of [x, y, z, roll, "
+                                    f"pitch, yaw]")
+            kw["poses"] = tuple(tuple(num("poses.list", v, component=i)
+                                      for i, v in enumerate(r)) for r in lst)
+            kw["kind"] = "list"
+        if "kind" in ps:
+            if ps["kind"] not in ("grid", "random", "list"):
+                raise ScenarioError(f"{p}: poses.kind: must be grid, random or list")
+            kw["kind"] = ps["kind"]
+        for k in ("rpy_deg", "dwell_s", "rate_hz", "init_s", "speed_m_s"):
+            if k in ps:
+                kw[k] = num(f"poses.{k}", ps[k], nonneg=True)
+        if "visits" in ps:
+            kw["visits"] = int(num("poses.visits", ps["visits"], positive=True))
+        if "exit_points" in ps:
+            if not isinstance(ps["exit_points"], list):
+                raise ScenarioError(f"{p}: poses.exit_points: must be a list of cable ids")
+            ep = [str(c) for c in ps["exit_points"]]
+            for c in ep:
+                if c not in model.cable_ids:
+                    raise ScenarioError(f"{p}: poses.exit_points: no cable {c!r}")
+            kw["exit_points"] = tuple(ep)
+        return PoseSet(**kw)
 
 
 def _react(p: Path, react: Any) -> dict[str, str]:
