@@ -91,6 +91,24 @@ def register_map_of(args: argparse.Namespace) -> RegisterMap:
     return load_register_map(args.loadcell_map) if args.loadcell_map else DEFAULT_MAP
 
 
+def polling_cells(args: argparse.Namespace, rmap: RegisterMap):
+    """The load cells of ``--modbus`` polled in the background
+    (:class:`hal.loadcell_client.LoadCellClient` with the options' calibration, rate and
+    timing), started, after one whole sweep: a unit that does not answer shows its
+    timeout status instead."""
+    from hal.loadcell_calibration import load_calibration
+    from hal.loadcell_client import LoadCellClient
+
+    cal = load_calibration(args.loadcell_calibration, rmap.cables) \
+        if args.loadcell_calibration else None
+    client = LoadCellClient(args.modbus, register_map=rmap, calibration=cal,
+                            rate_hz=args.loadcell_rate, timeout_s=args.loadcell_timeout,
+                            stale_s=args.loadcell_stale,
+                            max_age_s=args.loadcell_max_age).start()
+    client.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
+    return client
+
+
 def resolve_winch(w: WinchSet, text: str) -> int:
     """Array index of a winch given as its cable id (``21``) or node id (``node:3``)."""
     t = str(text).strip()

@@ -44,6 +44,7 @@ from bench.commission.common import (
     CommissionError,
     Ui,
     network_of,
+    polling_cells,
     register_map_of,
     tension_window_of,
     winches_of,
@@ -344,22 +345,9 @@ class _Monitor:
             self.logger.stop()
 
     def start_cells(self) -> None:
-        """The load cells' poller (``--modbus``), after one whole sweep (a unit that does
-        not answer shows its timeout status instead)."""
-        from hal.loadcell_calibration import load_calibration
-        from hal.loadcell_client import LoadCellClient
-
-        args, rmap = self.args, self.rmap
-        if args.modbus is None:
-            return
-        cal = load_calibration(args.loadcell_calibration, rmap.cables) \
-            if args.loadcell_calibration else None
-        self.cells = LoadCellClient(args.modbus, register_map=rmap, calibration=cal,
-                                    rate_hz=args.loadcell_rate,
-                                    timeout_s=args.loadcell_timeout,
-                                    stale_s=args.loadcell_stale,
-                                    max_age_s=args.loadcell_max_age).start()
-        self.cells.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
+        """The load cells' poller (``--modbus``), after one whole sweep."""
+        if self.args.modbus is not None:
+            self.cells = polling_cells(self.args, self.rmap)
 
     # ----- the refreshes ----------------------------------------------------------------
 

@@ -14,7 +14,13 @@ import time
 
 import numpy as np
 
-from bench.commission.common import CommissionError, Ui, register_map_of, tension_window_of
+from bench.commission.common import (
+    CommissionError,
+    Ui,
+    polling_cells,
+    register_map_of,
+    tension_window_of,
+)
 from bench.commission.report import Section
 
 #: what the horizon adds to the stopping time: cell sampling and the plant/physics lag,
@@ -57,22 +63,12 @@ class CableGuard:
         self._open_client(args, rmap)
 
     def _open_client(self, args: argparse.Namespace, rmap) -> None:
-        from hal.loadcell_calibration import load_calibration
-        from hal.loadcell_client import LoadCellClient
-
         missing = [c for c in self.cables if c not in rmap.cables]
         if missing:
             raise CommissionError(f"load-cell map {rmap.source}: no cell for cable(s) "
                                   f"{', '.join(missing)}: those cables cannot be watched", 2)
         self._idx = [rmap.index_of(c) for c in self.cables]
-        cal = load_calibration(args.loadcell_calibration, rmap.cables) \
-            if args.loadcell_calibration else None
-        self.client = LoadCellClient(args.modbus, register_map=rmap, calibration=cal,
-                                     rate_hz=args.loadcell_rate,
-                                     timeout_s=args.loadcell_timeout,
-                                     stale_s=args.loadcell_stale,
-                                     max_age_s=args.loadcell_max_age).start()
-        self.client.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
+        self.client = polling_cells(args, rmap)
 
     def read(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(tensions (n,) [N] in cable order, valid (n,), sample time [s, monotonic])."""
