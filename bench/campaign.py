@@ -82,92 +82,33 @@ def run_campaign(sc: Scenario, out: str | Path | None,
     ``first_row(t, plant)`` is called once with
     the time [s] of the first row after the initialisation, before the plant settles for it
     (a campaign continuing another sets its later slips by it: :meth:`Plant.slip_at`)."""
-    model, n = sc.model, sc.model.n_cables
-    nz = sc.noise
-    ps = sc.poses
-    spec = sc.recording
+    model, ps, spec = sc.model, sc.poses, sc.recording
     targets, rng = campaign_targets(sc, poses)
     plant = campaign_plant(sc) if plant is None else plant
-    tau0_meas = plant.measured_tensions(plant.init_tensions)
+    measured = plant.measured_tensions(plant.init_tensions)  # [N], before the first settle
     ctl = LengthController(model, sc.init_pose, init_tensions=None)
-    exit_idx = [model.cable_ids.index(c) for c in ps.exit_points] if spec.tracker else []
-    cols = ["t"] + [f"{a}_des" for a in POSE_AXES] + [f"l_cmd_{c}" for c in model.cable_ids] \
-        + [f"l_meas_{c}" for c in model.cable_ids]
-    if spec.load_cells:
-        cols += [f"tau_{c}" for c in model.cable_ids]
-    if spec.tracker:
-        cols += [f"{a}_meas" for a in POSE_AXES] \
-            + [f"a{ax}_meas_{model.cable_ids[k]}" for k in exit_idx for ax in "xyz"]
-    rows: dict[str, list[float]] = {c: [] for c in cols}
-    states: list[str] = []
-    rate = spec.rate_hz or ps.rate_hz
-    dt = 1.0 / rate if rate > 0 else 1.0
-    view = TrackerView(sc.truth)  # the tracker's own errors (frame, latency), if any
-
-    def quantise(lengths: np.ndarray) -> np.ndarray:
-        q = nz.encoder_m
-        return np.round(lengths / q) * q if q > 0 else lengths
-
-    def row(t: float, p_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray, state,
-            label: str) -> None:
-        if sink is not None:
-            sink(t, p_des, l_cmd, l_meas, state, plant.measured_tensions(state.tensions), label)
-            return
-        rows["t"].append(t)
-        for a, ax in enumerate(POSE_AXES):
-            rows[f"{ax}_des"].append(p_des[a])
-        for j, c in enumerate(model.cable_ids):
-            rows[f"l_cmd_{c}"].append(l_cmd[j])
-            rows[f"l_meas_{c}"].append(l_meas[j])
-        if spec.tracker:  # noise drawn in this order: pose, tensions, exit points
-            seen = state.pose if view.exact else view.read(t, state.pose)
-            meas_pose = seen + np.concatenate([rng.normal(0, nz.tracker_m, 3),
-                                                     rng.normal(0, nz.tracker_rad, 3)])
-            for a, ax in enumerate(POSE_AXES):
-                rows[f"{ax}_meas"].append(meas_pose[a])
-        if spec.load_cells:
-            tau = plant.measured_tensions(state.tensions) + rng.normal(0, nz.load_cell_n, n)
-            for j, c in enumerate(model.cable_ids):
-                rows[f"tau_{c}"].append(tau[j])
-        if spec.tracker:
-            for k_ in exit_idx:
-                a_seen = state.exits[k_] if view.exact else view.points(state.exits[k_])
-                a_meas = a_seen + rng.normal(0, nz.exit_m, 3)
-                for c_, ax in enumerate("xyz"):
-                    rows[f"a{ax}_meas_{model.cable_ids[k_]}"].append(a_meas[c_])
-        states.append(label)
-
-    def dwell(t0: float, duration: float, p_des: np.ndarray, l_cmd: np.ndarray,
-              state, label: str) -> float:
-        count = max(1, int(round(duration * rate)))
-        l_meas = quantise(l_cmd)
-        for k in range(count):
-            row(t0 + k * dt, p_des, l_cmd, l_meas, state, label)
-        return t0 + count * dt
-
+    rows = _Rows(sc, plant, rng, sink)
     # initialisation: the platform stands at p0, the encoders read the model's lengths
     p0 = sc.init_pose
     l_ref = ctl.step(p0, None).lengths
-    state = plant.settle(quantise(l_ref), t=0.0, guess=p0)
-    t = dwell(0.0, ps.init_s, p0, l_ref, state, "init")
+    state = plant.settle(rows.quantise(l_ref), t=0.0, guess=p0)
+    t = rows.dwell(0.0, ps.init_s, p0, l_ref, state, "init")
     total = ps.visits * len(targets)
     done = 0
     prev = p0
-    measured = tau0_meas
-    noise_prev = np.zeros(n)
+    noise_prev = np.zeros(model.n_cables)
     continuous = spec.kind == "continuous"
     for _ in range(ps.visits):
-        order = rng.permutation(len(targets))
-        for i in order:
+        for i in rng.permutation(len(targets)):
             p_des = targets[i]
             noise_next = plant.visit_noise()
-            travel = dt if continuous else _travel_s(prev, p_des, ps.speed_m_s)
+            travel = rows.dt if continuous else _travel_s(prev, p_des, ps.speed_m_s)
             if first_row is not None and done == 0:
                 first_row(t + travel, plant)
             if continuous:
-                t, state, measured = _move(ctl, plant, prev, p_des, t, dt, ps.speed_m_s,
-                                           measured, noise_prev, noise_next, quantise, row,
-                                           model.compliant)
+                t, state, measured = _move(ctl, plant, prev, p_des, t, rows.dt, ps.speed_m_s,
+                                           measured, noise_prev, noise_next, rows.quantise,
+                                           rows.row, model.compliant)
                 cyc = ctl.step(p_des, measured if model.compliant else None)
             else:
                 cyc = ctl.step(p_des, measured if model.compliant else None)
@@ -175,11 +116,11 @@ def run_campaign(sc: Scenario, out: str | Path | None,
                     raise ValueError(f"campaign pose {np.round(p_des, 3).tolist()} is not "
                                      f"feasible for the model: {cyc.reason}")
                 t += travel
-                state = plant.settle(quantise(cyc.lengths), t=t, visit_noise=noise_next,
+                state = plant.settle(rows.quantise(cyc.lengths), t=t, visit_noise=noise_next,
                                      guess=p_des)
                 measured = plant.measured_tensions(state.tensions)
             if not continuous or spec.dwell_at_targets:
-                t = dwell(t, ps.dwell_s, p_des, cyc.lengths, state, "dwell")
+                t = rows.dwell(t, ps.dwell_s, p_des, cyc.lengths, state, "dwell")
             noise_prev = noise_next
             prev = p_des
             done += 1
@@ -187,14 +128,96 @@ def run_campaign(sc: Scenario, out: str | Path | None,
                 progress(done, total)
     if sink is not None or out is None:
         return None
-    arrays = {c: np.array(v) for c, v in rows.items()}
-    what = "continuous recording" if continuous else "simulated campaign"
-    meta = {"notes": f"{what} ({total} visits of {len(targets)} poses)",
-            "pose_source": "simulated laser tracker" if spec.tracker else "none",
-            "tension_source": "simulated load cells" if spec.load_cells else "none"}
-    return write_recording(out, model, sc.init_pose, arrays, meta,
-                           states=states if spec.state_column else None,
-                           robot_header=f"model the controller ran with ({model.name})")
+    return rows.write(out, total, len(targets))
+
+
+class _Rows:
+    """A campaign's rows as the recording's columns: the commanded pose and lengths, the
+    encoders (quantised), and the noisy load cells and tracker the scenario's recording
+    holds (the tracker's own frame and latency errors applied); or, with ``sink``, each
+    row's truth handed over without noise."""
+
+    def __init__(self, sc: Scenario, plant: Plant, rng: np.random.Generator,
+                 sink: Callable[..., None] | None) -> None:
+        model, spec = sc.model, sc.recording
+        self.sc, self.plant, self.rng, self.sink = sc, plant, rng, sink
+        self.exit_idx = [model.cable_ids.index(c) for c in sc.poses.exit_points] \
+            if spec.tracker else []
+        cols = ["t"] + [f"{a}_des" for a in POSE_AXES] \
+            + [f"l_cmd_{c}" for c in model.cable_ids] + [f"l_meas_{c}" for c in model.cable_ids]
+        if spec.load_cells:
+            cols += [f"tau_{c}" for c in model.cable_ids]
+        if spec.tracker:
+            cols += [f"{a}_meas" for a in POSE_AXES] \
+                + [f"a{ax}_meas_{model.cable_ids[k]}" for k in self.exit_idx for ax in "xyz"]
+        self.rows: dict[str, list[float]] = {c: [] for c in cols}
+        self.states: list[str] = []
+        self.rate = spec.rate_hz or sc.poses.rate_hz
+        self.dt = 1.0 / self.rate if self.rate > 0 else 1.0  # [s]
+        self.view = TrackerView(sc.truth)  # the tracker's own errors (frame, latency), if any
+
+    def quantise(self, lengths: np.ndarray) -> np.ndarray:
+        """``lengths`` [m] as the encoders read them (to their resolution)."""
+        q = self.sc.noise.encoder_m
+        return np.round(lengths / q) * q if q > 0 else lengths
+
+    def row(self, t: float, p_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray, state,
+            label: str) -> None:
+        """One row at ``t`` [s] of the plant's ``state`` (noise drawn in this order: pose,
+        tensions, exit points)."""
+        if self.sink is not None:
+            self.sink(t, p_des, l_cmd, l_meas, state,
+                      self.plant.measured_tensions(state.tensions), label)
+            return
+        rows, spec, nz, rng, view = self.rows, self.sc.recording, self.sc.noise, self.rng, \
+            self.view
+        cable_ids = self.sc.model.cable_ids
+        rows["t"].append(t)
+        for a, ax in enumerate(POSE_AXES):
+            rows[f"{ax}_des"].append(p_des[a])
+        for j, c in enumerate(cable_ids):
+            rows[f"l_cmd_{c}"].append(l_cmd[j])
+            rows[f"l_meas_{c}"].append(l_meas[j])
+        if spec.tracker:
+            seen = state.pose if view.exact else view.read(t, state.pose)
+            meas_pose = seen + np.concatenate([rng.normal(0, nz.tracker_m, 3),
+                                               rng.normal(0, nz.tracker_rad, 3)])
+            for a, ax in enumerate(POSE_AXES):
+                rows[f"{ax}_meas"].append(meas_pose[a])
+        if spec.load_cells:
+            tau = self.plant.measured_tensions(state.tensions) \
+                + rng.normal(0, nz.load_cell_n, len(cable_ids))
+            for j, c in enumerate(cable_ids):
+                rows[f"tau_{c}"].append(tau[j])
+        if spec.tracker:
+            for k_ in self.exit_idx:
+                a_seen = state.exits[k_] if view.exact else view.points(state.exits[k_])
+                a_meas = a_seen + rng.normal(0, nz.exit_m, 3)
+                for c_, ax in enumerate("xyz"):
+                    rows[f"a{ax}_meas_{cable_ids[k_]}"].append(a_meas[c_])
+        self.states.append(label)
+
+    def dwell(self, t0: float, duration: float, p_des: np.ndarray, l_cmd: np.ndarray,
+              state, label: str) -> float:
+        """Rows at the recording's rate for ``duration`` [s] from ``t0`` standing in
+        ``state``; the time after them."""
+        count = max(1, int(round(duration * self.rate)))
+        l_meas = self.quantise(l_cmd)
+        for k in range(count):
+            self.row(t0 + k * self.dt, p_des, l_cmd, l_meas, state, label)
+        return t0 + count * self.dt
+
+    def write(self, out: str | Path, total: int, n_targets: int) -> Path:
+        """The recording directory ``out`` of the rows."""
+        sc, spec = self.sc, self.sc.recording
+        arrays = {c: np.array(v) for c, v in self.rows.items()}
+        what = "continuous recording" if spec.kind == "continuous" else "simulated campaign"
+        meta = {"notes": f"{what} ({total} visits of {n_targets} poses)",
+                "pose_source": "simulated laser tracker" if spec.tracker else "none",
+                "tension_source": "simulated load cells" if spec.load_cells else "none"}
+        return write_recording(out, sc.model, sc.init_pose, arrays, meta,
+                               states=self.states if spec.state_column else None,
+                               robot_header=f"model the controller ran with ({sc.model.name})")
 
 
 def _travel_s(start: np.ndarray, end: np.ndarray, speed: float) -> float:
