@@ -448,51 +448,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, created: list[Path]) -> int:
-    from bench import evaluate
-    from bench.parallel import (
-        SchedulerError,
-        interrupt_on_term,
-        interruption,
-        run_each,
-        single_blas_thread,
-    )
-    from bench.progress import Progress
+    from bench.parallel import SchedulerError, single_blas_thread
 
     single_blas_thread()
     if args.compare is not None:
         return _compare(args)
-    if args.cases < 1:
-        return _fail(args, 2, f"--cases {args.cases}: must be >= 1")
-    if args.jobs < 1:
-        return _fail(args, 2, f"--jobs {args.jobs}: must be >= 1")
-    if not args.connect_timeout > 0:
-        return _fail(args, 2, f"--connect-timeout {args.connect_timeout}: must be > 0")
-    if args.retry_errors and not args.out:
-        return _fail(args, 2, "--retry-errors needs --out FILE")
-    if args.reuse_kept and args.keep is None:
-        return _fail(args, 2, "--reuse-kept needs --keep DIR")
     try:
-        config = case_config(args)
-        from controller.robot import RobotFileError, resolve_robot
-
-        try:
-            if args.robot not in ("mix", "mix_new"):
-                resolve_robot(args.robot)
-        except RobotFileError as e:
-            raise UsageError(f"--robot: {e}") from e
-        out_path = Path(args.out) if args.out else None
-        header, previous = read_results(out_path) if out_path else (None, {})
-        if args.keep is not None:
-            from bench.outputs import make_dirs
-
-            try:
-                make_dirs(args.keep, created)
-            except OSError as e:
-                raise UsageError(f"--keep {args.keep}: cannot make the folder: {e}") from e
-        out = _open_out(out_path, config, header, created) if out_path else None
+        config, out_path, previous, out = _setup(args, created)
     except UsageError as e:
         return _fail(args, 2, str(e))
-
     seeds = range(args.seed, args.seed + args.cases)
     results = {s: previous[s] for s in seeds if s in previous
                and not (args.retry_errors and "error" in previous[s])}
@@ -500,9 +464,66 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
     if results and not args.quiet:
         print(f"cdpr evaluate: {len(results)} of {len(seeds)} seeds already in {out_path}, "
               f"{len(todo)} to run", file=sys.stderr)
+    interrupted: KeyboardInterrupt | None = None
+    try:
+        _run_cases(args, config, todo, results, out)
+    except SchedulerError as e:
+        return _fail(args, 2, str(e))
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: the cases finished so far, then out
+        interrupted = e
+    finally:
+        if out is not None:
+            out.close()
+    return _report(args, config, seeds, results, interrupted)
 
-    # progress on stderr: a line at start, one per case started and finished, and the
-    # progress line (cases done, those running) every 15 s (every second on a terminal)
+
+def _setup(args: argparse.Namespace, created: list[Path]
+           ) -> tuple[dict[str, Any], Path | None, dict[int, dict], TextIO | None]:
+    """The options checked (:class:`UsageError`), the cases' configuration, the ``--out``
+    file with the records it holds already (opened to append), the ``--keep`` folder made."""
+    if args.cases < 1:
+        raise UsageError(f"--cases {args.cases}: must be >= 1")
+    if args.jobs < 1:
+        raise UsageError(f"--jobs {args.jobs}: must be >= 1")
+    if not args.connect_timeout > 0:
+        raise UsageError(f"--connect-timeout {args.connect_timeout}: must be > 0")
+    if args.retry_errors and not args.out:
+        raise UsageError("--retry-errors needs --out FILE")
+    if args.reuse_kept and args.keep is None:
+        raise UsageError("--reuse-kept needs --keep DIR")
+    config = case_config(args)
+    from controller.robot import RobotFileError, resolve_robot
+
+    try:
+        if args.robot not in ("mix", "mix_new"):
+            resolve_robot(args.robot)
+    except RobotFileError as e:
+        raise UsageError(f"--robot: {e}") from e
+    out_path = Path(args.out) if args.out else None
+    header, previous = read_results(out_path) if out_path else (None, {})
+    if args.keep is not None:
+        from bench.outputs import make_dirs
+
+        try:
+            make_dirs(args.keep, created)
+        except OSError as e:
+            raise UsageError(f"--keep {args.keep}: cannot make the folder: {e}") from e
+    out = _open_out(out_path, config, header, created) if out_path else None
+    return config, out_path, previous, out
+
+
+def _run_cases(args: argparse.Namespace, config: dict[str, Any], todo: list[int],
+               results: dict[int, dict], out: TextIO | None) -> None:
+    """Run the seeds ``todo`` (in this process, local workers or a Dask cluster), each
+    record into ``results`` and appended to ``out`` as it comes, with progress on stderr:
+    a line at start, one per case started and finished, and the progress line (cases done,
+    those running) every 15 s (every second on a terminal)."""
+    from bench import evaluate
+    from bench.parallel import interrupt_on_term, run_each
+    from bench.progress import Progress
+
+    if not todo:
+        return
     prog = Progress("evaluate", len(todo), args.quiet, unit="cases")
     started = [0]
 
@@ -512,52 +533,49 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
         prog.say(f"[{prog.elapsed_s():6.1f} s] seed {seed} started "
                  f"({started[0]}/{len(todo)})")
 
-    def say(o, done: int) -> None:
-        prog.running.pop(f"seed {o.item}", None)
-        prog.done = done
-        scored = [r for r in results.values() if "error" not in r]
-        exact = sum(bool(r["exact"]) for r in scored)
-        rate = f"{exact}/{len(scored)} = {_pct(exact / len(scored))}" if scored else "n/a"
-        eta = o.elapsed_s / done * (len(todo) - done)
-        what = (f"error {o.error}" if not o.ok else
-                ("exact" if o.value["exact"] else
-                 f"named {','.join(o.value['named']) or 'none'} "
-                 f"(concealed {','.join(o.value['truth']) or 'none'})"))
-        prog.say(f"[{o.elapsed_s:6.1f} s] case {done}/{len(todo)} seed {o.item}: {what}; "
-                 f"exact detection {rate}; ETA {math.ceil(eta)} s")
-
-    if todo:
-        where = (f"on the Dask cluster at {args.scheduler}" if args.scheduler else
-                 "in this process (--jobs 1)" if args.jobs == 1 else
-                 f"on {min(args.jobs, len(todo))} local worker processes (--jobs {args.jobs})")
-        prog.say(f"cdpr evaluate: {len(todo)} cases (seeds {todo[0]}..{todo[-1]}, --seed "
-                 f"{args.seed}) {where}")
-
-    interrupted: KeyboardInterrupt | None = None
+    where = (f"on the Dask cluster at {args.scheduler}" if args.scheduler else
+             "in this process (--jobs 1)" if args.jobs == 1 else
+             f"on {min(args.jobs, len(todo))} local worker processes (--jobs {args.jobs})")
+    prog.say(f"cdpr evaluate: {len(todo)} cases (seeds {todo[0]}..{todo[-1]}, --seed "
+             f"{args.seed}) {where}")
     stamp = run_stamp()
-    try:
-        if todo:
-            outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs,
-                                scheduler=args.scheduler,
-                                connect_timeout_s=args.connect_timeout, keep=args.keep,
-                                reuse=args.reuse_kept,
-                                on_start=on_start, **case_kwargs(config))
-            with interrupt_on_term(), closing(outcomes), prog:
-                for done, o in enumerate(outcomes, 1):
-                    rec = (o.value if o.ok else
-                           {"seed": o.item, "error": o.error, "trace": o.trace})
-                    rec = json.loads(_dumps(rec | {"run": stamp}))  # as read back from --out
-                    results[o.item] = rec
-                    if out is not None:
-                        _append(out, rec)
-                    say(o, done)
-    except SchedulerError as e:
-        return _fail(args, 2, str(e))
-    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM: the cases finished so far, then out
-        interrupted = e
-    finally:
-        if out is not None:
-            out.close()
+    outcomes = run_each(evaluate.run_case, todo, jobs=args.jobs, scheduler=args.scheduler,
+                        connect_timeout_s=args.connect_timeout, keep=args.keep,
+                        reuse=args.reuse_kept, on_start=on_start, **case_kwargs(config))
+    with interrupt_on_term(), closing(outcomes), prog:
+        for done, o in enumerate(outcomes, 1):
+            rec = (o.value if o.ok else {"seed": o.item, "error": o.error, "trace": o.trace})
+            rec = json.loads(_dumps(rec | {"run": stamp}))  # as read back from --out
+            results[o.item] = rec
+            if out is not None:
+                _append(out, rec)
+            prog.running.pop(f"seed {o.item}", None)
+            prog.done = done
+            prog.say(_case_line(o, done, len(todo), results))
+
+
+def _case_line(o, done: int, n_todo: int, results: dict[int, dict]) -> str:
+    """The progress line of the case just finished: what it named, the exact detection
+    rate so far and the time left."""
+    scored = [r for r in results.values() if "error" not in r]
+    exact = sum(bool(r["exact"]) for r in scored)
+    rate = f"{exact}/{len(scored)} = {_pct(exact / len(scored))}" if scored else "n/a"
+    eta = o.elapsed_s / done * (n_todo - done)
+    what = (f"error {o.error}" if not o.ok else
+            ("exact" if o.value["exact"] else
+             f"named {','.join(o.value['named']) or 'none'} "
+             f"(concealed {','.join(o.value['truth']) or 'none'})"))
+    return (f"[{o.elapsed_s:6.1f} s] case {done}/{n_todo} seed {o.item}: {what}; "
+            f"exact detection {rate}; ETA {math.ceil(eta)} s")
+
+
+def _report(args: argparse.Namespace, config: dict[str, Any], seeds: range,
+            results: dict[int, dict], interrupted: KeyboardInterrupt | None) -> int:
+    """The summary of the cases run (``--json``: the whole report); after an interruption
+    the cases finished so far, then the interruption raised again (bench.cli reports it on
+    stderr and exits with its status). Exit status 1 when a case failed."""
+    from bench import evaluate
+    from bench.parallel import interruption
 
     cases = [results[s] for s in seeds if s in results and "error" not in results[s]]
     errors = [{"seed": s, "error": results[s]["error"], "trace": results[s].get("trace")}
@@ -566,8 +584,6 @@ def _run(args: argparse.Namespace, created: list[Path]) -> int:
     report = {"summary": summary, "cases": cases, "errors": errors, "config": config,
               "seeds": [seeds.start, seeds.stop - 1]}
     if interrupted is not None:
-        # the cases finished so far; bench.cli reports the interruption on stderr and
-        # exits with its status
         msg = interruption(interrupted)[1]
         summary["not_run"] = len(seeds) - len(results)
         if args.json:
