@@ -452,79 +452,27 @@ def check_trajectory(robot: Robot, traj: Trajectory, winches: WinchSet | None = 
     """
     times = check_times(traj, step_m, step_s, step_rad)
     smp = traj.sample(times)
-    poses, segidx = smp.pose, smp.segment
+    poses = smp.pose
     n_pts = len(times)
-    BIG = n_pts  # "no failure"
-    # frame (vectorised over all poses)
-    box = frame_box(robot)
-    st = cable_state(poses, robot.anchors, robot.exits, robot.pulley_radius)
-    out_lo = st.B < box[0] - 1e-9
-    out_hi = st.B > box[1] + 1e-9
-    bad_frame = (out_lo | out_hi).any(axis=(1, 2))
-    first_frame = int(np.argmax(bad_frame)) if bad_frame.any() else BIG
+    first_frame, frame_why = _first_outside_frame(robot, poses)
     # tensions, in time order up to the first failure; identical poses solved once
-    uniq, inv = np.unique(poses[:first_frame], axis=0, return_inverse=True)
-    inv = np.asarray(inv).ravel()
-    first_use = np.full(len(uniq), BIG)
-    np.minimum.at(first_use, inv, np.arange(len(inv)))
-    n_cab = robot.n_cables
-    tau_u = np.full((len(uniq), n_cab), np.nan)
-    l0_u = np.full((len(uniq), n_cab), np.nan)
-    first_tension, tension_reason = BIG, ""
-    order = np.argsort(first_use, kind="stable")
-    for done, u in enumerate(order):
-        if first_use[u] >= first_tension:
-            break
-        ps = pose_statics(robot, uniq[u], method=method, tol=tol)
-        if not ps.feasible:
-            first_tension, tension_reason = int(first_use[u]), ps.reason
-            break
-        tau_u[u] = ps.tensions
-        l0_u[u] = ps.unstretched
-        if progress is not None and done % 500 == 0:
-            progress(done, len(uniq))
-    if progress is not None:
-        progress(len(uniq), len(uniq))
+    first_tension, tension_reason, tau, l0 = _first_without_tensions(
+        robot, poses[:first_frame], method, tol, progress)
     n_ok = min(first_frame, first_tension)
-    tau = tau_u[inv[:n_ok]]
-    # winch range of the length setpoints
-    first_len, len_reason, margin = BIG, "", math.nan
+    tau, l0 = tau[:n_ok], l0[:n_ok]
+    first_len, len_reason, margin = n_pts, "", math.nan
     if winches is not None and n_ok > 0:
-        if tuple(winches.cables) != tuple(robot.cable_ids):
-            raise ValueError(f"winches {winches.source} are for cables {winches.cables}, the "
-                             f"robot {robot.name} has {robot.cable_ids}")
-        p0 = traj.start_pose
-        ps0 = pose_statics(robot, p0, method=method, tol=tol)
-        if ps0.feasible:
-            offset = cable_lengths(p0, robot.anchors, robot.exits, robot.pulley_radius) \
-                - ps0.unstretched
-            lengths = l0_u[inv[:n_ok]] + offset
-            lo, hi = winches.min_length_m, winches.max_length_m
-            margin = float(np.min(np.minimum(lengths - lo, hi - lengths)))
-            bad = (lengths < lo) | (lengths > hi)
-            if bad.any():
-                i = int(np.argmax(bad.any(axis=1)))
-                c = int(np.argmax(bad[i]))
-                first_len = i
-                len_reason = (f"cable {robot.cable_ids[c]} (CAN node {int(winches.node_id[c])})"
-                              f": length setpoint {lengths[i, c]:.3f} m outside the winch "
-                              f"range [{lo[c]:g}, {hi[c]:g}] m ({winches.source})")
+        first_len, len_reason, margin = _first_outside_winch_range(
+            robot, traj.start_pose, l0, winches, method, tol)
+        first_len = n_pts if first_len is None else first_len
     first = min(first_frame, first_tension, first_len)
     tmin = float(np.nanmin(tau)) if n_ok and np.isfinite(tau).any() else math.nan
     tmax = float(np.nanmax(tau)) if n_ok and np.isfinite(tau).any() else math.nan
-    if first == BIG:
+    if first >= n_pts:
         return PathCheck(True, None, None, "", n_pts, -1, tmin, tmax, margin, times)
-    if first == first_frame:
-        B = st.B[first]
-        c = int(np.argmax((out_lo[first] | out_hi[first]).any(axis=1)))
-        why = (f"anchor B_{robot.cable_ids[c]} at {np.round(B[c], 3).tolist()} m is outside "
-               f"the robot's frame (x {box[0, 0]:g}..{box[1, 0]:g}, y {box[0, 1]:g}.."
-               f"{box[1, 1]:g}, z {box[0, 2]:g}..{box[1, 2]:g} m)")
-    elif first == first_tension:
-        why = f"no feasible tensions: {tension_reason}"
-    else:
-        why = len_reason
-    k = int(segidx[first])
+    why = (frame_why if first == first_frame else
+           f"no feasible tensions: {tension_reason}" if first == first_tension else len_reason)
+    k = int(smp.segment[first])
     seg = traj.segments[k]
     t = float(times[first])
     pose = poses[first].copy()
@@ -533,6 +481,79 @@ def check_trajectory(robot: Robot, traj: Trajectory, winches: WinchSet | None = 
               f"{np.round(pose[:3], 3).tolist()} m, rpy "
               f"{np.round(np.degrees(pose[3:]), 2).tolist()} deg: {why}")
     return PathCheck(False, t, pose, reason, first + 1, k, tmin, tmax, margin, times)
+
+
+def _first_outside_frame(robot: Robot, poses: np.ndarray) -> tuple[int, str]:
+    """The index of the first of ``poses`` (n, 6) with a platform anchor B_ij outside
+    :func:`frame_box` (vectorised) and why; ``len(poses)`` and "" when none is."""
+    box = frame_box(robot)
+    st = cable_state(poses, robot.anchors, robot.exits, robot.pulley_radius)
+    outside = (st.B < box[0] - 1e-9) | (st.B > box[1] + 1e-9)
+    bad = outside.any(axis=(1, 2))
+    if not bad.any():
+        return len(poses), ""
+    i = int(np.argmax(bad))
+    c = int(np.argmax(outside[i].any(axis=1)))
+    return i, (f"anchor B_{robot.cable_ids[c]} at {np.round(st.B[i, c], 3).tolist()} m is "
+               f"outside the robot's frame (x {box[0, 0]:g}..{box[1, 0]:g}, y {box[0, 1]:g}.."
+               f"{box[1, 1]:g}, z {box[0, 2]:g}..{box[1, 2]:g} m)")
+
+
+def _first_without_tensions(robot: Robot, poses: np.ndarray, method: str, tol: float,
+                            progress: Callable[[int, int], None] | None
+                            ) -> tuple[int, str, np.ndarray, np.ndarray]:
+    """The controller's statics at ``poses`` (n, 6) in time order up to the first without
+    feasible tensions (identical poses solved once): its index (``n`` when none) and
+    reason, the tensions [N] and unstretched lengths [m] (n, m) (nan from it on)."""
+    n_pts = len(poses)
+    uniq, inv = np.unique(poses, axis=0, return_inverse=True)
+    inv = np.asarray(inv).ravel()
+    first_use = np.full(len(uniq), n_pts)
+    np.minimum.at(first_use, inv, np.arange(len(inv)))
+    tau_u = np.full((len(uniq), robot.n_cables), np.nan)
+    l0_u = np.full((len(uniq), robot.n_cables), np.nan)
+    first, reason = n_pts, ""
+    for done, u in enumerate(np.argsort(first_use, kind="stable")):
+        if first_use[u] >= first:
+            break
+        ps = pose_statics(robot, uniq[u], method=method, tol=tol)
+        if not ps.feasible:
+            first, reason = int(first_use[u]), ps.reason
+            break
+        tau_u[u] = ps.tensions
+        l0_u[u] = ps.unstretched
+        if progress is not None and done % 500 == 0:
+            progress(done, len(uniq))
+    if progress is not None:
+        progress(len(uniq), len(uniq))
+    return first, reason, tau_u[inv], l0_u[inv]
+
+
+def _first_outside_winch_range(robot: Robot, p0: np.ndarray, l0: np.ndarray,
+                               winches: WinchSet, method: str, tol: float
+                               ) -> tuple[int | None, str, float]:
+    """The first of the unstretched lengths ``l0`` (n, m) [m] whose length setpoint
+    ``L0(p) - L0(p0) + d_model(p0)`` leaves a winch's range (None when none does) and why,
+    and the smallest margin to the range [m] (nan when p0's statics fail)."""
+    if tuple(winches.cables) != tuple(robot.cable_ids):
+        raise ValueError(f"winches {winches.source} are for cables {winches.cables}, the "
+                         f"robot {robot.name} has {robot.cable_ids}")
+    ps0 = pose_statics(robot, p0, method=method, tol=tol)
+    if not ps0.feasible:
+        return None, "", math.nan
+    offset = cable_lengths(p0, robot.anchors, robot.exits, robot.pulley_radius) \
+        - ps0.unstretched
+    lengths = l0 + offset
+    lo, hi = winches.min_length_m, winches.max_length_m
+    margin = float(np.min(np.minimum(lengths - lo, hi - lengths)))
+    bad = (lengths < lo) | (lengths > hi)
+    if not bad.any():
+        return None, "", margin
+    i = int(np.argmax(bad.any(axis=1)))
+    c = int(np.argmax(bad[i]))
+    return i, (f"cable {robot.cable_ids[c]} (CAN node {int(winches.node_id[c])}): length "
+               f"setpoint {lengths[i, c]:.3f} m outside the winch range [{lo[c]:g}, {hi[c]:g}] "
+               f"m ({winches.source})"), margin
 
 
 __all__ = [
