@@ -542,18 +542,60 @@ def _turns(rec: Recording, rows: np.ndarray, seg: np.ndarray) -> np.ndarray:
 
 def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
     """The static samples of a recording (see the module docstring)."""
-    N = rec.n_samples
-    keys = _keys(rec)
-    states = rec.state
-    runs = _runs(keys, states)
-    init = np.zeros(N, dtype=bool)
+    init = np.zeros(rec.n_samples, dtype=bool)
     init[rec.init_rows] = True
+    dwell_runs, path, dropped_states, unknown = _split_runs(rec, init)
+    alone = _isolated(rec, path)
+    dwell_runs += [np.array([i]) for i in path[alone]]
+    path = path[~alone]
+    qs = _quasi_static(rec, path)
+    seg_all = _segments(rec, path)
+    turns = _turns(rec, path, seg_all)
+    # a sensor read slower than the rows holds its last value: while the platform moves,
+    # only rows where the tracker (and the load cells) report a fresh value are measurements
+    fresh = _fresh(rec, path)
+    moving = path[fresh]
+    moves_of = seg_all[fresh]  # (the moves of the fresh rows: their pose rates)
+    path, seg_all = path[qs & fresh], seg_all[qs & fresh]
+    # budget: dwell samples first (whole targets), path rows spread evenly in time
+    dw = _dwell_samples(rec, dwell_runs, init)
+    n_dwell = len(dwell_runs)
+    keep_dwell = np.arange(n_dwell)
+    if n_dwell > max_samples - min(100, len(path)):
+        keep_dwell = _thin_targets(dw["target"], dw["is_init"],
+                                   max(max_samples - min(100, len(path)), 1))
+    path, seg_all = _thin_path(path, seg_all, max(max_samples - len(keep_dwell), 0))
+    dwell_runs = [dwell_runs[k] for k in keep_dwell]
+    dw = {k: v[keep_dwell] for k, v in dw.items()}
+    s, order = _assemble(rec, dw, dwell_runs, path, seg_all, init)
+    s.pose_rate = np.concatenate([np.zeros((len(dwell_runs), 6)),
+                                  pose_rates(rec, path, moving, moves_of)])[order]
+    s.triples = _triples(rec, dwell_runs, moving)
+    s.cluster = _clusters(s)
+    s.stream = _stream(rec)
+    s.turns = turns
+    s.info = {"rows": rec.n_samples, "dwell_samples": len(dwell_runs),
+              "path_samples": len(path), "dwells_available": n_dwell,
+              "path_rows_accelerating": int((~qs).sum()),
+              "path_rows_stale": int((~fresh).sum()), "rows_in_other_states": dropped_states,
+              "states_unknown": dict(sorted(unknown.items()))}
+    return s
+
+
+def _split_runs(rec: Recording, init: np.ndarray
+                ) -> tuple[list[np.ndarray], np.ndarray, int, dict[str, int]]:
+    """The recording's runs of rows (same commanded pose and state) split into dwells (the
+    settled rows of each: a still state, a supervisor reaction where the platform stands,
+    or rows that stand still where the state does not say) and rows of moves; the rows
+    dropped (reactions while moving) and the state words the format does not define with
+    their rows."""
+    states = rec.state
+    moving = _moving(rec)
     dwell_runs: list[np.ndarray] = []
     path_rows: list[int] = []
-    dropped_states = 0
-    moving = _moving(rec)
+    dropped = 0
     unknown: dict[str, int] = {}  # a lab's own state words and their rows
-    for a, b in runs:
+    for a, b in _runs(_keys(rec), states):
         st = states[a] if states is not None else None
         if st is not None and st.strip() and not known_state(st):
             unknown[st] = unknown.get(st, 0) + b - a
@@ -565,39 +607,21 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
             if b - a >= 2 and _standing(rec, a, b):
                 dwell_runs.append(_settled(rec, a, b))
             else:
-                dropped_states += b - a
+                dropped += b - a
             continue
         still = (st in STILL_STATES) if st is not None else (b - a >= 2 and _standing(rec, a, b))
         if still or (st is None and init[a] and not moving[a]):
             dwell_runs.append(_settled(rec, a, b))
         else:
             path_rows.extend(range(a, b))
-    path = np.array(path_rows, dtype=int)
-    alone = _isolated(rec, path)
-    for i in path[alone]:
-        dwell_runs.append(np.array([i]))
-    path = path[~alone]
-    qs = _quasi_static(rec, path)
-    n_accel = int((~qs).sum())
-    seg_all = _segments(rec, path)
-    turns = _turns(rec, path, seg_all)
-    # a sensor read slower than the rows holds its last value: while the platform moves,
-    # only rows where the tracker (and the load cells) report a fresh value are measurements
-    fresh = _fresh(rec, path)
-    n_stale = int((~fresh).sum())
-    moving = path[fresh]
-    moves_of = seg_all[fresh]  # (the moves of the fresh rows: their pose rates)
-    path, seg_all = path[qs & fresh], seg_all[qs & fresh]
+    return dwell_runs, np.array(path_rows, dtype=int), dropped, unknown
 
-    # budget: dwell samples first (whole targets), path rows spread evenly in time
-    dw = _dwell_samples(rec, dwell_runs, init)
-    n_dwell = len(dwell_runs)
-    keep_dwell = np.arange(n_dwell)
-    if n_dwell > max_samples - min(100, len(path)):
-        keep_dwell = _thin_targets(dw["target"], dw["is_init"], max(max_samples - min(100,
-                                                                                 len(path)), 1))
-    room = max(max_samples - len(keep_dwell), 0)
-    if len(path):  # a few rows per move, evenly spread over it
+
+def _thin_path(path: np.ndarray, seg_all: np.ndarray, room: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """A few rows per move (:data:`PER_MOVE`, evenly spread over it), then at most ``room``
+    rows evenly spread in time; with their moves."""
+    if len(path):
         keep = np.zeros(len(path), dtype=bool)
         for g in np.unique(seg_all):
             idx = np.flatnonzero(seg_all == g)
@@ -609,28 +633,33 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
         pick = np.unique(np.round(np.linspace(0, len(path) - 1, room)).astype(int)) \
             if room else np.zeros(0, dtype=int)
         path, seg_all = path[pick], seg_all[pick]
-    dwell_runs = [dwell_runs[k] for k in keep_dwell]
-    dw = {k: v[keep_dwell] for k, v in dw.items()}
+    return path, seg_all
 
-    # assemble
-    def rows_of(field_: str) -> np.ndarray:
-        return getattr(rec, field_)[path]
+
+def _assemble(rec: Recording, dw: dict[str, np.ndarray], dwell_runs: list[np.ndarray],
+              path: np.ndarray, seg_all: np.ndarray, init: np.ndarray
+              ) -> tuple[Samples, np.ndarray]:
+    """The samples in time order: the dwells' (``dw``) then the rows of moves (``path``,
+    their moves ``seg_all``), their replicate groups (dwells by commanded pose, rows of
+    moves by proximity on different moves), blocks, directions and weights (the rows of a
+    move count as :data:`MOVE_INDEPENDENT` independent samples); and the sort into time
+    order of the dwells then the rows."""
+    n_dw = len(dwell_runs)
+
+    def both(key: str, field_: str) -> np.ndarray:
+        return np.concatenate([dw[key], getattr(rec, field_)[path]])
 
     t = np.concatenate([dw["t"], rec.t[path]])
-    pose_des = np.concatenate([dw["pose_des"], rows_of("pose_des")])
-    pose_meas = np.concatenate([dw["pose_meas"], rows_of("pose_meas")])
-    l_meas = np.concatenate([dw["l_meas"], rows_of("l_meas")])
-    tau = np.concatenate([dw["tau"], rows_of("tau")])
-    exit_meas = np.concatenate([dw["exit_meas"], rows_of("exit_meas")])
+    pose_des, pose_meas = both("pose_des", "pose_des"), both("pose_meas", "pose_meas")
+    l_meas, tau, exit_meas = both("l_meas", "l_meas"), both("tau", "tau"), \
+        both("exit_meas", "exit_meas")
     count = np.concatenate([dw["count"], np.ones(len(path), dtype=int)])
     is_init = np.concatenate([dw["is_init"], init[path]])
-    kind = np.concatenate([np.zeros(len(dwell_runs), dtype=int), np.ones(len(path), dtype=int)])
+    kind = np.concatenate([np.zeros(n_dw, dtype=int), np.ones(len(path), dtype=int)])
     first = np.array([r[0] for r in dwell_runs] + path.tolist(), dtype=int)
     direction = _directions(rec, first)
-    # replicate groups: dwells by commanded pose; path rows by proximity on different moves
-    tg_d = _targets(pose_des[: len(dwell_runs)], pose_meas[: len(dwell_runs)],
-                    l_meas[: len(dwell_runs)])
-    tg_p = _near_groups(pose_meas[len(dwell_runs):], pose_des[len(dwell_runs):], seg_all)
+    tg_d = _targets(pose_des[:n_dw], pose_meas[:n_dw], l_meas[:n_dw])
+    tg_p = _near_groups(pose_meas[n_dw:], pose_des[n_dw:], seg_all)
     base = int(tg_d.max()) + 1 if len(tg_d) else 0
     target = np.concatenate([tg_d, tg_p + base])
     block = np.concatenate([tg_d, seg_all + base + (int(tg_p.max()) + 1 if len(tg_p) else 0)])
@@ -639,23 +668,12 @@ def prepare(rec: Recording, max_samples: int = MAX_SAMPLES) -> Samples:
                 exit_meas[order], count[order], target[order], is_init[order],
                 _tau_row_sd(rec, dwell_runs, path, seg_all), kind[order], block[order],
                 direction[order], _lines(rec, first[order]))
-    # rows of one move: together they count as MOVE_INDEPENDENT independent samples
     w = np.ones(len(t))
     for g in np.unique(seg_all):
         m = int(np.sum(seg_all == g))
-        w[len(dwell_runs) + np.flatnonzero(seg_all == g)] = min(1.0, MOVE_INDEPENDENT / m)
+        w[n_dw + np.flatnonzero(seg_all == g)] = min(1.0, MOVE_INDEPENDENT / m)
     s.weight = w[order]
-    s.pose_rate = np.concatenate([np.zeros((len(dwell_runs), 6)),
-                                  pose_rates(rec, path, moving, moves_of)])[order]
-    s.triples = _triples(rec, dwell_runs, moving)
-    s.cluster = _clusters(s)
-    s.stream = _stream(rec)
-    s.turns = turns
-    s.info = {"rows": N, "dwell_samples": len(dwell_runs), "path_samples": len(path),
-              "dwells_available": n_dwell, "path_rows_accelerating": n_accel,
-              "path_rows_stale": n_stale, "rows_in_other_states": dropped_states,
-              "states_unknown": dict(sorted(unknown.items()))}
-    return s
+    return s, order
 
 
 def average_dwells(rec: Recording) -> Samples:
