@@ -1443,31 +1443,59 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
              label: str, growth: dict | None, steps: list[dict], sel: Selection,
              leftover: dict | None, noise: dict, untested: list[str],
              effects: list[dict] | None = None) -> str:
-    model = rec.robot
-    parts = []
+    """The report's one-paragraph summary: the verdict, where the residuals lie, the
+    steps in time, the effects' signatures and alternatives, what the data cannot tell."""
     what = "pose error" if label == "pose_rms_m" else "exit-point error"
     r = locate.rms(dist)
-    red = sel.baseline.reduced_chi2
-    names = [report_name(e) for e in sel.effects]
-    if leftover is not None:
-        parts.append("the effect vocabulary does not explain the data: "
-                     + leftover["summary"]
-                     + (f"; the effects named ({', '.join(names)}) take what they can and are "
-                        f"provisional" if names else ""))
-    elif not sel.effects and rm.model.init_internal is not None:
-        parts.append(f"with the tensions at initialisation fitted (below), the model explains "
-                     f"the data within the noise (reduced chi-square {red:.2f}; under the "
-                     f"tension distribution's" + (f": {what} {r * 1e3:.2f} mm RMS" if r else "")
-                     + ")")
-    elif not sel.effects:
-        parts.append(f"the model explains the data within the noise (reduced chi-square "
-                     f"{red:.2f}" + (f", {what} {r * 1e3:.2f} mm RMS" if r else "") + ")")
+    parts = _verdict(rm, sel, leftover, what, r)
     if sel.effects and r is not None:
         assumed = "" if rm.sigma_source == "replicate visits" else \
             ", assumed: no replicate visits to measure it"
         parts.append(f"{what} {r * 1e3:.1f} mm RMS against a noise level of "
                      f"{noise['length' if label == 'pose_rms_m' else 'exit'] * 1e3:.2f} mm"
-                     f"{assumed} (reduced chi-square {red:.3g})")
+                     f"{assumed} (reduced chi-square {sel.baseline.reduced_chi2:.3g})")
+    parts += _where(rec.robot, blocks, growth, steps, sel)
+    sig = _explained(sel)
+    if sel.effects and sig:
+        top = [f"{report_name(e)} ({v:.0%})" for e, v in list(sig.items())[:3] if v > 0.05]
+        if top:
+            parts.append("the residuals match the signatures of " + ", ".join(top)
+                         + " (share explained alone, linearised)")
+    if sel.effects:
+        parts.append("left out: " + ", ".join(report_name(e) for e in sel.effects))
+    parts += _alternatives_said(sel, effects or [])
+    for e, why in sel.rejected.items():
+        parts.append(f"{report_name(e)} improved the fit but {why}: not reported")
+    parts += _untold(rm, sel, untested)
+    return "; ".join(parts) + "."
+
+
+def _verdict(rm: ResidualModel, sel: Selection, leftover: dict | None, what: str,
+             r: float | None) -> list[str]:
+    """The summary's first words: what the vocabulary does not explain, or that the model
+    explains the data within the noise (with the tensions at initialisation fitted)."""
+    red = sel.baseline.reduced_chi2
+    names = [report_name(e) for e in sel.effects]
+    if leftover is not None:
+        return ["the effect vocabulary does not explain the data: " + leftover["summary"]
+                + (f"; the effects named ({', '.join(names)}) take what they can and are "
+                   f"provisional" if names else "")]
+    if not sel.effects and rm.model.init_internal is not None:
+        return [f"with the tensions at initialisation fitted (below), the model explains "
+                f"the data within the noise (reduced chi-square {red:.2f}; under the "
+                f"tension distribution's" + (f": {what} {r * 1e3:.2f} mm RMS" if r else "")
+                + ")"]
+    if not sel.effects:
+        return [f"the model explains the data within the noise (reduced chi-square "
+                f"{red:.2f}" + (f", {what} {r * 1e3:.2f} mm RMS" if r else "") + ")"]
+    return []
+
+
+def _where(model: Robot, blocks, growth: dict | None, steps: list[dict],
+           sel: Selection) -> list[str]:
+    """Where the residuals lie: growing away from the initialisation pose, largest on
+    some cables; and the steps in time of the length readings."""
+    parts = []
     if growth and sel.effects and growth["near_rms"] and growth["far_rms"]:
         if growth["far_rms"] > 1.5 * growth["near_rms"]:
             parts.append(f"it grows away from the initialisation pose: "
@@ -1489,14 +1517,13 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                      f"encoder jump: dl_{st['cable']} {st['step_m'] * 1e3:+.1f} mm from then on"
                      + (f"; or cable {', '.join(st['alike'])}'s, alike through the estimated "
                         "poses" if st.get("alike") else "") + ")")
-    sig = _explained(sel)
-    if sel.effects and sig:
-        top = [f"{report_name(e)} ({v:.0%})" for e, v in list(sig.items())[:3] if v > 0.05]
-        if top:
-            parts.append("the residuals match the signatures of " + ", ".join(top)
-                         + " (share explained alone, linearised)")
-    if sel.effects:
-        parts.append("left out: " + ", ".join(names))
+    return parts
+
+
+def _alternatives_said(sel: Selection, effects: list[dict]) -> list[str]:
+    """The alternatives of the named effects (the selection's, the gauge's and look-alikes
+    the report declared, a common cell gain) and the imitations above 80 %, each once."""
+    parts = []
     for e, alts in sel.alternatives.items():
         for a, d in alts:
             if report_name(a) == report_name(e):
@@ -1505,7 +1532,7 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                                "more poses spread over the workspace")
             parts.append(f"{report_name(a)} fits about as well as {report_name(e)} (delta BIC "
                          f"{d:+.1f}); {how} would separate them")
-    for entry in effects or []:
+    for entry in effects:
         for alt in entry.get("alternatives", []):
             if alt.get("gauge") == "tracker_frame":
                 parts.append(f"{alt['name']} is the other side of the tracker frame's gauge "
@@ -1531,8 +1558,13 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
             said.add((report_name(a), report_name(e)))
             parts.append(f"on these poses {report_name(a)} can imitate {imit[a]:.0%} of "
                          f"{report_name(e)}'s signature")
-    for e, why in sel.rejected.items():
-        parts.append(f"{report_name(e)} improved the fit but {why}: not reported")
+    return parts
+
+
+def _untold(rm: ResidualModel, sel: Selection, untested: list[str]) -> list[str]:
+    """What the data cannot tell: effects untested without a tracker or without tensions;
+    the tensions at initialisation fitted where no load cells read them."""
+    parts = []
     if not rm.has_pose.any() and rm.est_pose.any():
         tested = [report_name(e) for e in dict.fromkeys(candidate_effects(rm))]
         parts.append("without tracker poses the poses were estimated from the encoder lengths "
@@ -1549,4 +1581,4 @@ def _summary(rec: Recording, s: Samples, rm: ResidualModel, blocks, dist: np.nda
                      f"{float(np.sqrt(np.mean(d ** 2))):.0f} N RMS off the tension "
                      f"distribution's (another pretension; the encoders were referenced "
                      f"under it); load cells at initialisation would measure them")
-    return "; ".join(parts) + "."
+    return parts
