@@ -15,6 +15,7 @@ commissioning report (``commissioning-report.md`` in the current directory, or
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
 from bench.commands.argtypes import (
@@ -77,9 +78,13 @@ def _moving(p: argparse.ArgumentParser) -> None:
                         "drives) and refuse if one is active; 0 skips [0.5]")
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    from hal.cli_args import add_tracker_argument
+#: the load cells' calibration file, said by tare and calibrate
+_CAL_DOC = ("The calibration file is --loadcell-calibration (default "
+            "loadcell_calibration.toml here); the old one is kept as NAME.DATE.bak. "
+            "measured = gain * true + offset.")
 
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.description = HELP + ".\n\n" + ORDER
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = p.add_subparsers(dest="sub", metavar="SUBCOMMAND")
@@ -92,6 +97,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         q.set_defaults(sub=name)
         return q
 
+    for declare in (_scan_arguments, _check_arguments, _enable_arguments, _disable_arguments,
+                    _jog_arguments, _home_arguments, _reference_arguments, _tare_arguments,
+                    _calibrate_arguments, _monitor_arguments):
+        declare(add)
+
+
+def _scan_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission scan``'s options (``add`` makes its parser)."""
     q = add("scan", "the drives on the CAN bus and the load cells on Modbus, against the "
             "configuration",
             'print {"drives": [{"node_id", "vendor_id", "product_code", "revision", "serial", '
@@ -107,6 +120,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also probe these Modbus unit ids for devices outside the map "
                         "(e.g. 1-16)")
 
+
+def _check_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission check``'s options (``add`` makes its parser)."""
     q = add("check", "each drive's parameters by SDO against the HAL's configuration table",
             'print {"drives": [{"node_id", "cable", "differences": [{"index", "subindex", '
             '"name", "expected", "actual"}]}], "applied", "dcf", "ok"}',
@@ -121,18 +137,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--dcf", metavar="DIR", help="export each drive's configuration as a DCF")
     _moving(q)
 
+
+def _enable_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission enable``'s options (``add`` makes its parser)."""
     q = add("enable", "enable one winch and hold its position until Enter, q or Ctrl-C",
             'print {"winch", "node_id", "length_m", "moved_m", "ended_by", "state"}')
     q.add_argument("winch", help="cable id (21) or node:N")
     q.add_argument("--duration", type=float, metavar="S", help="disable after S seconds")
     _moving(q)
 
+
+def _disable_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission disable``'s options (``add`` makes its parser)."""
     q = add("disable", "disable one winch (NMT pre-operational, controlword 0 by SDO)",
             'print {"winch", "node_id", "before", "state", "statusword", "error_code"}')
     q.add_argument("winch", help="cable id (21) or node:N")
     q.add_argument("--fault-reset", action="store_true",
                    help="reset a fault first (rising edge of controlword bit 7)")
 
+
+def _jog_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission jog``'s options (``add`` makes its parser)."""
     q = add("jog", "jog one winch with a dead-man input, or the platform (--platform) through "
             "the model",
             'print {"winch", "node_id", "start_m", "end_m", "min_m", "max_m", "moves", '
@@ -174,6 +199,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _state(q)
     _moving(q)
 
+
+def _home_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission home``'s options (``add`` makes its parser)."""
     q = add("home", "home a winch (CiA 402 homing) and/or reference it (length_at_zero_m)",
             'print {"winch", "node_id", "method", "position_before_counts", '
             '"position_after_counts", "length_m", "length_at_zero_m", "winch_file", "backup", '
@@ -194,6 +222,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _state(q)
     _moving(q)
 
+
+def _reference_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission reference``'s options (``add`` makes its parser)."""
+    from hal.cli_args import add_tracker_argument
+
     q = add("reference", "reference every winch at a measured platform pose (tracker, or "
             "--pose on the stand)",
             'print {"pose", "pose_source", "robot", "state", "offsets_m", "model_m", '
@@ -209,22 +242,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="tracker poses averaged [20]")
     _state(q)
 
-    cal_doc = ("The calibration file is --loadcell-calibration (default "
-               "loadcell_calibration.toml here); the old one is kept as NAME.DATE.bak. "
-               "measured = gain * true + offset.")
+
+def _tare_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission tare``'s options (``add`` makes its parser)."""
     q = add("tare", "zero a load cell (offset) and write the calibration file",
             'print {"sensor", "device_id", "raw_N", "offset_old_N", "offset_N", "gain", '
-            '"file", "backup"}', cal_doc)
+            '"file", "backup"}', _CAL_DOC)
     q.add_argument("sensor", help="cable id (21) or unit:N")
     q.add_argument("--load", type=nonnegative_float, default=0.0, metavar="N",
                    help="known load on the cell while taring [0 N: unloaded]")
     q.add_argument("--samples", type=int, default=20, metavar="N",
                    help="fresh samples averaged [20]")
 
+
+def _calibrate_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission calibrate``'s options (``add`` makes its parser)."""
     q = add("calibrate", "fit a load cell's gain from known loads and write the calibration "
             "file", 'print {"sensor", "points": [...], "gain", "offset_N", "residual_rms_N", '
                     '"file", "backup"}',
-            cal_doc + " Loads: asked one after another (kg, or N with the suffix N), or "
+            _CAL_DOC + " Loads: asked one after another (kg, or N with the suffix N), or "
             "--weights; two or more distinct loads fit gain and offset, one load fits the "
             "gain with the offset kept.")
     q.add_argument("sensor", help="cable id (21) or unit:N")
@@ -239,6 +275,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--g", type=float, default=9.81, metavar="M/S2",
                    help="gravity for masses [9.81]")
 
+
+def _monitor_arguments(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """``cdpr commission monitor``'s options (``add`` makes its parser)."""
     q = add("monitor", "live table of drive states, positions, velocities, torques, tensions, "
             "bus load and the last errors",
             'print {"refreshes", "ended_by", "frames", "drives", "load_cells", "events", '
