@@ -325,21 +325,7 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
     if kind == "new":
         kind = str(NEW_KINDS[int(np.random.default_rng([seed, 32, attempt]).integers(
             len(NEW_KINDS)))])
-    if robot in ("mix", "mix_new"):
-        names = ROBOTS if robot == "mix" else NEW_ROBOTS
-        base_name = str(names[int(rng.integers(len(names)))])
-        model = resolve_robot(base_name)
-        perturbed = bool(rng.random() < 0.5)
-        if perturbed:
-            # a variant whose workspace still holds a campaign (a few draws at most)
-            for _ in range(8):
-                variant = perturb_robot(model, rng)
-                if len(feasible_poses(variant, rng, 6, 0.0)) >= 6:
-                    break
-            model = variant
-    else:
-        model = resolve_robot(robot)
-        base_name, perturbed = model.name, False
+    model, base_name, perturbed = _draw_robot(robot, rng)
     kind = str(rng.choice(KINDS, p=[0.5, 0.25, 0.25])) if kind == "mix" else kind
     if sensors == "mix":
         sensors = str(rng.choice(SENSORS, p=[0.7, 0.15, 0.15]))
@@ -348,43 +334,11 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
         if oov == "friction" and sensors == "no_tensions":
             # friction acts on the load cells only: a recording without them cannot see it
             oov = str(rng.choice([o for o in OOV if o != "friction"]))
-    allowed = WITHOUT.get(sensors, DRAWN)
     if effects is None:
-        k = int(rng.choice([0, 1, 1, 1, 2, 2, 3])) if n_effects is None else n_effects
-        if oov != "none":
-            k = min(k, 1)
-        pool = [e for e in DRAWN if e in allowed]
-        effects = tuple(str(e) for e in rng.choice(pool, size=min(k, len(pool)),
-                                                   replace=False)) if k else ()
+        effects = _draw_effects(rng, n_effects, oov, WITHOUT.get(sensors, DRAWN))
     noise_scale = float(rng.choice([0.5, 1.0, 2.0, 3.0]))
     rpy = float(rng.choice([0.0, 1.0, 2.0]))
-    # the pose set, the initialisation pose
-    init = feasible_poses(model, rng, 1, 0.0)
-    if not len(init):
-        raise RuntimeError(f"seed {seed}: no feasible initialisation pose for {model.name}")
-    init = init[0]
-    if kind in ("dwell", "load_change"):
-        if poses is not None and "n" in poses:
-            grid = tuple(int(v) for v in poses["n"])
-        elif rng.random() < 0.5:
-            grid = (int(rng.integers(3, 6)), int(rng.integers(2, 5)), int(rng.integers(1, 3)))
-        else:
-            grid = None
-        visits = int((poses or {}).get("visits", rng.integers(2, 5)))
-        pts = feasible_poses(model, rng, int(rng.integers(15, 40)), rpy,
-                             grid=grid)
-    else:
-        grid = tuple(int(v) for v in poses["n"]) if poses is not None and "n" in poses \
-            else None
-        visits = int((poses or {}).get("visits", rng.integers(2, 4)))
-        pts = feasible_poses(model, rng, int(rng.integers(4, 8)), rpy, grid=grid)
-        pts = reachable(model, init, pts)
-        for _ in range(4):  # a non-convex workspace: more targets where lines stay inside
-            if len(pts) >= 3 or grid is not None:
-                break
-            pts = reachable(model, init, np.vstack([pts, feasible_poses(model, rng, 6, rpy)]))
-    if len(pts) < 3:
-        raise RuntimeError(f"seed {seed}: fewer than 3 feasible poses for {model.name}")
+    init, pts, visits = _draw_targets(seed, model, rng, kind, poses, rpy)
     truth = {e: draw_effect(e, rng, model, init) for e in effects}
     if "cable_length_offset" in truth and rng.random() < 0.5:
         for key in [k for k in truth["cable_length_offset"] if k.startswith("dl_")]:
@@ -392,35 +346,8 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
     nz = {"tracker_m": 3.0e-5, "tracker_rad": 2.0e-5, "load_cell_n": 0.5, "encoder_m": 1.0e-6,
           "process_m": 2.0e-4, "exit_m": 5.0e-5}
     nz = {k: v * (noise_scale if k != "encoder_m" else 1.0) for k, v in nz.items()}
-    nuisance: dict[str, Any] = {"hysteresis_m": float(rng.uniform(0, 1.5e-4)),
-                                "drift_m_per_h": float(rng.uniform(0, 8e-5))}
-    # the tensions at referencing: another controller's (or an operator's) pretension, off
-    # the distribution's by up to 40 % of the typical tension (a generator of its own, not
-    # the case's other draws)
-    nuisance["init_pretension_n"] = float(np.random.default_rng([seed, 402]).uniform(0, 0.4)
-                                          * float(np.mean(typical_tensions(model, init))))
-    if oov == "backlash":
-        nuisance["backlash_m"] = float(rng.uniform(1.5e-3, 4e-3))
-        nuisance["backlash_cables"] = [str(rng.choice(model.cable_ids))]
-    elif oov == "thermal":
-        nuisance["thermal_strain_per_h"] = float(rng.choice([-1, 1]) * rng.uniform(3e-4, 8e-4))
-    elif oov == "friction":
-        nuisance["friction_n"] = float(max(3.0, 0.05 * float(np.mean(
-            typical_tensions(model, init)))) * rng.uniform(1.0, 3.0))
-    rate = float(rng.choice([10.0, 15.0, 20.0]))
-    dwells = kind in ("dwell", "load_change")
-    recording = {"kind": "dwell" if dwells else "continuous",
-                 "dwell_at_targets": kind == "continuous_dwell",
-                 "state_column": bool(rng.random() < 0.6),
-                 "tracker": sensors != "no_tracker", "load_cells": sensors != "no_tensions"}
-    pose_tab: dict[str, Any] = {"kind": "list", "list": [[float(v) for v in p] for p in pts],
-                                "visits": visits}
-    if dwells:
-        pose_tab |= {"dwell_s": 3.0, "rate_hz": 2.0, "init_s": 4.0}
-    else:
-        recording["rate_hz"] = rate
-        pose_tab |= {"dwell_s": 2.0, "init_s": 3.0,
-                     "speed_m_s": float(rng.uniform(0.2, 0.5))}
+    nuisance = _draw_nuisance(seed, model, init, rng, oov)
+    recording, pose_tab = _draw_recording(rng, kind, sensors, pts, visits)
     extra: dict[str, Any] = {}
     if kind in NEW_KINDS or robot == "mix_new":
         # (a generator of their own: the cases of the other kinds draw as they always did)
@@ -441,6 +368,114 @@ def make_case(seed: int, robot: str = "mix", n_effects: int | None = None,
                  "oov": oov, "noise_scale": noise_scale, "poses": int(len(pts)),
                  "visits": visits} | extra,
     }
+
+
+def _draw_robot(robot: str, rng: np.random.Generator) -> tuple[Robot, str, bool]:
+    """The case's robot: ``robot`` itself, or (``mix``/``mix_new``) one of the classes,
+    half of the time perturbed into a variant whose workspace still holds a campaign;
+    its class name and whether it was perturbed."""
+    if robot not in ("mix", "mix_new"):
+        model = resolve_robot(robot)
+        return model, model.name, False
+    names = ROBOTS if robot == "mix" else NEW_ROBOTS
+    base_name = str(names[int(rng.integers(len(names)))])
+    model = resolve_robot(base_name)
+    perturbed = bool(rng.random() < 0.5)
+    if perturbed:
+        for _ in range(8):  # (a few draws at most)
+            variant = perturb_robot(model, rng)
+            if len(feasible_poses(variant, rng, 6, 0.0)) >= 6:
+                break
+        model = variant
+    return model, base_name, perturbed
+
+
+def _draw_effects(rng: np.random.Generator, n_effects: int | None, oov: str,
+                  allowed) -> tuple[str, ...]:
+    """The concealed effects: 0 to 3 (``n_effects`` when given; at most one beside physics
+    outside the vocabulary) of those the case's sensors can show."""
+    k = int(rng.choice([0, 1, 1, 1, 2, 2, 3])) if n_effects is None else n_effects
+    if oov != "none":
+        k = min(k, 1)
+    pool = [e for e in DRAWN if e in allowed]
+    return tuple(str(e) for e in rng.choice(pool, size=min(k, len(pool)),
+                                            replace=False)) if k else ()
+
+
+def _draw_targets(seed: int, model: Robot, rng: np.random.Generator, kind: str,
+                  poses: dict[str, Any] | None, rpy: float
+                  ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The initialisation pose, the campaign's target poses (a grid or random; for moves,
+    reachable along straight lines from the initialisation) and the visits of each."""
+    init = feasible_poses(model, rng, 1, 0.0)
+    if not len(init):
+        raise RuntimeError(f"seed {seed}: no feasible initialisation pose for {model.name}")
+    init = init[0]
+    if kind in ("dwell", "load_change"):
+        if poses is not None and "n" in poses:
+            grid = tuple(int(v) for v in poses["n"])
+        elif rng.random() < 0.5:
+            grid = (int(rng.integers(3, 6)), int(rng.integers(2, 5)), int(rng.integers(1, 3)))
+        else:
+            grid = None
+        visits = int((poses or {}).get("visits", rng.integers(2, 5)))
+        pts = feasible_poses(model, rng, int(rng.integers(15, 40)), rpy, grid=grid)
+    else:
+        grid = tuple(int(v) for v in poses["n"]) if poses is not None and "n" in poses \
+            else None
+        visits = int((poses or {}).get("visits", rng.integers(2, 4)))
+        pts = feasible_poses(model, rng, int(rng.integers(4, 8)), rpy, grid=grid)
+        pts = reachable(model, init, pts)
+        for _ in range(4):  # a non-convex workspace: more targets where lines stay inside
+            if len(pts) >= 3 or grid is not None:
+                break
+            pts = reachable(model, init, np.vstack([pts, feasible_poses(model, rng, 6, rpy)]))
+    if len(pts) < 3:
+        raise RuntimeError(f"seed {seed}: fewer than 3 feasible poses for {model.name}")
+    return init, pts, visits
+
+
+def _draw_nuisance(seed: int, model: Robot, init: np.ndarray, rng: np.random.Generator,
+                   oov: str) -> dict[str, Any]:
+    """The ``nuisance`` table: hysteresis, drift, the pretension at referencing, and the
+    physics outside the vocabulary ``oov`` (backlash, thermal strain, friction)."""
+    nuisance: dict[str, Any] = {"hysteresis_m": float(rng.uniform(0, 1.5e-4)),
+                                "drift_m_per_h": float(rng.uniform(0, 8e-5))}
+    # the tensions at referencing: another controller's (or an operator's) pretension, off
+    # the distribution's by up to 40 % of the typical tension (a generator of its own, not
+    # the case's other draws)
+    nuisance["init_pretension_n"] = float(np.random.default_rng([seed, 402]).uniform(0, 0.4)
+                                          * float(np.mean(typical_tensions(model, init))))
+    if oov == "backlash":
+        nuisance["backlash_m"] = float(rng.uniform(1.5e-3, 4e-3))
+        nuisance["backlash_cables"] = [str(rng.choice(model.cable_ids))]
+    elif oov == "thermal":
+        nuisance["thermal_strain_per_h"] = float(rng.choice([-1, 1]) * rng.uniform(3e-4, 8e-4))
+    elif oov == "friction":
+        nuisance["friction_n"] = float(max(3.0, 0.05 * float(np.mean(
+            typical_tensions(model, init)))) * rng.uniform(1.0, 3.0))
+    return nuisance
+
+
+def _draw_recording(rng: np.random.Generator, kind: str, sensors: str, pts: np.ndarray,
+                    visits: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The ``recording`` and ``poses`` tables: dwells at 2 Hz, or rows of moves at 10 to
+    20 Hz at 0.2 to 0.5 m/s; the column groups the sensors give."""
+    rate = float(rng.choice([10.0, 15.0, 20.0]))
+    dwells = kind in ("dwell", "load_change")
+    recording = {"kind": "dwell" if dwells else "continuous",
+                 "dwell_at_targets": kind == "continuous_dwell",
+                 "state_column": bool(rng.random() < 0.6),
+                 "tracker": sensors != "no_tracker", "load_cells": sensors != "no_tensions"}
+    pose_tab: dict[str, Any] = {"kind": "list", "list": [[float(v) for v in p] for p in pts],
+                                "visits": visits}
+    if dwells:
+        pose_tab |= {"dwell_s": 3.0, "rate_hz": 2.0, "init_s": 4.0}
+    else:
+        recording["rate_hz"] = rate
+        pose_tab |= {"dwell_s": 2.0, "init_s": 3.0,
+                     "speed_m_s": float(rng.uniform(0.2, 0.5))}
+    return recording, pose_tab
 
 
 def tracker_case(seed: int, effect: str = "tracker_frame", **kw) -> dict[str, Any]:
