@@ -438,8 +438,15 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
             learner.trajectory = lambda: loop.trajectory
         res = loop.run()
     _write_progress(spec.progress, 1.0)
+    _check_ended(spec, res, in_process)
+    return _figures_of(spec, res, rec, model, learner, loop)
+
+
+def _check_ended(spec: RunSpec, res, in_process: bool) -> None:
+    """KeyboardInterrupt after a Ctrl-C in this process (the campaign ends, not this run);
+    :class:`DriveLostError` or :class:`CampaignError` when the run did not complete."""
     if res.ended == "interrupted" and in_process and not _STOP.is_set():
-        raise KeyboardInterrupt  # Ctrl-C in this process: end the campaign, not this run
+        raise KeyboardInterrupt
     if res.ended != "completed":
         msg = f"{spec.label}: the dry run ended {res.ended}: {res.message}"
         lost = [e for e in res.events if e["kind"] == "drive_lost" and e["active"]]
@@ -447,6 +454,10 @@ def run_one(spec: RunSpec, parent_pid: int | None = None) -> dict[str, Any]:
             raise DriveLostError(f"{msg} ({lost[0]['device']} {lost[0]['address']}: "
                                  f"{lost[0]['text']})")
         raise CampaignError(msg)
+
+
+def _figures_of(spec: RunSpec, res, rec: Path, model, learner, loop) -> dict[str, Any]:
+    """The completed run's figures (:func:`run_one`'s result)."""
     slack = [e for e in res.events if e["kind"] == "slack" and e["active"]]
     out: dict[str, Any] = {
         "label": spec.label, "tags": dict(spec.tags), "ended": res.ended,
