@@ -192,7 +192,24 @@ def unneeded(in_question: list[dict]) -> list[dict]:
     from bench.diagnosis.select import BIC_ENTER
 
     return [q for q in in_question if "via" not in q and q.get("probe_finding")
-            and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER]
+            and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER
+            and not q.get("others_need_it")]
+
+
+def lost_with(before: list[str], gone: list[str], after: list[str]) -> list[str]:
+    """The effects named ``before`` that are no longer named ``after`` the effects ``gone``
+    were left out (:func:`unneeded`) and the rest settled again: a refit without ``gone``
+    holds nothing of the structure outside the vocabulary they took, so what they leave
+    can take another effect's parameters below the noise. Such a drop loses what the probe
+    cannot stand for (another effect's parameters): it is not made."""
+    return [e for e in before if e not in gone and e not in after]
+
+
+def needed_by_others(in_question: list[dict], gone: list[dict], lost: list[str]) -> list[dict]:
+    """``in_question`` with the stands ``gone`` marked ``others_need_it``: the effects
+    ``lost`` (:func:`lost_with`) went without them, so :func:`unneeded` keeps them named."""
+    ids = {id(q) for q in gone}
+    return [q | {"others_need_it": list(lost)} if id(q) in ids else q for q in in_question]
 
 
 def _length_column(rm: ResidualModel, robot, idx: np.ndarray, r0: np.ndarray,
