@@ -208,6 +208,12 @@ def test_lost_with_only_the_named_effects_that_went_besides_the_dropped():
     # an effect the selection found anew does not count; one dropped alone is no loss
     assert probes.lost_with(before, gone, ["load_cell_calibration", "platform_mass"]) == []
     assert probes.lost_with(["cable_length_offset"], ["cable_length_offset"], []) == []
+    # an effect a probe stands for went with what it soaked (12986: an elasticity that went
+    # with the offsets, both soaking the cells' friction)
+    assert probes.lost_with(before, gone, [], {"load_cell_calibration"}) == []
+    assert probes.lost_with(before, ["cable_length_offset"], [],
+                            {"cable_length_offset", "cable_elasticity"}) == \
+        ["load_cell_calibration"]
 
 
 def test_a_stand_the_others_need_is_not_unneeded_the_rest_still_are():

@@ -196,13 +196,16 @@ def unneeded(in_question: list[dict]) -> list[dict]:
             and not q.get("others_need_it")]
 
 
-def lost_with(before: list[str], gone: list[str], after: list[str]) -> list[str]:
+def lost_with(before: list[str], gone: list[str], after: list[str],
+              stood: set[str] | frozenset[str] = frozenset()) -> list[str]:
     """The effects named ``before`` that are no longer named ``after`` the effects ``gone``
-    were left out (:func:`unneeded`) and the rest settled again: a refit without ``gone``
-    holds nothing of the structure outside the vocabulary they took, so what they leave
-    can take another effect's parameters below the noise. Such a drop loses what the probe
-    cannot stand for (another effect's parameters): it is not made."""
-    return [e for e in before if e not in gone and e not in after]
+    were left out (:func:`unneeded`) and the rest settled again, and that no probe stands
+    for (``stood``: the effects of the stands, ``effects_in_question``). A refit without
+    ``gone`` holds nothing of the structure outside the vocabulary they took, so what they
+    leave can take another effect's parameters below the noise: where the probe cannot
+    take that effect's place, the drop loses what the data need beyond the probe, and it is
+    not made. An effect the probe can replace that goes too went with what it soaked."""
+    return [e for e in before if e not in gone and e not in after and e not in stood]
 
 
 def needed_by_others(in_question: list[dict], gone: list[dict], lost: list[str]) -> list[dict]:

@@ -1099,8 +1099,8 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, got: _Settled, gone
     :func:`probes.unneeded`): they go to ``sel.rejected`` and ``left_out``; with them, the
     stands dropped. Where another named effect goes with them (:func:`probes.lost_with`:
     the probe cannot take its parameters, yet the refit without the structure they held
-    leaves them below the noise), nothing is dropped: ``got`` with those stands marked
-    (:func:`probes.needed_by_others`), no stand dropped."""
+    leaves them below the noise; no probe stands for it), nothing is dropped: ``got`` with
+    those stands marked (:func:`probes.needed_by_others`), no stand dropped."""
     names = [q["effect"] for q in gone]
     sel = copy.copy(got.sel)  # (got stays as it was, should the drop not be made)
     rejected = dict(sel.rejected)
@@ -1117,7 +1117,8 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, got: _Settled, gone
     sel.fit = selector.fit(tuple(sel.effects), sel.fit)
     sel.rejected = rejected
     again = _settle(rm, selector, sel, candidates, fit_idx, left_out, rec, changes, pool, say)
-    lost = probes.lost_with(got.sel.effects, names, again.sel.effects)
+    stood = {q["effect"] for q in (got.leftover or {}).get("effects_in_question", [])}
+    lost = probes.lost_with(got.sel.effects, names, again.sel.effects, stood)
     if not lost:
         return again, gone
     say(f"naming {', '.join(report_name(e) for e in names)} after all: without "
