@@ -1100,7 +1100,9 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, got: _Settled, gone
     stands dropped. Where another named effect goes with them (:func:`probes.lost_with`:
     the probe cannot take its parameters, yet the refit without the structure they held
     leaves them below the noise; no probe stands for it), nothing is dropped: ``got`` with
-    those stands marked (:func:`probes.needed_by_others`), no stand dropped."""
+    those stands marked (:func:`probes.needed_by_others`), no stand dropped. Of several
+    such effects, the first that goes alone without the loss goes (the loop of the caller
+    judges the others again beside the next settle)."""
     names = [q["effect"] for q in gone]
     sel = copy.copy(got.sel)  # (got stays as it was, should the drop not be made)
     rejected = dict(sel.rejected)
@@ -1121,10 +1123,15 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, got: _Settled, gone
     lost = probes.lost_with(got.sel.effects, names, again.sel.effects, stood)
     if not lost:
         return again, gone
+    del left_out[n_left:]
+    for q in gone if len(gone) > 1 else []:  # one of them may go without the loss
+        alone = _without_unneeded(rm, selector, got, [q], candidates, fit_idx, left_out, rec,
+                                  changes, pool, say)
+        if alone[1]:
+            return alone
     say(f"naming {', '.join(report_name(e) for e in names)} after all: without "
         f"{'them' if len(names) > 1 else 'it'} {', '.join(report_name(e) for e in lost)} "
         f"no longer stands out, and the probe cannot take its parameters")
-    del left_out[n_left:]
     leftover = dict(got.leftover or {})
     leftover["effects_in_question"] = probes.needed_by_others(
         leftover.get("effects_in_question", []), gone, [report_name(e) for e in lost])
