@@ -192,7 +192,27 @@ def unneeded(in_question: list[dict]) -> list[dict]:
     from bench.diagnosis.select import BIC_ENTER
 
     return [q for q in in_question if "via" not in q and q.get("probe_finding")
-            and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER]
+            and q.get("needed_beyond_bic") is not None and q["needed_beyond_bic"] < BIC_ENTER
+            and not q.get("others_need_it")]
+
+
+def lost_with(before: list[str], gone: list[str], after: list[str],
+              stood: set[str] | frozenset[str] = frozenset()) -> list[str]:
+    """The effects named ``before`` that are no longer named ``after`` the effects ``gone``
+    were left out (:func:`unneeded`) and the rest settled again, and that no probe stands
+    for (``stood``: the effects of the stands, ``effects_in_question``). A refit without
+    ``gone`` holds nothing of the structure outside the vocabulary they took, so what they
+    leave can take another effect's parameters below the noise: where the probe cannot
+    take that effect's place, the drop loses what the data need beyond the probe, and it is
+    not made. An effect the probe can replace that goes too went with what it soaked."""
+    return [e for e in before if e not in gone and e not in after and e not in stood]
+
+
+def needed_by_others(in_question: list[dict], gone: list[dict], lost: list[str]) -> list[dict]:
+    """``in_question`` with the stands ``gone`` marked ``others_need_it``: the effects
+    ``lost`` (:func:`lost_with`) went without them, so :func:`unneeded` keeps them named."""
+    ids = {id(q) for q in gone}
+    return [q | {"others_need_it": list(lost)} if id(q) in ids else q for q in in_question]
 
 
 def _length_column(rm: ResidualModel, robot, idx: np.ndarray, r0: np.ndarray,

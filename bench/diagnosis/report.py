@@ -8,6 +8,8 @@ recording cannot give are None (JSON null), never 0.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable
@@ -956,9 +958,9 @@ def _named(rm: ResidualModel, selector: Selector, sel: Selection, candidates: li
     not_named: list[dict] = []
     while gone := [q for q in probes.unneeded((got.leftover or {}).get(
             "effects_in_question", [])) if q["effect"] in got.sel.effects]:
-        got = _without_unneeded(rm, selector, got.sel, gone, candidates, fit_idx, left_out,
-                                rec, changes, pool, say)
-        not_named += gone
+        got, dropped = _without_unneeded(rm, selector, got, gone, candidates, fit_idx,
+                                         left_out, rec, changes, pool, say)
+        not_named += dropped
     return got, not_named
 
 
@@ -1187,14 +1189,21 @@ def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: l
     return _Settled(sel, final, params, errs, undet, intervals, fitted, fit_fw, leftover)
 
 
-def _without_unneeded(rm: ResidualModel, selector: Selector, sel: Selection, gone: list[dict],
+def _without_unneeded(rm: ResidualModel, selector: Selector, got: _Settled, gone: list[dict],
                       candidates: list[str], fit_idx: np.ndarray, left_out: list[str],
                       rec: Recording, changes: list, pool: Executor | None,
-                      say: Progress) -> _Settled:
-    """:func:`_settle` again without the named effects that physics outside the vocabulary
-    stands for and that the data do not need beyond it (``gone``,
-    :func:`probes.unneeded`): they go to ``sel.rejected`` and ``left_out``."""
+                      say: Progress) -> tuple[_Settled, list[dict]]:
+    """:func:`_settle` again without the named effects of ``got`` that physics outside the
+    vocabulary stands for and that the data do not need beyond it (``gone``,
+    :func:`probes.unneeded`): they go to ``sel.rejected`` and ``left_out``; with them, the
+    stands dropped. Where another named effect goes with them (:func:`probes.lost_with`:
+    the probe cannot take its parameters, yet the refit without the structure they held
+    leaves them below the noise; no probe stands for it), nothing is dropped: ``got`` with
+    those stands marked (:func:`probes.needed_by_others`), no stand dropped. Of several
+    such effects, the first that goes alone without the loss goes (the loop of the caller
+    judges the others again beside the next settle)."""
     names = [q["effect"] for q in gone]
+    sel = copy.copy(got.sel)  # (got stays as it was, should the drop not be made)
     rejected = dict(sel.rejected)
     for q in gone:
         say(f"not naming {report_name(q['effect'])}: a {q['probe']} probe for physics outside "
@@ -1203,11 +1212,29 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, sel: Selection, gon
         rejected[report_name(q["effect"])] = (
             f"beside physics outside the vocabulary that explains it as well ({q['probe']} "
             f"probe) it changes the BIC by {-q['needed_beyond_bic']:+.0f} only")
+    n_left = len(left_out)
     left_out += names
     sel.effects = [c for c in sel.effects if c not in names]
     sel.fit = selector.fit(tuple(sel.effects), sel.fit)
     sel.rejected = rejected
-    return _settle(rm, selector, sel, candidates, fit_idx, left_out, rec, changes, pool, say)
+    again = _settle(rm, selector, sel, candidates, fit_idx, left_out, rec, changes, pool, say)
+    stood = {q["effect"] for q in (got.leftover or {}).get("effects_in_question", [])}
+    lost = probes.lost_with(got.sel.effects, names, again.sel.effects, stood)
+    if not lost:
+        return again, gone
+    del left_out[n_left:]
+    for q in gone if len(gone) > 1 else []:  # one of them may go without the loss
+        alone = _without_unneeded(rm, selector, got, [q], candidates, fit_idx, left_out, rec,
+                                  changes, pool, say)
+        if alone[1]:
+            return alone
+    say(f"naming {', '.join(report_name(e) for e in names)} after all: without "
+        f"{'them' if len(names) > 1 else 'it'} {', '.join(report_name(e) for e in lost)} "
+        f"no longer stands out, and the probe cannot take its parameters")
+    leftover = dict(got.leftover or {})
+    leftover["effects_in_question"] = probes.needed_by_others(
+        leftover.get("effects_in_question", []), gone, [report_name(e) for e in lost])
+    return dataclasses.replace(got, leftover=leftover), []
 
 
 def _friction_in_question(rm: ResidualModel, final: FitResult, leftover: dict | None,
