@@ -1,13 +1,14 @@
 """A continuous recording without load cells: the tensions at referencing and the per-visit
-change of the lengths (`select.lost_beside`, `report._pretension`).
+change of the lengths (`select.honest_bic`, `report._pretension`).
 
 Evaluation case 12876 (IPAnema, continuous at 10 Hz, a tracker, no load cells, noise x3:
 0.6 mm per visit; nothing concealed; the tensions at referencing 75 N off the
 distribution's). The first selection took length offsets, then six exit-point offsets
 (1.3-4.6 mm, up to 3.7 standard errors): their BIC was 64 below the pretension's alone,
 because the BIC counts the rows of a move, which share the visit's error, as independent.
-Beside the pretension fitted, the offsets' Wald statistic is 34 on 24 parameters: they are
-no finding, and the pretension takes their place. A true exit-point offset of a few
+Beside the pretension fitted, the offsets' Wald statistic is 34 on 24 parameters (their
+chi-square's drop 4.4 times that): by their own errors they are no finding, and the
+pretension takes their place. A true exit-point offset of a few
 millimetres beside the same pretension and noise stays named.
 """
 

@@ -1194,20 +1194,67 @@ def stands_out(fit: FitResult, effect: str, rm: ResidualModel | None = None) -> 
     return bool(chi2_dist.sf(w, k) < chi2_dist.sf(bar, 1))
 
 
-def lost_beside(fit: FitResult, effects: list[str], rm: ResidualModel | None = None
-                ) -> list[str]:
-    """The ``effects`` whose parameters no longer stand out (:func:`stands_out`) in ``fit``,
-    a fit of them beside a nuisance fitted too (the tensions at initialisation of a
-    recording without load cells): what the data said of them, the nuisance says for free.
-    The BIC that chose them counts every residual as independent; rows of a continuous
-    recording share the per-visit change of the lengths, which their own errors count
-    (IPAnema-class continuous recording, nothing concealed, a pretension of 75 N and 0.6 mm
-    per visit: six exit-point offsets 1.3-4.6 mm lowered the BIC by 64 below the
-    pretension's alone, Wald 34 on 24 parameters beside it). Nothing where ``fit`` is far
-    from the data (:data:`FAR`: its errors measure a misfit, not the noise)."""
-    if not np.isfinite(fit.reduced_chi2) or fit.reduced_chi2 > FAR:
-        return []
-    return [e for e in effects if e in fit.space.effects and not stands_out(fit, e, rm)]
+def design_effect(fit: FitResult, effects: list[str] | tuple[str, ...] | np.ndarray
+                  ) -> float:
+    """How many times the chi-square's drop for ``effects``' parameters in ``fit`` (a fit
+    with them) overstates the evidence their own errors give: the Wald statistic of their
+    departure from the model's values by the naive covariance ``(J^T J)^-1`` (every
+    residual an independent error of the stated noise: what the chi-square counts, to
+    first order) over the same by the fit's covariance (the sandwich of the error model:
+    rows of a move or visit share one error, a per-visit change of the lengths blends
+    along a move). At least 1 (where the error model finds the rows surer than stated, the
+    chi-square stands); 1 where the parameters are fixed by nothing, sit at the model's
+    values, or where ``fit`` is far from the data (:data:`FAR`: its errors measure a
+    misfit, not the noise). An IPAnema-class continuous recording, 0.6 mm per visit:
+    about 4 for exit-point offsets (1064 residuals, ~144 independent errors).
+    ``effects``: effect names, or the parameters' indices in ``fit.space``."""
+    if fit.curvature_cov is None or not np.isfinite(fit.reduced_chi2) \
+            or fit.reduced_chi2 > FAR:
+        return 1.0
+    space = fit.space
+    given = np.asarray(effects).dtype.kind in "iu"
+    cols = list(np.asarray(effects, dtype=int)) if given else \
+        [k for e in effects if e in space.effects for k in space.indices(e)]
+    ix = np.array([k for k in cols if np.isfinite(fit.stderr[k]) and fit.stderr[k] > 0],
+                  dtype=int)
+    if not len(ix):
+        return 1.0
+    d = (fit.phi - space.neutral)[ix]
+    naive = _quad(d, fit.curvature_cov[np.ix_(ix, ix)])
+    robust = _quad(d, fit.cov[np.ix_(ix, ix)])
+    if not (np.isfinite(naive) and np.isfinite(robust)) or robust <= 0.0 or naive <= 0.0:
+        return 1.0
+    return max(naive / robust, 1.0)
+
+
+def _quad(d: np.ndarray, cov: np.ndarray) -> float:
+    """``d^T cov^+ d`` (pseudo-inverse: directions the data do not fix count nothing)."""
+    return float(d @ np.linalg.pinv(cov, rcond=1e-12, hermitian=True) @ d)
+
+
+def honest_bic(fit: FitResult, whole: FitResult) -> float:
+    """The BIC of ``fit`` relative to ``whole``'s, where ``whole`` (on the same samples)
+    holds every parameter of ``fit`` and more (an effect or a nuisance added): the
+    chi-square's difference divided by the design effect (:func:`design_effect`) of the
+    parameters ``whole`` adds, in ``whole`` (the evidence of their departure by their own
+    errors), plus the BIC's charge of those parameters. With independent errors, ``fit.bic
+    - whole.bic``; that plain difference too where ``fit`` is not within ``whole``."""
+    plain = float(fit.bic - whole.bic)
+    if not within(fit, whole):
+        return plain
+    mine = {(p.effect, p.key) for p in fit.space.params}
+    extra = np.array([k for k, p in enumerate(whole.space.params) if (p.effect, p.key)
+                      not in mine], dtype=int)
+    if not len(extra):
+        return plain
+    paid = (fit.bic - fit.chi2) - (whole.bic - whole.chi2)  # (the parameters' charge)
+    return float(fit.chi2 - whole.chi2) / design_effect(whole, extra) + float(paid)
+
+
+def within(fit: FitResult, whole: FitResult) -> bool:
+    """Whether every parameter of ``fit`` is one of ``whole``'s (by effect and name)."""
+    return {(p.effect, p.key) for p in fit.space.params} <= {
+        (p.effect, p.key) for p in whole.space.params}
 
 
 def _far_step(without: FitResult, with_: FitResult) -> bool:
