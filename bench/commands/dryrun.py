@@ -316,7 +316,8 @@ def _run_checked(args: argparse.Namespace, created: list, on_buses: bool) -> int
     session = Session(inp.spec, _options(args, on_buses))
     with stopping_on_signals() as (stop, caught):
         try:
-            res = session.run(stop, on_event, _progress_printer(args.quiet, args.duration))
+            res = session.run(stop, on_event,
+                              lambda: _progress_printer(args.quiet, args.duration))
         except PreflightRefused as exc:
             return _refused(args, exc.preflight)
         except StartFailed as exc:

@@ -105,7 +105,11 @@ def polling_cells(args: argparse.Namespace, rmap: RegisterMap):
                             rate_hz=args.loadcell_rate, timeout_s=args.loadcell_timeout,
                             stale_s=args.loadcell_stale,
                             max_age_s=args.loadcell_max_age).start()
-    client.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
+    try:
+        client.wait_sweeps(1, timeout_s=args.loadcell_timeout * len(rmap.cables) + 1.0)
+    except BaseException:  # Ctrl-C, SIGTERM while waiting: the poller ends too
+        client.stop()
+        raise
     return client
 
 

@@ -244,11 +244,16 @@ def run(args: argparse.Namespace, ui: Ui, section: Section) -> int:
 
 
 def _check(args: argparse.Namespace) -> None:
-    """The options checked before the bus is opened (:class:`CommissionError`, exit 2)."""
+    """The rate and duration checked before anything is read (:class:`CommissionError`,
+    exit 2)."""
     if not 0 < args.rate <= 50:
         raise CommissionError(f"--rate {args.rate}: must be in (0, 50] Hz", 2)
     if args.duration is not None and not args.duration > 0:
         raise CommissionError(f"--duration {args.duration}: must be > 0", 2)
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """The ``--live`` address checked (:class:`CommissionError`, exit 2)."""
     if args.live is not None:
         from bench.mcap.live import parse_address
 
@@ -256,10 +261,6 @@ def _check(args: argparse.Namespace) -> None:
             parse_address(args.live)
         except ValueError as exc:
             raise CommissionError(str(exc), 2) from None
-    if args.record:
-        rec_dir = Path(args.record)
-        if rec_dir.exists() and any(rec_dir.iterdir()):
-            raise CommissionError(f"--record {rec_dir}: not empty; choose a new directory", 2)
 
 
 class _Monitor:
@@ -274,6 +275,7 @@ class _Monitor:
         self.args, self.section = args, section
         self.w = w = winches_of(args)
         self.rmap = register_map_of(args)
+        _check_outputs(args)
         self.robot = None
         if args.record or args.live is not None:
             self.robot = resolve_robot(args.robot)
@@ -281,6 +283,11 @@ class _Monitor:
                 raise WinchConfigError(f"robot {self.robot.name} has cables "
                                        f"{self.robot.cable_ids}, the winches {w.source} "
                                        f"{w.cables}")
+        if args.record:
+            rec_dir = Path(args.record)
+            if rec_dir.exists() and any(rec_dir.iterdir()):
+                raise CommissionError(f"--record {rec_dir}: not empty; choose a new directory",
+                                      2)
         section.fact("winch file", w.source)
         self.window = tension_window_of(args)
         section.fact("tension window", str(self.window))

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench.dryrun.loop import ControlLoop, LoopOptions, PathRefused
+from bench.dryrun.realtime import DEFAULT_RT_PRIORITY
 from controller.robot import Robot
 
 
@@ -53,9 +54,9 @@ class SessionSpec:
     scenario_path: Path
     scenario: Any | None  # firmware_sim.scenario.Scenario
     settings: Any | None  # hal.cli_args settings
-    winches: Any  # controller.winch.Winches
+    winches: Any  # controller.winch.WinchSet
     decimate: int
-    limits: Any | None  # controller.paths.PathLimits
+    limits: Any | None  # controller.trajectory.MotionLimits
     reactions: dict = field(default_factory=dict)
     faults: Any | None = None  # firmware_sim.faults.FaultSchedule
     faults_path: str | None = None
@@ -82,13 +83,13 @@ class SessionOptions:
     force: bool = False
     fmt: str = "csv"
     live: str | None = None
-    plant_rate_hz: float = 1000.0
+    plant_rate_hz: float = 20.0
     init_pose_given: bool = False
     duration_s: float | None = None
-    rt_priority: int | None = None
+    rt_priority: int | None = DEFAULT_RT_PRIORITY
     learn: bool = False
-    learn_period_s: float = 1.0
-    learn_sigma_length_m: float = 0.0
+    learn_period_s: float = 0.5
+    learn_sigma_length_m: float = 5e-4
     cells: dict | None = None
     say: Callable[[str], None] = lambda line: None
     confirm: Callable[[str], bool] = lambda question: False
@@ -199,9 +200,10 @@ class Session:
 
     # ----- the run -----------------------------------------------------------------------
 
-    def run(self, stop, on_event: Callable[[str], None], on_progress):
+    def run(self, stop, on_event: Callable[[str], None], progress: Callable[[], Any]):
         """Start the robot, run the loop until the path ends or ``stop`` is set, close
-        everything (also on an exception); the loop's result. Raises
+        everything (also on an exception); the loop's result. ``progress()`` makes the
+        loop's progress callback once the robot is started (its clock starts then). Raises
         :class:`PreflightRefused` or :class:`StartFailed` before anything moves."""
         o = self.opts
         if o.realtime and (o.live is not None or (self.spec.record_dir is not None
@@ -214,7 +216,7 @@ class Session:
         try:
             sim = self._start()
             try:
-                return self._loop(stop, on_event, on_progress)
+                return self._loop(stop, on_event, progress())
             finally:
                 try:
                     self.world.close()
