@@ -527,17 +527,19 @@ def _r(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(f"{x:.4g}")
 
 
-def with_not_named(leftover: dict | None, gone: list[dict]) -> dict | None:
+def with_not_named(leftover: dict | None, gone: list[dict],
+                   figures: dict | None = None) -> dict | None:
     """``leftover`` (the ``unexplained`` object or None) with the effects not named because
     physics outside the vocabulary stands for them (``gone``, :func:`unneeded`): a finding
     each and ``effects_not_named`` (the structure stays declared where the refit without
-    them no longer shows it)."""
+    them no longer shows it; the object then starts from ``figures``, the fit's
+    :func:`bench.diagnosis.unexplained.fit_figures`)."""
     if not gone:
         return leftover
     from bench.diagnosis.select import BIC_ENTER
     from bench.diagnosis.space import report_name
 
-    out = dict(leftover) if leftover is not None else {}
+    out = dict(leftover) if leftover is not None else dict(figures or {})
     found = [f"{report_name(q['effect'])} is not named: {WHAT[q['probe']]}"
              + ("" if q.get("cable") is None else f" on cable {q['cable']}")
              + f" explains the data as well in its place (BIC {q['delta_bic']:+.0f}); beside "

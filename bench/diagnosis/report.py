@@ -828,7 +828,8 @@ def _diagnose(path: str | Path, progress: Progress | None, pool: Executor | None
     fit_idx = np.union1d(train, valid)
     got, not_named = _named(rm, selector, sel, candidates, fit_idx, rec, changes, pool, say)
     sel, final, fitted, fit_fw = got.sel, got.final, got.fitted, got.fit_fw
-    leftover = probes.with_not_named(got.leftover, not_named)
+    leftover = probes.with_not_named(got.leftover, not_named, unexplained.fit_figures(
+        rm, rm.blocks(fitted), final.n_free)[0] if got.leftover is None and not_named else None)
     if leftover is not None:
         say("unexplained: " + leftover["summary"])
 

@@ -59,6 +59,19 @@ def level_exceeded(ratio: float, dof: float, noise_dof: float, assumed: bool) ->
     return ratio > (LEVEL_ASSUMED if assumed else LEVEL) and (ratio - 1.0) > LEVEL_Z * sd
 
 
+def fit_figures(rm: ResidualModel, b: Blocks, n_params: int) -> tuple[dict, float]:
+    """How far the fitted model's residual blocks ``b`` (``n_params`` fitted) are from the
+    noise: ``{"reduced_chi2", "rms_over_noise", "noise_source"}`` (the ``unexplained``
+    object's first fields), and the degrees of freedom of the chi-square (the rows of a
+    move count together)."""
+    r = rm.whiten(b)
+    n_res = float(rm.entry_weights().sum())
+    dof = max(n_res - n_params - rm.dof_lost(), 1.0)
+    ratio = float(r @ r) / dof
+    return {"reduced_chi2": ratio, "rms_over_noise": math.sqrt(max(ratio, 0.0)),
+            "noise_source": rm.sigma_source}, dof
+
+
 def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: np.ndarray,
             pivots: np.ndarray, mast_ids: tuple[str, ...], fitted=None,
             probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None = None
@@ -73,19 +86,14 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     ok = np.isfinite(chi)
     if not ok.any():
         return None
-    r = rm.whiten(b)
-    n_res = float(rm.entry_weights().sum())  # rows of a move count together
-    dof = max(n_res - n_params - rm.dof_lost(), 1.0)
-    chi2 = float(r @ r)
-    ratio = chi2 / dof
+    out, dof = fit_figures(rm, b, n_params)
+    ratio = out["reduced_chi2"]
     # spread of the ratio: chi-square of dof residuals, and a noise estimate of its own dof
     nd = rm.replicate_dof * max(model.n_cables, 1) if rm.sigma_source == "replicate visits" \
         else 0
     assumed = rm.sigma_source != "replicate visits"
     level = level_exceeded(ratio, dof, nd, assumed)
     findings: list[str] = []
-    out: dict = {"reduced_chi2": ratio, "rms_over_noise": math.sqrt(max(ratio, 0.0)),
-                 "noise_source": rm.sigma_source}
 
     # per cable, per mast: whitened length residual RMS
     # in noise units (a residual projected by per-sample unknowns scaled back)
