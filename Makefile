@@ -33,7 +33,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
 # The coverage of the diagnosis's 95 % intervals per effect kind of the vocabulary, every kind
-# on its recording classes (marker `coverage`, left out of `make test`; ~15 CPU-min).
+# on its recording classes (marker `coverage`, left out of `make test`; ~20 CPU-min).
 # docs/guide/diagnosis-report.md
 coverage: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m coverage --durations=0 tests/test_diagnosis_intervals.py
