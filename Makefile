@@ -5,7 +5,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-deep lint bench benchmarks docs docs-images clean
+.PHONY: demo test test-deep coverage lint bench benchmarks docs docs-images clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -31,6 +31,12 @@ demo: $(STAMP)
 # that a module's fixtures are computed once.
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
+
+# The coverage of the diagnosis's 95 % intervals per effect kind of the vocabulary, every kind
+# on its recording classes (marker `coverage`, left out of `make test`; ~20 CPU-min).
+# docs/guide/diagnosis-report.md
+coverage: $(STAMP)
+	$(PY) -m pytest -q -n 2 -m coverage --durations=0 tests/test_diagnosis_intervals.py
 
 # The property-based tests with many more examples (tests/conftest.py, profile "deep";
 # tests/prop_support.py: 5 times the state machines' examples, twice their steps), with

@@ -1153,9 +1153,11 @@ def coverage(scores: list[dict]) -> dict:
     hold the truth: the report's intervals and the linearised ones, with Wilson 95 %
     intervals of the rates, how many were widened by refits (``profiled``: profile or
     jackknife, also where the selective interval then reached further) and how many by the
-    selection (``selective``). Every parameter
-    counts once; ``cases`` counts the cases behind them (a case's parameters share its
-    data: the rate's interval is a per-parameter one)."""
+    selection (``selective``); the rms of the parameters' z-scores (value minus truth over
+    the standard error: 1 where the errors are right) and the intervals that missed
+    (``missed``: seed, key, z). Every parameter counts once; ``cases`` counts the cases
+    behind them (a case's parameters share its data: the rate's interval is a per-parameter
+    one)."""
     groups: dict[str, list[tuple[int, dict]]] = {}
     for s in scores:
         for rec in s.get("intervals", []):
@@ -1171,8 +1173,28 @@ def coverage(scores: list[dict]) -> dict:
                   "covered_linearised": kl / n, "covered_linearised_ci95": list(wilson(kl, n)),
                   "profiled": sum(bool(_methods(r) & {"profile", "jackknife"})
                                   for _, r in recs),
-                  "selective": sum("selective" in _methods(r) for _, r in recs)}
+                  "selective": sum("selective" in _methods(r) for _, r in recs),
+                  "z_rms": _rms([_z(r) for _, r in recs]),
+                  "missed": [[sd, r["key"], _round(_z(r))] for sd, r in recs
+                             if not covers(r)]}
     return out
+
+
+def _z(rec: dict) -> float:
+    """A scored parameter's z-score: value minus truth over its standard error (nan without
+    a positive error)."""
+    se = rec["stderr"]
+    return (rec["value"] - rec["truth"]) / se if se and se > 0 else math.nan
+
+
+def _rms(z: list[float]) -> float | None:
+    """The rms of the finite ``z`` (None where there is none)."""
+    a = np.array([v for v in z if math.isfinite(v)])
+    return float(np.sqrt(np.mean(a ** 2))) if a.size else None
+
+
+def _round(v: float) -> float | None:
+    return round(v, 2) if math.isfinite(v) else None
 
 
 def _methods(rec: dict) -> set[str]:

@@ -133,6 +133,10 @@ def test_coverage_counts_the_intervals_and_the_linearised_errors_per_effect():
     assert cov["pulley_kinematics"]["profiled"] == 1
     assert cov["drum_scale"]["covered"] == 0.0
     assert cov["all"]["params"] == 3 and cov["all"]["cases"] == 2
+    # the z-scores 3.125, 0.1 (pulleys) and 10 (drum): their rms, and the misses by seed
+    assert cov["pulley_kinematics"]["z_rms"] == pytest.approx(math.sqrt((3.125 ** 2 + 0.01) / 2))
+    assert cov["pulley_kinematics"]["missed"] == []
+    assert cov["drum_scale"]["missed"] == [[2, "k", 10.0]]
     # a report without intervals: the linearised one
     assert covers(_rec("mass", 10.0, 10.1, 0.1))
     assert not covers(_rec("mass", 10.0, 10.3, 0.1))
@@ -140,8 +144,15 @@ def test_coverage_counts_the_intervals_and_the_linearised_errors_per_effect():
 
 # ----- coverage over generated cases --------------------------------------------------------
 
-#: small cases: dwells on a 3 x 2 grid, two visits, every sensor, nothing outside the vocabulary
-SMALL = {"kind": "dwell", "sensors": "all", "oov": "none", "poses": {"n": [3, 2, 1], "visits": 2}}
+#: every case's poses: a 3 x 2 grid, two visits (a continuous recording: its points as targets)
+POSES = {"n": [3, 2, 1], "visits": 2}
+#: recording classes (kind, sensors)
+DWELL, NO_TRACKER, NO_TENSIONS = ("dwell", "all"), ("dwell", "no_tracker"), ("dwell", "no_tensions")
+CONTINUOUS = ("continuous", "all")
+#: the seeds of every kind's cases are the first ones from here (a rule, never picked by outcome)
+SEED0 = 4300
+#: the fewest parameters a kind's coverage is judged on (70 % intervals fail the floor)
+MIN_PARAMS = 32
 
 
 def binomial_floor(n: int, p: float = 0.95, alpha: float = 0.005) -> int:
@@ -152,14 +163,64 @@ def binomial_floor(n: int, p: float = 0.95, alpha: float = 0.005) -> int:
     return int(binom.ppf(alpha, n, p))
 
 
-def _coverage(effect: str, robot: str, seeds: range) -> dict:
-    from bench.evaluate import one_blas_thread, run_case
+@pytest.fixture
+def predicted_rests(monkeypatch):
+    """Cases recorded as ``cdpr evaluate`` records them but with the rest searches along a
+    move started from the extrapolated rest (as ``conftest.record_scenario``: the same rows
+    within about 1e-8 m; a continuous recording in a fraction of the CPU)."""
+    import shutil
+
+    import bench.evaluate as ev
+    from bench.campaign import campaign_plant, run_campaign
+
+    plain = ev.record
+
+    def record(case: dict, rec) -> None:
+        if "logger" in case.get("case", {}) or "change" in case.get("case", {}):
+            return plain(case, rec)
+        if rec.exists():
+            shutil.rmtree(rec)
+        sc = ev.scenario_of(case)
+        run_campaign(sc, rec, plant=campaign_plant(sc, predict=True))
+
+    monkeypatch.setattr(ev, "record", record)
+
+
+def _case(effect: str, robot: str, seed: int, kind: str, sensors: str) -> dict:
+    """One small generated case concealing ``effect`` alone, nothing outside the vocabulary,
+    recorded and diagnosed (:func:`bench.evaluate.run_case`)."""
+    from bench.evaluate import CASE_HOOKS, run_case
+
+    if effect in CASE_HOOKS:  # the tracker's own errors: every sensor
+        return run_case(seed, robot=robot, tracker=effect, kind=kind, poses=POSES)
+    return run_case(seed, robot=robot, effects=(effect,), kind=kind, sensors=sensors,
+                    oov="none", poses=POSES)
+
+
+def _coverage(effect: str, robot: str, classes: tuple, n_cases: int) -> tuple[dict, str]:
+    """The coverage (:func:`bench.evaluate.coverage`) of ``effect``'s intervals over cases
+    ``SEED0 ..`` (``n_cases``, the recording classes in turn) named right, and what a
+    failure should say: the z-scores' rms and the misses by seed."""
+    from bench.evaluate import one_blas_thread
 
     one_blas_thread()
-    scores = [run_case(s, robot=robot, effects=(effect,), **SMALL) for s in seeds]
+    scores = [_case(effect, robot, SEED0 + i, *classes[i % len(classes)])
+              for i in range(n_cases)]
     right = [s for s in scores if s["exact"] and not s["unexplained"]]
-    assert len(right) >= len(scores) - 1, [(s["seed"], s["named"]) for s in scores]
-    return coverage(right)[effect]
+    wrong = [(s["seed"], s["named"], s["unexplained"]) for s in scores if s not in right]
+    assert len(right) >= 0.8 * len(scores), wrong  # the coverage of few cases says little
+    none = {"params": 0, "cases": 0, "covered": math.nan, "covered_ci95": None, "z_rms": None,
+            "missed": []}
+    cov = coverage(right).get(effect, none)
+    per_class = {}
+    for c in classes:
+        of_c = [s for i, s in enumerate(scores) if classes[i % len(classes)] == c]
+        got = coverage([s for s in of_c if s in right]).get(effect, none)
+        k = round(got["covered"] * got["params"]) if got["params"] else 0
+        per_class["_".join(c)] = f"{k}/{got['params']}"
+    return cov, (f"{effect}: {cov['params']} params in {cov['cases']} cases, covered "
+                 f"{cov['covered']:.3f} {cov['covered_ci95']} (by class {per_class}), z rms "
+                 f"{cov['z_rms']}, missed (seed, key, z) {cov['missed']}, not right {wrong}")
 
 
 def test_binomial_floor_fails_intervals_of_70_percent():
@@ -167,24 +228,69 @@ def test_binomial_floor_fails_intervals_of_70_percent():
     that cover 70 % of the time fail it with the parameter counts these tests have."""
     from scipy.stats import binom
 
-    for n in (32, 40, 48, 64):
+    for n in (MIN_PARAMS, 40, 48, 64):
         k = binomial_floor(n)
         assert binom.cdf(k - 1, n, 0.95) < 0.005
         assert binom.sf(k - 1, n, 0.70) < 0.1, n
 
 
-@pytest.mark.parametrize("effect,robot,seeds", [
-    ("pulley_kinematics", "ipanema", range(3200, 3204)),
-])
-def test_95_percent_intervals_cover_the_truth(effect, robot, seeds):
+def _kind(effect: str, robot: str, classes: tuple, n_cases: int, *marks):
+    return pytest.param(effect, robot, classes, n_cases, marks=marks,
+                        id=f"{effect}-{'+'.join('_'.join(c) for c in classes)}")
+
+
+#: per effect kind of the vocabulary: the robot, the recording classes taken in turn, the
+#: cases (about 40 parameters expected: one to three per case for the lengths, drums, EA,
+#: sag, mass, latency; more for the rest). The suite runs the weak kinds on dwells with every
+#: sensor (the cheapest class, ~0.6 CPU-s a case); ``make coverage`` (marker ``coverage``)
+#: every kind on its other recording classes.
+KINDS = [
+    _kind("cable_length_offset", "rocaspect", (DWELL,), 26),
+    _kind("drum_scale", "rocaspect", (DWELL,), 22),
+    _kind("cable_elasticity", "rocaspect", (DWELL,), 32),
+    _kind("pulley_kinematics", "ipanema", (DWELL,), 4),
+    _kind("cable_length_offset", "rocaspect", (NO_TRACKER, NO_TENSIONS, CONTINUOUS), 27,
+          pytest.mark.coverage),
+    _kind("drum_scale", "rocaspect", (NO_TRACKER, NO_TENSIONS, CONTINUOUS), 24,
+          pytest.mark.coverage),
+    _kind("cable_elasticity", "rocaspect", (NO_TRACKER, NO_TENSIONS, CONTINUOUS), 26,
+          pytest.mark.coverage, pytest.mark.xfail(strict=True, reason=(
+              "measured on 1d8c550: 29 of 38 intervals hold the truth (0.763, Wilson "
+              "0.61-0.87), z rms 2.13; without the tracker 6/12 (seeds 4303, 4306, 4309, "
+              "4315 x2, 4324: z up to 8.6), without load cells 9/10, continuous 14/16"))),
+    _kind("cable_sag", "rocaspect", (DWELL,), 40, pytest.mark.coverage),
+    _kind("exit_point_offset", "rocaspect", (DWELL, NO_TENSIONS), 12, pytest.mark.coverage,
+          pytest.mark.xfail(strict=True, reason=(
+              "measured on 1d8c550: 54 of 66 intervals hold the truth (0.818, Wilson "
+              "0.71-0.89), z rms 1.55; misses with every sensor 3 (seeds 4304, 4306), "
+              "without load cells 9 (4305, 4307, 4309, 4311; z up to 4.0)"))),
+    _kind("mast_compliance", "rocaspect", (DWELL, NO_TENSIONS), 8, pytest.mark.coverage),
+    _kind("load_cell_calibration", "rocaspect", (DWELL, NO_TRACKER), 14, pytest.mark.coverage),
+    _kind("platform_mass", "rocaspect", (DWELL, NO_TRACKER), 28, pytest.mark.coverage),
+    _kind("pulley_kinematics", "ipanema", (DWELL, NO_TENSIONS), 6, pytest.mark.coverage,
+          pytest.mark.xfail(strict=True, reason=(
+              "measured on 1d8c550: 40 of 48 intervals hold the truth (0.833), z rms 1.49; "
+              "with every sensor 23/24, without load cells 17/24 (seeds 4301, 4303, 4305; "
+              "z up to 4.7)"))),
+    _kind("tracker_frame", "rocaspect", (DWELL,), 7, pytest.mark.coverage),
+    _kind("tracker_latency", "rocaspect", (CONTINUOUS,), 40, pytest.mark.coverage,
+          pytest.mark.xfail(strict=True, reason=(
+              "measured on 1d8c550: 26 of 35 intervals hold the truth (0.743, Wilson "
+              "0.58-0.86), z rms 2.51, every miss low (z -2.1 to -7.7: seeds 4300, 4303, 4311, "
+              "4317, 4324, 4328, 4333, 4335, 4339); 5 of 40 cases also declared unexplained"))),
+]
+
+
+@pytest.mark.parametrize("effect,robot,classes,n_cases", KINDS)
+def test_95_percent_intervals_cover_the_truth(effect, robot, classes, n_cases,
+                                              predicted_rests):
     """Per effect kind, over small generated cases named right, the report's 95 % intervals
     hold the truth of their parameters as often as 95 % intervals do (a binomial bound that
     intervals covering 70 % of the time fail: at least 32 parameters)."""
-    cov = _coverage(effect, robot, seeds)
+    cov, say = _coverage(effect, robot, classes, n_cases)
     n = cov["params"]
-    assert n >= 32, cov
-    k = round(cov["covered"] * n)
-    assert k >= binomial_floor(n), cov
+    assert n >= MIN_PARAMS, say
+    assert round(cov["covered"] * n) >= binomial_floor(n), say
 
 
 @pytest.mark.parametrize("theta", [0.0, 1.5, 3.0, 6.0])
