@@ -187,8 +187,9 @@ def unneeded(in_question: list[dict]) -> list[dict]:
     ``effects_in_question``) whose effect is not needed beyond the probe: a direct stand (not
     through a look-alike) of a probe that is a finding itself, beside which (with its
     companions) the effect lowers the BIC by less than an effect
-    needs to enter the selection (``select.BIC_ENTER``). Such an effect holds only what
-    physics outside the vocabulary left: it is not named."""
+    needs to enter the selection (``select.BIC_ENTER``), and that no other named effect
+    needs (not marked ``others_need_it``, :func:`needed_by_others`). Such an effect holds
+    only what physics outside the vocabulary left: it is not named."""
     from bench.diagnosis.select import BIC_ENTER
 
     return [q for q in in_question if "via" not in q and q.get("probe_finding")

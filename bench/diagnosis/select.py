@@ -1236,19 +1236,28 @@ def honest_bic(fit: FitResult, whole: FitResult) -> float:
     """The BIC of ``fit`` relative to ``whole``'s, where ``whole`` (on the same samples)
     holds every parameter of ``fit`` and more (an effect or a nuisance added): the
     chi-square's difference divided by the design effect (:func:`design_effect`) of the
-    parameters ``whole`` adds, in ``whole`` (the evidence of their departure by their own
+    parameters ``whole`` fits and ``fit`` does not (absent, or held at the model's value),
+    in ``whole`` (the evidence of their departure by their own
     errors), plus the BIC's charge of those parameters. With independent errors, ``fit.bic
     - whole.bic``; that plain difference too where ``fit`` is not within ``whole``."""
     plain = float(fit.bic - whole.bic)
     if not within(fit, whole):
         return plain
-    mine = {(p.effect, p.key) for p in fit.space.params}
-    extra = np.array([k for k, p in enumerate(whole.space.params) if (p.effect, p.key)
-                      not in mine], dtype=int)
+    mine = {(p.effect, p.key): k for k, p in enumerate(fit.space.params)}
+    extra = np.array([k for k, p in enumerate(whole.space.params) if _free(whole, k)
+                      and not ((p.effect, p.key) in mine and _free(fit, mine[p.effect, p.key]))],
+                     dtype=int)
     if not len(extra):
         return plain
     paid = (fit.bic - fit.chi2) - (whole.bic - whole.chi2)  # (the parameters' charge)
     return float(fit.chi2 - whole.chi2) / design_effect(whole, extra) + float(paid)
+
+
+def _free(fit: FitResult, k: int) -> bool:
+    """Whether ``fit`` fitted its parameter ``k`` (not held at the model's value: a finite,
+    positive standard error)."""
+    se = float(fit.stderr[k])
+    return bool(np.isfinite(se)) and se > 0
 
 
 def within(fit: FitResult, whole: FitResult) -> bool:
