@@ -337,8 +337,13 @@ def pruning_cost(full: FitResult, weak: np.ndarray) -> float:
     if not w.any():
         return 0.0
     d = (full.phi - full.space.neutral)[w]
-    S = full.curvature_cov[np.ix_(w, w)]
-    return float(d @ np.linalg.pinv(S, rcond=1e-12, hermitian=True) @ d)
+    return quad_form(d, full.curvature_cov[np.ix_(w, w)])
+
+
+def quad_form(d: np.ndarray, cov: np.ndarray) -> float:
+    """``d^T cov^+ d``: a Wald statistic of the departure ``d`` under ``cov``
+    (pseudo-inverse: directions the data do not fix count nothing)."""
+    return float(d @ np.linalg.pinv(cov, rcond=1e-12, hermitian=True) @ d)
 
 
 #: a parameter to be held at the model's value whose part a kept parameter of another

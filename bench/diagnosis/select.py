@@ -34,6 +34,7 @@ from bench.diagnosis.fit import (
     error_structure,
     fd_jacobian,
     fit_effects,
+    quad_form,
 )
 from bench.diagnosis.frame import material, tracker_candidates
 from bench.diagnosis.residuals import ResidualModel
@@ -1156,14 +1157,10 @@ def wald_statistic(fit: FitResult, effect: str) -> tuple[float, int]:
     """(W, k): the Wald statistic of ``effect``'s parameters' departure from the model's
     values under ``fit``'s covariance (the others free), and k the parameters the data fix
     (0, 0 when none)."""
-    space = fit.space
-    ix = np.array([k for k in space.indices(effect)
-                   if np.isfinite(fit.stderr[k]) and fit.stderr[k] > 0], dtype=int)
+    ix = _fitted(fit, fit.space.indices(effect))
     if not len(ix):
         return 0.0, 0
-    d = (fit.phi - space.neutral)[ix]
-    cov = fit.cov[np.ix_(ix, ix)]
-    w = float(d @ np.linalg.pinv(cov, rcond=1e-12, hermitian=True) @ d)
+    w = quad_form((fit.phi - fit.space.neutral)[ix], fit.cov[np.ix_(ix, ix)])
     return (w if np.isfinite(w) else 0.0), len(ix)
 
 
@@ -1215,21 +1212,15 @@ def design_effect(fit: FitResult, effects: list[str] | tuple[str, ...] | np.ndar
     given = np.asarray(effects).dtype.kind in "iu"
     cols = list(np.asarray(effects, dtype=int)) if given else \
         [k for e in effects if e in space.effects for k in space.indices(e)]
-    ix = np.array([k for k in cols if np.isfinite(fit.stderr[k]) and fit.stderr[k] > 0],
-                  dtype=int)
+    ix = _fitted(fit, cols)
     if not len(ix):
         return 1.0
     d = (fit.phi - space.neutral)[ix]
-    naive = _quad(d, fit.curvature_cov[np.ix_(ix, ix)])
-    robust = _quad(d, fit.cov[np.ix_(ix, ix)])
+    naive = quad_form(d, fit.curvature_cov[np.ix_(ix, ix)])
+    robust = quad_form(d, fit.cov[np.ix_(ix, ix)])
     if not (np.isfinite(naive) and np.isfinite(robust)) or robust <= 0.0 or naive <= 0.0:
         return 1.0
     return max(naive / robust, 1.0)
-
-
-def _quad(d: np.ndarray, cov: np.ndarray) -> float:
-    """``d^T cov^+ d`` (pseudo-inverse: directions the data do not fix count nothing)."""
-    return float(d @ np.linalg.pinv(cov, rcond=1e-12, hermitian=True) @ d)
 
 
 def honest_bic(fit: FitResult, whole: FitResult) -> float:
@@ -1258,6 +1249,11 @@ def _free(fit: FitResult, k: int) -> bool:
     positive standard error)."""
     se = float(fit.stderr[k])
     return bool(np.isfinite(se)) and se > 0
+
+
+def _fitted(fit: FitResult, cols) -> np.ndarray:
+    """The indices among ``cols`` of the parameters ``fit`` fitted (:func:`_free`)."""
+    return np.array([k for k in cols if _free(fit, k)], dtype=int)
 
 
 def within(fit: FitResult, whole: FitResult) -> bool:
