@@ -1440,11 +1440,13 @@ class Interval:
     and how it was found: ``linearised`` (the estimate +- 1.96 reported standard errors),
     ``profile`` (an end moved out to where the refit holding the parameter there rises by
     the chi-square of a 95 % interval) or ``jackknife`` (the estimate +- a Student quantile
-    of jackknife standard errors); widened only."""
+    of jackknife standard errors); widened only. ``quantile``: the Student quantile its
+    standard errors were taken at (:func:`interval_quantile`)."""
 
     lo: float
     hi: float
     method: str
+    quantile: float = Z95
 
 
 def linearised_interval(fit: FitResult, k: int, extra_var: float = 0.0,
@@ -1612,7 +1614,7 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
                 hi = min(float(fit.phi[k]) + t * se_jk[k], p.hi)
                 if lo < iv.lo or hi > iv.hi:
                     out[k] = Interval(min(lo, iv.lo), max(hi, iv.hi), "jackknife")
-    return out
+    return {k: replace(iv, quantile=q[k]) for k, iv in out.items()}
 
 
 def stretched(fit: FitResult, k: int, iv: Interval, factor: float) -> Interval:

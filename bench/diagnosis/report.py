@@ -230,7 +230,7 @@ def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects
     error model's levels rest on many differences); ``floor_var`` as in
     :func:`effect_entries`, in the interval (at ``floor_dof`` degrees of freedom). An
     unbounded end (a stiffness as rigid as the data allow) is None."""
-    from bench.diagnosis.fit import confidence_intervals, interval_quantile, value_interval
+    from bench.diagnosis.fit import confidence_intervals, value_interval
 
     where = {(report_name(e), fit.space.params[k].key): int(k)
              for e in effects for k in fit.space.indices(e)}
@@ -247,9 +247,7 @@ def effect_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray, effects
             k = where.get((report_name(e), key))
             if k is not None and k in ivs:
                 lo, hi = value_interval(fit.space.params[k], ivs[k])
-                q = interval_quantile(fit, k, float(floor_var[k]), math.inf
-                                      if floor_dof is None else float(floor_dof[k]))
-                out[e][key] = (_f(lo), _f(hi), ivs[k].method, round(q, 4))
+                out[e][key] = (_f(lo), _f(hi), ivs[k].method, round(ivs[k].quantile, 4))
     return out
 
 
@@ -270,7 +268,7 @@ def selective(fit: FitResult, k: int, iv: Interval, floor_var: float = 0.0) -> I
     lo, hi = max(got[0], p.lo), min(got[1], p.hi)
     if lo < iv.lo or hi > iv.hi:
         method = "selective" if iv.method == "linearised" else f"{iv.method}+selective"
-        return Interval(min(lo, iv.lo), max(hi, iv.hi), method)
+        return Interval(min(lo, iv.lo), max(hi, iv.hi), method, iv.quantile)
     return iv
 
 
