@@ -324,15 +324,18 @@ class _CycleState:
     last_drives: bytes = b""
     last_track_t: float = -math.inf
     overrun: bool = False
+    init_cycles: int = 0  # cycles of the initial dwell (the trajectory waits)
+    measured_masts: bool = True  # the masts moved by the measured tensions (else planned)
 
     @classmethod
-    def held_at(cls, lengths_m: np.ndarray, p0: np.ndarray,
-                tensions_N: np.ndarray) -> _CycleState:
+    def held_at(cls, lengths_m: np.ndarray, p0: np.ndarray, tensions_N: np.ndarray,
+                init_cycles: int, measured_masts: bool) -> _CycleState:
         """The state before the first cycle: hold where the cables stand (the referenced
         lengths), the desired pose ``p0``."""
         cmd = lengths_m.copy()
         return cls(cmd=cmd, last_sent=cmd.copy(), sent=deque([cmd], maxlen=FEEDBACK_HISTORY),
-                   pose_des=p0.copy(), out_tensions=tensions_N)
+                   pose_des=p0.copy(), out_tensions=tensions_N, init_cycles=init_cycles,
+                   measured_masts=measured_masts)
 
 
 class ControlLoop:
@@ -565,7 +568,9 @@ class ControlLoop:
                              f"{opt.mast_tensions!r}")
         feed = FeedRate(ramp_time(traj.limits.speed_m_s, traj.limits.max_accel_m_s2))
         xt = CrossTrack(T)
-        c = _CycleState.held_at(hw.read().lengths_m, p0, self.controller.init_tensions)
+        c = _CycleState.held_at(hw.read().lengths_m, p0, self.controller.init_tensions,
+                                int(round(opt.init_dwell_s / T)),
+                                opt.mast_tensions == "measured")
         end_at = traj.duration_s + opt.end_dwell_s
         if opt.max_duration_s is not None:
             end_at = min(end_at, opt.max_duration_s)
@@ -620,7 +625,7 @@ class ControlLoop:
         if c.stopping:
             c.state = QUICK_STOP
             return
-        if c.k <= int(round(self.opt.init_dwell_s / self.hw.period_s)):
+        if c.k <= c.init_cycles:
             return
         hold = c.held_since is not None
         c.t_traj += feed.advance(self.hw.period_s, hold)
@@ -639,8 +644,8 @@ class ControlLoop:
         its events logged."""
         hw, res = self.hw, self.result
         valid = r.tensions_ok
-        measured = self.opt.mast_tensions == "measured"
-        out = self.controller.step(c.pose_des, r.tensions_N if measured else None, valid)
+        out = self.controller.step(c.pose_des, r.tensions_N if c.measured_masts else None,
+                                   valid)
         if out.feasible:
             c.out_tensions = out.tensions
         c.substituted = int(out.substituted.sum()) if out.substituted.size else 0
