@@ -326,6 +326,7 @@ class _CycleState:
     overrun: bool = False
     init_cycles: int = 0  # cycles of the initial dwell (the trajectory waits)
     measured_masts: bool = True  # the masts moved by the measured tensions (else planned)
+    outside: int | None = None  # a winch whose setpoint is outside its limits (held)
 
     @classmethod
     def held_at(cls, lengths_m: np.ndarray, p0: np.ndarray, tensions_N: np.ndarray,
@@ -687,24 +688,40 @@ class ControlLoop:
                 c.held_since = t
             c.cmd = out.lengths if out.feasible else c.last_sent
         else:
-            c.held_since = self._stood_since = None
             c.cmd = out.lengths if out.feasible else c.last_sent
         if c.stopping:
             return
-        w = hw.winches
-        raw = c.cmd - hw.reference_offset_m  # the drives' lengths
-        bad = ~np.isfinite(c.cmd) | (raw < w.min_length_m) | (raw > w.max_length_m)
-        if np.count_nonzero(bad):  # the winch limits: checked again before sending
-            j = int(np.flatnonzero(bad)[0])
-            self._event(t, "drive", hw.node_ids[j], hw.cables[j], "workspace", 0, "hold", True,
-                        f"setpoint {c.cmd[j]:.4f} m outside the winch's length limits: not "
-                        f"sent")
+        if self._outside_limits(c, t):
             c.cmd = c.last_sent
             c.held_since = c.held_since if c.held_since is not None else t
+        elif not d.hold:
+            c.held_since = self._stood_since = None
         c.prev_sent = c.last_sent if self.opt.realtime else None
         c.last_sent = c.cmd
         if self.opt.realtime:
             c.sent.append(c.cmd)
+
+    def _outside_limits(self, c: _CycleState, t: float) -> bool:
+        """The winch limits checked again before sending (whatever planned ``c.cmd``):
+        whether a setpoint is outside a winch's length range (or not finite). The first
+        such cycle is a ``workspace`` event (a hold), the first cycle back within the
+        limits ends it; while outside, the loop holds, so a setpoint that stays outside
+        ends the run as a hold timeout."""
+        hw = self.hw
+        w = hw.winches
+        raw = c.cmd - hw.reference_offset_m  # the drives' lengths
+        bad = ~np.isfinite(c.cmd) | (raw < w.min_length_m) | (raw > w.max_length_m)
+        was = c.outside
+        c.outside = int(np.flatnonzero(bad)[0]) if np.count_nonzero(bad) else None
+        if c.outside is not None and was is None:
+            j = c.outside
+            self._event(t, "drive", hw.node_ids[j], hw.cables[j], "workspace", 0, "hold", True,
+                        f"setpoint {c.cmd[j]:.4f} m outside the winch's length limits "
+                        f"[{w.min_length_m[j]:.4f}, {w.max_length_m[j]:.4f}] m: not sent")
+        elif c.outside is None and was is not None:
+            self._event(t, "drive", hw.node_ids[was], hw.cables[was], "workspace", 0, "hold",
+                        False, "setpoints within the winch's length limits again")
+        return c.outside is not None
 
     def _measure(self, c: _CycleState, r: Readings, xt: CrossTrack, t: float) -> None:
         """At the recording's rate (and whenever the state or the drives' CiA 402 states
@@ -752,8 +769,12 @@ class ControlLoop:
             return True
         if c.held_since is not None and self._stood_too_long(feed, t):
             res.ended = "hold_timeout"
+            held = list(d.conditions)
+            if c.outside is not None:
+                held.append(f"workspace: cable {self.hw.cables[c.outside]}'s setpoint "
+                            f"outside its winch's length limits")
             res.message = (f"held for {opt.hold_timeout_s} s: "
-                           f"{', '.join(d.conditions) or 'condition'} did not clear")
+                           f"{', '.join(held) or 'condition'} did not clear")
             if any(cond.startswith("slack:") for cond in d.conditions):
                 res.message += (" (a cable stays slack there with this model; "
                                 "--react slack=log records it and goes on)")
