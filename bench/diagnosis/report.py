@@ -1206,9 +1206,9 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, got: _Settled, gone
     the probe cannot take its parameters, yet the refit without the structure they held
     leaves them below the noise; no probe stands for it), nothing is dropped: ``got`` with
     those stands marked (:func:`probes.needed_by_others`), no stand dropped. Of several
-    such effects, the first that goes alone without the loss goes (the loop of the caller
-    judges the others again beside the next settle)."""
-    names = [q["effect"] for q in gone]
+    such effects, the first that goes alone (with all its stands) without the loss goes
+    (the loop of the caller judges the others again beside the next settle)."""
+    names = list(dict.fromkeys(q["effect"] for q in gone))  # (an effect may have two stands)
     sel = copy.copy(got.sel)  # (got stays as it was, should the drop not be made)
     rejected = dict(sel.rejected)
     for q in gone:
@@ -1229,9 +1229,9 @@ def _without_unneeded(rm: ResidualModel, selector: Selector, got: _Settled, gone
     if not lost:
         return again, gone
     del left_out[n_left:]
-    for q in gone if len(gone) > 1 else []:  # one of them may go without the loss
-        alone = _without_unneeded(rm, selector, got, [q], candidates, fit_idx, left_out, rec,
-                                  changes, pool, say)
+    for e in names if len(names) > 1 else []:  # one of them may go without the loss
+        alone = _without_unneeded(rm, selector, got, [q for q in gone if q["effect"] == e],
+                                  candidates, fit_idx, left_out, rec, changes, pool, say)
         if alone[1]:
             return alone
     say(f"naming {', '.join(report_name(e) for e in names)} after all: without "
