@@ -243,6 +243,100 @@ def _beyond(solve: Callable, j: int, without: tuple[np.ndarray, np.ndarray | Non
     return solve(without[0], j, without[1], True)[0] - solve(full[0], j, full[1], True)[0]
 
 
+@dataclass
+class _Linear:
+    """The fit linearised at ``phi`` on the samples ``idx`` for :func:`screen`: the whitened
+    residuals ``r0``, the columns of the free parameters ``act`` (``Jc``), of the probes
+    (``Jp``, one each) and of each probe's companions (``Jq[j]``), the parameters' bounds,
+    and the chi-square ``chi0`` of the refit without a probe with its ``inflation`` (the
+    reduced chi-square, at least 1)."""
+
+    r0: np.ndarray
+    act: np.ndarray
+    x_act: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    Jc: np.ndarray
+    Jp: np.ndarray
+    Jq: list[np.ndarray]
+    sizes: np.ndarray  #: each probe column's largest entry [m]
+    log_n: float
+    chi0: float = 0.0
+    inflation: float = 1.0
+
+    @property
+    def every(self) -> np.ndarray:
+        return np.ones(len(self.act), dtype=bool)
+
+    def solve(self, keep: np.ndarray, j: int | None, r_at: np.ndarray | None = None,
+              with_companions: bool = False) -> tuple[float, float, np.ndarray]:
+        """chi-square of the linearised fit from the residuals ``r_at`` (``r0``) with the
+        ``keep`` columns of the effects (and probe column ``j``, with its companions when
+        asked) free; the probe's value; the residuals."""
+        from bench.diagnosis.select import _bounded_lstsq
+
+        r_at = self.r0 if r_at is None else r_at
+        n_res = len(self.r0)
+        extra = np.zeros((n_res, 0)) if j is None else np.hstack(
+            [self.Jq[j] if with_companions else np.zeros((n_res, 0)), self.Jp[:, j:j + 1]])
+        m = extra.shape[1]
+        A = np.hstack([self.Jc[:, keep], extra])
+        x0 = np.concatenate([self.x_act[keep], np.zeros(m)])
+        a = np.concatenate([self.lo[keep], np.full(m, -np.inf)])
+        b = np.concatenate([self.hi[keep], np.full(m, np.inf)])
+        d = _bounded_lstsq(A, -r_at, x0, a, b) if A.shape[1] else np.zeros(0)
+        r = r_at + A @ d
+        return float(r @ r), float(d[-1]) if j is not None else 0.0, r
+
+
+def _linearise(rm: ResidualModel, space: ParamSpace, phi: np.ndarray, idx: np.ndarray | None,
+               cols: list[tuple[str, str | None, np.ndarray]]) -> _Linear | None:
+    """:class:`_Linear` at ``phi`` (None without residuals): the free parameters' columns by
+    finite differences within their bounds, the probes' and companions' by an extra length
+    (:func:`_length_column`, the robot frozen)."""
+    robot = space.robot(phi)
+    rm.extra_length = None
+    r0 = rm.whitened(robot, idx)
+    n_res = len(r0)
+    if n_res == 0:
+        return None
+    act = np.flatnonzero(phi != space.neutral)  # the parameters the fit left free
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        p = phi.copy()
+        p[act] = z
+        return rm.whitened(space.robot(p), idx)
+
+    lo, hi = space.lo[act], space.hi[act]
+    Jc = fd_jacobian(fun, phi[act], r0, space.scale[act] * 1e-2, lo, hi, rm.frozen) \
+        if len(act) else np.zeros((n_res, 0))
+    Jp = np.empty((n_res, len(cols)))
+    sizes = np.empty(len(cols))
+    Jq: list[np.ndarray] = []
+    try:
+        with rm.frozen():
+            for j, (_, _, x) in enumerate(cols):
+                sizes[j] = float(np.max(np.abs(x)))
+                Jp[:, j] = _length_column(rm, robot, idx, r0, x)
+        # each probe's companions (:func:`companions`), for the test of what an effect adds
+        # beside the probe
+        with rm.frozen():
+            for name, _, col in cols:
+                comp = companions(rm, name, col)
+                Jq.append(np.empty((n_res, len(comp))))
+                for i, x in enumerate(comp):
+                    Jq[-1][:, i] = _length_column(rm, robot, idx, r0, x)
+    finally:
+        rm.extra_length = None
+    lin = _Linear(r0, act, phi[act], lo, hi, Jc, Jp, Jq, sizes, math.log(n_res))
+    # the chosen effects refitted on these samples, linearised, without a probe: what a
+    # probe adds is measured from there (the final fit saw fewer samples)
+    lin.chi0 = lin.solve(lin.every, None)[0]
+    dof = max(float(rm.entry_weights(idx).sum()) - len(act) - rm.dof_lost(idx), 1.0)
+    lin.inflation = max(lin.chi0 / dof, 1.0)
+    return lin
+
+
 def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
            idx: np.ndarray | None = None,
            cols: list[tuple[str, str | None, np.ndarray]] | None = None,
@@ -259,71 +353,32 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
     (:func:`columns`); ``declared``: another test found what they stand for (each counts as
     a finding). A probe that is a finding stands with its companions too
     (:func:`companions`)."""
-    from bench.diagnosis.select import BIC_TIE, _bounded_lstsq
-
     cols = columns(rm) if cols is None else cols
     if not cols:
         return [], []
-    robot = space.robot(phi)
-    rm.extra_length = None
-    r0 = rm.whitened(robot, idx)
-    n_res = len(r0)
-    if n_res == 0:
+    lin = _linearise(rm, space, phi, idx, cols)
+    if lin is None:
         return [], []
-    act = np.flatnonzero(phi != space.neutral)  # the parameters the fit left free
-
-    def fun(z: np.ndarray) -> np.ndarray:
-        p = phi.copy()
-        p[act] = z
-        return rm.whitened(space.robot(p), idx)
-
-    lo, hi = space.lo[act], space.hi[act]
-    Jc = fd_jacobian(fun, phi[act], r0, space.scale[act] * 1e-2, lo, hi, rm.frozen) \
-        if len(act) else np.zeros((n_res, 0))
-    Jp = np.empty((n_res, len(cols)))
-    sizes = np.empty(len(cols))
-    try:
-        with rm.frozen():
-            for j, (_, _, x) in enumerate(cols):
-                sizes[j] = float(np.max(np.abs(x)))
-                Jp[:, j] = _length_column(rm, robot, idx, r0, x)
-        # each probe's companions (:func:`companions`), for the test of what an effect adds
-        # beside the probe
-        Jq: list[np.ndarray] = []
-        with rm.frozen():
-            for name, _, col in cols:
-                comp = companions(rm, name, col)
-                Jq.append(np.empty((n_res, len(comp))))
-                for i, x in enumerate(comp):
-                    Jq[-1][:, i] = _length_column(rm, robot, idx, r0, x)
-    finally:
-        rm.extra_length = None
-    ok = np.isfinite(Jp).all(axis=0) & np.isfinite(Jc).all()
+    ok = np.isfinite(lin.Jp).all(axis=0) & np.isfinite(lin.Jc).all()
     noise = _length_noise(rm)
-    log_n = math.log(n_res)
+    out, used = _probe_results(rm, idx, lin, cols, ok, noise)
+    found = {j: r.finding or declared for j, r in zip(used, out, strict=True)}
+    stands = [st for e in space.effects
+              if (st := _stand(rm, space, phi, idx, lin, cols, ok, noise, found, e,
+                               set((named or {}).get(e, {})))) is not None]
+    return out, stands
 
-    def solve(keep: np.ndarray, j: int | None, r_at: np.ndarray = r0,
-              with_companions: bool = False) -> tuple[float, float, np.ndarray]:
-        """chi-square of the linearised fit from the residuals ``r_at`` with the ``keep``
-        columns of the effects (and probe column ``j``, with its companions when asked)
-        free; the probe's value; the residuals."""
-        extra = np.zeros((n_res, 0)) if j is None else np.hstack(
-            [Jq[j] if with_companions else np.zeros((n_res, 0)), Jp[:, j:j + 1]])
-        m = extra.shape[1]
-        A = np.hstack([Jc[:, keep], extra])
-        x0 = np.concatenate([phi[act][keep], np.zeros(m)])
-        a = np.concatenate([lo[keep], np.full(m, -np.inf)])
-        b = np.concatenate([hi[keep], np.full(m, np.inf)])
-        d = _bounded_lstsq(A, -r_at, x0, a, b) if A.shape[1] else np.zeros(0)
-        r = r_at + A @ d
-        return float(r @ r), float(d[-1]) if j is not None else 0.0, r
 
-    # the chosen effects refitted on these samples, linearised, without a probe: what a
-    # probe adds is measured from there (the final fit saw fewer samples)
-    every = np.ones(len(act), dtype=bool)
-    chi0, _, _ = solve(every, None)
-    dof = max(float(rm.entry_weights(idx).sum()) - len(act) - rm.dof_lost(idx), 1.0)
-    inflation = max(chi0 / dof, 1.0)
+def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
+                   cols: list[tuple[str, str | None, np.ndarray]], ok: np.ndarray,
+                   noise: float) -> tuple[list[ProbeResult], list[int]]:
+    """Each probe fitted beside the effects: its value, BIC change (from the variance of its
+    coefficient: classical, or cluster-robust over the error clusters where there are 3
+    or more, never below the classical) and size over the ``noise``, a finding marked;
+    and the columns that gave a result. A direction-dependent error common to the cables
+    is the winches' hysteresis, which the noise model holds (its direction component): one
+    cable's is a finding only where it also stands out from the others'."""
+    Jc, Jp = lin.Jc, lin.Jp
     # each probe column less what the effects' columns hold of it (its coefficient's
     # information), and the error clusters (rows of neighbouring moves, a target's visits
     # share their errors: a drift judged row by row would count each error many times)
@@ -336,83 +391,84 @@ def screen(rm: ResidualModel, space: ParamSpace, phi: np.ndarray,
     _, cluster = np.unique(rm.entry_blocks(idx), return_inverse=True)
     n_groups = int(cluster.max()) + 1 if cluster.size else 0
     out: list[ProbeResult] = []
+    used: list[int] = []
     for j, (name, cid, _) in enumerate(cols):
-        if not ok[j]:
-            continue
-        _, value, r = solve(every, j)
-        info = float(Pp[:, j] @ Pp[:, j])
+        info = float(Pp[:, j] @ Pp[:, j]) if ok[j] else 0.0
         if info <= 0:
             continue
-        var = inflation / info  # the classical variance of the probe's coefficient
+        _, value, r = lin.solve(lin.every, j)
+        var = lin.inflation / info  # the classical variance of the probe's coefficient
         if n_groups >= 3:  # cluster-robust (sandwich), never below the classical
             score = np.bincount(cluster, weights=Pp[:, j] * r, minlength=n_groups)
             var = max(var, float(score @ score) / info ** 2 * n_groups / (n_groups - 1))
         # (a direction column is half the difference: its size is the half, as the
         # residuals' two-group test reports it)
-        res = ProbeResult(name, cid, value, -value ** 2 / var + log_n,
-                          abs(value) * sizes[j] / noise)
+        res = ProbeResult(name, cid, value, -value ** 2 / var + lin.log_n,
+                          abs(value) * lin.sizes[j] / noise)
         res.finding = bool(res.delta_bic < -PROBE_BIC and res.size_over_noise > PROBE_SIZE)
         out.append(res)
-    # a direction-dependent error common to the cables is the winches' hysteresis, which the
-    # noise model holds (its direction component): one cable's is a finding when it also
-    # stands out from the others'
+        used.append(j)
     dirs = [r for r in out if r.name == "direction"]
     for r in dirs:
         others = [abs(o.value) for o in dirs if o is not r]
         if others and abs(r.value) <= DIRECTION_RATIO * float(np.median(others)):
             r.finding = False
-    found = {j: r.finding or declared for j, r in zip(
-        [j for j in range(len(cols)) if ok[j] and float(Pp[:, j] @ Pp[:, j]) > 0], out,
-        strict=True)}
-    stands: list[Stand] = []
-    pos = {k: i for i, k in enumerate(act)}
-    for e in space.effects:
-        mine = [pos[k] for k in space.indices(e) if k in pos]
-        if not mine:
+    return out, used
+
+
+def _stand(rm: ResidualModel, space: ParamSpace, phi: np.ndarray, idx: np.ndarray | None,
+           lin: _Linear, cols: list[tuple[str, str | None, np.ndarray]], ok: np.ndarray,
+           noise: float, found: dict[int, bool], e: str, keys: set[str]) -> Stand | None:
+    """The probe that best takes effect ``e``'s place (its parameters back at the model's
+    values; a finding also with its companions): of size above the ``noise`` and within
+    ``select.BIC_TIE`` of the fit with ``e``; and what the parameters of ``e`` the report
+    names (``keys``; all its free ones without) add beside it. None where no probe does."""
+    from bench.diagnosis.select import BIC_TIE
+
+    pos = {k: i for i, k in enumerate(lin.act)}
+    mine = [pos[k] for k in space.indices(e) if k in pos]
+    if not mine:
+        return None
+    act, every = lin.act, lin.every
+    said = [pos[k] for k in space.indices(e) if k in pos and space.params[k].key in keys] \
+        or mine
+    keep = every.copy()
+    keep[mine] = False
+    # without the effect: its parameters back at the model's values
+    p = phi.copy()
+    p[act[mine]] = space.neutral[act[mine]]
+    r_wo = rm.whitened(space.robot(p), idx)
+    if r_wo.shape != lin.r0.shape or not np.isfinite(r_wo).all():
+        return None
+    without = (keep, r_wo)  # what the named parameters add is measured from here
+    best: Stand | None = None
+    for j, (name, cid, _) in enumerate(cols):
+        if not ok[j]:
             continue
-        keys = set((named or {}).get(e, {}))
-        said = [pos[k] for k in space.indices(e)
-                if k in pos and space.params[k].key in keys] or mine
-        held = every.copy()
-        held[said] = False
-        p_said = phi.copy()
-        p_said[act[said]] = space.neutral[act[said]]
-        r_said: list[np.ndarray | None] = []  # (evaluated once, where a probe stands)
-        keep = every.copy()
-        keep[mine] = False
-        # without the effect: its parameters back at the model's values
-        p = phi.copy()
-        p[act[mine]] = space.neutral[act[mine]]
-        r_wo = rm.whitened(space.robot(p), idx)
-        if r_wo.shape != r0.shape or not np.isfinite(r_wo).all():
-            continue
-        best: Stand | None = None
-        for j, (name, cid, _) in enumerate(cols):
-            if not ok[j]:
+        # the probe in the effect's place, alone and, a finding, with its companions
+        with_comp = lin.Jq[j].shape[1] and found.get(j) and np.isfinite(lin.Jq[j]).all()
+        for comp in (False, True) if with_comp else (False,):
+            chi, value, _ = lin.solve(keep, j, r_wo, comp)
+            size = abs(value) * lin.sizes[j] / noise
+            d_bic = (chi - lin.chi0) / lin.inflation \
+                + (1 + (lin.Jq[j].shape[1] if comp else 0) - len(mine)) * lin.log_n
+            if not (size > PROBE_SIZE and d_bic < BIC_TIE
+                    and (best is None or d_bic < best.delta_bic)):
                 continue
-            # the probe in the effect's place, alone and, a finding, with its companions
-            with_comp = Jq[j].shape[1] and found.get(j) and np.isfinite(Jq[j]).all()
-            for comp in (False, True) if with_comp else (False,):
-                chi, value, _ = solve(keep, j, r_wo, comp)
-                size = abs(value) * sizes[j] / noise
-                d_bic = (chi - chi0) / inflation \
-                    + (1 + (Jq[j].shape[1] if comp else 0) - len(mine)) * log_n
-                if not (size > PROBE_SIZE and d_bic < BIC_TIE
-                        and (best is None or d_bic < best.delta_bic)):
-                    continue
-                # what the effect's named parameters add beside the probe (both fits with
-                # the probe and its companions free)
-                if said != mine and not r_said:
-                    r_said.append(_valid(rm.whitened(space.robot(p_said), idx), r0))
-                beyond = _beyond(solve, j, (keep, r_wo) if said == mine else
-                                 (held, r_said[0]), (every, r0)) / inflation \
-                    - len(said) * log_n
-                best = Stand(e, ProbeResult(name, cid, value, d_bic, size), d_bic,
-                             beyond=None if math.isnan(beyond) else float(beyond),
-                             found=found.get(j, False))
-        if best is not None:
-            stands.append(best)
-    return out, stands
+            if said != mine and without[0] is keep:  # (evaluated once, where a probe stands)
+                held = every.copy()
+                held[said] = False
+                p_said = phi.copy()
+                p_said[act[said]] = space.neutral[act[said]]
+                without = (held, _valid(rm.whitened(space.robot(p_said), idx), lin.r0))
+            # what the effect's named parameters add beside the probe (both fits with the
+            # probe and its companions free)
+            beyond = _beyond(lin.solve, j, without, (every, lin.r0)) / lin.inflation \
+                - len(said) * lin.log_n
+            best = Stand(e, ProbeResult(name, cid, value, d_bic, size), d_bic,
+                         beyond=None if math.isnan(beyond) else float(beyond),
+                         found=found.get(j, False))
+    return best
 
 
 def findings(results: list[ProbeResult], stands: list[Stand] | None = None) -> list[str]:
