@@ -143,16 +143,25 @@ class SimRig:
         if not (plant_rate_hz > 0 and cell_rate_hz > 0):
             raise ValueError("plant_rate_hz and cell_rate_hz must be > 0")
         self.scenario = scenario if scenario is not None else default_scenario()
-        sc = self.scenario
         self.winches = winches if winches is not None else load_winches()
-        if tuple(self.winches.cables) != tuple(sc.model.cable_ids):
-            raise ValueError(f"winches {self.winches.source} are for cables "
-                             f"{self.winches.cables}, the robot {sc.model.name} has "
-                             f"{sc.model.cable_ids}")
         self.clock = clock
         self.plant_thread = plant_thread
         self.plant_period_s = 1.0 / plant_rate_hz
         self.cell_period_s = 1.0 / cell_rate_hz
+        self._make_plant()
+        self._make_can(bus, channel, hub_port, hub_host, watch_wall_heartbeats)
+        self._make_cells(modbus_host, modbus_port, rtu)
+        self._make_tracker(tracker_port, tracker_host, tracker_rate_hz)
+        self._first_rest()
+
+    def _make_plant(self) -> None:
+        """The plant of the scenario, at the init pose, and the winches' reference lengths
+        there (checked against the winches' cables and length limits)."""
+        sc = self.scenario
+        if tuple(self.winches.cables) != tuple(sc.model.cable_ids):
+            raise ValueError(f"winches {self.winches.source} are for cables "
+                             f"{self.winches.cables}, the robot {sc.model.name} has "
+                             f"{sc.model.cable_ids}")
         self.plant = Plant(sc.model, sc.truth, sc.init_pose,
                            sc.nuisances(),
                            slip_times=sc.slip_times, rng=np.random.default_rng(sc.seed + 1),
@@ -168,7 +177,10 @@ class SimRig:
                              f"{self.reference_m[k]:.3f} m at the init pose is outside the "
                              f"winch limits of {self.winches.source}")
 
-        # CAN side
+    def _make_can(self, bus: can.BusABC | None, channel: str | None, hub_port: int | None,
+                  hub_host: str, watch_wall_heartbeats: bool) -> None:
+        """The simulated drives on ``bus`` (else on a virtual channel of the rig's own,
+        served by a socketcand hub on ``hub_port`` when given), at the reference lengths."""
         self.channel: str | None = None
         self._hub_bus: can.BusABC | None = None
         self.hub: CanHub | None = None
@@ -180,27 +192,33 @@ class SimRig:
                 self.hub = CanHub(hub_host, hub_port, bus=self._hub_bus)
         self._bus_spec = None if self.channel is None else f"virtual:{self.channel}"
         self.bank = SimulatedWinchBank(bus, self.winches,
-                                       clock=time.monotonic if clock == "wall" else None)
+                                       clock=time.monotonic if self.clock == "wall" else None)
         self.bank.set_positions_m(self.reference_m)
         if not watch_wall_heartbeats:
             for d in self.bank.drives:
                 d.watch_wall = False
 
-        # load cells
+    def _make_cells(self, host: str, port: int, rtu: bool) -> None:
+        """The load cells (the scenario's noise) and their Modbus server (not yet started)."""
+        sc = self.scenario
         self.cells = LoadCellBank(noise_N=sc.noise.load_cell_n, seed=sc.seed + 2)
         if tuple(self.cells.map.cables) != tuple(self.winches.cables):
             raise ValueError(f"load-cell map {self.cells.map.source} is for cables "
                              f"{self.cells.map.cables}, winches for {self.winches.cables}")
-        self.server = LoadCellServer(self.cells, host=modbus_host, port=modbus_port, rtu=rtu)
+        self.server = LoadCellServer(self.cells, host=host, port=port, rtu=rtu)
 
-        # laser tracker: the plant's pose with the scenario's noise (and its own errors)
+    def _make_tracker(self, port: int | None, host: str, rate_hz: float) -> None:
+        """The laser tracker: the plant's pose with the scenario's noise (and its own
+        errors), served on ``port`` when given."""
+        sc = self.scenario
         self.tracker = SimTracker(lambda: (self.time_s(), self.last.pose),
                                   sc.noise.tracker_m, sc.noise.tracker_rad, seed=sc.seed + 3,
                                   truth=sc.truth)
-        self.tracker_server = None if tracker_port is None else TrackerServer(
-            self.tracker.measure, host=tracker_host, port=tracker_port, rate_hz=tracker_rate_hz)
+        self.tracker_server = None if port is None else TrackerServer(
+            self.tracker.measure, host=host, port=port, rate_hz=rate_hz)
 
-        # plant state
+    def _first_rest(self) -> None:
+        """The plant's state and history, settled once at the drives' quantised readings."""
         self._lock = threading.Condition()
         self._t0 = time.monotonic()
         st = self.plant.state

@@ -197,21 +197,15 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
     jump is one cable's own where that cable's account leaves far less of it than any
     other cable's."""
     R = len(length)
-    same = np.concatenate([[False], stream.block[1:] == stream.block[:-1]])
     tau = getattr(stream, "tau", None)
-    if tau is not None and R > 1:
-        fitted = ~np.isfinite(np.asarray(tau, float).reshape(R, -1)).all(axis=1)
-        gone = ~np.isfinite(length)
-        switch = np.any(gone[1:] != gone[:-1], axis=1) & fitted[1:] & fitted[:-1]
-        same[1:] &= ~switch
+    same = _comparable_rows(stream, length, tau)
     raw = _row_changes(length, same)
     raw[stream.t <= t_after] = np.nan
-    j, own, alike = raw, None, None
+    j, own, alike, fitted_rows = raw, None, None, None
     if absorbed is not None:
         # each cable's slip that accounts for the jump best, where the tensions are fitted
         beta, own, fitted_rows, alike = cable_accounts(raw, absorbed)
         j = np.where(fitted_rows[:, None], beta, raw)
-    found = []
     with np.errstate(invalid="ignore"):
         mad = 1.4826 * np.nanmedian(np.abs(j), axis=0)
         z = np.abs(j) / np.maximum(mad, 1e-9)
@@ -219,50 +213,15 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
     # one cable's own: its jump dominates the other cables' at that row (a jump of several
     # cables at once is the pose, or all the cables' lengths changing at a new visit)
     if len(cable_ids) > 1:
-        mag = np.nan_to_num(np.abs(raw))
-        top2 = np.sort(mag, axis=1)[:, -2:]
-        second = np.where(mag >= top2[:, 1:2], top2[:, :1], top2[:, 1:2])
-        alone = mag > DOMINANT * second
+        alone = _dominant(raw)
         big &= alone if own is None else np.where(fitted_rows[:, None], own, alone)
     if own is not None and tau is not None:
-        # rows whose pose was estimated (measured tensions, fitted pose): the pose takes up
-        # six of eight directions, and several cables' patterns are nearly parallel in the
-        # two left (ROCASPECT's even cables): a jump of several cables' readings at once
-        # (hysteresis at a reversal) is accounted for by one of them within the noise. A
-        # slip moves the platform: its cable's tension jumps with it (a 6 mm slip of a
-        # 15 m cable at E*A 700 kN, by a hundred newtons); a reading's error does not
-        tm = np.asarray(tau, float).reshape(R, -1)
-        posed = fitted_rows & np.isfinite(tm).all(axis=1)
-        if posed.any():
-            dtau = _row_changes(tm, same)
-            with np.errstate(invalid="ignore"):
-                zt = np.abs(dtau) / np.maximum(1.4826 * np.nanmedian(np.abs(dtau), axis=0),
-                                               1e-9)
-                # where no cable's account is its own but several account for the jump
-                # within the noise (ROCASPECT's odd cables), each is a candidate: the
-                # time is known, whose slip it is the fit tells (its offset)
-                cand = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M) & alike & posed[:, None]
-            cand &= (cand.sum(axis=1) > 1)[:, None] & ~big
-            big |= cand
-            big &= ~posed[:, None] | (zt > JUMP_Z)
+        big = _with_posed_candidates(np.asarray(tau, float).reshape(R, -1), same, j, z, big,
+                                     fitted_rows, alike)
     else:
         alike = None
-    for k, cid in enumerate(cable_ids):
-        rows = [i for i in np.flatnonzero(big[:, k])
-                if _local_z(j[:, k], int(i)) > JUMP_Z
-                and _holds(stream, length[:, k], int(i), float(raw[i, k]))]
-        if alike is not None and any(not alike[i, k] for i in rows):
-            # a jump that is the cable's own before one it is only a candidate for (a
-            # larger slip of a cable alike, whose fit will tell)
-            rows = [i for i in rows if not alike[i, k]]
-        if not rows:
-            continue
-        i = rows[int(np.argmax(np.abs(j[rows, k])))]
-        found.append({"cable": cid, "t_s": float(0.5 * (stream.t[i - 1] + stream.t[i])),
-                      "step_m": float(j[i, k]), "z": float(z[i, k]), "row": int(stream.row[i])})
-        if alike is not None and alike[i, k]:
-            found[-1]["alike"] = [c for c, a in zip(cable_ids, big[i] & alike[i], strict=True)
-                                  if a and c != cid]
+    found = [f for k, cid in enumerate(cable_ids)
+             if (f := _cable_step(stream, length, raw, j, z, big, alike, k, cid, cable_ids))]
     at = {f["cable"]: f["row"] for f in found}
     for f in found:  # (the candidates found at that row)
         if "alike" in f:
@@ -270,6 +229,75 @@ def row_jumps(stream: Samples, length: np.ndarray, cable_ids: tuple[str, ...],
             if not f["alike"]:
                 del f["alike"]
     return found
+
+
+def _comparable_rows(stream: Samples, length: np.ndarray, tau) -> np.ndarray:
+    """(R,) whether a row's change from the row before tells a step: both in one block, and,
+    where both rows' tensions were fitted, no cable going to or from zero tension between
+    them (:func:`row_jumps`)."""
+    R = len(length)
+    same = np.concatenate([[False], stream.block[1:] == stream.block[:-1]])
+    if tau is not None and R > 1:
+        fitted = ~np.isfinite(np.asarray(tau, float).reshape(R, -1)).all(axis=1)
+        gone = ~np.isfinite(length)
+        switch = np.any(gone[1:] != gone[:-1], axis=1) & fitted[1:] & fitted[:-1]
+        same[1:] &= ~switch
+    return same
+
+
+def _dominant(raw: np.ndarray) -> np.ndarray:
+    """(R, n) whether a cable's change ``raw`` is more than :data:`DOMINANT` times the
+    largest of the other cables' at that row."""
+    mag = np.nan_to_num(np.abs(raw))
+    top2 = np.sort(mag, axis=1)[:, -2:]
+    second = np.where(mag >= top2[:, 1:2], top2[:, :1], top2[:, 1:2])
+    return mag > DOMINANT * second
+
+
+def _with_posed_candidates(tm: np.ndarray, same: np.ndarray, j: np.ndarray, z: np.ndarray,
+                           big: np.ndarray, fitted_rows: np.ndarray,
+                           alike: np.ndarray) -> np.ndarray:
+    """``big`` for rows whose pose was estimated from measured tensions ``tm`` (R, n) [N]:
+    the pose takes up six of eight directions, and several cables' patterns are nearly
+    parallel in the two left (ROCASPECT's even cables): a jump of several cables' readings
+    at once (hysteresis at a reversal) is accounted for by one of them within the noise. A
+    slip moves the platform: its cable's tension jumps with it (a 6 mm slip of a 15 m
+    cable at E*A 700 kN, by a hundred newtons); a reading's error does not. Where no
+    cable's account is its own but several account for the jump within the noise
+    (ROCASPECT's odd cables), each is a candidate: the time is known, whose slip it is the
+    fit tells (its offset)."""
+    posed = fitted_rows & np.isfinite(tm).all(axis=1)
+    if not posed.any():
+        return big
+    dtau = _row_changes(tm, same)
+    with np.errstate(invalid="ignore"):
+        zt = np.abs(dtau) / np.maximum(1.4826 * np.nanmedian(np.abs(dtau), axis=0), 1e-9)
+        cand = (z > JUMP_Z) & (np.abs(j) > JUMP_MIN_M) & alike & posed[:, None]
+    cand &= (cand.sum(axis=1) > 1)[:, None] & ~big
+    return (big | cand) & (~posed[:, None] | (zt > JUMP_Z))
+
+
+def _cable_step(stream: Samples, length: np.ndarray, raw: np.ndarray, j: np.ndarray,
+                z: np.ndarray, big: np.ndarray, alike: np.ndarray | None, k: int, cid: str,
+                cable_ids: tuple[str, ...]) -> dict | None:
+    """Cable ``k``'s step (the largest of its rows that step locally and hold, a jump its
+    own before one it is only a candidate for), or None."""
+    rows = [i for i in np.flatnonzero(big[:, k])
+            if _local_z(j[:, k], int(i)) > JUMP_Z
+            and _holds(stream, length[:, k], int(i), float(raw[i, k]))]
+    if alike is not None and any(not alike[i, k] for i in rows):
+        # a jump that is the cable's own before one it is only a candidate for (a larger
+        # slip of a cable alike, whose fit will tell)
+        rows = [i for i in rows if not alike[i, k]]
+    if not rows:
+        return None
+    i = rows[int(np.argmax(np.abs(j[rows, k])))]
+    f = {"cable": cid, "t_s": float(0.5 * (stream.t[i - 1] + stream.t[i])),
+         "step_m": float(j[i, k]), "z": float(z[i, k]), "row": int(stream.row[i])}
+    if alike is not None and alike[i, k]:
+        f["alike"] = [c for c, a in zip(cable_ids, big[i] & alike[i], strict=True)
+                      if a and c != cid]
+    return f
 
 
 def _row_changes(x: np.ndarray, same: np.ndarray) -> np.ndarray:
