@@ -265,11 +265,7 @@ KINDS = [
               "0.61-0.87), z rms 2.13; without the tracker 6/12 (seeds 4303, 4306, 4309, "
               "4315 x2, 4324: z up to 8.6), without load cells 9/10, continuous 14/16"))),
     _kind("cable_sag", "rocaspect", (DWELL,), 40, pytest.mark.coverage),
-    _kind("exit_point_offset", "rocaspect", (DWELL, NO_TENSIONS), 12, pytest.mark.coverage,
-          pytest.mark.xfail(strict=True, raises=BelowFloor, reason=(
-              "measured on 1d8c550: 54 of 66 intervals hold the truth (0.818, Wilson "
-              "0.71-0.89), z rms 1.55; misses with every sensor 3 (seeds 4304, 4306), "
-              "without load cells 9 (4305, 4307, 4309, 4311; z up to 4.0)"))),
+    _kind("exit_point_offset", "rocaspect", (DWELL, NO_TENSIONS), 12, pytest.mark.coverage),
     _kind("mast_compliance", "rocaspect", (DWELL, NO_TENSIONS), 8, pytest.mark.coverage),
     _kind("load_cell_calibration", "rocaspect", (DWELL, NO_TRACKER), 14, pytest.mark.coverage),
     _kind("platform_mass", "rocaspect", (DWELL, NO_TRACKER), 28, pytest.mark.coverage),

@@ -1338,7 +1338,8 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
             if res.success and res.chi2 <= start.chi2 + 1e-6 * max(start.chi2, 1.0) \
                     and res.n_free > start.n_free:
                 start = selector.gauge_floor(res, idx)
-        return profile_pruning(start, selector.rm, idx, say, free_traded=True)
+        return init_tensions_error(selector.rm, profile_pruning(
+            start, selector.rm, idx, say, free_traded=True), idx, say)
     space = ParamSpace(selector.model, key)
     say(f"final fit of {' + '.join(report_name(e) for e in key) or 'the model as it is'} on "
         f"{len(idx)} samples")
@@ -1349,7 +1350,54 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
     if not res.success:
         say(f"the final fit did not converge: {res.message}")
         return res
-    return profile_pruning(res, selector.rm, idx, say, free_traded=True)
+    return init_tensions_error(selector.rm, profile_pruning(res, selector.rm, idx, say,
+                                                            free_traded=True), idx, say)
+
+
+def init_tensions_error(rm: ResidualModel, fit: FitResult, idx: np.ndarray,
+                        say: Progress = lambda _m: None) -> FitResult:
+    """``fit`` with the error that the tensions at initialisation, taken as the model's
+    tension distribution, move into its parameters added to its ``bias_var`` (fit units
+    squared), where the recording has no load cells there and the selection did not fit
+    those tensions (:func:`_pretension`; :attr:`~controller.robot.Robot.init_internal`).
+
+    The encoders are referenced with the unstretched lengths of the tensions at
+    initialisation. Without load cells the diagnosis assumes the distribution's; internal
+    forces of another controller's or an operator's pretension (tens of newtons) shorten
+    every cable by its stretch, a millimetre on a 10 m cable of 6e5 N, from then on: held at
+    zero, they move into exit points and pulley radii (a ROCASPECT case with 77 N, recorded
+    ten times: exit offsets at rms z 1.59, 83 % of the intervals holding the truth; 1.08 and
+    97 % with this error). As for a parameter the pruning
+    held (:func:`~bench.diagnosis.fit.pruning_bias_var`): the fit again with those internal
+    forces free beside the same parameters on the samples ``idx``, and the squared error
+    holding them moves into each parameter, estimated without bias from their departures
+    (at least the kept parameter's error beside them where the data cannot fix them)."""
+    from bench.diagnosis.fit import _copy, pruning_bias_var, unfixed_parameters
+
+    k = rm.init_basis.shape[1]
+    if rm.tau0 is not None or k == 0 or rm.model.init_internal is not None \
+            or fit.space.model.init_internal is not None or not len(fit.space) \
+            or not fit.success:
+        return fit
+    p = len(fit.phi)
+    space = ParamSpace(fit.space.model.replace(init_internal=np.zeros(k)), fit.space.effects)
+    # what the fit held (the data cannot fix it, or the pruning held it) stays held
+    free = np.isfinite(fit.stderr)
+    if fit.curvature_cov is not None:
+        free &= np.diag(fit.curvature_cov) > 0
+    hold = np.concatenate([~free, np.zeros(k, dtype=bool)])
+    full = fit_effects(space, rm, idx, np.concatenate([fit.phi, np.zeros(k)]), hold=hold,
+                       prune=False)
+    if not full.success:
+        say(f"the fit with the tensions at initialisation free did not converge: "
+            f"{full.message}; the errors leave them out")
+        return fit
+    weak = np.arange(len(full.phi)) >= p
+    unfixed = unfixed_parameters(space, full.stderr)
+    extra = pruning_bias_var(full, weak, space.neutral, weak & unfixed)[:p]
+    out = _copy(fit)
+    out.bias_var = extra if out.bias_var is None else out.bias_var + extra
+    return out
 
 
 def _pose_noise(s: Samples, fw: Forward) -> float | None:
