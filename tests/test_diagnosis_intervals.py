@@ -260,10 +260,7 @@ KINDS = [
     _kind("drum_scale", "rocaspect", (NO_TRACKER, NO_TENSIONS, CONTINUOUS), 24,
           pytest.mark.coverage),
     _kind("cable_elasticity", "rocaspect", (NO_TRACKER, NO_TENSIONS, CONTINUOUS), 26,
-          pytest.mark.coverage, pytest.mark.xfail(strict=True, raises=BelowFloor, reason=(
-              "measured on 1d8c550: 29 of 38 intervals hold the truth (0.763, Wilson "
-              "0.61-0.87), z rms 2.13; without the tracker 6/12 (seeds 4303, 4306, 4309, "
-              "4315 x2, 4324: z up to 8.6), without load cells 9/10, continuous 14/16"))),
+          pytest.mark.coverage),
     _kind("cable_sag", "rocaspect", (DWELL,), 40, pytest.mark.coverage),
     _kind("exit_point_offset", "rocaspect", (DWELL, NO_TENSIONS), 12, pytest.mark.coverage),
     _kind("mast_compliance", "rocaspect", (DWELL, NO_TENSIONS), 8, pytest.mark.coverage),

@@ -1058,6 +1058,25 @@ class ErrorStructure:
     kept: float = 1.0
     #: degrees of freedom of the level behind ``knots`` (``ResidualModel.visit_dof``)
     knots_dof: float = math.inf
+    #: per entry, the share of its error's variance per-sample unknowns leave in it
+    #: (:meth:`ResidualModel.entry_kept`: ``r / n`` of an estimated pose's length entries, 1
+    #: for its wrench entries); None: ``kept`` for every entry
+    entry_kept: np.ndarray | None = None
+
+    def kind_kept(self, mask: np.ndarray) -> float:
+        """The share per-sample unknowns leave of the errors of the entries ``mask`` (one kind
+        of entry; weighted like the entries): their moments are that share of their errors'.
+        A kind they do not project keeps the recording's share ``kept``: at an estimated
+        pose, the force and moment residuals also carry each visit's length errors through
+        the pose, which :meth:`ResidualModel.entry_knots` models on rows of moves only; on
+        dwells the recording's share stands for it (with 1, a CoGiRo-class dwell campaign
+        without a tracker kept three load-cell offsets of zero at z 3 and read a heavier
+        platform as every cell's gain 7 % high)."""
+        if self.entry_kept is None or len(self.entry_kept) != len(self.weights):
+            return self.kept
+        w = np.clip(self.weights[mask], 1e-12, None)
+        k = float(np.clip(w @ self.entry_kept[mask] / w.sum(), 1e-3, 1.0))
+        return k if k < 1.0 else self.kept
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -1083,7 +1102,8 @@ def error_structure(rm, idx: np.ndarray, lost: float | None = None,
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
-                          rm.entry_knots(idx, H), kept, float(getattr(rm, "visit_dof", math.inf)))
+                          rm.entry_knots(idx, H), kept, float(getattr(rm, "visit_dof", math.inf)),
+                          None if lost is None else rm.entry_kept(idx))
 
 
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
@@ -1129,7 +1149,16 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
     stats = np.array([kg.statistics(u) for kg in kinds]).ravel()
     knots = e.knots if e.knots is not None and len(e.knots) == len(r) and e.knots.any() \
         else None
-    theta = _unbiased_components(Js, sw, kinds, stats, knots, e.kept)
+    # each kind's moments are the share ``k_j`` of its errors that per-sample unknowns leave
+    # (an estimated pose leaves r / n of a length entry's; :meth:`ErrorStructure.kind_kept`):
+    # its components are scaled to the errors' by ``kept / k_j`` here, the caller's
+    # ``1 / kept`` for every kind making it ``1 / k_j`` (the recording's one share counted
+    # the lengths' errors at (n / r) kept of theirs: without a tracker on eight cables, 0.44;
+    # elasticities' standard errors 0.62 of what the curvature tells, 6 of 12 intervals held
+    # the truth)
+    kk = np.array([e.kind_kept(kg.mask) for kg in kinds])
+    theta = _unbiased_components(Js, sw, kinds, stats, knots, kk)
+    theta = (theta.reshape(len(kinds), NCOMP) * (e.kept / kk)[:, None]).ravel()
     meat = np.zeros((p, p))
     if knots is not None:
         # the blended visit-to-visit error: known from the replicate dwells, in the readings'
@@ -1151,7 +1180,7 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
         grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
         if parts is not None:
-            parts += _nested_parts(v, c, grams, component_dof(kg, e, p, len(r)))
+            parts += _nested_parts(v, c, grams, component_dof(kg, e, p, len(r), kk[j]))
     return meat
 
 
@@ -1171,17 +1200,20 @@ def _nested_parts(v: float, c: np.ndarray, grams: list[np.ndarray], nu: list[flo
     return out + [(c[3] * grams[4], nu[4])]
 
 
-def component_dof(kg: _KindGroups, e: ErrorStructure, p: int, n: int) -> list[float]:
+def component_dof(kg: _KindGroups, e: ErrorStructure, p: int, n: int,
+                  kept: float | None = None) -> list[float]:
     """Degrees of freedom of the components of :func:`error_meat` of one kind ``kg`` (of
     ``n`` entries, ``p`` fitted parameters): the level's its entries' weights summed (rows of
     a move count together) with the :data:`PRIOR_ENTRIES` it leans on, less the parameters'
     share; a shared covariance's the number of its groups (a cable's move, a cable's
     stretch, a cable over the recording; the direction's: the cables). Each times the share
-    of the residuals per-sample unknowns leave (``e.kept``); at least 1."""
+    of the residuals per-sample unknowns leave (``kept``: the kind's, default ``e.kept``); at
+    least 1."""
+    share = e.kept if kept is None else kept
     w = float(np.sum(np.clip(e.weights[kg.mask], 0.0, 1.0)))
     groups = [float(m.shape[0]) for m in kg.ind]
     raw = [w + PRIOR_ENTRIES - p * kg.n / max(n, 1)] + groups + [groups[-1]]
-    return [max(e.kept * d, 1.0) for d in raw]
+    return [max(share * d, 1.0) for d in raw]
 
 
 def effective_dof(cov_s: np.ndarray, parts: list[tuple[np.ndarray, float]]) -> np.ndarray:
@@ -1286,7 +1318,7 @@ class _KindGroups:
 
 def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups],
                          stats: np.ndarray, knots: np.ndarray | None = None,
-                         kept: float = 1.0) -> np.ndarray:
+                         kept: float | np.ndarray = 1.0) -> np.ndarray:
     """Variance components ``theta`` (kind by kind: v, c1, c2, c3, cd) whose expected moment
     statistics, over residuals the fit has already projected, equal ``stats``.
 
@@ -1303,7 +1335,8 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
 
     A known covariance ``kept * K K^T`` (``knots``: the blended visit-to-visit error of
     :class:`ErrorStructure`) is taken out of the statistics first, by the same expectation
-    with ``C = kept K K^T``: the components are what the residuals hold beside it."""
+    with ``C = kept K K^T``: the components are what the residuals hold beside it (``kept``
+    one share for every kind, or one per kind)."""
     w, V = np.linalg.eigh(Js.T @ Js)
     keep = w > 1e-10 * max(float(w.max(initial=0.0)), 1e-300)
     Q = (Js @ V[:, keep]) / np.sqrt(w[keep])  # an orthonormal basis of the Jacobian's span
@@ -1331,7 +1364,7 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
                 known[L * j + lp] = (float(np.sum(kg.apply(kk, lp) * kk))
                                      - 2.0 * float(np.sum(PY[j][lp] * ckz))
                                      + float(np.sum(GY[j][lp] * zcz)))
-        stats = stats - kept * known
+        stats = stats - np.repeat(np.broadcast_to(kept, (len(kinds),)), L) * known
     pairs_all = np.concatenate([kg.pairs for kg in kinds])
     plain = stats / np.where(pairs_all > 0, pairs_all, 1.0)
     if knots is not None:
