@@ -283,8 +283,11 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
     cable, :data:`DIRECTION_SHARED`; :meth:`ResidualModel.direction_columns` on every
     sample with lengths), the Gauss-Newton step moves the fit's free parameters to the
     joint minimum and the covariance is the joint one (:func:`bench.diagnosis.fit.
-    standard_errors`, the same error model). The fit is returned unchanged where it holds
-    no free latency or no sample with a known direction."""
+    standard_errors`, the same error model), the curvature too; the latency is marked
+    ``beside_nuisance`` (its linearised interval is the joint fit's: profile refits of the
+    set, which hold the direction error at zero, would measure the biased valley). The fit
+    is returned unchanged where it holds no free latency or no sample with a known
+    direction."""
     from dataclasses import replace
 
     from bench.diagnosis import fit as F
@@ -328,4 +331,12 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
     dof = None if fit.stderr_dof is None else fit.stderr_dof.copy()
     if dof is not None and nu:
         dof[free] = nu[0][:p]
-    return replace(fit, phi=phi, stderr=stderr, cov=cov, stderr_dof=dof)
+    curv = None if fit.curvature_cov is None else fit.curvature_cov.copy()
+    if curv is not None:
+        Js = Ja * sc
+        curv[np.ix_(free, free)] = (np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True)
+                                    * np.outer(sc, sc))[:p, :p]
+    beside = np.zeros(len(phi), dtype=bool)
+    beside[lat] = True
+    return replace(fit, phi=phi, stderr=stderr, cov=cov, stderr_dof=dof, curvature_cov=curv,
+                   beside_nuisance=beside)
