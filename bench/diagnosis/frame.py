@@ -263,11 +263,6 @@ def translation_alternative(selector, sel, effect: str, reported: dict[str, floa
                     "apart)"}
 
 
-#: the cables' length error by the direction of their last move, freed beside a latency:
-#: one level shared by every cable (True) or one per cable
-DIRECTION_SHARED = True
-
-
 def latency_beside_direction(fit, rm, idx: np.ndarray):
     """``fit`` (:class:`bench.diagnosis.fit.FitResult` on the samples ``idx`` of ``rm``) with
     its ``tracker_latency`` estimated beside the cables' length error by the direction of
@@ -279,9 +274,10 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
     sign on every row, told apart only by the speeds. Held at zero, the direction error
     goes into the latency (always toward a shorter one: ``-h/2 sum|v| / sum v^2``; the
     intervals of generated continuous campaigns with 0.02 to 0.1 mm of hysteresis held the
-    truth 74 % of the time, every miss low). Freed as linear columns (one level for every
-    cable, :data:`DIRECTION_SHARED`; :meth:`ResidualModel.direction_columns` on every
-    sample with lengths), the Gauss-Newton step moves the fit's free parameters to the
+    truth 74 % of the time, every miss low). Freed as a linear column (one level for every
+    cable: a winch's hysteresis acts with one sign on every winch, and one level keeps the
+    latency's speeds across the cables; :meth:`ResidualModel.direction_columns` on every
+    sample with lengths, summed), the Gauss-Newton step moves the fit's free parameters to the
     joint minimum and the covariance is the joint one (:func:`bench.diagnosis.fit.
     standard_errors`, the same error model), the curvature too; the latency is marked
     ``beside_nuisance`` (its linearised interval is the joint fit's: profile refits of the
@@ -289,8 +285,6 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
     is returned unchanged where it holds no free latency or no sample with a known
     direction."""
     from dataclasses import replace
-
-    from bench.diagnosis import fit as F
 
     space = fit.space
     free = np.flatnonzero(np.isfinite(fit.stderr))
@@ -302,9 +296,39 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
     cols = rm.direction_columns(H, idx, steps, every=True)
     if cols is None:
         return fit
-    X = cols[0].sum(axis=1, keepdims=True) if DIRECTION_SHARED else cols[0]
-    X = X[:, np.linalg.norm(X, axis=0) > 0]
-    r = rm.whiten(steps[0], idx)
+    X = cols[0].sum(axis=1, keepdims=True)  # one level for every cable
+    if not np.linalg.norm(X) > 0:
+        return fit
+    phi, S, se, nu, curv = _joint_step(fit, rm, idx, free, X, rm.whiten(steps[0], idx), H)
+    p = len(free)
+    stderr, cov = fit.stderr.copy(), fit.cov.copy()
+    stderr[free] = se[:p]
+    cov[np.ix_(free, free)] = S[:p, :p]
+    dof = None if fit.stderr_dof is None else fit.stderr_dof.copy()
+    if dof is not None and nu:
+        dof[free] = nu[0][:p]
+    curv_all = None
+    if fit.curvature_cov is not None:
+        curv_all = fit.curvature_cov.copy()
+        curv_all[np.ix_(free, free)] = curv
+    beside = np.zeros(len(phi), dtype=bool)
+    beside[lat] = True
+    return replace(fit, phi=phi, stderr=stderr, cov=cov, stderr_dof=dof,
+                   curvature_cov=curv_all, beside_nuisance=beside)
+
+
+def _joint_step(fit, rm, idx: np.ndarray, free: np.ndarray, X: np.ndarray, r: np.ndarray,
+                H) -> tuple[np.ndarray, np.ndarray, np.ndarray, list, np.ndarray]:
+    """:func:`latency_beside_direction`'s Gauss-Newton step of ``fit``'s ``free``
+    parameters with the whitened columns ``X`` (per metre) freed beside them, from the
+    whitened residuals ``r`` of ``H`` (the fitted robot) on ``idx``: the new fit-space
+    values (within the bounds), the joint covariance and standard errors (free parameters
+    then ``X``'s; the error model of :func:`bench.diagnosis.fit.standard_errors`), their
+    degrees of freedom
+    (a list as that function appends them) and the free parameters' joint curvature."""
+    from bench.diagnosis import fit as F
+
+    space = fit.space
 
     def fun(z: np.ndarray) -> np.ndarray:
         phi = fit.phi.copy()
@@ -312,7 +336,7 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
         return rm.whitened(space.robot(phi), idx)
 
     J = F.fd_jacobian(fun, fit.phi[free], r, space.scale[free] * 1e-2, space.lo[free],
-                    space.hi[free], rm.frozen)
+                      space.hi[free], rm.frozen)
     Ja = np.hstack([J, X])
     sc = np.concatenate([space.scale[free], np.full(X.shape[1], F.DIRECTION_SCALE_M)])
     step = -np.linalg.lstsq(Ja * sc, r, rcond=None)[0] * sc
@@ -321,22 +345,10 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
     errors = F.error_structure(rm, idx, lost, H)
     nu: list[np.ndarray] = []
     S, se = F.standard_errors(Ja, float(r_new @ r_new), errors.n_eff - lost, sc, r_new,
-                            errors.stretches, errors, nu)
+                             errors.stretches, errors, nu)
     p = len(free)
     phi = fit.phi.copy()
     phi[free] = np.clip(phi[free] + step[:p], space.lo[free], space.hi[free])
-    stderr, cov = fit.stderr.copy(), fit.cov.copy()
-    stderr[free] = se[:p]
-    cov[np.ix_(free, free)] = S[:p, :p]
-    dof = None if fit.stderr_dof is None else fit.stderr_dof.copy()
-    if dof is not None and nu:
-        dof[free] = nu[0][:p]
-    curv = None if fit.curvature_cov is None else fit.curvature_cov.copy()
-    if curv is not None:
-        Js = Ja * sc
-        curv[np.ix_(free, free)] = (np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True)
-                                    * np.outer(sc, sc))[:p, :p]
-    beside = np.zeros(len(phi), dtype=bool)
-    beside[lat] = True
-    return replace(fit, phi=phi, stderr=stderr, cov=cov, stderr_dof=dof, curvature_cov=curv,
-                   beside_nuisance=beside)
+    Js = Ja * sc
+    curv = (np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True) * np.outer(sc, sc))[:p, :p]
+    return phi, S, se, nu, curv
