@@ -269,11 +269,7 @@ KINDS = [
     # 41 of 48 (the floor): every sensor 24/24, without load cells 17/24 (4301: z up to 4.7)
     _kind("pulley_kinematics", "ipanema", (DWELL, NO_TENSIONS), 6, pytest.mark.coverage),
     _kind("tracker_frame", "rocaspect", (DWELL,), 7, pytest.mark.coverage),
-    _kind("tracker_latency", "rocaspect", (CONTINUOUS,), 40, pytest.mark.coverage,
-          pytest.mark.xfail(strict=True, raises=BelowFloor, reason=(
-              "measured on 1d8c550: 26 of 35 intervals hold the truth (0.743, Wilson "
-              "0.58-0.86), z rms 2.51, every miss low (z -2.1 to -7.7: seeds 4300, 4303, 4311, "
-              "4317, 4324, 4328, 4333, 4335, 4339); 5 of 40 cases also declared unexplained"))),
+    _kind("tracker_latency", "rocaspect", (CONTINUOUS,), 40, pytest.mark.coverage),
 ]
 
 

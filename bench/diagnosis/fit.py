@@ -81,6 +81,11 @@ class FitResult:
     #: per parameter, the degrees of freedom of ``stderr`` (Welch-Satterthwaite over the
     #: error model's components, :func:`effective_dof`); None: as many as a normal's
     stderr_dof: np.ndarray | None = None
+    #: per parameter, whether it was estimated beside linear nuisance columns that refits do
+    #: not carry (:func:`bench.diagnosis.frame.latency_beside_direction`): its linearised
+    #: interval is the joint fit's, and no profile refit or jackknife of this fit's model
+    #: checks it; None: none was
+    beside_nuisance: np.ndarray | None = None
 
     @property
     def reported_stderr(self) -> np.ndarray:
@@ -1630,7 +1635,10 @@ def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
     ed = np.full(len(fit.phi), np.inf) if extra_dof is None else extra_dof
     q = {int(k): interval_quantile(fit, int(k), float(ev[k]), float(ed[k])) for k in which}
     out = {k: linearised_interval(fit, k, float(ev[k]), quantile=Z95) for k in q}
-    checks = interval_checks(fit, rm, idx, np.asarray(which, dtype=int))
+    own = np.asarray(which, dtype=int)
+    if fit.beside_nuisance is not None:  # (the refits would drop the nuisance columns)
+        own = own[~fit.beside_nuisance[own]]
+    checks = interval_checks(fit, rm, idx, own)
     curved = [c.index for c in sorted(checks, key=lambda c: -c.nonlinear) if c.nonlinear > 1.0]
     curved = curved[:PROFILE_REFITS // 2]
     if curved:

@@ -1136,7 +1136,8 @@ def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: l
     leaves: the probes beside the named effects and the residual tests."""
     model = rm.model
     s = rm.s
-    final = _final_fit(selector, sel, fit_idx, say)
+    final = frame.latency_beside_direction(_final_fit(selector, sel, fit_idx, say), rm,
+                                           fit_idx)
     floor_dof: list[np.ndarray] = []
     floor = _reference_var(rm, final, fit_idx, floor_dof)
     params, errs, undet = effect_entries(final, sel.effects, floor)
@@ -1168,7 +1169,8 @@ def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: l
         else:
             sel.rejected = rejected
             sel.effects = [c for c in sel.effects if c != e]
-        final = _final_fit(selector, sel, fit_idx, say)
+        final = frame.latency_beside_direction(
+            _final_fit(selector, sel, fit_idx, say), rm, fit_idx)
         floor_dof = []
         floor = _reference_var(rm, final, fit_idx, floor_dof)
         params, errs, undet = effect_entries(final, sel.effects, floor)

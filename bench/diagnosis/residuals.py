@@ -1090,8 +1090,8 @@ class ResidualModel:
         return bool(((self.len_rank < self.model.n_cables) & self.has_len)[sl].any())
 
     def direction_columns(self, H: Robot, idx: np.ndarray | None = None,
-                          steps: tuple[Blocks, list[Blocks]] | None = None
-                          ) -> tuple[np.ndarray, np.ndarray] | None:
+                          steps: tuple[Blocks, list[Blocks]] | None = None,
+                          every: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
         """Two (entries of :meth:`whiten`'s vector, n) [1/m] column sets, on the samples whose
         length residual per-sample unknowns project (an estimated pose, fitted internal
         forces: :attr:`len_rank` below n; zero elsewhere): how the whitened residuals move per
@@ -1105,11 +1105,12 @@ class ResidualModel:
 
         Projected, a cable's error spreads over every cable's residual, where the error
         model's direction component (:func:`bench.diagnosis.fit.error_meat`) reads nothing
-        (:func:`bench.diagnosis.fit.direction_bias_var`). None where no such sample with a
-        known direction is among ``idx``."""
+        (:func:`bench.diagnosis.fit.direction_bias_var`). With ``every``, on every sample
+        with lengths (projected or not: :func:`bench.diagnosis.frame.latency_beside_direction`).
+        None where no such sample with a known direction is among ``idx``."""
         sl = np.arange(self.s.n) if idx is None else np.asarray(idx)
         n = self.model.n_cables
-        proj = (self.len_rank[sl] < n) & self.has_len[sl]
+        proj = ((self.len_rank[sl] < n) | every) & self.has_len[sl]
         sign = np.where(proj[:, None], np.sign(np.nan_to_num(self.s.direction[sl])), 0.0)
         if not sign.any():
             return None
