@@ -13,15 +13,17 @@ from bench.diagnosis.unexplained import common_direction, common_direction_found
 CABLES = 8
 
 
-def _residuals(n: int, half: np.ndarray | float, seed: int, pose_sd: float = 0.0
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Length residuals (n, 8) in noise units: an offset per cable, ``half`` times each
-    cable's direction of approach (+-1 at random, a few zeros), unit noise per entry and an
-    error of the pose every cable of a sample shares (``pose_sd``)."""
+def _residuals(n: int, half: np.ndarray | float, seed: int, pose_sd: float = 0.0,
+               offset: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Length residuals (n, 8) in noise units: an offset per cable (``offset`` plus a
+    spread of 0.5), ``half`` times each cable's direction of approach (+-1: most cables of a
+    sample move alike, two thirds of the samples one way; a few zeros), unit noise per
+    entry and an error of the pose every cable of a sample shares (``pose_sd``)."""
     rng = np.random.default_rng(seed)
-    d = rng.choice([-1.0, 1.0], size=(n, CABLES))
+    way = np.where(rng.random(n) < 2 / 3, 1.0, -1.0)
+    d = way[:, None] * np.where(rng.random((n, CABLES)) < 0.2, -1.0, 1.0)
     d[rng.random((n, CABLES)) < 0.05] = 0.0
-    L = rng.normal(0.0, 0.5, CABLES)[None, :] + np.asarray(half) * d \
+    L = offset + rng.normal(0.0, 0.5, CABLES)[None, :] + np.asarray(half) * d \
         + rng.normal(0.0, 1.0, (n, CABLES)) + rng.normal(0.0, pose_sd, (n, 1))
     return L, d, np.ones(n)
 
@@ -58,6 +60,13 @@ def test_an_error_of_the_pose_every_cable_shares_does_not_make_a_direction():
     zs = [common_direction(*_residuals(30, 0.0, seed, pose_sd=3.0))[1] for seed in range(40)]
     assert float(np.std(zs)) < 1.6, zs
     assert max(abs(z) for z in zs) < 5.0
+
+
+def test_an_offset_of_every_cable_is_not_a_direction():
+    """Every cable 3 noise units off, no error by direction, most samples approached one
+    way: each cable's mean is its own, nothing by direction."""
+    half, z, over = common_direction(*_residuals(60, 0.0, 6, offset=3.0))
+    assert abs(half) < 0.3 and abs(z) < 4.0, (half, z)
 
 
 def test_too_few_cables_with_both_directions_give_nothing():
