@@ -9,7 +9,9 @@ that the effect vocabulary lacks:
   uncertainty of the noise estimate itself;
 - **cables / masts**: a cable (or a mast's cables) whose residuals stand out;
 - **direction of motion**: a cable whose residual differs with the direction of
-  its last length change (backlash, friction): a two-group comparison;
+  its last length change (backlash, friction): a two-group comparison; and the cables
+  together, where the difference they share exceeds the residuals' random spread (more
+  than the winches' hysteresis the noise model carries: :func:`common_direction`);
 - **time**: residuals that trend with time (thermal drift, creep): a regression on
   time within replicate groups (the model's error at a pose cancels there; on
   independent clusters of samples when few are replicated), per cable and common to
