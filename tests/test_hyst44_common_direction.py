@@ -8,11 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.diagnosis.unexplained import (
-    common_direction,
-    common_direction_found,
-    common_direction_on_dwells,
-)
+from bench.diagnosis.unexplained import common_direction, common_direction_found
 
 CABLES = 8
 
@@ -78,14 +74,3 @@ def test_too_few_cables_with_both_directions_give_nothing():
     L, d, w = _residuals(30, 1.0, 4)
     d[:, 2:] = 1.0
     assert common_direction(L, d, w) is None
-
-
-def test_rows_of_a_move_are_left_out_and_dwells_judged():
-    """A common error by direction on rows of a move (``kind`` 1: a latency, a speed-dependent
-    error has the move's sign) is not judged; the same on dwells (``kind`` 0) is found."""
-    L, d, w = _residuals(60, 2.0, 7)
-    moving = np.ones(60, dtype=int)
-    assert common_direction_on_dwells(L, d, w, moving) is None
-    assert common_direction_found(*common_direction_on_dwells(L, d, w, 0 * moving))
-    mixed = np.where(np.arange(60) < 30, 0, 1)  # half dwells: those alone are judged
-    assert common_direction_on_dwells(L, d, w, mixed) == common_direction(L[:30], d[:30], w[:30])

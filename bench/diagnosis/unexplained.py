@@ -143,7 +143,13 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 findings.append(f"cable {c}'s length residual depends on the direction of its "
                                 f"last move: {abs(diff):.1f} times the noise between paying "
                                 f"out and reeling in (z = {abs(z):.0f}; backlash or friction?)")
-            common = common_direction_on_dwells(L, s.direction, w, s.kind)
+            # (on dwells only: rows of a move share their errors, so their spread is not
+            # the random part, and a stream's latency or a speed-dependent error has the
+            # sign of the move; generated continuous campaigns whose only direction error
+            # was the winches' hysteresis read 1.1 times the spread)
+            still = np.asarray(s.kind) == 0
+            common = common_direction(L[still], s.direction[still], w[still]) \
+                if still.any() else None
             if common is not None:
                 out["direction_common"] = {"difference_over_noise": _r(common[0]),
                                            "z": _r(common[1]),
@@ -422,17 +428,6 @@ def common_direction(L: np.ndarray, direction: np.ndarray, w: np.ndarray
     fin = np.isfinite(dev)
     spread = math.sqrt(max(float(np.sum(wide[fin] * dev[fin] ** 2) / wide[fin].sum()), 1e-12))
     return half, half / se, half / spread
-
-
-def common_direction_on_dwells(L: np.ndarray, direction: np.ndarray, w: np.ndarray,
-                               kind: np.ndarray) -> tuple[float, float, float] | None:
-    """:func:`common_direction` on the dwell samples (``kind`` 0; rows of a move, 1, left
-    out): rows of a move share their errors, so their spread is not the random part, and a
-    stream's latency or a speed-dependent error has the sign of the move (generated
-    continuous campaigns whose only direction error was the winches' hysteresis read 1.1
-    times the spread). None without dwells."""
-    still = np.asarray(kind) == 0
-    return common_direction(L[still], direction[still], w[still]) if still.any() else None
 
 
 def common_direction_found(half: float, z: float, over_random: float) -> bool:
