@@ -10,8 +10,8 @@ that the effect vocabulary lacks:
 - **cables / masts**: a cable (or a mast's cables) whose residuals stand out;
 - **direction of motion**: a cable whose residual differs with the direction of
   its last length change (backlash, friction): a two-group comparison; and the cables
-  together on dwells, where the difference they share exceeds the residuals' random spread
-  (more than the winches' hysteresis the noise model carries: :func:`common_direction`);
+  together, where the difference they share exceeds the residuals' random spread (more
+  than the winches' hysteresis the noise model carries: :func:`common_direction`);
 - **time**: residuals that trend with time (thermal drift, creep): a regression on
   time within replicate groups (the model's error at a pose cancels there; on
   independent clusters of samples when few are replicated), per cable and common to
@@ -143,13 +143,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 findings.append(f"cable {c}'s length residual depends on the direction of its "
                                 f"last move: {abs(diff):.1f} times the noise between paying "
                                 f"out and reeling in (z = {abs(z):.0f}; backlash or friction?)")
-            # (on dwells only: rows of a move share their errors, so their spread is not
-            # the random part, and a stream's latency or a speed-dependent error has the
-            # sign of the move; generated continuous campaigns whose only direction error
-            # was the winches' hysteresis read 1.1 times the spread)
-            still = np.asarray(s.kind) == 0
-            common = common_direction(L[still], s.direction[still], w[still]) \
-                if still.any() else None
+            common = common_direction(L, s.direction, w)
             if common is not None:
                 out["direction_common"] = {"difference_over_noise": _r(common[0]),
                                            "z": _r(common[1]),
