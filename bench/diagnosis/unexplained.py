@@ -9,9 +9,7 @@ that the effect vocabulary lacks:
   uncertainty of the noise estimate itself;
 - **cables / masts**: a cable (or a mast's cables) whose residuals stand out;
 - **direction of motion**: a cable whose residual differs with the direction of
-  its last length change (backlash, friction): a two-group comparison; and the cables
-  together, where the difference they share exceeds the residuals' random spread (more
-  than the winches' hysteresis the noise model carries: :func:`common_direction`);
+  its last length change (backlash, friction): a two-group comparison;
 - **time**: residuals that trend with time (thermal drift, creep): a regression on
   time within replicate groups (the model's error at a pose cancels there; on
   independent clusters of samples when few are replicated), per cable and common to
@@ -143,18 +141,6 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
                 findings.append(f"cable {c}'s length residual depends on the direction of its "
                                 f"last move: {abs(diff):.1f} times the noise between paying "
                                 f"out and reeling in (z = {abs(z):.0f}; backlash or friction?)")
-            common = common_direction(L, s.direction, w)
-            if common is not None:
-                out["direction_common"] = {"difference_over_noise": _r(common[0]),
-                                           "z": _r(common[1]),
-                                           "over_random_noise": _r(common[2])}
-                if common_direction_found(*common) and not _probed(probed, "direction"):
-                    findings.append(
-                        f"the length residuals of the cables depend together on the direction "
-                        f"of their last move: {abs(common[0]):.1f} times the noise between "
-                        f"paying out and reeling in, {abs(common[2]):.1f} times their spread "
-                        f"after either (z = {abs(common[1]):.0f}; more than the winches' "
-                        f"hysteresis: friction?)")
         # time: a trend common to the cables, and per cable
         tt = s.t - np.nanmean(s.t)
         # samples whose errors are independent: each dwell of a dwell campaign (the visits
@@ -379,61 +365,6 @@ def _two_groups(x: np.ndarray, g: np.ndarray, w: np.ndarray) -> tuple[float, flo
     vc = float(np.sum(w[c] * (x[c] - mc) ** 2) / nc)
     se = math.sqrt(max(va, 1e-12) / na + max(vc, 1e-12) / nc)
     return 0.5 * (ma - mc), (ma - mc) / se
-
-
-def common_direction(L: np.ndarray, direction: np.ndarray, w: np.ndarray
-                     ) -> tuple[float, float, float] | None:
-    """The half-difference of the length residuals ``L`` (N, n cables; noise units) between
-    paying out and reeling in that the cables share (``direction`` (N, n): the sign of each
-    cable's last move; ``w`` (N,): the samples' shares of independent samples), its z-value,
-    and its size against the residuals' spread about their cable's mean after either
-    direction (the random, per-entry part; not the replicate spread, which holds the error
-    by direction itself where visits approach a target from both sides).
-
-    Per cable with both directions (:func:`_two_groups`), each entry is taken about its
-    cable's midpoint and signed by its direction (its mean: the cable's half-difference);
-    the common half-difference is the cables' mean, its error from the spread over samples
-    of each sample's mean deviation from it across cables (an error of the pose every
-    cable of a sample shares counts once). None with fewer than three such cables."""
-    ok = np.isfinite(L)
-    rows, halves = [], []
-    for k in range(L.shape[1]):
-        d = _two_groups(L[:, k], direction[:, k], w)
-        if d is None:
-            continue
-        a, c = ok[:, k] & (direction[:, k] > 0), ok[:, k] & (direction[:, k] < 0)
-        mid = 0.5 * (float(np.sum(w[a] * L[a, k]) / w[a].sum())
-                     + float(np.sum(w[c] * L[c, k]) / w[c].sum()))
-        dev = np.where(a | c, np.sign(direction[:, k]) * (L[:, k] - mid) - d[0], np.nan)
-        rows.append(dev)
-        halves.append(d[0])
-    if len(halves) < 3:
-        return None
-    dev = np.column_stack(rows)
-    cnt = np.isfinite(dev).sum(axis=1)
-    use = cnt > 0
-    e = np.nansum(dev[use], axis=1) / cnt[use]
-    ws = w[use]
-    if ws.sum() < 6:
-        return None
-    half = float(np.mean(halves))
-    se = math.sqrt(max(float(np.sum(ws * e ** 2) / ws.sum()), 1e-12) / ws.sum())
-    wide = np.repeat(w[:, None], dev.shape[1], axis=1)
-    fin = np.isfinite(dev)
-    spread = math.sqrt(max(float(np.sum(wide[fin] * dev[fin] ** 2) / wide[fin].sum()), 1e-12))
-    return half, half / se, half / spread
-
-
-def common_direction_found(half: float, z: float, over_random: float) -> bool:
-    """Whether a common error by direction (:func:`common_direction`) is structure, not the
-    winches' hysteresis: significant (:data:`STRUCT_Z`) and larger than the residuals'
-    random spread (:data:`STRUCT_SIZE` times it). The noise model carries an error by
-    direction every cable shares (:func:`bench.diagnosis.fit.error_meat`) at any size, and
-    would read a larger one as the winches' hysteresis too; one beyond the random noise of
-    the lengths is not a winch's play. ``half`` (against the replicate spread, which holds
-    the error by direction itself where visits approach from both sides) is not judged."""
-    del half
-    return abs(z) > STRUCT_Z and abs(over_random) > STRUCT_SIZE
 
 
 def _by_cluster(x: np.ndarray, t: np.ndarray, w: np.ndarray, clusters: np.ndarray
