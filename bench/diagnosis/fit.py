@@ -1076,14 +1076,12 @@ class ErrorStructure:
         the pose, which :meth:`ResidualModel.entry_knots` models on rows of moves only; on
         dwells the recording's share stands for it (with 1, a CoGiRo-class dwell campaign
         without a tracker kept three load-cell offsets of zero at z 3 and read a heavier
-        platform as every cell's gain 7 % high). A kind whose entries keep (almost) none of
-        their errors (the initialisation's dwell alone: its readings are the encoders'
-        reference) keeps the recording's share too: its moments tell no level."""
+        platform as every cell's gain 7 % high)."""
         if self.entry_kept is None or len(self.entry_kept) != len(self.weights):
             return self.kept
         w = np.clip(self.weights[mask], 1e-12, None)
-        k = float(np.clip(w @ self.entry_kept[mask] / w.sum(), 0.0, 1.0))
-        return k if MIN_KEPT_LEVEL <= k < 1.0 else self.kept
+        k = float(np.clip(w @ self.entry_kept[mask] / w.sum(), 1e-3, 1.0))
+        return k if k < 1.0 else self.kept
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind

@@ -305,14 +305,12 @@ class ResidualModel:
         """Per entry of :meth:`whiten`'s vector, the share of its error's variance the
         per-sample unknowns leave in it: ``r / n`` for a length entry they project
         (:attr:`len_rank`: an estimated pose leaves n - 6 of a sample's n directions, fitted
-        internal forces 6), none for the initialisation's length entries (their readings are
-        the encoders' reference: :meth:`dof_lost`), 1 for the others (the wrench at an
-        estimated pose keeps its six, an exit point its three). Weighted like the entries,
-        they sum to the entries' weights less :meth:`dof_lost`."""
+        internal forces 6), 1 for the others (the wrench at an estimated pose keeps its six,
+        an exit point its three). Weighted like the entries, they sum to the entries'
+        weights less :meth:`dof_lost`."""
         sl = slice(None) if idx is None else idx
         n = self.model.n_cables
-        rank = np.where(self.s.is_init[sl], 0.0, self.len_rank[sl])
-        share = np.zeros((len(self.s.t[sl]), n)) + (rank / n)[:, None]
+        share = np.zeros((len(self.s.t[sl]), n)) + (self.len_rank[sl] / n)[:, None]
         lengths = self._mask(share, self.has_len[sl][:, None])
         out = np.ones(len(self._per_entry(np.zeros(self.s.n), idx)))
         out[:len(lengths)] = lengths  # (the length entries come first)
