@@ -288,17 +288,10 @@ class ResidualModel:
     def dof_lost(self, idx: np.ndarray | None = None) -> float:
         """Residual degrees of freedom taken by per-sample unknowns (an estimated pose: 6 of
         a sample's n length residuals; internal forces without tensions: n - 6), weighted
-        like the entries (:meth:`entry_weights`).
-
-        The initialisation's samples lose all n: their readings are the encoders' reference,
-        so their length residuals are the initialisation's own unstretched lengths against
-        themselves (no visit's error, the tracker's noise at most), whatever the hypothesis.
-        Counted as residuals, they would lower the error level the fit's residuals give (by
-        6 of 78 degrees of freedom on a 13-sample IPAnema-class dwell without load cells:
-        standard errors 4 % small)."""
+        like the entries (:meth:`entry_weights`)."""
         sl = slice(None) if idx is None else idx
         n = self.model.n_cables
-        lost = np.where(self.s.is_init[sl], n, n - self.len_rank[sl]) * self.has_len[sl]
+        lost = (n - self.len_rank[sl]) * self.has_len[sl]
         return float(np.sum(self.s.weight[sl] * lost))
 
     def entry_kept(self, idx: np.ndarray | None = None) -> np.ndarray:
