@@ -781,12 +781,17 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     cov_all[np.ix_(free, free)] = cov
     curv = np.zeros((len(x), len(x)))
     if free.any() and np.isfinite(Jf).all():
-        D = space.scale[free]
-        Js = Jf * D
-        curv[np.ix_(free, free)] = np.linalg.pinv(Js.T @ Js, rcond=1e-12,
-                                                  hermitian=True) * np.outer(D, D)
+        curv[np.ix_(free, free)] = curvature(Jf, space.scale[free])
     return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_eff), se_all,
                      cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff, None, curv, dof_all)
+
+
+def curvature(J: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The curvature (Gauss-Newton) covariance ``(J^T J)^+`` of whitened residuals' Jacobian
+    ``J`` (rows, parameters), computed on the columns scaled by ``scale`` (the parameters'
+    units) and returned in the parameters' units."""
+    Js = J * scale
+    return np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True) * np.outer(scale, scale)
 
 
 class _SecantJacobian:

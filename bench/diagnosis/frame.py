@@ -349,6 +349,5 @@ def _joint_step(fit, rm, idx: np.ndarray, free: np.ndarray, X: np.ndarray, r: np
     p = len(free)
     phi = fit.phi.copy()
     phi[free] = np.clip(phi[free] + step[:p], space.lo[free], space.hi[free])
-    Js = Ja * sc
-    curv = (np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True) * np.outer(sc, sc))[:p, :p]
+    curv = F.curvature(Ja, sc)[:p, :p]
     return phi, S, se, nu, curv

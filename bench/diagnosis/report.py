@@ -1136,8 +1136,7 @@ def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: l
     leaves: the probes beside the named effects and the residual tests."""
     model = rm.model
     s = rm.s
-    final = frame.latency_beside_direction(_final_fit(selector, sel, fit_idx, say), rm,
-                                           fit_idx)
+    final = _final_fit(selector, sel, fit_idx, say)
     floor_dof: list[np.ndarray] = []
     floor = _reference_var(rm, final, fit_idx, floor_dof)
     params, errs, undet = effect_entries(final, sel.effects, floor)
@@ -1169,8 +1168,7 @@ def _settle(rm: ResidualModel, selector: Selector, sel: Selection, candidates: l
         else:
             sel.rejected = rejected
             sel.effects = [c for c in sel.effects if c != e]
-        final = frame.latency_beside_direction(
-            _final_fit(selector, sel, fit_idx, say), rm, fit_idx)
+        final = _final_fit(selector, sel, fit_idx, say)
         floor_dof = []
         floor = _reference_var(rm, final, fit_idx, floor_dof)
         params, errs, undet = effect_entries(final, sel.effects, floor)
@@ -1323,8 +1321,15 @@ def plain(obj):
 def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progress) -> FitResult:
     """The chosen effects refitted on the training and validation samples (warm start), each
     group of parameters then checked by a refit that holds it
-    (:func:`bench.diagnosis.fit.profile_pruning`)."""
-    from bench.diagnosis.fit import fit_effects, profile_pruning
+    (:func:`bench.diagnosis.fit.profile_pruning`), the errors the tensions at initialisation
+    move in added (:func:`init_tensions_error`), and a tracker latency estimated beside the
+    cables' common error by direction (:func:`bench.diagnosis.frame.latency_beside_direction`)."""
+    return frame.latency_beside_direction(_refit(selector, sel, idx, say), selector.rm, idx)
+
+
+def _refit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progress) -> FitResult:
+    """:func:`_final_fit` before the latency's step."""
+    from bench.diagnosis.fit import fit_effects
     from bench.diagnosis.select import _warm
 
     key = tuple(sorted(sel.effects))
@@ -1340,8 +1345,7 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
             if res.success and res.chi2 <= start.chi2 + 1e-6 * max(start.chi2, 1.0) \
                     and res.n_free > start.n_free:
                 start = selector.gauge_floor(res, idx)
-        return init_tensions_error(selector.rm, profile_pruning(
-            start, selector.rm, idx, say, free_traded=True), idx, say)
+        return _pruned(selector, start, idx, say)
     space = ParamSpace(selector.model, key)
     say(f"final fit of {' + '.join(report_name(e) for e in key) or 'the model as it is'} on "
         f"{len(idx)} samples")
@@ -1352,7 +1356,14 @@ def _final_fit(selector: Selector, sel: Selection, idx: np.ndarray, say: Progres
     if not res.success:
         say(f"the final fit did not converge: {res.message}")
         return res
-    return init_tensions_error(selector.rm, profile_pruning(res, selector.rm, idx, say,
+    return _pruned(selector, res, idx, say)
+
+
+def _pruned(selector: Selector, fit: FitResult, idx: np.ndarray, say: Progress) -> FitResult:
+    """``fit`` pruned by profile refits, with the tensions at initialisation's error."""
+    from bench.diagnosis.fit import profile_pruning
+
+    return init_tensions_error(selector.rm, profile_pruning(fit, selector.rm, idx, say,
                                                             free_traded=True), idx, say)
 
 
