@@ -87,6 +87,16 @@ class FitResult:
     #: checks it; None: none was
     beside_nuisance: np.ndarray | None = None
 
+    def copy(self) -> FitResult:
+        """A copy whose arrays its user may change (``bias_var`` is added to in place;
+        ``space`` and ``beside_nuisance`` are shared)."""
+        return replace(self, phi=self.phi.copy(), stderr=self.stderr.copy(),
+                       cov=self.cov.copy(),
+                       bias_var=None if self.bias_var is None else self.bias_var.copy(),
+                       curvature_cov=None if self.curvature_cov is None
+                       else self.curvature_cov.copy(),
+                       stderr_dof=None if self.stderr_dof is None else self.stderr_dof.copy())
+
     @property
     def reported_stderr(self) -> np.ndarray:
         """Standard errors as reported: the fit's, with the error pruning may have moved in."""
@@ -198,14 +208,6 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             h.digest())
 
 
-def _copy(res: FitResult) -> FitResult:
-    """A copy of ``res`` whose arrays its user may change (``bias_var`` is added to in place)."""
-    return replace(res, phi=res.phi.copy(), stderr=res.stderr.copy(), cov=res.cov.copy(),
-                   bias_var=None if res.bias_var is None else res.bias_var.copy(),
-                   curvature_cov=None if res.curvature_cov is None else res.curvature_cov.copy(),
-                   stderr_dof=None if res.stderr_dof is None else res.stderr_dof.copy())
-
-
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
                 phi0: np.ndarray | None = None, max_nfev: int = MAX_NFEV,
                 hold: np.ndarray | None = None, prune: bool = True,
@@ -229,14 +231,14 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     memo = _MEMO.setdefault(rm, {})
     got = memo.get(key)
     if got is not None:
-        return _copy(got[-1])
+        return got[-1].copy()
     with rm.cold():  # the same fit whatever was evaluated before it
         res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune, free_traded)
     if len(memo) >= MEMO_SIZE:
         memo.pop(next(iter(memo)))
     # (the model, the samples and the functions named by id in the key are kept alive with
     # the entry: their ids cannot be reused while it lives)
-    memo[key] = (space.model, rm.s, least_squares, fd_jacobian, _copy(res))
+    memo[key] = (space.model, rm.s, least_squares, fd_jacobian, res.copy())
     return res
 
 
@@ -578,32 +580,45 @@ def profile_pruning(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
         phi0 = np.where(mask, space.neutral, fit.phi)
         return fit_effects(space, rm, idx, phi0, hold=base_hold | mask, prune=False)
 
-    # one evaluation per group first: the group at the model's values, the others moved as
-    # the curvature says they follow it. Where that point already rises by more than the
-    # group's BIC charge and by more than half the curvature's prediction, the valley is
-    # not curved there and holding the group is no better: no refit (a refit costs a
-    # Jacobian of every free parameter; without tensions, 20 s for 13 groups)
     lik = StretchLikelihood(rm, idx)
 
     def chi2_at(phi: np.ndarray) -> float:
         r = lik.residuals(space.robot(phi))
         return float(r @ r)
 
-    c0 = chi2_at(fit.phi)
-    C = fit.curvature_cov
-    movable = np.diag(C) > 0
-    charge = np.log(max(fit.n_eff or fit.n_res, 2))
     say(f"checking {len(groups)} groups of parameters by holding each")
+    rises, deltas = _group_refits(fit, groups, held_fit, chi2_at)
+    drop = _groups_to_hold(fit, groups, deltas, free_traded)
+    out = _hold_groups(fit, groups, drop, deltas, held_fit, base_hold, say)
+    return _widen_kept(fit, out, groups, drop, rises)
+
+
+def _group_mask(n: int, g: np.ndarray) -> np.ndarray:
+    """The mask (n,) of the parameter indices ``g``."""
+    mask = np.zeros(n, dtype=bool)
+    mask[g] = True
+    return mask
+
+
+def _group_refits(fit: FitResult, groups: list[np.ndarray],
+                  held_fit: Callable[[np.ndarray], FitResult],
+                  chi2_at: Callable[[np.ndarray], float]) -> tuple[list[float], np.ndarray]:
+    """:func:`profile_pruning`'s refits of ``fit`` holding each of its ``groups`` at the
+    model's values (``held_fit`` of the group's mask; ``chi2_at`` the chi-square of
+    fit-space values): per group, the chi-square rise and the BIC change (inf where the
+    refit failed, or where none was made: both inf)."""
+    # one evaluation per group first: the group at the model's values, the others moved as
+    # the curvature says they follow it. Where that point already rises by more than the
+    # group's BIC charge and by more than half the curvature's prediction, the valley is
+    # not curved there and holding the group is no better: no refit (a refit costs a
+    # Jacobian of every free parameter; without tensions, 20 s for 13 groups)
+    c0 = chi2_at(fit.phi)
+    charge = np.log(max(fit.n_eff or fit.n_res, 2))
     rises, deltas = [], []
     for g in groups:
-        mask = np.zeros(len(space), dtype=bool)
-        mask[g] = True
+        mask = _group_mask(len(fit.space), g)
         predicted = pruning_cost(fit, mask)
-        k = movable & ~mask
-        phi = np.where(mask, space.neutral, fit.phi)
-        phi[k] -= C[np.ix_(k, mask)] @ np.linalg.pinv(C[np.ix_(mask, mask)], rcond=1e-12) \
-            @ (fit.phi - space.neutral)[mask]
-        moved = chi2_at(np.clip(phi, space.lo, space.hi)) - c0
+        moved = chi2_at(_moved_along(fit, mask)) - c0
         if np.isfinite(moved) and moved > charge * len(g) and moved > 0.5 * predicted:
             rises.append(np.inf)  # no refit: neither held nor widened
             deltas.append(np.inf)
@@ -611,63 +626,104 @@ def profile_pruning(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
         r = held_fit(mask)
         rises.append(r.chi2 - fit.chi2)
         deltas.append(r.bic - fit.bic if r.success else np.inf)
-    deltas_a = np.asarray(deltas)
+    return rises, np.asarray(deltas)
+
+
+def _moved_along(fit: FitResult, mask: np.ndarray) -> np.ndarray:
+    """Fit-space values of ``fit`` with the parameters ``mask`` at the model's values and the
+    others moved as its curvature covariance says they follow them, within the bounds."""
+    space, C = fit.space, fit.curvature_cov
+    k = (np.diag(C) > 0) & ~mask
+    phi = np.where(mask, space.neutral, fit.phi)
+    phi[k] -= C[np.ix_(k, mask)] @ np.linalg.pinv(C[np.ix_(mask, mask)], rcond=1e-12) \
+        @ (fit.phi - space.neutral)[mask]
+    return np.clip(phi, space.lo, space.hi)
+
+
+def _groups_to_hold(fit: FitResult, groups: list[np.ndarray], deltas: np.ndarray,
+                    free_traded: bool) -> np.ndarray:
+    """:func:`profile_pruning`'s groups (mask over ``groups``) whose refit held lowered the
+    BIC (``deltas``), each effect keeping its most needed group; with ``free_traded``, a
+    group a kept parameter of another effect stands in for stays free (its BIC change set
+    to inf in ``deltas``, in place)."""
+    space = fit.space
     if free_traded:  # a group a kept parameter of another effect stands in for stays free
         for i, g in enumerate(groups):
-            mask = np.zeros(len(space), dtype=bool)
-            mask[g] = True
-            if deltas_a[i] < 0.0 and traded_parameters(fit, mask)[g].any():
-                deltas_a[i] = np.inf
+            mask = _group_mask(len(space), g)
+            if deltas[i] < 0.0 and traded_parameters(fit, mask)[g].any():
+                deltas[i] = np.inf
     # each effect keeps its most needed group
     effect_of = [space.params[int(g[0])].effect for g in groups]
-    drop = deltas_a < 0.0
+    drop = deltas < 0.0
     for e in set(effect_of):
         mine = [i for i, x in enumerate(effect_of) if x == e]
         if all(drop[i] for i in mine):
-            drop[max(mine, key=lambda i: deltas_a[i])] = False
-    out = fit
-    if drop.any():
-        mask = np.zeros(len(space), dtype=bool)
-        for i in np.flatnonzero(drop):
-            mask[groups[i]] = True
+            drop[max(mine, key=lambda i: deltas[i])] = False
+    return drop
+
+
+def _hold_groups(fit: FitResult, groups: list[np.ndarray], drop: np.ndarray,
+                 deltas: np.ndarray, held_fit: Callable[[np.ndarray], FitResult],
+                 base_hold: np.ndarray, say: Callable[[str], None]) -> FitResult:
+    """:func:`profile_pruning`'s fit with the groups ``drop`` held together (or the one
+    whose refit lowered the BIC most, ``deltas``, where together they do no better than
+    it), where that lowers ``fit``'s BIC; ``fit`` itself otherwise. ``drop`` is left
+    marking the groups held (in place). The held parameters, and those ``base_hold``,
+    keep ``fit``'s errors."""
+    space = fit.space
+    if not drop.any():
+        return fit
+    mask = np.zeros(len(space), dtype=bool)
+    for i in np.flatnonzero(drop):
+        mask[groups[i]] = True
+    tried = held_fit(mask)
+    if not (tried.success and tried.bic < fit.bic + deltas[drop].min()):
+        best = int(np.flatnonzero(drop)[np.argmin(deltas[drop])])
+        mask[:] = False
+        mask[groups[best]] = True
+        drop[:] = False
+        drop[best] = True
         tried = held_fit(mask)
-        if not (tried.success and tried.bic < fit.bic + deltas_a[drop].min()):
-            best = int(np.flatnonzero(drop)[np.argmin(deltas_a[drop])])
-            mask[:] = False
-            mask[groups[best]] = True
-            drop[:] = False
-            drop[best] = True
-            tried = held_fit(mask)
-        if tried.success and tried.bic < fit.bic:
-            names = ", ".join(space.params[int(k)].key for k in np.flatnonzero(mask))
-            say(f"held at the model's values (the refits' likelihood ratio): {names}")
-            tried.stderr = np.where(mask | base_hold, fit.stderr, tried.stderr)
-            tried.stderr_dof = _held_dof(mask | base_hold, fit, tried)
-            tried.bias_var = None if fit.bias_var is None else fit.bias_var.copy()
-            out = tried
-        else:
-            drop[:] = False
-    # the groups kept: errors no smaller than the likelihood ratio says
-    extra = np.zeros(len(space))
+    if not (tried.success and tried.bic < fit.bic):
+        drop[:] = False
+        return fit
+    names = ", ".join(space.params[int(k)].key for k in np.flatnonzero(mask))
+    say(f"held at the model's values (the refits' likelihood ratio): {names}")
+    tried.stderr = np.where(mask | base_hold, fit.stderr, tried.stderr)
+    tried.stderr_dof = _held_dof(mask | base_hold, fit, tried)
+    tried.bias_var = None if fit.bias_var is None else fit.bias_var.copy()
+    return tried
+
+
+def _widen_kept(fit: FitResult, out: FitResult, groups: list[np.ndarray],
+                drop: np.ndarray, rises: list[float]) -> FitResult:
+    """``out`` (:func:`profile_pruning`'s fit after holding the groups ``drop``) with the
+    errors of each group kept and refitted no smaller than the likelihood ratio says: where
+    its refit rose by less (``rises``) than ``fit``'s curvature predicted, ``bias_var``
+    (fit units squared) grows by ``se^2 (predicted / rise - 1)``. A copy where ``out`` is
+    ``fit``."""
+    extra = np.zeros(len(fit.space))
     for i, g in enumerate(groups):
         if drop[i] or not np.isfinite(rises[i]):
             continue
-        mask = np.zeros(len(space), dtype=bool)
-        mask[g] = True
-        predicted = pruning_cost(fit, mask)
+        predicted = pruning_cost(fit, _group_mask(len(fit.space), g))
         if rises[i] > 0 and predicted > rises[i]:
             se = out.stderr[g]
             extra[g] = se ** 2 * (predicted / rises[i] - 1.0)
     if extra.any():
         if out is fit:
-            out = _copy(fit)
+            out = fit.copy()
         out.bias_var = extra if out.bias_var is None else out.bias_var + extra
     return out
 
 
 def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray | None,
          max_nfev: int, hold: np.ndarray | None) -> FitResult:
-
+    """One least-squares fit of ``space``'s parameters to the samples ``idx`` of ``rm``
+    (whitened residuals, dimensionless), from the fit-space values ``phi0`` (the model's
+    where None), at most ``max_nfev`` evaluations a run; ``hold`` marks the parameters kept
+    at the model's values (where None, those the data cannot fix at the start:
+    :func:`null_parameters`). No pruning (:func:`_fit_effects`)."""
     # the residuals, with the likelihood's Jacobian term where tensions move with the
     # length errors (estimated poses: bench.diagnosis.likelihood) as one entry more
     lik = StretchLikelihood(rm, idx)
@@ -677,10 +733,6 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
 
     x0 = space.neutral.copy() if phi0 is None else np.clip(phi0, space.lo, space.hi)
     steps = space.scale * 1e-2
-
-    def jac(phi: np.ndarray) -> np.ndarray:
-        return fd_jacobian(fun, phi, fun(phi), steps, space.lo, space.hi, rm.frozen)
-
     lost = rm.dof_lost(idx)
     n_eff = float(rm.entry_weights(idx).sum())
     if len(space) == 0:
@@ -690,81 +742,139 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
                          np.zeros((0, 0)), True, "no parameters", 1, lost, 0, n_eff)
     # parameters the data cannot fix at all (seen at the start, before the fit can wander
     # along them) stay at the model's values; compliance-like ones are held first
-    fixed = null_parameters(jac(x0), space) if hold is None else hold.copy()
+    if hold is None:
+        J0 = fd_jacobian(fun, x0, fun(x0), steps, space.lo, space.hi, rm.frozen)
+        fixed = null_parameters(J0, space)
+    else:
+        fixed = hold.copy()
     free = ~fixed
     x = np.where(fixed, space.neutral, x0)
     # start inside the bounds: the trust region of 'trf' cannot leave a bound it starts on
     x = np.where(free, np.clip(x, space.lo + 0.1 * space.scale, space.hi - 0.1 * space.scale), x)
-
-    def fun_free(z: np.ndarray) -> np.ndarray:
-        full = x.copy()
-        full[free] = z
-        return fun(full)
-
-    last: dict[str, np.ndarray] = {}  # the last evaluation outside the Jacobian's columns
-
-    def fun_last(z: np.ndarray) -> np.ndarray:
-        last["z"], last["r"] = z.copy(), fun_free(z)
-        return last["r"]
-
-    def f_at(z: np.ndarray) -> np.ndarray:
-        # least_squares asks for the Jacobian where it last evaluated the residuals
-        return last["r"] if "z" in last and np.array_equal(last["z"], z) else fun_last(z)
-
-    def jac_free(z: np.ndarray) -> np.ndarray:
-        return fd_jacobian(fun_free, z, f_at(z), steps[free], space.lo[free], space.hi[free],
-                           rm.frozen)
-
     if free.any():
-        z = x[free]
-        lo, hi, sc = space.lo[free], space.hi[free], space.scale[free]
-        nfev, ok, msg = 0, False, ""
-        r0 = fun_last(z)
-        cost = 0.5 * float(r0 @ r0)
-        secant = int(free.sum()) >= SECANT_MIN
-        if secant:
-            # the path to the minimum with secant Jacobians (module docstring), then the
-            # minimum checked (and the fit finished) with finite differences
-            res = least_squares(fun_last, z, bounds=(lo, hi),
-                                jac=_SecantJacobian(jac_free, f_at, sc), x_scale=sc,
-                                method="trf", max_nfev=2 * max_nfev,
-                                xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
-            z = res.x
-            nfev += int(res.nfev)
-            cost = min(cost, float(res.cost))
-            rz = f_at(z)
-            Jz = jac_free(z)
-            if _settled(Jz, rz, z, lo, hi, sc):
-                r, Jf, ok, msg = rz, Jz, True, "converged (secant path, checked)"
-            jac_first = _First(Jz, z, jac_free)
-        if not ok:
-            for _attempt in range(RETRIES + 1):
-                res = least_squares(fun_last, z, bounds=(lo, hi),
-                                    jac=jac_first if secant else jac_free,
-                                    x_scale=sc, method="trf", max_nfev=max_nfev,
-                                    xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
-                secant = False
-                z = res.x
-                nfev += int(res.nfev)
-                # status 0: the evaluation budget ran out before a convergence test passed
-                ok = bool(res.status > 0)
-                msg = str(res.message)
-                if ok:
-                    break
-                if not cost - float(res.cost) > 1e-6 * cost:
-                    break  # the budget went without progress: another one would go the same
-                cost = float(res.cost)
-            r, Jf = res.fun, res.jac
+        prob = _FreeResiduals(fun, x, free, steps[free], space.lo[free], space.hi[free],
+                              rm.frozen)
+        z, r, Jf, nfev, ok, msg = _minimise(prob, x[free], space.scale[free], max_nfev)
         x[free] = z
-        if not ok:
-            msg = f"did not converge in {nfev} evaluations: {msg}"
     else:
         r, Jf, nfev, ok, msg = fun(x), np.zeros((0, 0)), 1, True, "nothing to fit"
     chi2 = float(r @ r) - lik.K
     if lik.n_extra:  # the errors' model holds the residuals proper
         r = r[:-lik.n_extra]
         Jf = Jf[:-lik.n_extra] if len(Jf) else Jf
-    n_res = len(r)
+    se_all, cov_all, dof_all, curv = _fit_errors(space, rm, idx, x, free, r, Jf, lost, n_eff)
+    return FitResult(space, x, chi2, len(r), bic(chi2, int(free.sum()), n_eff), se_all,
+                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff, None, curv, dof_all)
+
+
+class _FreeResiduals:
+    """The residuals ``fun`` of fit-space values as a function of the ``free`` ones (the
+    others as in ``x``, read when called), keeping the last evaluation outside the
+    Jacobian's columns; their finite-difference Jacobian (``steps``, within ``lo``, ``hi``,
+    fit units of the free parameters; ``frozen`` the residual model's context for the
+    columns, :func:`fd_jacobian`)."""
+
+    def __init__(self, fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
+                 free: np.ndarray, steps: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 frozen: Callable[[], AbstractContextManager] | None) -> None:
+        self.fun, self.x, self.free = fun, x, free
+        self.steps, self.lo, self.hi, self.frozen = steps, lo, hi, frozen
+        self.last: dict[str, np.ndarray] = {}
+
+    def at(self, z: np.ndarray) -> np.ndarray:
+        """The residuals at the free values ``z``."""
+        full = self.x.copy()
+        full[self.free] = z
+        return self.fun(full)
+
+    def evaluate(self, z: np.ndarray) -> np.ndarray:
+        """:meth:`at`, kept as the last evaluation (what ``least_squares`` evaluates)."""
+        self.last["z"], self.last["r"] = z.copy(), self.at(z)
+        return self.last["r"]
+
+    def f_at(self, z: np.ndarray) -> np.ndarray:
+        """The residuals at ``z``, the last evaluation's where it was there."""
+        # least_squares asks for the Jacobian where it last evaluated the residuals
+        if "z" in self.last and np.array_equal(self.last["z"], z):
+            return self.last["r"]
+        return self.evaluate(z)
+
+    def jac(self, z: np.ndarray, *_: object) -> np.ndarray:
+        """The finite-difference Jacobian at ``z`` (rows: residuals; columns: free values)."""
+        return fd_jacobian(self.at, z, self.f_at(z), self.steps, self.lo, self.hi,
+                           self.frozen)
+
+
+def _minimise(prob: _FreeResiduals, z: np.ndarray, sc: np.ndarray, max_nfev: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool, str]:
+    """The minimum of ``prob``'s residuals from the free values ``z`` (scales ``sc``, fit
+    units): a secant path first for many parameters (module docstring), checked with finite
+    differences, then bounded 'trf' runs (at most ``RETRIES`` more, while they lower the
+    cost). The free values, the residuals and Jacobian there, the evaluations, whether it
+    converged and the message."""
+    lo, hi = prob.lo, prob.hi
+    nfev, first = 0, None
+    r0 = prob.evaluate(z)
+    cost = 0.5 * float(r0 @ r0)
+    if len(z) >= SECANT_MIN:
+        # the path to the minimum with secant Jacobians (module docstring), then the
+        # minimum checked (and the fit finished) with finite differences
+        res = least_squares(prob.evaluate, z, bounds=(lo, hi),
+                            jac=_SecantJacobian(prob.jac, prob.f_at, sc), x_scale=sc,
+                            method="trf", max_nfev=2 * max_nfev,
+                            xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
+        z = res.x
+        nfev += int(res.nfev)
+        cost = min(cost, float(res.cost))
+        rz = prob.f_at(z)
+        Jz = prob.jac(z)
+        if _settled(Jz, rz, z, lo, hi, sc):
+            return z, rz, Jz, nfev, True, "converged (secant path, checked)"
+        first = _First(Jz, z, prob.jac)
+    z, r, Jf, n, ok, msg = _trf_runs(prob, z, sc, max_nfev, cost, first)
+    nfev += n
+    if not ok:
+        msg = f"did not converge in {nfev} evaluations: {msg}"
+    return z, r, Jf, nfev, ok, msg
+
+
+def _trf_runs(prob: _FreeResiduals, z: np.ndarray, sc: np.ndarray, max_nfev: int,
+              cost: float, first: _First | None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool, str]:
+    """:func:`_minimise`'s bounded 'trf' runs from ``z`` (``cost`` half the chi-square
+    there; the first run's Jacobian ``first`` where given, else finite differences): again
+    from where one stopped while it spent its budget lowering the cost, at most
+    ``RETRIES`` more. The free values, the residuals and Jacobian there, the evaluations,
+    whether the last run converged and its message."""
+    nfev = 0
+    for _attempt in range(RETRIES + 1):
+        res = least_squares(prob.evaluate, z, bounds=(prob.lo, prob.hi),
+                            jac=first if first is not None else prob.jac,
+                            x_scale=sc, method="trf", max_nfev=max_nfev,
+                            xtol=FIT_TOL, ftol=FIT_TOL, gtol=1e-8)
+        first = None
+        z = res.x
+        nfev += int(res.nfev)
+        # status 0: the evaluation budget ran out before a convergence test passed
+        ok = bool(res.status > 0)
+        msg = str(res.message)
+        if ok:
+            break
+        if not cost - float(res.cost) > 1e-6 * cost:
+            break  # the budget went without progress: another one would go the same
+        cost = float(res.cost)
+    return z, res.fun, res.jac, nfev, ok, msg
+
+
+def _fit_errors(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, x: np.ndarray,
+                free: np.ndarray, r: np.ndarray, Jf: np.ndarray, lost: float, n_eff: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_fit`'s errors at the fit-space values ``x`` from the whitened residuals ``r``
+    and their Jacobian ``Jf`` in the ``free`` parameters (``lost`` degrees of freedom of
+    ``n_eff``): standard errors (inf where held), covariance (zero where held), the
+    standard errors' degrees of freedom (inf where held or where the error model gives
+    none) and the curvature covariance (:func:`curvature`), all fit units over every
+    parameter."""
     if free.any():
         errors = error_structure(rm, idx, lost, space.robot(x))
         nu: list[np.ndarray] = []
@@ -782,8 +892,7 @@ def _fit(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray
     curv = np.zeros((len(x), len(x)))
     if free.any() and np.isfinite(Jf).all():
         curv[np.ix_(free, free)] = curvature(Jf, space.scale[free])
-    return FitResult(space, x, chi2, n_res, bic(chi2, int(free.sum()), n_eff), se_all,
-                     cov_all, ok, msg, nfev, lost, int(free.sum()), n_eff, None, curv, dof_all)
+    return se_all, cov_all, dof_all, curv
 
 
 def curvature(J: np.ndarray, scale: np.ndarray) -> np.ndarray:

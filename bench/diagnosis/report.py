@@ -1385,7 +1385,7 @@ def init_tensions_error(rm: ResidualModel, fit: FitResult, idx: np.ndarray,
     forces free beside the same parameters on the samples ``idx``, and the squared error
     holding them moves into each parameter, estimated without bias from their departures
     (at least the kept parameter's error beside them where the data cannot fix them)."""
-    from bench.diagnosis.fit import _copy, pruning_bias_var, unfixed_parameters
+    from bench.diagnosis.fit import pruning_bias_var, unfixed_parameters
 
     k = rm.init_basis.shape[1]
     if rm.tau0 is not None or k == 0 or rm.model.init_internal is not None \
@@ -1408,7 +1408,7 @@ def init_tensions_error(rm: ResidualModel, fit: FitResult, idx: np.ndarray,
     weak = np.arange(len(full.phi)) >= p
     unfixed = unfixed_parameters(space, full.stderr)
     extra = pruning_bias_var(full, weak, space.neutral, weak & unfixed)[:p]
-    out = _copy(fit)
+    out = fit.copy()
     out.bias_var = extra if out.bias_var is None else out.bias_var + extra
     return out
 

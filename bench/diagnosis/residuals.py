@@ -125,6 +125,120 @@ class Forward:
     ok: np.ndarray
 
 
+@dataclass
+class _Settling:
+    """The rounds of :meth:`ResidualModel._unmeasured` over M samples of n cables, per
+    sample: ``tau`` (M,n) linearisation tensions [N] (fitted, at least the floor);
+    ``fitted`` (M,n) the last fitted tensions before the floor [N]; ``face``, ``drop`` (M,n)
+    the internal-force faces (:mod:`bench.diagnosis.internal_forces`); ``at_zero`` (M,n)
+    cables at zero; ``ok`` (M,) fitted and feasible; ``W`` (M,6,n) the last wrench matrices
+    [base frame; N, N m per N]; ``C`` (M,n,n) the last length sensitivities [m/N] (None
+    unless the absorbed directions are kept); ``search`` (M,) the next round searches every
+    face; ``held``, ``searches`` (M,) rounds on held faces since the last search, searches;
+    ``live`` (M,) not yet ended; ``exits`` (M,n,3) the last deflected exits [m, base frame]
+    (None with rigid masts before the first round); ``bs`` the last statics of every sample
+    (rigid masts)."""
+
+    tau: np.ndarray
+    fitted: np.ndarray
+    face: np.ndarray
+    drop: np.ndarray
+    at_zero: np.ndarray
+    ok: np.ndarray
+    W: np.ndarray
+    C: np.ndarray | None
+    search: np.ndarray
+    held: np.ndarray
+    searches: np.ndarray
+    live: np.ndarray
+    exits: np.ndarray | None
+    bs: BatchStatics | None = None
+
+    @classmethod
+    def start(cls, tau: np.ndarray, hint: tuple[np.ndarray, np.ndarray] | None,
+              exits: np.ndarray | None, keep_absorbed: bool) -> _Settling:
+        """Rounds from the tensions ``tau`` (M,n) [N] and deflected ``exits`` (M,n,3) [m]
+        (or None), on the faces ``hint`` (face, drop), each (M,n), where given (else the
+        first round searches every face); ``keep_absorbed``: keep the length
+        sensitivities."""
+        M, n = tau.shape
+        face = np.zeros((M, n), dtype=bool) if hint is None else hint[0].copy()
+        drop = np.zeros((M, n), dtype=bool) if hint is None else hint[1].copy()
+        return cls(tau=tau, fitted=np.zeros((M, n)), face=face, drop=drop,
+                   at_zero=np.zeros((M, n), dtype=bool), ok=np.ones(M, dtype=bool),
+                   W=np.full((M, 6, n), np.nan),
+                   C=np.zeros((M, n, n)) if keep_absorbed else None,
+                   search=np.full(M, hint is None), held=np.zeros(M, dtype=np.int64),
+                   searches=np.zeros(M, dtype=np.int64), live=np.ones(M, dtype=bool),
+                   exits=exits)
+
+    def linearise(self, H: Robot, a: np.ndarray, poses: np.ndarray, read: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The statics of the samples ``a`` (indices into the M) at ``poses`` (M,6) holding
+        their tensions: wrench matrices (A,6,n) [base frame], gravity wrenches (A,6) [N,
+        N m], length residuals against ``read`` (M,n) (A,n) [m] and length sensitivities
+        (A,n,n) [m/N] (non-finite entries zero, :func:`_finite`). With compliant masts the
+        geometry hangs on the tensions: the samples ``a`` only, their exits kept; with
+        rigid ones only the cables' forces are evaluated again, of every sample."""
+        if H.compliant:  # the geometry hangs on the tensions: the live samples only
+            ba = _statics(H, poses[a], self.tau[a],
+                          None if self.exits is None else self.exits[a], None)
+            if self.exits is None:
+                self.exits = np.repeat(ba.exits[:1], len(poses), axis=0)
+            self.exits[a] = ba.exits
+            W = wrench_matrix(ba.state)
+            wg = gravity_wrench(H.mass, H.com, H.gravity, ba.state.R)
+            r = _finite(ba.unstretched - read[a])
+            C = _finite(_length_sensitivity(H, ba, self.tau[a]))
+        else:  # the same geometry: only the cables' forces again (of every sample)
+            self.bs = bs = _statics(H, poses, self.tau, None, self.bs)
+            W = wrench_matrix(bs.state)[a]
+            wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)[a]
+            r = _finite(bs.unstretched - read)[a]
+            C = _finite(_length_sensitivity(H, bs, self.tau))[a]
+        self.W[a] = W
+        if self.C is not None:
+            self.C[a] = C
+        return W, wg, r, C
+
+    def fit_faces(self, a: np.ndarray, W: np.ndarray, wg: np.ndarray, r: np.ndarray,
+                  C: np.ndarray, tm: np.ndarray, floor: np.ndarray) -> np.ndarray:
+        """The fitted tensions (A,n) [N] of the samples ``a`` from their statics (``W``,
+        ``wg``, ``r``, ``C`` of :meth:`linearise`): on their held faces, or searching every
+        face where :attr:`search` says so (:func:`fit_internal_forces`, toward the mid-range
+        ``tm`` (n,) [N]), at least ``floor`` (n,) [N]; their last tensions where the fit is
+        not finite. Their faces, cables at zero, fitted tensions and success kept."""
+        new = self.tau[a].copy()
+        for group in (~self.search[a], self.search[a]):
+            g = np.flatnonzero(group)
+            if not len(g):
+                continue
+            k = a[g]
+            fit = fit_internal_forces(_finite(W[g]), -wg[g], r[g], C[g], self.tau[k], tm,
+                                      hint=None if self.search[k[0]]
+                                      else (self.face[k], self.drop[k]))
+            good = np.isfinite(W[g]).all(axis=(1, 2)) & \
+                np.isfinite(fit.tensions).all(axis=1)
+            self.ok[k] = good & fit.feasible
+            self.at_zero[k] = fit.at_zero
+            self.fitted[k] = fit.tensions
+            self.face[k], self.drop[k] = fit.hint()
+            new[g] = np.where(good[:, None], np.maximum(fit.tensions, floor), self.tau[k])
+        return new
+
+    def advance(self, a: np.ndarray, settled: np.ndarray, rounds: int) -> None:
+        """After a round of the samples ``a`` (``settled`` (A,): their tensions moved less
+        than the tolerance): a search that left the tensions settled ends the sample (so
+        does the cap of ``rounds`` searches); a face that changed settles on the new face
+        (at most ``rounds`` rounds) before the next search."""
+        was = self.search[a]
+        self.searches[a] += was
+        self.held[a] += ~was
+        self.live[a] = ~(was & (settled | (self.searches[a] >= rounds)))
+        self.search[a] = ~was & (settled | (self.held[a] >= rounds))
+        self.held[a] = np.where(was, 0, self.held[a])
+
+
 class ResidualModel:
     """Residuals of hypotheses against the samples of one recording.
 
@@ -305,7 +419,7 @@ class ResidualModel:
         n = self.model.n_cables
         share = np.zeros((len(self.s.t[sl]), n)) + (self.len_rank[sl] / n)[:, None]
         lengths = self._mask(share, self.has_len[sl][:, None])
-        out = np.ones(len(self._per_entry(np.zeros(self.s.n), idx)))
+        out = np.ones(self._n_entries(idx))
         out[:len(lengths)] = lengths  # (the length entries come first)
         return out
 
@@ -613,8 +727,9 @@ class ResidualModel:
     def _unmeasured(self, H: Robot, u: np.ndarray, poses: np.ndarray, read: np.ndarray,
                     rounds: int = 4, rtol: float = 1e-7
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Length residuals (M,n), exits (M,n,3) and success (M,) of the samples ``u`` (M,) at
-        ``poses`` without measured tensions: tensions that balance gravity, pull, and fit the
+        """Length residuals (M,n) [m], exits (M,n,3) [m, base frame] and success (M,) of the
+        samples ``u`` (M,) at ``poses`` (M,6) without measured tensions (``read`` (M,n) the
+        unstretched lengths read [m]): tensions that balance gravity, pull, and fit the
         readings' stretch (:mod:`bench.diagnosis.internal_forces`: exact over which cables
         are slack, so the residuals do not jump with the parameters); a cable left at zero
         tension only says it is at least as long as the straight line. Relinearisations of
@@ -624,28 +739,10 @@ class ResidualModel:
         each sample warm-started from its last tensions and deflected exits (inside
         :meth:`frozen`: from those of the last evaluation before, on its faces, one
         relinearisation)."""
-        M, n = len(poses), H.n_cables
-        tm = np.full(n, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
+        tm = np.full(H.n_cables, 0.5 * (H.tension_min + H.tension_max))  # as the controller plans
         floor = 1e-3 * tm  # linearisation tension of a cable at zero
-        warm = self._warm_tau[u]
-        known = np.isfinite(warm).all(axis=1)
-        tau_k = np.maximum(np.where(known[:, None], warm, tm), floor)
-        if not known.all():
-            c = np.flatnonzero(~known)
-            straight = H.replace(rho=0.0) if H.rho > 0 else H
-            bs0 = batch_statics(straight, poses[c], np.full((len(c), n), 1.0))  # geometry only
-            wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
-            tau = _balance(wrench_matrix(bs0.state), -wg, tm)
-            tau_k[c] = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
+        tau_k, known = self._start_tensions(H, u, poses, tm, floor)
         hint = (self._warm_face[u], self._warm_drop[u]) if known.all() else None
-        ok = np.ones(M, dtype=bool)
-        at_zero = np.zeros((M, n), dtype=bool)
-        # deflected exits of the last round (each round starts from them; the first from
-        # those of the last evaluation outside frozen, where every sample has them: the
-        # masts' iteration converges to its tolerance from there in fewer steps)
-        exits = self._warm_exits[u] if H.compliant else None
-        if exits is not None and not np.isfinite(exits).all():
-            exits = None
         # on held faces from the last evaluation's tensions, one relinearisation gives the
         # tensions to first order in a finite-difference step (a column within 1e-3). With
         # compliant masts the wrench matrix moves with the tensions too, which the
@@ -664,72 +761,64 @@ class ResidualModel:
         # two searches. Each sample's statics and tensions are its own: the rounds after
         # the first take only the samples not yet ended (12973: a third of the rounds'
         # samples, most of them settled after two)
-        face = np.zeros((M, n), dtype=bool) if hint is None else hint[0].copy()
-        drop = np.zeros((M, n), dtype=bool) if hint is None else hint[1].copy()
-        fitted = np.zeros((M, n))  # each sample's last fitted tensions (before the floor)
-        W_all = np.full((M, 6, n), np.nan)
-        C_all = np.zeros((M, n, n)) if self.keep_absorbed and not self._frozen else None
-        search = np.full(M, hint is None)
-        held = np.zeros(M, dtype=np.int64)
-        searches = np.zeros(M, dtype=np.int64)
-        live = np.ones(M, dtype=bool)
+        st = _Settling.start(tau_k, hint, self._start_exits(H, u),
+                             self.keep_absorbed and not self._frozen)
         tol = rtol * float(tm.max())
-        bs = None  # the last round's statics of every sample (rigid masts)
-        while live.any():
-            a = np.flatnonzero(live)
-            if H.compliant:  # the geometry hangs on the tensions: the live samples only
-                ba = _statics(H, poses[a], tau_k[a], None if exits is None else exits[a],
-                              None)
-                if exits is None:
-                    exits = np.repeat(ba.exits[:1], M, axis=0)
-                exits[a] = ba.exits
-                W = wrench_matrix(ba.state)
-                wg = gravity_wrench(H.mass, H.com, H.gravity, ba.state.R)
-                r = _finite(ba.unstretched - read[a])
-                C = _finite(_length_sensitivity(H, ba, tau_k[a]))
-            else:  # the same geometry: only the cables' forces again (of every sample)
-                bs = _statics(H, poses, tau_k, None, bs)
-                W = wrench_matrix(bs.state)[a]
-                wg = gravity_wrench(H.mass, H.com, H.gravity, bs.state.R)[a]
-                r = _finite(bs.unstretched - read)[a]
-                C = _finite(_length_sensitivity(H, bs, tau_k))[a]
-            W_all[a] = W
-            if C_all is not None:
-                C_all[a] = C
-            new = tau_k[a].copy()
-            for group in (~search[a], search[a]):
-                g = np.flatnonzero(group)
-                if not len(g):
-                    continue
-                k = a[g]
-                fit = fit_internal_forces(_finite(W[g]), -wg[g], r[g], C[g], tau_k[k], tm,
-                                          hint=None if search[k[0]] else (face[k], drop[k]))
-                good = np.isfinite(W[g]).all(axis=(1, 2)) & \
-                    np.isfinite(fit.tensions).all(axis=1)
-                ok[k] = good & fit.feasible
-                at_zero[k] = fit.at_zero
-                fitted[k] = fit.tensions
-                face[k], drop[k] = fit.hint()
-                new[g] = np.where(good[:, None], np.maximum(fit.tensions, floor), tau_k[k])
-            settled = np.abs(new - tau_k[a]).max(axis=1) <= tol
-            tau_k[a] = new
+        while st.live.any():
+            a = np.flatnonzero(st.live)
+            W, wg, r, C = st.linearise(H, a, poses, read)
+            new = st.fit_faces(a, W, wg, r, C, tm, floor)
+            settled = np.abs(new - st.tau[a]).max(axis=1) <= tol
+            st.tau[a] = new
             if held_only:
                 break
-            was = search[a]
-            searches[a] += was
-            held[a] += ~was
-            # a search that left the tensions settled ends the sample (so does the cap);
-            # a face that changed settles on the new face before the next search
-            live[a] = ~(was & (settled | (searches[a] >= rounds)))
-            search[a] = ~was & (settled | (held[a] >= rounds))
-            held[a] = np.where(was, 0, held[a])
+            st.advance(a, settled, rounds)
+        return self._settled_residuals(H, u, st, poses, read)
+
+    def _start_tensions(self, H: Robot, u: np.ndarray, poses: np.ndarray, tm: np.ndarray,
+                        floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_unmeasured`'s first linearisation tensions (M,n) [N] of the samples ``u``
+        at ``poses`` (M,6), each at least ``floor`` (n,) [N], and which samples had warm
+        ones (M,): their last tensions where they have them, else the tensions closest to
+        the mid-range ``tm`` (n,) [N] that balance gravity on straight cables (``tm`` where
+        that fails)."""
+        n = H.n_cables
+        warm = self._warm_tau[u]
+        known = np.isfinite(warm).all(axis=1)
+        tau_k = np.maximum(np.where(known[:, None], warm, tm), floor)
+        if not known.all():
+            c = np.flatnonzero(~known)
+            straight = H.replace(rho=0.0) if H.rho > 0 else H
+            bs0 = batch_statics(straight, poses[c], np.full((len(c), n), 1.0))  # geometry only
+            wg = gravity_wrench(H.mass, H.com, H.gravity, bs0.state.R)
+            tau = _balance(wrench_matrix(bs0.state), -wg, tm)
+            tau_k[c] = np.maximum(np.where(np.isfinite(tau), tau, tm), floor)
+        return tau_k, known
+
+    def _start_exits(self, H: Robot, u: np.ndarray) -> np.ndarray | None:
+        """The deflected exits (M,n,3) [m, base frame] :meth:`_unmeasured`'s first round of
+        the samples ``u`` starts from: those of the last evaluation outside :meth:`frozen`,
+        where every sample has them (the masts' iteration converges to its tolerance from
+        there in fewer steps); None with rigid masts or where one is missing."""
+        exits = self._warm_exits[u] if H.compliant else None
+        if exits is not None and not np.isfinite(exits).all():
+            exits = None
+        return exits
+
+    def _settled_residuals(self, H: Robot, u: np.ndarray, st: _Settling, poses: np.ndarray,
+                           read: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_unmeasured`'s answer from its settled rounds ``st`` of the samples ``u`` at
+        ``poses`` (M,6) with the unstretched lengths ``read`` (M,n) [m]: the length residuals
+        (M,n) [m] (one-sided for cables at zero tension), exits (M,n,3) [m, base frame] and
+        success (M,); the warm starts (outside :meth:`frozen`), the absorbed directions
+        (:attr:`keep_absorbed`) and the cables at zero (``_at_zero``) kept."""
         if not self._frozen:
-            self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = tau_k, face, drop
-        if C_all is not None:
-            null = np.swapaxes(np.linalg.svd(np.nan_to_num(W_all))[2][:, 6:, :], -1, -2)
+            self._warm_tau[u], self._warm_face[u], self._warm_drop[u] = st.tau, st.face, st.drop
+        if st.C is not None:
+            null = np.swapaxes(np.linalg.svd(np.nan_to_num(st.W))[2][:, 6:, :], -1, -2)
             self.absorbed[u] = 0.0
-            self.absorbed[u, :, :null.shape[-1]] = C_all @ null
-        bs = _statics(H, poses, np.where(at_zero, 0.0, tau_k), exits, bs)
+            self.absorbed[u, :, :null.shape[-1]] = st.C @ null
+        bs = _statics(H, poses, np.where(st.at_zero, 0.0, st.tau), st.exits, st.bs)
         if H.compliant and not self._frozen:
             self._warm_exits[u] = bs.exits
         # the balance holds at most n - 6 cables at zero; where the platform hangs on fewer
@@ -737,13 +826,13 @@ class ResidualModel:
         # within round-off of zero: a cable whose fitted tension is below what a load cell
         # would tell from slack and whose reading is longer than its straight line is slack,
         # one-sided like a measured slack cable (two-sided, it would count millimetres)
-        faint = ~at_zero & (fitted < self.slack_threshold) & \
+        faint = ~st.at_zero & (st.fitted < self.slack_threshold) & \
             (bs.state.length - read < 0.0)
-        at_zero = at_zero | faint
+        at_zero = st.at_zero | faint
         self._at_zero = at_zero
         lres = np.where(at_zero, np.maximum(bs.state.length - read, 0.0),
                         bs.unstretched - read)
-        return lres, bs.exits, ok & np.isfinite(lres).all(axis=1)
+        return lres, bs.exits, st.ok & np.isfinite(lres).all(axis=1)
 
     # ----- noise ----------------------------------------------------------------------
     def estimate_noise(self, H: Robot, groups: np.ndarray | None = None) -> dict[str, float]:
@@ -765,21 +854,48 @@ class ResidualModel:
         cables): a sample counts with its weight (rows of one move share its slow errors, so
         twelve pairs of rows from two moves are a few differences, not twelve)."""
         b = self.blocks(H)
-        if self.rows is not None:
-            rw = self.rows.white_noise_by_kind(H)
-            for kind in (0, 1):
-                own = rw.get(kind) or rw.get(1 - kind) or {}
-                self.white_k[kind].update(own)
-        self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
+        self._white_from_rows(H)
         G = self.replicate_groups(groups)
-        count = np.maximum(self.s.count, 1)
-        w = np.clip(self.s.weight, 0.0, 1.0)
         # every call starts from the declared defaults: replicate groups of an earlier call
         # (e.g. visits on both sides of a slip, before the groups were split) must not leave
         # their spread behind where this call finds none
         self.sigma_k = {0: dict(DEFAULTS), 1: dict(DEFAULTS)}
         self.sigma_source = "defaults (no replicate visits)"
         self.replicate_dof = 0.0
+        found, rep_rows, dof_len, dof_kind = self._replicate_spread(b, G)
+        if found[0] and found[1]:
+            # rows of moves carry at least the visit-to-visit error of the dwells (the lengths
+            # change between visits whether the platform stands or moves); their own replicate
+            # groups, rows near each other on few moves, can miss it
+            found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
+        self._visit_level(found, dof_kind, rep_rows)
+        self._adopt_repeatability(found, dof_len)
+        self.sigma = dict(self.sigma_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
+        self._update_sd()
+        return self.noise_summary()
+
+    def _white_from_rows(self, H: Robot) -> None:
+        """:meth:`estimate_noise`'s white noise per kind (``white_k``, each block's units)
+        from the raw rows where the recording has them (a kind without enough rows takes
+        the other's), and ``white`` that of the samples' commoner kind."""
+        if self.rows is not None:
+            rw = self.rows.white_noise_by_kind(H)
+            for kind in (0, 1):
+                own = rw.get(kind) or rw.get(1 - kind) or {}
+                self.white_k[kind].update(own)
+        self.white = dict(self.white_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
+
+    def _replicate_spread(self, b: Blocks, G: dict[str, np.ndarray]
+                          ) -> tuple[dict[int, dict[str, float]], np.ndarray, np.ndarray,
+                                     dict[int, float]]:
+        """:meth:`estimate_noise`'s repeatability measured on the replicate groups ``G``
+        (:meth:`replicate_groups`) of the residual blocks ``b``, per kind (0 dwells, 1 rows
+        of moves): each block's spread less the white noise the samples' counts leave in it
+        [m, N, N m, m] (blocks without replicates absent); the rows of moves in a length
+        replicate group (N,); the length level's replicate dof per cable (n,), summed over
+        the kinds; and that dof summed over the cables, per kind."""
+        count = np.maximum(self.s.count, 1)
+        w = np.clip(self.s.weight, 0.0, 1.0)
         found: dict[int, dict[str, float]] = {0: {}, 1: {}}
         rep_rows = np.zeros(self.s.n, dtype=bool)
         dof_len = np.zeros(self.model.n_cables)
@@ -804,11 +920,14 @@ class ResidualModel:
                 if name == "length":
                     dof_len += dof
                     dof_kind[kind] = float(np.sum(dof))
-        if found[0] and found[1]:
-            # rows of moves carry at least the visit-to-visit error of the dwells (the lengths
-            # change between visits whether the platform stands or moves); their own replicate
-            # groups, rows near each other on few moves, can miss it
-            found[1] = {k: max(v, found[0].get(k, 0.0)) for k, v in found[1].items()}
+        return found, rep_rows, dof_len, dof_kind
+
+    def _visit_level(self, found: dict[int, dict[str, float]], dof_kind: dict[int, float],
+                     rep_rows: np.ndarray) -> None:
+        """:meth:`estimate_noise`'s visit-to-visit level of the lengths (``visit_sd`` [m],
+        ``visit_dof``, ``visit_rows``: told by rows of moves) from the repeatability
+        ``found`` per kind, the length level's dof per kind ``dof_kind`` and the rows of
+        moves in a replicate group ``rep_rows`` (N,)."""
         self.visit_sd = found[0].get("length")
         self.visit_dof = dof_kind[0]
         self.visit_rows = False
@@ -834,6 +953,12 @@ class ResidualModel:
             self.visit_dof = VISIT_DEFAULT_DOF
         if self.visit_sd is None:  # (no level, no knots: nothing leans on its dof)
             self.visit_dof = math.inf
+
+    def _adopt_repeatability(self, found: dict[int, dict[str, float]],
+                             dof_len: np.ndarray) -> None:
+        """:meth:`estimate_noise`'s repeatability per kind (``sigma_k``, each block's units)
+        from what the replicates ``found`` per kind, over the declared defaults, and its
+        source and ``replicate_dof`` (the mean over cables of ``dof_len`` (n,))."""
         for kind in (0, 1):
             if found[kind]:
                 self.sigma_k[kind].update(found[kind])
@@ -846,9 +971,6 @@ class ResidualModel:
         if found[0] or found[1]:
             self.sigma_source = "replicate visits"
             self.replicate_dof = float(np.mean(dof_len))
-        self.sigma = dict(self.sigma_k[int(np.bincount(self.s.kind, minlength=2).argmax())])
-        self._update_sd()
-        return self.noise_summary()
 
     def _blend_share(self, rows: np.ndarray) -> float:
         """Mean over the rows ``rows`` (mask, N) of the sum of their squared weights on the
@@ -1208,6 +1330,18 @@ class ResidualModel:
                                     self.has_exit[sl][..., None]))
         parts = [p for p in parts if p.size]
         return np.concatenate(parts) if parts else np.zeros(0)
+
+    def _n_entries(self, idx: np.ndarray | None) -> int:
+        """The length of :meth:`whiten`'s vector of the samples ``idx`` (every sample where
+        None): what :meth:`_per_entry` lays out, counted."""
+        sl = slice(None) if idx is None else idx
+        count = self.model.n_cables * int(np.count_nonzero(self.has_len[sl]))
+        if self.any_tau:
+            count += 6 * int(np.count_nonzero(self.has_tau[sl] & (self.has_pose[sl]
+                                                                  | self.est_pose[sl])))
+        if self.has_exit.any():
+            count += 3 * int(np.count_nonzero(self.has_exit[sl]))
+        return count
 
     def whitened_by_sample(self, b: Blocks) -> np.ndarray:
         """Sum of squared whitened residuals of each sample (N,) (NaN where none)."""
