@@ -132,11 +132,12 @@ class _Settling:
     ``fitted`` (M,n) the last fitted tensions before the floor [N]; ``face``, ``drop`` (M,n)
     the internal-force faces (:mod:`bench.diagnosis.internal_forces`); ``at_zero`` (M,n)
     cables at zero; ``ok`` (M,) fitted and feasible; ``W`` (M,6,n) the last wrench matrices
-    [base frame; N, N m per N]; ``C`` (M,n,n) the last length sensitivities [m/N] (None
-    unless the absorbed directions are kept); ``search`` (M,) the next round searches every
-    face; ``held``, ``searches`` (M,) rounds on held faces since the last search, searches;
-    ``live`` (M,) not yet ended; ``exits`` (M,n,3) the last deflected exits [m, base frame]
-    (None with rigid masts before the first round); ``bs`` the last statics of every sample
+    (base frame: force rows unitless, moment rows [m]); ``C`` (M,n,n) the last length
+    sensitivities [m/N] (None unless the absorbed directions are kept); ``search`` (M,) the
+    next round searches every face; ``held``, ``searches`` (M,) rounds on held faces since
+    the last search, searches; ``live`` (M,) not yet ended; ``exits`` (M,n,3) the last
+    deflected exits [m, base frame] (None with rigid masts; with compliant ones, until the
+    first round where no warm start had them); ``bs`` the last statics of every sample
     (rigid masts)."""
 
     tau: np.ndarray
@@ -175,8 +176,8 @@ class _Settling:
     def linearise(self, H: Robot, a: np.ndarray, poses: np.ndarray, read: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The statics of the samples ``a`` (indices into the M) at ``poses`` (M,6) holding
-        their tensions: wrench matrices (A,6,n) [base frame], gravity wrenches (A,6) [N,
-        N m], length residuals against ``read`` (M,n) (A,n) [m] and length sensitivities
+        their tensions: wrench matrices (A,6,n) and gravity wrenches (A,6) [N, N m] in the
+        base frame, length residuals against ``read`` (M,n) (A,n) [m] and length sensitivities
         (A,n,n) [m/N] (non-finite entries zero, :func:`_finite`). With compliant masts the
         geometry hangs on the tensions: the samples ``a`` only, their exits kept; with
         rigid ones only the cables' forces are evaluated again, of every sample."""
