@@ -23,7 +23,8 @@ HELP = "print a scenario's concealed truth beside what a diagnosis report found"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", help="scenario file (cdpr-scenario/1)")
+    p.add_argument("scenario", help="scenario file (cdpr-scenario/1), or a case.json that "
+                                    "cdpr evaluate --keep kept beside a case's recording")
     p.add_argument("report", help="diagnosis report (cdpr-diagnosis/1 JSON)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -147,11 +148,36 @@ def human(c: dict) -> str:
     return "\n".join(lines)
 
 
+def load_truth(path: str | Path):
+    """The scenario of ``path``: a ``cdpr-scenario/1`` TOML file, or a ``.json`` case kept by
+    ``cdpr evaluate --keep`` (the scenario mapping with the evaluation's ``case`` and
+    ``kept`` sections, which are not the scenario's). Raises ScenarioError naming the file."""
+    from firmware_sim.scenario import ScenarioError, load_scenario, parse_scenario
+
+    p = Path(path)
+    if p.suffix.lower() != ".json":
+        return load_scenario(p)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ScenarioError(f"{p}: cannot read: {e.strerror or e}") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ScenarioError(f"{p}: not a JSON case ({e})") from None
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{p}: not a JSON case (an object expected)")
+    try:
+        return parse_scenario({k: v for k, v in data.items() if k not in ("case", "kept")}, p)
+    except (TypeError, ValueError, KeyError, AttributeError) as e:
+        if isinstance(e, ScenarioError):
+            raise
+        raise ScenarioError(f"{p}: not a valid scenario: {type(e).__name__}: {e}") from None
+
+
 def run(args: argparse.Namespace) -> int:
-    from firmware_sim.scenario import ScenarioError, load_scenario
+    from firmware_sim.scenario import ScenarioError
 
     try:
-        sc = load_scenario(args.scenario)
+        sc = load_truth(args.scenario)
     except ScenarioError as e:
         return _fail(args, str(e))
     p = Path(args.report)

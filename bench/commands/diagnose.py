@@ -37,6 +37,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
+def _interval_note(effect: dict, key: str) -> str:
+    """The 95 % interval of parameter ``key`` of a report's ``effect`` (in the parameter's
+    units), for the line beside its standard error, where it is not the value ± q standard
+    errors (``interval_method`` not ``"linearised"``: a profile refit, the jackknife or the
+    selective interval made it wider); ``""`` otherwise. An open end (``null``: as rigid as
+    the data allow) reads ``inf``."""
+    method = effect.get("interval_method", {}).get(key)
+    iv = effect.get("interval95", {}).get(key)
+    if not iv or method in (None, "linearised"):
+        return ""
+    lo, hi = ("-inf" if iv[0] is None else f"{iv[0]:.6g}",
+              "inf" if iv[1] is None else f"{iv[1]:.6g}")
+    return f"   95 % [{lo}, {hi}] ({method})"
+
+
 def _human(rep: dict) -> str:
     b, f = rep["baseline"], rep["fitted"]
 
@@ -67,7 +82,7 @@ def _human(rep: dict) -> str:
                      f"{mm(ev['heldout_pose_rms_after_m'])}, delta BIC "
                      + ("n/a" if ev["delta_bic"] is None else f"{ev['delta_bic']:.1f}"))
         for k, v in e["params"].items():
-            lines.append(f"    {k:12} {v:14.6g} ± {e['stderr'][k]:.3g}")
+            lines.append(f"    {k:12} {v:14.6g} ± {e['stderr'][k]:.3g}" + _interval_note(e, k))
         if e["undetermined"]:
             lines.append(f"    undetermined by these poses: {', '.join(e['undetermined'])}")
         for a in e["alternatives"]:

@@ -848,8 +848,10 @@ class ResidualModel:
         A slip moves only its own cable's residual where the pose and the tensions are
         measured, so the other cables keep their replicates; where per-sample unknowns are
         solved for (an estimated pose, fitted internal forces) it moves every cable's, and
-        such samples split for every cable. The wrench splits at every slip. ``groups``
-        (N,) or (N,n) replaces the targets (split the same way).
+        such samples split for every cable. The wrench splits at every slip. A visit whose
+        pose was estimated (no tracker fix) or whose internal forces were fitted is no
+        replicate of one measured whole (:attr:`len_rank` splits them). ``groups`` (N,) or
+        (N,n) replaces the targets (split the same way).
 
         ``replicate_dof`` counts the independent replicate differences, per cable (mean over
         cables): a sample counts with its weight (rows of one move share its slow errors, so
@@ -999,8 +1001,13 @@ class ResidualModel:
         every = ep.sum(axis=1).astype(np.int64)
         projected = self.len_rank < n  # per-sample unknowns spread a slip over every cable
         per_cable = np.where(projected[:, None], every[:, None], np.where(ep, -1, 0))
-        length = _renumber(np.stack([tg, per_cable], axis=-1))
-        common = _renumber(np.stack([tg[:, :1], every[:, None]], axis=-1))[:, 0]
+        # a sample whose per-sample unknowns were solved for (its pose estimated where the
+        # tracker gave none, or its internal forces fitted) leaves another residual than a
+        # visit of the same target measured whole: the difference is the model's error, no
+        # noise (a tracker lost over one dwell read as 25 times the lengths' noise)
+        how = np.broadcast_to(self.len_rank.astype(np.int64)[:, None], (s.n, n))
+        length = _renumber(np.stack([tg, per_cable, how], axis=-1))
+        common = _renumber(np.stack([tg[:, :1], every[:, None], how[:, :1]], axis=-1))[:, 0]
         return {"length": length, "exit": np.repeat(length, 3, axis=1),
                 "force": np.repeat(common[:, None], 3, axis=1),
                 "moment": np.repeat(common[:, None], 3, axis=1)}
