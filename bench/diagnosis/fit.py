@@ -1329,23 +1329,26 @@ class _KindGroups:
         self.pairs = np.diag(T).copy()
 
     def kept_trace(self, m: np.ndarray) -> np.ndarray:
-        """``tr(P_a P_b M)`` (NCOMP, NCOMP) with ``M = diag(m)``, ``m`` per entry of this kind
-        the share of its error's variance per-sample unknowns leave (the diagonal of their
-        projection: :meth:`ErrorStructure.kind_shares`); with ``m`` 1, :attr:`trace`. Within
-        a sample, ``P_a P_b`` pairs an entry with itself only (one quantity per group), so
-        only the projection's diagonal enters (exact for the level; for the shared
-        components as where each group's samples share their projected directions)."""
-        m = np.asarray(m, dtype=float)
+        """``tr(P_a M P_b M)`` (NCOMP, NCOMP) with ``M`` the per-sample unknowns' projection,
+        known by its diagonal ``m`` per entry of this kind (the share of its error's
+        variance they leave: :meth:`ErrorStructure.kind_shares`); with ``m`` 1,
+        :attr:`trace`. The level's is ``tr(M) = sum(m)`` (a projection: exact). The shared
+        components pair entries of different samples, whose projections ``M_i, M_j`` share
+        ``tr(M_i M_j)`` of their directions: between ``n m`` (the same directions: a
+        revisited pose) and ``n m_i m_j`` (unrelated ones); taken as ``n sqrt(m_i m_j)``,
+        the first where the shares are equal, none beside an entry that keeps nothing (the
+        initialisation's, the encoders' reference)."""
+        q = np.sqrt(np.clip(np.asarray(m, dtype=float), 0.0, None))
         T = np.zeros((NCOMP, NCOMP))
-        T[0, 0] = float(m.sum())
-        size = [np.ones(self.n)] + [np.bincount(i)[i].astype(float) for i in self.index]
-        for lv in (1, 2, 3):  # (P_l P_l)_ee: the entries paired with e at level l
-            T[lv, lv] = float(m @ (size[lv] - size[lv - 1]))
+        T[0, 0] = float(q @ q)
+        for lv in (1, 2, 3):
+            T[lv, lv] = float(q @ self.apply(q, lv))
         if np.any(self.s):
-            for lv in (1, 2, 3):  # (P_4 P_l)_ee = s_e (P_l s)_e
-                T[4, lv] = T[lv, 4] = float((m * self.s) @ self.apply(self.s, lv))
-            s2 = self._sums(self.s ** 2, 3)[self.index[2]]
-            T[4, 4] = float(m @ (self.s ** 2 * (s2 - self.s ** 2)))
+            sq = self.s * q
+            for lv in (1, 2, 3):
+                T[4, lv] = T[lv, 4] = float(sq @ self.apply(sq, lv))
+            y = self.s * sq  # (P_4 pairs e, e' of one quantity by s_e s_e')
+            T[4, 4] = float(np.sum(self._sums(y, 3) ** 2) - y @ y)
         return T
 
     def _sums(self, x: np.ndarray, level: int) -> np.ndarray:
@@ -1401,11 +1404,14 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     the standard errors with it (by half, on continuous recordings with few targets). With
     ``u = D^-1 r`` (``D = diag(sqrt(w))``, one value per sample: it commutes with ``M``),
     ``Y = D^-1 Q``, ``Z = D Q`` and the pair matrices ``P`` of :class:`_KindGroups`:
-    ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' P M) - 2 tr(Y^T P' P Z) + tr(Y^T P' Y Z^T
-    P Z))`` (``M`` commuting with ``P``: exact for the level, whose share of the errors is
-    ``N - lost - p``), a linear system solved for ``theta`` (the plain moments where it is
-    singular). Only the diagonal of ``M`` enters (:meth:`_KindGroups.kept_trace`), per
-    entry of each kind in ``shares`` (:meth:`ErrorStructure.kind_shares`; None: 1). The
+    ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' M P M) - 2 tr(Y^T P' P Z) + tr(Y^T P' Y Z^T
+    P Z))``, a linear system solved for ``theta`` (the plain moments where it is singular).
+    For the level (``P = P' = I``) this is exact: ``tr(M) - p``, the errors' share
+    ``N - lost - p`` (a share of ``M`` applied after the parameters' correction gave the
+    level ``rss N / ((N - p)(N - lost))``); for the shared components, ``M`` is taken to
+    leave ``P Z`` whole (exact where the paired samples share their projected directions)
+    and ``tr(P' M P M)`` from its diagonal, per entry of each kind in ``shares``
+    (:meth:`_KindGroups.kept_trace`, :meth:`ErrorStructure.kind_shares`; None: 1). The
     level ``v`` and ``c1..c3`` have disjoint pair sets; the direction's ``cd`` overlaps them
     (``tr(P_4 P_l)`` of :class:`_KindGroups`).
 
@@ -1467,8 +1473,9 @@ def _known_moments(knots: np.ndarray, Z: np.ndarray, kinds: list[_KindGroups],
                    shares: list[np.ndarray], PY: list, GY: list) -> np.ndarray:
     """The expected moment statistics (kind by kind, component by component) of the known
     covariance ``C = K K^T`` of the errors after both projections of
-    :func:`_unbiased_components`: ``tr(P' C M) - 2 tr(Y^T P' C Z) + tr(Y^T P' Y Z^T C Z)``
-    (``M`` the per-sample unknowns' projection, its diagonal ``shares``)."""
+    :func:`_unbiased_components`: ``tr(P' M C M) - 2 tr(Y^T P' C Z) + tr(Y^T P' Y Z^T C Z)``
+    (``M`` the per-sample unknowns' projection, taken as ``diag(sqrt(shares))`` beside
+    ``C`` as in :meth:`_KindGroups.kept_trace`)."""
     L = NCOMP
     kz = knots.T @ Z
     zcz = kz.T @ kz
@@ -1478,9 +1485,9 @@ def _known_moments(knots: np.ndarray, Z: np.ndarray, kinds: list[_KindGroups],
         if not kk.any():
             continue
         ckz = kk @ kz
-        mk = kk * np.asarray(shares[j], dtype=float)[:, None]
+        qk = kk * np.sqrt(np.clip(np.asarray(shares[j], dtype=float), 0.0, None))[:, None]
         for lp in range(L):
-            known[L * j + lp] = (float(np.sum(kg.apply(kk, lp) * mk))
+            known[L * j + lp] = (float(np.sum(kg.apply(qk, lp) * qk))
                                  - 2.0 * float(np.sum(PY[j][lp] * ckz))
                                  + float(np.sum(GY[j][lp] * zcz)))
     return known
@@ -1489,8 +1496,8 @@ def _known_moments(knots: np.ndarray, Z: np.ndarray, kinds: list[_KindGroups],
 def _expectation_matrix(kinds: list[_KindGroups], traces: list[np.ndarray], PY: list,
                         PZ: list, GY: list, GZ: list) -> np.ndarray:
     """The matrix ``A`` of :func:`_unbiased_components`: row (kind, component ``P'``),
-    column (kind, component ``P``): ``tr(P' P M) - 2 tr(Y^T P' P Z) + tr(Y^T P' Y Z^T P Z)``
-    (``traces`` each kind's ``tr(P' P M)``)."""
+    column (kind, component ``P``): ``tr(P' M P M) - 2 tr(Y^T P' P Z) + tr(Y^T P' Y Z^T P Z)``
+    (``traces`` each kind's ``tr(P' M P M)``)."""
     L = NCOMP
     K = L * len(kinds)
     A = np.zeros((K, K))
