@@ -140,8 +140,9 @@ def test_estimated_poses_leave_r_over_n_of_the_lengths_and_all_of_the_wrench(tmp
                                                  / w[lengths].sum())
     assert e.kind_kept(lengths & ~init) == pytest.approx((n - 6) / n)
     # the kinds the poses do not project, and the initialisation's lengths alone (no level
-    # of their own), stand in with the share of the poses proper (the reference not lost)
-    own = 1.0 - rm.dof_lost(idx, reference=False) / w.sum()
+    # of their own), stand in with the share the poses leave after the initialisation
+    later = idx[~s.is_init[idx]]
+    own = 1.0 - rm.dof_lost(later) / rm.entry_weights(later).sum()
     assert e.unknowns_kept == pytest.approx(own) and own > e.kept
     assert e.kind_kept(lengths & init) == e.unknowns_kept
     assert e.kind_kept(q == 1) == pytest.approx(e.unknowns_kept)

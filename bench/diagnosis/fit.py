@@ -1073,9 +1073,9 @@ class ErrorStructure:
     #: for its wrench entries, 0 for the initialisation's length entries); None: ``kept``
     #: for every entry
     entry_kept: np.ndarray | None = None
-    #: the share the per-sample unknowns proper leave (``kept`` without the initialisation's
-    #: length entries, the encoders' reference, counted as lost): what a kind they do not
-    #: project stands in with (:meth:`kind_shares`); None: ``kept``
+    #: the share the per-sample unknowns leave over the samples after the initialisation
+    #: (whose length entries, the encoders' reference, lose everything): what a kind they do
+    #: not project stands in with (:meth:`kind_shares`); None: ``kept``
     unknowns_kept: float | None = None
 
     def kind_shares(self, mask: np.ndarray) -> np.ndarray:
@@ -1131,8 +1131,12 @@ def error_structure(rm, idx: np.ndarray, lost: float | None = None,
     w = rm.entry_weights(idx)
     n_eff = float(w.sum())
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
-    own = None if lost is None else \
-        (n_eff - rm.dof_lost(idx, reference=False)) / max(n_eff, 1e-12)
+    own = None
+    if lost is not None:  # (the recording's share over the samples after the initialisation)
+        later = np.arange(rm.s.n)[idx]
+        later = later[~rm.s.is_init[later]]
+        w_later = float(rm.entry_weights(later).sum())
+        own = (w_later - rm.dof_lost(later)) / w_later if w_later > 0 else kept
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
                           rm.entry_knots(idx, H), kept, float(getattr(rm, "visit_dof", math.inf)),

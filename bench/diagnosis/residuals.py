@@ -285,21 +285,20 @@ class ResidualModel:
         return np.abs(u_b - u_a) / dT * sig
 
     # ----- degrees of freedom -------------------------------------------------------
-    def dof_lost(self, idx: np.ndarray | None = None, reference: bool = True) -> float:
+    def dof_lost(self, idx: np.ndarray | None = None) -> float:
         """Residual degrees of freedom taken by per-sample unknowns (an estimated pose: 6 of
         a sample's n length residuals; internal forces without tensions: n - 6), weighted
         like the entries (:meth:`entry_weights`).
 
-        With ``reference`` the initialisation's samples lose all n: their readings are the
-        encoders' reference, so their length residuals are the initialisation's own
-        unstretched lengths against themselves (no visit's error, the tracker's noise at
-        most), whatever the hypothesis. Counted as residuals they lowered the error level
-        of a fit (IPAnema-class dwell without load cells, 13 samples: 6 of 68 degrees of
-        freedom, standard errors 4 % small). Without, only the per-sample unknowns proper."""
+        The initialisation's samples lose all n: their readings are the encoders'
+        reference, so their length residuals are the initialisation's own unstretched
+        lengths against themselves (no visit's error, the tracker's noise at most), whatever
+        the hypothesis. Counted as residuals they lowered the error level of a fit (by 6 of
+        78 degrees of freedom on a 13-sample IPAnema-class dwell without load cells:
+        standard errors 4 % small)."""
         sl = slice(None) if idx is None else idx
         n = self.model.n_cables
-        own = n - self.len_rank[sl]
-        lost = (np.where(self.s.is_init[sl], n, own) if reference else own) * self.has_len[sl]
+        lost = np.where(self.s.is_init[sl], n, n - self.len_rank[sl]) * self.has_len[sl]
         return float(np.sum(self.s.weight[sl] * lost))
 
     def entry_kept(self, idx: np.ndarray | None = None) -> np.ndarray:
