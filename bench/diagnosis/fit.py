@@ -1084,18 +1084,26 @@ class ErrorStructure:
         :func:`_unbiased_components` takes it): :attr:`entry_kept` where they project the
         kind (a weighted mean below 1; one with almost none left, the initialisation's dwell
         alone, tells no level: :func:`error_meat`). A kind they do not project keeps the
-        recording's share of the unknowns proper (:attr:`unknowns_kept`) on every entry: at
-        an estimated pose, the force and moment residuals also carry each visit's length
-        errors through the pose, which :meth:`ResidualModel.entry_knots` models on rows of
-        moves only; on dwells the recording's share stands for it (with 1, a CoGiRo-class
-        dwell campaign without a tracker kept three load-cell offsets of zero at z 3 and
-        read a heavier platform as every cell's gain 7 % high)."""
-        stand_in = self.kept if self.unknowns_kept is None else self.unknowns_kept
+        recording's share (:meth:`stand_in`) on every entry: at an estimated pose, the force
+        and moment residuals also carry each visit's length errors through the pose, which
+        :meth:`ResidualModel.entry_knots` models on rows of moves only; on dwells the
+        recording's share stands for it (with 1, a CoGiRo-class dwell campaign without a
+        tracker kept three load-cell offsets of zero at z 3 and read a heavier platform as
+        every cell's gain 7 % high)."""
         if self.entry_kept is None or len(self.entry_kept) != len(self.weights):
             return np.full(int(np.sum(mask)), self.kept)
         k = self.entry_kept[mask]
         w = np.clip(self.weights[mask], 1e-12, None)
-        return k if float(w @ k / w.sum()) < 1.0 else np.full(len(k), stand_in)
+        return k if float(w @ k / w.sum()) < 1.0 else np.full(len(k), self.stand_in())
+
+    def stand_in(self) -> float:
+        """The recording's share for a kind the per-sample unknowns do not project: the one
+        they leave over the samples after the initialisation (:attr:`unknowns_kept`; the
+        initialisation's reference, counted in ``kept``, is no unknown of the samples: with
+        it, a CoGiRo-class campaign with load cells and a tracker, where nothing projects
+        the force entries, read its cells' errors 0.9 % large and named nothing, 13302 of
+        test_unneeded43)."""
+        return self.kept if self.unknowns_kept is None else self.unknowns_kept
 
     def kind_kept(self, mask: np.ndarray) -> float:
         """The share per-sample unknowns leave of the errors of the entries ``mask`` (one kind
@@ -1105,9 +1113,7 @@ class ErrorStructure:
         takes its quantity's (:func:`error_meat`)."""
         w = np.clip(self.weights[mask], 1e-12, None)
         k = float(np.clip(w @ self.kind_shares(mask) / w.sum(), 0.0, 1.0))
-        if k >= MIN_KEPT_LEVEL:
-            return k
-        return self.kept if self.unknowns_kept is None else self.unknowns_kept
+        return k if k >= MIN_KEPT_LEVEL else self.stand_in()
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
