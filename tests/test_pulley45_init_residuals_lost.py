@@ -7,7 +7,8 @@ hypothesis (the tracker's noise at most), where every later visit carries its ow
 lengths. Counted as residuals with their n - 6 degrees of freedom, they lowered the error level
 the fit's residuals give: on an IPAnema-class dwell without load cells (13 samples) by 6 of 78
 degrees of freedom, the reported standard errors 4 % small
-(:meth:`bench.diagnosis.residuals.ResidualModel.dof_lost`)."""
+(:meth:`bench.diagnosis.residuals.ResidualModel.dof_lost`). Branch pulley44's tests, landed with
+the per-sample projection of the error model (tests/test_pulley45_projected_level.py)."""
 
 from __future__ import annotations
 

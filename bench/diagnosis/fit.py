@@ -1139,7 +1139,7 @@ def error_structure(rm, idx: np.ndarray, lost: float | None = None,
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
     own = None
     if lost is not None:  # (the recording's share over the samples after the initialisation)
-        later = np.arange(rm.s.n)[idx]
+        later = np.arange(rm.s.n) if idx is None else np.arange(rm.s.n)[idx]
         later = later[~rm.s.is_init[later]]
         w_later = float(rm.entry_weights(later).sum())
         own = (w_later - rm.dof_lost(later)) / w_later if w_later > 0 else kept
