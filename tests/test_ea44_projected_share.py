@@ -124,13 +124,26 @@ def test_estimated_poses_leave_r_over_n_of_the_lengths_and_all_of_the_wrench(tmp
     kept = rm.entry_kept(idx)
     q = rm.entry_kinds(idx) % 4
     n = rec.robot.n_cables
-    np.testing.assert_allclose(kept[q == 0], (n - 6) / n)
+    init = rm._per_entry(s.is_init.astype(float), idx) > 0  # the encoders' reference: none
+    assert init.any()
+    np.testing.assert_allclose(kept[(q == 0) & ~init], (n - 6) / n)
+    np.testing.assert_allclose(kept[(q == 0) & init], 0.0)
     np.testing.assert_allclose(kept[q != 0], 1.0)
     w = rm.entry_weights(idx)
     lost = rm.dof_lost(idx)
     assert abs(float(w @ kept) - (w.sum() - lost)) < 1e-9 * w.sum()
     e = error_structure(rm, idx, lost)
     np.testing.assert_array_equal(e.entry_kept, kept)
-    assert e.kind_kept(q == 0) == pytest.approx((n - 6) / n)
-    assert e.kind_kept(q == 1) == e.kept == pytest.approx((w @ kept) / w.sum())
+    assert e.kept == pytest.approx((w @ kept) / w.sum())
+    lengths = q == 0
+    assert e.kind_kept(lengths) == pytest.approx(float(w[lengths] @ kept[lengths])
+                                                 / w[lengths].sum())
+    assert e.kind_kept(lengths & ~init) == pytest.approx((n - 6) / n)
+    # the kinds the poses do not project, and the initialisation's lengths alone (no level
+    # of their own), stand in with the share the poses leave after the initialisation
+    later = idx[~s.is_init[idx]]
+    own = 1.0 - rm.dof_lost(later) / rm.entry_weights(later).sum()
+    assert e.unknowns_kept == pytest.approx(own) and own > e.kept
+    assert e.kind_kept(lengths & init) == e.unknowns_kept
+    assert e.kind_kept(q == 1) == pytest.approx(e.unknowns_kept)
     assert error_structure(rm, idx).entry_kept is None  # (no unknowns counted: one share)

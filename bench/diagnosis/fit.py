@@ -1184,23 +1184,50 @@ class ErrorStructure:
     knots_dof: float = math.inf
     #: per entry, the share of its error's variance per-sample unknowns leave in it
     #: (:meth:`ResidualModel.entry_kept`: ``r / n`` of an estimated pose's length entries, 1
-    #: for its wrench entries); None: ``kept`` for every entry
+    #: for its wrench entries, 0 for the initialisation's length entries); None: ``kept``
+    #: for every entry
     entry_kept: np.ndarray | None = None
+    #: the share the per-sample unknowns leave over the samples after the initialisation
+    #: (whose length entries, the encoders' reference, lose everything): what a kind they do
+    #: not project stands in with (:meth:`kind_shares`); None: ``kept``
+    unknowns_kept: float | None = None
+
+    def kind_shares(self, mask: np.ndarray) -> np.ndarray:
+        """Per entry of the kind ``mask``, the share of its error's variance per-sample
+        unknowns leave in its residual (the diagonal of their projection, as
+        :func:`_unbiased_components` takes it): :attr:`entry_kept` where they project the
+        kind (a weighted mean below 1; one with almost none left, the initialisation's dwell
+        alone, tells no level: :func:`error_meat`). A kind they do not project keeps the
+        recording's share (:meth:`stand_in`) on every entry: at an estimated pose, the force
+        and moment residuals also carry each visit's length errors through the pose, which
+        :meth:`ResidualModel.entry_knots` models on rows of moves only; on dwells the
+        recording's share stands for it (with 1, a CoGiRo-class dwell campaign without a
+        tracker kept three load-cell offsets of zero at z 3 and read a heavier platform as
+        every cell's gain 7 % high)."""
+        if self.entry_kept is None or len(self.entry_kept) != len(self.weights):
+            return np.full(int(np.sum(mask)), self.kept)
+        k = self.entry_kept[mask]
+        w = np.clip(self.weights[mask], 1e-12, None)
+        return k if float(w @ k / w.sum()) < 1.0 else np.full(len(k), self.stand_in())
+
+    def stand_in(self) -> float:
+        """The recording's share for a kind the per-sample unknowns do not project: the one
+        they leave over the samples after the initialisation (:attr:`unknowns_kept`; the
+        initialisation's reference, counted in ``kept``, is no unknown of the samples: with
+        it, a CoGiRo-class campaign with load cells and a tracker, where nothing projects
+        the force entries, read its cells' errors 0.9 % large and named nothing, 13302 of
+        test_unneeded43)."""
+        return self.kept if self.unknowns_kept is None else self.unknowns_kept
 
     def kind_kept(self, mask: np.ndarray) -> float:
         """The share per-sample unknowns leave of the errors of the entries ``mask`` (one kind
-        of entry; weighted like the entries): their moments are that share of their errors'.
-        A kind they do not project keeps the recording's share ``kept``: at an estimated
-        pose, the force and moment residuals also carry each visit's length errors through
-        the pose, which :meth:`ResidualModel.entry_knots` models on rows of moves only; on
-        dwells the recording's share stands for it (with 1, a CoGiRo-class dwell campaign
-        without a tracker kept three load-cell offsets of zero at z 3 and read a heavier
-        platform as every cell's gain 7 % high)."""
-        if self.entry_kept is None or len(self.entry_kept) != len(self.weights):
-            return self.kept
+        of entry; weighted like the entries; :meth:`kind_shares`). A kind left with under
+        :data:`MIN_KEPT_LEVEL` of them (the initialisation's dwell alone: its readings are
+        the encoders' reference) keeps the recording's share: its moments tell no level, it
+        takes its quantity's (:func:`error_meat`)."""
         w = np.clip(self.weights[mask], 1e-12, None)
-        k = float(np.clip(w @ self.entry_kept[mask] / w.sum(), 1e-3, 1.0))
-        return k if k < 1.0 else self.kept
+        k = float(np.clip(w @ self.kind_shares(mask) / w.sum(), 0.0, 1.0))
+        return k if k >= MIN_KEPT_LEVEL else self.stand_in()
 
 
 #: pseudo-entries of a kind's error level at its quantity's level over every kind
@@ -1224,10 +1251,16 @@ def error_structure(rm, idx: np.ndarray, lost: float | None = None,
     w = rm.entry_weights(idx)
     n_eff = float(w.sum())
     kept = 1.0 if lost is None else (n_eff - lost) / max(n_eff, 1e-12)
+    own = None
+    if lost is not None:  # (the recording's share over the samples after the initialisation)
+        later = np.arange(rm.s.n) if idx is None else np.arange(rm.s.n)[idx]
+        later = later[~rm.s.is_init[later]]
+        w_later = float(rm.entry_weights(later).sum())
+        own = (w_later - rm.dof_lost(later)) / w_later if w_later > 0 else kept
     return ErrorStructure(w, rm.entry_kinds(idx), rm.entry_columns(idx), rm.entry_moves(idx),
                           rm.entry_blocks(idx), n_eff, rm.entry_directions(idx),
                           rm.entry_knots(idx, H), kept, float(getattr(rm, "visit_dof", math.inf)),
-                          None if lost is None else rm.entry_kept(idx))
+                          None if lost is None else rm.entry_kept(idx), own)
 
 
 def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
@@ -1273,16 +1306,16 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
     stats = np.array([kg.statistics(u) for kg in kinds]).ravel()
     knots = e.knots if e.knots is not None and len(e.knots) == len(r) and e.knots.any() \
         else None
-    # each kind's moments are the share ``k_j`` of its errors that per-sample unknowns leave
-    # (an estimated pose leaves r / n of a length entry's; :meth:`ErrorStructure.kind_kept`):
-    # its components are scaled to the errors' by ``kept / k_j`` here, the caller's
-    # ``1 / kept`` for every kind making it ``1 / k_j`` (the recording's one share counted
-    # the lengths' errors at (n / r) kept of theirs: without a tracker on eight cables, 0.44;
-    # elasticities' standard errors 0.62 of what the curvature tells, 6 of 12 intervals held
-    # the truth)
+    # each kind's residuals keep the share ``m`` of its entries' errors that per-sample
+    # unknowns leave (an estimated pose r / n of a length entry's; none of the
+    # initialisation's: :meth:`ErrorStructure.kind_shares`), the fit's parameters take theirs
+    # from what is left: both projections are in the expectations (:func:`_unbiased_components`:
+    # a level rss / (N - lost - p), where a share applied after the parameters' correction
+    # gave rss N / ((N - p)(N - lost)), 0.95 of it on an IPAnema-class dwell without load
+    # cells); ``kept`` undoes the caller's ``1 / kept``
     kk = np.array([e.kind_kept(kg.mask) for kg in kinds])
-    theta = _unbiased_components(Js, sw, kinds, stats, knots, kk)
-    theta = (theta.reshape(len(kinds), NCOMP) * (e.kept / kk)[:, None]).ravel()
+    shares = [e.kind_shares(kg.mask) for kg in kinds]
+    theta = _unbiased_components(Js, sw, kinds, stats, knots, shares) * e.kept
     meat = np.zeros((p, p))
     if knots is not None:
         # the blended visit-to-visit error: known from the replicate dwells, in the readings'
@@ -1291,21 +1324,37 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
         meat += e.kept * (kb.T @ kb)
         if parts is not None:
             parts.append((e.kept * (kb.T @ kb), e.knots_dof))
-    # a kind with few entries (the initialisation's dwell in a continuous recording) leans
-    # on its quantity's level over every sample
-    quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
-    size = np.array([kg.n for kg in kinds], dtype=float)
-    level = theta.reshape(len(kinds), NCOMP)[:, 0]
+    level = _pooled_levels(kinds, e, theta.reshape(len(kinds), NCOMP)[:, 0], shares)
     for j, kg in enumerate(kinds):
-        same = quantity == quantity[j]
-        pooled = float(size[same] @ level[same] / size[same].sum())
-        v = (level[j] * kg.n + PRIOR_ENTRIES * pooled) / (kg.n + PRIOR_ENTRIES)
+        v = level[j]
         c = np.clip(theta[NCOMP * j + 1: NCOMP * (j + 1)], 0.0, v)
         grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
         if parts is not None:
             parts += _nested_parts(v, c, grams, component_dof(kg, e, p, len(r), kk[j]))
     return meat
+
+
+def _pooled_levels(kinds: list[_KindGroups], e: ErrorStructure, level: np.ndarray,
+                   shares: list[np.ndarray]) -> np.ndarray:
+    """Each kind's error level leaning on its quantity's over every kind by
+    :data:`PRIOR_ENTRIES` pseudo-entries (a kind of few entries, the initialisation's dwell in
+    a continuous recording, says little). A kind whose entries the per-sample unknowns leave
+    under :data:`MIN_KEPT_LEVEL` of their errors (``shares``; the initialisation's dwell
+    alone: the encoders' reference) tells no level: it takes its quantity's and weighs
+    nothing in it."""
+    quantity = np.array([int(e.kinds[kg.mask][0]) % 4 for kg in kinds])
+    size = np.array([kg.n for kg in kinds], dtype=float)
+    told = np.array([float(np.mean(m)) >= MIN_KEPT_LEVEL if len(m) else False
+                     for m in shares])
+    out = level.copy()
+    for j, kg in enumerate(kinds):
+        same = quantity == quantity[j]
+        pool = same & told if (same & told).any() else same
+        pooled = float(size[pool] @ level[pool] / size[pool].sum())
+        out[j] = pooled if not told[j] and told[pool].any() else \
+            (level[j] * kg.n + PRIOR_ENTRIES * pooled) / (kg.n + PRIOR_ENTRIES)
+    return out
 
 
 def _nested_parts(v: float, c: np.ndarray, grams: list[np.ndarray], nu: list[float]
@@ -1403,6 +1452,29 @@ class _KindGroups:
         self.trace = T
         self.pairs = np.diag(T).copy()
 
+    def kept_trace(self, m: np.ndarray) -> np.ndarray:
+        """``tr(P_a M P_b M)`` (NCOMP, NCOMP) with ``M`` the per-sample unknowns' projection,
+        known by its diagonal ``m`` per entry of this kind (the share of its error's
+        variance they leave: :meth:`ErrorStructure.kind_shares`); with ``m`` 1,
+        :attr:`trace`. The level's is ``tr(M) = sum(m)`` (a projection: exact). The shared
+        components pair entries of different samples, whose projections ``M_i, M_j`` share
+        ``tr(M_i M_j)`` of their directions: between ``n m`` (the same directions: a
+        revisited pose) and ``n m_i m_j`` (unrelated ones); taken as ``n sqrt(m_i m_j)``,
+        the first where the shares are equal, none beside an entry that keeps nothing (the
+        initialisation's, the encoders' reference)."""
+        q = np.sqrt(np.clip(np.asarray(m, dtype=float), 0.0, None))
+        T = np.zeros((NCOMP, NCOMP))
+        T[0, 0] = float(q @ q)
+        for lv in (1, 2, 3):
+            T[lv, lv] = float(q @ self.apply(q, lv))
+        if np.any(self.s):
+            sq = self.s * q
+            for lv in (1, 2, 3):
+                T[4, lv] = T[lv, 4] = float(sq @ self.apply(sq, lv))
+            y = self.s * sq  # (P_4 pairs e, e' of one quantity by s_e s_e')
+            T[4, 4] = float(np.sum(self._sums(y, 3) ** 2) - y @ y)
+        return T
+
     def _sums(self, x: np.ndarray, level: int) -> np.ndarray:
         return self.ind[level - 1] @ x
 
@@ -1442,31 +1514,41 @@ class _KindGroups:
 
 def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups],
                          stats: np.ndarray, knots: np.ndarray | None = None,
-                         kept: float | np.ndarray = 1.0) -> np.ndarray:
-    """Variance components ``theta`` (kind by kind: v, c1, c2, c3, cd) whose expected moment
-    statistics, over residuals the fit has already projected, equal ``stats``.
+                         shares: list[np.ndarray] | None = None) -> np.ndarray:
+    """Variance components ``theta`` (kind by kind: v, c1, c2, c3, cd) of the errors whose
+    expected moment statistics, over residuals per-sample unknowns and then the fit have
+    projected, equal ``stats``.
 
-    The fit removes from the whitened residuals their part in the span ``Q`` of the Jacobian:
-    ``r_fit = (I - Q Q^T) r``. An error shared by the few rows of a visit loses much more
-    than ``p / N`` of its variance that way (a dozen visits of a cable against a dozen
-    parameters): moments of the fitted residuals then under-state it, and the standard errors
-    with it (by half, on continuous recordings with few targets). With ``u = D^-1 r``
-    (``D = diag(sqrt(w))``), ``Y = D^-1 Q``, ``Z = D Q`` and the pair matrices ``P`` of
-    :class:`_KindGroups`: ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' P) - 2 tr(Y^T P' P Z)
-    + tr(Y^T P' Y Z^T P Z))``, a linear system solved for ``theta`` (the plain moments
-    where it is singular). The level ``v`` and ``c1..c3`` have disjoint pair sets; the
-    direction's ``cd`` overlaps them (``tr(P_4 P_l)`` of :class:`_KindGroups`).
+    The per-sample unknowns (an estimated pose, internal forces) project each sample's
+    length residual with ``M`` (block-diagonal, sample by sample), the fit the result onto
+    the complement of the span ``Q`` of the Jacobian (whose columns ``M`` leaves whole):
+    ``r_fit = (I - Q Q^T) M e = (M - Q Q^T) e``. An error shared by the few rows of a visit
+    loses much more than ``p / N`` of its variance to the fit (a dozen visits of a cable
+    against a dozen parameters): moments of the fitted residuals then under-state it, and
+    the standard errors with it (by half, on continuous recordings with few targets). With
+    ``u = D^-1 r`` (``D = diag(sqrt(w))``, one value per sample: it commutes with ``M``),
+    ``Y = D^-1 Q``, ``Z = D Q`` and the pair matrices ``P`` of :class:`_KindGroups`:
+    ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' M P M) - 2 tr(Y^T P' P Z) + tr(Y^T P' Y Z^T
+    P Z))``, a linear system solved for ``theta`` (the plain moments where it is singular).
+    For the level (``P = P' = I``) this is exact: ``tr(M) - p``, the errors' share
+    ``N - lost - p`` (a share of ``M`` applied after the parameters' correction gave the
+    level ``rss N / ((N - p)(N - lost))``); for the shared components, ``M`` is taken to
+    leave ``P Z`` whole (exact where the paired samples share their projected directions)
+    and ``tr(P' M P M)`` from its diagonal, per entry of each kind in ``shares``
+    (:meth:`_KindGroups.kept_trace`, :meth:`ErrorStructure.kind_shares`; None: 1). The
+    level ``v`` and ``c1..c3`` have disjoint pair sets; the direction's ``cd`` overlaps them
+    (``tr(P_4 P_l)`` of :class:`_KindGroups`).
 
-    A known covariance ``kept * K K^T`` (``knots``: the blended visit-to-visit error of
-    :class:`ErrorStructure`) is taken out of the statistics first, by the same expectation
-    with ``C = kept K K^T``: the components are what the residuals hold beside it (``kept``
-    one share for every kind, or one per kind)."""
+    A known covariance ``K K^T`` of the errors (``knots``: the blended visit-to-visit error
+    of :class:`ErrorStructure`) is taken out of the statistics first, by the same
+    expectation: the components are what the residuals hold beside it."""
+    if shares is None:
+        shares = [np.ones(kg.n) for kg in kinds]
     w, V = np.linalg.eigh(Js.T @ Js)
     keep = w > 1e-10 * max(float(w.max(initial=0.0)), 1e-300)
     Q = (Js @ V[:, keep]) / np.sqrt(w[keep])  # an orthonormal basis of the Jacobian's span
     Y, Z = Q / sw[:, None], Q * sw[:, None]
     L = NCOMP
-    K = L * len(kinds)
     PY, PZ, GY, GZ = [], [], [], []
     for kg in kinds:
         yk, zk = Y[kg.mask], Z[kg.mask]
@@ -1475,40 +1557,21 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
         GY.append([yk.T @ py for py in PY[-1]])
         GZ.append([zk.T @ pz for pz in PZ[-1]])
     if knots is not None:
-        # E[u_fit^T P' u_fit] of C = kept K K^T: tr(P'C) - 2 tr(Y^T P' C Z) + tr(Y^T P' Y Z^T C Z)
-        kz = knots.T @ Z
-        zcz = kz.T @ kz
-        known = np.zeros(K)
-        for j, kg in enumerate(kinds):
-            kk = knots[kg.mask]
-            if not kk.any():
-                continue
-            ckz = kk @ kz
-            for lp in range(L):
-                known[L * j + lp] = (float(np.sum(kg.apply(kk, lp) * kk))
-                                     - 2.0 * float(np.sum(PY[j][lp] * ckz))
-                                     + float(np.sum(GY[j][lp] * zcz)))
-        stats = stats - np.repeat(np.broadcast_to(kept, (len(kinds),)), L) * known
-    pairs_all = np.concatenate([kg.pairs for kg in kinds])
-    plain = stats / np.where(pairs_all > 0, pairs_all, 1.0)
+        stats = stats - _known_moments(knots, Z, kinds, shares, PY, GY)
+    traces = [kg.kept_trace(m) for kg, m in zip(kinds, shares, strict=True)]
+    pairs = np.concatenate([kg.pairs for kg in kinds])
+    # the plain moments over the pairs' kept share (all the pairs where almost none is kept:
+    # the initialisation's dwell alone, whose level is its quantity's, :func:`error_meat`)
+    told = np.concatenate([np.diag(T) for T in traces])
+    told = np.where(told >= MIN_KEPT_LEVEL * pairs, told, pairs)
+    plain = stats / np.where(told > 0, told, 1.0)
     if knots is not None:
         # what the known part leaves of a level is at least a little of it (never negative)
-        lv0 = np.arange(0, K, L)
+        lv0 = np.arange(0, len(plain), L)
         plain[lv0] = np.maximum(plain[lv0], 1e-3)
     if Q.shape[1] == 0:
         return plain
-    A = np.zeros((K, K))
-    for j, kg in enumerate(kinds):
-        for lp in range(L):
-            row = L * j + lp
-            A[row, L * j: L * (j + 1)] += kg.trace[lp]
-            for lv in range(L):
-                # tr(Y^T P' P Z) = sum of (P' Y) * (P Z): P' symmetric
-                A[row, L * j + lv] -= 2.0 * float(np.sum(PY[j][lp] * PZ[j][lv]))
-            for i in range(len(kinds)):
-                for lv in range(L):
-                    A[row, L * i + lv] += float(np.sum(GY[j][lp] * GZ[i][lv].T))
-    pairs = np.concatenate([kg.pairs for kg in kinds])
+    A = _expectation_matrix(kinds, traces, PY, PZ, GY, GZ)
     kept = np.diag(A) / np.where(pairs > 0, pairs, 1.0)
     # a component the fit absorbs for the most part (an error common to every row, against
     # a fitted offset) is not told by the residuals: it stays at its plain moment estimate
@@ -1525,9 +1588,54 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     if np.all(np.isfinite(sol)):
         theta[used] = sol
     level = theta.reshape(-1, L)[:, 0]
-    if np.any(level <= 0):
+    if np.any(level[used[::L]] <= 0):
         return plain
     return theta
+
+
+def _known_moments(knots: np.ndarray, Z: np.ndarray, kinds: list[_KindGroups],
+                   shares: list[np.ndarray], PY: list, GY: list) -> np.ndarray:
+    """The expected moment statistics (kind by kind, component by component) of the known
+    covariance ``C = K K^T`` of the errors after both projections of
+    :func:`_unbiased_components`: ``tr(P' M C M) - 2 tr(Y^T P' C Z) + tr(Y^T P' Y Z^T C Z)``
+    (``M`` the per-sample unknowns' projection, taken as ``diag(sqrt(shares))`` beside
+    ``C`` as in :meth:`_KindGroups.kept_trace`)."""
+    L = NCOMP
+    kz = knots.T @ Z
+    zcz = kz.T @ kz
+    known = np.zeros(L * len(kinds))
+    for j, kg in enumerate(kinds):
+        kk = knots[kg.mask]
+        if not kk.any():
+            continue
+        ckz = kk @ kz
+        qk = kk * np.sqrt(np.clip(np.asarray(shares[j], dtype=float), 0.0, None))[:, None]
+        for lp in range(L):
+            known[L * j + lp] = (float(np.sum(kg.apply(qk, lp) * qk))
+                                 - 2.0 * float(np.sum(PY[j][lp] * ckz))
+                                 + float(np.sum(GY[j][lp] * zcz)))
+    return known
+
+
+def _expectation_matrix(kinds: list[_KindGroups], traces: list[np.ndarray], PY: list,
+                        PZ: list, GY: list, GZ: list) -> np.ndarray:
+    """The matrix ``A`` of :func:`_unbiased_components`: row (kind, component ``P'``),
+    column (kind, component ``P``): ``tr(P' M P M) - 2 tr(Y^T P' P Z) + tr(Y^T P' Y Z^T P Z)``
+    (``traces`` each kind's ``tr(P' M P M)``)."""
+    L = NCOMP
+    K = L * len(kinds)
+    A = np.zeros((K, K))
+    for j in range(len(kinds)):
+        for lp in range(L):
+            row = L * j + lp
+            A[row, L * j: L * (j + 1)] += traces[j][lp]
+            for lv in range(L):
+                # tr(Y^T P' P Z) = sum of (P' Y) * (P Z): P' symmetric
+                A[row, L * j + lv] -= 2.0 * float(np.sum(PY[j][lp] * PZ[j][lv]))
+            for i in range(len(kinds)):
+                for lv in range(L):
+                    A[row, L * i + lv] += float(np.sum(GY[j][lp] * GZ[i][lv].T))
+    return A
 
 
 def referenced_offsets(space: ParamSpace, rm: ResidualModel) -> np.ndarray:
