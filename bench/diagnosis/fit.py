@@ -1095,9 +1095,9 @@ PRIOR_ENTRIES = 30
 #: component to be estimated from them (an error level; a covariance shared by samples)
 MIN_KEPT_LEVEL = 0.1
 MIN_KEPT_SHARED = 0.5
-#: components of each kind's errors: a level, three shared ones nested in time, two by the
-#: direction of approach (within a quantity; shared by the kind's quantities)
-NCOMP = 6
+#: components of each kind's errors: a level, three shared ones nested in time, one by the
+#: direction of approach
+NCOMP = 5
 
 
 def error_structure(rm, idx: np.ndarray, lost: float | None = None,
@@ -1127,12 +1127,9 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
     quantity keeps over the whole recording: hysteresis by the direction of approach,
     averaged over the moves, a drift). Each is a moment estimate over every such pair of the
     recording (averages of cross-products; covariances clipped to ``[0, v]``), steady where
-    a cluster-robust sandwich over a handful of stretches would not be. By the direction of
-    approach: ``cd`` between two entries of one quantity (a cable's hysteresis), ``cs``
-    between entries of two quantities (the part of it every winch shares: one mechanism,
-    one sign convention; at most ``cd``), each times the product of their directions. The
-    variance leans on its quantity's over every kind by ``PRIOR_ENTRIES`` pseudo-entries (a
-    kind of a handful of entries says little).
+    a cluster-robust sandwich over a handful of stretches would not be. The variance leans
+    on its quantity's over every kind by ``PRIOR_ENTRIES`` pseudo-entries (a kind of a
+    handful of entries says little).
 
     No error of the encoder reference is added: the initialisation defines it (a winding's
     visit-to-visit change is a change from there).
@@ -1190,7 +1187,6 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
         pooled = float(size[same] @ level[same] / size[same].sum())
         v = (level[j] * kg.n + PRIOR_ENTRIES * pooled) / (kg.n + PRIOR_ENTRIES)
         c = np.clip(theta[NCOMP * j + 1: NCOMP * (j + 1)], 0.0, v)
-        c[4] = kg.shared_direction(float(theta[NCOMP * j + 5]), float(c[3]))
         grams = kg.grams(b[kg.mask])
         meat += v * grams[0] + sum(ci * g for ci, g in zip(c, grams[1:], strict=True))
         if parts is not None:
@@ -1200,7 +1196,7 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
 
 def _nested_parts(v: float, c: np.ndarray, grams: list[np.ndarray], nu: list[float]
                   ) -> list[tuple[np.ndarray, float]]:
-    """The terms of one kind's meat ``v G_0 + c_1 G_1 + c_2 G_2 + c_3 G_3 + c_d G_4 + c_s G_5`` as
+    """The terms of one kind's meat ``v G_0 + c_1 G_1 + c_2 G_2 + c_3 G_3 + c_d G_4`` as
     positive semi-definite increments for :func:`effective_dof`: ``(v - c_1) S_0 + (c_1 -
     c_2) S_1 + (c_2 - c_3) S_2 + c_3 S_3`` with ``S_l = G_0 + ... + G_l`` (the squared sums
     over level-``l`` groups; the same meat). ``G_1..G_3`` alone pair different entries and
@@ -1211,7 +1207,7 @@ def _nested_parts(v: float, c: np.ndarray, grams: list[np.ndarray], nu: list[flo
     coef = [v, *c[:3]]
     inc = [max(coef[lv] - (coef[lv + 1] if lv < 3 else 0.0), 0.0) for lv in range(4)]
     out = [(a * S, d) for a, S, d in zip(inc, cum, nu[:4], strict=True)]
-    return out + [(c[3] * grams[4], nu[4]), (c[4] * grams[5], nu[5])]
+    return out + [(c[3] * grams[4], nu[4])]
 
 
 def component_dof(kg: _KindGroups, e: ErrorStructure, p: int, n: int,
@@ -1220,13 +1216,13 @@ def component_dof(kg: _KindGroups, e: ErrorStructure, p: int, n: int,
     ``n`` entries, ``p`` fitted parameters): the level's its entries' weights summed (rows of
     a move count together) with the :data:`PRIOR_ENTRIES` it leans on, less the parameters'
     share; a shared covariance's the number of its groups (a cable's move, a cable's
-    stretch, a cable over the recording; the direction's, own and shared: the cables). Each
-    times the share of the residuals per-sample unknowns leave (``kept``: the kind's,
-    default ``e.kept``); at least 1."""
+    stretch, a cable over the recording; the direction's: the cables). Each times the share
+    of the residuals per-sample unknowns leave (``kept``: the kind's, default ``e.kept``); at
+    least 1."""
     share = e.kept if kept is None else kept
     w = float(np.sum(np.clip(e.weights[kg.mask], 0.0, 1.0)))
     groups = [float(m.shape[0]) for m in kg.ind]
-    raw = [w + PRIOR_ENTRIES - p * kg.n / max(n, 1)] + groups + [groups[-1]] * 2
+    raw = [w + PRIOR_ENTRIES - p * kg.n / max(n, 1)] + groups + [groups[-1]]
     return [max(share * d, 1.0) for d in raw]
 
 
@@ -1263,17 +1259,7 @@ class _KindGroups:
     level ``l`` but not of level ``l - 1`` (no entry with itself); ``P_4 = S (G - I) S``
     pairs two entries of one quantity by the product of their directions ``s`` (an error of
     +-h by the direction of approach: hysteresis, which a length offset cannot take up
-    where both directions occur); ``P_5 = S (1 1^T - G) S`` pairs entries of two different
-    quantities of the kind by the same product: the part of the error by direction every
-    cable shares (hysteresis is one mechanism with one sign convention on every winch: the
-    friction of a drum and its pulleys against the motion). Paired within a cable only, a
-    parameter every cable's column carries alike (one E·A, one sag density) had its share of
-    the hysteresis counted as eight independent errors instead of one (on a generated
-    IPAnema-class dwell campaign with a tracker, the E·A's standard error 0.7 of its spread
-    over draws of a 0.15 mm hysteresis every winch shares; 1.0 with ``P_5``). Where the fit
-    absorbs most of the pattern (its kept share below :data:`MIN_KEPT_SHARED`: the same
-    campaign's E·A, whose tension column follows the hysteresis the plant's tensions take
-    up), the residuals cannot tell it and it stays at its plain moment."""
+    where both directions occur)."""
 
     def __init__(self, mask: np.ndarray, e: ErrorStructure, ncol: int, nmove: int) -> None:
         self.mask = mask
@@ -1300,34 +1286,19 @@ class _KindGroups:
             T[4, :4] = T[:4, 4] = cross
             s2 = self._sums(self.s ** 2, 3)
             T[4, 4] = float(s2 @ s2 - np.sum(self.s ** 4))
-            # pairs of two quantities overlap no other level's (all pair one quantity)
-            T[5, 5] = float(np.sum(s2) ** 2 - s2 @ s2)
         self.trace = T
         self.pairs = np.diag(T).copy()
 
     def _sums(self, x: np.ndarray, level: int) -> np.ndarray:
         return self.ind[level - 1] @ x
 
-    def shared_direction(self, cs: float, cd: float) -> float:
-        """The shared direction component ``cs`` within what a covariance of the quantities'
-        errors by direction can be beside their own ``cd`` (their levels' covariance
-        matrix, ``cd`` on the diagonal and ``cs`` off it, positive semi-definite):
-        ``[-cd / (m - 1), cd]`` for ``m`` quantities with directions. Not clipped at zero:
-        from a handful of cables the estimate is noisy around zero where each cable's
-        hysteresis is its own, and clipped its mean would widen what it should not."""
-        m = np.unique(self.index[2][self.s != 0]).size
-        if m < 2:
-            return 0.0
-        return float(np.clip(cs, -cd / (m - 1), cd))
-
     def apply(self, x: np.ndarray, level: int) -> np.ndarray:
         """``P_level x`` for ``x`` (n_kind, ...) of this kind's entries."""
         if level == 0:
             return x
-        if level in (4, 5):
+        if level == 4:
             sx = self._s(x)
-            own = self._sums(sx, 3)[self.index[2]]
-            return self._s(own - sx if level == 4 else np.sum(sx, axis=0) - own)
+            return self._s(self._sums(sx, 3)[self.index[2]] - sx)
         g = self._sums(x, level)[self.index[level - 1]]
         if level == 1:
             return g - x
@@ -1337,25 +1308,22 @@ class _KindGroups:
         return x * (self.s[:, None] if x.ndim > 1 else self.s)
 
     def statistics(self, u: np.ndarray) -> list[float]:
-        """``u^T P_l u`` for l = 0..5 (this kind's entries of ``u``)."""
+        """``u^T P_l u`` for l = 0..4 (this kind's entries of ``u``)."""
         uk = u[self.mask]
         sq = [float(uk @ uk)] + [float(np.sum(self._sums(uk, lv) ** 2)) for lv in (1, 2, 3)]
         su = self._s(uk)
-        own = float(np.sum(self._sums(su, 3) ** 2))
-        return [sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)] \
-            + [own - float(su @ su), float(np.sum(su)) ** 2 - own]
+        sd = float(np.sum(self._sums(su, 3) ** 2) - su @ su)
+        return [sq[0]] + [sq[lv] - sq[lv - 1] for lv in (1, 2, 3)] + [sd]
 
     def grams(self, x: np.ndarray) -> list[np.ndarray]:
-        """``x^T P_l x`` for l = 0..5 (x: this kind's rows)."""
+        """``x^T P_l x`` for l = 0..4 (x: this kind's rows)."""
         g = [x.T @ x]
         for lv in (1, 2, 3):
             sl = self._sums(x, lv)
             g.append(sl.T @ sl)
         sx = self._s(x)
         ssum = self._sums(sx, 3)
-        tot = np.sum(sx, axis=0)
-        return [g[0]] + [g[lv] - g[lv - 1] for lv in (1, 2, 3)] \
-            + [ssum.T @ ssum - sx.T @ sx, np.outer(tot, tot) - ssum.T @ ssum]
+        return [g[0]] + [g[lv] - g[lv - 1] for lv in (1, 2, 3)] + [ssum.T @ ssum - sx.T @ sx]
 
 
 def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups],
@@ -1372,9 +1340,8 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     (``D = diag(sqrt(w))``), ``Y = D^-1 Q``, ``Z = D Q`` and the pair matrices ``P`` of
     :class:`_KindGroups`: ``E[u_fit^T P' u_fit] = sum_l theta_l (tr(P' P) - 2 tr(Y^T P' P Z)
     + tr(Y^T P' Y Z^T P Z))``, a linear system solved for ``theta`` (the plain moments
-    where it is singular). The level ``v``, ``c1..c3`` and the shared direction's ``cs`` have
-    disjoint pair sets; the direction's ``cd`` overlaps the first four (``tr(P_4 P_l)`` of
-    :class:`_KindGroups`).
+    where it is singular). The level ``v`` and ``c1..c3`` have disjoint pair sets; the
+    direction's ``cd`` overlaps them (``tr(P_4 P_l)`` of :class:`_KindGroups`).
 
     A known covariance ``kept * K K^T`` (``knots``: the blended visit-to-visit error of
     :class:`ErrorStructure`) is taken out of the statistics first, by the same expectation
