@@ -197,12 +197,13 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
             out["load_cell_direction_joint_z"] = _r(joint)
             strong = [(c, f, z) for c, f, z in fr
                       if abs(z) > STRUCT_Z and abs(f) > STRUCT_SIZE * _force_noise(rm)]
-            # no cell alone, but most of them together, each as large as one cell's noise
-            # (the force balance's noise is the cells' summed: sqrt(n / 3) times one's)
+            # most of them together, each as large as one cell's noise (the force balance's
+            # noise is the cells' summed: sqrt(n / 3) times one's), beside any cell alone
+            # (a few cells past the bar alone left the others out, their friction found)
             cell = _force_noise(rm) * math.sqrt(3.0 / max(model.n_cables, 3))
             big = [(c, f, z) for c, f, z in fr if abs(f) > STRUCT_SIZE * cell and abs(z) > 2.0]
-            if not strong and joint > STRUCT_Z and len(big) * 2 > len(fr):
-                strong = big
+            if joint > STRUCT_Z and len(big) * 2 > len(fr):
+                strong = [x for x in fr if x in strong or x in big]
             if strong:
                 top = max(abs(f) for _, f, _ in strong)
                 which = (f"the load cell of cable {strong[0][0]} reads" if len(strong) == 1
