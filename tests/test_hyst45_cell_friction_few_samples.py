@@ -107,3 +107,21 @@ def test_the_spread_beside_the_differences_counts_the_degrees_of_freedom_they_ta
         assert nu == 6 * m - k
         ratios.append(sig[0] ** 2 / sd ** 2)
     assert math.isclose(float(np.mean(ratios)), 1.0, abs_tol=0.04), np.mean(ratios)
+
+
+def test_cells_found_together_are_listed_beside_those_found_alone():
+    """Friction on every pulley: two cells past the bar alone, four more only together
+    (each a few times one cell's noise, z 3 to 6): all six listed (before, the two alone
+    left the others out: 12993 kept a length offset the friction stood for). One cell
+    alone with the others at the noise: that cell only; none alone: those found together."""
+    def cells(zs):
+        return [(c, 10.0 * z, z) for c, z in zip("abcdefgh", zs, strict=True)]
+
+    together = cells([9.0, 12.0, 3.0, 4.0, 6.0, 3.5, 0.5, -0.4])
+    got = unexplained.cells_declared(together, 14.0, 1.0, 8)
+    assert [c for c, _, _ in got] == ["a", "b", "c", "d", "e", "f"]
+    alone = cells([15.0, 0.3, -0.8, 1.1, 0.2, -1.5, 0.5, -0.4])
+    assert [c for c, _, _ in unexplained.cells_declared(alone, 9.0, 1.0, 8)] == ["a"]
+    weak = cells([5.0, 6.0, 3.0, 4.0, 6.0, 3.5, 0.5, -0.4])
+    assert [c for c, _, _ in unexplained.cells_declared(weak, 12.0, 1.0, 8)] == list("abcdef")
+    assert unexplained.cells_declared(weak, 5.0, 1.0, 8) == []

@@ -195,15 +195,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
             out["load_cell_direction"] = {c: {"difference_n": _r(2 * f), "z": _r(z)}
                                           for c, f, z in fr}
             out["load_cell_direction_joint_z"] = _r(joint)
-            strong = [(c, f, z) for c, f, z in fr
-                      if abs(z) > STRUCT_Z and abs(f) > STRUCT_SIZE * _force_noise(rm)]
-            # most of them together, each as large as one cell's noise (the force balance's
-            # noise is the cells' summed: sqrt(n / 3) times one's), beside any cell alone
-            # (a few cells past the bar alone left the others out, their friction found)
-            cell = _force_noise(rm) * math.sqrt(3.0 / max(model.n_cables, 3))
-            big = [(c, f, z) for c, f, z in fr if abs(f) > STRUCT_SIZE * cell and abs(z) > 2.0]
-            if joint > STRUCT_Z and len(big) * 2 > len(fr):
-                strong = [x for x in fr if x in strong or x in big]
+            strong = cells_declared(fr, joint, _force_noise(rm), model.n_cables)
             if strong:
                 top = max(abs(f) for _, f, _ in strong)
                 which = (f"the load cell of cable {strong[0][0]} reads" if len(strong) == 1
@@ -227,6 +219,25 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     out["findings"] = findings
     out["summary"] = "; ".join(findings)
     return out
+
+
+def cells_declared(cells: list[tuple[str, float, float]], joint: float, noise: float,
+                   n_cables: int) -> list[tuple[str, float, float]]:
+    """The load cells declared to read by the direction of motion, of ``cells`` (cable id,
+    half difference [N], z; :func:`_cell_direction`) with their joint z ``joint``, against
+    the force balance's row-to-row noise ``noise`` [N]: each past :data:`STRUCT_Z` and
+    :data:`STRUCT_SIZE` times the noise alone; and where all together stand past
+    :data:`STRUCT_Z` and most cells are each as large as one cell's noise (the force
+    balance's noise is the cells' summed: sqrt(n / 3) times one's) at a z above 2, those
+    too, beside any past the bar alone (a few cells past it alone left the others out,
+    their friction found: evaluation case 12993, friction on every pulley). In the cables'
+    order."""
+    strong = [x for x in cells if abs(x[2]) > STRUCT_Z and abs(x[1]) > STRUCT_SIZE * noise]
+    cell = noise * math.sqrt(3.0 / max(n_cables, 3))
+    big = [x for x in cells if abs(x[1]) > STRUCT_SIZE * cell and abs(x[2]) > 2.0]
+    if joint > STRUCT_Z and len(big) * 2 > len(cells):
+        return [x for x in cells if x in strong or x in big]
+    return strong
 
 
 def _tested(probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None,
