@@ -195,14 +195,7 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
             out["load_cell_direction"] = {c: {"difference_n": _r(2 * f), "z": _r(z)}
                                           for c, f, z in fr}
             out["load_cell_direction_joint_z"] = _r(joint)
-            strong = [(c, f, z) for c, f, z in fr
-                      if abs(z) > STRUCT_Z and abs(f) > STRUCT_SIZE * _force_noise(rm)]
-            # no cell alone, but most of them together, each as large as one cell's noise
-            # (the force balance's noise is the cells' summed: sqrt(n / 3) times one's)
-            cell = _force_noise(rm) * math.sqrt(3.0 / max(model.n_cables, 3))
-            big = [(c, f, z) for c, f, z in fr if abs(f) > STRUCT_SIZE * cell and abs(z) > 2.0]
-            if not strong and joint > STRUCT_Z and len(big) * 2 > len(fr):
-                strong = big
+            strong = cells_declared(fr, joint, _force_noise(rm), model.n_cables)
             if strong:
                 top = max(abs(f) for _, f, _ in strong)
                 which = (f"the load cell of cable {strong[0][0]} reads" if len(strong) == 1
@@ -228,6 +221,25 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     return out
 
 
+def cells_declared(cells: list[tuple[str, float, float]], joint: float, noise: float,
+                   n_cables: int) -> list[tuple[str, float, float]]:
+    """The load cells declared to read by the direction of motion, of ``cells`` (cable id,
+    half difference [N], z; :func:`_cell_direction`) with their joint z ``joint``, against
+    the force balance's row-to-row noise ``noise`` [N]: each past :data:`STRUCT_Z` and
+    :data:`STRUCT_SIZE` times the noise alone; and where all together stand past
+    :data:`STRUCT_Z` and most cells are each as large as one cell's noise (the force
+    balance's noise is the cells' summed: sqrt(n / 3) times one's) at a z above 2, those
+    too, beside any past the bar alone (a few cells past it alone left the others out,
+    their friction found: evaluation case 12993, friction on every pulley). In the cables'
+    order."""
+    strong = [x for x in cells if abs(x[2]) > STRUCT_Z and abs(x[1]) > STRUCT_SIZE * noise]
+    cell = noise * math.sqrt(3.0 / max(n_cables, 3))
+    big = [x for x in cells if abs(x[1]) > STRUCT_SIZE * cell and abs(x[2]) > 2.0]
+    if joint > STRUCT_Z and len(big) * 2 > len(cells):
+        return [x for x in cells if x in strong or x in big]
+    return strong
+
+
 def _tested(probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None,
             name: str, cable: str | None = None) -> bool:
     """Whether the probes tested ``name`` (on ``cable``)."""
@@ -242,92 +254,145 @@ def _probed(probed: tuple[list[probes.ProbeResult], list[probes.Stand]] | None,
 
 def _force_noise(rm: ResidualModel) -> float:
     """The load cells' row-to-row noise in the force balance [N] (what a direction-dependent
-    reading stands against: the replicate spread already holds the friction itself)."""
+    reading stands against, and the start of :func:`_direction_fit`'s weights: the replicate
+    spread holds the friction itself, and so does the spread after the regression wherever
+    the directions the samples tell differ from those the friction followed; 124 N after
+    it on an IPAnema-class campaign with 79 N of friction and 1.5 N cells, 2.3 N row to
+    row)."""
     return max(min(rm.white_k[0]["force"], rm.white_k[1]["force"]), 0.1)
 
 
 def _cell_direction(rm: ResidualModel, b: Blocks, robot) -> tuple[list, float] | None:
     """Per cable, half the difference of its load cell's reading between paying out and
-    reeling in [N] and its z-value, and the z of all of them together (a Wald test of the
-    k differences, as a normal deviate): the force balance's residuals (N, 6) regressed on
-    ``d_k (u_k; R b_k x u_k)`` (d_k the sign of cable k's last move, u_k the direction of
-    its force on the platform).
+    reeling in [N] and its z-value, and the z of all of them together (a Wald test of the k
+    differences): the force balance's residuals (N, 6) regressed on ``d_k (u_k; R b_k x
+    u_k)`` (d_k the sign of cable k's last move, u_k the direction of its force on the
+    platform; :func:`_direction_fit`).
 
-    Feasible generalised least squares: forces and moments are weighted by the spread of
-    their own residuals after the regression (the replicate spread of the noise model
-    holds the friction itself; a row-to-row spread starts it). Standard errors are
+    The z-values are normal deviates of the same tail probability as the statistics' own
+    distributions (Student's t and Fisher's F with the degrees of freedom of the variance
+    they use): on a campaign of a handful of dwells the residual spread is known from a few
+    dozen entries, and a t of 8 is not the normal's 8 there. Standard errors are
     cluster-robust over the recording's error clusters (a target's visits, stretches of
-    moves), never below the classical ones. Only cables whose last move had both signs
-    over the samples are tested (one sign only: a load-cell offset, fitted already).
-    """
+    moves) where there are more than twice as many clusters as differences, never below
+    the classical ones. Only cables whose last move had both signs on at least three
+    samples each are tested (one sign only: a load-cell offset, fitted already); no other
+    least number of samples (the degrees of freedom say what few samples know)."""
+    from scipy.stats import f as fisher
+    from scipy.stats import norm
+    from scipy.stats import t as student
+
+    got = _direction_design(rm, b, robot)
+    if got is None:
+        return None
+    A0, y0, w, groups, ids = got
+    k = A0.shape[2]
+    fit = _direction_fit(A0, y0, w, _force_noise(rm), _moment_noise(rm))
+    if fit is None:
+        return None
+    coef, A, r, _, nu = fit
+    try:
+        bread = np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        return None
+    V = bread * max(float(r @ r) / nu, 1e-12)  # classical
+    ug, inv = np.unique(np.repeat(groups, 6), return_inverse=True)
+    if len(ug) > 2 * k:  # cluster-robust (sandwich), never below the classical
+        sc = np.zeros((len(ug), k))
+        np.add.at(sc, inv, A * r[:, None])
+        Vs = bread @ (sc.T @ sc) @ bread * len(ug) / (len(ug) - 1)
+        if np.trace(Vs) > np.trace(V):
+            V, nu = Vs, len(ug) - 1.0
+    se = np.sqrt(np.clip(np.diag(V), 1e-300, None))
+    t = coef / se
+    z = np.sign(t) * norm.isf(student.sf(np.abs(t), nu))
+    # all the cells together: friction on every pulley at a few times the cells' noise each
+    try:
+        wald = float(coef @ np.linalg.solve(V, coef))
+    except np.linalg.LinAlgError:
+        wald = float(np.sum(t ** 2))
+    joint = float(norm.isf(fisher.sf(max(wald, 0.0) / k, k, nu)))
+    return [(c, float(f), float(zc)) for c, f, zc in zip(ids, coef, z, strict=True)], joint
+
+
+def _moment_noise(rm: ResidualModel) -> float:
+    """The load cells' row-to-row noise in the moment balance [N m] (the start of
+    :func:`_direction_fit`'s weights)."""
+    return max(min(rm.white_k[0]["moment"], rm.white_k[1]["moment"]), 0.05)
+
+
+def _direction_design(rm: ResidualModel, b: Blocks, robot
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list] | None:
+    """:func:`_cell_direction`'s regression on the samples with tensions, a pose and a force
+    balance: the columns ``d_k (u_k; R b_k x u_k)`` (m, 6, k) of the cables tested, the
+    balance's residuals (m, 6) [N, N m], the samples' weights, their error clusters and the
+    tested cables' ids (samples where a tested cable's direction is known); None where no
+    cable has three samples of each sign."""
     from controller.pose import cross
     from controller.statics import batch_statics, true_tensions
 
     s = rm.s
     sel = np.flatnonzero(rm.has_tau & np.isfinite(b.wrench).all(axis=1)
                          & np.isfinite(b.poses).all(axis=1))
-    if len(sel) < 12:
-        return None
     d = s.direction[sel]
-    both = (d > 0).sum(axis=0) >= 3
-    both &= (d < 0).sum(axis=0) >= 3
+    both = ((d > 0).sum(axis=0) >= 3) & ((d < 0).sum(axis=0) >= 3)
     if not both.any():
         return None
+    # a sample where a tested cable's last move is unknown (the initialisation) holds that
+    # cable's friction with either sign: no column of the regression, it would count as noise
+    known = np.all(d[:, both] != 0, axis=1)
+    sel, d = sel[known], d[known]
     bs = batch_statics(robot, b.poses[sel], true_tensions(robot, s.tau[sel]))
     pf = bs.platform_forces
     size = np.linalg.norm(pf, axis=-1, keepdims=True)
     u = np.where(size > 1.0, pf / np.maximum(size, 1e-9), bs.state.u)
     X = np.concatenate([u, cross(bs.state.Rb, u)], axis=-1) * d[..., None]  # (m, n, 6)
     A0 = np.swapaxes(X, 1, 2)[:, :, both]  # (m, 6, k)
-    y0 = b.wrench[sel]
     if not np.isfinite(A0).all():
         return None
-    w = s.weight[sel]
+    groups = s.cluster if s.cluster is not None and len(s.cluster) == s.n else s.block
+    ids = [c for c, kk in zip(rm.model.cable_ids, both, strict=True) if kk]
+    return A0, b.wrench[sel], s.weight[sel], groups[sel], ids
+
+
+def _direction_fit(A0: np.ndarray, y0: np.ndarray, w: np.ndarray, force_sd: float,
+                   moment_sd: float) -> tuple | None:
+    """Feasible generalised least squares of ``-y0`` (m, 6) on ``A0`` (m, 6, k): forces and
+    moments weighted by the spread of their own residuals after the regression, less the
+    degrees of freedom it takes from each (the leverages of its entries summed: a spread
+    that holds neither the friction nor, on a few samples, shrinks by what the k
+    differences fit of the noise); started from the row-to-row spreads ``force_sd`` [N] and
+    ``moment_sd`` [N m] (the replicate spread of the noise model holds the friction itself).
+    Returns the differences, the whitened design and residuals, the spreads (6,) and the
+    residuals' degrees of freedom; None where they leave none."""
+    m, _, k = A0.shape
+    if 6 * m - k < 1:
+        return None
     sw = np.sqrt(w)
-    sig = np.array([_force_noise(rm)] * 3 + [max(min(rm.white_k[0]["moment"],
-                                                     rm.white_k[1]["moment"]), 0.05)] * 3)
-    k = int(both.sum())
-    for _ in range(3):
+    sig = np.array([force_sd] * 3 + [moment_sd] * 3)
+    for last in (False, False, False, True):
         wt = sw[:, None] / sig[None, :]
         A = (A0 * wt[:, :, None]).reshape(-1, k)
         y = (y0 * wt).ravel()
         coef, *_ = np.linalg.lstsq(A, -y, rcond=None)
+        if last:
+            return coef, A, y + A @ coef, sig, float(6 * m - k)
+        U, sv, _ = np.linalg.svd(A, full_matrices=False)
+        lev = np.sum(U[:, sv > 1e-12 * max(float(sv.max(initial=0.0)), 1e-300)] ** 2,
+                     axis=1).reshape(m, 6)
         res = y0 + A0 @ coef  # (m, 6) in N and N m
-        new = np.array([np.sqrt(np.sum(w[:, None] * res[:, :3] ** 2) / (3 * w.sum()))] * 3
-                       + [np.sqrt(np.sum(w[:, None] * res[:, 3:] ** 2) / (3 * w.sum()))] * 3)
-        sig = np.maximum(new, 0.05)
-    wt = sw[:, None] / sig[None, :]
-    A = (A0 * wt[:, :, None]).reshape(-1, k)
-    y = (y0 * wt).ravel()
-    coef, *_ = np.linalg.lstsq(A, -y, rcond=None)
-    r = y + A @ coef
-    AtA = A.T @ A
-    try:
-        bread = np.linalg.inv(AtA)
-    except np.linalg.LinAlgError:
-        return None
-    dof = max(len(y) - k, 1)
-    V = bread * max(float(r @ r) / dof, 1e-12)  # classical
-    groups = s.cluster if s.cluster is not None and len(s.cluster) == s.n else s.block
-    ug, inv = np.unique(np.repeat(groups[sel], 6), return_inverse=True)
-    if len(ug) > 2 * k:  # cluster-robust (sandwich), never below the classical
-        sc = np.zeros((len(ug), k))
-        np.add.at(sc, inv, A * r[:, None])
-        Vs = bread @ (sc.T @ sc) @ bread * len(ug) / (len(ug) - 1)
-        if np.trace(Vs) > np.trace(V):
-            V = Vs
-    var = np.diag(V)
-    se = np.sqrt(np.clip(var, 1e-300, None))
-    ids = [c for c, kk in zip(rm.model.cable_ids, both, strict=True) if kk]
-    # all the cells together (a Wald test of the k differences, as a z by Wilson-Hilferty):
-    # friction on every pulley at a few times the cells' noise each
-    try:
-        wald = float(coef @ np.linalg.solve(V, coef))
-    except np.linalg.LinAlgError:
-        wald = float(np.sum((coef / se) ** 2))
-    joint = ((max(wald, 0.0) / k) ** (1.0 / 3.0) - (1.0 - 2.0 / (9.0 * k))) / \
-        math.sqrt(2.0 / (9.0 * k))
-    return [(c, float(f), float(f / e)) for c, f, e in zip(ids, coef, se, strict=True)], joint
+        sig = np.array([_spread(res[:, :3], w, lev[:, :3])] * 3
+                       + [_spread(res[:, 3:], w, lev[:, 3:])] * 3)
+    return None
+
+
+def _spread(res: np.ndarray, w: np.ndarray, lev: np.ndarray) -> float:
+    """The spread of the regression's residuals ``res`` (m, 3) of one block (forces or
+    moments) by the samples' weights ``w``, over their count less the leverages ``lev``
+    (m, 3) the regression took from them; at least 0.05 (N, N m)."""
+    num = float(np.sum(w[:, None] * res ** 2))
+    den = max(3.0 * float(w.sum()) - float(lev.sum()), 1.0)
+    return max(math.sqrt(num / den), 0.05)
 
 
 def _entries_per_sample(rm: ResidualModel) -> np.ndarray:
