@@ -577,11 +577,13 @@ class ResidualModel:
         ``--jobs 2`` gave two answers to one recording of nine samples, the fits' paths
         apart by the warm starts' tolerance."""
         saved = {k: getattr(self, k) for k in self._WARM}
-        memo, at_zero = self._cat_memo, self._at_zero
+        memo, at_zero, init = self._cat_memo, self._at_zero, self._init_cache
         for k, v in saved.items():
             setattr(self, k, np.full_like(v, np.nan) if v.dtype.kind == "f"
                     else np.zeros_like(v))
-        self._cat_memo, self._at_zero = {}, None
+        # (the initialisation's lengths too: with sagging cables, one kept from before was
+        # solved from another warm start than the one this evaluation would take)
+        self._cat_memo, self._at_zero, self._init_cache = {}, None, {}
         try:
             if self.rows is not None:
                 with self.rows.cold():
@@ -591,7 +593,7 @@ class ResidualModel:
         finally:
             for k, v in saved.items():
                 setattr(self, k, v)
-            self._cat_memo, self._at_zero = memo, at_zero
+            self._cat_memo, self._at_zero, self._init_cache = memo, at_zero, init
 
     @contextmanager
     def frozen(self) -> Iterator[None]:

@@ -574,15 +574,17 @@ class Selector:
         # the other held-out sets only where the first does not decide (its predicted
         # difference below CONCLUSIVE: :meth:`heldout_improves`)
         idx0 = self.holdouts[0]
-        r_with = self.rm.whitened(current.space.robot(current.phi), idx0)
         open_ = []
-        for rest in rests:
-            # (a guess of which sets the checks will ask for: what fit would give, the
-            # selection's cache untouched)
-            fw = self.cache.get(rest) or self._best_of(rest, self._starts(rest, current))
-            diff = r_with - self.rm.whitened(fw.space.robot(fw.phi), idx0)
-            if float(diff @ diff) < CONCLUSIVE:
-                open_.append(rest)
+        # (a guess of which sets the checks will ask for: what fit would give, the
+        # selection's cache untouched; evaluated cold, so that the evaluations after start
+        # as they would have without a pool)
+        with self.rm.cold():
+            r_with = self.rm.whitened(current.space.robot(current.phi), idx0)
+            for rest in rests:
+                fw = self.cache.get(rest) or self._best_of(rest, self._starts(rest, current))
+                diff = r_with - self.rm.whitened(fw.space.robot(fw.phi), idx0)
+                if float(diff @ diff) < CONCLUSIVE:
+                    open_.append(rest)
         jobs = list(dict.fromkeys((key, k) for k in range(1, len(self.holdouts))
                                   for key in ([tuple(sorted(chosen))] + open_ if open_ else [])
                                   if (key, k) not in self.cache_ho))
