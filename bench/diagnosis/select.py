@@ -161,7 +161,7 @@ class Selector:
         self.pool = pool
         self.cache: dict[tuple[str, ...], FitResult] = {}
         self.cache_ho: dict[tuple[tuple[str, ...], int], FitResult] = {}
-        self._swap_cache: dict[tuple, dict[tuple[str, str], float]] = {}
+        self._swap_cache: dict[tuple, tuple[FitResult, dict[tuple[str, str], float]]] = {}
         #: chi-square each chosen effect removes (by swap_screen's key and effect)
         self._signal: dict[tuple, float] = {}
         self._refit_from: set[tuple] = set()  # (subset, superset, its chi-square) refitted
@@ -970,9 +970,12 @@ class Selector:
         linearised at the current fit with the remaining effects refitted jointly."""
         # (the candidates are part of the key: a selection run again without an effect must
         # not be handed swaps into it from the run before)
+        # (the fit is kept with its entry: its id, and those of :attr:`_signal`, cannot be
+        # another fit's while the entry lives; a fit the cache let go of could otherwise
+        # hand its screen to a later one at the same address, as the pool allocates)
         key = (id(current), tuple(chosen), tuple(candidates))
         if key in self._swap_cache:
-            return self._swap_cache[key]
+            return self._swap_cache[key][1]
         space = current.space
         out: dict[tuple[str, str], float] = {}
         r_cur = self.rm.whitened(space.robot(current.phi), self.train)
@@ -1014,7 +1017,7 @@ class Selector:
                 r1 = r_wo + J @ d
                 bic_pred = float(r1 @ r1) + (p_keep + len(sub)) * np.log(n_res)
                 out[(e, a)] = bic_pred - base
-        self._swap_cache[key] = out
+        self._swap_cache[key] = (current, out)
         return out
 
     def _swap(self, chosen: list[str], current: FitResult, candidates: list[str]
