@@ -418,7 +418,8 @@ class ResidualModel:
     def _keep(self, name: str, key: bytes, cf: cables.CableForces | None,
               always: bool = False) -> None:
         """Keep ``cf`` as ``name`` (outside :meth:`frozen` only, unless ``always``: the columns
-        of a finite-difference Jacobian start from the evaluation they differ from)."""
+        of a finite-difference Jacobian start from the evaluation they differ from, not from
+        the column before)."""
         if cf is not None and cf.H is not None and (always or not self._frozen):
             self._cat_memo[name] = (key, cf)
 
@@ -456,21 +457,25 @@ class ResidualModel:
         tau0 = self._init_tensions(H)
         key = b"".join(np.asarray(getattr(H, f), dtype=float).tobytes()
                        for f in self._INIT_FIELDS) + (b"" if tau0 is None else tau0.tobytes())
-        if key not in self._init_cache:
+        got = self._init_cache.get(key)
+        if got is None:
             try:
                 # (the masts' iteration starts from the settled exits every time: a warm start
                 # moves u0 within the iteration's tolerance, and the finite-difference columns
                 # of a stiffness the data hardly fix are of that size)
                 ps = init_statics(H, self.init_pose, tau0,
                                   forces0=self._memo("init", b"") if H.rho > 0 else None)
-                got: np.ndarray | ValueError = ps.unstretched
-                self._keep("init", b"", ps.forces, always=True)
+                got = ps.unstretched
+                self._keep("init", b"", ps.forces)
             except ValueError as e:
                 got = e
-            if len(self._init_cache) >= 8:
-                self._init_cache.pop(next(iter(self._init_cache)))
-            self._init_cache[key] = got
-        got = self._init_cache[key]
+            # inside frozen nothing is kept: each column of a finite-difference Jacobian
+            # starts from the evaluation it differs from, whichever columns came before it
+            # (in this process or in a forked child: :func:`~.fit.fd_jacobian`)
+            if not self._frozen:
+                if len(self._init_cache) >= 8:
+                    self._init_cache.pop(next(iter(self._init_cache)))
+                self._init_cache[key] = got
         if isinstance(got, ValueError):
             raise got
         return got
