@@ -1,10 +1,9 @@
 """The selection's answer does not hang on the process pool: fits made ahead on the pool
 (:meth:`Selector.prefetch`) are only made, never kept by the selection in place of what
 :meth:`Selector.fit` keeps, so a selection with a pool holds the fits one without holds
-(12823: ``cdpr diagnose`` with its pool and ``cdpr evaluate`` without one named different
-effects; the prefetched sets counted in the search's budget and in its pairs of single
-effects), and a fit's finite-difference columns are the same whichever of them a forked
-child computes."""
+(kept in its cache, the prefetched sets counted in the search's budget and in its pairs of
+single effects: the path of the search hung on the pool), and a fit's finite-difference
+columns are the same whichever of them a forked child computes."""
 
 from __future__ import annotations
 

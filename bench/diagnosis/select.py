@@ -220,9 +220,10 @@ class Selector:
         (subsets of it). Only the fits are made (kept in :func:`~.fit.fit_effects`' memo,
         where :meth:`fit` finds them when it asks): what the selection keeps and refits
         (:attr:`cache`, the refits made) stays as :meth:`fit` leaves it, so the pool changes
-        when a fit is made, never the answer (12823: the sets prefetched and never asked
-        for counted in the search's budget and in the pairs of single effects, and a refit
-        kept from an earlier start). Nothing without a pool."""
+        when a fit is made, never the answer. (Kept in the cache, the sets prefetched and
+        never asked for counted in the search's budget and in its pairs of single effects,
+        and a refit from an earlier start was kept where :meth:`fit` refits from the current
+        one: the selection's path hung on the pool.) Nothing without a pool."""
         if getattr(self, "pool", None) is None:  # (a Selector built bare in a test)
             return
         todo = list(dict.fromkeys(tuple(sorted(s_)) for s_ in sets))
