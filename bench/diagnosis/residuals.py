@@ -415,12 +415,11 @@ class ResidualModel:
         got = self._cat_memo.get(name)
         return got[1] if got is not None and got[0] == key else None
 
-    def _keep(self, name: str, key: bytes, cf: cables.CableForces | None,
-              always: bool = False) -> None:
-        """Keep ``cf`` as ``name`` (outside :meth:`frozen` only, unless ``always``: the columns
-        of a finite-difference Jacobian start from the evaluation they differ from, not from
-        the column before)."""
-        if cf is not None and cf.H is not None and (always or not self._frozen):
+    def _keep(self, name: str, key: bytes, cf: cables.CableForces | None) -> None:
+        """Keep ``cf`` as ``name`` (outside :meth:`frozen` only: the columns of a
+        finite-difference Jacobian start from the evaluation they differ from, not from the
+        column before)."""
+        if cf is not None and cf.H is not None and not self._frozen:
             self._cat_memo[name] = (key, cf)
 
     #: robot fields the unstretched lengths at initialisation hang on (not the readings' scale
