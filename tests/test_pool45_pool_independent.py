@@ -8,6 +8,7 @@ columns are the same whichever of them a forked child computes."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import pickle
 from concurrent.futures import Future
 
@@ -141,3 +142,32 @@ def test_a_jacobian_column_is_the_same_after_the_others_or_alone(sagging):
         with alone.frozen():
             col = (alone.whitened(space.robot(xp)) - f0) / h
         assert np.array_equal(col, J[:, k]), space.params[k].key
+
+
+def test_a_swap_screen_is_not_handed_to_a_later_fit_at_the_same_address(recording):
+    """The swap screen's cache is keyed by the fit's id: a fit it was made for and then let
+    go of must not hand its screen to a later fit the allocator puts at the same address
+    (which fits are alive there hangs on the pool and on what ran before). The old code kept
+    only the id: the later fit, at the model's values, got the screen of the fit at the
+    minimum."""
+    sel = _selector(recording, None)
+    chosen, candidates = ["drum_scale"], ["drum_scale", "cable_length_offset"]
+    fitted = sel.fit(("drum_scale",))
+    at_model = dataclasses.replace(fitted, phi=fitted.space.neutral.copy())
+    want = _selector(recording, None).swap_screen(at_model, chosen, candidates)
+    first = dataclasses.replace(fitted)
+    address = id(first)
+    got_first = sel.swap_screen(first, chosen, candidates)
+    assert abs(got_first[("drum_scale", "cable_length_offset")]
+               - want[("drum_scale", "cable_length_offset")]) > 1.0  # (two screens apart)
+    del first
+    held = []
+    for _ in range(2000):  # a later fit, at the first one's address where the allocator can
+        later = dataclasses.replace(at_model)
+        if id(later) == address:
+            break
+        held.append(later)
+    got = sel.swap_screen(later, chosen, candidates)
+    assert got.keys() == want.keys()
+    for k, v in want.items():
+        assert got[k] == pytest.approx(v, rel=1e-6, abs=1e-6), k
