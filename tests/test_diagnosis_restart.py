@@ -496,48 +496,44 @@ def test_a_search_that_comes_back_to_a_set_it_left_stops_there():
     assert "platform_mass" in chosen
 
 
-def test_prefetch_refits_the_subsets_fit_would_refit_and_keeps_the_better(monkeypatch):
-    """``prefetch(..., refits=True)``: the sets fitted before that :meth:`Selector.fit` would
-    refit from the start (subsets of it) are refitted on the pool with the new ones, the
-    better fit kept and the refit remembered, as ``fit`` does one by one."""
-    from concurrent.futures import ThreadPoolExecutor
-
+def test_prefetch_makes_the_fits_fit_would_make_and_keeps_none_of_them(monkeypatch):
+    """``prefetch(..., refits=True)``: the fits :meth:`Selector.fit` would make from the
+    start are made on the pool all at once: the new sets', and the refits of the sets fitted
+    before that are subsets of the start; not those of unrelated sets. What the selection
+    keeps (its cache, the refits it made) is left as :meth:`fit` leaves it: the pool
+    changes when a fit is made, not which fit the selection holds."""
     import bench.diagnosis.select as select
 
-    def job(rm, train, space, phi0):
-        return SimpleNamespace(space=space, bic=5.0, chi2=5.0)
+    asked = []
 
-    monkeypatch.setattr(select, "_space_job", job)
+    def side_by_side(pool, rm, jobs):
+        asked.extend(space.effects for space, _, _, _ in jobs)
+        return [SimpleNamespace(space=space, bic=5.0, chi2=5.0, phi=np.zeros(0))
+                for space, _, _, _ in jobs]
+
+    monkeypatch.setattr(select, "fits_side_by_side", side_by_side)
     sel = object.__new__(Selector)
-    sel.rm = None  # no residual model (stands_out without the tracker latency floor)
     sel.model = rocaspect()
     sel.progress = lambda msg: None
-    sel.rm, sel.train = None, None
+    sel.rm, sel.train, sel.pool = None, None, object()
     sel._refit_from = set()
     sel._starts = lambda key, start: [None]
+    sel._pinned_many = lambda fits: [[] for _ in fits]
     old = SimpleNamespace(space=SimpleNamespace(effects=("drum_scale",)), bic=10.0, chi2=10.0)
     unrelated = SimpleNamespace(space=SimpleNamespace(effects=("pulley_kinematics",)),
                                 bic=1.0, chi2=1.0)
     sel.cache = {("drum_scale",): old, ("pulley_kinematics",): unrelated}
     start = SimpleNamespace(space=SimpleNamespace(effects=("drum_scale", "exit_point_offset")),
                             chi2=3.0)
-    with ThreadPoolExecutor(2) as pool:
-        sel.pool = pool
-        sel.prefetch([("drum_scale",), ("exit_point_offset",), ("pulley_kinematics",)], start,
-                     refits=True)
-    assert sel.cache[("drum_scale",)].bic == 5.0  # the refit, better, kept
-    assert sel.cache[("exit_point_offset",)].bic == 5.0  # the new set
-    assert sel.cache[("pulley_kinematics",)] is unrelated  # not a subset of the start
-    assert sel._tag(("drum_scale",), start) in sel._refit_from
-    # fit() now returns the kept refit without fitting again
-    assert sel.fit(("drum_scale",), start).bic == 5.0
-    # without refits, a set fitted before stays as it is
-    sel.cache[("drum_scale",)] = old
-    sel._refit_from.clear()
-    with ThreadPoolExecutor(2) as pool:
-        sel.pool = pool
-        sel.prefetch([("drum_scale",), ("cable_length_offset",), ("exit_point_offset",)],
-                     start)
+    sel.prefetch([("drum_scale",), ("exit_point_offset",), ("pulley_kinematics",)], start,
+                 refits=True)
+    assert sorted(asked) == [("drum_scale",), ("exit_point_offset",)]
+    assert sel.cache == {("drum_scale",): old, ("pulley_kinematics",): unrelated}
+    assert not sel._refit_from
+    # without refits, a set fitted before is not asked for again
+    asked.clear()
+    sel.prefetch([("drum_scale",), ("cable_length_offset",), ("exit_point_offset",)], start)
+    assert sorted(asked) == [("cable_length_offset",), ("exit_point_offset",)]
     assert sel.cache[("drum_scale",)] is old
 
 

@@ -239,12 +239,64 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
         return _copy(got[-1])
     with rm.cold():  # the same fit whatever was evaluated before it
         res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune, free_traded)
+    _remember(memo, key, space, rm, res)
+    return res
+
+
+#: one call of :func:`fit_effects` (:func:`fits_side_by_side`): the space, the samples, the
+#: start, and its keyword arguments (``hold``, ``max_nfev``, ``prune``, ``free_traded``)
+FitJob = tuple[ParamSpace, np.ndarray, "np.ndarray | None", dict]
+
+
+def _job_key(rm: ResidualModel, job: FitJob) -> tuple:
+    """:func:`fit_effects`' memo key of ``job`` on ``rm``."""
+    space, idx, phi0, kw = job
+    return _memo_key(space, rm, idx, phi0, kw.get("max_nfev", MAX_NFEV), kw.get("hold"),
+                     kw.get("prune", True)) + (bool(kw.get("free_traded", False)),)
+
+
+def _pool_job(rm: ResidualModel, job: FitJob) -> FitResult:
+    """:func:`fit_effects` of ``job`` in a worker of the process pool (a plain function)."""
+    from bench.parallel import job_running
+
+    space, idx, phi0, kw = job
+    with job_running():
+        return fit_effects(space, rm, idx, phi0, **kw)
+
+
+def fits_side_by_side(pool: object, rm: ResidualModel, jobs: list[FitJob]) -> list[FitResult]:
+    """:func:`fit_effects` of every job on ``rm``: the fits made or kept in this process
+    before from its memo, the others on the process ``pool`` side by side (in this process
+    without one, or for a single job), and each kept in this process's memo as if it had
+    been made here. A fit is a function of its inputs alone (:meth:`ResidualModel.cold`),
+    so a worker's is the one this process would have made: a fit made ahead on the pool
+    (a prefetch) is found by whoever asks for it here later, and the process pool changes
+    when fits are made, never what they are or which are asked for."""
+    memo = _MEMO.setdefault(rm, {})
+    keys = [_job_key(rm, job) for job in jobs]
+    out: list[FitResult | None] = [_copy(memo[k][-1]) if k in memo else None for k in keys]
+    todo = [i for i, f in enumerate(out) if f is None and keys.index(keys[i]) == i]
+    if pool is not None and len(todo) > 1:
+        futs = [(i, pool.submit(_pool_job, rm, jobs[i])) for i in todo]  # type: ignore[attr-defined]
+        for i, fu in futs:
+            res = fu.result()
+            _remember(memo, keys[i], jobs[i][0], rm, res)
+            out[i] = res
+    for i, job in enumerate(jobs):
+        if out[i] is None:
+            space, idx, phi0, kw = job
+            out[i] = fit_effects(space, rm, idx, phi0, **kw)  # (or the memo's: a repeated job)
+    return out  # type: ignore[return-value]
+
+
+def _remember(memo: dict, key: tuple, space: ParamSpace, rm: ResidualModel,
+              res: FitResult) -> None:
+    """Keep a copy of ``res`` as :func:`fit_effects`' answer to ``key`` on ``rm``."""
     if len(memo) >= MEMO_SIZE:
         memo.pop(next(iter(memo)))
     # (the model, the samples and the functions named by id in the key are kept alive with
     # the entry: their ids cannot be reused while it lives)
     memo[key] = (space.model, rm.s, least_squares, fd_jacobian, _copy(res))
-    return res
 
 
 def _fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
@@ -1813,15 +1865,6 @@ def held_at(space: ParamSpace, values: np.ndarray) -> ParamSpace:
     return out
 
 
-def _profile_job(space: ParamSpace, rm: ResidualModel, idx: np.ndarray, phi0: np.ndarray,
-                 hold: np.ndarray) -> FitResult:
-    """One profile refit (a plain function for the process pool)."""
-    from bench.parallel import job_running
-
-    with job_running():
-        return fit_effects(space, rm, idx, phi0, hold=hold, prune=False)
-
-
 def confidence_intervals(fit: FitResult, rm: ResidualModel, idx: np.ndarray,
                          which: np.ndarray, extra_var: np.ndarray | None = None,
                          pool: object = None,
@@ -1912,12 +1955,8 @@ def _widen_by_profiles(fit: FitResult, rm: ResidualModel, idx: np.ndarray, ks: l
             jobs.append((k, end, held_at(space, np.where(hold, phi0, space.neutral)), phi0,
                          hold))
     say(f"checking the intervals of {len(ks)} parameters by {len(jobs)} profile refits")
-    if pool is not None and len(jobs) > 1:
-        futs = [pool.submit(_profile_job, sp, rm, idx, phi0, hold)  # type: ignore[attr-defined]
-                for _, _, sp, phi0, hold in jobs]
-        fits = [f.result() for f in futs]
-    else:
-        fits = [_profile_job(sp, rm, idx, phi0, hold) for _, _, sp, phi0, hold in jobs]
+    fits = fits_side_by_side(pool, rm, [(sp, idx, phi0, {"hold": hold, "prune": False})
+                                        for _, _, sp, phi0, hold in jobs])
     ends: dict[int, list[float]] = {}
     for (k, end, _, _, _), res in zip(jobs, fits, strict=True):
         ends.setdefault(k, []).append(_profile_end(fit, k, end, res))
@@ -1954,12 +1993,8 @@ def jackknife(fit: FitResult, rm: ResidualModel, idx: np.ndarray, pool: object =
     space = held_at(fit.space, np.where(hold, fit.phi, fit.space.neutral))
     subsets = [idx[~(np.isin(blocks, ub[g::G]) & ~init)] for g in range(G)]
     (say or (lambda m: None))(f"jackknife: {G} refits, each without a group of blocks")
-    if pool is not None:
-        futs = [pool.submit(_profile_job, space, rm, sub, fit.phi, hold)  # type: ignore[attr-defined]
-                for sub in subsets]
-        fits = [f.result() for f in futs]
-    else:
-        fits = [_profile_job(space, rm, sub, fit.phi, hold) for sub in subsets]
+    fits = fits_side_by_side(pool, rm, [(space, sub, fit.phi, {"hold": hold, "prune": False})
+                                        for sub in subsets])
     th = np.array([f.phi for f in fits if f.success])
     n = len(th)
     if n < 4:

@@ -27,6 +27,7 @@ from bench.diagnosis.fit import (
     Interval,
     direction_reference_var,
     fit_effects,
+    fits_side_by_side,
     referenced_offsets,
     satterthwaite,
     split_columns,
@@ -38,7 +39,6 @@ from bench.diagnosis.select import (
     BIC_TIE,
     Selection,
     Selector,
-    _space_job,
     _warm,
     candidate_effects,
     compatible,
@@ -665,10 +665,7 @@ def _pretension(rm: ResidualModel, selector: Selector, sel: Selection, candidate
         jobs.append((space, None if phi0 is None else np.concatenate([phi0, np.zeros(k)])))
     if pool is not None and len(jobs) > 1:
         say(f"fitting {len(jobs)} sets with the tensions at initialisation on the process pool")
-        futs = [pool.submit(_space_job, rm, train, space, phi0) for space, phi0 in jobs]
-        fits = [fu.result() for fu in futs]
-    else:
-        fits = [fit_effects(space, rm, train, phi0) for space, phi0 in jobs]
+    fits = fits_side_by_side(pool, rm, [(space, train, phi0, {}) for space, phi0 in jobs])
     # each judged against the fit of every chosen effect beside them (``whole``, which
     # holds every other): the chi-square's differences by the evidence the parameters'
     # own errors give (:func:`~.select.honest_bic`; rows of a move share the visit's error)

@@ -539,11 +539,11 @@ class ResidualModel:
         got = self._cat_memo.get(name)
         return got[1] if got is not None and got[0] == key else None
 
-    def _keep(self, name: str, key: bytes, cf: cables.CableForces | None,
-              always: bool = False) -> None:
-        """Keep ``cf`` as ``name`` (outside :meth:`frozen` only, unless ``always``: the columns
-        of a finite-difference Jacobian start from the evaluation they differ from)."""
-        if cf is not None and cf.H is not None and (always or not self._frozen):
+    def _keep(self, name: str, key: bytes, cf: cables.CableForces | None) -> None:
+        """Keep ``cf`` as ``name`` (outside :meth:`frozen` only: the columns of a
+        finite-difference Jacobian start from the evaluation they differ from, not from the
+        column before)."""
+        if cf is not None and cf.H is not None and not self._frozen:
             self._cat_memo[name] = (key, cf)
 
     #: robot fields the unstretched lengths at initialisation hang on (not the readings' scale
@@ -580,21 +580,25 @@ class ResidualModel:
         tau0 = self._init_tensions(H)
         key = b"".join(np.asarray(getattr(H, f), dtype=float).tobytes()
                        for f in self._INIT_FIELDS) + (b"" if tau0 is None else tau0.tobytes())
-        if key not in self._init_cache:
+        got = self._init_cache.get(key)
+        if got is None:
             try:
                 # (the masts' iteration starts from the settled exits every time: a warm start
                 # moves u0 within the iteration's tolerance, and the finite-difference columns
                 # of a stiffness the data hardly fix are of that size)
                 ps = init_statics(H, self.init_pose, tau0,
                                   forces0=self._memo("init", b"") if H.rho > 0 else None)
-                got: np.ndarray | ValueError = ps.unstretched
-                self._keep("init", b"", ps.forces, always=True)
+                got = ps.unstretched
+                self._keep("init", b"", ps.forces)
             except ValueError as e:
                 got = e
-            if len(self._init_cache) >= 8:
-                self._init_cache.pop(next(iter(self._init_cache)))
-            self._init_cache[key] = got
-        got = self._init_cache[key]
+            # inside frozen nothing is kept: each column of a finite-difference Jacobian
+            # starts from the evaluation it differs from, whichever columns came before it
+            # (in this process or in a forked child: :func:`~.fit.fd_jacobian`)
+            if not self._frozen:
+                if len(self._init_cache) >= 8:
+                    self._init_cache.pop(next(iter(self._init_cache)))
+                self._init_cache[key] = got
         if isinstance(got, ValueError):
             raise got
         return got
@@ -701,11 +705,13 @@ class ResidualModel:
         ``--jobs 2`` gave two answers to one recording of nine samples, the fits' paths
         apart by the warm starts' tolerance."""
         saved = {k: getattr(self, k) for k in self._WARM}
-        memo, at_zero = self._cat_memo, self._at_zero
+        memo, at_zero, init = self._cat_memo, self._at_zero, self._init_cache
         for k, v in saved.items():
             setattr(self, k, np.full_like(v, np.nan) if v.dtype.kind == "f"
                     else np.zeros_like(v))
-        self._cat_memo, self._at_zero = {}, None
+        # (the initialisation's lengths too: with sagging cables, one kept from before was
+        # solved from another warm start than the one this evaluation would take)
+        self._cat_memo, self._at_zero, self._init_cache = {}, None, {}
         try:
             if self.rows is not None:
                 with self.rows.cold():
@@ -715,7 +721,7 @@ class ResidualModel:
         finally:
             for k, v in saved.items():
                 setattr(self, k, v)
-            self._cat_memo, self._at_zero = memo, at_zero
+            self._cat_memo, self._at_zero, self._init_cache = memo, at_zero, init
 
     @contextmanager
     def frozen(self) -> Iterator[None]:

@@ -34,12 +34,12 @@ from bench.diagnosis.fit import (
     error_structure,
     fd_jacobian,
     fit_effects,
+    fits_side_by_side,
     quad_form,
 )
 from bench.diagnosis.frame import material, tracker_candidates
 from bench.diagnosis.residuals import ResidualModel
 from bench.diagnosis.space import PER_CABLE_EA, ParamSpace, report_name
-from bench.parallel import job_running
 from controller.effects import EFFECT_NAMES
 
 #: BIC drop an effect must bring to enter (very strong evidence: small systematic errors
@@ -161,7 +161,7 @@ class Selector:
         self.pool = pool
         self.cache: dict[tuple[str, ...], FitResult] = {}
         self.cache_ho: dict[tuple[tuple[str, ...], int], FitResult] = {}
-        self._swap_cache: dict[tuple, dict[tuple[str, str], float]] = {}
+        self._swap_cache: dict[tuple, tuple[FitResult, dict[tuple[str, str], float]]] = {}
         #: chi-square each chosen effect removes (by swap_screen's key and effect)
         self._signal: dict[tuple, float] = {}
         self._refit_from: set[tuple] = set()  # (subset, superset, its chi-square) refitted
@@ -212,12 +212,18 @@ class Selector:
 
     def prefetch(self, sets: list[tuple[str, ...]], start: FitResult | None = None,
                  refits: bool = False) -> None:
-        """Fit the sets of ``sets`` not fitted yet as :meth:`fit` would one by one (from
-        ``start``), their starts all at once on the process pool: the search asks for them
-        in turn and may drop some after the first answer, but two cores fit two for the
-        time of one. With ``refits``, also the sets fitted before that :meth:`fit` would
-        refit from ``start`` (subsets of it), the better fit kept as it keeps it: for
-        callers that ask for every one of them. Nothing without a pool."""
+        """Make ahead, all at once on the process pool, the fits :meth:`fit` of the sets of
+        ``sets`` not fitted yet would make (from ``start``: each start, and the fits with
+        the load cells' gauge pinned): the search asks for them in turn and may drop some
+        after the first answer, but two cores fit two for the time of one. With ``refits``,
+        also those of the sets fitted before that :meth:`fit` would refit from ``start``
+        (subsets of it). Only the fits are made (kept in :func:`~.fit.fit_effects`' memo,
+        where :meth:`fit` finds them when it asks): what the selection keeps and refits
+        (:attr:`cache`, the refits made) stays as :meth:`fit` leaves it, so the pool changes
+        when a fit is made, never the answer. (Kept in the cache, the sets prefetched and
+        never asked for counted in the search's budget and in its pairs of single effects,
+        and a refit from an earlier start was kept where :meth:`fit` refits from the current
+        one: the selection's path hung on the pool.) Nothing without a pool."""
         if getattr(self, "pool", None) is None:  # (a Selector built bare in a test)
             return
         todo = list(dict.fromkeys(tuple(sorted(s_)) for s_ in sets))
@@ -232,22 +238,12 @@ class Selector:
                 for phi0 in (self._starts(k, start) if start is not None
                              else [ParamSpace(self.model, k).neutral.copy()])]
         self.progress(f"fitting {len(todo)} sets from {len(jobs)} starts on the process pool")
-        futs = [(k, self.pool.submit(_space_job, self.rm, self.train,
-                                     ParamSpace(self.model, k), phi0)) for k, phi0 in jobs]
+        got = fits_side_by_side(self.pool, self.rm, [
+            (ParamSpace(self.model, k), self.train, phi0, {}) for k, phi0 in jobs])
         fits: dict[tuple[str, ...], list[FitResult]] = {}
-        for k, fu in futs:
-            fits.setdefault(k, []).append(fu.result())
-        bests = {k: min(fs, key=lambda f: f.bic) for k, fs in fits.items()}
-        pins = dict(zip(bests, self._pinned_many(list(bests.values())), strict=True))
-        for k, best in bests.items():
-            res = self.gauge_floor(min([best] + pins[k], key=lambda f: f.bic))
-            cached = self.cache.get(k)
-            if cached is None:
-                self.cache[k] = res
-            elif res.bic < cached.bic - 1e-6 * max(1.0, abs(cached.bic)):
-                self._refitted(k, start, cached, res)
-            if start is not None:  # (fitted from it already: :meth:`fit` need not again)
-                self._refit_from.add(self._tag(k, start))
+        for (k, _), res in zip(jobs, got, strict=True):
+            fits.setdefault(k, []).append(res)
+        self._pinned_many([min(fs, key=lambda f: f.bic) for fs in fits.values()])
 
     @staticmethod
     def _tag(key: tuple[str, ...], start: FitResult) -> tuple:
@@ -287,11 +283,8 @@ class Selector:
         """Fits of ``space`` on the training samples from each start of ``phis`` (None: the
         model's values), on the process pool when there is one and more than one start
         (each fit starts cold: the same results in this process or a worker)."""
-        if self.pool is not None and len(phis) > 1:
-            futs = [self.pool.submit(_space_job, self.rm, self.train, space, phi0)
-                    for phi0 in phis]
-            return [f.result() for f in futs]
-        return [fit_effects(space, self.rm, self.train, phi0) for phi0 in phis]
+        return fits_side_by_side(self.pool, self.rm,
+                                 [(space, self.train, phi0, {}) for phi0 in phis])
 
     def _pinned(self, fit: FitResult) -> list[FitResult]:
         """``fit`` refitted with the load cells' gauge fixed at its median cell, for a set
@@ -323,16 +316,11 @@ class Selector:
         # (from a minimum moved along the gauge: where the gauge holds, a few steps; half
         # the budget of a fit from afar. 12823: 248 evaluations, 10 of 67 s, not converged,
         # for a reading that lost by its BIC)
-        if getattr(self, "pool", None) is not None and len(jobs) > 1:
-            futs = [(i, self.pool.submit(_space_job, self.rm, self.train, space, phi0,
-                                         hold=hold, max_nfev=PINNED_NFEV))
-                    for i, space, phi0, hold in jobs]
-            for i, fu in futs:
-                out[i].append(fu.result())
-            return out
-        for i, space, phi0, hold in jobs:
-            out[i].append(fit_effects(space, self.rm, self.train, phi0, hold=hold,
-                                      max_nfev=PINNED_NFEV))
+        got = fits_side_by_side(getattr(self, "pool", None), self.rm, [
+            (space, self.train, phi0, {"hold": hold, "max_nfev": PINNED_NFEV})
+            for _, space, phi0, hold in jobs])
+        for (i, _, _, _), res in zip(jobs, got, strict=True):
+            out[i].append(res)
         return out
 
     def gauge_floor(self, fit: FitResult, idx: np.ndarray | None = None) -> FitResult:
@@ -387,15 +375,12 @@ class Selector:
         results: dict[tuple[str, ...], FitResult] = {}
         if self.pool is not None and len(jobs) > 1:
             self.progress(f"fitting {len(jobs)} candidate sets on the process pool")
-            futs = [(s_, self.pool.submit(_fit_job, self.rm, self.train, s_, phi0))
-                    for s_, phi0 in jobs]
-            done = [(s_, f.result()) for s_, f in futs]
         else:
-            done = []
-            for s_, phi0 in jobs:
+            for s_, _ in jobs:
                 self.progress(f"fitting {' + '.join(s_) or 'the model as it is'}")
-                done.append((s_, fit_effects(ParamSpace(self.model, s_), self.rm, self.train,
-                                             phi0)))
+        done = list(zip([s_ for s_, _ in jobs], fits_side_by_side(self.pool, self.rm, [
+            (ParamSpace(self.model, s_), self.train, phi0, {}) for s_, phi0 in jobs]),
+            strict=True))
         for s_, res in done:
             if s_ not in results or res.bic < results[s_].bic:
                 results[s_] = res
@@ -578,8 +563,9 @@ class Selector:
     def _prefetch_checks(self, chosen: list[str], left: list[str], current: FitResult
                          ) -> None:
         """The fits the held-out checks of the effects ``left`` ask for (:meth:`fit` and
-        :meth:`fit_on` of ``chosen`` with and without each, from ``current``), on the
-        process pool all at once. Nothing without a pool."""
+        :meth:`fit_on` of ``chosen`` with and without each, from ``current``), made ahead on
+        the process pool all at once (:meth:`prefetch`: the fits only, what the checks
+        keep stays theirs). Nothing without a pool."""
         if getattr(self, "pool", None) is None:
             return
         rests = [tuple(sorted(c for c in chosen if c != e)) for e in left]
@@ -589,25 +575,26 @@ class Selector:
         # the other held-out sets only where the first does not decide (its predicted
         # difference below CONCLUSIVE: :meth:`heldout_improves`)
         idx0 = self.holdouts[0]
-        with_ = self.fit(tuple(chosen), current)
-        r_with = self.rm.whitened(with_.space.robot(with_.phi), idx0)
         open_ = []
-        for rest in rests:
-            fw = self.fit(rest, current)
-            diff = r_with - self.rm.whitened(fw.space.robot(fw.phi), idx0)
-            if float(diff @ diff) < CONCLUSIVE:
-                open_.append(rest)
+        # (a guess of which sets the checks will ask for: what fit would give, the
+        # selection's cache untouched; evaluated cold, so that the evaluations after start
+        # as they would have without a pool)
+        with self.rm.cold():
+            r_with = self.rm.whitened(current.space.robot(current.phi), idx0)
+            for rest in rests:
+                fw = self.cache.get(rest) or self._best_of(rest, self._starts(rest, current))
+                diff = r_with - self.rm.whitened(fw.space.robot(fw.phi), idx0)
+                if float(diff @ diff) < CONCLUSIVE:
+                    open_.append(rest)
         jobs = list(dict.fromkeys((key, k) for k in range(1, len(self.holdouts))
                                   for key in ([tuple(sorted(chosen))] + open_ if open_ else [])
                                   if (key, k) not in self.cache_ho))
         if len(jobs) < 2:
             return
         self.progress(f"fitting {len(jobs)} sets on held-out samples on the process pool")
-        futs = [((key, k), self.pool.submit(
-            _space_job, self.rm, np.setdiff1d(self.train, self.holdouts[k]),
-            ParamSpace(self.model, key), _warm(key, current))) for key, k in jobs]
-        for jk, fu in futs:
-            self.cache_ho[jk] = fu.result()
+        fits_side_by_side(self.pool, self.rm, [
+            (ParamSpace(self.model, key), np.setdiff1d(self.train, self.holdouts[k]),
+             _warm(key, current), {}) for key, k in jobs])  # (fit_on finds them)
 
     def _missed_swap(self, sel: Selection
                      ) -> tuple[str, str, list[str], FitResult] | None:
@@ -940,13 +927,9 @@ class Selector:
             for member in p:
                 jobs.append((p, _warm(p, self.cache[(member,)])))
         results: dict[tuple[str, ...], FitResult] = {}
-        if self.pool is not None:
-            futs = [(p, self.pool.submit(_fit_job, self.rm, self.train, p, phi0))
-                    for p, phi0 in jobs]
-            done = [(p, f.result()) for p, f in futs]
-        else:
-            done = [(p, fit_effects(ParamSpace(self.model, p), self.rm, self.train, phi0))
-                    for p, phi0 in jobs]
+        done = list(zip([p for p, _ in jobs], fits_side_by_side(self.pool, self.rm, [
+            (ParamSpace(self.model, p), self.train, phi0, {}) for p, phi0 in jobs]),
+            strict=True))
         for p, res in done:
             if p not in results or res.bic < results[p].bic:
                 results[p] = res
@@ -988,9 +971,12 @@ class Selector:
         linearised at the current fit with the remaining effects refitted jointly."""
         # (the candidates are part of the key: a selection run again without an effect must
         # not be handed swaps into it from the run before)
+        # (the fit is kept with its entry: its id, and those of :attr:`_signal`, cannot be
+        # another fit's while the entry lives; a fit the cache let go of could otherwise
+        # hand its screen to a later one at the same address, as the pool allocates)
         key = (id(current), tuple(chosen), tuple(candidates))
         if key in self._swap_cache:
-            return self._swap_cache[key]
+            return self._swap_cache[key][1]
         space = current.space
         out: dict[tuple[str, str], float] = {}
         r_cur = self.rm.whitened(space.robot(current.phi), self.train)
@@ -1032,7 +1018,7 @@ class Selector:
                 r1 = r_wo + J @ d
                 bic_pred = float(r1 @ r1) + (p_keep + len(sub)) * np.log(n_res)
                 out[(e, a)] = bic_pred - base
-        self._swap_cache[key] = out
+        self._swap_cache[key] = (current, out)
         return out
 
     def _swap(self, chosen: list[str], current: FitResult, candidates: list[str]
@@ -1336,18 +1322,6 @@ def _gauge_swaps(chosen: list[str], candidates: list[str]) -> list[tuple[str, st
                     not (a == "load_cell_calibration" and e == "load_cell_calibration"):
                 out.append((e, a))
     return out
-
-
-def _fit_job(rm: ResidualModel, train: np.ndarray, effects: tuple[str, ...],
-             phi0: np.ndarray | None) -> FitResult:
-    with job_running():
-        return fit_effects(ParamSpace(rm.model, effects), rm, train, phi0)
-
-
-def _space_job(rm: ResidualModel, train: np.ndarray, space: ParamSpace,
-               phi0: np.ndarray | None, **kw) -> FitResult:
-    with job_running():
-        return fit_effects(space, rm, train, phi0, **kw)
 
 
 def _bounded_lstsq(J: np.ndarray, b: np.ndarray, x0: np.ndarray, lo: np.ndarray,
