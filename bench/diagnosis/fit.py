@@ -208,11 +208,6 @@ def _memo_key(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
             h.digest())
 
 
-#: fit_effects' memo keeps and hands out copies (:meth:`FitResult.copy`; the name stays
-#: for the memo's call sites, which another branch moves)
-_copy = FitResult.copy
-
-
 def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
                 phi0: np.ndarray | None = None, max_nfev: int = MAX_NFEV,
                 hold: np.ndarray | None = None, prune: bool = True,
@@ -236,7 +231,7 @@ def fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
     memo = _MEMO.setdefault(rm, {})
     got = memo.get(key)
     if got is not None:
-        return _copy(got[-1])
+        return got[-1].copy()
     with rm.cold():  # the same fit whatever was evaluated before it
         res = _fit_effects(space, rm, idx, phi0, max_nfev, hold, prune, free_traded)
     _remember(memo, key, space, rm, res)
@@ -274,7 +269,7 @@ def fits_side_by_side(pool: object, rm: ResidualModel, jobs: list[FitJob]) -> li
     when fits are made, never what they are or which are asked for."""
     memo = _MEMO.setdefault(rm, {})
     keys = [_job_key(rm, job) for job in jobs]
-    out: list[FitResult | None] = [_copy(memo[k][-1]) if k in memo else None for k in keys]
+    out: list[FitResult | None] = [memo[k][-1].copy() if k in memo else None for k in keys]
     todo = [i for i, f in enumerate(out) if f is None and keys.index(keys[i]) == i]
     if pool is not None and len(todo) > 1:
         futs = [(i, pool.submit(_pool_job, rm, jobs[i])) for i in todo]  # type: ignore[attr-defined]
@@ -296,7 +291,7 @@ def _remember(memo: dict, key: tuple, space: ParamSpace, rm: ResidualModel,
         memo.pop(next(iter(memo)))
     # (the model, the samples and the functions named by id in the key are kept alive with
     # the entry: their ids cannot be reused while it lives)
-    memo[key] = (space.model, rm.s, least_squares, fd_jacobian, _copy(res))
+    memo[key] = (space.model, rm.s, least_squares, fd_jacobian, res.copy())
 
 
 def _fit_effects(space: ParamSpace, rm: ResidualModel, idx: np.ndarray,
