@@ -283,7 +283,13 @@ def latency_beside_direction(fit, rm, idx: np.ndarray):
     ``beside_nuisance`` (its linearised interval is the joint fit's: profile refits of the
     set, which hold the direction error at zero, would measure the biased valley). The fit
     is returned unchanged where it holds no free latency or no sample with a known
-    direction."""
+    direction.
+
+    ``chi2``, ``bic`` and ``n_free`` stay those of ``fit`` (the set without the direction
+    level) on purpose: the selection compares them with fits of other sets that hold no
+    direction level (``report._lookalike_stands``, the gauge and translation alternatives'
+    ``delta_bic``), and those comparisons stay like for like. Only ``phi`` and the errors
+    are the joint model's."""
     from dataclasses import replace
 
     space = fit.space
