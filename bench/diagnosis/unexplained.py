@@ -80,8 +80,6 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     the corrected robot, for the load cells' direction test; ``probed``: the
     out-of-vocabulary probes tested beside the chosen effects, :func:`probes.screen`)."""
     model = rm.model
-    s = rm.s
-    w = rm.s.weight
     chi = rm.whitened_by_sample(b)
     ok = np.isfinite(chi)
     if not ok.any():
@@ -94,92 +92,11 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     assumed = rm.sigma_source != "replicate visits"
     level = level_exceeded(ratio, dof, nd, assumed)
     findings: list[str] = []
-
-    # per cable, per mast: whitened length residual RMS
-    # in noise units (a residual projected by per-sample unknowns scaled back)
-    # (a sagging cable's share of its load cell's noise included, as in the whitening)
-    sd = rm.sd["length"][:, None]
-    if b.length_extra_sd is not None:
-        sd = np.sqrt(sd ** 2 + b.length_extra_sd ** 2)
-    L = b.length / sd * rm.rank_factor()[:, None]
-    L = np.where(rm.has_len[:, None], L, np.nan)
+    L = _length_over_noise(rm, b)
     if np.isfinite(L).any():
-        per = np.array([_wrms(L[:, k], w) for k in range(model.n_cables)])
-        out["by_cable"] = {c: _r(v) for c, v in zip(model.cable_ids, per, strict=True)}
-        out["by_mast"] = {mid: _r(_wrms(L[:, model.mast_index == i].ravel(),
-                                        np.repeat(w, int(np.sum(model.mast_index == i)))))
-                          for i, mid in enumerate(model.mast_ids)}
-        fin = per[np.isfinite(per)]
-        if fin.size >= 3:
-            med = float(np.median(fin))
-            k = int(np.nanargmax(per))
-            if per[k] > CABLE_RATIO * max(med, 1.0) and per[k] > 2.5:
-                findings.append(f"cable {model.cable_ids[k]}'s length residual is "
-                                f"{per[k]:.1f} times the noise (the others' median "
-                                f"{med:.1f})")
-                out["cable"] = model.cable_ids[k]
-        # direction of motion: residual after paying out vs after reeling in
-        dirs = []
-        for k, cid in enumerate(model.cable_ids):
-            d = _two_groups(L[:, k], s.direction[:, k], w)
-            if d is not None:
-                dirs.append((cid, *d))
-        if dirs:
-            out["direction"] = {c: {"difference_over_noise": _r(diff), "z": _r(z)}
-                                for c, diff, z in dirs}
-            # (all the winches' hysteresis is part of the noise model: a cable's is a
-            # finding when it also stands out from the others')
-            strong = [(c, diff, z) for c, diff, z in dirs
-                      if abs(z) > STRUCT_Z and abs(diff) > STRUCT_SIZE
-                      and abs(diff) > probes.DIRECTION_RATIO * float(np.median(
-                          [abs(o[1]) for o in dirs if o[0] != c] or [0.0]))]
-            # (the probes, fitted with the named effects free, judge a cable they tested:
-            # this test only one they could not)
-            strong = [x for x in strong if not _tested(probed, "direction", x[0])]
-            if strong and not _probed(probed, "direction"):
-                c, diff, z = max(strong, key=lambda x: abs(x[2]))
-                findings.append(f"cable {c}'s length residual depends on the direction of its "
-                                f"last move: {abs(diff):.1f} times the noise between paying "
-                                f"out and reeling in (z = {abs(z):.0f}; backlash or friction?)")
-        # time: a trend common to the cables, and per cable
-        tt = s.t - np.nanmean(s.t)
-        # samples whose errors are independent: each dwell of a dwell campaign (the visits
-        # of a target are apart in time), stretches of moves otherwise
-        moves = bool((s.kind == 1).any()) and s.cluster is not None and len(s.cluster) == s.n
-        clusters = s.cluster if moves else np.arange(s.n)
-        span = float(np.ptp(s.t))
-        if span > 0:
-            trend = []
-            for k, cid in enumerate(model.cable_ids):
-                tr = _trend(L[:, k], tt, w, s.target, clusters, span)
-                if tr is not None:
-                    trend.append((cid, *tr))
-            common = _trend(np.nanmean(L, axis=1), tt, w, s.target, clusters, span)
-            out["time"] = {"span_s": span,
-                           "by_cable": {c: {"drift_over_noise": _r(d), "z": _r(z)}
-                                        for c, d, z in trend}}
-            if common is not None:
-                out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
-            strong = [(c, d, z) for c, d, z in trend
-                      if abs(z) > STRUCT_Z and abs(d) > STRUCT_SIZE]
-            strong = [x for x in strong if not _tested(probed, "drift", x[0])]
-            if _probed(probed, "thermal", "drift"):
-                pass  # the probes' findings say it, with the named effects free beside them
-            elif strong:
-                many = len(strong) >= max(3, model.n_cables // 2)
-                c, d, z = max(strong, key=lambda x: abs(x[2]))
-                if many:
-                    findings.append(f"the length residuals of {len(strong)} cables drift with "
-                                    f"time (up to {abs(d):.1f} times the noise over the "
-                                    f"recording; thermal expansion or creep?)")
-                else:
-                    findings.append(f"cable {c}'s length residual drifts with time "
-                                    f"({abs(d):.1f} times the noise over the recording)")
-            elif common is not None and abs(common[1]) > STRUCT_Z \
-                    and abs(common[0]) > STRUCT_SIZE and not _tested(probed, "thermal"):
-                findings.append(f"the length residuals of the cables drift together with time "
-                                f"({abs(common[0]):.1f} times the noise over the recording; "
-                                f"thermal expansion or creep?)")
+        _by_cable(rm, L, out, findings)
+        _by_direction(rm, L, probed, out, findings)
+        _by_time(rm, L, probed, out, findings)
     if probed:
         findings.extend(probes.findings(*probed))
         shown = [r.as_dict() for r in probed[0] if r.finding or r.name == "thermal"]
@@ -187,24 +104,8 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
             out["probes"] = shown
         if probed[1]:
             out["effects_in_question"] = [st.as_dict() for st in probed[1]]
-    # load cells reading differently by the direction of motion (pulley friction)
     if fitted is not None and rm.any_tau:
-        got = _cell_direction(rm, b, fitted)
-        if got is not None:
-            fr, joint = got
-            out["load_cell_direction"] = {c: {"difference_n": _r(2 * f), "z": _r(z)}
-                                          for c, f, z in fr}
-            out["load_cell_direction_joint_z"] = _r(joint)
-            strong = cells_declared(fr, joint, _force_noise(rm), model.n_cables)
-            if strong:
-                top = max(abs(f) for _, f, _ in strong)
-                which = (f"the load cell of cable {strong[0][0]} reads" if len(strong) == 1
-                         else f"the load cells of cables {', '.join(c for c, _, _ in strong)} "
-                              f"read")
-                findings.append(f"{which} differently by the direction of the cable's last "
-                                f"move (up to {2 * top:.1f} N between paying out and reeling "
-                                f"in; friction between the cell and the platform?)")
-                out["load_cell_direction_cables"] = [c for c, _, _ in strong]
+        _by_cell_direction(rm, b, fitted, out, findings)
     # where in the workspace
     regions = locate.regions(s_regions, np.sqrt(np.where(ok, chi / np.maximum(
         _entries_per_sample(rm), 1), np.nan)), init_pose, pivots, mast_ids,
@@ -219,6 +120,136 @@ def analyse(rm: ResidualModel, b: Blocks, n_params: int, s_regions, init_pose: n
     out["findings"] = findings
     out["summary"] = "; ".join(findings)
     return out
+
+
+def _length_over_noise(rm: ResidualModel, b: Blocks) -> np.ndarray:
+    """The length residuals (N, n) in noise units, NaN where a sample has no lengths: a
+    residual projected by per-sample unknowns scaled back (:meth:`ResidualModel.
+    rank_factor`), a sagging cable's share of its load cell's noise in the noise (as in the
+    whitening)."""
+    sd = rm.sd["length"][:, None]
+    if b.length_extra_sd is not None:
+        sd = np.sqrt(sd ** 2 + b.length_extra_sd ** 2)
+    L = b.length / sd * rm.rank_factor()[:, None]
+    return np.where(rm.has_len[:, None], L, np.nan)
+
+
+def _by_cable(rm: ResidualModel, L: np.ndarray, out: dict, findings: list[str]) -> None:
+    """Per cable and per mast the length residuals' weighted RMS in noise units
+    (``by_cable``, ``by_mast``); a finding where one cable stands out from the others'
+    median."""
+    model, w = rm.model, rm.s.weight
+    per = np.array([_wrms(L[:, k], w) for k in range(model.n_cables)])
+    out["by_cable"] = {c: _r(v) for c, v in zip(model.cable_ids, per, strict=True)}
+    out["by_mast"] = {mid: _r(_wrms(L[:, model.mast_index == i].ravel(),
+                                    np.repeat(w, int(np.sum(model.mast_index == i)))))
+                      for i, mid in enumerate(model.mast_ids)}
+    fin = per[np.isfinite(per)]
+    if fin.size >= 3:
+        med = float(np.median(fin))
+        k = int(np.nanargmax(per))
+        if per[k] > CABLE_RATIO * max(med, 1.0) and per[k] > 2.5:
+            findings.append(f"cable {model.cable_ids[k]}'s length residual is "
+                            f"{per[k]:.1f} times the noise (the others' median "
+                            f"{med:.1f})")
+            out["cable"] = model.cable_ids[k]
+
+
+def _by_direction(rm: ResidualModel, L: np.ndarray, probed, out: dict,
+                  findings: list[str]) -> None:
+    """Per cable its length residual after paying out vs after reeling in (``direction``);
+    a finding where one cable's stands out from the others' (every winch's hysteresis is
+    part of the noise model) and the probes did not test it."""
+    s, w = rm.s, rm.s.weight
+    dirs = []
+    for k, cid in enumerate(rm.model.cable_ids):
+        d = _two_groups(L[:, k], s.direction[:, k], w)
+        if d is not None:
+            dirs.append((cid, *d))
+    if not dirs:
+        return
+    out["direction"] = {c: {"difference_over_noise": _r(diff), "z": _r(z)}
+                        for c, diff, z in dirs}
+    strong = [(c, diff, z) for c, diff, z in dirs
+              if abs(z) > STRUCT_Z and abs(diff) > STRUCT_SIZE
+              and abs(diff) > probes.DIRECTION_RATIO * float(np.median(
+                  [abs(o[1]) for o in dirs if o[0] != c] or [0.0]))]
+    # (the probes, fitted with the named effects free, judge a cable they tested: this test
+    # only one they could not)
+    strong = [x for x in strong if not _tested(probed, "direction", x[0])]
+    if strong and not _probed(probed, "direction"):
+        c, diff, z = max(strong, key=lambda x: abs(x[2]))
+        findings.append(f"cable {c}'s length residual depends on the direction of its "
+                        f"last move: {abs(diff):.1f} times the noise between paying "
+                        f"out and reeling in (z = {abs(z):.0f}; backlash or friction?)")
+
+
+def _by_time(rm: ResidualModel, L: np.ndarray, probed, out: dict,
+             findings: list[str]) -> None:
+    """The length residuals' trend with time [noise units over the recording's span], per
+    cable and common to the cables (``time``); a finding for a drift the probes did not
+    judge. Samples whose errors are independent: each dwell of a dwell campaign (the
+    visits of a target are apart in time), stretches of moves otherwise."""
+    s, w = rm.s, rm.s.weight
+    tt = s.t - np.nanmean(s.t)
+    moves = bool((s.kind == 1).any()) and s.cluster is not None and len(s.cluster) == s.n
+    clusters = s.cluster if moves else np.arange(s.n)
+    span = float(np.ptp(s.t))
+    if not span > 0:
+        return
+    trend = []
+    for k, cid in enumerate(rm.model.cable_ids):
+        tr = _trend(L[:, k], tt, w, s.target, clusters, span)
+        if tr is not None:
+            trend.append((cid, *tr))
+    common = _trend(np.nanmean(L, axis=1), tt, w, s.target, clusters, span)
+    out["time"] = {"span_s": span,
+                   "by_cable": {c: {"drift_over_noise": _r(d), "z": _r(z)}
+                                for c, d, z in trend}}
+    if common is not None:
+        out["time"]["common"] = {"drift_over_noise": _r(common[0]), "z": _r(common[1])}
+    strong = [(c, d, z) for c, d, z in trend if abs(z) > STRUCT_Z and abs(d) > STRUCT_SIZE]
+    strong = [x for x in strong if not _tested(probed, "drift", x[0])]
+    if _probed(probed, "thermal", "drift"):
+        return  # the probes' findings say it, with the named effects free beside them
+    if strong:
+        many = len(strong) >= max(3, rm.model.n_cables // 2)
+        c, d, z = max(strong, key=lambda x: abs(x[2]))
+        if many:
+            findings.append(f"the length residuals of {len(strong)} cables drift with "
+                            f"time (up to {abs(d):.1f} times the noise over the "
+                            f"recording; thermal expansion or creep?)")
+        else:
+            findings.append(f"cable {c}'s length residual drifts with time "
+                            f"({abs(d):.1f} times the noise over the recording)")
+    elif common is not None and abs(common[1]) > STRUCT_Z \
+            and abs(common[0]) > STRUCT_SIZE and not _tested(probed, "thermal"):
+        findings.append(f"the length residuals of the cables drift together with time "
+                        f"({abs(common[0]):.1f} times the noise over the recording; "
+                        f"thermal expansion or creep?)")
+
+
+def _by_cell_direction(rm: ResidualModel, b: Blocks, fitted, out: dict,
+                       findings: list[str]) -> None:
+    """The load cells reading differently by the direction of motion (pulley friction:
+    :func:`_cell_direction` on the corrected robot ``fitted``), half-differences in N; a
+    finding for the cells :func:`cells_declared` keeps."""
+    got = _cell_direction(rm, b, fitted)
+    if got is None:
+        return
+    fr, joint = got
+    out["load_cell_direction"] = {c: {"difference_n": _r(2 * f), "z": _r(z)}
+                                  for c, f, z in fr}
+    out["load_cell_direction_joint_z"] = _r(joint)
+    strong = cells_declared(fr, joint, _force_noise(rm), rm.model.n_cables)
+    if strong:
+        top = max(abs(f) for _, f, _ in strong)
+        which = (f"the load cell of cable {strong[0][0]} reads" if len(strong) == 1
+                 else f"the load cells of cables {', '.join(c for c, _, _ in strong)} read")
+        findings.append(f"{which} differently by the direction of the cable's last "
+                        f"move (up to {2 * top:.1f} N between paying out and reeling "
+                        f"in; friction between the cell and the platform?)")
+        out["load_cell_direction_cables"] = [c for c, _, _ in strong]
 
 
 def cells_declared(cells: list[tuple[str, float, float]], joint: float, noise: float,
