@@ -96,6 +96,10 @@ class Tracker(abc.ABC):
     """A source of measured platform poses (see the module docstring)."""
 
     name = "tracker"
+    #: whether ``t_s`` is on the hardware interface's clock (``Readings.t_s``): a
+    #: recorder then stamps a fix with it; else (a tracker's own clock, mapping unknown)
+    #: with the time it arrived
+    on_hardware_clock: bool = False
 
     def start(self, timeout_s: float = 3.0) -> Tracker:
         """Connect and wait for a first measurement (TrackerError if none within
@@ -122,12 +126,14 @@ class Tracker(abc.ABC):
 
 
 class CallableTracker(Tracker):
-    """In-process tracker: ``fn() -> (t_s, pose (6,), valid)`` is called at each read."""
+    """In-process tracker: ``fn() -> (t_s, pose (6,), valid)`` is called at each read;
+    ``on_hardware_clock``: ``fn``'s ``t_s`` is the hardware interface's clock."""
 
     def __init__(self, fn: Callable[[], tuple[float, np.ndarray, bool]],
-                 name: str = "in-process tracker") -> None:
+                 name: str = "in-process tracker", on_hardware_clock: bool = False) -> None:
         self.fn = fn
         self.name = name
+        self.on_hardware_clock = bool(on_hardware_clock)
 
     def read(self) -> TrackerReading:
         t, pose, valid = self.fn()

@@ -32,6 +32,7 @@ directory is a valid recording up to the last flushed row.
 
 from __future__ import annotations
 
+import bisect
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +160,55 @@ class CsvRecording:
             self.events.close()
 
 
+#: [s] how long a row waits for the samples taken before it (a sample arrives after its
+#: time: a TPDO a cycle later, a tracker fix or a load cell's answer up to their staleness
+#: limits, 0.5 s for :class:`hal.tracker.TcpTracker`); a sample older than the rows
+#: already written goes into the oldest row it still can (counted: ``late_samples``)
+HOLD_S = 0.5
+
+
+class TimeOrder:
+    """Rows waiting :data:`HOLD_S` to be written in time order: the loop's cycle rows and
+    the samples stamped with their own (earlier) times. A sample at a time already held
+    joins that row where its columns are empty; its state is the row's before it."""
+
+    def __init__(self, append) -> None:
+        self.append = append  # (values, state) -> None: the writer's
+        self._t: list[float] = []
+        self._rows: list[tuple[np.ndarray, str | None]] = []
+        self.written_t = -np.inf  #: [s] the time of the last row written
+        self._state = "init"
+        self.late = 0  #: samples older than the rows written (moved to the oldest)
+
+    def place(self, t: float, values: np.ndarray, state: str | None,
+              cols: np.ndarray) -> None:
+        """Hold ``values`` (a whole row: nan outside the indices ``cols``) at ``t`` [s]."""
+        if t < self.written_t:
+            t, self.late = self.written_t, self.late + 1
+            values = values.copy()
+            values[0] = t
+        i = bisect.bisect_left(self._t, t)
+        while i < len(self._t) and self._t[i] == t:
+            row, st = self._rows[i]
+            if np.all(np.isnan(row[cols])):
+                row[cols] = values[cols]
+                if st is None:
+                    self._rows[i] = (row, state)
+                return
+            i += 1
+        self._t.insert(i, t)
+        self._rows.insert(i, (values.copy(), state))
+
+    def flush(self, until: float = np.inf) -> None:
+        """Write the rows held up to ``until`` [s] (all by default)."""
+        k = bisect.bisect_right(self._t, until)
+        for t, (row, state) in zip(self._t[:k], self._rows[:k], strict=True):
+            self._state = state if state is not None else self._state
+            self.append(row, self._state)
+            self.written_t = t
+        del self._t[:k], self._rows[:k]
+
+
 class DryRunRecorder(CsvRecording):
     """Rows and events of a run into ``path`` (created; must be empty or absent)."""
 
@@ -167,25 +217,50 @@ class DryRunRecorder(CsvRecording):
         super().__init__(path, robot, init_pose, columns(robot), meta, True, flush_s,
                          robot_header)
         self.n = robot.n_cables
-        self._row = np.empty(len(self.writer.columns))
+        self.order = TimeOrder(self.writer.append)
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
             cycle: int, overruns: int, state: str, pose_err: float = float("nan"),
-            drive_states: np.ndarray | None = None) -> None:
-        """One row (:func:`columns`); ``drive_states``: the CiA 402 state numbers of the
-        drives in cable order (None: ``nan``)."""
-        n, r = self.n, self._row
+            drive_states: np.ndarray | None = None, lengths_t: float | None = None,
+            tensions_t: float | None = None, pose_t: float | None = None) -> None:
+        """The cycle's row at ``t`` [s] (:func:`columns`) and each sensor's sample at the
+        time it was taken on the loop's clock (``lengths_t``: the SYNC the encoders
+        answer, ``tensions_t`` the load cells' sample, ``pose_t`` the tracker's fix;
+        None: ``t``): a sample taken before ``t`` is a row of its own (the other columns
+        ``nan``), or joins a row of its time. All-``nan`` ``tau`` or ``pose_meas``: no
+        sample. ``drive_states``: the CiA 402 state numbers of the drives in cable order
+        (None: ``nan``)."""
+        n = self.n
+        t = round(t, 9)  # [s] to the nanosecond: no float noise in the file's times
+        r = np.full(len(self.writer.columns), np.nan)
         r[0] = t
         r[1:7] = pose_des
         r[7:7 + n] = l_cmd
-        r[7 + n:7 + 2 * n] = l_meas
-        r[7 + 2 * n:7 + 3 * n] = tau
-        r[7 + 3 * n:13 + 3 * n] = pose_meas
         r[13 + 3 * n:13 + 4 * n] = tau_plan
-        r[13 + 4 * n] = substituted
-        r[14 + 4 * n] = cycle
-        r[15 + 4 * n] = overruns
-        r[16 + 4 * n] = pose_err
+        r[13 + 4 * n:16 + 4 * n] = (substituted, cycle, overruns)
         r[17 + 4 * n:17 + 5 * n] = np.nan if drive_states is None else drive_states
-        self.writer.append(r, state)
+        own = []
+        for cols, vals, ts in ((np.r_[7 + n:7 + 2 * n], l_meas, lengths_t),
+                               (np.r_[7 + 2 * n:7 + 3 * n], tau, tensions_t),
+                               (np.r_[7 + 3 * n:13 + 3 * n, 16 + 4 * n],
+                                (*pose_meas, pose_err), pose_t)):
+            ts = None if ts is None else round(ts, 9)
+            if ts is None or not ts < t:
+                r[cols] = vals
+            elif not np.all(np.isnan(vals)):
+                own.append((ts, cols, vals))
+        self.order.place(t, r, state, np.r_[0:len(r)])
+        for ts, cols, vals in own:
+            s = np.full(len(r), np.nan)
+            s[0], s[cols] = ts, vals
+            self.order.place(ts, s, None, cols)
+        self.order.flush(t - HOLD_S)
+
+    def close(self) -> None:
+        try:
+            self.order.flush()
+            if self.order.late:
+                self.writer.update_meta(late_samples=self.order.late)
+        finally:
+            super().close()
