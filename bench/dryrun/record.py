@@ -54,6 +54,13 @@ def columns(robot: Robot) -> list[str]:
             + [f"drive_state_{k}" for k in c])
 
 
+def held_columns(n: int) -> np.ndarray:
+    """The indices of :func:`columns` (``n`` cables) that hold their value from one cycle
+    to the next: the setpoints, planned tensions, ``substituted``, ``cycle``,
+    ``overruns`` and the drives' states (not the sensors' samples, not ``pose_err``)."""
+    return np.r_[1:7 + n, 13 + 3 * n:16 + 4 * n, 17 + 4 * n:17 + 5 * n]
+
+
 def event_cells(t: float, device: str, address: int, cable: str, kind: str, code: int,
                 reaction: str, active: bool, text: str) -> tuple[str, ...]:
     """The fields of an ``events.csv`` row, as written."""
@@ -170,10 +177,15 @@ HOLD_S = 0.5
 class TimeOrder:
     """Rows waiting :data:`HOLD_S` to be written in time order: the loop's cycle rows and
     the samples stamped with their own (earlier) times. A sample at a time already held
-    joins that row where its columns are empty; its state is the row's before it."""
+    joins that row where its columns are empty; a sample's own row takes the state and the
+    ``held`` columns (indices: the controller's, which hold until the next cycle) of the
+    row before it (before the first cycle row: the held columns of that one, state
+    ``init``)."""
 
-    def __init__(self, append) -> None:
+    def __init__(self, append, held: np.ndarray | None = None) -> None:
         self.append = append  # (values, state) -> None: the writer's
+        self.held = np.zeros(0, int) if held is None else held
+        self._last: np.ndarray | None = None  # the last row written
         self._t: list[float] = []
         self._rows: list[tuple[np.ndarray, str | None]] = []
         self.written_t = -np.inf  #: [s] the time of the last row written
@@ -203,9 +215,14 @@ class TimeOrder:
         """Write the rows held up to ``until`` [s] (all by default)."""
         k = bisect.bisect_right(self._t, until)
         for t, (row, state) in zip(self._t[:k], self._rows[:k], strict=True):
+            if state is None:  # a sample's own row (before the first cycle: the first's)
+                like = self._last if self._last is not None else next(
+                    (r for r, st in self._rows if st is not None), None)
+                if like is not None:
+                    row[self.held] = like[self.held]
             self._state = state if state is not None else self._state
             self.append(row, self._state)
-            self.written_t = t
+            self.written_t, self._last = t, row
         del self._t[:k], self._rows[:k]
 
 
@@ -217,7 +234,7 @@ class DryRunRecorder(CsvRecording):
         super().__init__(path, robot, init_pose, columns(robot), meta, True, flush_s,
                          robot_header)
         self.n = robot.n_cables
-        self.order = TimeOrder(self.writer.append)
+        self.order = TimeOrder(self.writer.append, held_columns(self.n))
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,

@@ -9,7 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.dryrun.record import CsvRecording, DryRunRecorder, TimeOrder, columns
+from bench.dryrun.record import (
+    CsvRecording,
+    DryRunRecorder,
+    TimeOrder,
+    columns,
+    held_columns,
+)
 from bench.mcap.can_tap import CanTap
 from bench.mcap.channels import MCAP_NAME
 from bench.mcap.writer import McapRecordingWriter
@@ -84,7 +90,7 @@ class SinkRecorder(DryRunRecorder):
     def __init__(self, writer, n_cables: int, can: str | None, on_frame=None) -> None:
         self.n = n_cables
         self.writer = writer
-        self.order = TimeOrder(writer.append)
+        self.order = TimeOrder(writer.append, held_columns(n_cables))
         try:
             self.tap = CanTap(can, on_frame or writer.can_frame) if can else None
         except BaseException:
