@@ -750,7 +750,14 @@ class ControlLoop:
             self.recorder.row(t, c.pose_des, c.last_sent, r.lengths_m, tau,
                               pose_meas, c.out_tensions, c.substituted, c.path_cycle,
                               res.overruns, c.state, err, drive_states=r.states,
-                              tensions_t=tau_t, pose_t=pose_t)
+                              lengths_t=self._lengths_time(r, t), tensions_t=tau_t,
+                              pose_t=pose_t)
+
+    def _lengths_time(self, r: Readings, t: float) -> float | None:
+        """The loop's time [s] of the SYNC the drives' lengths answer (``Readings.lengths_t_s``;
+        None: not known, the row's ``t``); never after ``t``."""
+        ts = r.lengths_t_s - self._t0
+        return min(ts, t) if math.isfinite(ts) else None
 
     def _fix_time(self, tr: TrackerReading, t: float) -> float:
         """The loop's time [s] of the tracker's fix ``tr`` read at the loop's time ``t``:

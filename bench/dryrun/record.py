@@ -2,26 +2,44 @@
 
 ``recording.csv`` columns (the recording format's names; extra columns are allowed):
 
-- ``t`` [s] the hardware clock of the cycle;
+- ``t`` [s] the loop's clock (the hardware's, from the run's start): of the cycle on a
+  cycle's row, of the sample on a sample's row (below);
 - ``x_des`` .. ``yaw_des`` the trajectory's setpoint pose of the cycle;
 - ``l_cmd_{ij}`` [m] the lengths sent; ``l_meas_{ij}`` [m] the drives' lengths read (both in
   the encoder reference of the initialisation);
 - ``tau_{ij}`` [N] the load cells' tensions as read (``nan`` when not valid);
-- ``x_meas`` .. ``yaw_meas`` the tracker's pose (``nan`` when it has none);
+- ``x_meas`` .. ``yaw_meas`` the tracker's pose;
 - extra: ``plan_tau_{ij}`` [N] the tensions the controller planned, ``substituted`` the
   number of load cells replaced by planned tensions in the mast update, ``cycle`` the
   repetition of the path (0, 1, ...; -1 before the path starts), ``overruns`` the cycles
   that missed their deadline so far (real time), ``pose_err`` [m] the distance from the
-  tracker's fix to the commanded path on the rows where the loop counted a new fix (the
+  tracker's fix to the commanded path on the fix's row where the loop counted it (the
   numbers the summary's ``pose_error_rms_m``/``pose_error_max_m`` are made of; ``nan`` on
-  the other rows: a fix held from an earlier row, no fix, or not counted: initialisation,
-  quick stop), ``drive_state_{ij}`` the CiA 402 state of each drive as the master read it
-  on the row (:class:`hal.drives_cia402.DriveState` number: 4 Operation Enabled, 5 Quick
-  Stop Active, 7 Fault, 8 unknown, ...; ``nan`` when not given);
+  the other rows and for fixes not counted: initialisation, quick stop),
+  ``drive_state_{ij}`` the CiA 402 state of each drive as the master read it on the row
+  (:class:`hal.drives_cia402.DriveState` number: 4 Operation Enabled, 5 Quick Stop Active,
+  7 Fault, 8 unknown, ...; ``nan`` when not given);
 - ``state``: ``init`` (initialisation dwell), ``approach`` (the move from the init pose to
   the path's start), ``move``/``dwell`` (the trajectory's labels: a dwell stands at a
   target; replicate visits have equal ``*_des``), ``hold`` (feed hold), ``quick_stop``
   (drives stopped), ``end`` (final stand-still).
+
+Each sensor's sample is recorded once, at the time it was taken on the loop's clock (the
+recording format's sensor streams: a row whose group is ``nan`` holds no sample of it):
+
+- encoders: on the cycle's row (the drives' positions of the SYNC the loop read: in
+  lock-step the cycle's own);
+- the tracker: a new fix only (a fix read again on a later row is not written again), at
+  its own time stamp where the tracker says that is the hardware's clock
+  (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step), else at
+  the time it arrived (the loop's time less ``TrackerReading.age_s``);
+- the load cells: a new sample only, at the loop's time less its age
+  (``Readings.tension_age_s``, the mean over the cables).
+
+A sample taken before its cycle is a row of its own at its time (or joins a row of that
+time) holding the controller's columns (setpoints, planned tensions, ``substituted``,
+``cycle``, ``overruns``, drive states) and the ``state`` of the row before it; rows wait
+:data:`HOLD_S` to be written in time order.
 
 ``events.csv``: ``t, device, address, cable, kind, code, reaction, active, text``: every
 supervisor condition when it starts (``active`` 1) and ends (0), the hardware's own events
@@ -59,6 +77,13 @@ def held_columns(n: int) -> np.ndarray:
     to the next: the setpoints, planned tensions, ``substituted``, ``cycle``,
     ``overruns`` and the drives' states (not the sensors' samples, not ``pose_err``)."""
     return np.r_[1:7 + n, 13 + 3 * n:16 + 4 * n, 17 + 4 * n:17 + 5 * n]
+
+
+def sample_groups(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The indices of :func:`columns` (``n`` cables) of each sensor's sample: the encoders'
+    lengths, the load cells' tensions, the tracker's pose and its ``pose_err``."""
+    return (np.r_[7 + n:7 + 2 * n], np.r_[7 + 2 * n:7 + 3 * n],
+            np.r_[7 + 3 * n:13 + 3 * n, 16 + 4 * n])
 
 
 def event_cells(t: float, device: str, address: int, cable: str, kind: str, code: int,
@@ -235,6 +260,7 @@ class DryRunRecorder(CsvRecording):
                          robot_header)
         self.n = robot.n_cables
         self.order = TimeOrder(self.writer.append, held_columns(self.n))
+        self._groups, self._all = sample_groups(self.n), np.arange(len(self.writer.columns))
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
@@ -258,16 +284,15 @@ class DryRunRecorder(CsvRecording):
         r[13 + 4 * n:16 + 4 * n] = (substituted, cycle, overruns)
         r[17 + 4 * n:17 + 5 * n] = np.nan if drive_states is None else drive_states
         own = []
-        for cols, vals, ts in ((np.r_[7 + n:7 + 2 * n], l_meas, lengths_t),
-                               (np.r_[7 + 2 * n:7 + 3 * n], tau, tensions_t),
-                               (np.r_[7 + 3 * n:13 + 3 * n, 16 + 4 * n],
-                                (*pose_meas, pose_err), pose_t)):
+        enc, cells, fix = self._groups
+        for cols, vals, ts in ((enc, l_meas, lengths_t), (cells, tau, tensions_t),
+                               (fix, (*pose_meas, pose_err), pose_t)):
             ts = None if ts is None else round(ts, 9)
             if ts is None or not ts < t:
                 r[cols] = vals
             elif not np.all(np.isnan(vals)):
                 own.append((ts, cols, vals))
-        self.order.place(t, r, state, np.r_[0:len(r)])
+        self.order.place(t, r, state, self._all)
         for ts, cols, vals in own:
             s = np.full(len(r), np.nan)
             s[0], s[cols] = ts, vals

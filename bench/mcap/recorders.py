@@ -15,6 +15,7 @@ from bench.dryrun.record import (
     TimeOrder,
     columns,
     held_columns,
+    sample_groups,
 )
 from bench.mcap.can_tap import CanTap
 from bench.mcap.channels import MCAP_NAME
@@ -91,6 +92,7 @@ class SinkRecorder(DryRunRecorder):
         self.n = n_cables
         self.writer = writer
         self.order = TimeOrder(writer.append, held_columns(n_cables))
+        self._groups, self._all = sample_groups(n_cables), np.arange(len(writer.columns))
         try:
             self.tap = CanTap(can, on_frame or writer.can_frame) if can else None
         except BaseException:
