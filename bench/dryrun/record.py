@@ -27,8 +27,9 @@
 Each sensor's sample is recorded once, at the time it was taken on the loop's clock (the
 recording format's sensor streams: a row whose group is ``nan`` holds no sample of it):
 
-- encoders: on the cycle's row (the drives' positions of the SYNC the loop read: in
-  lock-step the cycle's own);
+- encoders: at the SYNC their positions answer (``Readings.lengths_t_s``: the last SYNC
+  the master sent before the drives' TPDOs came; in lock-step the cycle's own, on its row;
+  in real time usually the SYNC before, on a row of its own);
 - the tracker: a new fix only (a fix read again on a later row is not written again), at
   its own time stamp where the tracker says that is the hardware's clock
   (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step), else at
