@@ -80,7 +80,8 @@ class TrackerSpecError(ValueError):
 class TrackerReading:
     """One measurement: ``t_s`` its time on the source's clock [s] (NaN if none);
     ``pose`` (6,) F_p in F_b [m, rad] (NaN when not valid); ``valid``; ``age_s`` [s] since
-    it was received (0 for an in-process tracker, inf if nothing arrived)."""
+    it was received (first received, when sent again with its time stamp; 0 for an
+    in-process tracker, inf if nothing arrived)."""
 
     t_s: float
     pose: np.ndarray
@@ -292,7 +293,11 @@ class TcpTracker(Tracker):
                 continue
             _, t, pose, valid = m
             with self._cond:
-                self._latest = (t, pose, valid, time.monotonic())
+                # a measurement sent again (a source that holds its time stamp) keeps the
+                # time it first arrived: its age is the measurement's
+                rx = (self._latest[3] if self._latest is not None and self._latest[0] == t
+                      else time.monotonic())
+                self._latest = (t, pose, valid, rx)
                 self._received += 1
                 self._cond.notify_all()
         if not self._stop.is_set():
