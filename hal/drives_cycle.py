@@ -311,7 +311,8 @@ class CycleMixin:
         bus = self.network.bus
         # the SYNC's time, before it goes (its answers may come within send); a clock that
         # counts SYNCs moves by one period as it is sent
-        self._sync_t = self._clock() + (self.period_s if self._sync_clocked else 0.0)
+        self._sync_t = ((self._syncs + 1) * self.period_s if self._sync_clocked
+                        else self._clock())
         try:
             with self._send_lock:
                 if hasattr(bus, "send_batch"):  # one write: nothing can answer in between

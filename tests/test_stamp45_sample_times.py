@@ -37,6 +37,14 @@ def _dry_run(tmp_path: Path, seconds: float):
     (times on the loop's clock [s], poses (k, 6), measured tensions (k, n) [N])."""
     spec = load_path("paper-centre")
     with start_world(SC, WINCHES) as world:
+        read, syncs = world.hw.read, []
+
+        def reading():  # the hardware's reads: their time and that of the lengths' SYNC
+            r = read()
+            syncs.append((r.t_s, r.lengths_t_s))
+            return r
+
+        world.hw.read = reading
         loop = ControlLoop(world.hw, world.tracker, SC.truth,
                            lambda p0: build_trajectory(spec, p0),
                            LoopOptions(max_duration_s=seconds, decimate=5),
@@ -45,6 +53,12 @@ def _dry_run(tmp_path: Path, seconds: float):
         res = loop.run()
         hist = list(world.rig.history)
     assert res.ended == "completed", res.message
+    # lock-step: the drives answer each SYNC before the loop reads; its time is the read's
+    syncs = np.array(syncs)
+    answered = np.isfinite(syncs[:, 1])
+    assert answered.mean() > 0.9
+    same = syncs[answered, 1] == syncs[answered, 0]  # (not after the drives are stopped)
+    assert same.mean() > 0.99 and np.all(syncs[answered, 1] <= syncs[answered, 0])
     t = np.array([h.t_s for h in hist]) - loop._t0  # the rig's time is the drives' clock
     return (read_recording(tmp_path / "rec"), WINCHES.bus.sync_period_s, t,
             np.array([h.pose for h in hist]), np.array([h.measured_N for h in hist]))
