@@ -211,7 +211,7 @@ class SimRig:
         """The laser tracker: the plant's pose with the scenario's noise (and its own
         errors), served on ``port`` when given."""
         sc = self.scenario
-        self.tracker = SimTracker(lambda: (self.time_s(), self.last.pose),
+        self.tracker = SimTracker(self._pose_now,
                                   sc.noise.tracker_m, sc.noise.tracker_rad, seed=sc.seed + 3,
                                   truth=sc.truth)
         self.tracker_server = None if port is None else TrackerServer(
@@ -224,6 +224,7 @@ class SimRig:
         st = self.plant.state
         self.history: deque[RigRecord] = deque(maxlen=HISTORY)
         self._settle_lock = threading.Lock()  # the plant is not thread-safe
+        self._held: tuple[RigRecord | None, float] = (None, -np.inf)  # last rest read
         # the drives' quantised readings, so that the first settle is not a move (no visit)
         self._publish(0.0, self.bank.drum_lengths_m(), st)
         self.settles = 0  #: plant settles so far
@@ -295,6 +296,18 @@ class SimRig:
     def tracker_spec(self) -> str | None:
         """The simulated tracker in the HAL's ``--tracker`` form (None: in process only)."""
         return None if self.tracker_server is None else self.tracker_server.spec
+
+    def _pose_now(self) -> tuple[float, np.ndarray]:
+        """The platform's pose (6,) [m, rad] the plant holds and its time [s]: now while the
+        drums stand at the lengths it was settled for; once they moved on, the last time
+        they stood there (the settle's, or the last read at rest: the pose answers those
+        lengths, not the drums' now)."""
+        t, rec = self.time_s(), self.last
+        if float(np.max(np.abs(self.bank.drum_lengths_m() - rec.readings_m))) <= SETTLE_TOL_M:
+            self._held = (rec, t)
+            return t, rec.pose
+        held, since = self._held
+        return (max(rec.t_s, since) if held is rec else rec.t_s), rec.pose
 
     def measure_pose(self) -> tuple[float, np.ndarray, bool]:
         """A tracker measurement now: ``(t_s, pose (6,), valid)``, the plant's time and

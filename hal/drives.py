@@ -218,9 +218,11 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
     def _pick_clock(self, clock: str | Callable[[], float]) -> Callable[[], float]:
         """The master clock [s]: 'wall' (monotonic), 'sync' (SYNCs sent x period) or a callable."""
         self._wall_clock = clock == "wall"
+        self._sync_clocked = False  # the clock counts SYNCs (it moves as one is sent)
         if clock == "wall":
             return time.monotonic
         if clock == "sync":
+            self._sync_clocked = True
             return self._sync_clock
         if callable(clock):
             return clock
@@ -264,6 +266,9 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
         self._no_one = np.zeros(n, bool)
         self._lost = np.zeros(n, bool)  # TPDOs overdue: drive_lost
         self._last_tpdo_t = np.zeros(n)  # master clock of the last TPDO (or of arming)
+        self._sync_t = np.nan  # master clock of the last SYNC sent [s]
+        self._rx_sync_t = np.full(n, np.nan)  # ... before each drive's latest TPDO came
+        self._pos_t = np.full(n, np.nan)  # ... of each position in use (nan: not a TPDO's)
         self._foreign_until = np.full(n, -np.inf)  # foreign_master active until (clock)
         self._foreign_text = [""] * n
         self._foreign_bus_until = -np.inf
@@ -459,6 +464,12 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
     def positions_counts(self) -> np.ndarray:
         """Latest actual positions [counts] (0x6064), shape (n,)."""
         return self._pos.copy()
+
+    def positions_time(self) -> np.ndarray:
+        """Per drive, the master clock [s] of the SYNC its latest position answers (the last
+        SYNC sent before its TPDO came: a drive samples its position at the SYNC; nan: a
+        position not from a TPDO), shape (n,)."""
+        return self._pos_t.copy()
 
     def feedback_age(self) -> np.ndarray:
         """Per drive, the SYNCs in a row without its TPDO at the last :meth:`receive` (0: its

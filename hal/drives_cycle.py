@@ -79,6 +79,7 @@ class CycleMixin:
             counts = self._rx_count.copy()
             sw = self._rx_sw.copy()
             pos = self._rx_pos.copy()
+            pos_t = self._rx_sync_t.copy()
         fresh = counts > self._seen
         n_new = counts - self._seen
         self._seen = counts
@@ -88,6 +89,7 @@ class CycleMixin:
         self._check_pdos(fresh, n_new, expected)
         self._sw = np.where(fresh, sw, self._sw)
         self._pos = np.where(fresh, pos, self._pos)
+        self._pos_t = np.where(fresh, pos_t, self._pos_t)
         # a node its heartbeat says is outside OPERATIONAL sends no PDO: a TPDO counted now
         # was sent before it left (its statusword is old news)
         out_of_op = (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
@@ -307,6 +309,10 @@ class CycleMixin:
                              is_extended_id=False) for k in np.flatnonzero(send).tolist()]
         sync = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
         bus = self.network.bus
+        # the SYNC's time, before it goes (its answers may come within send); a clock that
+        # counts SYNCs moves by one period as it is sent
+        self._sync_t = ((self._syncs + 1) * self.period_s if self._sync_clocked
+                        else self._clock())
         try:
             with self._send_lock:
                 if hasattr(bus, "send_batch"):  # one write: nothing can answer in between

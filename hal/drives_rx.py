@@ -40,6 +40,7 @@ class ReceiveMixin:
             with self._rx:
                 self._rx_sw[k] = sw
                 self._rx_pos[k] = pos
+                self._rx_sync_t[k] = self._sync_t
                 self._rx_count[k] += 1
                 self._rx.notify_all()
 

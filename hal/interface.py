@@ -126,6 +126,8 @@ class Readings:
     tension_age_s: np.ndarray  #: age of each tension sample [s] (inf: none yet)
     tension_status: np.ndarray  #: :class:`~hal.loadcell_client.CableStatus` codes
     faults: tuple[HardwareFault, ...] = field(default=())
+    #: hardware clock [s] of the SYNC the lengths answer (the drives' median; nan: unknown)
+    lengths_t_s: float = float("nan")
 
     @property
     def enabled(self) -> np.ndarray:
@@ -148,6 +150,16 @@ class Readings:
 
     def state_names(self) -> list[str]:
         return [DriveState(int(s)).name for s in self.states]
+
+
+def _sync_time(drives) -> float:
+    """The hardware clock [s] of the SYNC the drives' positions answer: the median over the
+    drives that have one (:meth:`hal.drives.WinchDrives.positions_time`); nan when none
+    (or drives that do not say)."""
+    times = getattr(drives, "positions_time", None)
+    t = np.asarray(times(), float) if times is not None else np.zeros(0)
+    t = t[np.isfinite(t)]
+    return float(np.median(t)) if t.size else float("nan")
 
 
 def loadcell_faults(r: TensionReading) -> list[HardwareFault]:
@@ -471,7 +483,7 @@ class CanModbusHardware(WinchHardware):
             age = np.full(self.n, np.inf)
             status = np.full(self.n, int(CableStatus.NO_DATA), np.int8)
         return Readings(d.now(), d.cycle, self.cables, self._to_model(d.lengths_m()),
-                        d.states(), tensions, age, status, tuple(faults))
+                        d.states(), tensions, age, status, tuple(faults), _sync_time(d))
 
     def _raw_lengths(self) -> np.ndarray:
         return self.drives.lengths_m()

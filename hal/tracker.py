@@ -80,7 +80,8 @@ class TrackerSpecError(ValueError):
 class TrackerReading:
     """One measurement: ``t_s`` its time on the source's clock [s] (NaN if none);
     ``pose`` (6,) F_p in F_b [m, rad] (NaN when not valid); ``valid``; ``age_s`` [s] since
-    it was received (0 for an in-process tracker, inf if nothing arrived)."""
+    it was received (first received, when sent again with its time stamp; 0 for an
+    in-process tracker, inf if nothing arrived)."""
 
     t_s: float
     pose: np.ndarray
@@ -96,6 +97,10 @@ class Tracker(abc.ABC):
     """A source of measured platform poses (see the module docstring)."""
 
     name = "tracker"
+    #: whether ``t_s`` is on the hardware interface's clock (``Readings.t_s``): a
+    #: recorder then stamps a fix with it; else (a tracker's own clock, mapping unknown)
+    #: with the time it arrived
+    on_hardware_clock: bool = False
 
     def start(self, timeout_s: float = 3.0) -> Tracker:
         """Connect and wait for a first measurement (TrackerError if none within
@@ -122,12 +127,14 @@ class Tracker(abc.ABC):
 
 
 class CallableTracker(Tracker):
-    """In-process tracker: ``fn() -> (t_s, pose (6,), valid)`` is called at each read."""
+    """In-process tracker: ``fn() -> (t_s, pose (6,), valid)`` is called at each read;
+    ``on_hardware_clock``: ``fn``'s ``t_s`` is the hardware interface's clock."""
 
     def __init__(self, fn: Callable[[], tuple[float, np.ndarray, bool]],
-                 name: str = "in-process tracker") -> None:
+                 name: str = "in-process tracker", on_hardware_clock: bool = False) -> None:
         self.fn = fn
         self.name = name
+        self.on_hardware_clock = bool(on_hardware_clock)
 
     def read(self) -> TrackerReading:
         t, pose, valid = self.fn()
@@ -286,7 +293,11 @@ class TcpTracker(Tracker):
                 continue
             _, t, pose, valid = m
             with self._cond:
-                self._latest = (t, pose, valid, time.monotonic())
+                # a measurement sent again (a source that holds its time stamp) keeps the
+                # time it first arrived: its age is the measurement's
+                rx = (self._latest[3] if self._latest is not None and self._latest[0] == t
+                      else time.monotonic())
+                self._latest = (t, pose, valid, rx)
                 self._received += 1
                 self._cond.notify_all()
         if not self._stop.is_set():

@@ -121,7 +121,10 @@ def _load_example(rel: str) -> None:
         from bench.recording import read_recording
 
         rec = read_recording(path.parent)
-        assert len(rec.t) > 3 and np.isfinite(rec.tau).all() and rec.state is not None
+        assert len(rec.t) > 3 and rec.state is not None
+        for group in (rec.l_meas, rec.tau, rec.pose_meas):  # a sample whole, or none
+            have = np.isfinite(group).all(axis=1)
+            assert have.sum() > 3 and (have | np.isnan(group).all(axis=1)).all()
     elif name == "events.csv":
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))

@@ -89,7 +89,8 @@ def test_cli_json_recording_and_plots(tmp_path, capsys):
     assert out["cycles"] > 500 and out["overruns"] == 0
     assert out["recording"] == str(tmp_path / "rec")
     rec = read_recording(tmp_path / "rec")
-    assert rec.robot.name == "rocaspect" and np.isfinite(rec.pose_meas[-1]).all()
+    fix = np.isfinite(rec.pose_meas).all(axis=1)  # the tracker's fixes, each on its row
+    assert rec.robot.name == "rocaspect" and rec.t[-1] - rec.t[fix][-1] < 0.1
     assert all(Path(p).stat().st_size > 10_000 for p in out["plots"])
 
 

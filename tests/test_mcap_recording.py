@@ -139,7 +139,9 @@ def test_dry_run_format_mcap_reads_as_a_recording(tmp_path, capsys):
     for path in (rec, rec / MCAP_NAME):  # the directory or the file
         r = read_recording(path)
         assert r.path == path and r.state[0] == "init" and r.n_samples > 10
-        assert np.isfinite(r.tau).all() and np.isfinite(r.l_cmd).all()
+        have = np.isfinite(r.tau).all(axis=1)  # the load cells' samples, each on its row
+        assert have.sum() > 3 and (have | np.isnan(r.tau).all(axis=1)).all()
+        assert np.isfinite(r.l_cmd).all()
     c = read_mcap(rec)
     assert not c.truncated
     assert "dry run: completed" in c.meta_text  # the meta updated at the end is the one read

@@ -64,7 +64,7 @@ from controller.trajectory import Trajectory
 from hal.drives import NMT_START_TRIES, DriveStartupError
 from hal.drives_cia402 import ST
 from hal.interface import Readings, WinchHardware
-from hal.tracker import Tracker
+from hal.tracker import Tracker, TrackerReading
 
 #: states of the ``state`` column
 INIT, APPROACH, HOLD, QUICK_STOP, END = "init", "approach", "hold", "quick_stop", "end"
@@ -323,6 +323,7 @@ class _CycleState:
     last_state: str = ""
     last_drives: bytes = b""
     last_track_t: float = -math.inf
+    last_tau_t: float = -math.inf  # the load cells' sample recorded last [s]
     overrun: bool = False
     init_cycles: int = 0  # cycles of the initial dwell (the trajectory waits)
     measured_masts: bool = True  # the masts moved by the measured tensions (else planned)
@@ -734,20 +735,52 @@ class ControlLoop:
             return
         c.last_state, c.last_drives = c.state, drives
         tr = self.tracker.read()
-        pose_meas = _NAN6
+        pose_meas, pose_t = _NAN6, None
         err = math.nan  # the error counted on this row (recorded: the plots')
-        if tr.valid and np.all(np.isfinite(tr.pose)):
-            pose_meas = tr.pose
-            if tr.t_s > c.last_track_t and c.state not in (INIT, QUICK_STOP):
+        if tr.valid and np.all(np.isfinite(tr.pose)) and tr.t_s > c.last_track_t:
+            pose_meas, pose_t = tr.pose, self._fix_time(tr, t)  # a new fix: recorded once
+            if c.state not in (INIT, QUICK_STOP):
                 err = xt.error(tr.pose)
                 res.pose_errors += 1
                 res.pose_error_sq += err * err
                 res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
             c.last_track_t = tr.t_s
         if self.recorder is not None:
-            self.recorder.row(t, c.pose_des, c.last_sent, r.lengths_m, r.tensions_N,
+            tau, tau_t = self._new_tensions(c, r, t)
+            self.recorder.row(t, c.pose_des, c.last_sent, r.lengths_m, tau,
                               pose_meas, c.out_tensions, c.substituted, c.path_cycle,
-                              res.overruns, c.state, err, drive_states=r.states)
+                              res.overruns, c.state, err, drive_states=r.states,
+                              lengths_t=self._lengths_time(r, t), tensions_t=tau_t,
+                              pose_t=pose_t)
+
+    def _lengths_time(self, r: Readings, t: float) -> float | None:
+        """The loop's time [s] of the SYNC the drives' lengths answer (``Readings.lengths_t_s``;
+        None: not known, the row's ``t``); never after ``t``."""
+        ts = r.lengths_t_s - self._t0
+        return min(ts, t) if math.isfinite(ts) else None
+
+    def _fix_time(self, tr: TrackerReading, t: float) -> float:
+        """The loop's time [s] of the tracker's fix ``tr`` read at the loop's time ``t``:
+        its own time stamp where the tracker says it is on the hardware's clock
+        (``Tracker.on_hardware_clock``), else when it arrived (``t`` less its age); never
+        after ``t``."""
+        if getattr(self.tracker, "on_hardware_clock", False):
+            return min(t, tr.t_s - self._t0)
+        return t - max(0.0, tr.age_s) if math.isfinite(tr.age_s) else t
+
+    @staticmethod
+    def _new_tensions(c: _CycleState, r: Readings, t: float) -> tuple[np.ndarray, float]:
+        """The load cells' tensions [N] and the loop's time [s] they were sampled (``t``
+        less the mean age of the valid ones, on the hardware's clock), or ``nan`` when
+        they are the sample already recorded (no new sample: :mod:`bench.dryrun.record`)."""
+        age = r.tension_age_s[np.isfinite(r.tension_age_s)]
+        if not age.size:
+            return r.tensions_N, t
+        ts = t - float(np.mean(age))
+        if ts <= c.last_tau_t + 1e-6:  # the same sample (its age grew with t)
+            return np.full(len(r.tensions_N), np.nan), t
+        c.last_tau_t = ts
+        return r.tensions_N, min(ts, t)
 
     def _ended(self, c: _CycleState, d, r: Readings, feed: FeedRate, t: float,
                end_at: float) -> bool:

@@ -2,26 +2,45 @@
 
 ``recording.csv`` columns (the recording format's names; extra columns are allowed):
 
-- ``t`` [s] the hardware clock of the cycle;
+- ``t`` [s] the loop's clock (the hardware's, from the run's start): of the cycle on a
+  cycle's row, of the sample on a sample's row (below);
 - ``x_des`` .. ``yaw_des`` the trajectory's setpoint pose of the cycle;
 - ``l_cmd_{ij}`` [m] the lengths sent; ``l_meas_{ij}`` [m] the drives' lengths read (both in
   the encoder reference of the initialisation);
 - ``tau_{ij}`` [N] the load cells' tensions as read (``nan`` when not valid);
-- ``x_meas`` .. ``yaw_meas`` the tracker's pose (``nan`` when it has none);
+- ``x_meas`` .. ``yaw_meas`` the tracker's pose;
 - extra: ``plan_tau_{ij}`` [N] the tensions the controller planned, ``substituted`` the
   number of load cells replaced by planned tensions in the mast update, ``cycle`` the
   repetition of the path (0, 1, ...; -1 before the path starts), ``overruns`` the cycles
   that missed their deadline so far (real time), ``pose_err`` [m] the distance from the
-  tracker's fix to the commanded path on the rows where the loop counted a new fix (the
+  tracker's fix to the commanded path on the fix's row where the loop counted it (the
   numbers the summary's ``pose_error_rms_m``/``pose_error_max_m`` are made of; ``nan`` on
-  the other rows: a fix held from an earlier row, no fix, or not counted: initialisation,
-  quick stop), ``drive_state_{ij}`` the CiA 402 state of each drive as the master read it
-  on the row (:class:`hal.drives_cia402.DriveState` number: 4 Operation Enabled, 5 Quick
-  Stop Active, 7 Fault, 8 unknown, ...; ``nan`` when not given);
+  the other rows and for fixes not counted: initialisation, quick stop),
+  ``drive_state_{ij}`` the CiA 402 state of each drive as the master read it on the row
+  (:class:`hal.drives_cia402.DriveState` number: 4 Operation Enabled, 5 Quick Stop Active,
+  7 Fault, 8 unknown, ...; ``nan`` when not given);
 - ``state``: ``init`` (initialisation dwell), ``approach`` (the move from the init pose to
   the path's start), ``move``/``dwell`` (the trajectory's labels: a dwell stands at a
   target; replicate visits have equal ``*_des``), ``hold`` (feed hold), ``quick_stop``
   (drives stopped), ``end`` (final stand-still).
+
+Each sensor's sample is recorded once, at the time it was taken on the loop's clock (the
+recording format's sensor streams: a row whose group is ``nan`` holds no sample of it):
+
+- encoders: at the SYNC their positions answer (``Readings.lengths_t_s``: the last SYNC
+  the master sent before the drives' TPDOs came; in lock-step the cycle's own, on its row;
+  in real time usually the SYNC before, on a row of its own);
+- the tracker: a new fix only (a fix read again on a later row is not written again), at
+  its own time stamp where the tracker says that is the hardware's clock
+  (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step), else at
+  the time it arrived (the loop's time less ``TrackerReading.age_s``);
+- the load cells: a new sample only, at the loop's time less its age
+  (``Readings.tension_age_s``, the mean over the cables).
+
+A sample taken before its cycle is a row of its own at its time (or joins a row of that
+time) holding the controller's columns (setpoints, planned tensions, ``substituted``,
+``cycle``, ``overruns``, drive states) and the ``state`` of the row before it; rows wait
+:data:`HOLD_S` to be written in time order.
 
 ``events.csv``: ``t, device, address, cable, kind, code, reaction, active, text``: every
 supervisor condition when it starts (``active`` 1) and ends (0), the hardware's own events
@@ -32,6 +51,7 @@ directory is a valid recording up to the last flushed row.
 
 from __future__ import annotations
 
+import bisect
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +71,20 @@ def columns(robot: Robot) -> list[str]:
             + [f"{a}_meas" for a in POSE_AXES] + [f"plan_tau_{k}" for k in c]
             + ["substituted", "cycle", "overruns", "pose_err"]
             + [f"drive_state_{k}" for k in c])
+
+
+def held_columns(n: int) -> np.ndarray:
+    """The indices of :func:`columns` (``n`` cables) that hold their value from one cycle
+    to the next: the setpoints, planned tensions, ``substituted``, ``cycle``,
+    ``overruns`` and the drives' states (not the sensors' samples, not ``pose_err``)."""
+    return np.r_[1:7 + n, 13 + 3 * n:16 + 4 * n, 17 + 4 * n:17 + 5 * n]
+
+
+def sample_groups(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The indices of :func:`columns` (``n`` cables) of each sensor's sample: the encoders'
+    lengths, the load cells' tensions, the tracker's pose and its ``pose_err``."""
+    return (np.r_[7 + n:7 + 2 * n], np.r_[7 + 2 * n:7 + 3 * n],
+            np.r_[7 + 3 * n:13 + 3 * n, 16 + 4 * n])
 
 
 def event_cells(t: float, device: str, address: int, cable: str, kind: str, code: int,
@@ -159,6 +193,65 @@ class CsvRecording:
             self.events.close()
 
 
+#: [s] how long a row waits for the samples taken before it (a sample arrives after its
+#: time: a TPDO a cycle later, a tracker fix or a load cell's answer up to their staleness
+#: limits, 0.5 s for :class:`hal.tracker.TcpTracker`); a sample older than the rows
+#: already written goes into the oldest row it still can (counted: ``late_samples``)
+HOLD_S = 0.5
+
+
+class TimeOrder:
+    """Rows waiting :data:`HOLD_S` to be written in time order: the loop's cycle rows and
+    the samples stamped with their own (earlier) times. A sample at a time already held
+    joins that row where its columns are empty; a sample's own row takes the state and the
+    ``held`` columns (indices: the controller's, which hold until the next cycle) of the
+    row before it (before the first cycle row: the held columns of that one, state
+    ``init``)."""
+
+    def __init__(self, append, held: np.ndarray | None = None) -> None:
+        self.append = append  # (values, state) -> None: the writer's
+        self.held = np.zeros(0, int) if held is None else held
+        self._last: np.ndarray | None = None  # the last row written
+        self._t: list[float] = []
+        self._rows: list[tuple[np.ndarray, str | None]] = []
+        self.written_t = -np.inf  #: [s] the time of the last row written
+        self._state = "init"
+        self.late = 0  #: samples older than the rows written (moved to the oldest)
+
+    def place(self, t: float, values: np.ndarray, state: str | None,
+              cols: np.ndarray) -> None:
+        """Hold ``values`` (a whole row: nan outside the indices ``cols``) at ``t`` [s]."""
+        if t < self.written_t:
+            t, self.late = self.written_t, self.late + 1
+            values = values.copy()
+            values[0] = t
+        i = bisect.bisect_left(self._t, t)
+        while i < len(self._t) and self._t[i] == t:
+            row, st = self._rows[i]
+            if np.all(np.isnan(row[cols])):
+                row[cols] = values[cols]
+                if st is None:
+                    self._rows[i] = (row, state)
+                return
+            i += 1
+        self._t.insert(i, t)
+        self._rows.insert(i, (values.copy(), state))
+
+    def flush(self, until: float = np.inf) -> None:
+        """Write the rows held up to ``until`` [s] (all by default)."""
+        k = bisect.bisect_right(self._t, until)
+        for t, (row, state) in zip(self._t[:k], self._rows[:k], strict=True):
+            if state is None:  # a sample's own row (before the first cycle: the first's)
+                like = self._last if self._last is not None else next(
+                    (r for r, st in self._rows if st is not None), None)
+                if like is not None:
+                    row[self.held] = like[self.held]
+            self._state = state if state is not None else self._state
+            self.append(row, self._state)
+            self.written_t, self._last = t, row
+        del self._t[:k], self._rows[:k]
+
+
 class DryRunRecorder(CsvRecording):
     """Rows and events of a run into ``path`` (created; must be empty or absent)."""
 
@@ -167,25 +260,50 @@ class DryRunRecorder(CsvRecording):
         super().__init__(path, robot, init_pose, columns(robot), meta, True, flush_s,
                          robot_header)
         self.n = robot.n_cables
-        self._row = np.empty(len(self.writer.columns))
+        self.order = TimeOrder(self.writer.append, held_columns(self.n))
+        self._groups, self._all = sample_groups(self.n), np.arange(len(self.writer.columns))
 
     def row(self, t: float, pose_des: np.ndarray, l_cmd: np.ndarray, l_meas: np.ndarray,
             tau: np.ndarray, pose_meas: np.ndarray, tau_plan: np.ndarray, substituted: int,
             cycle: int, overruns: int, state: str, pose_err: float = float("nan"),
-            drive_states: np.ndarray | None = None) -> None:
-        """One row (:func:`columns`); ``drive_states``: the CiA 402 state numbers of the
-        drives in cable order (None: ``nan``)."""
-        n, r = self.n, self._row
+            drive_states: np.ndarray | None = None, lengths_t: float | None = None,
+            tensions_t: float | None = None, pose_t: float | None = None) -> None:
+        """The cycle's row at ``t`` [s] (:func:`columns`) and each sensor's sample at the
+        time it was taken on the loop's clock (``lengths_t``: the SYNC the encoders
+        answer, ``tensions_t`` the load cells' sample, ``pose_t`` the tracker's fix;
+        None: ``t``): a sample taken before ``t`` is a row of its own (the other columns
+        ``nan``), or joins a row of its time. All-``nan`` ``tau`` or ``pose_meas``: no
+        sample. ``drive_states``: the CiA 402 state numbers of the drives in cable order
+        (None: ``nan``)."""
+        n = self.n
+        t = round(t, 9)  # [s] to the nanosecond: no float noise in the file's times
+        r = np.full(len(self.writer.columns), np.nan)
         r[0] = t
         r[1:7] = pose_des
         r[7:7 + n] = l_cmd
-        r[7 + n:7 + 2 * n] = l_meas
-        r[7 + 2 * n:7 + 3 * n] = tau
-        r[7 + 3 * n:13 + 3 * n] = pose_meas
         r[13 + 3 * n:13 + 4 * n] = tau_plan
-        r[13 + 4 * n] = substituted
-        r[14 + 4 * n] = cycle
-        r[15 + 4 * n] = overruns
-        r[16 + 4 * n] = pose_err
+        r[13 + 4 * n:16 + 4 * n] = (substituted, cycle, overruns)
         r[17 + 4 * n:17 + 5 * n] = np.nan if drive_states is None else drive_states
-        self.writer.append(r, state)
+        own = []
+        enc, cells, fix = self._groups
+        for cols, vals, ts in ((enc, l_meas, lengths_t), (cells, tau, tensions_t),
+                               (fix, (*pose_meas, pose_err), pose_t)):
+            ts = None if ts is None else round(ts, 9)
+            if ts is None or not ts < t:
+                r[cols] = vals
+            elif not np.all(np.isnan(vals)):
+                own.append((ts, cols, vals))
+        self.order.place(t, r, state, self._all)
+        for ts, cols, vals in own:
+            s = np.full(len(r), np.nan)
+            s[0], s[cols] = ts, vals
+            self.order.place(ts, s, None, cols)
+        self.order.flush(t - HOLD_S)
+
+    def close(self) -> None:
+        try:
+            self.order.flush()
+            if self.order.late:
+                self.writer.update_meta(late_samples=self.order.late)
+        finally:
+            super().close()

@@ -90,7 +90,9 @@ class InProcessWorld(SimWorld):
             if not realtime:  # before the HAL starts (only boot-ups and heartbeats so far)
                 lockstep_rx.append(deliver_in_sender_thread(self.hw.drives.network))
             self.lockstep_rx = tuple(lockstep_rx)  #: frames delivered (direct, deferred)
-            self.tracker = CallableTracker(self.rig.measure_pose)
+            # lock-step: the plant's time is the drives' SYNC clock, the HAL's
+            self.tracker = CallableTracker(self.rig.measure_pose,
+                                           on_hardware_clock=not realtime)
         except BaseException:
             self.rig.close()
             raise

@@ -9,7 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.dryrun.record import CsvRecording, DryRunRecorder, columns
+from bench.dryrun.record import (
+    CsvRecording,
+    DryRunRecorder,
+    TimeOrder,
+    columns,
+    held_columns,
+    sample_groups,
+)
 from bench.mcap.can_tap import CanTap
 from bench.mcap.channels import MCAP_NAME
 from bench.mcap.writer import McapRecordingWriter
@@ -84,7 +91,8 @@ class SinkRecorder(DryRunRecorder):
     def __init__(self, writer, n_cables: int, can: str | None, on_frame=None) -> None:
         self.n = n_cables
         self.writer = writer
-        self._row = np.empty(len(writer.columns))
+        self.order = TimeOrder(writer.append, held_columns(n_cables))
+        self._groups, self._all = sample_groups(n_cables), np.arange(len(writer.columns))
         try:
             self.tap = CanTap(can, on_frame or writer.can_frame) if can else None
         except BaseException:
@@ -96,6 +104,7 @@ class SinkRecorder(DryRunRecorder):
 
     def close(self) -> None:
         try:
+            self.order.flush()
             if self.tap is not None:
                 self.tap.close()
         finally:
