@@ -233,6 +233,7 @@ def release_core() -> None:
 def terminate_workers(pool: ProcessPoolExecutor) -> None:
     """Stop a pool now: cancel what has not started and terminate its worker processes."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown forgets it
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         with contextlib.suppress(Exception):
@@ -240,6 +241,18 @@ def terminate_workers(pool: ProcessPoolExecutor) -> None:
     for p in procs:
         with contextlib.suppress(Exception):
             p.join(timeout=5)
+    _join_manager(manager)
+
+
+def _join_manager(thread: threading.Thread | None, timeout_s: float = 5.0) -> None:
+    """Wait (up to ``timeout_s``, s) for a pool's manager thread to end after its workers
+    were terminated: it closes the pool's wake-up pipe as it ends, and Python's exit hook
+    (``concurrent.futures.process._python_exit``, 3.11) writes to that pipe unlocked, so an
+    interpreter leaving while the thread still closes it prints ``OSError: Bad file
+    descriptor``. A thread that has ended leaves the pipe marked closed and the hook quiet."""
+    if thread is not None and thread.is_alive():
+        with contextlib.suppress(Exception):
+            thread.join(timeout=timeout_s)
 
 
 @contextlib.contextmanager
@@ -498,8 +511,8 @@ def _run_pool(fn, items, jobs, kw, on_start=None) -> Iterator[Outcome]:
                 pool = worker_pool(workers)
         finished = True
     finally:
-        if finished:
-            pool.shutdown(wait=False, cancel_futures=True)
+        if finished:  # every task done: the idle workers end at once, the manager thread too
+            pool.shutdown(wait=True, cancel_futures=True)
         else:  # closed early, an exception, Ctrl-C or SIGTERM: no worker goes on alone
             terminate_workers(pool)
 

@@ -192,3 +192,23 @@ def test_workers_told_to_stop_end_quietly(tmp_path, sig):
         for w in workers:
             if _alive(w):
                 os.kill(w, signal.SIGKILL)
+
+
+def _pid(_):
+    return os.getpid()
+
+
+def test_a_terminated_pool_leaves_its_wakeup_pipe_closed():
+    """After :func:`terminate_workers` the pool's manager thread has ended and closed its
+    wake-up pipe: Python's exit hook (3.11) writes to that pipe without a lock, and a
+    thread still closing it then makes the interpreter print ``Bad file descriptor``
+    (1 in ~50 of the test above)."""
+    from bench.parallel import terminate_workers, worker_pool
+
+    pool = worker_pool(2)
+    pool.submit(_pid, 0).result()
+    wakeup = pool._executor_manager_thread_wakeup
+    manager = pool._executor_manager_thread
+    terminate_workers(pool)
+    assert not manager.is_alive()
+    assert wakeup._closed
