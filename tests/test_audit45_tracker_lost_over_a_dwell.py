@@ -14,37 +14,26 @@ import shutil
 
 import numpy as np
 import pytest
+from mast_logs import mast_log
 
 from bench.chunked import read_conditioned
 from bench.diagnosis.report import diagnose
 from bench.diagnosis.samples import prepare
-from bench.logger_sim import LoggerSpec, simulate_truth, write_log
 from bench.recording import POSE_AXES
-from firmware_sim.scenario import parse_scenario
 
 pytestmark = pytest.mark.slow
 
-POSES = {"kind": "grid", "n": [2, 2, 1], "x": [8.0, 12.0], "y": [6.0, 11.0], "rpy_deg": 2.0,
-         "visits": 2, "dwell_s": 2.0, "init_s": 3.0}
-#: the paper's mast stiffness (the model's masts are rigid): poses off by about 20 mm
-STIFF = {f"k{a}_{m}": k for m in "1234" for a, k in zip("xyz", (2e5, 5e5, 3e5), strict=True)}
 #: every stream every 5 ms row but the tracker's 50 Hz, the controller's columns written
 RATES = {"rows_hz": 200.0, "encoders_hz": 200.0, "load_cells_hz": 200.0, "tracker_hz": 50.0,
          "empty": "nan", "controller_columns": True}
-PHYSICS_HZ = 10.0
 
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     """The campaign's log, and a copy whose tracker columns are empty from 1 s before to 1 s
     after the last dwell sample's time (its visit is the second of its target)."""
-    sc = parse_scenario({"format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 45,
-                         "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
-                         "nuisance": {"hysteresis_m": 1e-4, "drift_m_per_h": 5e-5},
-                         "poses": POSES, "truth": {"mast_compliance": STIFF}})
     base = tmp_path_factory.mktemp("lost")
-    whole = write_log(base / "whole", sc, LoggerSpec(physics_hz=PHYSICS_HZ, **RATES),
-                      simulate_truth(sc, PHYSICS_HZ))
+    whole = mast_log(base / "whole", 45, RATES)
     s = prepare(read_conditioned(whole)[0])
     last = float(s.t[(s.kind == 0) & ~s.is_init].max())
     lost = base / "lost"

@@ -9,26 +9,13 @@ import copy
 
 import numpy as np
 import pytest
-
-from bench.campaign import run_campaign
-from bench.diagnosis.residuals import ResidualModel
-from bench.diagnosis.samples import prepare
-from bench.recording import read_recording
-from firmware_sim.scenario import parse_scenario
+from residual_models import campaign_residual_model
 
 
 @pytest.fixture(scope="module")
 def sagging(tmp_path_factory):
-    sc = parse_scenario({
-        "format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 5,
-        "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
-        "truth": {"cable_sag": {"rho": 0.08}},
-        "poses": copy.deepcopy({"kind": "grid", "n": [3, 2, 1], "rpy_deg": 1.0, "visits": 2})})
-    rec = read_recording(run_campaign(sc, tmp_path_factory.mktemp("rec") / "rec"))
-    s = prepare(rec)
-    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
-    rm.estimate_noise(rec.robot)
-    return rm
+    return campaign_residual_model(tmp_path_factory.mktemp("rec") / "rec",
+                                   {"cable_sag": {"rho": 0.08}})
 
 
 def test_a_reading_no_catenary_can_hang_at_is_one_sided(sagging):

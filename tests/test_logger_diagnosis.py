@@ -9,34 +9,22 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from mast_logs import mast_log
 
 from bench.chunked import read_conditioned
 from bench.diagnosis.report import diagnose
 from bench.diagnosis.samples import prepare
-from bench.logger_sim import LoggerSpec, simulate_truth, write_log
-from firmware_sim.scenario import parse_scenario
 
 pytestmark = pytest.mark.slow
 
-POSES = {"kind": "grid", "n": [2, 2, 1], "x": [8.0, 12.0], "y": [6.0, 11.0], "rpy_deg": 2.0,
-         "visits": 2, "dwell_s": 2.0, "init_s": 3.0}
-#: the paper's mast stiffness (the model's masts are rigid)
-STIFF = {f"k{a}_{m}": k for m in "1234" for a, k in zip("xyz", (2e5, 5e5, 3e5), strict=True)}
 #: encoders every 5 ms row, load cells at 25 Hz (the slowest: the rows' instants), tracker 50 Hz
 RATES = {"rows_hz": 200.0, "encoders_hz": 200.0, "load_cells_hz": 25.0, "tracker_hz": 50.0,
          "empty": "nan", "controller_columns": False}
-PHYSICS_HZ = 10.0
 
 
 @pytest.fixture(scope="module")
 def log(tmp_path_factory):
-    sc = parse_scenario({"format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 31,
-                         "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
-                         "nuisance": {"hysteresis_m": 1e-4, "drift_m_per_h": 5e-5},
-                         "poses": POSES, "truth": {"mast_compliance": STIFF}})
-    d = tmp_path_factory.mktemp("mast") / "rec"
-    return write_log(d, sc, LoggerSpec(physics_hz=PHYSICS_HZ, **RATES),
-                     simulate_truth(sc, PHYSICS_HZ))
+    return mast_log(tmp_path_factory.mktemp("mast") / "rec", 31, RATES)
 
 
 def test_every_dwell_sample_of_a_tracked_log_has_a_pose(log):

@@ -14,6 +14,7 @@ from concurrent.futures import Future
 
 import numpy as np
 import pytest
+from residual_models import campaign_residual_model
 
 import bench.diagnosis.fit as fit_module
 from bench.campaign import run_campaign
@@ -106,16 +107,9 @@ def test_a_prefetch_leaves_what_the_selection_keeps_and_fit_answers_as_without_a
 def sagging(tmp_path_factory) -> ResidualModel:
     """The residual model of a recording of ROCASPECT with sagging cables (load cells, a
     tracker)."""
-    sc = parse_scenario({
-        "format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 5,
-        "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
-        "truth": {"cable_sag": {"rho": 0.08}, "exit_point_offset": {"dx_21": 0.02}},
-        "poses": {"kind": "grid", "n": [3, 2, 1], "rpy_deg": 1.0, "visits": 2}})
-    rec = read_recording(run_campaign(sc, tmp_path_factory.mktemp("sag") / "rec"))
-    s = prepare(rec)
-    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
-    rm.estimate_noise(rec.robot)
-    return rm
+    return campaign_residual_model(tmp_path_factory.mktemp("sag") / "rec",
+                                   {"cable_sag": {"rho": 0.08},
+                                    "exit_point_offset": {"dx_21": 0.02}})
 
 
 def test_a_jacobian_column_is_the_same_after_the_others_or_alone(sagging):
