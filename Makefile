@@ -5,7 +5,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-deep coverage lint bench benchmarks docs docs-images clean
+.PHONY: demo test test-cases test-deep coverage lint bench benchmarks docs docs-images clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -31,6 +31,11 @@ demo: $(STAMP)
 # that a module's fixtures are computed once.
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
+
+# Whole diagnoses of single hard evaluation cases (marker `cases`, 20-40 s each, left out of
+# `make test` to keep it under 10 minutes); CI runs them after `make test`.
+test-cases: $(STAMP)
+	$(PY) -m pytest -q -n 2 -m cases --durations=5
 
 # The coverage of the diagnosis's 95 % intervals per effect kind of the vocabulary, every kind
 # on its recording classes (marker `coverage`, left out of `make test`; ~20 CPU-min).

@@ -14,8 +14,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
+
+#: a whole diagnosis of one hard evaluation case (make test-cases; CI runs it after make test)
+pytestmark = pytest.mark.cases
 
 SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "continuous_no_tracker_cells_mass_cogiro_11486.json")

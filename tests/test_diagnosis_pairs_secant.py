@@ -13,10 +13,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from bench.diagnosis.fit import FitResult
 from bench.diagnosis.report import diagnose
 from bench.diagnosis.select import Selector
 from bench.evaluate import one_blas_thread
+
+#: a whole diagnosis of one hard evaluation case (make test-cases; CI runs it after make test)
+pytestmark = pytest.mark.cases
 
 SCENARIO = Path(__file__).parent / "data" / "scenarios" / "sag_and_ea_continuous_10923.json"
 

@@ -13,10 +13,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
 from firmware_sim.scenario import parse_scenario
+
+#: a whole diagnosis of one hard evaluation case (make test-cases; CI runs it after make test)
+pytestmark = pytest.mark.cases
 
 SCENARIO = (Path(__file__).parent / "data" / "scenarios"
             / "whole_gauge_cogiro_no_tracker_11575.json")
