@@ -412,6 +412,8 @@ class ControlLoop:
         self.trajectory = traj
         if self.open_recorder is not None:
             self.recorder = self.open_recorder(p0)
+            # where t = 0 is on the hardware's clock: the recording aligned with other logs
+            self.recorder.update_meta(clock_origin_s=round(self._t0, 9))
         t = hw.read().t_s - self._t0
         if not ok.all():
             bad = [hw.cables[k] for k in np.flatnonzero(~ok)]
