@@ -114,6 +114,8 @@ def test_across_processes_each_stamp_is_the_time_of_the_sync_latched_at(tmp_path
                            lambda p0: DryRunRecorder(tmp_path / "rec", SC.truth, p0, {}),
                            tick=world.tick)
         res = loop.run()
+        # the sim's tracker stamps on the drives' clock and says so (cdpr-tracker/1.1)
+        assert world.tracker.clock == "drives" and world.tracker.on_hardware_clock
     assert res.ended == "completed", res.message
     err, unclear = stamp_errors(tmp_path / "rec", read_latch_log(log), WINCHES)
     assert err.size > 100, (err.size, unclear)

@@ -764,11 +764,17 @@ class ControlLoop:
     def _fix_time(self, tr: TrackerReading, t: float) -> float:
         """The loop's time [s] of the tracker's fix ``tr`` read at the loop's time ``t``:
         its own time stamp where the tracker says it is on the hardware's clock
-        (``Tracker.on_hardware_clock``), else when it arrived (``t`` less its age); never
-        after ``t``."""
+        (``Tracker.on_hardware_clock``) and that stamp is not after ``t`` (a stamp ahead
+        of the read is on another clock: drives that counted another master's SYNCs), else
+        ``t`` less the time since it was taken (``taken_age_s``: a tracker on its own clock
+        with an estimated offset) or, where that is not known, since it arrived
+        (``age_s``); never after ``t``."""
         if getattr(self.tracker, "on_hardware_clock", False):
-            return min(t, tr.t_s - self._t0)
-        return t - max(0.0, tr.age_s) if math.isfinite(tr.age_s) else t
+            ts = tr.t_s - self._t0
+            if ts <= t + 1e-9:  # [s] the times' rounding
+                return min(t, ts)
+        age = tr.taken_age_s if math.isfinite(tr.taken_age_s) else tr.age_s
+        return t - max(0.0, age) if math.isfinite(age) else t
 
     @staticmethod
     def _new_tensions(c: _CycleState, r: Readings, t: float) -> tuple[np.ndarray, float]:
