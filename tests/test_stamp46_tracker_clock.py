@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bench.dryrun.loop import ControlLoop
+from bench.dryrun.record import SampleTimes
 from firmware_sim.rig import SimRig
 from firmware_sim.tracker_sim import TrackerServer
 from hal.tracker import (
@@ -129,11 +129,11 @@ def test_drives_clock_time_stamps_are_the_hardwares():
             assert tr.clock == "drives" and tr.on_hardware_clock and math.isnan(r.taken_age_s)
         finally:
             tr.close()
-    # the loop records such a fix at its time stamp, unless that is ahead of its clock
-    loop = SimpleNamespace(tracker=SimpleNamespace(on_hardware_clock=True), _t0=1.0)
+    # the recording places such a fix at its time stamp, unless that is ahead of its clock
     fix = TrackerReading(2.5, POSE, True, 0.01)
-    assert ControlLoop._fix_time(loop, fix, 1.6) == pytest.approx(1.5)
-    assert ControlLoop._fix_time(loop, fix, 1.2) == pytest.approx(1.19)  # another clock
+    on_drives = SimpleNamespace(on_hardware_clock=True)
+    assert SampleTimes(1.0, on_drives).fix(fix, 1.6) == pytest.approx(1.5)
+    assert SampleTimes(1.0, on_drives).fix(fix, 1.2) == pytest.approx(1.19)  # another clock
 
 
 def test_own_clock_fixes_are_timed_by_the_estimated_offset_never_early():
