@@ -111,7 +111,8 @@ class Tracker(abc.ABC):
 
     name = "tracker"
     #: whether ``t_s`` is on the hardware interface's clock (``Readings.t_s``): a
-    #: recorder then stamps a fix with it; else (a tracker's own clock, mapping unknown)
+    #: recorder then stamps a fix with it; else (a tracker's own clock) with the time it
+    #: was taken where the offset is estimated (``TrackerReading.taken_age_s``), else
     #: with the time it arrived
     on_hardware_clock: bool = False
 

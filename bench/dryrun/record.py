@@ -28,12 +28,16 @@ Each sensor's sample is recorded once, at the time it was taken on the loop's cl
 recording format's sensor streams: a row whose group is ``nan`` holds no sample of it):
 
 - encoders: at the SYNC their positions answer (``Readings.lengths_t_s``: the last SYNC
-  the master sent before the drives' TPDOs came; in lock-step the cycle's own, on its row;
-  in real time usually the SYNC before, on a row of its own);
+  the master sent before the drives' TPDOs came, by the frames' time stamps where the bus
+  gives them; in lock-step the cycle's own, on its row; in real time usually the SYNC
+  before, on a row of its own);
 - the tracker: a new fix only (a fix read again on a later row is not written again), at
   its own time stamp where the tracker says that is the hardware's clock
-  (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step), else at
-  the time it arrived (the loop's time less ``TrackerReading.age_s``);
+  (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step, a
+  ``cdpr-tracker/1.1`` tracker greeting with ``clock=drives``), else at the time it was
+  taken where the tracker's clock is its own with an estimated offset
+  (``TrackerReading.taken_age_s``, ``clock=own``), else at the time it arrived (the loop's
+  time less ``TrackerReading.age_s``);
 - the load cells: a new sample only, at the loop's time less its age
   (``Readings.tension_age_s``, the mean over the cables).
 
