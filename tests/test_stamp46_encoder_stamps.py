@@ -16,7 +16,7 @@ of meta.toml: the hardware's clock at t = 0).
   SYNC after it, rarely).
 - Across processes (``cdpr sim --write-site`` and the dry run on that site, lock-step on the
   SYNC clock, where the drives' clock is the master's SYNC count): every stamp equals its
-  latch's time.
+  latch's time (tests/test_dryrun_site.py, on its first dry run).
 - The master's rule (``hal.drives_rx.ReceiveMixin._sync_answered``): a TPDO answers the last
   SYNC sent before its frame's time stamp, not before the master's receive thread handled
   it (in process, in real time under load: stamps after their latch 1.3-1.7 % -> 0.7-0.8 %,
@@ -108,26 +108,6 @@ def test_in_real_time_each_encoder_sample_is_stamped_at_its_sync_not_its_arrival
     # SYNC, stamp <= latch; at the arrival, stamp > latch for every sample
     assert np.median(err) <= 0.0, np.percentile(err, [1, 50, 99])
     assert np.mean(err <= 1e-6) > 0.5, np.percentile(err, [1, 50, 99])  # 1 us: the file's
-
-
-def test_across_processes_each_stamp_is_the_time_of_the_sync_latched_at(tmp_path):
-    spec = load_path("paper-centre")
-    log = tmp_path / "latches.csv"
-    with start_world(SC, WINCHES, kind="process", sim_args=("--latch-log", str(log))
-                     ) as world:
-        loop = ControlLoop(world.hw, world.tracker, SC.truth,
-                           lambda p0: build_trajectory(spec, p0),
-                           LoopOptions(max_duration_s=2.0, decimate=1),
-                           lambda p0: DryRunRecorder(tmp_path / "rec", SC.truth, p0, {}),
-                           tick=world.tick)
-        res = loop.run()
-        # the sim's tracker stamps on the drives' clock and says so (cdpr-tracker/1.1)
-        assert world.tracker.clock == "drives" and world.tracker.on_hardware_clock
-    assert res.ended == "completed", res.message
-    err, unclear = stamp_errors(tmp_path / "rec", read_latch_log(log), WINCHES)
-    assert err.size > 100, (err.size, unclear)
-    # the drives' clock is the master's SYNC count: a stamp is its SYNC's time exactly
-    assert np.all(np.abs(err) < 1e-6), np.unique(np.round(err / WINCHES.bus.sync_period_s))
 
 
 def test_a_tpdo_handled_after_the_next_sync_answers_the_sync_before_its_time_stamp():
