@@ -57,7 +57,7 @@ class ReceiveMixin:
         within the SYNCs kept and now is on another clock (a bus's hardware clock) or too
         old: then the last SYNC sent as the frame is handled."""
         sent = self._sync_sent
-        if not sent or not sent[0][0] <= timestamp <= time.time():
+        if not sent or timestamp is None or not sent[0][0] <= timestamp <= time.time():
             return self._sync_t
         for wall, sync_t in reversed(sent):
             if wall <= timestamp:
