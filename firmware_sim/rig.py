@@ -209,13 +209,16 @@ class SimRig:
 
     def _make_tracker(self, port: int | None, host: str, rate_hz: float) -> None:
         """The laser tracker: the plant's pose with the scenario's noise (and its own
-        errors), served on ``port`` when given."""
+        errors), served on ``port`` when given; its time stamps are the plant's time, which
+        is the drives' clock on the SYNC clock (the greeting says ``clock=drives``) and the
+        rig's own on the wall clock (``clock=own``: since the rig was made)."""
         sc = self.scenario
         self.tracker = SimTracker(self._pose_now,
                                   sc.noise.tracker_m, sc.noise.tracker_rad, seed=sc.seed + 3,
                                   truth=sc.truth)
         self.tracker_server = None if port is None else TrackerServer(
-            self.tracker.measure, host=host, port=port, rate_hz=rate_hz)
+            self.tracker.measure, host=host, port=port, rate_hz=rate_hz,
+            clock="drives" if self.clock == "sync" else "own")
 
     def _first_rest(self) -> None:
         """The plant's state and history, settled once at the drives' quantised readings."""

@@ -16,7 +16,12 @@ not import hal, nor hal firmware_sim). ASCII lines ending in ``\\n`` over TCP:
 
 - on connect the server sends one greeting line::
 
-      CDPR-TRACKER/1 rate_hz=200 frame=F_b units=m,rad
+      CDPR-TRACKER/1.1 rate_hz=200 frame=F_b units=m,rad clock=drives
+
+  (version 1.1; ``clock``: whose clock ``t_s`` is on, ``drives`` (the drives' clock: the
+  rig's plant time on the SYNC clock) or ``own`` (the tracker's own; a client estimates
+  the offset); a server not told its clock greets as version 1,
+  ``CDPR-TRACKER/1 rate_hz=200 frame=F_b units=m,rad``, and fixes are timed by arrival)
 
 - the client subscribes by sending ``SUBSCRIBE``; from then on the server sends one
   measurement line per period (``rate_hz`` on the wall clock, the same measurement to
@@ -52,6 +57,10 @@ from controller.robot import Robot
 log = logging.getLogger(__name__)
 
 PROTOCOL = "CDPR-TRACKER/1"
+#: the version a server that says its clock greets with (1.1: the greeting's ``clock``)
+PROTOCOL_CLOCK = "CDPR-TRACKER/1.1"
+#: the greeting's ``clock`` values (1.1): ``t_s`` on the drives' clock, or on the tracker's
+CLOCKS = ("drives", "own")
 DEFAULT_RATE_HZ = 200.0
 _MAX_LINE = 1024
 
@@ -182,13 +191,18 @@ class TrackerServer:
     """Serves a :class:`SimTracker` (or any ``() -> (t_s, pose, valid)``) over TCP with
     the ``cdpr-tracker/1`` protocol (module docstring) at ``rate_hz`` measurements per
     second. ``port`` 0 takes any free port; :attr:`address`, :attr:`spec`
-    (``tcp:HOST:PORT``, the HAL's ``--tracker`` form)."""
+    (``tcp:HOST:PORT``, the HAL's ``--tracker`` form). ``clock`` (:data:`CLOCKS`): whose
+    clock the time stamps are on, said in a version 1.1 greeting; None: a version 1
+    greeting, which does not say."""
 
     def __init__(self, tracker: Callable[[], tuple[float, np.ndarray, bool]],
                  host: str = "127.0.0.1", port: int = 0,
-                 rate_hz: float = DEFAULT_RATE_HZ) -> None:
+                 rate_hz: float = DEFAULT_RATE_HZ, clock: str | None = None) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        if clock is not None and clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {', '.join(CLOCKS)} or None, got {clock!r}")
+        self.clock = clock
         self.tracker = tracker
         self.rate_hz = float(rate_hz)
         self._sock = socket.create_server((host, port), reuse_port=False)
@@ -235,6 +249,13 @@ class TrackerServer:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def greeting(self) -> str:
+        """The greeting line (version 1.1 with ``clock``, else version 1)."""
+        head = (f"{PROTOCOL} rate_hz={self.rate_hz:g} frame=F_b units=m,rad" if self.clock is None
+                else f"{PROTOCOL_CLOCK} rate_hz={self.rate_hz:g} frame=F_b units=m,rad "
+                     f"clock={self.clock}")
+        return head + "\n"
+
     @property
     def n_clients(self) -> int:
         with self._clients_lock:
@@ -260,7 +281,7 @@ class TrackerServer:
             sock.settimeout(1.0)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             client = _Client(sock, addr)
-            greeting = (f"{PROTOCOL} rate_hz={self.rate_hz:g} frame=F_b units=m,rad\n")
+            greeting = self.greeting()
             if not client.send(greeting.encode("ascii")):
                 client.close()
                 continue
@@ -335,4 +356,5 @@ class TrackerServer:
             self._stop.wait(max(0.0, nxt - now))
 
 
-__all__ = ["DEFAULT_RATE_HZ", "PROTOCOL", "SimTracker", "TrackerServer", "format_measurement"]
+__all__ = ["CLOCKS", "DEFAULT_RATE_HZ", "PROTOCOL", "PROTOCOL_CLOCK", "SimTracker",
+           "TrackerServer", "format_measurement"]

@@ -268,6 +268,8 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
         self._last_tpdo_t = np.zeros(n)  # master clock of the last TPDO (or of arming)
         self._sync_t = np.nan  # master clock of the last SYNC sent [s]
         self._rx_sync_t = np.full(n, np.nan)  # ... before each drive's latest TPDO came
+        #: the last SYNCs sent: (time.time() as it went, the frames' clock; master clock)
+        self._sync_sent: tuple[tuple[float, float], ...] = ()
         self._pos_t = np.full(n, np.nan)  # ... of each position in use (nan: not a TPDO's)
         self._foreign_until = np.full(n, -np.inf)  # foreign_master active until (clock)
         self._foreign_text = [""] * n
@@ -467,8 +469,9 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
 
     def positions_time(self) -> np.ndarray:
         """Per drive, the master clock [s] of the SYNC its latest position answers (the last
-        SYNC sent before its TPDO came: a drive samples its position at the SYNC; nan: a
-        position not from a TPDO), shape (n,)."""
+        SYNC sent before its TPDO came, by the frame's time stamp where the bus gives one on
+        this host's clock, else by when the master handled it: a drive samples its position
+        at the SYNC; nan: a position not from a TPDO), shape (n,)."""
         return self._pos_t.copy()
 
     def feedback_age(self) -> np.ndarray:

@@ -313,6 +313,8 @@ class CycleMixin:
         # counts SYNCs moves by one period as it is sent
         self._sync_t = ((self._syncs + 1) * self.period_s if self._sync_clocked
                         else self._clock())
+        kept = self._sync_sent[-self.tpdo_deadline_cycles:]  # a TPDO later than these: lost
+        self._sync_sent = (*kept, (time.time(), self._sync_t))  # one assignment: atomic
         try:
             with self._send_lock:
                 if hasattr(bus, "send_batch"):  # one write: nothing can answer in between

@@ -5,6 +5,8 @@ the event history the cycle drains it into.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from hal.drives_base import (
@@ -37,14 +39,30 @@ class ReceiveMixin:
                 self._queue.append(("short", k, len(data)))
                 return
             sw, pos = self._tpdo.unpack_from(data)
+            sync_t = self._sync_answered(timestamp)
             with self._rx:
                 self._rx_sw[k] = sw
                 self._rx_pos[k] = pos
-                self._rx_sync_t[k] = self._sync_t
+                self._rx_sync_t[k] = sync_t
                 self._rx_count[k] += 1
                 self._rx.notify_all()
 
         return cb
+
+    def _sync_answered(self, timestamp: float) -> float:
+        """The master clock [s] of the SYNC a TPDO received at ``timestamp`` answers: the
+        last SYNC sent before the frame came (its time stamp: the sender's or the kernel's,
+        on ``time.time()``'s clock), so that a frame handled after the next SYNC went out
+        (the master's receive thread was late) still answers its own. A time stamp not
+        within the SYNCs kept and now is on another clock (a bus's hardware clock) or too
+        old: then the last SYNC sent as the frame is handled."""
+        sent = self._sync_sent
+        if not sent or timestamp is None or not sent[0][0] <= timestamp <= time.time():
+            return self._sync_t
+        for wall, sync_t in reversed(sent):
+            if wall <= timestamp:
+                return sync_t
+        return self._sync_t
 
     def _heartbeat_cb(self, k: int):
         def cb(can_id: int, data: bytearray, timestamp: float) -> None:

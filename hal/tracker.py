@@ -23,10 +23,16 @@ Implementations:
 
 The protocol (the contract with ``firmware_sim/tracker_sim.py``; hal does not import
 firmware_sim, nor firmware_sim hal): ASCII lines over TCP. The server greets with
-``CDPR-TRACKER/1 rate_hz=R frame=F_b units=m,rad``; the client sends ``SUBSCRIBE``; the
-server then sends ``P <seq> <t_s> <x> <y> <z> <roll> <pitch> <yaw> <valid>`` per
-measurement (``valid`` 1/0, ``nan`` pose when invalid). ``UNSUBSCRIBE``, ``PING``
-(-> ``PONG``), ``QUIT`` are the other commands.
+``CDPR-TRACKER/1 rate_hz=R frame=F_b units=m,rad`` (version 1.1:
+``CDPR-TRACKER/1.1 rate_hz=R frame=F_b units=m,rad clock=C``, :func:`parse_greeting`); the
+client sends ``SUBSCRIBE``; the server then sends
+``P <seq> <t_s> <x> <y> <z> <roll> <pitch> <yaw> <valid>`` per measurement (``valid`` 1/0,
+``nan`` pose when invalid). ``UNSUBSCRIBE``, ``PING`` (-> ``PONG``), ``QUIT`` are the other
+commands. Whose clock ``t_s`` is on (the greeting's ``clock``, :data:`CLOCKS`): ``drives``,
+the clock of the drives the controller commands (:attr:`Tracker.on_hardware_clock`);
+``own``, the tracker's own, whose offset to the receiver's clock the client estimates
+(:class:`ClockOffset`, :attr:`TrackerReading.taken_age_s`); not said (version 1): a fix is
+timed by its arrival.
 
 A real tracker plugs in behind :class:`Tracker`. A driver for a Leica AT960-class
 tracker (6-DoF with a T-Mac or T-Frame probe on the platform, through Leica's LMF/emScon
@@ -57,6 +63,7 @@ import math
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -64,7 +71,10 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-PROTOCOL = "CDPR-TRACKER/1"
+PROTOCOL = "CDPR-TRACKER/1"  #: the protocol's name and major version (the greeting's start)
+VERSION = (1, 1)  #: the newest version this client reads (1.1: the greeting's ``clock``)
+#: the greeting's ``clock`` (version 1.1): ``t_s`` on the drives' clock, or the tracker's own
+CLOCKS = ("drives", "own")
 _FORMS = "tcp:HOST:PORT or none"
 
 
@@ -81,12 +91,15 @@ class TrackerReading:
     """One measurement: ``t_s`` its time on the source's clock [s] (NaN if none);
     ``pose`` (6,) F_p in F_b [m, rad] (NaN when not valid); ``valid``; ``age_s`` [s] since
     it was received (first received, when sent again with its time stamp; 0 for an
-    in-process tracker, inf if nothing arrived)."""
+    in-process tracker, inf if nothing arrived); ``taken_age_s`` [s] since it was taken, on
+    the receiver's clock, where the source's clock is its own and the offset is estimated
+    (``clock=own``, :class:`ClockOffset`; NaN otherwise)."""
 
     t_s: float
     pose: np.ndarray
     valid: bool
     age_s: float
+    taken_age_s: float = math.nan
 
 
 def _nothing(age: float = math.inf, t: float = math.nan) -> TrackerReading:
@@ -98,7 +111,8 @@ class Tracker(abc.ABC):
 
     name = "tracker"
     #: whether ``t_s`` is on the hardware interface's clock (``Readings.t_s``): a
-    #: recorder then stamps a fix with it; else (a tracker's own clock, mapping unknown)
+    #: recorder then stamps a fix with it; else (a tracker's own clock) with the time it
+    #: was taken where the offset is estimated (``TrackerReading.taken_age_s``), else
     #: with the time it arrived
     on_hardware_clock: bool = False
 
@@ -147,6 +161,62 @@ class CallableTracker(Tracker):
         return self.read()
 
 
+@dataclass(frozen=True)
+class Greeting:
+    """A server's greeting: ``version`` (major, minor), its ``key=value`` ``fields``
+    (unknown keys kept: a later minor version may add some) and ``clock`` (one of
+    :data:`CLOCKS`; None: not said, or a value this client does not know)."""
+
+    version: tuple[int, int]
+    fields: dict[str, str]
+
+    @property
+    def clock(self) -> str | None:
+        c = self.fields.get("clock")
+        return c if c in CLOCKS else None
+
+
+def parse_greeting(line: str) -> Greeting | None:
+    """The greeting ``CDPR-TRACKER/1[.N] key=value ...``, or None when it is not one of
+    this protocol (another name or major version)."""
+    head, *rest = line.split() or [""]
+    name, sep, ver = head.partition("/")
+    major, _, minor = ver.partition(".")
+    if f"{name}{sep}{major}" != PROTOCOL or not (minor.isdigit() or minor == ""):
+        return None
+    fields = dict(kv.split("=", 1) for kv in rest if "=" in kv)
+    return Greeting((int(major), int(minor or 0)), fields)
+
+
+class ClockOffset:
+    """The offset [s] of a source's own clock to the receiver's, from the fixes' time stamps
+    ``t_s`` and their arrival times ``rx`` [s]: ``rx - t_s`` is the offset plus the fix's
+    delay (>= 0), so its minimum over the last :attr:`WINDOW_S` is the offset plus the
+    shortest delay seen (the minimum-delay filter of clock synchronisation): fixes placed
+    with it are late by no more than their own delay, early never."""
+
+    #: [s] a quartz clock drifts up to ~100 ppm: over 10 s the offset moves by <= 1 ms, a
+    #: quarter of a 256 Hz control period
+    WINDOW_S = 10.0
+
+    def __init__(self) -> None:
+        self._seen: deque[tuple[float, float]] = deque()  # (rx, rx - t_s), rising in the 2nd
+
+    def add(self, t_s: float, rx: float) -> None:
+        """A fix taken at ``t_s`` (source's clock) received at ``rx`` (receiver's) [s]."""
+        d = rx - t_s
+        while self._seen and self._seen[-1][1] >= d:
+            self._seen.pop()
+        self._seen.append((rx, d))
+        while self._seen[0][0] < rx - self.WINDOW_S:
+            self._seen.popleft()
+
+    @property
+    def offset_s(self) -> float:
+        """The receiver's clock less the source's [s] (NaN before a fix)."""
+        return self._seen[0][1] if self._seen else math.nan
+
+
 def parse_line(line: str) -> tuple[int, float, np.ndarray, bool] | None:
     """``(seq, t_s, pose, valid)`` of a protocol ``P`` line, or None if it is not one."""
     parts = line.split()
@@ -171,7 +241,10 @@ class TcpTracker(Tracker):
     subscribes, keeps the latest measurement and reconnects (every ``retry_s`` [s]) when
     the connection drops. :meth:`read` returns ``valid=False`` with a NaN pose when
     nothing arrived yet or the latest measurement was received more than ``stale_s`` [s]
-    ago (``t_s`` and ``age_s`` still say which and how old)."""
+    ago (``t_s`` and ``age_s`` still say which and how old). The server's greeting says
+    whose clock ``t_s`` is on (:attr:`clock`): ``drives`` sets :attr:`on_hardware_clock`;
+    ``own`` makes :meth:`read` give ``taken_age_s`` (:class:`ClockOffset`, estimated anew
+    on each connection)."""
 
     def __init__(self, host: str, port: int, stale_s: float = 0.5, retry_s: float = 0.2,
                  connect_timeout_s: float = 2.0) -> None:
@@ -190,6 +263,8 @@ class TcpTracker(Tracker):
         self.connects = 0  #: connections made so far (1 + reconnects)
         self.bad_lines = 0  #: lines that were not understood
         self.last_error = ""  #: why the last connection failed or ended
+        self.clock: str | None = None  #: the server's clock (:data:`CLOCKS`; None: not said)
+        self._offset = ClockOffset()
 
     # ------------------------------------------------------------------ life cycle
 
@@ -231,10 +306,12 @@ class TcpTracker(Tracker):
         if latest is None:
             return _nothing()
         t, pose, valid, rx = latest
-        age = time.monotonic() - rx
+        now = time.monotonic()
+        age = now - rx
         if not valid or age > self.stale_s:
             return _nothing(age, t)
-        return TrackerReading(t, pose.copy(), True, age)
+        taken = now - (t + self._offset.offset_s) if self.clock == "own" else math.nan
+        return TrackerReading(t, pose.copy(), True, age, taken)
 
     def wait_fresh(self, timeout_s: float) -> TrackerReading:
         deadline = time.monotonic() + timeout_s
@@ -277,8 +354,13 @@ class TcpTracker(Tracker):
         greeting = next(lines, None)
         if greeting is None:
             raise TrackerError("connection closed before the greeting")
-        if not greeting.startswith(PROTOCOL):
+        hello = parse_greeting(greeting)
+        if hello is None:
             raise TrackerError(f"not a {PROTOCOL} server: {greeting[:60]!r}")
+        with self._cond:
+            self.clock = hello.clock
+            self.on_hardware_clock = hello.clock == "drives"
+            self._offset = ClockOffset()
         sock.sendall(b"SUBSCRIBE\n")
         self.connected = True
         self.connects += 1
@@ -295,8 +377,10 @@ class TcpTracker(Tracker):
             with self._cond:
                 # a measurement sent again (a source that holds its time stamp) keeps the
                 # time it first arrived: its age is the measurement's
-                rx = (self._latest[3] if self._latest is not None and self._latest[0] == t
-                      else time.monotonic())
+                again = self._latest is not None and self._latest[0] == t
+                rx = self._latest[3] if again else time.monotonic()
+                if not again and self.clock == "own" and math.isfinite(t):
+                    self._offset.add(t, rx)
                 self._latest = (t, pose, valid, rx)
                 self._received += 1
                 self._cond.notify_all()
@@ -400,7 +484,8 @@ def add_tracker_argument(parser: argparse.ArgumentParser, default: str = "none")
 
 
 __all__ = [
-    "CallableTracker", "TcpTracker", "Tracker", "TrackerError", "TrackerReading",
+    "CLOCKS", "CallableTracker", "ClockOffset", "Greeting", "TcpTracker", "Tracker",
+    "TrackerError", "TrackerReading",
     "TrackerSpec", "TrackerSpecError", "add_tracker_argument", "open_tracker",
-    "parse_line", "parse_tracker_spec",
+    "parse_greeting", "parse_line", "parse_tracker_spec",
 ]

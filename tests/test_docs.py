@@ -187,12 +187,13 @@ def _check_report(report: dict) -> None:
 
 
 def _check_tracker_session(lines: list[str]) -> None:
-    from hal.tracker import PROTOCOL, parse_line
+    from hal.tracker import parse_greeting, parse_line
 
     server = [s[2:] for s in lines if s.startswith("< ")]
     client = [s[2:] for s in lines if s.startswith("> ")]
     assert len(server) + len(client) == len(lines)
-    assert server[0].startswith(PROTOCOL + " ")
+    hello = parse_greeting(server[0])
+    assert hello is not None and hello.fields["frame"] == "F_b"
     measurements = [parse_line(s) for s in server if s.startswith("P ")]
     assert measurements and all(m is not None for m in measurements)
     assert any(m[3] for m in measurements) and any(not m[3] for m in measurements)

@@ -20,7 +20,10 @@ import tempfile
 import threading
 from pathlib import Path
 
+import numpy as np
+
 from bench.cli import main
+from bench.recording import read_recording
 from hal.site import load_site, write_site
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,10 +91,12 @@ def _dry_run_apart(*argv: str, cwd: Path) -> tuple[dict, dict]:
 
 
 def test_dry_run_on_a_site_written_by_a_separate_sim(tmp_path, capsys):
-    with SimWithSite(tmp_path, "paper-centre") as sim:
+    latches = tmp_path / "latches.csv"
+    with SimWithSite(tmp_path, "paper-centre", "--latch-log", str(latches)) as sim:
         assert sim.info["site"] == str(sim.site) and sim.info["clock"] == "sync"
         res, tail = _dry_run_apart("paper-centre", "--site", str(sim.site), "--yes",
-                                   "--duration", "2", "--json", "--quiet", cwd=tmp_path)
+                                   "--duration", "2", "--json", "--quiet", "--record",
+                                   str(tmp_path / "rec"), cwd=tmp_path)
         # the master in real time, the sim still following its SYNC: whether the host keeps
         # real time under load is issue 30's real-time item (a loaded 2-core host may end
         # it with the supervisor's quick stop); here: it runs in real time, ends as the
@@ -110,6 +115,7 @@ def test_dry_run_on_a_site_written_by_a_separate_sim(tmp_path, capsys):
         assert [c["status"] for c in scan["load_cells"]] == ["ok"] * 8
     assert tail == {"exit": 0, "firmware_sim": []}, tail
     assert res["ended"] == "completed" and res["rig"] == "site" and not res["realtime"], res
+    _stamps_are_the_latches(tmp_path / "rec", latches)
     assert res["site"] == str(sim.site) and res["speed_pct"] == 100.0
     pf = res["preflight"]
     assert pf["ok"] and not pf["problems"] and pf["tracker"]["locked"]
@@ -129,6 +135,20 @@ def test_dry_run_on_a_site_written_by_a_separate_sim(tmp_path, capsys):
     for key in ("pose_error_rms_m", "pose_error_max_m"):
         assert 0.5 < res[key] / ref[key] < 2.0, (key, res[key], ref[key])
     assert res["pose_error_rms_m"] < 3e-3
+
+
+def _stamps_are_the_latches(rec: Path, latch_log: Path) -> None:
+    """Each encoder sample of the recording ``rec`` is stamped at the SYNC its drive latched
+    it at (tests/test_stamp46_encoder_stamps.py): on the SYNC clock, whose time the drives
+    count as the master does, exactly. The later runs on the same sim (their SYNCs come
+    after this run's on the drives' clock) are left out."""
+    from test_stamp46_encoder_stamps import WINCHES, read_latch_log, stamp_errors
+
+    end = float(read_recording(rec).t[-1]) + 1e-6  # clock_origin_s is 0: the first master
+    logged = {node: a[a[:, 0] <= end] for node, a in read_latch_log(latch_log).items()}
+    err, unclear = stamp_errors(rec, logged, WINCHES)
+    assert err.size > 100, (err.size, unclear)
+    assert np.all(np.abs(err) < 1e-6), np.unique(np.round(err / WINCHES.bus.sync_period_s))
 
 
 def test_refused_without_yes_and_without_a_terminal(tmp_path, capsys):

@@ -27,6 +27,10 @@ channel on loopback (``--control-port``, 0 = any free port; printed as
 ``--control 127.0.0.1:R``) takes faults from tests and tools, one line per request
 (:mod:`firmware_sim.faults` documents both). A schedule that is not valid is reported
 with file, line and field (exit 2).
+
+``--latch-log FILE`` (for checking a master's time stamps): on exit, every position the
+drives latched at a SYNC they answer with a synchronous TPDO, with the drive's time of that
+SYNC and the wall time it was handled (:func:`write_latches`).
 """
 
 from __future__ import annotations
@@ -89,6 +93,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write the site file (cdpr-site/1) of the robot served, and its robot "
                         "description beside it (FILE with suffix .robot.toml)")
     p.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
+    p.add_argument("--latch-log", metavar="FILE", default=None,
+                   help="on exit, write every position the drives latched at a SYNC they "
+                        "answer (CSV: node, drive_t_s, wall_s, counts): the truth a master's "
+                        "encoder time stamps are checked against")
 
 
 def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | None,
@@ -133,6 +141,20 @@ def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | No
         sim=sim)
     return str(write_site(site, p, header="written by cdpr sim --write-site: the simulated "
                                           "robot's endpoints live as long as that process"))
+
+
+def write_latches(path: str, drives) -> None:
+    """Write the positions ``drives`` (:class:`firmware_sim.cia402_drive.SimulatedDrive`)
+    latched at the SYNCs their synchronous TPDOs answer (``SimulatedDrive.latches``) to
+    ``path``: CSV ``node, drive_t_s`` (the drive's time of the SYNC: the SYNC clock's or
+    the wall clock's) ``, wall_s`` (``time.monotonic()`` as the drive handled the SYNC)
+    ``, counts`` (the position actual 0x6064 sent)."""
+    with open(path, "w", encoding="ascii") as f:
+        f.write("node,drive_t_s,wall_s,counts\n")
+        for d in drives:
+            with d.lock:
+                rows = list(d.latches)
+            f.writelines(f"{d.node_id},{t:.6f},{w:.6f},{c}\n" for t, w, c in rows)
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -225,6 +247,8 @@ def _serve(args: argparse.Namespace, scheduling: str) -> int:
             control.close()
             injector.stop()
             rig.close()
+            if args.latch_log:
+                write_latches(args.latch_log, rig.bank.drives)
     print(f"cdpr sim: stopped ({rig.settles} plant settles, {len(rig.plant_errors)} without "
           f"a rest position, {sum(r.action == 'apply' for r in injector.log)} fault(s) "
           "injected)", file=sys.stderr)
@@ -274,6 +298,8 @@ def _open(args: argparse.Namespace):
         except Exception as exc:  # CanInitializationError, OSError
             raise _Refused(1, str(exc)) from exc
     rig = _rig(args, scenario, bus)
+    for d in rig.bank.drives:
+        d.keep_latches = bool(args.latch_log)
     try:
         schedule = FaultSchedule.load(
             args.faults, node_ids=tuple(int(x) for x in rig.winches.node_id),

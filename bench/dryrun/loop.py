@@ -48,7 +48,7 @@ from bench.dryrun.realtime import (
     realtime_interpreter,
     realtime_scheduling,
 )
-from bench.dryrun.record import DryRunRecorder
+from bench.dryrun.record import DryRunRecorder, SampleTimes
 from controller.cycle import LengthController
 from controller.feedrate import FeedRate, ramp_time
 from controller.robot import Robot
@@ -64,7 +64,7 @@ from controller.trajectory import Trajectory
 from hal.drives import NMT_START_TRIES, DriveStartupError
 from hal.drives_cia402 import ST
 from hal.interface import Readings, WinchHardware
-from hal.tracker import Tracker, TrackerReading
+from hal.tracker import Tracker
 
 #: states of the ``state`` column
 INIT, APPROACH, HOLD, QUICK_STOP, END = "init", "approach", "hold", "quick_stop", "end"
@@ -322,8 +322,6 @@ class _CycleState:
     substituted: int = 0  # load cells whose planned tension stood in this cycle
     last_state: str = ""
     last_drives: bytes = b""
-    last_track_t: float = -math.inf
-    last_tau_t: float = -math.inf  # the load cells' sample recorded last [s]
     overrun: bool = False
     init_cycles: int = 0  # cycles of the initial dwell (the trajectory waits)
     measured_masts: bool = True  # the masts moved by the measured tensions (else planned)
@@ -375,6 +373,7 @@ class ControlLoop:
         self._finished = False
         self._enable_failed_seen = False  #: enabling the drives failed (see _enable_failed)
         self._t0 = 0.0  #: hardware time at start-up [s]
+        self._times = SampleTimes(0.0, tracker)  #: the samples' times (anew at start-up)
 
     # ------------------------------------------------------------------ events
     def _event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
@@ -402,6 +401,7 @@ class ControlLoop:
         hw, opt = self.hw, self.opt
         hw.start()
         self._t0 = hw.read().t_s  # the recording's time starts here
+        self._times = SampleTimes(self._t0, self.tracker)  # each sample's time, once
         self.tracker.start()
         p0 = (np.asarray(opt.init_pose, float) if opt.init_pose is not None
               else measure_init_pose(self.tracker, opt.init_samples))
@@ -412,6 +412,9 @@ class ControlLoop:
         self.trajectory = traj
         if self.open_recorder is not None:
             self.recorder = self.open_recorder(p0)
+        if self.recorder is not None:
+            # where t = 0 is on the hardware's clock: the recording aligned with other logs
+            self.recorder.update_meta(clock_origin_s=round(self._t0, 9))
         t = hw.read().t_s - self._t0
         if not ok.all():
             bad = [hw.cables[k] for k in np.flatnonzero(~ok)]
@@ -735,52 +738,21 @@ class ControlLoop:
             return
         c.last_state, c.last_drives = c.state, drives
         tr = self.tracker.read()
-        pose_meas, pose_t = _NAN6, None
+        pose_t = self._times.fix(tr, t)  # None: not a new fix (a fix is recorded once)
+        pose_meas = _NAN6 if pose_t is None else tr.pose
         err = math.nan  # the error counted on this row (recorded: the plots')
-        if tr.valid and np.all(np.isfinite(tr.pose)) and tr.t_s > c.last_track_t:
-            pose_meas, pose_t = tr.pose, self._fix_time(tr, t)  # a new fix: recorded once
-            if c.state not in (INIT, QUICK_STOP):
-                err = xt.error(tr.pose)
-                res.pose_errors += 1
-                res.pose_error_sq += err * err
-                res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
-            c.last_track_t = tr.t_s
+        if pose_t is not None and c.state not in (INIT, QUICK_STOP):
+            err = xt.error(tr.pose)
+            res.pose_errors += 1
+            res.pose_error_sq += err * err
+            res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
         if self.recorder is not None:
-            tau, tau_t = self._new_tensions(c, r, t)
+            tau, tau_t = self._times.tensions(r, t)
             self.recorder.row(t, c.pose_des, c.last_sent, r.lengths_m, tau,
                               pose_meas, c.out_tensions, c.substituted, c.path_cycle,
                               res.overruns, c.state, err, drive_states=r.states,
-                              lengths_t=self._lengths_time(r, t), tensions_t=tau_t,
+                              lengths_t=self._times.lengths(r, t), tensions_t=tau_t,
                               pose_t=pose_t)
-
-    def _lengths_time(self, r: Readings, t: float) -> float | None:
-        """The loop's time [s] of the SYNC the drives' lengths answer (``Readings.lengths_t_s``;
-        None: not known, the row's ``t``); never after ``t``."""
-        ts = r.lengths_t_s - self._t0
-        return min(ts, t) if math.isfinite(ts) else None
-
-    def _fix_time(self, tr: TrackerReading, t: float) -> float:
-        """The loop's time [s] of the tracker's fix ``tr`` read at the loop's time ``t``:
-        its own time stamp where the tracker says it is on the hardware's clock
-        (``Tracker.on_hardware_clock``), else when it arrived (``t`` less its age); never
-        after ``t``."""
-        if getattr(self.tracker, "on_hardware_clock", False):
-            return min(t, tr.t_s - self._t0)
-        return t - max(0.0, tr.age_s) if math.isfinite(tr.age_s) else t
-
-    @staticmethod
-    def _new_tensions(c: _CycleState, r: Readings, t: float) -> tuple[np.ndarray, float]:
-        """The load cells' tensions [N] and the loop's time [s] they were sampled (``t``
-        less the mean age of the valid ones, on the hardware's clock), or ``nan`` when
-        they are the sample already recorded (no new sample: :mod:`bench.dryrun.record`)."""
-        age = r.tension_age_s[np.isfinite(r.tension_age_s)]
-        if not age.size:
-            return r.tensions_N, t
-        ts = t - float(np.mean(age))
-        if ts <= c.last_tau_t + 1e-6:  # the same sample (its age grew with t)
-            return np.full(len(r.tensions_N), np.nan), t
-        c.last_tau_t = ts
-        return r.tensions_N, min(ts, t)
 
     def _ended(self, c: _CycleState, d, r: Readings, feed: FeedRate, t: float,
                end_at: float) -> bool:

@@ -28,14 +28,20 @@ Each sensor's sample is recorded once, at the time it was taken on the loop's cl
 recording format's sensor streams: a row whose group is ``nan`` holds no sample of it):
 
 - encoders: at the SYNC their positions answer (``Readings.lengths_t_s``: the last SYNC
-  the master sent before the drives' TPDOs came; in lock-step the cycle's own, on its row;
-  in real time usually the SYNC before, on a row of its own);
+  the master sent before the drives' TPDOs came, by the frames' time stamps where the bus
+  gives them; in lock-step the cycle's own, on its row; in real time usually the SYNC
+  before, on a row of its own);
 - the tracker: a new fix only (a fix read again on a later row is not written again), at
   its own time stamp where the tracker says that is the hardware's clock
-  (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step), else at
-  the time it arrived (the loop's time less ``TrackerReading.age_s``);
+  (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step, a
+  ``cdpr-tracker/1.1`` tracker greeting with ``clock=drives``), else at the time it was
+  taken where the tracker's clock is its own with an estimated offset
+  (``TrackerReading.taken_age_s``, ``clock=own``), else at the time it arrived (the loop's
+  time less ``TrackerReading.age_s``);
 - the load cells: a new sample only, at the loop's time less its age
   (``Readings.tension_age_s``, the mean over the cables).
+
+(:class:`SampleTimes` applies these rules to a cycle's readings.)
 
 A sample taken before its cycle is a row of its own at its time (or joins a row of that
 time) holding the controller's columns (setpoints, planned tensions, ``substituted``,
@@ -52,12 +58,18 @@ directory is a valid recording up to the last flushed row.
 from __future__ import annotations
 
 import bisect
+import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.recording import POSE_AXES, CsvStream, RecordingWriter
 from controller.robot import Robot
+
+if TYPE_CHECKING:
+    from hal.interface import Readings
+    from hal.tracker import Tracker, TrackerReading
 
 EVENT_COLUMNS = ["t", "device", "address", "cable", "kind", "code", "reaction", "active",
                  "text"]
@@ -250,6 +262,57 @@ class TimeOrder:
             self.append(row, self._state)
             self.written_t, self._last = t, row
         del self._t[:k], self._rows[:k]
+
+
+class SampleTimes:
+    """When each sensor's sample read on a cycle was taken, on the recording's clock (the
+    hardware interface's less ``t0`` [s]), and whether it is new (a sample is recorded
+    once): the module docstring's rules. ``tracker``: its ``on_hardware_clock`` says
+    whether its fixes' time stamps are on the hardware's clock. Per run (it remembers the
+    last fix and load-cell sample)."""
+
+    def __init__(self, t0: float, tracker: Tracker) -> None:
+        self.t0 = float(t0)
+        self.tracker = tracker
+        self._fix_t = -np.inf  # the last new fix's own time stamp [s, tracker's]
+        self._tau_t = -np.inf  # the load cells' sample recorded last [s]
+
+    def lengths(self, r: Readings, t: float) -> float | None:
+        """The time [s] of the SYNC the drives' lengths ``r`` answer
+        (``Readings.lengths_t_s``; None: not known, the row's ``t``); never after ``t``."""
+        ts = r.lengths_t_s - self.t0
+        return min(ts, t) if math.isfinite(ts) else None
+
+    def fix(self, tr: TrackerReading, t: float) -> float | None:
+        """The time [s] of the tracker's fix ``tr`` read at ``t``, None when it is not a
+        new valid one: its own time stamp where the tracker says it is on the hardware's
+        clock (``Tracker.on_hardware_clock``) and that stamp is not after ``t`` (a stamp
+        ahead of the read is on another clock: drives that counted another master's
+        SYNCs), else ``t`` less the time since it was taken (``taken_age_s``: a tracker
+        on its own clock with an estimated offset) or, where that is not known, since it
+        arrived (``age_s``); never after ``t``."""
+        if not (tr.valid and np.all(np.isfinite(tr.pose)) and tr.t_s > self._fix_t):
+            return None
+        self._fix_t = tr.t_s
+        if getattr(self.tracker, "on_hardware_clock", False):
+            ts = tr.t_s - self.t0
+            if ts <= t + 1e-9:  # [s] the times' rounding
+                return min(t, ts)
+        age = tr.taken_age_s if math.isfinite(tr.taken_age_s) else tr.age_s
+        return t - max(0.0, age) if math.isfinite(age) else t
+
+    def tensions(self, r: Readings, t: float) -> tuple[np.ndarray, float]:
+        """The load cells' tensions [N] and the time [s] they were sampled (``t`` less the
+        mean age of the valid ones, on the hardware's clock), or ``nan`` when they are the
+        sample already recorded (no new sample)."""
+        age = r.tension_age_s[np.isfinite(r.tension_age_s)]
+        if not age.size:
+            return r.tensions_N, t
+        ts = t - float(np.mean(age))
+        if ts <= self._tau_t + 1e-6:  # the same sample (its age grew with t)
+            return np.full(len(r.tensions_N), np.nan), t
+        self._tau_t = ts
+        return r.tensions_N, min(ts, t)
 
 
 class DryRunRecorder(CsvRecording):
