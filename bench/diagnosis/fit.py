@@ -1664,9 +1664,7 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
         # its offset is fitted, from the level): never the raw moment, which ignores that
         # (12954: a cable's error over the recording, 0.50 of it left beside four fitted
         # offsets, 0.002 of the level raw where 0.497 told it 0.070 and 0.537 told 0.064)
-        # (a level not told keeps its plain moment: the initialisation's dwell alone, whose
-        # level is its quantity's, :func:`error_meat`)
-        fx = fixed & (told > 0) & (np.arange(len(theta)) % L > 0)
+        fx = fixed & (told > 0)
         theta[fx] = (stats[fx] - A[np.ix_(fx, used)] @ theta[used]) / told[fx]
     level = theta.reshape(-1, L)[:, 0]
     if np.any(level[used[::L]] <= 0):
