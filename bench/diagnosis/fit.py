@@ -1659,13 +1659,6 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
         return plain
     if np.all(np.isfinite(sol)):
         theta[used] = sol
-        # a component not told stays at its moment over its pairs, less what the told ones
-        # are expected to put in it (the fit's negative pairing of a cable's residuals where
-        # its offset is fitted, from the level): never the raw moment, which ignores that
-        # (12954: a cable's error over the recording, 0.50 of it left beside four fitted
-        # offsets, 0.002 of the level raw where 0.497 told it 0.070 and 0.537 told 0.064)
-        fx = fixed & (told > 0)
-        theta[fx] = (stats[fx] - A[np.ix_(fx, used)] @ theta[used]) / told[fx]
     level = theta.reshape(-1, L)[:, 0]
     if np.any(level[used[::L]] <= 0):
         return plain
