@@ -1239,23 +1239,42 @@ class ErrorStructure:
     #: not project stands in with (:meth:`kind_shares`); None: ``kept``
     unknowns_kept: float | None = None
 
+    def projects(self, mask: np.ndarray) -> bool:
+        """Whether per-sample unknowns project the kind ``mask``: :attr:`entry_kept`'s
+        weighted mean over it below 1."""
+        if self.entry_kept is None or len(self.entry_kept) != len(self.weights):
+            return False
+        w = np.clip(self.weights[mask], 1e-12, None)
+        return float(w @ self.entry_kept[mask] / w.sum()) < 1.0
+
     def kind_shares(self, mask: np.ndarray) -> np.ndarray:
         """Per entry of the kind ``mask``, the share of its error's variance per-sample
         unknowns leave in its residual (the diagonal of their projection, as
         :func:`_unbiased_components` takes it): :attr:`entry_kept` where they project the
-        kind (a weighted mean below 1; one with almost none left, the initialisation's dwell
-        alone, tells no level: :func:`error_meat`). A kind they do not project keeps the
-        recording's share (:meth:`stand_in`) on every entry: at an estimated pose, the force
-        and moment residuals also carry each visit's length errors through the pose, which
-        :meth:`ResidualModel.entry_knots` models on rows of moves only; on dwells the
-        recording's share stands for it (with 1, a CoGiRo-class dwell campaign without a
-        tracker kept three load-cell offsets of zero at z 3 and read a heavier platform as
-        every cell's gain 7 % high)."""
-        if self.entry_kept is None or len(self.entry_kept) != len(self.weights):
-            return np.full(int(np.sum(mask)), self.kept)
-        k = self.entry_kept[mask]
-        w = np.clip(self.weights[mask], 1e-12, None)
-        return k if float(w @ k / w.sum()) < 1.0 else np.full(len(k), self.stand_in())
+        kind (one with almost none left, the initialisation's dwell alone, tells no level:
+        :func:`error_meat`), 1 on every entry of a kind they do not project (whose level
+        :meth:`kind_stand_in` scales)."""
+        if not self.projects(mask):
+            return np.ones(int(np.sum(mask)))
+        return self.entry_kept[mask]
+
+    def kind_stand_in(self, mask: np.ndarray) -> float:
+        """The share a kind the per-sample unknowns do not project stands in with (1 for one
+        they project): at an estimated pose, the force and moment residuals also carry each
+        visit's length errors through the pose, which :meth:`ResidualModel.entry_knots`
+        models on rows of moves only; on dwells the recording's share (:meth:`stand_in`)
+        stands for it (with 1, a CoGiRo-class dwell campaign without a tracker kept three
+        load-cell offsets of zero at z 3 and read a heavier platform as every cell's gain 7 %
+        high).
+
+        It scales the kind's level after the fit's correction, ``rss / ((n - f) s)`` over
+        ``n`` entries of which the fit's parameters take ``f``; it is no projection of the
+        entries (their columns are not in its range), so it does not enter the expectation
+        as one: ``rss / (s n - f)`` has a pole where the fit takes ``s n`` of a kind of few
+        entries (a ROCASPECT-class continuous campaign without a tracker, 12939: 21 force
+        entries at the dwells, ``s`` 0.57, ``f`` 6.7: their level 1.5 times, the cells'
+        standard errors with it, and a false cable elasticity named)."""
+        return 1.0 if self.projects(mask) else self.stand_in()
 
     def stand_in(self) -> float:
         """The recording's share for a kind the per-sample unknowns do not project: the one
@@ -1271,7 +1290,10 @@ class ErrorStructure:
         of entry; weighted like the entries; :meth:`kind_shares`). A kind left with under
         :data:`MIN_KEPT_LEVEL` of them (the initialisation's dwell alone: its readings are
         the encoders' reference) keeps the recording's share: its moments tell no level, it
-        takes its quantity's (:func:`error_meat`)."""
+        takes its quantity's (:func:`error_meat`). A kind they do not project keeps its
+        :meth:`kind_stand_in`."""
+        if not self.projects(mask):
+            return self.kind_stand_in(mask)
         w = np.clip(self.weights[mask], 1e-12, None)
         k = float(np.clip(w @ self.kind_shares(mask) / w.sum(), 0.0, 1.0))
         return k if k >= MIN_KEPT_LEVEL else self.stand_in()
@@ -1359,10 +1381,13 @@ def error_meat(Js: np.ndarray, r: np.ndarray, e: ErrorStructure,
     # from what is left: both projections are in the expectations (:func:`_unbiased_components`:
     # a level rss / (N - lost - p), where a share applied after the parameters' correction
     # gave rss N / ((N - p)(N - lost)), 0.95 of it on an IPAnema-class dwell without load
-    # cells); ``kept`` undoes the caller's ``1 / kept``
+    # cells); a kind they do not project, its stand-in share after the fit's correction
+    # (:meth:`ErrorStructure.kind_stand_in`); ``kept`` undoes the caller's ``1 / kept``
     kk = np.array([e.kind_kept(kg.mask) for kg in kinds])
     shares = [e.kind_shares(kg.mask) for kg in kinds]
-    theta = _unbiased_components(Js, sw, kinds, stats, knots, shares) * e.kept
+    stand = np.array([e.kind_stand_in(kg.mask) for kg in kinds])
+    theta = _unbiased_components(Js, sw, kinds, stats, knots, shares)
+    theta = (theta.reshape(len(kinds), NCOMP) * (e.kept / stand)[:, None]).ravel()
     meat = np.zeros((p, p))
     if knots is not None:
         # the blended visit-to-visit error: known from the replicate dwells, in the readings'
