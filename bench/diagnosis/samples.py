@@ -39,6 +39,7 @@ import numpy as np
 from bench.diagnosis.frame import pose_rates
 from bench.recording import Recording, RecordingError
 from bench.streams import (
+    GAP_PERIODS,
     MOTION_WINDOW_S,
     jittered,
     length_acceleration,
@@ -319,13 +320,24 @@ def _moving(rec: Recording) -> np.ndarray:
     return known & ~still
 
 
-def _runs(keys: np.ndarray, states: list[str] | None) -> list[tuple[int, int]]:
+def _runs(keys: np.ndarray, states: list[str] | None, t: np.ndarray | None = None
+          ) -> list[tuple[int, int]]:
+    """Runs ``[a, b)`` of rows with one key and state: a new run where either changes, and
+    after a gap of the log (``t`` [s]: a step longer than :data:`bench.streams.GAP_PERIODS`
+    median steps, the streams' own gap). Across a gap the log saw nothing: the rows after
+    it are another visit, even at the same commanded pose (the load changed while the
+    platform stood there: one sample over both would hide the change's time)."""
     N = len(keys)
     change = np.ones(N, dtype=bool)
     change[1:] = np.any(keys[1:] != keys[:-1], axis=1)
     if states is not None:
         st = np.array(states)
         change[1:] |= st[1:] != st[:-1]
+    if t is not None and N > 2:
+        dt = np.diff(np.asarray(t, float))
+        step = float(np.median(dt))
+        if step > 0:
+            change[1:] |= dt > GAP_PERIODS * step
     starts = np.flatnonzero(change)
     return list(zip(starts.tolist(), list(starts[1:].tolist()) + [N], strict=True))
 
@@ -595,7 +607,7 @@ def _split_runs(rec: Recording, init: np.ndarray
     path_rows: list[int] = []
     dropped = 0
     unknown: dict[str, int] = {}  # a lab's own state words and their rows
-    for a, b in _runs(_keys(rec), states):
+    for a, b in _runs(_keys(rec), states, rec.t):
         st = states[a] if states is not None else None
         if st is not None and st.strip() and not known_state(st):
             unknown[st] = unknown.get(st, 0) + b - a
