@@ -32,7 +32,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
-# Whole diagnoses of single hard evaluation cases (marker `cases`, 20-40 s each, left out of
+# Single hard evaluation cases recorded and diagnosed (marker `cases`, 20-60 s each, left out of
 # `make test` to keep it under 10 minutes); CI runs them after `make test`.
 test-cases: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m cases --durations=5

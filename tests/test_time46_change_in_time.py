@@ -93,7 +93,7 @@ def test_the_small_sample_tail_decides_only_with_independent_units():
     assert many == pytest.approx(stats.f.sf(64.0, 1, 1e6), rel=0.05)
 
 
-@pytest.mark.slow
+@pytest.mark.cases  # one evaluation case recorded whole (make test-cases)
 def test_a_continuous_campaign_without_a_change_shows_none(tmp_path):
     """Seed 12819 of the 200-case evaluation: a continuous_dwell campaign of IPAnema-class
     with nothing concealed. Its dwells share a stop's slow error with the moves around them,
