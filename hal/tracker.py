@@ -301,8 +301,9 @@ class TcpTracker(Tracker):
             return self._received
 
     def read(self) -> TrackerReading:
-        with self._cond:
+        with self._cond:  # (the receive thread changes the offset and, on connecting, clock)
             latest = self._latest
+            offset = self._offset.offset_s if self.clock == "own" else math.nan
         if latest is None:
             return _nothing()
         t, pose, valid, rx = latest
@@ -310,8 +311,7 @@ class TcpTracker(Tracker):
         age = now - rx
         if not valid or age > self.stale_s:
             return _nothing(age, t)
-        taken = now - (t + self._offset.offset_s) if self.clock == "own" else math.nan
-        return TrackerReading(t, pose.copy(), True, age, taken)
+        return TrackerReading(t, pose.copy(), True, age, now - (t + offset))
 
     def wait_fresh(self, timeout_s: float) -> TrackerReading:
         deadline = time.monotonic() + timeout_s

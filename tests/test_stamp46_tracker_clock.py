@@ -180,3 +180,25 @@ def test_the_offset_is_the_smallest_delay_over_its_window():
     assert est.offset_s == pytest.approx(100.01)  # the least delay
     est.add(12.0 - 100.05, 12.0)  # 10 s on: the fixes before 2 s left the window
     assert est.offset_s == pytest.approx(100.02)
+
+
+def test_a_read_takes_the_offset_under_the_lock_the_receive_thread_changes_it_under():
+    """:meth:`TcpTracker.read` reads the clock offset while holding the lock the receive
+    thread holds as it adds a fix to it (its window emptied and refilled) or replaces it on
+    a new connection: read outside, the deque could empty between its check and its index."""
+    tr = TcpTracker("127.0.0.1", 1)  # never started: the state set by hand
+    held = []
+
+    class Watched(ClockOffset):
+        @property
+        def offset_s(self) -> float:
+            held.append(tr._cond._is_owned())  # (threading.Condition's own test)
+            return 1000.0
+
+    with tr._cond:
+        tr.clock, tr._offset = "own", Watched()
+        # taken 0.2 s ago on the receiver's clock (its own + 1000 s), just received
+        tr._latest = (time.monotonic() - 0.2 - 1000.0, POSE, True, time.monotonic())
+    r = tr.read()
+    assert held == [True]
+    assert r.valid and r.taken_age_s == pytest.approx(0.2, abs=0.1)
