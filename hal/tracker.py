@@ -72,7 +72,6 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 PROTOCOL = "CDPR-TRACKER/1"  #: the protocol's name and major version (the greeting's start)
-VERSION = (1, 1)  #: the newest version this client reads (1.1: the greeting's ``clock``)
 #: the greeting's ``clock`` (version 1.1): ``t_s`` on the drives' clock, or the tracker's own
 CLOCKS = ("drives", "own")
 _FORMS = "tcp:HOST:PORT or none"
