@@ -33,6 +33,7 @@ move, which remove the motion's smooth part of the model error.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -263,6 +264,19 @@ def _refined(best_t: float, coarse: np.ndarray, every: np.ndarray) -> np.ndarray
     return np.setdiff1d(every[(every > lo) & (every < hi)], coarse)
 
 
+def _scanned(scan: Callable[[np.ndarray, tuple | None], tuple | None], coarse: np.ndarray,
+             every: np.ndarray) -> tuple[tuple | None, int]:
+    """The best of ``scan`` (candidate times, the best so far -> the best, its p-value first
+    and its time [s] third; None: no test) over the coarse times ``coarse``, then over
+    :func:`_refined`'s near the best of them (``every``: all the candidates); and the number
+    of times scanned, for the Bonferroni correction."""
+    best = scan(coarse, None)
+    if best is None:
+        return None, len(coarse)
+    extra = _refined(best[2], coarse, every)
+    return scan(extra, best), len(coarse) + len(extra)
+
+
 def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
           dof0: float, floor2: float, independent: bool = False
           ) -> tuple[float, float, float] | None:
@@ -288,12 +302,10 @@ def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: 
                     best = (got[0], got[1], float(tm))
         return best
 
-    best = scan(coarse, None)
+    best, n_times = _scanned(scan, coarse, every)
     if best is None:
         return None
-    extra = _refined(best[2], coarse, every)
-    best = scan(extra, best)
-    return min(best[0] * (len(coarse) + len(extra)) * len(forms), 1.0), best[1], best[2]
+    return min(best[0] * n_times * len(forms), 1.0), best[1], best[2]
 
 
 def _direction(x: np.ndarray, g: np.ndarray, d: np.ndarray, unit: np.ndarray,
@@ -433,12 +445,10 @@ def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndar
                 best = (got[0], got[1], float(tm), got[2])
         return best
 
-    best = scan(coarse, None)
+    best, n_times = _scanned(scan, coarse, every)
     if best is None:
         return None
-    extra = _refined(best[2], coarse, every)
-    best = scan(extra, best)
-    return min(best[0] * (len(coarse) + len(extra)), 1.0), best[1], best[2], best[3]
+    return min(best[0] * n_times, 1.0), best[1], best[2], best[3]
 
 
 def _joint_at(cols: list[tuple], forms: list[np.ndarray], units: list[np.ndarray],
@@ -510,13 +520,7 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
                 if dr is not None:
                     hits.setdefault("direction", []).append((dr[0] * m, dr[1], None,
                                                              names[j]))
-        for kind, rows in hits.items():
-            sig = [r for r in rows if r[0] < P_SYSTEMATIC and r[1] >= MIN_SIZE]
-            if not sig:
-                continue
-            top = min(sig, key=lambda r: r[0])
-            found.append(Change(kind, name, [r[3] for r in sorted(sig, key=lambda r: r[0])],
-                                top[2], _z_of(top[0]), top[1]))
+        found += _declared(hits, name)
         if name == "length" and not any(c.block == name and c.kind != "direction"
                                         for c in found):
             joint = _joint(rm, v, G[name], names, unit, live & (s.kind == 0), white2, pos,
@@ -524,6 +528,23 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
             if joint is not None:
                 found.append(joint)
     return _prefer_steps(found, s.t[live])
+
+
+def _declared(hits: dict[str, list[tuple[float, float, float | None, str]]], block: str
+              ) -> list[Change]:
+    """The changes of ``block`` declared from its columns' tests ``hits`` (per kind: per
+    column (p-value corrected for the columns, size, time [s] or None, column name)): per
+    kind, where a column is below :data:`P_SYSTEMATIC` and at least :data:`MIN_SIZE`, one
+    change at the most significant column's time, naming every such column, the most
+    significant first."""
+    found = []
+    for kind, rows in hits.items():
+        sig = sorted((r for r in rows if r[0] < P_SYSTEMATIC and r[1] >= MIN_SIZE),
+                     key=lambda r: r[0])
+        if sig:
+            found.append(Change(kind, block, [r[3] for r in sig], sig[0][2], _z_of(sig[0][0]),
+                                sig[0][1]))
+    return found
 
 
 def _units(s) -> np.ndarray:
