@@ -41,6 +41,7 @@ from scipy import sparse, stats
 from scipy.sparse.csgraph import connected_components
 
 from bench.diagnosis.residuals import Blocks, ResidualModel
+from bench.diagnosis.samples import Samples
 
 #: a systematic difference is declared below this p-value, after the correction for the
 #: times scanned and the columns tested (a z of about 7)
@@ -547,7 +548,7 @@ def _declared(hits: dict[str, list[tuple[float, float, float | None, str]]], blo
     return found
 
 
-def _units(s) -> np.ndarray:
+def _units(s: Samples) -> np.ndarray:
     """(N,) the error units of samples ``s``: rows of one move are one unit (their slow
     errors shared); every dwell its own."""
     return np.where(s.kind == 1, s.block, -1 - np.arange(s.n))
