@@ -18,7 +18,7 @@ from scipy import stats
 
 from bench.diagnosis import noise, samples
 from bench.diagnosis.residuals import ResidualModel
-from bench.evaluate import make_case, record
+from bench.evaluate import CHANGE_GAP_S, make_case, record
 from bench.recording import read_recording
 
 
@@ -42,7 +42,7 @@ def test_a_load_change_at_a_standing_pose_is_bracketed_by_its_samples(tmp_path):
     t0 = float(case["case"]["change"]["t_s"])
     rec = read_recording(tmp_path / "rec")
     s = samples.prepare(rec)
-    gap_start = t0 - 30.0  # (the first campaign's last row: evaluate.CHANGE_GAP_S before)
+    gap_start = t0 - CHANGE_GAP_S  # (the first campaign's last row)
     assert not np.any((s.t > gap_start) & (s.t < t0)), "a sample straddles the change"
     rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.estimate_noise(rec.robot)
