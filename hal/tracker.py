@@ -192,7 +192,8 @@ class ClockOffset:
     ``t_s`` and their arrival times ``rx`` [s]: ``rx - t_s`` is the offset plus the fix's
     delay (>= 0), so its minimum over the last :attr:`WINDOW_S` is the offset plus the
     shortest delay seen (the minimum-delay filter of clock synchronisation): fixes placed
-    with it are late by no more than their own delay, early never."""
+    with it are late by no more than their own delay, early never but by the clocks' drift
+    over the window (a source clock slower than the receiver's: <= 1 ms, :attr:`WINDOW_S`)."""
 
     #: [s] a quartz clock drifts up to ~100 ppm: over 10 s the offset moves by <= 1 ms, a
     #: quarter of a 256 Hz control period
