@@ -278,6 +278,15 @@ class CycleMixin:
         self._cycle_heartbeat()
         self.cycle += 1
 
+    def _note_sync_sent(self) -> None:
+        """Keep the wall time (``time.time()``, the frames' time stamps' clock) at which the
+        SYNC of master clock ``_sync_t`` goes out, taken just before it is written (after
+        the RPDOs): a TPDO stamped before it answers an earlier SYNC
+        (:meth:`ReceiveMixin._sync_answered`). The last ``tpdo_deadline_cycles`` are kept
+        (a TPDO later than these is lost)."""
+        kept = self._sync_sent[-self.tpdo_deadline_cycles:]
+        self._sync_sent = (*kept, (time.time(), self._sync_t))  # one assignment: atomic
+
     def _send_outputs(self) -> None:
         states = self._states
         cw = controlwords(states, self._request).astype(np.int64)
@@ -313,18 +322,18 @@ class CycleMixin:
         # counts SYNCs moves by one period as it is sent
         self._sync_t = ((self._syncs + 1) * self.period_s if self._sync_clocked
                         else self._clock())
-        kept = self._sync_sent[-self.tpdo_deadline_cycles:]  # a TPDO later than these: lost
-        self._sync_sent = (*kept, (time.time(), self._sync_t))  # one assignment: atomic
         try:
             with self._send_lock:
                 if hasattr(bus, "send_batch"):  # one write: nothing can answer in between
                     with self._rx:
                         self._expect = self._rx_count.copy()
+                    self._note_sync_sent()
                     send_frames(bus, rpdos + [sync])
                 else:  # answers to the RPDOs (delivered at once in lock-step) come first
                     send_frames(bus, rpdos)
                     with self._rx:
                         self._expect = self._rx_count.copy()
+                    self._note_sync_sent()
                     bus.send(sync)
         except (can.CanError, OSError) as exc:
             # the bus refused the frames (bus off, link down): report once per streak and

@@ -599,3 +599,27 @@ def test_the_producer_records_its_gaps_and_lateness(rig):
     with pytest.raises(ValueError, match=r"must be 0 \(normal\) to"):
         rig.hal.set_producer_priority(1000)  # refused before the thread is touched
     assert rig.hal.producer_priority == 0
+
+
+def test_a_syncs_wall_time_is_taken_after_the_rpdos_went_out(rig):
+    """The wall time kept for a SYNC (``_sync_sent``, against which TPDOs' time stamps are
+    matched) is taken after the cycle's RPDOs were written, just before the SYNC: a TPDO
+    that answers the previous SYNC while the RPDOs go out keeps that SYNC."""
+    bus = rig.hal.network.bus
+    sent: list[tuple[float, int]] = []
+    real = bus.send
+
+    def send(msg, *a, **k):
+        sent.append((time.time(), msg.arbitration_id))
+        return real(msg, *a, **k)
+
+    bus.send = send
+    try:
+        rig.steps(3)
+    finally:
+        bus.send = real
+    rpdo_t = [t for t, cob in sent if 0x200 <= cob < 0x280]
+    sync_t = [t for t, cob in sent if cob == 0x80]
+    assert rpdo_t and sync_t
+    noted = rig.hal._sync_sent[-1][0]
+    assert max(rpdo_t) <= noted <= sync_t[-1]
