@@ -30,7 +30,8 @@ with file, line and field (exit 2).
 
 ``--latch-log FILE`` (for checking a master's time stamps): on exit, every position the
 drives latched at a SYNC they answer with a synchronous TPDO, with the drive's time of that
-SYNC and the wall time it was handled (:func:`write_latches`).
+SYNC and the monotonic time it was handled (:func:`write_latches`); kept in memory until
+then (8 drives at 256 Hz: ~60 MB an hour), for checks of minutes.
 """
 
 from __future__ import annotations
@@ -95,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
     p.add_argument("--latch-log", metavar="FILE", default=None,
                    help="on exit, write every position the drives latched at a SYNC they "
-                        "answer (CSV: node, drive_t_s, wall_s, counts): the truth a master's "
+                        "answer (CSV: node, drive_t_s, monotonic_s, counts): the truth a master's "
                         "encoder time stamps are checked against")
 
 
@@ -147,10 +148,10 @@ def write_latches(path: str, drives) -> None:
     """Write the positions ``drives`` (:class:`firmware_sim.cia402_drive.SimulatedDrive`)
     latched at the SYNCs their synchronous TPDOs answer (``SimulatedDrive.latches``) to
     ``path``: CSV ``node, drive_t_s`` (the drive's time of the SYNC: the SYNC clock's or
-    the wall clock's) ``, wall_s`` (``time.monotonic()`` as the drive handled the SYNC)
+    the wall clock's) ``, monotonic_s`` (``time.monotonic()`` as the drive handled the SYNC)
     ``, counts`` (the position actual 0x6064 sent)."""
     with open(path, "w", encoding="ascii") as f:
-        f.write("node,drive_t_s,wall_s,counts\n")
+        f.write("node,drive_t_s,monotonic_s,counts\n")
         for d in drives:
             with d.lock:
                 rows = list(d.latches)
