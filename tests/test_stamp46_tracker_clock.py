@@ -202,3 +202,18 @@ def test_a_read_takes_the_offset_under_the_lock_the_receive_thread_changes_it_un
     r = tr.read()
     assert held == [True]
     assert r.valid and r.taken_age_s == pytest.approx(0.2, abs=0.1)
+
+
+def test_a_restarted_tracker_and_one_without_stamps_are_still_recorded():
+    """A fix is new when it is another fix, not only a later one: a tracker restarted (its
+    own clock from zero again) goes on being recorded, and a tracker that stamps nothing
+    has each fix told by its arrival; the same fix read again is not recorded twice."""
+    own = SimpleNamespace(on_hardware_clock=False)
+    times = SampleTimes(0.0, own)
+    assert times.fix(TrackerReading(500.0, POSE, True, 0.0), 10.0) == pytest.approx(10.0)
+    assert times.fix(TrackerReading(500.0, POSE, True, 0.004), 10.004) is None  # read again
+    assert times.fix(TrackerReading(0.2, POSE, True, 0.0), 10.5) == pytest.approx(10.5)
+    unstamped = SampleTimes(0.0, own)
+    assert unstamped.fix(TrackerReading(float("nan"), POSE, True, 0.001), 1.0) is not None
+    assert unstamped.fix(TrackerReading(float("nan"), POSE, True, 0.005), 1.004) is None
+    assert unstamped.fix(TrackerReading(float("nan"), POSE, True, 0.0), 1.02) is not None

@@ -274,7 +274,7 @@ class SampleTimes:
     def __init__(self, t0: float, tracker: Tracker) -> None:
         self.t0 = float(t0)
         self.tracker = tracker
-        self._fix_t = -np.inf  # the last new fix's own time stamp [s, tracker's]
+        self._fix_t = -np.inf  # the last new fix's key [s] (:meth:`_fix_key`)
         self._tau_t = -np.inf  # the load cells' sample recorded last [s]
 
     def lengths(self, r: Readings, t: float) -> float | None:
@@ -291,15 +291,28 @@ class SampleTimes:
         SYNCs), else ``t`` less the time since it was taken (``taken_age_s``: a tracker
         on its own clock with an estimated offset) or, where that is not known, since it
         arrived (``age_s``); never after ``t``."""
-        if not (tr.valid and np.all(np.isfinite(tr.pose)) and tr.t_s > self._fix_t):
+        if not (tr.valid and np.all(np.isfinite(tr.pose))):
             return None
-        self._fix_t = tr.t_s
+        key = self._fix_key(tr, t)
+        if key == self._fix_t:
+            return None
+        self._fix_t = key
         if getattr(self.tracker, "on_hardware_clock", False):
             ts = tr.t_s - self.t0
             if ts <= t + 1e-9:  # [s] the times' rounding
                 return min(t, ts)
         age = tr.taken_age_s if math.isfinite(tr.taken_age_s) else tr.age_s
         return t - max(0.0, age) if math.isfinite(age) else t
+
+    @staticmethod
+    def _fix_key(tr: TrackerReading, t: float) -> float:
+        """What tells one fix from the next [s]: its own time stamp, or, a tracker that gives
+        none, its arrival (``t`` less ``age_s``, to the microsecond). A fix is new when its
+        key differs from the last one's, not only when it is later: a tracker restarted (its
+        own clock from zero again) goes on being recorded."""
+        if math.isfinite(tr.t_s):
+            return float(tr.t_s)
+        return round(t - tr.age_s, 6) if math.isfinite(tr.age_s) else t
 
     def tensions(self, r: Readings, t: float) -> tuple[np.ndarray, float]:
         """The load cells' tensions [N] and the time [s] they were sampled (``t`` less the
