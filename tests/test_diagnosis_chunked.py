@@ -224,6 +224,28 @@ def test_the_long_log_writer_writes_streams_window_by_window(slipped):
     assert len(truth.t) < 0.95 * (truth.t[-1] - truth.t[0]) * PHYSICS_HZ
 
 
+def test_the_long_log_writer_drops_what_the_logger_s_dropouts_say(slipped):
+    # encoders (every row) and tracker dropouts: no sample inside them, samples all around
+    from bench.logger_sim import dropout_intervals, write_long_log
+    from bench.recording import read_recording
+
+    sc, truth, _, d = slipped
+    spec = replace(THREE, dropouts=(("encoders", 2.0, 0.3, 0.6), ("tracker", 2.0, 1.0, 2.0)))
+    r = read_recording(write_long_log(d / "drops", sc, spec, truth, window_rows=7_000))
+    iv = dropout_intervals(spec, sc.seed, r.t[0], r.t[-1])
+    found = streams.describe(r)
+    for name, g in (("encoders", r.l_meas), ("tracker", r.pose_meas)):
+        assert len(iv[name]) >= 2
+        has = np.isfinite(g).any(axis=1)
+        inside = np.zeros(r.n_samples, dtype=bool)
+        for a, b in iv[name]:
+            inside |= (r.t >= a) & (r.t <= b)
+        assert inside.any() and not has[inside].any()
+        assert has[~inside].mean() > (0.99 if name == "encoders" else 0.09)
+        assert len(found[name].gaps) >= 1
+    assert found["load_cells"].gaps == []
+
+
 def test_a_logger_that_pauses_reads_as_runs_whole_or_in_blocks(slipped, monkeypatch):
     # the logger wrote no row for 5 s, 2 s and 0.5 s: three pauses, four runs, the same whole
     # or in blocks (a pause across a block's edge too); no stream lost samples of its own
