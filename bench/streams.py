@@ -7,7 +7,9 @@
   sensor group (encoders ``l_meas``, load cells ``tau``, tracker ``pose_meas`` and
   ``exit_meas``, controller ``pose_des``/``l_cmd``) the rows where it has a value (a row
   where the group is NaN/empty is "no sample" of that stream), its rate [Hz], time-stamp
-  jitter [s] and gaps.
+  jitter [s] and gaps; the report names a stream's gaps only where it lost samples while
+  rows were written (:meth:`Stream.lost`), the recording's pauses without rows (a
+  recording taken at dwells) being its runs (:func:`pauses`).
 - :func:`align` brings streams at different rates to common instants without inventing
   samples: the instants of the slowest measuring stream; a faster stream is taken from the
   same row when it has a sample there, else interpolated linearly between its two
