@@ -101,13 +101,18 @@ def _coverage(cov: dict) -> list[str]:
     return out
 
 
+#: the stream a case's sensors leave out (``info.sensors``)
+_ABSENT = {"no_tracker": "tracker", "no_tensions": "load_cells"}
+
+
 def _streams_of(info: dict) -> str:
-    """How a case's logger wrote (rows [Hz], dropouts per stream), or ``-``."""
+    """How a case's logger wrote (rows [Hz], dropouts per stream it has), or ``-``."""
     lg = info.get("logger")
     if not lg:
         return "-"
     drops = ", ".join(f"{d[0]} {d[1]:.2g}/min {d[2]:.2g}-{d[3]:.2g} s"
-                      for d in lg.get("dropouts") or [])
+                      for d in lg.get("dropouts") or []
+                      if d[0] != _ABSENT.get(info.get("sensors", "")))
     return f"rows {lg['rows_hz']:g} Hz; dropouts: {drops or 'none'}"
 
 

@@ -101,6 +101,11 @@ def test_a_second_file_adds_the_new_kinds_section_with_its_own_provenance(tmp_pa
     assert "| 14006 | load_change | ipanema | all | - | drum_scale, *load_change* | none | yes " \
            "| no |" in sec
     assert "| load_change | 1 | 0 |" in sec  # by kind: outside the vocabulary
+    # a dropout drawn for a stream the case does not record is not said
+    logger["info"] |= {"sensors": "no_tracker"}
+    second.write_text("".join(json.dumps(x) + "\n" for x in lines), encoding="utf-8")
+    assert main([str(first), str(second), "--out", str(out)]) == 0
+    assert "| no_tracker | rows 200 Hz; dropouts: none |" in out.read_text(encoding="utf-8")
     # one file: no such section
     assert main([str(first), "--out", str(out)]) == 0
     assert "## The new kinds" not in out.read_text(encoding="utf-8")
