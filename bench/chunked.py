@@ -240,7 +240,7 @@ class Conditioner:
     def _decide(self, block: Recording) -> None:
         """The reference stream and the overlap, from the first block."""
         self.t0 = float(block.t[0])
-        self.row_period = float(np.median(np.diff(block.t))) if block.n_samples > 1 else 0.0
+        self.row_period = st.row_period(block.t)
         s = st.describe(block)
         if st.multi_rate(block, s):
             self.reference = st._slowest(s)

@@ -251,16 +251,24 @@ class Stream:
 
 def pauses(t: np.ndarray, period_s: float | None = None) -> np.ndarray:
     """(P, 2) [start, end] [s]: the intervals between consecutive rows of times ``t`` [s]
-    longer than GAP_PERIODS row periods (``period_s``, by default the rows' median
-    interval): the logger wrote no row at all (between the dwells of a recording taken at
-    dwells, or a logger that stopped). The stretches between them are the recording's
-    runs."""
+    longer than GAP_PERIODS row periods (``period_s``, by default :func:`row_period`): the
+    logger wrote no row at all (between the dwells of a recording taken at dwells, or a
+    logger that stopped). The stretches between them are the recording's runs."""
     if len(t) < 2:
         return np.zeros((0, 2))
     dt = np.diff(t)
-    period = float(np.median(dt)) if period_s is None else period_s
+    period = row_period(t) if period_s is None else period_s
     k = np.flatnonzero(dt > GAP_PERIODS * max(period, 1e-12))
     return np.column_stack([t[k], t[k + 1]])
+
+
+def row_period(t: np.ndarray) -> float:
+    """The rows' median interval [s] between distinct instants ``t`` [s]: files split by
+    sensor merge into rows of equal times (one per stream), whose zero intervals are not
+    the logger's period."""
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if len(dt) else 0.0
 
 
 def runs_report(paused: np.ndarray) -> dict:

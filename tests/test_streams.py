@@ -93,6 +93,18 @@ def test_a_recording_split_across_files_reads_as_one(tmp_path, small, split):
             assert sa[name].rate_hz == pytest.approx(sb[name].rate_hz, rel=1e-9)
 
 
+def test_files_split_by_sensor_at_one_rate_read_as_one_run(tmp_path, small):
+    # every stream at the rows' rate in its own file: the merged rows repeat each instant
+    # once per stream (zero intervals); no pause, no gap, the rows' rate
+    same = {"rows_hz": 100.0, "encoders_hz": 100.0, "load_cells_hz": 100.0,
+            "tracker_hz": 100.0}
+    rec = read_recording(_log(tmp_path, small, "split1", **same, split="sensor"))
+    assert np.mean(np.diff(rec.t) == 0) > 0.6
+    _, report = streams.condition(rec)
+    assert report["runs"]["pauses"] == 0 and "runs" not in streams.summary_line(report)
+    assert all(s["gaps"] == 0 for s in report["streams"].values())
+
+
 def test_rates_jitter_and_gaps_are_found(tmp_path, small):
     rec = read_recording(_log(tmp_path, small, "three", **THREE, jitter_s=3e-4))
     found = streams.describe(rec)
