@@ -199,6 +199,9 @@ class Conditioner:
         self.sumsq: dict[str, list[float]] = {}
         self.excluded: list[dict] = []
         self.more = 0
+        self.row_period = 0.0  # the rows' median interval [s], from the first block
+        self.paused: list[np.ndarray] = []  # the recording's pauses (streams.pauses)
+        self.last_t: float | None = None
 
     def feed(self, block: Recording, nbytes: int) -> None:
         """Take the next block (``source_rows`` its rows in the whole file)."""
@@ -207,6 +210,9 @@ class Conditioner:
             self._decide(block)
         self.blocks += 1
         self.rows += block.n_samples
+        t = block.t if self.last_t is None else np.concatenate([[self.last_t], block.t])
+        self.paused.append(st.pauses(t, self.row_period))
+        self.last_t = float(block.t[-1])
         self.bytes += nbytes
         w = block if self.carry is None else st.concat_rows([self.carry, block], init=False)
         sw = st.describe(w)
@@ -234,6 +240,7 @@ class Conditioner:
     def _decide(self, block: Recording) -> None:
         """The reference stream and the overlap, from the first block."""
         self.t0 = float(block.t[0])
+        self.row_period = st.row_period(block.t)
         s = st.describe(block)
         if st.multi_rate(block, s):
             self.reference = st._slowest(s)
@@ -287,9 +294,12 @@ class Conditioner:
             self._emit(self.carry, st.describe(self.carry), np.inf)
         rec = st.concat_rows(self.kept)
         report: dict = {"streams": {}}
+        paused = np.concatenate(self.paused) if self.paused else np.zeros((0, 2))
         for name, parts in self.times.items():
             t = np.concatenate(parts)
-            report["streams"][name] = st._stream(name, t, np.arange(len(t))).report(self.rows)
+            report["streams"][name] = st._stream(name, t, np.arange(len(t))).report(self.rows,
+                                                                                   paused)
+        report["runs"] = st.runs_report(paused)
         report["alignment"] = None
         if self.reference is not None:
             al = self.al

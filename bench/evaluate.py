@@ -514,6 +514,31 @@ HOUR_RATES = {"rows_hz": 50.0, "encoders_hz": 50.0, "load_cells_hz": 25.0, "trac
 HOUR_S = 3600.0
 
 
+#: sensor dropouts a logger case may draw, per stream: (per_minute, shortest_s, longest_s)
+#: ranges [1/min], [s]: a tracker losing its line of sight (the platform or a cable between
+#: it and the target: 0.5 to 6 s), a load cell's bus unit timing out until the master polls
+#: it again (0.2 to 3 s), an encoder stream stalling (a drive's frame lost: 0.05 to 1 s);
+#: rates such that a logger case of 1-3 minutes holds a few, an hour case at most about a
+#: tenth of its time without a stream
+DROPOUTS = {"tracker": ((0.3, 2.0), (0.5, 2.0), (2.0, 6.0)),
+            "load_cells": ((0.2, 1.5), (0.2, 0.5), (1.0, 3.0)),
+            "encoders": ((0.1, 1.0), (0.05, 0.2), (0.5, 1.0))}
+#: probability that a logger case's stream has dropouts at all
+DROPOUT_SHARE = 0.6
+
+
+def _draw_dropouts(rng: np.random.Generator) -> list[list]:
+    """A logger case's dropouts (``LoggerSpec.dropouts``): each stream of :data:`DROPOUTS`
+    with probability :data:`DROPOUT_SHARE`, its rate and shortest/longest durations drawn
+    uniformly in their ranges (a generator of its own: the case's other draws unchanged)."""
+    out = []
+    for stream, (rate, short, long_) in DROPOUTS.items():
+        if rng.random() < DROPOUT_SHARE:
+            out.append([stream, float(rng.uniform(*rate)), float(rng.uniform(*short)),
+                        float(rng.uniform(*long_))])
+    return out
+
+
 def _new_kind(kind: str, rng: np.random.Generator, truth: dict[str, dict[str, float]],
               recording: dict[str, Any], pose_tab: dict[str, Any], pts: np.ndarray,
               visits: int, oov: str) -> tuple[dict[str, Any], int]:
@@ -549,6 +574,7 @@ def _new_kind(kind: str, rng: np.random.Generator, truth: dict[str, dict[str, fl
                  "controller_columns": bool(rng.random() < 0.5),
                  "split": [None, "time", "sensor"][int(rng.integers(3))],
                  "files": int(rng.integers(2, 4)), "seed": int(rng.integers(2 ** 31))}
+        spec["dropouts"] = _draw_dropouts(np.random.default_rng([spec["seed"], 46]))
         extra["logger"] = spec
     if kind == "load_change":
         visits = max(visits, 2)

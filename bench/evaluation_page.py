@@ -1,13 +1,16 @@
 """The evaluation page of the documentation, generated from a ``cdpr evaluate --out`` file.
 
     cdpr evaluate --cases 200 --seed 12800 --jobs 2 --out eval.jsonl
-    python -m bench.evaluation_page eval.jsonl --out docs/evaluation.md
+    cdpr evaluate --kind new --cases 12 --seed 14000 --jobs 1 --out new.jsonl
+    python -m bench.evaluation_page eval.jsonl [new.jsonl] --out docs/evaluation.md
 
 The page gives the blind evaluation's figures (exact detection, false positives, physics
 outside the vocabulary, how often the reported 95 % intervals hold the truth per effect
 kind) and where they were measured: the commit(s), dates and machine each case's record
 names (``run``, stamped by ``cdpr evaluate``), and the command that makes the cases again.
-Never edit the page by hand.
+A second file (the new kinds, ``--kind new``: a bench's logger, hours long, load changes)
+adds a section of its own, with its own commit, dates, machine and command, and a row per
+case. Never edit the page by hand.
 """
 
 from __future__ import annotations
@@ -98,10 +101,70 @@ def _coverage(cov: dict) -> list[str]:
     return out
 
 
-def page(header: dict, cases: list[dict], errors: int, made: str, source: str | None = None
-         ) -> str:
+#: the stream a case's sensors leave out (``info.sensors``)
+_ABSENT = {"no_tracker": "tracker", "no_tensions": "load_cells"}
+
+
+def _streams_of(info: dict) -> str:
+    """How a case's logger wrote (rows [Hz], dropouts per stream it has), or ``-``."""
+    lg = info.get("logger")
+    if not lg:
+        return "-"
+    drops = ", ".join(f"{d[0]} {d[1]:.2g}/min {d[2]:.2g}-{d[3]:.2g} s"
+                      for d in lg.get("dropouts") or []
+                      if d[0] != _ABSENT.get(info.get("sensors", "")))
+    return f"rows {lg['rows_hz']:g} Hz; dropouts: {drops or 'none'}"
+
+
+def _case_rows(cases: list[dict]) -> list[str]:
+    """One row per case: kind, robot, what was concealed, what was named, and the time."""
+    out = ["| seed | kind | robot | sensors | logger | concealed | named | unexplained "
+           "| exact | diagnosis s |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- "
+           "| --- |"]
+    for c in sorted(cases, key=lambda c: c["seed"]):
+        info = c.get("info", {})
+        truth = sorted(c.get("truth", []))
+        oov = info.get("oov", "none")
+        hidden = ", ".join(truth + ([f"*{oov}*"] if oov != "none" else [])) or "none"
+        out.append(f"| {c['seed']} | {info.get('kind', '?')} | {info.get('robot', '?')} | "
+                   f"{info.get('sensors', '?')} | {_streams_of(info)} | {hidden} | "
+                   f"{', '.join(sorted(c.get('named', []))) or 'none'} | "
+                   f"{'yes' if c.get('unexplained') else 'no'} | "
+                   f"{'yes' if c.get('exact') else 'no'} | {c.get('seconds', 0.0):.1f} |")
+    return out
+
+
+def new_section(header: dict, cases: list[dict], errors: int, source: str | None) -> list[str]:
+    """The section of a second ``--out`` file (the new kinds): where and how its cases were
+    made, the headline figures, exact detection by kind, and one row per case."""
+    from bench.evaluate import summarise
+
+    s = summarise(cases)
+    seeds = sorted(c["seed"] for c in cases)
+    return [
+        "## The new kinds: a bench's logger, hours long, load changes", "",
+        "Cases of `--kind new`: *logger*, the sensors' streams at their own rates as a bench's "
+        "logger writes them (jittered stamps, empty fields, files split by time or sensor, "
+        "with or without the controller's columns, sensor dropouts); *hour*, the same an "
+        "hour long; *load_change*, dwells whose platform load changes after the first visit "
+        "of every pose (physics outside the vocabulary: declaring it `unexplained` is the "
+        "right answer). Measured apart from the cases above: its own commit, dates and "
+        "machine.", "",
+        "| | |", "| --- | --- |",
+        f"| cases | `{command(header.get('config') or {}, seeds)}` |",
+        *_where(cases),
+        *([f"| records | `{source}` |"] if source else []),
+        f"| cases that raised | {errors} |", "",
+        *_headline(s), "",
+        *_rates("kind", s["by_kind"]), "",
+        *_case_rows(cases), ""]
+
+
+def page(header: dict, cases: list[dict], errors: int, made: str, source: str | None = None,
+         new: tuple[dict, list[dict], int, str | None] | None = None) -> str:
     """The Markdown page of the scored ``cases`` of one ``--out`` file (its ``header``;
-    ``source`` its path as the page names it)."""
+    ``source`` its path as the page names it); ``new``: a second file's (header, cases,
+    errors, source), its section after the first's figures (:func:`new_section`)."""
     from bench.evaluate import summarise
 
     s = summarise(cases)
@@ -134,38 +197,55 @@ def page(header: dict, cases: list[dict], errors: int, made: str, source: str | 
         "| effect | cases | named | exact |", "| --- | --- | --- | --- |",
         *[f"| {e} | {v['cases']} | {v['named']} | {v['exact']} |"
           for e, v in s["by_effect"].items()], "",
+        *(new_section(*new) if new is not None else []),
         "Regenerate (about ten minutes at `--jobs 2` once the cases are kept and only "
         "diagnosed again, `--keep DIR --reuse-kept`; hours to record them):", "",
         "```sh", "cdpr evaluate --cases 200 --seed 12800 --jobs 2 --keep cases --out eval.jsonl",
         "cp eval.jsonl docs/data/evaluation.jsonl",
-        "python -m bench.evaluation_page docs/data/evaluation.jsonl --out docs/evaluation.md",
+        *([f"cdpr evaluate --kind new --cases {len(new[1])} --seed "
+           f"{min(c['seed'] for c in new[1])} --jobs 1 --out {new[3]}"] if new else []),
+        "python -m bench.evaluation_page docs/data/evaluation.jsonl "
+        + (f"{new[3]} " if new else "") + "--out docs/evaluation.md",
         "```", ""]
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``EVAL.jsonl [--out PAGE]``: the page on stdout, or written to PAGE."""
-    from datetime import UTC, datetime
-
-    from bench.benchmarks.page import page_arguments, write_page
+def load(src: str) -> tuple[dict, list[dict], int]:
+    """An ``--out`` file's header, its scored cases (by seed) and how many raised; a
+    UsageError when it is no such file or holds no case."""
     from bench.commands.evaluate import UsageError, read_results
 
-    args = page_arguments(argv, "python -m bench.evaluation_page EVAL.jsonl "
-                                "[--out docs/evaluation.md]")
-    if args is None:
+    header, records = read_results(Path(src))
+    if header is None or not records:
+        raise UsageError(f"{src}: no cases: not an --out file of `cdpr evaluate`")
+    cases = [r for _, r in sorted(records.items()) if "error" not in r]
+    return header, cases, len(records) - len(cases)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``EVAL.jsonl [NEW.jsonl] [--out PAGE]``: the page on stdout, or written to PAGE."""
+    from datetime import UTC, datetime
+
+    from bench.benchmarks.page import write_page
+    from bench.commands.evaluate import UsageError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    out = None
+    if "--out" in argv and argv.index("--out") == len(argv) - 2:
+        out = Path(argv.pop())
+        argv.pop()
+    if len(argv) not in (1, 2) or any(a.startswith("-") for a in argv):
+        print("usage: python -m bench.evaluation_page EVAL.jsonl [NEW.jsonl] "
+              "[--out docs/evaluation.md]", file=sys.stderr)
         return 2
-    src, out = args
     try:
-        header, records = read_results(Path(src))
+        first = load(argv[0])
+        new = (*load(argv[1]), argv[1]) if len(argv) == 2 else None
     except UsageError as e:
         print(str(e), file=sys.stderr)
         return 1
-    if header is None or not records:
-        print(f"{src}: no cases: not an --out file of `cdpr evaluate`", file=sys.stderr)
-        return 1
-    cases = [r for _, r in sorted(records.items()) if "error" not in r]
     made = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    write_page(page(header, cases, len(records) - len(cases), made, src), out)
+    write_page(page(*first, made, argv[0], new=new), out)
     return 0
 
 

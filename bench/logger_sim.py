@@ -12,7 +12,10 @@ controller, the plant with the scenario's concealed effects and nuisances), sett
 - optionally without the controller's columns (``*_des``, ``l_cmd_*``, ``state``);
 - optionally split across several files (``split="time"``: consecutive parts with the same
   header; ``split="sensor"``: one file per stream holding only its own rows), listed in
-  ``meta.toml``'s ``samples`` (docs/formats/recording-streams.md).
+  ``meta.toml``'s ``samples`` (docs/formats/recording-streams.md);
+- optionally with sensor dropouts (``dropouts``): a stream silent for a while, as a
+  tracker that loses its line of sight, a load cell's bus unit that times out, an encoder
+  stream that stalls; the rows go on, the stream's fields hold "no sample".
 
 The truth between two settled physics steps is linear in time (steps of 1 cm at 0.25 m/s;
 the curvature of a cable length over one step is a micrometre). Sensor noise is the
@@ -52,6 +55,15 @@ class LoggerSpec:
     files: int = 1
     physics_hz: float = 25.0
     seed: int = 0
+    dropouts: tuple[tuple[str, float, float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        drops = tuple((str(s), float(r), float(a), float(b)) for s, r, a, b in self.dropouts)
+        for s, r, a, b in drops:
+            if s not in STREAMS or r < 0 or not 0 <= a <= b:
+                raise ValueError(f"dropouts: {(s, r, a, b)!r} is not (stream, per_minute >= 0, "
+                                 f"0 <= shortest_s <= longest_s)")
+        object.__setattr__(self, "dropouts", drops)  # lists from a case's JSON -> tuples
 
     def rate(self, stream: str) -> float:
         return {"encoders": self.encoders_hz, "load_cells": self.load_cells_hz,
@@ -130,6 +142,34 @@ def _instants(t0: float, t1: float, rate: float, jitter: float,
     return t
 
 
+def dropout_intervals(spec: LoggerSpec, sc_seed: int, t0: float, t1: float
+                      ) -> dict[str, np.ndarray]:
+    """Each stream's dropouts in [``t0``, ``t1``] [s] as (D, 2) [start, end] intervals [s]:
+    starts a Poisson process at the stream's ``per_minute``, durations uniform in its
+    [``shortest_s``, ``longest_s``]. Drawn from a generator of their own (``spec.seed``, the
+    scenario's seed): a logger without dropouts samples as it always did."""
+    rng = np.random.default_rng([spec.seed, sc_seed, 46])
+    out: dict[str, np.ndarray] = {}
+    for stream, per_min, shortest, longest in spec.dropouts:
+        n = rng.poisson(per_min * (t1 - t0) / 60.0)
+        start = np.sort(rng.uniform(t0, t1, n))
+        end = start + rng.uniform(shortest, longest, n)
+        iv = np.column_stack([start, end])
+        out[stream] = iv if stream not in out else np.vstack([out[stream], iv])
+    return out
+
+
+def _kept(t: np.ndarray, rows: np.ndarray, intervals: np.ndarray | None) -> np.ndarray:
+    """The ``rows`` whose times ``t[rows]`` [s] lie outside every interval (D, 2) [s]."""
+    if intervals is None or not len(intervals):
+        return rows
+    tr = t[rows]
+    inside = np.zeros(len(rows), dtype=bool)
+    for a, b in intervals:
+        inside[np.searchsorted(tr, a):np.searchsorted(tr, b, side="right")] = True
+    return rows[~inside]
+
+
 def sample_log(sc: Scenario, truth: Truth, spec: LoggerSpec) -> dict[str, np.ndarray]:
     """The logger's columns (name -> (R,) values, NaN = no sample; ``state`` as strings)."""
     rng = np.random.default_rng(spec.seed + 7919 * sc.seed + 1)
@@ -139,6 +179,7 @@ def sample_log(sc: Scenario, truth: Truth, spec: LoggerSpec) -> dict[str, np.nda
     R = len(t)
     t[0] = truth.t[0]  # the log starts with the first cycle at the initialisation
     cols: dict[str, np.ndarray] = {"t": t}
+    drops = dropout_intervals(spec, sc.seed, t[0], t[-1])
     if spec.controller_columns:
         p_des, l_cmd = _at(truth.t, truth.pose_des, t), _at(truth.t, truth.l_cmd, t)
         for a, ax in enumerate(POSE_AXES):
@@ -158,6 +199,7 @@ def sample_log(sc: Scenario, truth: Truth, spec: LoggerSpec) -> dict[str, np.nda
             k = np.clip(np.searchsorted(t, own), 1, R - 1)
             k -= (own - t[k - 1]) < (t[k] - own)
             rows = np.unique(k)
+        rows = _kept(t, rows, drops.get(stream))
         tr = t[rows]
         for name, vals in _stream_values(stream, truth, tr, nz, exit_idx, ids, rng).items():
             col = np.full(R, np.nan)
@@ -281,17 +323,19 @@ def write_long_log(out: str | Path, sc: Scenario, spec: LoggerSpec, truth: Truth
     t[0] = truth.t[0]
     R = len(t)
     own: dict[str, np.ndarray | None] = {}
+    drops = dropout_intervals(spec, sc.seed, t[0], t[-1])
     for stream in STREAMS:
         if (stream == "tracker" and not sc.recording.tracker) or \
                 (stream == "load_cells" and not sc.recording.load_cells):
             continue
         if spec.rate(stream) >= spec.rows_hz:
-            own[stream] = None  # every row
+            own[stream] = None if stream not in drops else _kept(t, np.arange(R),
+                                                                 drops[stream])
             continue
         inst = _instants(t[0], t[-1], spec.rate(stream), spec.jitter_s, rng)
         k = np.clip(np.searchsorted(t, inst), 1, R - 1)
         k -= (inst - t[k - 1]) < (t[k] - inst)
-        own[stream] = np.unique(k)
+        own[stream] = _kept(t, np.unique(k), drops.get(stream))
     files = spec.files if spec.split == "time" else 1
     edges = np.linspace(0, R, files + 1).astype(int)
     names = [f"recording-{k + 1:03d}.csv" for k in range(files)] if files > 1 \

@@ -7,7 +7,9 @@
   sensor group (encoders ``l_meas``, load cells ``tau``, tracker ``pose_meas`` and
   ``exit_meas``, controller ``pose_des``/``l_cmd``) the rows where it has a value (a row
   where the group is NaN/empty is "no sample" of that stream), its rate [Hz], time-stamp
-  jitter [s] and gaps.
+  jitter [s] and gaps; the report names a stream's gaps only where it lost samples while
+  rows were written (:meth:`Stream.lost`), the recording's pauses without rows (a
+  recording taken at dwells) being its runs (:func:`pauses`).
 - :func:`align` brings streams at different rates to common instants without inventing
   samples: the instants of the slowest measuring stream; a faster stream is taken from the
   same row when it has a sample there, else interpolated linearly between its two
@@ -215,15 +217,64 @@ class Stream:
     def rate_hz(self) -> float:
         return 1.0 / self.period_s if self.period_s > 0 else 0.0
 
-    def report(self, rows_total: int) -> dict:
-        """The stream as the report lists it."""
-        gaps = sorted(self.gaps, key=lambda g: -g[1])
+    def report(self, rows_total: int, paused: np.ndarray | None = None) -> dict:
+        """The stream as the report lists it. ``paused``: the recording's pauses
+        (:func:`pauses`, (P, 2) [s]); the gaps listed are the stream's :meth:`lost` ones."""
+        gaps = sorted(self.lost(paused), key=lambda g: -g[1])
         return {"samples": int(len(self.rows)), "rows_share": len(self.rows) / max(rows_total, 1),
                 "rate_hz": _r(self.rate_hz), "period_s": _r(self.period_s),
-                "jitter_s": _r(self.jitter_s), "gaps": len(self.gaps),
-                "gap_total_s": _r(sum(g[1] for g in self.gaps)),
+                "jitter_s": _r(self.jitter_s), "gaps": len(gaps),
+                "gap_total_s": _r(sum(g[1] for g in gaps)),
                 "longest_gaps": [{"t_s": _r(a), "duration_s": _r(b)}
                                  for a, b in gaps[:GAPS_LISTED]]}
+
+    def lost(self, paused: np.ndarray | None = None) -> list[tuple[float, float]]:
+        """The gaps where samples were lost: [(t_start [s], duration [s])] of the stream's
+        silence while the logger wrote rows: each of the recording's pauses inside the gap
+        (``paused``, (P, 2) [start, end] [s], each between two rows: inside a gap or outside
+        it) counts as one period of the stream, as if its run had gone on; a gap is lost
+        when that is longer than GAP_PERIODS of the stream's periods, as in a recording
+        without pauses (a dwell recording's stream, silent from one dwell to the next with
+        the rows, loses nothing)."""
+        if paused is None or not len(paused) or not self.gaps:
+            return list(self.gaps)
+        cum = np.concatenate([[0.0], np.cumsum(paused[:, 1] - paused[:, 0])])
+        out = []
+        for a, d in self.gaps:
+            i = np.searchsorted(paused[:, 0], a - 1e-9)
+            j = np.searchsorted(paused[:, 1], a + d + 1e-9, side="right")
+            left = d - (cum[j] - cum[i]) + (j - i) * self.period_s if j > i else d
+            if left > GAP_PERIODS * self.period_s:
+                out.append((a, float(left)))
+        return out
+
+
+def pauses(t: np.ndarray, period_s: float | None = None) -> np.ndarray:
+    """(P, 2) [start, end] [s]: the intervals between consecutive rows of times ``t`` [s]
+    longer than GAP_PERIODS row periods (``period_s``, by default :func:`row_period`): the
+    logger wrote no row at all (between the dwells of a recording taken at dwells, or a
+    logger that stopped). The stretches between them are the recording's runs."""
+    if len(t) < 2:
+        return np.zeros((0, 2))
+    dt = np.diff(t)
+    period = row_period(t) if period_s is None else period_s
+    k = np.flatnonzero(dt > GAP_PERIODS * max(period, 1e-12))
+    return np.column_stack([t[k], t[k + 1]])
+
+
+def row_period(t: np.ndarray) -> float:
+    """The rows' median interval [s] between distinct instants ``t`` [s]: files split by
+    sensor merge into rows of equal times (one per stream), whose zero intervals are not
+    the logger's period."""
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if len(dt) else 0.0
+
+
+def runs_report(paused: np.ndarray) -> dict:
+    """The recording's runs as the report lists them: how many, and the pauses between."""
+    return {"runs": int(len(paused) + 1), "pauses": int(len(paused)),
+            "pause_total_s": _r(float(np.sum(paused[:, 1] - paused[:, 0])))}
 
 
 def _r(x: float) -> float:
@@ -595,7 +646,9 @@ def condition(rec):
     report is ``{"streams": {name: ...}, "alignment": ... or None, "condensed": ... or
     None}`` (docs/formats/recording-streams.md)."""
     streams = describe(rec)
-    report = {"streams": {k: v.report(rec.n_samples) for k, v in streams.items()}}
+    paused = pauses(rec.t)
+    report = {"streams": {k: v.report(rec.n_samples, paused) for k, v in streams.items()},
+              "runs": runs_report(paused)}
     rec, al = align(rec, streams)
     report["alignment"] = al.report() if al is not None else None
     rec, info = condense(rec, ROW_BUDGET)
@@ -604,14 +657,19 @@ def condition(rec):
 
 
 def summary_line(report: dict) -> str:
-    """One line for a person: each stream's rate, jitter and gaps; alignment; condensing."""
+    """One line for a person: the recording's runs (when it pauses), each stream's rate
+    (within runs), jitter and lost samples; alignment; condensing."""
     parts = []
+    runs = report.get("runs")
+    if runs and runs["pauses"]:
+        parts.append(f"rows in {runs['runs']} runs ({runs['pauses']} pauses without rows, "
+                     f"{runs['pause_total_s']:.3g} s; rates within runs)")
     for name, s in report["streams"].items():
         txt = f"{name} {s['rate_hz']:.4g} Hz"
         if s["jitter_s"] > 1e-6:
             txt += f" (jitter {s['jitter_s'] * 1e3:.2g} ms)"
         if s["gaps"]:
-            txt += f", {s['gaps']} gaps ({s['gap_total_s']:.3g} s)"
+            txt += f", {s['gaps']} gaps ({s['gap_total_s']:.3g} s without samples)"
         parts.append(txt)
     line = "; ".join(parts)
     al = report.get("alignment")

@@ -5,6 +5,7 @@ decimating while reading gives the answer of the full (uncondensed) fit."""
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import replace
 
 import numpy as np
@@ -221,3 +222,44 @@ def test_the_long_log_writer_writes_streams_window_by_window(slipped):
     assert "controller" not in st
     # the truth of a dwell is kept as its two ends: the same readings between them
     assert len(truth.t) < 0.95 * (truth.t[-1] - truth.t[0]) * PHYSICS_HZ
+
+
+def test_the_long_log_writer_drops_what_the_logger_s_dropouts_say(slipped):
+    # encoders (every row) and tracker dropouts: no sample inside them, samples all around
+    from bench.logger_sim import dropout_intervals, write_long_log
+    from bench.recording import read_recording
+
+    sc, truth, _, d = slipped
+    spec = replace(THREE, dropouts=(("encoders", 2.0, 0.3, 0.6), ("tracker", 2.0, 1.0, 2.0)))
+    r = read_recording(write_long_log(d / "drops", sc, spec, truth, window_rows=7_000))
+    iv = dropout_intervals(spec, sc.seed, r.t[0], r.t[-1])
+    found = streams.describe(r)
+    for name, g in (("encoders", r.l_meas), ("tracker", r.pose_meas)):
+        assert len(iv[name]) >= 2
+        has = np.isfinite(g).any(axis=1)
+        inside = np.zeros(r.n_samples, dtype=bool)
+        for a, b in iv[name]:
+            inside |= (r.t >= a) & (r.t <= b)
+        assert inside.any() and not has[inside].any()
+        assert has[~inside].mean() > (0.99 if name == "encoders" else 0.09)
+        assert len(found[name].gaps) >= 1
+    assert found["load_cells"].gaps == []
+
+
+def test_a_logger_that_pauses_reads_as_runs_whole_or_in_blocks(slipped, monkeypatch):
+    # the logger wrote no row for 5 s, 2 s and 0.5 s: three pauses, four runs, the same whole
+    # or in blocks (a pause across a block's edge too); no stream lost samples of its own
+    _, _, rec, d = slipped
+    paused = d / "paused"
+    shutil.copytree(rec, paused)
+    lines = (paused / "recording.csv").read_text().splitlines()
+    t = np.array([float(ln.split(",", 1)[0]) for ln in lines[1:]])
+    cut = ((t > 40) & (t < 45)) | ((t > 90) & (t < 92)) | ((t > 150) & (t < 150.5))
+    keep = [ln for ln, c in zip(lines[1:], cut, strict=True) if not c]
+    (paused / "recording.csv").write_text("\n".join([lines[0], *keep]) + "\n")
+    (_, ra, _), (_, rb, _) = _conditioned_pair(paused, monkeypatch)
+    assert rb["read"]["blocks"] > 10
+    assert ra["runs"] == rb["runs"] and ra["runs"]["runs"] == 4
+    assert ra["runs"]["pause_total_s"] == pytest.approx(7.5, abs=0.05)
+    assert rb["streams"] == ra["streams"]
+    assert all(s["gaps"] == 0 for s in ra["streams"].values())

@@ -319,14 +319,13 @@ def test_benchmarks_page_is_the_generators_output():
 
 
 def test_evaluation_page_is_the_generators_output_of_its_records():
-    """docs/evaluation.md regenerates from the records it names (docs/data/evaluation.jsonl),
-    but for the time the page was made: its figures were not edited by hand."""
-    from bench.commands.evaluate import read_results
-    from bench.evaluation_page import page
+    """docs/evaluation.md regenerates from the records it names (docs/data/evaluation.jsonl,
+    and the new kinds' file when it has their section), but for the time the page was made:
+    its figures were not edited by hand."""
+    from bench.evaluation_page import load, page
 
     text = (DOCS / "evaluation.md").read_text()
-    source = re.search(r"^\| records \| `(.+)` \|$", text, re.M).group(1)
+    sources = re.findall(r"^\| records \| `(.+)` \|$", text, re.M)
     made = re.search(r"^\| page made \| (.+) \|$", text, re.M).group(1)
-    header, records = read_results(ROOT / source)
-    cases = [r for _, r in sorted(records.items()) if "error" not in r]
-    assert page(header, cases, len(records) - len(cases), made, source) == text
+    new = (*load(str(ROOT / sources[1])), sources[1]) if len(sources) > 1 else None
+    assert page(*load(str(ROOT / sources[0])), made, sources[0], new=new) == text

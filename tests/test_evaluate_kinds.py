@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 
-from bench.evaluate import NEW_KINDS, _duration, make_case, record, scenario_of
+from bench.evaluate import DROPOUTS, NEW_KINDS, _duration, make_case, record, scenario_of
 from bench.logger_sim import LoggerSpec
 from controller.robot import resolve_robot
 
@@ -40,6 +40,21 @@ def test_a_logger_case_says_how_its_logger_writes():
     assert spec.tracker_hz <= 50.0 and spec.empty in ("nan", "")
     assert case["recording"]["kind"] == "continuous" and case["recording"]["dwell_at_targets"]
     assert {f.name for f in dataclasses.fields(LoggerSpec)} >= set(case["case"]["logger"])
+
+
+def test_logger_cases_draw_sensor_dropouts_per_stream():
+    # each stream in some cases and not in others, rates and durations in their ranges, as
+    # LoggerSpec data; the other draws of a case do not depend on them
+    seen: dict[str, int] = {s: 0 for s in DROPOUTS}
+    cases = [_case(seed, kind="logger") for seed in range(46000, 46012)]
+    for case in cases:
+        spec = LoggerSpec(**case["case"]["logger"])
+        for stream, rate, short, long_ in spec.dropouts:
+            (r0, r1), (s0, s1), (l0, l1) = DROPOUTS[stream]
+            assert r0 <= rate <= r1 and s0 <= short <= s1 and l0 <= long_ <= l1
+            seen[stream] += 1
+    assert all(0 < k < len(cases) for k in seen.values()), seen
+    assert any(not c["case"]["logger"]["dropouts"] for c in cases)
 
 
 def test_an_hour_case_lasts_an_hour():

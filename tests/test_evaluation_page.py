@@ -75,3 +75,37 @@ def test_a_file_that_is_not_an_evaluation_is_refused(tmp_path, capsys):
     assert main([str(empty)]) == 1
     assert "no cases" in capsys.readouterr().err
     assert main([]) == 2
+
+
+def test_a_second_file_adds_the_new_kinds_section_with_its_own_provenance(tmp_path):
+    first = _write(tmp_path / "eval.jsonl", [_case(1, True, True, "aaa")])
+    logger = _case(14005, True, True, "bbb") | {"truth": ["drum_scale"]}
+    logger["info"] = {"robot": "cogiro", "kind": "logger", "sensors": "all", "oov": "none",
+                      "logger": {"rows_hz": 200.0, "dropouts": [["tracker", 1.5, 1.0, 4.0]]}}
+    change = _case(14006, False, False, "bbb") | {"named": [], "unexplained": True}
+    change["info"] = {"robot": "ipanema", "kind": "load_change", "sensors": "all",
+                      "oov": "load_change"}
+    lines = [{"format": OUT_FORMAT, "config": {"kind": "new"}}, logger, change]
+    second = tmp_path / "new.jsonl"
+    second.write_text("".join(json.dumps(x) + "\n" for x in lines), encoding="utf-8")
+    out = tmp_path / "page.md"
+    assert main([str(first), str(second), "--out", str(out)]) == 0
+    text = out.read_text(encoding="utf-8")
+    head, sec = text.split("## The new kinds")
+    assert "| diagnosis commit | `aaa` |" in head and "`bbb`" not in head
+    assert "| diagnosis commit | `bbb` |" in sec and "`aaa`" not in sec
+    assert "`cdpr evaluate --cases 2 --seed 14005 --kind new`" in sec
+    assert f"| records | `{second}` |" in sec
+    assert ("| 14005 | logger | cogiro | all | rows 200 Hz; dropouts: tracker 1.5/min 1-4 s | "
+            "drum_scale | drum_scale | no | yes |") in sec
+    assert "| 14006 | load_change | ipanema | all | - | drum_scale, *load_change* | none | yes " \
+           "| no |" in sec
+    assert "| load_change | 1 | 0 |" in sec  # by kind: outside the vocabulary
+    # a dropout drawn for a stream the case does not record is not said
+    logger["info"] |= {"sensors": "no_tracker"}
+    second.write_text("".join(json.dumps(x) + "\n" for x in lines), encoding="utf-8")
+    assert main([str(first), str(second), "--out", str(out)]) == 0
+    assert "| no_tracker | rows 200 Hz; dropouts: none |" in out.read_text(encoding="utf-8")
+    # one file: no such section
+    assert main([str(first), "--out", str(out)]) == 0
+    assert "## The new kinds" not in out.read_text(encoding="utf-8")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import bench.streams as streams
-from bench.logger_sim import LoggerSpec, simulate_truth, write_log
+from bench.logger_sim import LoggerSpec, dropout_intervals, simulate_truth, write_log
 from bench.recording import RecordingError, read_recording
 from firmware_sim.scenario import parse_scenario
 
@@ -91,6 +91,18 @@ def test_a_recording_split_across_files_reads_as_one(tmp_path, small, split):
         sb = streams.describe(parts)
         for name in ("encoders", "load_cells", "tracker"):
             assert sa[name].rate_hz == pytest.approx(sb[name].rate_hz, rel=1e-9)
+
+
+def test_files_split_by_sensor_at_one_rate_read_as_one_run(tmp_path, small):
+    # every stream at the rows' rate in its own file: the merged rows repeat each instant
+    # once per stream (zero intervals); no pause, no gap, the rows' rate
+    same = {"rows_hz": 100.0, "encoders_hz": 100.0, "load_cells_hz": 100.0,
+            "tracker_hz": 100.0}
+    rec = read_recording(_log(tmp_path, small, "split1", **same, split="sensor"))
+    assert np.mean(np.diff(rec.t) == 0) > 0.6
+    _, report = streams.condition(rec)
+    assert report["runs"]["pauses"] == 0 and "runs" not in streams.summary_line(report)
+    assert all(s["gaps"] == 0 for s in report["streams"].values())
 
 
 def test_rates_jitter_and_gaps_are_found(tmp_path, small):
@@ -319,3 +331,78 @@ def test_a_child_forked_after_polars_ran_reads_without_deadlock(tmp_path, small,
         child.join()
         pytest.fail("the forked child did not finish reading in 60 s (polars deadlock)")
     assert out.get(timeout=5) == rows
+
+
+DWELLS = {"format": "cdpr-scenario/1", "robot": "rocaspect", "seed": 5,
+          "init_pose": [10.0, 8.56, 1.0, 0.0, 0.0, 0.0],
+          "poses": {"kind": "grid", "n": [2, 2, 1], "x": [8.0, 12.0], "y": [6.0, 11.0],
+                    "rpy_deg": 1.0, "visits": 2, "dwell_s": 2.0, "init_s": 3.0}}
+
+
+def test_a_dwell_recording_s_line_says_runs_not_gaps(tmp_path):
+    # the project's recorder writes rows at dwells only: the pauses between dwells are the
+    # recording's runs, no stream lost anything
+    from bench.campaign import run_campaign
+
+    run_campaign(parse_scenario(DWELLS), tmp_path / "dwells")
+    rec = read_recording(tmp_path / "dwells")
+    _, report = streams.condition(rec)
+    line = streams.summary_line(report)
+    assert report["runs"]["runs"] == 9 and report["runs"]["pauses"] == 8  # 8 visits + init
+    assert "rows in 9 runs" in line and "gaps" not in line
+    assert all(s["gaps"] == 0 for s in report["streams"].values())
+    # the tracker lost inside a dwell (3 of its 5 rows, 1.5 s): named, the other streams not
+    dwell = np.flatnonzero(rec.t > 20.0)[:5]
+    rec.pose_meas[dwell[1:4]] = np.nan
+    _, report = streams.condition(rec)
+    assert report["streams"]["tracker"]["gaps"] == 1
+    assert report["streams"]["tracker"]["longest_gaps"][0]["duration_s"] == pytest.approx(2.0)
+    assert "tracker 2 Hz, 1 gaps (2 s without samples)" in streams.summary_line(report)
+    assert report["streams"]["encoders"]["gaps"] == 0
+
+
+def _union(iv: np.ndarray) -> np.ndarray:
+    """Intervals (D, 2) [s] with those that overlap merged, sorted."""
+    out: list[list[float]] = []
+    for a, b in iv[np.argsort(iv[:, 0])]:
+        if out and a <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return np.array(out)
+
+
+def test_a_logger_s_dropouts_are_named_where_they_are(tmp_path, small):
+    # tracker dropouts drawn by the logger (2 to 3 s, about 4 a minute): the report names
+    # each at its time; the streams without dropouts lose nothing
+    drops = (("tracker", 4.0, 2.0, 3.0),)
+    d = _log(tmp_path, small, "drops", **THREE, dropouts=drops)
+    rec = read_recording(d)
+    sc, _ = small
+    spec = LoggerSpec(physics_hz=10.0, **THREE, dropouts=drops)
+    iv = dropout_intervals(spec, sc.seed, rec.t[0], rec.t[-1])["tracker"]
+    iv = _union(iv[iv[:, 1] < rec.t[-1] - 0.1])  # overlapping dropouts are one gap
+    assert len(iv) >= 2
+    _, report = streams.condition(rec)
+    tr = report["streams"]["tracker"]
+    assert tr["gaps"] == len(iv)
+    found = sorted((g["t_s"], g["duration_s"]) for g in tr["longest_gaps"])
+    for (a, b), (t_s, dur) in zip(iv, found, strict=False):
+        assert t_s == pytest.approx(a, abs=0.05) and dur == pytest.approx(b - a, abs=0.1)
+    assert "tracker 25 Hz (jitter" in streams.summary_line(report)
+    assert f", {len(iv)} gaps (" in streams.summary_line(report)
+    assert report["streams"]["encoders"]["gaps"] == 0 and report["runs"]["pauses"] == 0
+    assert "runs" not in streams.summary_line(report)
+
+
+def test_without_dropouts_the_logger_samples_as_before(tmp_path, small):
+    # the dropouts draw from a generator of their own: a logger without them writes the
+    # same file as before they existed; one with them differs only in the dropped stream
+    a = read_recording(_log(tmp_path, small, "a", **THREE))
+    b = read_recording(_log(tmp_path, small, "b", **THREE, dropouts=(("load_cells", 3.0, 1.0,
+                                                                       2.0),)))
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.l_meas, b.l_meas)
+    lost = np.isfinite(a.tau).any(axis=1) & ~np.isfinite(b.tau).any(axis=1)
+    assert lost.sum() > 0 and not (np.isfinite(b.tau).any(axis=1)
+                                    & ~np.isfinite(a.tau).any(axis=1)).any()
