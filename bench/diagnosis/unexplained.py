@@ -202,7 +202,9 @@ def _by_time(rm: ResidualModel, L: np.ndarray, probed, out: dict,
         tr = _trend(L[:, k], tt, w, s.target, clusters, span)
         if tr is not None:
             trend.append((cid, *tr))
-    common = _trend(np.nanmean(L, axis=1), tt, w, s.target, clusters, span)
+    seen = np.isfinite(L).sum(axis=1)  # a sample with no cable's length: nan, no warning
+    mean = np.where(seen > 0, np.nansum(L, axis=1) / np.maximum(seen, 1), np.nan)
+    common = _trend(mean, tt, w, s.target, clusters, span)
     out["time"] = {"span_s": span,
                    "by_cable": {c: {"drift_over_noise": _r(d), "z": _r(z)}
                                 for c, d, z in trend}}
