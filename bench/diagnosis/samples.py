@@ -320,13 +320,15 @@ def _moving(rec: Recording) -> np.ndarray:
     return known & ~still
 
 
-def _runs(keys: np.ndarray, states: list[str] | None, t: np.ndarray | None = None
-          ) -> list[tuple[int, int]]:
+def _runs(keys: np.ndarray, states: list[str] | None, t: np.ndarray | None = None,
+          source_rows: np.ndarray | None = None) -> list[tuple[int, int]]:
     """Runs ``[a, b)`` of rows with one key and state: a new run where either changes, and
     after a gap of the log (``t`` [s]: a step longer than :data:`bench.streams.GAP_PERIODS`
-    median steps, the streams' own gap). Across a gap the log saw nothing: the rows after
-    it are another visit, even at the same commanded pose (the load changed while the
-    platform stood there: one sample over both would hide the change's time)."""
+    median steps, the streams' own gap; a step over rows the reader left out, ``source_rows``
+    the rows' indices in the log (a condensed recording keeps every k-th), counts per row
+    of the log it spans). Across a gap the log saw nothing: the rows after it are another
+    visit, even at the same commanded pose (the load changed while the platform stood
+    there: one sample over both would hide the change's time)."""
     N = len(keys)
     change = np.ones(N, dtype=bool)
     change[1:] = np.any(keys[1:] != keys[:-1], axis=1)
@@ -335,6 +337,8 @@ def _runs(keys: np.ndarray, states: list[str] | None, t: np.ndarray | None = Non
         change[1:] |= st[1:] != st[:-1]
     if t is not None and N > 2:
         dt = np.diff(np.asarray(t, float))
+        if source_rows is not None and len(source_rows) == N:
+            dt = dt / np.maximum(np.diff(np.asarray(source_rows, float)), 1.0)
         step = float(np.median(dt))
         if step > 0:
             change[1:] |= dt > GAP_PERIODS * step
@@ -607,7 +611,7 @@ def _split_runs(rec: Recording, init: np.ndarray
     path_rows: list[int] = []
     dropped = 0
     unknown: dict[str, int] = {}  # a lab's own state words and their rows
-    for a, b in _runs(_keys(rec), states, rec.t):
+    for a, b in _runs(_keys(rec), states, rec.t, rec.source_rows):
         st = states[a] if states is not None else None
         if st is not None and st.strip() and not known_state(st):
             unknown[st] = unknown.get(st, 0) + b - a
