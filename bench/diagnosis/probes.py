@@ -51,14 +51,12 @@ PROBE_SIZE = 1.0
 MIN_PER_SIGN = 3
 #: a cable's direction-dependent error is a finding only this many times the others' median
 DIRECTION_RATIO = 2.0
-#: the probes whose columns are smooth in time: where the error clusters are stretches of
-#: time (a recording with rows of moves), nearly constant within a cluster, their coefficient
-#: a contrast of the clusters, read on Student's t of the clusters less one
-#: (:func:`t_as_normal`). A direction or stretch column changes from move to move within a
-#: cluster, and a dwell campaign's clusters are targets whose visits lie apart in time:
-#: contrasts within the clusters inform those, the normal stays their reference (a 2 mm
-#: backlash on five clusters, 12820 of the 200-case evaluation, and a thermal strain on a
-#: dwell campaign of few targets, 12923, are declared)
+#: the probes whose columns are smooth in time, nearly constant within an error cluster (a
+#: stretch of time): their coefficient is a contrast of the clusters, read on Student's t of
+#: the clusters less one (:func:`t_as_normal`). A direction or stretch column changes from
+#: move to move within a cluster: contrasts within the clusters inform it, the normal stays
+#: its reference (a 2 mm backlash on five clusters, 12820 of the 200-case evaluation, is
+#: declared)
 IN_TIME = ("thermal", "drift")
 #: length change [m] of a probe column's finite difference (the probes are linear in it)
 STEP_M = 1e-4
@@ -384,9 +382,8 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
                    noise: float) -> tuple[list[ProbeResult], list[int]]:
     """Each probe fitted beside the effects: its value, BIC change (from the variance of its
     coefficient: classical, or cluster-robust over the error clusters where there are 3
-    or more, never below the classical; the z of a probe in time, :data:`IN_TIME`, on
-    clusters that are stretches of time then read on Student's t of the clusters less one,
-    :func:`t_as_normal`) and size over the
+    or more, never below the classical; the z of a probe in time, :data:`IN_TIME`, then read
+    on Student's t of the clusters less one, :func:`t_as_normal`) and size over the
     ``noise``, a finding marked; and the columns that gave a result. A direction-dependent
     error common to the cables is the winches' hysteresis, which the noise model holds (its
     direction component): one cable's is a finding only where it also stands out from the
@@ -403,8 +400,6 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
         Pp = Jp
     _, cluster = np.unique(rm.entry_blocks(idx), return_inverse=True)
     n_groups = int(cluster.max()) + 1 if cluster.size else 0
-    # (with rows of moves the clusters are stretches of time: samples._clusters)
-    stretches = bool((rm.s.kind == 1).any())
     out: list[ProbeResult] = []
     used: list[int] = []
     for j, (name, cid, _) in enumerate(cols):
@@ -417,7 +412,7 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
         if n_groups >= 3:  # cluster-robust (sandwich), never below the classical
             score = np.bincount(cluster, weights=Pp[:, j] * r, minlength=n_groups)
             var = max(var, float(score @ score) / info ** 2 * n_groups / (n_groups - 1))
-            if name in IN_TIME and stretches:
+            if name in IN_TIME:
                 z2 = t_as_normal(value ** 2 / var, n_groups - 1)
         # (a direction column is half the difference: its size is the half, as the
         # residuals' two-group test reports it)
