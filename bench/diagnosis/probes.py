@@ -36,7 +36,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from bench.diagnosis.fit import fd_jacobian
 from bench.diagnosis.residuals import ResidualModel
@@ -51,13 +50,6 @@ PROBE_SIZE = 1.0
 MIN_PER_SIGN = 3
 #: a cable's direction-dependent error is a finding only this many times the others' median
 DIRECTION_RATIO = 2.0
-#: the probes whose columns are smooth in time, nearly constant within an error cluster (a
-#: stretch of time): their coefficient is a contrast of the clusters, read on Student's t of
-#: the clusters less one (:func:`t_as_normal`). A direction or stretch column changes from
-#: move to move within a cluster: contrasts within the clusters inform it, the normal stays
-#: its reference (a 2 mm backlash on five clusters, 12820 of the 200-case evaluation, is
-#: declared)
-IN_TIME = ("thermal", "drift")
 #: length change [m] of a probe column's finite difference (the probes are linear in it)
 STEP_M = 1e-4
 
@@ -382,12 +374,10 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
                    noise: float) -> tuple[list[ProbeResult], list[int]]:
     """Each probe fitted beside the effects: its value, BIC change (from the variance of its
     coefficient: classical, or cluster-robust over the error clusters where there are 3
-    or more, never below the classical; the z of a probe in time, :data:`IN_TIME`, then read
-    on Student's t of the clusters less one, :func:`t_as_normal`) and size over the
-    ``noise``, a finding marked; and the columns that gave a result. A direction-dependent
-    error common to the cables is the winches' hysteresis, which the noise model holds (its
-    direction component): one cable's is a finding only where it also stands out from the
-    others'."""
+    or more, never below the classical) and size over the ``noise``, a finding marked;
+    and the columns that gave a result. A direction-dependent error common to the cables
+    is the winches' hysteresis, which the noise model holds (its direction component): one
+    cable's is a finding only where it also stands out from the others'."""
     Jc, Jp = lin.Jc, lin.Jp
     # each probe column less what the effects' columns hold of it (its coefficient's
     # information), and the error clusters (rows of neighbouring moves, a target's visits
@@ -408,15 +398,12 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
             continue
         _, value, r = lin.solve(lin.every, j)
         var = lin.inflation / info  # the classical variance of the probe's coefficient
-        z2 = math.inf
         if n_groups >= 3:  # cluster-robust (sandwich), never below the classical
             score = np.bincount(cluster, weights=Pp[:, j] * r, minlength=n_groups)
             var = max(var, float(score @ score) / info ** 2 * n_groups / (n_groups - 1))
-            if name in IN_TIME:
-                z2 = t_as_normal(value ** 2 / var, n_groups - 1)
         # (a direction column is half the difference: its size is the half, as the
         # residuals' two-group test reports it)
-        res = ProbeResult(name, cid, value, -min(value ** 2 / var, z2) + lin.log_n,
+        res = ProbeResult(name, cid, value, -value ** 2 / var + lin.log_n,
                           abs(value) * lin.sizes[j] / noise)
         res.finding = bool(res.delta_bic < -PROBE_BIC and res.size_over_noise > PROBE_SIZE)
         out.append(res)
@@ -427,26 +414,6 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
         if others and abs(r.value) <= DIRECTION_RATIO * float(np.median(others)):
             r.finding = False
     return out, used
-
-
-def t_as_normal(z2: float, dof: float) -> float:
-    """The squared normal deviate with the tail probability of Student's t of ``dof``
-    degrees of freedom at ``sqrt(z2)``: the chi-square of one degree of freedom a
-    cluster-robust coefficient test stands for, to compare with a BIC threshold.
-
-    With G clusters the sandwich variance of a coefficient is its true variance times a
-    chi-square of G - 1 degrees of freedom over G - 1 (errors correlated within a cluster,
-    independent between), so the coefficient over its standard error is Student's t of
-    G - 1; the variance used is never below the sandwich, so the t's tail bounds the false
-    alarms whatever the errors within a cluster do. Read as normal, a stretch of five
-    clusters made z = 6.7 a finding (a BIC change of -38, a false drift on a continuous
-    recording of 15 stops: 0.35 mm against their 0.2 mm of stop-to-stop error); its t of 4
-    degrees of freedom has the tail of z = 3.0. Never above ``z2`` (many clusters: the
-    normal)."""
-    if z2 <= 0 or not math.isfinite(z2):
-        return z2
-    p = float(stats.t.sf(math.sqrt(z2), dof))
-    return min(float(stats.norm.isf(p)) ** 2, z2) if p > 0 else z2
 
 
 def _stand(rm: ResidualModel, space: ParamSpace, phi: np.ndarray, idx: np.ndarray | None,
