@@ -266,7 +266,11 @@ def row_period(t: np.ndarray) -> float:
     """The rows' median interval [s] between distinct instants ``t`` [s]: files split by
     sensor merge into rows of equal times (one per stream), whose zero intervals are not
     the logger's period."""
-    dt = np.diff(t)
+    return median_step(np.diff(t))
+
+
+def median_step(dt: np.ndarray) -> float:
+    """The median of the positive steps ``dt`` [s] (0 when there are none)."""
     dt = dt[dt > 0]
     return float(np.median(dt)) if len(dt) else 0.0
 

@@ -175,3 +175,12 @@ def test_standing_on_either_side_of_a_gap_in_the_log_are_two_dwells():
     # log saw nothing across it: a load changed there shows as their difference)
     still = samples.prepare(_two_stands(0.0))
     assert still.n == 2 and np.ptp(still.l_meas[:, 0]) < 1e-6
+
+
+def test_a_gap_in_a_log_whose_instants_repeat_ends_a_dwell_too():
+    """A log split by sensor repeats each instant once per stream (steps of 0): the gap is
+    judged on the steps between distinct instants, not on a median step of 0."""
+    one = _two_stands(0.0)
+    t = np.repeat(one.t, 2)
+    s = samples.prepare(_encoders_only(t, np.repeat(one.l_meas, 2, axis=0)))
+    assert s.n == 2

@@ -44,6 +44,7 @@ from bench.streams import (
     jittered,
     length_acceleration,
     measured_acceleration,
+    median_step,
     signal_noise,
     still_rows,
 )
@@ -339,7 +340,7 @@ def _runs(keys: np.ndarray, states: list[str] | None, t: np.ndarray | None = Non
         dt = np.diff(np.asarray(t, float))
         if source_rows is not None and len(source_rows) == N:
             dt = dt / np.maximum(np.diff(np.asarray(source_rows, float)), 1.0)
-        step = float(np.median(dt))
+        step = median_step(dt)  # (a log split by sensor repeats each instant: steps of 0)
         if step > 0:
             change[1:] |= dt > GAP_PERIODS * step
     starts = np.flatnonzero(change)
