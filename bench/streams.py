@@ -256,10 +256,16 @@ def pauses(t: np.ndarray, period_s: float | None = None) -> np.ndarray:
     logger that stopped). The stretches between them are the recording's runs."""
     if len(t) < 2:
         return np.zeros((0, 2))
-    dt = np.diff(t)
-    period = row_period(t) if period_s is None else period_s
-    k = np.flatnonzero(dt > GAP_PERIODS * max(period, 1e-12))
+    k = np.flatnonzero(long_steps(np.diff(t), period_s))
     return np.column_stack([t[k], t[k + 1]])
+
+
+def long_steps(dt: np.ndarray, period_s: float | None = None) -> np.ndarray:
+    """Which steps ``dt`` [s] between consecutive rows are longer than GAP_PERIODS periods
+    (``period_s``, by default :func:`median_step` of ``dt``: none where no step is
+    positive)."""
+    period = median_step(dt) if period_s is None else period_s
+    return dt > GAP_PERIODS * max(period, 1e-12)
 
 
 def row_period(t: np.ndarray) -> float:

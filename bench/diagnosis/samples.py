@@ -39,12 +39,11 @@ import numpy as np
 from bench.diagnosis.frame import pose_rates
 from bench.recording import Recording, RecordingError
 from bench.streams import (
-    GAP_PERIODS,
     MOTION_WINDOW_S,
     jittered,
     length_acceleration,
+    long_steps,
     measured_acceleration,
-    median_step,
     signal_noise,
     still_rows,
 )
@@ -340,9 +339,7 @@ def _runs(keys: np.ndarray, states: list[str] | None, t: np.ndarray | None = Non
         dt = np.diff(np.asarray(t, float))
         if source_rows is not None and len(source_rows) == N:
             dt = dt / np.maximum(np.diff(np.asarray(source_rows, float)), 1.0)
-        step = median_step(dt)  # (a log split by sensor repeats each instant: steps of 0)
-        if step > 0:
-            change[1:] |= dt > GAP_PERIODS * step
+        change[1:] |= long_steps(dt)  # (steps of 0, a log split by sensor, not counted)
     starts = np.flatnonzero(change)
     return list(zip(starts.tolist(), list(starts[1:].tolist()) + [N], strict=True))
 
