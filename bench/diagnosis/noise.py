@@ -157,22 +157,40 @@ def _centre(x: np.ndarray, g: np.ndarray) -> np.ndarray:
     return x - means[g]
 
 
-def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+def _unit_sums(U: np.ndarray, unit: np.ndarray, n_u: int) -> np.ndarray:
+    """Columns of ``U`` (m, q) summed over each error unit ``unit`` (m,): (n_u, q)."""
+    return np.stack([np.bincount(unit, weights=U[:, k], minlength=n_u)
+                     for k in range(U.shape[1])], axis=1)
+
+
+def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float,
+              beside: np.ndarray | None = None
               ) -> tuple[float, float, float, np.ndarray] | None:
     """Least squares of deviations ``x`` (m,) on regressors ``U`` (m, q), both centred within
     their replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
     independent, the samples of one are not. ``dof0`` the units' degrees of freedom before;
-    the residual variance floored at ``floor2`` per sample. Returns (the sum of squares the
-    regressors take, the residual variance per unit, its degrees of freedom, the fitted part
-    per unit); None where nothing is fitted or fewer than two degrees of freedom are left."""
+    the residual variance floored at ``floor2`` per sample. ``beside`` (m, k): regressors
+    fitted with ``U`` whose part is no finding (:func:`_beside_direction`): ``x`` and ``U``
+    are taken orthogonal to them, their degrees of freedom (their rank) spent. Returns (the
+    sum of squares the regressors take, the residual variance per unit, its degrees of
+    freedom, the fitted part per unit); None where nothing is fitted or fewer than two
+    degrees of freedom are left."""
     q = U.shape[1]
     dof = dof0 - q
     if dof < 2 or not np.any(U):
         return None
     n_u = int(unit.max()) + 1
     xs = np.bincount(unit, weights=x, minlength=n_u)
-    A = np.stack([np.bincount(unit, weights=U[:, k], minlength=n_u) for k in range(q)],
-                 axis=1)
+    A = _unit_sums(U, unit, n_u)
+    if beside is not None:
+        Q, rank = _basis(_unit_sums(beside, unit, n_u))
+        dof -= rank
+        if dof < 2:
+            return None
+        xs = xs - Q @ (Q.T @ xs)
+        A = A - Q @ (Q.T @ A)
+        if not np.any(np.abs(A) > 1e-12 * max(1.0, float(np.abs(U).max()))):
+            return None
     size_u = np.bincount(unit, minlength=n_u).astype(float)
     coef, *_ = np.linalg.lstsq(A, xs, rcond=None)
     fitted = A @ coef
@@ -183,6 +201,16 @@ def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor
     return gain, max(rss1 / dof, floor2 * float(np.mean(size_u))), dof, fitted
 
 
+def _basis(B: np.ndarray) -> tuple[np.ndarray, int]:
+    """An orthonormal basis (n_u, r) of the columns of ``B`` (n_u, k) and its rank ``r``
+    (singular values above 1e-9 of the largest)."""
+    if not B.size:
+        return B[:, :0], 0
+    u, sv, _ = np.linalg.svd(B, full_matrices=False)
+    r = int(np.sum(sv > 1e-9 * max(float(sv[0]), 1e-300)))
+    return u[:, :r], r
+
+
 def _size(fitted: np.ndarray, s2: float) -> float:
     """RMS of a fitted part over the units it moves, in units of the spread ``sqrt(s2)``."""
     moved = np.abs(fitted) > 0
@@ -190,10 +218,11 @@ def _size(fitted: np.ndarray, s2: float) -> float:
 
 
 def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float,
-           independent: bool = False) -> tuple[float, float] | None:
-    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,) (:func:`_unit_fit`).
-    Returns (p-value, RMS of the fitted part over its residual spread)."""
-    got = _unit_fit(x, U, unit, dof0, floor2)
+           independent: bool = False, beside: np.ndarray | None = None
+           ) -> tuple[float, float] | None:
+    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,) (:func:`_unit_fit`, with
+    ``beside``). Returns (p-value, RMS of the fitted part over its residual spread)."""
+    got = _unit_fit(x, U, unit, dof0, floor2, beside)
     if got is None:
         return None
     gain, s2, dof, fitted = got
@@ -253,16 +282,29 @@ def _splits(t: np.ndarray, inv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mids, mids
 
 
-def _refined(best_t: float, coarse: np.ndarray, every: np.ndarray) -> np.ndarray:
+def _refined(best_t: float, coarse: np.ndarray, every: np.ndarray,
+             p_coarse: np.ndarray | None = None) -> np.ndarray:
     """The candidate times of ``every`` between the coarse scan's (``coarse``) neighbours of
     its best time ``best_t`` [s], not scanned yet: a step lies between two samples, and a
     coarse time a few samples off splits some visits on the wrong side (load_change seed
     46102: a step of z 15 placed after the first sample of the new load; at its own time
-    z 24). Counted in the Bonferroni correction with the coarse times."""
+    z 24). With the coarse times' p-values ``p_coarse``, also between the neighbours of the
+    better of the best's two neighbours: the step lies on that side, and where the p-values
+    beside a step are not monotone (visits of poses near the time on either side) the best
+    coarse time can be the second one from it (load_change seed 46108: the coarse times'
+    best 62 s after the change, its own time beyond the best's neighbour). Counted in the
+    Bonferroni correction with the coarse times."""
     k = int(np.searchsorted(coarse, best_t))
-    lo = coarse[k - 1] if k > 0 else -np.inf
-    hi = coarse[k + 1] if k + 1 < len(coarse) else np.inf
-    return np.setdiff1d(every[(every > lo) & (every < hi)], coarse)
+    centres = [k]
+    if p_coarse is not None and len(coarse) > 2:
+        sides = [i for i in (k - 1, k + 1) if 0 <= i < len(coarse)]
+        centres.append(min(sides, key=lambda i: p_coarse[i]))
+    keep = np.zeros(len(every), dtype=bool)
+    for c in centres:
+        lo = coarse[c - 1] if c > 0 else -np.inf
+        hi = coarse[c + 1] if c + 1 < len(coarse) else np.inf
+        keep |= (every > lo) & (every < hi)
+    return np.setdiff1d(every[keep], coarse)
 
 
 def _scanned(scan: Callable[[np.ndarray, tuple | None], tuple | None], coarse: np.ndarray,
@@ -271,42 +313,49 @@ def _scanned(scan: Callable[[np.ndarray, tuple | None], tuple | None], coarse: n
     and its time [s] third; None: no test) over the coarse times ``coarse``, then over
     :func:`_refined`'s near the best of them (``every``: all the candidates); and the number
     of times scanned, for the Bonferroni correction."""
-    best = scan(coarse, None)
-    if best is None:
+    each = [scan(coarse[i:i + 1], None) for i in range(len(coarse))]
+    p_coarse = np.array([1.0 if b is None else b[0] for b in each])
+    tried = [b for b in each if b is not None]
+    if not tried:
         return None, len(coarse)
-    extra = _refined(best[2], coarse, every)
+    best = min(tried, key=lambda b: b[0])
+    extra = _refined(best[2], coarse, every, p_coarse)
     return scan(extra, best), len(coarse) + len(extra)
 
 
 def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
-          dof0: float, floor2: float, independent: bool = False
-          ) -> tuple[float, float, float] | None:
+          dof0: float, floor2: float, independent: bool = False,
+          beside: np.ndarray | None = None) -> tuple[float, float, float] | None:
     """The most significant step of deviations ``x`` over the candidate times (the coarse
     scan, then :func:`_refined`): (p-value Bonferroni-corrected over the times and the
     forms tried, size, time [s]). The step is the same at every pose, or a smooth function
     of it (``[1, x, y, z]`` from the step on, where the degrees of freedom allow it): both
     are tried (a uniform step, a new load in the force balance, is tested by one
     parameter, not spread over four that a few replicate groups would nearly saturate).
-    ``independent``: as :func:`systematic_p`."""
+    ``independent``: as :func:`systematic_p`. ``beside`` (m, k) (:func:`_beside_direction`):
+    each form is tried alone and with these regressors fitted beside it (:func:`_unit_fit`),
+    both counted in the correction."""
     every, coarse = _splits(t, inv)
     if not len(coarse):
         return None
     forms = _forms(_pose_features(pos), dof0)
+    besides = [None] if beside is None else [None, beside]
 
     def scan(times: np.ndarray, best: tuple | None) -> tuple | None:
         for tm in times:
             after = t >= tm
             for f in forms:
-                got = _ftest(x, _step_regressors(f, inv, after), unit, dof0, floor2,
-                             independent)
-                if got is not None and (best is None or got[0] < best[0]):
-                    best = (got[0], got[1], float(tm))
+                for v in besides:
+                    got = _ftest(x, _step_regressors(f, inv, after), unit, dof0, floor2,
+                                 independent, v)
+                    if got is not None and (best is None or got[0] < best[0]):
+                        best = (got[0], got[1], float(tm))
         return best
 
     best, n_times = _scanned(scan, coarse, every)
     if best is None:
         return None
-    return min(best[0] * n_times * len(forms), 1.0), best[1], best[2]
+    return min(best[0] * n_times * len(forms) * len(besides), 1.0), best[1], best[2]
 
 
 def _direction(x: np.ndarray, g: np.ndarray, d: np.ndarray, unit: np.ndarray,
@@ -323,6 +372,33 @@ def _direction(x: np.ndarray, g: np.ndarray, d: np.ndarray, unit: np.ndarray,
         return None
     return _ftest(xc, _centre(sign[idx][:, None].astype(float), inv), uinv, dof0, floor2,
                   independent)
+
+
+def _beside_direction(d: np.ndarray, tau: np.ndarray, inv: np.ndarray, dof0: float
+                      ) -> np.ndarray | None:
+    """Regressors of the direction of travel, to fit beside a step (:func:`_step` tries it
+    with and without them): per cable, the sign of its last move ``d`` (m, n) times its
+    tension at the pose (the mean of ``tau`` (m, n) [N] over the replicate group ``inv``
+    (m,); 1 where a sample's tension is not measured), centred within the groups. Friction at
+    the pulleys or in the winches (outside the vocabulary) pulls against the motion in
+    proportion to the tension: a visit's load-cell and length residuals depend on the
+    direction each cable came from, visits of one pose differ by far more than their noise,
+    and that spread pooled as noise hides a step beside it (load_change seeds 46103, 46108:
+    the force balance's step at the change's time 1.4 times that spread, 3.1 beside these
+    regressors). The group's mean tension, not the sample's own: a change of load changes
+    the tensions from its time on, the regressors must not hold the step. None where they
+    would leave fewer than 8 degrees of freedom beside a step's richest form (as
+    :func:`_forms`)."""
+    sign = np.sign(np.nan_to_num(d)).astype(float)
+    mag = np.ones_like(sign)
+    seen = np.isfinite(tau).all(axis=0)
+    if seen.any():
+        mag[:, seen] = tau[:, seen] - _centre(tau[:, seen], inv)
+    V = _centre(sign * mag, inv)
+    V = V[:, np.abs(V).max(axis=0) > 0]
+    if V.shape[1] == 0 or dof0 - V.shape[1] - 4 < 8:
+        return None
+    return V
 
 
 def _pose_features(pos: np.ndarray) -> np.ndarray:
@@ -507,7 +583,8 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
             idx, inv, uinv, x, dof0 = col
             floor2 = float(np.mean(white2[idx]))
             t = s.t[idx]
-            got = _step(x, inv, uinv, t, pos[idx], dof0, floor2, independent)
+            beside = _beside_direction(s.direction[idx], s.tau[idx], inv, dof0)
+            got = _step(x, inv, uinv, t, pos[idx], dof0, floor2, independent, beside)
             if got is not None:
                 hits.setdefault("step", []).append((got[0] * m, got[1], got[2], names[j]))
             tr = _ftest(x, _centre((t - t.mean())[:, None], inv), uinv, dof0, floor2,
