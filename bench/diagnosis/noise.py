@@ -87,6 +87,9 @@ class Change:
     #: found by the columns together (:func:`_joint_step`), none alone: a change of every
     #: cable (the platform's load), no one cable's slip
     joint: bool = False
+    #: a step of block ``load`` (:func:`bench.diagnosis.loadstep.find`): the platform's
+    #: load changed by this much [kg]
+    load_kg: float | None = None
 
     def entry(self) -> dict:
         """The report's object (``unexplained.changes[]``; ``mismatch.noise.systematic``)."""
@@ -97,6 +100,8 @@ class Change:
             out["between_s"] = [_round(self.before_s), _round(self.after_s)]
         if self.joint:
             out["joint"] = True
+        if self.load_kg is not None:
+            out["load_change_kg"] = _round(self.load_kg, 2)
         if self.named is not None:
             out["named"] = dict(self.named)
         return out
@@ -693,9 +698,13 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
     """Mark the steps of length residuals that a named slip accounts for: a slip of one of
     the step's cables at a time between its samples (``slip_times``: cable id -> t [s] of
     the slips the report names), or a length offset the report names (``offsets``: cable
-    ids) on one of the step's cables: that offset began at the step's time."""
+    ids) on one of the step's cables: that offset began at the step's time. A joint step
+    (:func:`_joint_step`: every cable's, no column alone showing it) is none of one cable's
+    slip or offset (seed 47110: a load change without cells, the fit's false slip of one
+    cable inside its bracket had taken it)."""
     for c in changes:
-        if c.kind != "step" or c.block != "length":
+        # (a joint step is every cable's, none alone showing it: no one cable's slip)
+        if c.kind != "step" or c.block != "length" or c.joint:
             continue
         lo = c.before_s if c.before_s is not None else -np.inf
         hi = c.after_s if c.after_s is not None else np.inf
@@ -706,8 +715,7 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
                 break
         # (where a sample's pose or tensions are estimated, one cable's slip moves every
         # cable's residual: the slipped cable need not show most)
-        # (a joint step is every cable's: a named offset of one of them says nothing of it)
-        mine = [cid for cid in c.columns if cid in offsets and not c.joint]
+        mine = [cid for cid in c.columns if cid in offsets]
         if c.named is None and mine:
             c.named = {"effect": "cable_length_offset", "cable": mine[0], "t_s": _round(c.t_s)}
 
@@ -752,9 +760,18 @@ def high_frequency(rm: ResidualModel, b: Blocks) -> dict[str, float]:
 def separate(rm: ResidualModel, say=lambda m: None) -> list[Change]:
     """Test ``rm``'s replicate visits under its model (:func:`find_changes`) and, where a step
     is found, split the replicate groups (``rm.s.target``) at its time and estimate the
-    noise again: the noise comes from what is random. Returns every change found."""
+    noise again: the noise comes from what is random. Where no block shows a step, the
+    residuals are tested along a change of the platform's load (:func:`bench.diagnosis.
+    loadstep.find`: without load cells, a new load moves every entry by a fraction of its
+    noise). Returns every change found."""
+    from bench.diagnosis import loadstep
+
     model = rm.model
-    changes = find_changes(rm, rm.blocks(model))
+    b = rm.blocks(model)
+    changes = find_changes(rm, b)
+    if not any(c.kind == "step" for c in changes):
+        load = loadstep.find(rm, b)
+        changes += [load] if load is not None else []
     for c in changes:
         where = f" from t = {c.t_s:.1f} s" if c.t_s is not None and c.kind == "step" else ""
         say(f"replicate visits differ systematically ({c.kind}{where}, {c.block} "
