@@ -139,8 +139,9 @@ def find(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | None = No
     if p >= noise.P_SYSTEMATIC or best[1] < noise.MIN_JOINT_SIZE:
         return None
     U = _regressor(u, inv, t >= best[2])[:, 0]
-    A = np.bincount(uinv, weights=U)
-    kg = -float(A @ np.bincount(uinv, weights=x) / (A @ A))
+    size_u = np.bincount(uinv)
+    A = np.bincount(uinv, weights=U) / size_u  # (units' means, as the test's)
+    kg = -float(A @ (np.bincount(uinv, weights=x) / size_u) / (A @ A))
     t_live = s.t[~s.is_init]
     before, after = t_live[t_live < best[2]], t_live[t_live > best[2]]
     return noise.Change("step", "load", ["mass"], best[2], noise._z_of(p), best[1],

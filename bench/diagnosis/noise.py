@@ -172,9 +172,14 @@ def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor
               beside: np.ndarray | None = None
               ) -> tuple[float, float, float, np.ndarray] | None:
     """Least squares of deviations ``x`` (m,) on regressors ``U`` (m, q), both centred within
-    their replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
-    independent, the samples of one are not. ``dof0`` the units' degrees of freedom before;
-    the residual variance floored at ``floor2`` per sample. ``beside`` (m, k): regressors
+    their replicate groups, averaged over each error unit ``unit`` (m,) (labels 0..): units
+    are independent, the samples of one are not. Averaged, not summed: a unit's samples
+    share its slow error, their mean's spread is about one sample's whatever their number,
+    their sum's grows with it (summed, a move of a dozen rows weighed twelve times a dwell,
+    and the spread pooled over both was neither's: the null continuous_dwell campaigns
+    12819 and 12840 read steps of z 7-9). ``dof0`` the units' degrees of freedom before;
+    the residual variance floored at ``floor2`` per sample (white: over a unit's mean, its
+    share of the samples). ``beside`` (m, k): regressors
     fitted with ``U`` whose part is no finding (:func:`_beside_direction`): ``x`` and ``U``
     are taken orthogonal to them, their degrees of freedom (their rank) spent. Returns (the
     sum of squares the regressors take, the residual variance per unit, its degrees of
@@ -185,10 +190,11 @@ def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor
     if dof < 2 or not np.any(U):
         return None
     n_u = int(unit.max()) + 1
-    xs = np.bincount(unit, weights=x, minlength=n_u)
-    A = _unit_sums(U, unit, n_u)
+    size_u = np.bincount(unit, minlength=n_u).astype(float)
+    xs = np.bincount(unit, weights=x, minlength=n_u) / size_u
+    A = _unit_sums(U, unit, n_u) / size_u[:, None]
     if beside is not None:
-        Q, rank = _basis(_unit_sums(beside, unit, n_u))
+        Q, rank = _basis(_unit_sums(beside, unit, n_u) / size_u[:, None])
         dof -= rank
         if dof < 2:
             return None
@@ -196,14 +202,13 @@ def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor
         A = A - Q @ (Q.T @ A)
         if not np.any(np.abs(A) > 1e-12 * max(1.0, float(np.abs(U).max()))):
             return None
-    size_u = np.bincount(unit, minlength=n_u).astype(float)
     coef, *_ = np.linalg.lstsq(A, xs, rcond=None)
     fitted = A @ coef
     rss1 = float(np.sum((xs - fitted) ** 2))
     gain = float(np.sum(xs * xs)) - rss1
     if gain <= 0:
         return None
-    return gain, max(rss1 / dof, floor2 * float(np.mean(size_u))), dof, fitted
+    return gain, max(rss1 / dof, floor2 * float(np.mean(1.0 / size_u))), dof, fitted
 
 
 def _basis(B: np.ndarray) -> tuple[np.ndarray, int]:
@@ -478,8 +483,8 @@ def _joint_column(col: tuple, form: np.ndarray, units: np.ndarray, xs: np.ndarra
     """One column's part of a joint step (:func:`_joint_step`) at one time: its whitened
     gain ``gain / s2``, its degrees of freedom left, the squared size of its fitted part
     (None where nothing is fitted) and its residuals per error unit (the units' sorted
-    labels ``units`` and the sums). ``col`` as in :func:`_joint_step`, ``form`` the step's
-    form at its samples (:func:`_forms`), ``xs`` its deviations summed per error unit,
+    labels ``units`` and the means). ``col`` as in :func:`_joint_step`, ``form`` the step's
+    form at its samples (:func:`_forms`), ``xs`` its deviations averaged per error unit,
     ``after`` (m,) its samples at or after the step."""
     idx, inv, uinv, x, dof0, floor2 = col
     got = _unit_fit(x, _step_regressors(form, inv, after), uinv, dof0, floor2)
@@ -518,7 +523,8 @@ def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndar
     # column's parameters)
     forms = [_forms(_pose_features(pos[c[0]]), dof_min)[-1] for c in cols]
     units = [np.unique(unit[c[0]]) for c in cols]
-    sums = [np.bincount(c[2], weights=c[3]) for c in cols]  # (the same at every time)
+    sums = [np.bincount(c[2], weights=c[3]) / np.bincount(c[2])  # (units' means: the
+            for c in cols]                                       # same at every time)
 
     def scan(times: np.ndarray, best: tuple | None) -> tuple | None:
         for tm in times[_unit_spanned(widest, unit, t, times)]:
@@ -632,8 +638,16 @@ def _declared(hits: dict[str, list[tuple[float, float, float | None, str]]], blo
 
 def _units(s: Samples) -> np.ndarray:
     """(N,) the error units of samples ``s``: rows of one move are one unit (their slow
-    errors shared); every dwell its own."""
-    return np.where(s.kind == 1, s.block, -1 - np.arange(s.n))
+    errors shared), and a dwell is one with the move that leaves it (the next sample in
+    time a row of a move: the stop's slow error lasts until the platform reaches its next
+    target; null continuous_dwell 12819: a dwell's deviation correlates 0.89 with the move
+    leaving it, 0.02 with the move arriving); other dwells each their own."""
+    unit = np.where(s.kind == 1, s.block, -1 - np.arange(s.n))
+    order = np.argsort(s.t, kind="stable")
+    a, b = order[:-1], order[1:]
+    leaves = (s.kind[a] == 0) & (s.kind[b] == 1)
+    unit[a[leaves]] = unit[b[leaves]]
+    return unit
 
 
 def _joint(rm: ResidualModel, v: np.ndarray, groups: np.ndarray, names: list[str],
