@@ -20,8 +20,12 @@ its replicate group's mean) are first tested for what noise cannot do:
 Each test is an F-test against the deviations' own spread after it (scale-free: the
 contaminated noise estimate is never the yardstick), Bonferroni-corrected over the
 times scanned and the columns, floored by the row-to-row (white) noise, on independent
-error units (a dwell, or all rows of one move: they share the move's slow errors). A systematic
-step splits the replicate groups at its time (:func:`split_targets`), so the noise comes
+error units averaged (all rows of one move, and the dwell it leaves: they share the stop's
+and the move's slow errors; a dwell alone otherwise). A step is also tried with the
+direction of travel fitted beside it (friction's spread is no noise). Where no block shows
+a step, the residuals are tested along a change of the platform's load
+(:mod:`bench.diagnosis.loadstep`: without load cells). A systematic step splits the
+replicate groups at its time (:func:`split_targets`), so the noise comes
 from what is random; the step is then named (a slip's time) or declared ``unexplained``
 with the time it began (:func:`declare`).
 
