@@ -108,13 +108,15 @@ def find(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | None = No
     hypothesis' mass that would follow it, with the opposite sign). Dwells only (rows of
     moves share slow errors: as the joint step). None otherwise."""
     s = rm.s
+    dwells, unit = ~s.is_init & (s.kind == 0), noise._units(s)
+    if noise._column(np.zeros(s.n), s.target, unit, dwells) is None:
+        return None  # (no dwells visited twice: the model's evaluation spared)
     sig = signature(rm, b)
     if sig is None:
         return None
     G = rm.replicate_groups(None) if groups is None else groups
     z, size, white, same, g = projected(rm, b, sig, G)
-    col = noise._column(z, g, noise._units(s),
-                        ~s.is_init & (s.kind == 0) & same & (size > 0))
+    col = noise._column(z, g, unit, dwells & same & (size > 0))
     if col is None:
         return None
     idx, inv, uinv, x, dof0 = col
