@@ -84,3 +84,18 @@ def test_the_load_direction_is_the_residuals_change_with_the_mass(tmp_path):
     want = np.nansum(np.where(both, r * Jw, 0.0), axis=1) / np.sqrt(
         np.nansum(np.where(both, Jw ** 2, 0.0), axis=1))
     np.testing.assert_allclose(z[use], want[use], rtol=1e-9)
+
+
+@pytest.mark.parametrize("joint", [False, True])
+def test_a_joint_step_is_no_one_cables_slip(joint):
+    """`noise.name_slips`: a named slip of cable 21 at 1120 s inside a length step's bracket
+    [1101, 1134] s names a step of that cable's column; a joint step of every cable (none
+    alone showing it: seed 47110's load change, where the fit put a false slip inside the
+    bracket) stays unnamed, and so with a named offset of one of its cables."""
+    c = noise.Change("step", "length", ["12", "21", "32"], 1117.3, 18.0, 1.5,
+                     before_s=1101.1, after_s=1133.6, joint=joint)
+    noise.name_slips([c], {"21": 1120.0}, {"32"})
+    if joint:
+        assert c.named is None
+    else:
+        assert c.named == {"effect": "cable_length_offset", "cable": "21", "t_s": 1120.0}
