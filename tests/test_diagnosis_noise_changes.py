@@ -176,6 +176,7 @@ class _FakeSamples:
         self.block = self.target.copy()
         self.n = N
         self.direction = rng.choice([-1.0, 1.0], size=(N, n))
+        self.tau = np.full((N, n), np.nan)  # (no load cells)
 
 
 class _FakeModel:
@@ -268,6 +269,7 @@ def test_rows_of_the_same_two_moves_are_one_difference():
     s.count = np.full(len(s.t), 6)
     s.is_init = np.zeros(len(s.t), dtype=bool)
     s.direction = rng.choice([-1.0, 1.0], size=(len(s.t), 8))
+    s.tau = np.full((len(s.t), 8), np.nan)
     s.n = len(s.t)
     x = rng.normal(0, 1.0, (len(s.t), 8))
     x[n_d:n_d + rows] = 4.0 + rng.normal(0, 0.2, (rows, 8))  # move A's slow error

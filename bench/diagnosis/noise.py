@@ -20,8 +20,12 @@ its replicate group's mean) are first tested for what noise cannot do:
 Each test is an F-test against the deviations' own spread after it (scale-free: the
 contaminated noise estimate is never the yardstick), Bonferroni-corrected over the
 times scanned and the columns, floored by the row-to-row (white) noise, on independent
-error units (a dwell, or all rows of one move: they share the move's slow errors). A systematic
-step splits the replicate groups at its time (:func:`split_targets`), so the noise comes
+error units averaged (all rows of one move, and the dwell it leaves: they share the stop's
+and the move's slow errors; a dwell alone otherwise). A step is also tried with the
+direction of travel fitted beside it (friction's spread is no noise). Where no block shows
+a step, the residuals are tested along a change of the platform's load
+(:mod:`bench.diagnosis.loadstep`: without load cells). A systematic step splits the
+replicate groups at its time (:func:`split_targets`), so the noise comes
 from what is random; the step is then named (a slip's time) or declared ``unexplained``
 with the time it began (:func:`declare`).
 
@@ -87,6 +91,9 @@ class Change:
     #: found by the columns together (:func:`_joint_step`), none alone: a change of every
     #: cable (the platform's load), no one cable's slip
     joint: bool = False
+    #: a step of block ``load`` (:func:`bench.diagnosis.loadstep.find`): the platform's
+    #: load changed by this much [kg]
+    load_kg: float | None = None
 
     def entry(self) -> dict:
         """The report's object (``unexplained.changes[]``; ``mismatch.noise.systematic``)."""
@@ -97,6 +104,8 @@ class Change:
             out["between_s"] = [_round(self.before_s), _round(self.after_s)]
         if self.joint:
             out["joint"] = True
+        if self.load_kg is not None:
+            out["load_change_kg"] = _round(self.load_kg, 2)
         if self.named is not None:
             out["named"] = dict(self.named)
         return out
@@ -157,30 +166,63 @@ def _centre(x: np.ndarray, g: np.ndarray) -> np.ndarray:
     return x - means[g]
 
 
-def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float
+def _unit_sums(U: np.ndarray, unit: np.ndarray, n_u: int) -> np.ndarray:
+    """Columns of ``U`` (m, q) summed over each error unit ``unit`` (m,): (n_u, q)."""
+    return np.stack([np.bincount(unit, weights=U[:, k], minlength=n_u)
+                     for k in range(U.shape[1])], axis=1)
+
+
+def _unit_fit(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float,
+              beside: np.ndarray | None = None
               ) -> tuple[float, float, float, np.ndarray] | None:
     """Least squares of deviations ``x`` (m,) on regressors ``U`` (m, q), both centred within
-    their replicate groups, summed over each error unit ``unit`` (m,) (labels 0..): units are
-    independent, the samples of one are not. ``dof0`` the units' degrees of freedom before;
-    the residual variance floored at ``floor2`` per sample. Returns (the sum of squares the
-    regressors take, the residual variance per unit, its degrees of freedom, the fitted part
-    per unit); None where nothing is fitted or fewer than two degrees of freedom are left."""
+    their replicate groups, averaged over each error unit ``unit`` (m,) (labels 0..): units
+    are independent, the samples of one are not. Averaged, not summed: a unit's samples
+    share its slow error, their mean's spread is about one sample's whatever their number,
+    their sum's grows with it (summed, a move of a dozen rows weighed twelve times a dwell,
+    and the spread pooled over both was neither's: the null continuous_dwell campaigns
+    12819 and 12840 read steps of z 7-9). ``dof0`` the units' degrees of freedom before;
+    the residual variance floored at ``floor2`` per sample (white: over a unit's mean, its
+    share of the samples). ``beside`` (m, k): regressors
+    fitted with ``U`` whose part is no finding (:func:`_beside_direction`): ``x`` and ``U``
+    are taken orthogonal to them, their degrees of freedom (their rank) spent. Returns (the
+    sum of squares the regressors take, the residual variance per unit, its degrees of
+    freedom, the fitted part per unit); None where nothing is fitted or fewer than two
+    degrees of freedom are left."""
     q = U.shape[1]
     dof = dof0 - q
     if dof < 2 or not np.any(U):
         return None
     n_u = int(unit.max()) + 1
-    xs = np.bincount(unit, weights=x, minlength=n_u)
-    A = np.stack([np.bincount(unit, weights=U[:, k], minlength=n_u) for k in range(q)],
-                 axis=1)
     size_u = np.bincount(unit, minlength=n_u).astype(float)
+    xs = np.bincount(unit, weights=x, minlength=n_u) / size_u
+    A = _unit_sums(U, unit, n_u) / size_u[:, None]
+    if beside is not None:
+        Q, rank = _basis(_unit_sums(beside, unit, n_u) / size_u[:, None])
+        dof -= rank
+        if dof < 2:
+            return None
+        xs = xs - Q @ (Q.T @ xs)
+        A = A - Q @ (Q.T @ A)
+        if not np.any(np.abs(A) > 1e-12 * max(1.0, float(np.abs(U).max()))):
+            return None
     coef, *_ = np.linalg.lstsq(A, xs, rcond=None)
     fitted = A @ coef
     rss1 = float(np.sum((xs - fitted) ** 2))
     gain = float(np.sum(xs * xs)) - rss1
     if gain <= 0:
         return None
-    return gain, max(rss1 / dof, floor2 * float(np.mean(size_u))), dof, fitted
+    return gain, max(rss1 / dof, floor2 * float(np.mean(1.0 / size_u))), dof, fitted
+
+
+def _basis(B: np.ndarray) -> tuple[np.ndarray, int]:
+    """An orthonormal basis (n_u, r) of the columns of ``B`` (n_u, k) and its rank ``r``
+    (singular values above 1e-9 of the largest)."""
+    if not B.size:
+        return B[:, :0], 0
+    u, sv, _ = np.linalg.svd(B, full_matrices=False)
+    r = int(np.sum(sv > 1e-9 * max(float(sv[0]), 1e-300)))
+    return u[:, :r], r
 
 
 def _size(fitted: np.ndarray, s2: float) -> float:
@@ -190,10 +232,11 @@ def _size(fitted: np.ndarray, s2: float) -> float:
 
 
 def _ftest(x: np.ndarray, U: np.ndarray, unit: np.ndarray, dof0: float, floor2: float,
-           independent: bool = False) -> tuple[float, float] | None:
-    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,) (:func:`_unit_fit`).
-    Returns (p-value, RMS of the fitted part over its residual spread)."""
-    got = _unit_fit(x, U, unit, dof0, floor2)
+           independent: bool = False, beside: np.ndarray | None = None
+           ) -> tuple[float, float] | None:
+    """F-test of regressors ``U`` (m, q) on deviations ``x`` (m,) (:func:`_unit_fit`, with
+    ``beside``). Returns (p-value, RMS of the fitted part over its residual spread)."""
+    got = _unit_fit(x, U, unit, dof0, floor2, beside)
     if got is None:
         return None
     gain, s2, dof, fitted = got
@@ -253,16 +296,29 @@ def _splits(t: np.ndarray, inv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mids, mids
 
 
-def _refined(best_t: float, coarse: np.ndarray, every: np.ndarray) -> np.ndarray:
+def _refined(best_t: float, coarse: np.ndarray, every: np.ndarray,
+             p_coarse: np.ndarray | None = None) -> np.ndarray:
     """The candidate times of ``every`` between the coarse scan's (``coarse``) neighbours of
     its best time ``best_t`` [s], not scanned yet: a step lies between two samples, and a
     coarse time a few samples off splits some visits on the wrong side (load_change seed
     46102: a step of z 15 placed after the first sample of the new load; at its own time
-    z 24). Counted in the Bonferroni correction with the coarse times."""
+    z 24). With the coarse times' p-values ``p_coarse``, also between the neighbours of the
+    better of the best's two neighbours: the step lies on that side, and where the p-values
+    beside a step are not monotone (visits of poses near the time on either side) the best
+    coarse time can be the second one from it (load_change seed 46108: the coarse times'
+    best 62 s after the change, its own time beyond the best's neighbour). Counted in the
+    Bonferroni correction with the coarse times."""
     k = int(np.searchsorted(coarse, best_t))
-    lo = coarse[k - 1] if k > 0 else -np.inf
-    hi = coarse[k + 1] if k + 1 < len(coarse) else np.inf
-    return np.setdiff1d(every[(every > lo) & (every < hi)], coarse)
+    centres = [k]
+    if p_coarse is not None and len(coarse) > 2:
+        sides = [i for i in (k - 1, k + 1) if 0 <= i < len(coarse)]
+        centres.append(min(sides, key=lambda i: p_coarse[i]))
+    keep = np.zeros(len(every), dtype=bool)
+    for c in centres:
+        lo = coarse[c - 1] if c > 0 else -np.inf
+        hi = coarse[c + 1] if c + 1 < len(coarse) else np.inf
+        keep |= (every > lo) & (every < hi)
+    return np.setdiff1d(every[keep], coarse)
 
 
 def _scanned(scan: Callable[[np.ndarray, tuple | None], tuple | None], coarse: np.ndarray,
@@ -271,42 +327,49 @@ def _scanned(scan: Callable[[np.ndarray, tuple | None], tuple | None], coarse: n
     and its time [s] third; None: no test) over the coarse times ``coarse``, then over
     :func:`_refined`'s near the best of them (``every``: all the candidates); and the number
     of times scanned, for the Bonferroni correction."""
-    best = scan(coarse, None)
-    if best is None:
+    each = [scan(coarse[i:i + 1], None) for i in range(len(coarse))]
+    p_coarse = np.array([1.0 if b is None else b[0] for b in each])
+    tried = [b for b in each if b is not None]
+    if not tried:
         return None, len(coarse)
-    extra = _refined(best[2], coarse, every)
+    best = min(tried, key=lambda b: b[0])
+    extra = _refined(best[2], coarse, every, p_coarse)
     return scan(extra, best), len(coarse) + len(extra)
 
 
 def _step(x: np.ndarray, inv: np.ndarray, unit: np.ndarray, t: np.ndarray, pos: np.ndarray,
-          dof0: float, floor2: float, independent: bool = False
-          ) -> tuple[float, float, float] | None:
+          dof0: float, floor2: float, independent: bool = False,
+          beside: np.ndarray | None = None) -> tuple[float, float, float] | None:
     """The most significant step of deviations ``x`` over the candidate times (the coarse
     scan, then :func:`_refined`): (p-value Bonferroni-corrected over the times and the
     forms tried, size, time [s]). The step is the same at every pose, or a smooth function
     of it (``[1, x, y, z]`` from the step on, where the degrees of freedom allow it): both
     are tried (a uniform step, a new load in the force balance, is tested by one
     parameter, not spread over four that a few replicate groups would nearly saturate).
-    ``independent``: as :func:`systematic_p`."""
+    ``independent``: as :func:`systematic_p`. ``beside`` (m, k) (:func:`_beside_direction`):
+    each form is tried alone and with these regressors fitted beside it (:func:`_unit_fit`),
+    both counted in the correction."""
     every, coarse = _splits(t, inv)
     if not len(coarse):
         return None
     forms = _forms(_pose_features(pos), dof0)
+    besides = [None] if beside is None else [None, beside]
 
     def scan(times: np.ndarray, best: tuple | None) -> tuple | None:
         for tm in times:
             after = t >= tm
             for f in forms:
-                got = _ftest(x, _step_regressors(f, inv, after), unit, dof0, floor2,
-                             independent)
-                if got is not None and (best is None or got[0] < best[0]):
-                    best = (got[0], got[1], float(tm))
+                for v in besides:
+                    got = _ftest(x, _step_regressors(f, inv, after), unit, dof0, floor2,
+                                 independent, v)
+                    if got is not None and (best is None or got[0] < best[0]):
+                        best = (got[0], got[1], float(tm))
         return best
 
     best, n_times = _scanned(scan, coarse, every)
     if best is None:
         return None
-    return min(best[0] * n_times * len(forms), 1.0), best[1], best[2]
+    return min(best[0] * n_times * len(forms) * len(besides), 1.0), best[1], best[2]
 
 
 def _direction(x: np.ndarray, g: np.ndarray, d: np.ndarray, unit: np.ndarray,
@@ -323,6 +386,33 @@ def _direction(x: np.ndarray, g: np.ndarray, d: np.ndarray, unit: np.ndarray,
         return None
     return _ftest(xc, _centre(sign[idx][:, None].astype(float), inv), uinv, dof0, floor2,
                   independent)
+
+
+def _beside_direction(d: np.ndarray, tau: np.ndarray, inv: np.ndarray, dof0: float
+                      ) -> np.ndarray | None:
+    """Regressors of the direction of travel, to fit beside a step (:func:`_step` tries it
+    with and without them): per cable, the sign of its last move ``d`` (m, n) times its
+    tension at the pose (the mean of ``tau`` (m, n) [N] over the replicate group ``inv``
+    (m,); 1 where a sample's tension is not measured), centred within the groups. Friction at
+    the pulleys or in the winches (outside the vocabulary) pulls against the motion in
+    proportion to the tension: a visit's load-cell and length residuals depend on the
+    direction each cable came from, visits of one pose differ by far more than their noise,
+    and that spread pooled as noise hides a step beside it (load_change seeds 46103, 46108:
+    the force balance's step at the change's time 1.4 times that spread, 3.1 beside these
+    regressors). The group's mean tension, not the sample's own: a change of load changes
+    the tensions from its time on, the regressors must not hold the step. None where they
+    would leave fewer than 8 degrees of freedom beside a step's richest form (as
+    :func:`_forms`)."""
+    sign = np.sign(np.nan_to_num(d)).astype(float)
+    mag = np.ones_like(sign)
+    seen = np.isfinite(tau).all(axis=0)
+    if seen.any():
+        mag[:, seen] = tau[:, seen] - _centre(tau[:, seen], inv)
+    V = _centre(sign * mag, inv)
+    V = V[:, np.abs(V).max(axis=0) > 0]
+    if V.shape[1] == 0 or dof0 - V.shape[1] - 4 < 8:
+        return None
+    return V
 
 
 def _pose_features(pos: np.ndarray) -> np.ndarray:
@@ -397,8 +487,8 @@ def _joint_column(col: tuple, form: np.ndarray, units: np.ndarray, xs: np.ndarra
     """One column's part of a joint step (:func:`_joint_step`) at one time: its whitened
     gain ``gain / s2``, its degrees of freedom left, the squared size of its fitted part
     (None where nothing is fitted) and its residuals per error unit (the units' sorted
-    labels ``units`` and the sums). ``col`` as in :func:`_joint_step`, ``form`` the step's
-    form at its samples (:func:`_forms`), ``xs`` its deviations summed per error unit,
+    labels ``units`` and the means). ``col`` as in :func:`_joint_step`, ``form`` the step's
+    form at its samples (:func:`_forms`), ``xs`` its deviations averaged per error unit,
     ``after`` (m,) its samples at or after the step."""
     idx, inv, uinv, x, dof0, floor2 = col
     got = _unit_fit(x, _step_regressors(form, inv, after), uinv, dof0, floor2)
@@ -437,7 +527,8 @@ def _joint_step(cols: list[tuple], unit: np.ndarray, t: np.ndarray, pos: np.ndar
     # column's parameters)
     forms = [_forms(_pose_features(pos[c[0]]), dof_min)[-1] for c in cols]
     units = [np.unique(unit[c[0]]) for c in cols]
-    sums = [np.bincount(c[2], weights=c[3]) for c in cols]  # (the same at every time)
+    sums = [np.bincount(c[2], weights=c[3]) / np.bincount(c[2])  # (units' means: the
+            for c in cols]                                       # same at every time)
 
     def scan(times: np.ndarray, best: tuple | None) -> tuple | None:
         for tm in times[_unit_spanned(widest, unit, t, times)]:
@@ -507,7 +598,8 @@ def find_changes(rm: ResidualModel, b: Blocks, groups: dict[str, np.ndarray] | N
             idx, inv, uinv, x, dof0 = col
             floor2 = float(np.mean(white2[idx]))
             t = s.t[idx]
-            got = _step(x, inv, uinv, t, pos[idx], dof0, floor2, independent)
+            beside = _beside_direction(s.direction[idx], s.tau[idx], inv, dof0)
+            got = _step(x, inv, uinv, t, pos[idx], dof0, floor2, independent, beside)
             if got is not None:
                 hits.setdefault("step", []).append((got[0] * m, got[1], got[2], names[j]))
             tr = _ftest(x, _centre((t - t.mean())[:, None], inv), uinv, dof0, floor2,
@@ -550,8 +642,16 @@ def _declared(hits: dict[str, list[tuple[float, float, float | None, str]]], blo
 
 def _units(s: Samples) -> np.ndarray:
     """(N,) the error units of samples ``s``: rows of one move are one unit (their slow
-    errors shared); every dwell its own."""
-    return np.where(s.kind == 1, s.block, -1 - np.arange(s.n))
+    errors shared), and a dwell is one with the move that leaves it (the next sample in
+    time a row of a move: the stop's slow error lasts until the platform reaches its next
+    target; null continuous_dwell 12819: a dwell's deviation correlates 0.89 with the move
+    leaving it, 0.02 with the move arriving); other dwells each their own."""
+    unit = np.where(s.kind == 1, s.block, -1 - np.arange(s.n))
+    order = np.argsort(s.t, kind="stable")
+    a, b = order[:-1], order[1:]
+    leaves = (s.kind[a] == 0) & (s.kind[b] == 1)
+    unit[a[leaves]] = unit[b[leaves]]
+    return unit
 
 
 def _joint(rm: ResidualModel, v: np.ndarray, groups: np.ndarray, names: list[str],
@@ -616,9 +716,13 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
     """Mark the steps of length residuals that a named slip accounts for: a slip of one of
     the step's cables at a time between its samples (``slip_times``: cable id -> t [s] of
     the slips the report names), or a length offset the report names (``offsets``: cable
-    ids) on one of the step's cables: that offset began at the step's time."""
+    ids) on one of the step's cables: that offset began at the step's time. A joint step
+    (:func:`_joint_step`: every cable's, no column alone showing it) is none of one cable's
+    slip or offset (seed 47110: a load change without cells, the fit's false slip of one
+    cable inside its bracket had taken it)."""
     for c in changes:
-        if c.kind != "step" or c.block != "length":
+        # (a joint step is every cable's, none alone showing it: no one cable's slip)
+        if c.kind != "step" or c.block != "length" or c.joint:
             continue
         lo = c.before_s if c.before_s is not None else -np.inf
         hi = c.after_s if c.after_s is not None else np.inf
@@ -629,8 +733,7 @@ def name_slips(changes: list[Change], slip_times: dict[str, float],
                 break
         # (where a sample's pose or tensions are estimated, one cable's slip moves every
         # cable's residual: the slipped cable need not show most)
-        # (a joint step is every cable's: a named offset of one of them says nothing of it)
-        mine = [cid for cid in c.columns if cid in offsets and not c.joint]
+        mine = [cid for cid in c.columns if cid in offsets]
         if c.named is None and mine:
             c.named = {"effect": "cable_length_offset", "cable": mine[0], "t_s": _round(c.t_s)}
 
@@ -675,9 +778,18 @@ def high_frequency(rm: ResidualModel, b: Blocks) -> dict[str, float]:
 def separate(rm: ResidualModel, say=lambda m: None) -> list[Change]:
     """Test ``rm``'s replicate visits under its model (:func:`find_changes`) and, where a step
     is found, split the replicate groups (``rm.s.target``) at its time and estimate the
-    noise again: the noise comes from what is random. Returns every change found."""
+    noise again: the noise comes from what is random. Where no block shows a step, the
+    residuals are tested along a change of the platform's load (:func:`bench.diagnosis.
+    loadstep.find`: without load cells, a new load moves every entry by a fraction of its
+    noise). Returns every change found."""
+    from bench.diagnosis import loadstep
+
     model = rm.model
-    changes = find_changes(rm, rm.blocks(model))
+    b = rm.blocks(model)
+    changes = find_changes(rm, b)
+    if not any(c.kind == "step" for c in changes):
+        load = loadstep.find(rm, b)
+        changes += [load] if load is not None else []
     for c in changes:
         where = f" from t = {c.t_s:.1f} s" if c.t_s is not None and c.kind == "step" else ""
         say(f"replicate visits differ systematically ({c.kind}{where}, {c.block} "

@@ -556,12 +556,15 @@ def with_changes(leftover: dict | None, changes: list, slip_times: dict[str, flo
     for c in left:
         cols = ", ".join(c.columns[:4]) + (" ..." if len(c.columns) > 4 else "")
         what = {"length": "length residuals of cables", "force": "force balance",
-                "moment": "moment balance", "exit": "exit points"}.get(c.block, c.block)
+                "moment": "moment balance", "exit": "exit points",
+                "load": "residuals along a change of the platform's"}.get(c.block, c.block)
         between = f" (between the samples at {c.before_s:.1f} and {c.after_s:.1f} s)" \
             if c.before_s is not None and c.after_s is not None else ""
         findings.append(f"something changed at t = {c.t_s:.1f} s{between}: the replicate visits "
                         f"after it differ from those before in the {what} {cols} by "
-                        f"{c.size:.0f} times their noise (z = {c.z:.0f})")
+                        f"{c.size:.0f} times their noise (z = {c.z:.0f})"
+                        + (f"; the platform's load changed by {c.load_kg:+.1f} kg?"
+                           if c.load_kg is not None else ""))
     out["findings"] = findings
     out["summary"] = "; ".join(findings)
     return out
