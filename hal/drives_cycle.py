@@ -282,10 +282,8 @@ class CycleMixin:
         """Keep the wall time (``time.time()``, the frames' time stamps' clock) at which the
         SYNC of master clock ``_sync_t`` goes out, taken just before it is written (after
         the RPDOs): a TPDO stamped before it answers an earlier SYNC
-        (:meth:`ReceiveMixin._sync_answered`). The last ``tpdo_deadline_cycles`` are kept
-        (a TPDO later than these is lost)."""
-        kept = self._sync_sent[-self.tpdo_deadline_cycles:]
-        self._sync_sent = (*kept, (time.time(), self._sync_t))  # one assignment: atomic
+        (:meth:`ReceiveMixin._sync_answered`)."""
+        self._sync_sent.note(time.time(), self._sync_t)
 
     def _send_outputs(self) -> None:
         states = self._states
