@@ -1,7 +1,7 @@
 """The dry run's encoder samples are stamped at the SYNC the drives latched them at.
 
-The simulated drives keep the truth (``SimulatedDrive.latches`` with ``keep_latches``;
-``cdpr sim --latch-log FILE`` writes it at exit): per synchronous TPDO, the drive's time
+The simulated drives tell the truth (``SimulatedDrive.on_latch``; ``cdpr sim --latch-log
+FILE`` writes it as it comes): per synchronous TPDO, the drive's time
 of the SYNC it answers and the position it latched then. Each recorded encoder sample is
 matched, per cable, with the latch of the same position (only where no other latch within
 0.1 s has that position: a drive standing still latches one value many times), and its
@@ -91,8 +91,9 @@ def test_in_real_time_each_encoder_sample_is_stamped_at_its_sync_not_its_arrival
     spec = load_path("paper-centre")
     with start_world(SC, WINCHES, realtime=True) as world:
         drives = world.rig.bank.drives
+        kept: dict[int, list] = {d.node_id: [] for d in drives}
         for d in drives:
-            d.keep_latches = True
+            d.on_latch = lambda *row, rows=kept[d.node_id]: rows.append(row)
         loop = ControlLoop(world.hw, world.tracker, SC.truth,
                            lambda p0: build_trajectory(spec, p0),
                            LoopOptions(max_duration_s=3.0, decimate=1, realtime=True),
@@ -101,7 +102,7 @@ def test_in_real_time_each_encoder_sample_is_stamped_at_its_sync_not_its_arrival
         latches = {}
         for d in drives:
             with d.lock:
-                latches[d.node_id] = np.array(d.latches, float)
+                latches[d.node_id] = np.array(kept[d.node_id], float)
     assert res.cycles > 100, res.message
     err, unclear = stamp_errors(tmp_path / "rec", latches, WINCHES)
     # the drives move on the path: samples are told apart by their position
