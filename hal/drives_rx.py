@@ -43,6 +43,10 @@ class ReceiveMixin:
                 self._rx_pos[k] = pos
                 self._rx_sync_t[k] = sync_t
                 self._rx_count[k] += 1
+                slot = self._rx_kept_n[k] % self._rx_kept_t.shape[1]
+                self._rx_kept_t[k, slot] = sync_t
+                self._rx_kept_pos[k, slot] = pos
+                self._rx_kept_n[k] += 1
                 self._rx.notify_all()
 
         return cb

@@ -29,6 +29,8 @@ import math
 import time
 from collections import deque
 
+import numpy as np
+
 #: [s] span of the sliding window of TPDOs the count offset is the minimum over. Longer
 #: than the longest run of late answers it must see through (a starved answerer or
 #: receiver on a loaded 2-core host: bursts 5-15 SYNC periods late, <= 60 ms at 256 Hz;
@@ -130,4 +132,41 @@ class CountAlignment:
         return i + mins[0][1]
 
 
-__all__ = ["COUNT_WINDOW_S", "CountAlignment", "SyncHistory", "count_window"]
+
+
+def common_sample(latest_t: np.ndarray, pos: np.ndarray, kept_t: np.ndarray,
+                  kept_pos: np.ndarray, window_s: float) -> tuple[np.ndarray, float]:
+    """The drives' positions latched at one SYNC, and that SYNC's master clock [s]: the
+    latest SYNC every answering drive has answered, so that one sample of all the drives
+    has one time (drives whose answers came in bursts, or a slow bus, hold positions of
+    different SYNCs at one read).
+
+    ``latest_t`` (n,): the SYNC of each drive's latest position [s] (nan: not from a TPDO);
+    ``pos`` (n,): the latest positions; ``kept_t``, ``kept_pos`` (n, H): each drive's last
+    positions and their SYNCs (nan: an empty slot). A drive whose latest position is older
+    than the newest one's by more than ``window_s`` [s] (silent: lost) is not waited for:
+    its latest position is given. Returns (positions, time); time nan when no drive's
+    position is from a TPDO, positions nan when the answering drives have no SYNC in
+    common among those kept (a TPDO lost at each)."""
+    live = np.isfinite(latest_t)
+    if not live.any():
+        return pos, math.nan
+    newest = float(np.max(latest_t[live]))
+    live &= latest_t >= newest - window_s
+    t = latest_t[live]
+    earliest = float(np.min(t))
+    if earliest == newest:
+        return pos, newest
+    rows = np.flatnonzero(live)
+    kept = kept_t[rows]
+    first = kept[0][kept[0] <= earliest]
+    for s in np.sort(first)[::-1]:
+        hit = kept == s
+        if hit.any(axis=1).all():
+            out = pos.copy()
+            out[rows] = kept_pos[rows, hit.argmax(axis=1)]
+            return out, float(s)
+    return np.full(pos.shape, np.nan), earliest
+
+
+__all__ = ["COUNT_WINDOW_S", "CountAlignment", "SyncHistory", "common_sample", "count_window"]

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hal.drives_rx import ReceiveMixin
-from hal.sync_count import CountAlignment, SyncHistory, count_window
+from hal.sync_count import CountAlignment, SyncHistory, common_sample, count_window
 from tests.test_hal_drives import Rig
 
 PERIOD = 0.004  # [s]
@@ -118,18 +118,58 @@ def rig():
 
 
 def test_a_drive_answering_one_sync_late_is_stamped_at_the_sync_it_latched(rig):
-    """Simulated drives in lock-step: drive 3 sends its next 4 TPDOs one SYNC late (each
-    just before its answer to the next SYNC, itself late but the last). Its positions are
-    stamped a period before the others' (which answer the last SYNC), not at the same
-    SYNC; once it answers in time again, at the same."""
+    """Simulated drives in lock-step, moving: drive 3 sends its next 4 TPDOs one SYNC late
+    (each just before its answer to the next SYNC, itself late but the last). Its
+    positions are stamped a period before the others' (which answer the last SYNC), not at
+    the same SYNC; once it answers in time again, at the same. The drives' sample at one
+    SYNC is the late drive's SYNC, with the others' positions of that SYNC."""
     hal = rig.hal
-    rig.steps(20)
+    l0 = hal.lengths_m()
+
+    def step(i: int, timeout: float = 0.5) -> None:
+        hal.set_lengths(l0 + 2e-4 * i)  # every drive moves a little each cycle
+        hal.step(timeout)
+
+    for i in range(20):
+        step(i)
     assert np.ptp(hal.positions_time()) == 0
+    assert np.array_equal(hal.positions_sample()[0], hal.positions_counts())
     rig.bank.drives[2].delay_tpdos(4)
-    hal.step(timeout=0.05)  # drive 3's answer comes with the next SYNC's
-    for _ in range(3):
-        hal.step()
+    step(20, timeout=0.05)  # drive 3's answer comes with the next SYNC's
+    before = hal.positions_counts()
+    for i in range(21, 24):
+        step(i)
         t = hal.positions_time()
         assert t[2] == pytest.approx(t[0] - hal.period_s, abs=1e-9), t
-    rig.steps(3)
+        sample, sample_t = hal.positions_sample()
+        assert sample_t == t[2]
+        others = np.arange(8) != 2
+        assert np.array_equal(sample[others], before[others])  # the others' of that SYNC
+        assert sample[2] == hal.positions_counts()[2]
+        assert not np.array_equal(before[others], hal.positions_counts()[others])  # moving
+        before = hal.positions_counts()
+    for i in range(24, 27):
+        step(i)
     assert np.ptp(hal.positions_time()) == 0
+    assert hal.positions_sample()[1] == hal.positions_time()[0]
+
+
+def test_the_sample_at_one_sync_is_the_latest_all_answered():
+    """:func:`common_sample`: where the latest positions answer one SYNC, they; else the
+    kept positions of the latest SYNC all answering drives have; a drive silent beyond the
+    window is not waited for; none in common: nan."""
+    pos = np.array([10.0, 20.0, 30.0])
+    kept_t = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, np.nan], [0.0, 1.0, 3.0]])
+    kept_pos = np.array([[8.0, 9.0, 10.0], [19.0, 20.0, 0.0], [28.0, 29.0, 30.0]])
+    same, t = common_sample(np.array([3.0, 3.0, 3.0]), pos, kept_t, kept_pos, 10.0)
+    assert t == 3.0 and np.array_equal(same, pos)
+    got, t = common_sample(np.array([3.0, 2.0, 3.0]), pos, kept_t, kept_pos, 10.0)
+    assert t == 1.0 and np.array_equal(got, [8.0, 19.0, 29.0])  # drive 3 never answered 2
+    silent, t = common_sample(np.array([3.0, 2.0, 3.0]), pos, kept_t, kept_pos, 0.5)
+    assert t == 3.0 and np.array_equal(silent, pos)  # drive 2 not waited for
+    lost = kept_t.copy()
+    lost[1, 0] = np.nan
+    none, t = common_sample(np.array([3.0, 2.0, 3.0]), pos, lost, kept_pos, 10.0)
+    assert np.all(np.isnan(none))
+    unknown, t = common_sample(np.full(3, np.nan), pos, kept_t, kept_pos, 10.0)
+    assert np.isnan(t) and np.array_equal(unknown, pos)
