@@ -263,12 +263,11 @@ class SimulatedDrive:
         #: frames this drive sent, for tests: (time_us, cob_id, data)
         self.sent: list[tuple[int, int, bytes]] = []
         self.keep_sent = False
-        #: with ``keep_latches``, the positions latched at each SYNC a synchronous TPDO
-        #: answers (the truth a master's time stamps are checked against): (the drive's
-        #: time of the SYNC [s], ``time.monotonic()`` as it handled it [s], the position
-        #: actual 0x6064 it sends [counts])
-        self.latches: list[tuple[float, float, int]] = []
-        self.keep_latches = False
+        #: called (under the drive's lock, at once) with each position latched at a SYNC a
+        #: synchronous TPDO answers (the truth a master's time stamps are checked against):
+        #: (the drive's time of the SYNC [s], ``time.monotonic()`` as it handled it [s],
+        #: the position actual 0x6064 it sends [counts]); None: not told
+        self.on_latch: Callable[[float, float, int], None] | None = None
         self.load_torque_nm = 0.0
         self._reset_state(application=True)
         self.nmt_state = NMT_INITIALISING
@@ -874,9 +873,9 @@ class SimulatedDrive:
             self._sync_count += 1
             cfg = self._pdo("tpdo")
             if cfg.valid and 1 <= cfg.trans_type <= 240 and self._sync_count % cfg.trans_type == 0:
-                if self.keep_latches:
-                    self.latches.append((self.now_us * 1e-6, time.monotonic(),
-                                         int(self.position_actual())))
+                if self.on_latch is not None:
+                    self.on_latch(self.now_us * 1e-6, time.monotonic(),
+                                  int(self.position_actual()))
                 self._transmit_tpdo(cfg)
             elif cfg.valid and cfg.trans_type == 0:
                 payload = self._tpdo_payload(cfg)

@@ -149,6 +149,7 @@ from hal.drives_cycle import CycleMixin
 from hal.drives_nmt import NmtMixin
 from hal.drives_rx import ReceiveMixin
 from hal.rt_threads import check_priority
+from hal.sync_count import CountAlignment, SyncHistory, count_window
 
 
 class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
@@ -268,8 +269,22 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
         self._last_tpdo_t = np.zeros(n)  # master clock of the last TPDO (or of arming)
         self._sync_t = np.nan  # master clock of the last SYNC sent [s]
         self._rx_sync_t = np.full(n, np.nan)  # ... before each drive's latest TPDO came
-        #: the last SYNCs sent: (time.time() as it went, the frames' clock; master clock)
-        self._sync_sent: tuple[tuple[float, float], ...] = ()
+        #: the SYNCs sent (number, time.time() as each went: the frames' clock; master
+        #: clock), and per drive which SYNC its TPDOs answer (:mod:`hal.sync_count`)
+        window = count_window(self.period_s)
+        self._sync_sent = SyncHistory(2 * window + self.tpdo_deadline_cycles)
+        self._align = [CountAlignment(window) for _ in range(n)]
+        #: each drive's last positions and the SYNCs they answer (receive side, under _rx),
+        #: for a sample of all the drives at one SYNC (:func:`hal.sync_count.common_sample`):
+        #: as many as the TPDO deadline spans (a drive silent longer is lost, not waited for)
+        self._deadline_s = max(self.tpdo_deadline_cycles * self.period_s,
+                               self.tpdo_deadline_min_s)
+        kept = int(np.ceil(self._deadline_s / self.period_s)) + 1
+        self._rx_kept_t = np.full((n, kept), np.nan)
+        self._rx_kept_pos = np.zeros((n, kept), np.int64)
+        self._rx_kept_n = np.zeros(n, np.int64)
+        self._sample_pos = np.zeros(n)  # cycle side: the drives' one-SYNC sample
+        self._sample_t = np.nan  # ... its SYNC's master clock
         self._pos_t = np.full(n, np.nan)  # ... of each position in use (nan: not a TPDO's)
         self._foreign_until = np.full(n, -np.inf)  # foreign_master active until (clock)
         self._foreign_text = [""] * n
@@ -468,11 +483,25 @@ class WinchDrives(CycleMixin, NmtMixin, ReceiveMixin):
         return self._pos.copy()
 
     def positions_time(self) -> np.ndarray:
-        """Per drive, the master clock [s] of the SYNC its latest position answers (the last
-        SYNC sent before its TPDO came, by the frame's time stamp where the bus gives one on
-        this host's clock, else by when the master handled it: a drive samples its position
-        at the SYNC; nan: a position not from a TPDO), shape (n,)."""
+        """Per drive, the master clock [s] of the SYNC its latest position answers (a drive
+        samples its position at the SYNC): by the drive's count of TPDOs, never after the
+        last SYNC sent before its TPDO came (by the frame's time stamp where the bus gives
+        one on this host's clock, else by when the master handled it), see
+        :mod:`hal.sync_count`; nan: a position not from a TPDO), shape (n,)."""
         return self._pos_t.copy()
+
+    def positions_sample(self) -> tuple[np.ndarray, float]:
+        """The drives' positions [counts] latched at one SYNC, the latest every drive that
+        answers had answered at the last :meth:`receive`, and that SYNC's master clock [s]
+        (:func:`hal.sync_count.common_sample`: the latest positions where all answer the
+        same SYNC; a drive silent beyond the TPDO deadline with its latest position; time
+        nan: no position from a TPDO; positions nan: no SYNC in common among those kept)."""
+        return self._sample_pos.copy(), self._sample_t
+
+    def lengths_sample_m(self) -> tuple[np.ndarray, float]:
+        """:meth:`positions_sample` as cable lengths [m] (nan kept), and its time [s]."""
+        pos, t = self.positions_sample()
+        return counts_to_m(pos, self.winches), t
 
     def feedback_age(self) -> np.ndarray:
         """Per drive, the SYNCs in a row without its TPDO at the last :meth:`receive` (0: its

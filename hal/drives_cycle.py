@@ -42,6 +42,7 @@ from hal.drives_cia402 import (
     enabling,
     faulted,
 )
+from hal.sync_count import common_sample
 
 if TYPE_CHECKING:
     from hal.drives import WinchDrives
@@ -90,6 +91,7 @@ class CycleMixin:
         self._sw = np.where(fresh, sw, self._sw)
         self._pos = np.where(fresh, pos, self._pos)
         self._pos_t = np.where(fresh, pos_t, self._pos_t)
+        self._take_sample()
         # a node its heartbeat says is outside OPERATIONAL sends no PDO: a TPDO counted now
         # was sent before it left (its statusword is old news)
         out_of_op = (self._nmt != NMT_OPERATIONAL) & (self._nmt != -1)
@@ -103,6 +105,20 @@ class CycleMixin:
         self._update_states(expected)
         self._check_heartbeats()
         self._check_foreign()
+
+    def _take_sample(self) -> None:
+        """The drives' positions at one SYNC (:meth:`WinchDrives.positions_sample`); the
+        kept positions are read only where the latest ones answer different SYNCs."""
+        t = self._pos_t[np.isfinite(self._pos_t)]
+        if not t.size or t.min() == t.max():
+            self._sample_pos = self._pos.astype(float)
+            self._sample_t = float(t[0]) if t.size else np.nan
+            return
+        with self._rx:
+            kept_t, kept_pos = self._rx_kept_t.copy(), self._rx_kept_pos.copy()
+        self._sample_pos, self._sample_t = common_sample(
+            self._pos_t, self._pos.astype(float), kept_t, kept_pos.astype(float),
+            self._deadline_s)
 
     def _check_feedback(self, fresh: np.ndarray, expected: np.ndarray) -> None:
         """TPDO deadline: a drive silent for the deadline is lost (state unknown, asked to
@@ -282,10 +298,8 @@ class CycleMixin:
         """Keep the wall time (``time.time()``, the frames' time stamps' clock) at which the
         SYNC of master clock ``_sync_t`` goes out, taken just before it is written (after
         the RPDOs): a TPDO stamped before it answers an earlier SYNC
-        (:meth:`ReceiveMixin._sync_answered`). The last ``tpdo_deadline_cycles`` are kept
-        (a TPDO later than these is lost)."""
-        kept = self._sync_sent[-self.tpdo_deadline_cycles:]
-        self._sync_sent = (*kept, (time.time(), self._sync_t))  # one assignment: atomic
+        (:meth:`ReceiveMixin._sync_answered`)."""
+        self._sync_sent.note(time.time(), self._sync_t)
 
     def _send_outputs(self) -> None:
         states = self._states

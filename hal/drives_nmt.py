@@ -213,6 +213,7 @@ class NmtMixin:
             self._send_nmt(k, 0x01)  # start remote node
             self._started[k] = True
             self._armed[k] = False
+            self._align[k].restart()  # a new stream of TPDOs
             self._rebooted[k] = False
             self._relink[k] = False
             self._hb_lost[k] = False

@@ -78,6 +78,8 @@ class ReplayDrives(WinchDrives):
         self._logged_rq = np.full(self.n, -1, np.int64)  # requests of the logged RPDOs
         self._started[:] = True
         self._armed[:] = False
+        for align in self._align:
+            align.restart()
         self._hb_last[:] = now
         self._rx_hb_t[:] = now
         self._nmt[:] = NMT_OPERATIONAL

@@ -5,8 +5,6 @@ the event history the cycle drains it into.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from hal.drives_base import (
@@ -39,30 +37,35 @@ class ReceiveMixin:
                 self._queue.append(("short", k, len(data)))
                 return
             sw, pos = self._tpdo.unpack_from(data)
-            sync_t = self._sync_answered(timestamp)
+            sync_t = self._sync_answered(k, timestamp)
             with self._rx:
                 self._rx_sw[k] = sw
                 self._rx_pos[k] = pos
                 self._rx_sync_t[k] = sync_t
                 self._rx_count[k] += 1
+                slot = self._rx_kept_n[k] % self._rx_kept_t.shape[1]
+                self._rx_kept_t[k, slot] = sync_t
+                self._rx_kept_pos[k, slot] = pos
+                self._rx_kept_n[k] += 1
                 self._rx.notify_all()
 
         return cb
 
-    def _sync_answered(self, timestamp: float) -> float:
-        """The master clock [s] of the SYNC a TPDO received at ``timestamp`` answers: the
-        last SYNC sent before the frame came (its time stamp: the sender's or the kernel's,
-        on ``time.time()``'s clock), so that a frame handled after the next SYNC went out
-        (the master's receive thread was late) still answers its own. A time stamp not
-        within the SYNCs kept and now is on another clock (a bus's hardware clock) or too
-        old: then the last SYNC sent as the frame is handled."""
-        sent = self._sync_sent
-        if not sent or timestamp is None or not sent[0][0] <= timestamp <= time.time():
+    def _sync_answered(self, k: int, timestamp: float | None) -> float:
+        """The master clock [s] of the SYNC the TPDO of drive index ``k`` received at
+        ``timestamp`` answers: by the drive's count of TPDOs, never after the last SYNC
+        sent before the frame came (its time stamp, the sender's or the kernel's, on
+        ``time.time()``'s clock; a time stamp on another clock, or none: when the master
+        handles it), see :mod:`hal.sync_count`. A frame handled after the next SYNC went
+        out, or one of a burst of late answers, keeps its own SYNC."""
+        history = self._sync_sent
+        bound = history.bound(timestamp)
+        if bound < 0:
             return self._sync_t
-        for wall, sync_t in reversed(sent):
-            if wall <= timestamp:
-                return sync_t
-        return self._sync_t
+        t = history.clock_of(self._align[k].answered(bound))
+        if t != t:  # older than the SYNCs kept: the bound's
+            t = history.clock_of(bound)
+        return t if t == t else self._sync_t
 
     def _heartbeat_cb(self, k: int):
         def cb(can_id: int, data: bytearray, timestamp: float) -> None:

@@ -25,6 +25,10 @@ and, for ``exception``, the Modbus exception code), :meth:`~FakeHardware.lose_li
 raise :class:`~hal.drives.BusLinkError`; back, the drives hold in Quick Stop Active, having
 lost their master, until recovered). Faults, events and messages take the forms of the
 real interface.
+
+The drives' positions answer the SYNC of the cycle (``Readings.lengths_t_s``: its time);
+:meth:`~FakeHardware.hold_feedback` keeps the positions read, and their SYNC, for some
+cycles (the drives' TPDOs late: a reading with no new sample).
 """
 
 from __future__ import annotations
@@ -107,6 +111,8 @@ class FakeHardware(WinchHardware):
         self.t = 0.0
         self.pos = np.broadcast_to(np.asarray(initial_lengths_m, float), (n,)).copy()
         self.target = self.pos.copy()
+        self._held: tuple[np.ndarray, float] | None = None  # positions read, their SYNC
+        self._hold_left = 0  # cycles the positions read stay held
         self.states = np.full(n, S.UNKNOWN, np.int8)
         self.code = np.zeros(n, np.int64)
         self.persistent = np.zeros(n, bool)
@@ -186,6 +192,12 @@ class FakeHardware(WinchHardware):
         self.target[k] = self.pos[k]
         self._event(k, "boot_up", CODE_HEARTBEAT,
                     "unexpected boot-up: the node was reset; recover() it")
+
+    def hold_feedback(self, cycles: int) -> None:
+        """The positions read now, and the SYNC they answer, are what :meth:`read` gives
+        for the next ``cycles`` cycles (the drives' TPDOs late), then the cycle's again."""
+        self._held = (self.pos.copy(), self.t)
+        self._hold_left = int(cycles)
 
     def lose_link(self) -> None:
         """The CAN link dies: drive states unknown; the drives lose their master and hold
@@ -305,6 +317,9 @@ class FakeHardware(WinchHardware):
         dt = self.period_s
         self.t += dt
         self.cycle += 1
+        self._hold_left -= 1
+        if self._hold_left < 0:
+            self._held = None
         if not self.started:
             return
         w = self.winches
@@ -403,8 +418,10 @@ class FakeHardware(WinchHardware):
         r = self._tension_reading()
         self._tracker.update(r, self.t, self.cycle)
         faults = self._drive_faults() + loadcell_faults(r)
-        return Readings(self.t, self.cycle, self.cables, self._to_model(self.pos.copy()),
-                        self._reported(), r.values_N, r.age_s, r.status, tuple(faults))
+        pos, sync_t = self._held if self._held is not None else (self.pos.copy(), self.t)
+        return Readings(self.t, self.cycle, self.cables, self._to_model(pos),
+                        self._reported(), r.values_N, r.age_s, r.status, tuple(faults),
+                        sync_t)
 
     def _raw_lengths(self) -> np.ndarray:
         return self.pos.copy()

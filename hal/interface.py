@@ -126,8 +126,13 @@ class Readings:
     tension_age_s: np.ndarray  #: age of each tension sample [s] (inf: none yet)
     tension_status: np.ndarray  #: :class:`~hal.loadcell_client.CableStatus` codes
     faults: tuple[HardwareFault, ...] = field(default=())
-    #: hardware clock [s] of the SYNC the lengths answer (the drives' median; nan: unknown)
+    #: hardware clock [s] of the SYNC the lengths sample (``sample_lengths_m``, else
+    #: ``lengths_m``) answers (nan: unknown)
     lengths_t_s: float = float("nan")
+    #: the drives' lengths [m] latched at one SYNC (the latest every answering drive had
+    #: answered: :meth:`hal.drives.WinchDrives.positions_sample`; nan: none in common):
+    #: the encoders' sample; None: ``lengths_m`` (drives that do not say)
+    sample_lengths_m: np.ndarray | None = None
 
     @property
     def enabled(self) -> np.ndarray:
@@ -482,8 +487,19 @@ class CanModbusHardware(WinchHardware):
             tensions = np.full(self.n, np.nan)
             age = np.full(self.n, np.inf)
             status = np.full(self.n, int(CableStatus.NO_DATA), np.int8)
+        sample, sample_t = self._lengths_sample()
         return Readings(d.now(), d.cycle, self.cables, self._to_model(d.lengths_m()),
-                        d.states(), tensions, age, status, tuple(faults), _sync_time(d))
+                        d.states(), tensions, age, status, tuple(faults), sample_t, sample)
+
+    def _lengths_sample(self) -> tuple[np.ndarray | None, float]:
+        """The drives' lengths [m] at one SYNC and its hardware clock [s]
+        (:meth:`hal.drives.WinchDrives.lengths_sample_m`); drives that do not say: None and
+        the median of their positions' SYNCs (nan: unknown)."""
+        take = getattr(self.drives, "lengths_sample_m", None)
+        if take is None:
+            return None, _sync_time(self.drives)
+        lengths, t = take()
+        return self._to_model(lengths), t
 
     def _raw_lengths(self) -> np.ndarray:
         return self.drives.lengths_m()

@@ -621,5 +621,5 @@ def test_a_syncs_wall_time_is_taken_after_the_rpdos_went_out(rig):
     rpdo_t = [t for t, cob in sent if 0x200 <= cob < 0x280]
     sync_t = [t for t, cob in sent if cob == 0x80]
     assert rpdo_t and sync_t
-    noted = rig.hal._sync_sent[-1][0]
+    noted = rig.hal._sync_sent.last_wall()
     assert max(rpdo_t) <= noted <= sync_t[-1]

@@ -1,7 +1,7 @@
 """The dry run's encoder samples are stamped at the SYNC the drives latched them at.
 
-The simulated drives keep the truth (``SimulatedDrive.latches`` with ``keep_latches``;
-``cdpr sim --latch-log FILE`` writes it at exit): per synchronous TPDO, the drive's time
+The simulated drives tell the truth (``SimulatedDrive.on_latch``; ``cdpr sim --latch-log
+FILE`` writes it as it comes): per synchronous TPDO, the drive's time
 of the SYNC it answers and the position it latched then. Each recorded encoder sample is
 matched, per cable, with the latch of the same position (only where no other latch within
 0.1 s has that position: a drive standing still latches one value many times), and its
@@ -17,10 +17,11 @@ of meta.toml: the hardware's clock at t = 0).
 - Across processes (``cdpr sim --write-site`` and the dry run on that site, lock-step on the
   SYNC clock, where the drives' clock is the master's SYNC count): every stamp equals its
   latch's time (tests/test_dryrun_site.py, on its first dry run).
-- The master's rule (``hal.drives_rx.ReceiveMixin._sync_answered``): a TPDO answers the last
-  SYNC sent before its frame's time stamp, not before the master's receive thread handled
-  it (in process, in real time under load: stamps after their latch 1.3-1.7 % -> 0.7-0.8 %,
-  p99 of stamp - latch +0.6..+0.8 ms -> -0.6 ms).
+- The master's rule (``hal.drives_rx.ReceiveMixin._sync_answered``): a TPDO answers no SYNC
+  sent after its frame's time stamp, not after the master's receive thread handled it (in
+  process, in real time under load: stamps after their latch 1.3-1.7 % -> 0.7-0.8 %, p99
+  of stamp - latch +0.6..+0.8 ms -> -0.6 ms); and, within that bound, the SYNC its drive's
+  count of TPDOs gives (:mod:`hal.sync_count`, tests/test_stamp47_sync_count.py).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from controller.paths import build_trajectory, load_path
 from controller.winch import WinchSet, counts_to_m, load_winches
 from firmware_sim.scenario import load_scenario
 from hal.drives_rx import ReceiveMixin
+from hal.sync_count import CountAlignment, SyncHistory
 
 SC = load_scenario(resolve_scenario("paper-centre"))
 WINCHES = with_rate(load_winches(), sync_period_us(max_rate_hz(load_winches())) * 1e-6)
@@ -89,8 +91,9 @@ def test_in_real_time_each_encoder_sample_is_stamped_at_its_sync_not_its_arrival
     spec = load_path("paper-centre")
     with start_world(SC, WINCHES, realtime=True) as world:
         drives = world.rig.bank.drives
+        kept: dict[int, list] = {d.node_id: [] for d in drives}
         for d in drives:
-            d.keep_latches = True
+            d.on_latch = lambda *row, rows=kept[d.node_id]: rows.append(row)
         loop = ControlLoop(world.hw, world.tracker, SC.truth,
                            lambda p0: build_trajectory(spec, p0),
                            LoopOptions(max_duration_s=3.0, decimate=1, realtime=True),
@@ -99,7 +102,7 @@ def test_in_real_time_each_encoder_sample_is_stamped_at_its_sync_not_its_arrival
         latches = {}
         for d in drives:
             with d.lock:
-                latches[d.node_id] = np.array(d.latches, float)
+                latches[d.node_id] = np.array(kept[d.node_id], float)
     assert res.cycles > 100, res.message
     err, unclear = stamp_errors(tmp_path / "rec", latches, WINCHES)
     # the drives move on the path: samples are told apart by their position
@@ -111,15 +114,22 @@ def test_in_real_time_each_encoder_sample_is_stamped_at_its_sync_not_its_arrival
 
 
 def test_a_tpdo_handled_after_the_next_sync_answers_the_sync_before_its_time_stamp():
-    """The master takes a TPDO for an answer to the last SYNC sent before the frame came
-    (its time stamp, on ``time.time()``'s clock), not before the master's receive thread
-    handled it; a time stamp outside the SYNCs kept and now (another clock) is not used."""
+    """The master takes a TPDO for an answer to no SYNC sent after the frame came (its time
+    stamp, on ``time.time()``'s clock), not after the master's receive thread handled it; a
+    time stamp outside the SYNCs kept and now (another clock) is not used. (The count that
+    also keeps a burst of late answers on their SYNCs: tests/test_stamp47_sync_count.py.)"""
     now = time.time()
-    drives = SimpleNamespace(_sync_sent=((now - 0.008, 1.0), (now - 0.004, 1.004)),
-                             _sync_t=1.004)
+
+    def drives():
+        history = SyncHistory(8)
+        history.note(now - 0.008, 1.0)
+        history.note(now - 0.004, 1.004)
+        return SimpleNamespace(_sync_sent=history, _sync_t=1.004, _align=[CountAlignment(8)])
+
     answered = ReceiveMixin._sync_answered
-    assert answered(drives, now - 0.005) == 1.0  # came before the second SYNC went out
-    assert answered(drives, now - 0.003) == 1.004
+    assert answered(drives(), 0, now - 0.005) == 1.0  # came before the second SYNC went out
+    assert answered(drives(), 0, now - 0.003) == 1.004
     for other_clock in (12.5, now + 60.0, now - 0.009):  # a bus's own clock; too old
-        assert answered(drives, other_clock) == 1.004
-    assert answered(SimpleNamespace(_sync_sent=(), _sync_t=0.5), now) == 0.5
+        assert answered(drives(), 0, other_clock) == 1.004
+    assert answered(SimpleNamespace(_sync_sent=SyncHistory(8), _sync_t=0.5,
+                                    _align=[CountAlignment(8)]), 0, now) == 0.5

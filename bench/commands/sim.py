@@ -28,10 +28,10 @@ channel on loopback (``--control-port``, 0 = any free port; printed as
 (:mod:`firmware_sim.faults` documents both). A schedule that is not valid is reported
 with file, line and field (exit 2).
 
-``--latch-log FILE`` (for checking a master's time stamps): on exit, every position the
-drives latched at a SYNC they answer with a synchronous TPDO, with the drive's time of that
-SYNC and the monotonic time it was handled (:func:`write_latches`); kept in memory until
-then (8 drives at 256 Hz: ~60 MB an hour), for checks of minutes.
+``--latch-log FILE`` (for checking a master's time stamps): every position the drives
+latch at a SYNC they answer with a synchronous TPDO, with the drive's time of that SYNC and
+the monotonic time it was handled, written as they come (:class:`LatchLog`; 8 drives at
+256 Hz: ~60 MB an hour); a path that cannot be written is refused at start (exit 2).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import json
 import os
 import sys
 import threading
+import time
 
 from bench.commands.argtypes import tcp_port
 
@@ -95,9 +96,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "description beside it (FILE with suffix .robot.toml)")
     p.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
     p.add_argument("--latch-log", metavar="FILE", default=None,
-                   help="on exit, write every position the drives latched at a SYNC they "
-                        "answer (CSV: node, drive_t_s, monotonic_s, counts): the truth a master's "
-                        "encoder time stamps are checked against")
+                   help="write every position the drives latch at a SYNC they answer, as "
+                        "they come (CSV: node, drive_t_s, monotonic_s, counts): the truth a "
+                        "master's encoder time stamps are checked against")
 
 
 def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | None,
@@ -144,18 +145,49 @@ def write_sim_site(path: str, rig, can_spec: str, clock: str, scenario: str | No
                                           "robot's endpoints live as long as that process"))
 
 
-def write_latches(path: str, drives) -> None:
-    """Write the positions ``drives`` (:class:`firmware_sim.cia402_drive.SimulatedDrive`)
-    latched at the SYNCs their synchronous TPDOs answer (``SimulatedDrive.latches``) to
-    ``path``: CSV ``node, drive_t_s`` (the drive's time of the SYNC: the SYNC clock's or
-    the wall clock's) ``, monotonic_s`` (``time.monotonic()`` as the drive handled the SYNC)
-    ``, counts`` (the position actual 0x6064 sent)."""
-    with open(path, "w", encoding="ascii") as f:
-        f.write("node,drive_t_s,monotonic_s,counts\n")
+class LatchLog:
+    """``--latch-log FILE``: the positions the drives
+    (:class:`firmware_sim.cia402_drive.SimulatedDrive`) latch at the SYNCs their synchronous
+    TPDOs answer, written as they come (``SimulatedDrive.on_latch``): CSV ``node,
+    drive_t_s`` (the drive's time of the SYNC: the SYNC clock's or the wall clock's)
+    ``, monotonic_s`` (``time.monotonic()`` as the drive handled the SYNC) ``, counts``
+    (the position actual 0x6064 sent), the nodes' rows interleaved in the order they
+    latched. Opened (created or emptied) at once: OSError naming the path; flushed at least
+    every :data:`LATCH_FLUSH_S` and at :meth:`close`."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        try:
+            self._file = open(path, "w", encoding="ascii")  # noqa: SIM115 (closed by close)
+        except OSError as exc:
+            raise OSError(f"--latch-log {path}: {exc.strerror or exc}") from exc
+        self._file.write("node,drive_t_s,monotonic_s,counts\n")
+        self._lock = threading.Lock()  # the drives latch in their own threads
+        self._flushed = time.monotonic()
+
+    def listener(self, node: int):
+        """The ``on_latch`` of the drive with node id ``node``."""
+        def on_latch(drive_t_s: float, monotonic_s: float, counts: int) -> None:
+            with self._lock:
+                if self._file.closed:
+                    return
+                self._file.write(f"{node},{drive_t_s:.6f},{monotonic_s:.6f},{counts}\n")
+                if monotonic_s - self._flushed >= LATCH_FLUSH_S:
+                    self._file.flush()
+                    self._flushed = monotonic_s
+        return on_latch
+
+    def attach(self, drives) -> None:
         for d in drives:
-            with d.lock:
-                rows = list(d.latches)
-            f.writelines(f"{d.node_id},{t:.6f},{w:.6f},{c}\n" for t, w, c in rows)
+            d.on_latch = self.listener(int(d.node_id))
+
+    def close(self) -> None:
+        with self._lock:
+            self._file.close()
+
+
+#: [s] the latch log is flushed at least this often (a sim killed loses at most this much)
+LATCH_FLUSH_S = 1.0
 
 
 def _fail(args: argparse.Namespace, code: int, msg: str) -> int:
@@ -227,7 +259,7 @@ def _serve(args: argparse.Namespace, scheduling: str) -> int:
 
     try:
         _check(args)
-        rig, bus, schedule, injector, control = _open(args)
+        rig, bus, schedule, injector, control, latches = _open(args)
     except _Refused as exc:
         return _fail(args, exc.code, str(exc))
     with stopping_on_signals(second_raises=False) as (stop, caught):
@@ -248,8 +280,8 @@ def _serve(args: argparse.Namespace, scheduling: str) -> int:
             control.close()
             injector.stop()
             rig.close()
-            if args.latch_log:
-                write_latches(args.latch_log, rig.bank.drives)
+            if latches is not None:
+                latches.close()
     print(f"cdpr sim: stopped ({rig.settles} plant settles, {len(rig.plant_errors)} without "
           f"a rest position, {sum(r.action == 'apply' for r in injector.log)} fault(s) "
           "injected)", file=sys.stderr)
@@ -274,8 +306,9 @@ def _check(args: argparse.Namespace) -> None:
 
 def _open(args: argparse.Namespace):
     """The simulated robot (on ``--can``'s bus or a socketcand hub), its fault schedule,
-    injector and control server, not started: (rig, bus or None, schedule or None,
-    injector, control). What was opened is closed again on a refusal."""
+    injector and control server, not started, and the latch log (``--latch-log``, open):
+    (rig, bus or None, schedule or None, injector, control, latch log or None). What was
+    opened is closed again on a refusal."""
     from bench.dryrun.scenarios import resolve_scenario
     from firmware_sim.faults import (
         FaultControlServer,
@@ -298,23 +331,35 @@ def _open(args: argparse.Namespace):
             raise _Refused(2, str(exc)) from exc
         except Exception as exc:  # CanInitializationError, OSError
             raise _Refused(1, str(exc)) from exc
+    try:
+        latches = LatchLog(args.latch_log) if args.latch_log else None
+    except OSError as exc:
+        if bus is not None:
+            bus.shutdown()
+        raise _Refused(2, str(exc)) from exc
     rig = _rig(args, scenario, bus)
-    for d in rig.bank.drives:
-        d.keep_latches = bool(args.latch_log)
+    if latches is not None:
+        latches.attach(rig.bank.drives)
     try:
         schedule = FaultSchedule.load(
             args.faults, node_ids=tuple(int(x) for x in rig.winches.node_id),
             unit_ids=tuple(rig.cells.map.unit_ids)) if args.faults else None
     except FaultScheduleError as exc:
-        rig.close()
+        _close_opened(rig, latches)
         raise _Refused(2, str(exc)) from exc
     injector = FaultInjector(rig, schedule)
     try:
         control = FaultControlServer(injector, host=args.host, port=args.control_port)
     except OSError as exc:
-        rig.close()
+        _close_opened(rig, latches)
         raise _Refused(1, f"cannot listen on {args.host}:{args.control_port}: {exc}") from exc
-    return rig, bus, schedule, injector, control
+    return rig, bus, schedule, injector, control, latches
+
+
+def _close_opened(rig, latches: LatchLog | None) -> None:
+    rig.close()
+    if latches is not None:
+        latches.close()
 
 
 def _rig(args: argparse.Namespace, scenario, bus):

@@ -348,6 +348,9 @@ class ControlLoop:
     called about four times a second; ``stop`` (set by SIGINT) ends the run with a quick stop.
     """
 
+    #: the samples' times, made at start-up (on the hardware's clock from there)
+    _times: SampleTimes
+
     def __init__(self, hw: WinchHardware, tracker: Tracker, model: Robot,
                  plan: Callable[[np.ndarray], Trajectory], options: LoopOptions,
                  open_recorder: Callable[[np.ndarray], DryRunRecorder | None] | None = None,
@@ -373,7 +376,6 @@ class ControlLoop:
         self._finished = False
         self._enable_failed_seen = False  #: enabling the drives failed (see _enable_failed)
         self._t0 = 0.0  #: hardware time at start-up [s]
-        self._times = SampleTimes(0.0, tracker)  #: the samples' times (anew at start-up)
 
     # ------------------------------------------------------------------ events
     def _event(self, t: float, device: str, address: int, cable: str, kind: str, code: int,
@@ -748,11 +750,11 @@ class ControlLoop:
             res.pose_error_max_m = max(res.pose_error_max_m or 0.0, err)
         if self.recorder is not None:
             tau, tau_t = self._times.tensions(r, t)
-            self.recorder.row(t, c.pose_des, c.last_sent, r.lengths_m, tau,
+            lengths, lengths_t = self._times.lengths(r, t)  # nan: the sample recorded
+            self.recorder.row(t, c.pose_des, c.last_sent, lengths, tau,
                               pose_meas, c.out_tensions, c.substituted, c.path_cycle,
                               res.overruns, c.state, err, drive_states=r.states,
-                              lengths_t=self._times.lengths(r, t), tensions_t=tau_t,
-                              pose_t=pose_t)
+                              lengths_t=lengths_t, tensions_t=tau_t, pose_t=pose_t)
 
     def _ended(self, c: _CycleState, d, r: Readings, feed: FeedRate, t: float,
                end_at: float) -> bool:

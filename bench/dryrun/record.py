@@ -27,10 +27,13 @@
 Each sensor's sample is recorded once, at the time it was taken on the loop's clock (the
 recording format's sensor streams: a row whose group is ``nan`` holds no sample of it):
 
-- encoders: at the SYNC their positions answer (``Readings.lengths_t_s``: the last SYNC
-  the master sent before the drives' TPDOs came, by the frames' time stamps where the bus
-  gives them; in lock-step the cycle's own, on its row; in real time usually the SYNC
-  before, on a row of its own);
+- encoders: a new sample only (a cycle on which no TPDO came since the last row holds the
+  sample already recorded: not written again), at the SYNC their positions answer
+  (``Readings.lengths_t_s``: the SYNC each drive's count of TPDOs gives, never after the
+  last SYNC sent before its TPDO came, see :mod:`hal.sync_count`; the drives' positions
+  at one SYNC, ``Readings.sample_lengths_m``, the latest all of them answered, where
+  their latest answer different SYNCs; in lock-step the cycle's own, on its row; in real
+  time usually the SYNC before, on a row of its own);
 - the tracker: a new fix only (a fix read again on a later row is not written again), at
   its own time stamp where the tracker says that is the hardware's clock
   (``Tracker.on_hardware_clock``: the in-process simulated tracker in lock-step, a
@@ -269,19 +272,31 @@ class SampleTimes:
     hardware interface's less ``t0`` [s]), and whether it is new (a sample is recorded
     once): the module docstring's rules. ``tracker``: its ``on_hardware_clock`` says
     whether its fixes' time stamps are on the hardware's clock. Per run (it remembers the
-    last fix and load-cell sample)."""
+    last fix, encoder and load-cell sample)."""
 
     def __init__(self, t0: float, tracker: Tracker) -> None:
         self.t0 = float(t0)
         self.tracker = tracker
         self._fix_t = -np.inf  # the last new fix's key [s] (:meth:`_fix_key`)
         self._tau_t = -np.inf  # the load cells' sample recorded last [s]
+        self._len_t = math.nan  # the SYNC of the encoders' sample recorded last [s]
 
-    def lengths(self, r: Readings, t: float) -> float | None:
-        """The time [s] of the SYNC the drives' lengths ``r`` answer
-        (``Readings.lengths_t_s``; None: not known, the row's ``t``); never after ``t``."""
+    def lengths(self, r: Readings, t: float) -> tuple[np.ndarray, float | None]:
+        """The encoders' sample: the drives' lengths [m] at one SYNC
+        (``Readings.sample_lengths_m``, else ``lengths_m``) and that SYNC's time [s]
+        (``Readings.lengths_t_s``; None: not known, the row's ``t``; never after ``t``), or
+        ``nan`` lengths when they answer the SYNC already recorded (no TPDO came since: the
+        sample already recorded, not written again at its time). A sample is new when its
+        SYNC differs from the last one recorded (drives whose time is not known: every
+        reading)."""
+        lengths = r.lengths_m if r.sample_lengths_m is None else r.sample_lengths_m
         ts = r.lengths_t_s - self.t0
-        return min(ts, t) if math.isfinite(ts) else None
+        if not math.isfinite(ts):
+            return lengths, None
+        if ts == self._len_t:
+            return np.full(len(lengths), np.nan), None
+        self._len_t = ts
+        return lengths, min(ts, t)
 
     def fix(self, tr: TrackerReading, t: float) -> float | None:
         """The time [s] of the tracker's fix ``tr`` read at ``t``, None when it is not a
