@@ -36,6 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import sparse, stats
 
 from bench.diagnosis.fit import fd_jacobian
 from bench.diagnosis.residuals import ResidualModel
@@ -50,6 +51,10 @@ PROBE_SIZE = 1.0
 MIN_PER_SIGN = 3
 #: a cable's direction-dependent error is a finding only this many times the others' median
 DIRECTION_RATIO = 2.0
+#: the probes whose columns are smooth in time (a stretch of rows, an error cluster, shares
+#: its slow error): their reading allows for slow errors the noise model lacks
+#: (:func:`slow_scale`)
+IN_TIME = ("thermal", "drift")
 #: length change [m] of a probe column's finite difference (the probes are linear in it)
 STEP_M = 1e-4
 
@@ -374,14 +379,18 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
                    noise: float) -> tuple[list[ProbeResult], list[int]]:
     """Each probe fitted beside the effects: its value, BIC change (from the variance of its
     coefficient: classical, or cluster-robust over the error clusters where there are 3
-    or more, never below the classical) and size over the ``noise``, a finding marked;
-    and the columns that gave a result. A direction-dependent error common to the cables
-    is the winches' hysteresis, which the noise model holds (its direction component): one
-    cable's is a finding only where it also stands out from the others'."""
+    or more, never below the classical; a probe in time, :data:`IN_TIME`, also read with
+    the slow error the drift columns' cluster scores show, :func:`slow_scale`, on
+    Student's t of their effective degrees of freedom, whichever reads less) and size over
+    the ``noise``, a finding marked; and the columns that gave a result. A
+    direction-dependent error common to the cables is the winches' hysteresis, which the
+    noise model holds (its direction component): one cable's is a finding only where it
+    also stands out from the others'."""
     Jc, Jp = lin.Jc, lin.Jp
     # each probe column less what the effects' columns hold of it (its coefficient's
     # information), and the error clusters (rows of neighbouring moves, a target's visits
     # share their errors: a drift judged row by row would count each error many times)
+    U = np.zeros((len(lin.r0), 0))
     if Jc.shape[1] and np.isfinite(Jc).all():
         U, sv, _ = np.linalg.svd(Jc, full_matrices=False)
         U = U[:, sv > sv[0] * 1e-10]
@@ -390,30 +399,127 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
         Pp = Jp
     _, cluster = np.unique(rm.entry_blocks(idx), return_inverse=True)
     n_groups = int(cluster.max()) + 1 if cluster.size else 0
-    out: list[ProbeResult] = []
-    used: list[int] = []
-    for j, (name, cid, _) in enumerate(cols):
+    fits: list[_ProbeFit] = []
+    for j, (name, _, _) in enumerate(cols):
         info = float(Pp[:, j] @ Pp[:, j]) if ok[j] else 0.0
         if info <= 0:
             continue
         _, value, r = lin.solve(lin.every, j)
-        var = lin.inflation / info  # the classical variance of the probe's coefficient
+        fit = _ProbeFit(j, name, value, lin.inflation / info)
         if n_groups >= 3:  # cluster-robust (sandwich), never below the classical
             score = np.bincount(cluster, weights=Pp[:, j] * r, minlength=n_groups)
-            var = max(var, float(score @ score) / info ** 2 * n_groups / (n_groups - 1))
+            fit.sandwich = float(score @ score) / info ** 2 * n_groups / (n_groups - 1)
+            if name in IN_TIME:
+                expected, fit.dof = cluster_dof(Pp[:, j], U, cluster, n_groups)
+                fit.ratio = float(score @ score) / (lin.inflation * expected * info ** 2)
+        fits.append(fit)
+    scale, dof = slow_scale(fits)
+    out: list[ProbeResult] = []
+    for f in fits:
+        z2 = f.value ** 2 / max(f.classical, f.sandwich)
+        if f.name in IN_TIME and math.isfinite(dof):
+            z2 = min(z2, t_as_normal(f.value ** 2 / (max(scale, 1.0) * f.classical), dof))
+        name, cid, _ = cols[f.j]
         # (a direction column is half the difference: its size is the half, as the
         # residuals' two-group test reports it)
-        res = ProbeResult(name, cid, value, -value ** 2 / var + lin.log_n,
-                          abs(value) * lin.sizes[j] / noise)
+        res = ProbeResult(name, cid, f.value, -z2 + lin.log_n,
+                          abs(f.value) * lin.sizes[f.j] / noise)
         res.finding = bool(res.delta_bic < -PROBE_BIC and res.size_over_noise > PROBE_SIZE)
         out.append(res)
-        used.append(j)
     dirs = [r for r in out if r.name == "direction"]
     for r in dirs:
         others = [abs(o.value) for o in dirs if o is not r]
         if others and abs(r.value) <= DIRECTION_RATIO * float(np.median(others)):
             r.finding = False
-    return out, used
+    return out, [f.j for f in fits]
+
+
+@dataclass
+class _ProbeFit:
+    """One probe column's fit for :func:`_probe_results`: column ``j``, probe ``name``, its
+    ``value``, the classical variance of the value (times the reduced chi-square when above
+    1) and the cluster-robust one (``sandwich``, 0 without 3 clusters); for a probe in time
+    its cluster scores' sum of squares over what the noise model expects of it (``ratio``)
+    and that sum's effective degrees of freedom (``dof``), nan where not computed."""
+
+    j: int
+    name: str
+    value: float
+    classical: float
+    sandwich: float = 0.0
+    ratio: float = math.nan
+    dof: float = math.nan
+
+
+def cluster_dof(p: np.ndarray, U: np.ndarray, cluster: np.ndarray,
+                n_groups: int) -> tuple[float, float]:
+    """What the noise model expects of a cluster-robust variance's sum of squared cluster
+    scores, and its effective degrees of freedom (Satterthwaite; Bell and McCaffrey 2002,
+    Imbens and Kolesar 2016 with independent errors as the working model).
+
+    ``p`` (m,) is a probe column less its projection on the effects' columns (whitened
+    entries), ``U`` (m, k) an orthonormal basis of the effects' columns, ``cluster`` (m,)
+    each entry's cluster in ``0..n_groups-1``. The probe's coefficient is ``a @ y`` with
+    ``a = p / |p|^2``; its residuals ``r = M e`` with ``M = I - H``, ``H`` the projection on
+    the effects' columns and ``p``. Cluster g's score ``a_g @ r`` (``a_g``: ``a`` on the
+    cluster's entries, 0 elsewhere) is ``(M a_g) @ e``, so the sum of squares is ``e' C C' e``
+    with ``C = [M a_1 ... M a_G]``. For whitened errors of unit variance its mean is
+    ``tr(C'C)`` and, normal, its variance ``2 tr((C'C)^2)``: it is the mean times a
+    chi-square of ``nu = tr(C'C)^2 / tr((C'C)^2)`` degrees of freedom over ``nu``. ``C'C`` is
+    ``diag(|a_g|^2) - L L'`` with ``L``'s row g ``(U' a_g, p @ a_g / |p|)`` (G x (k+1)), so
+    both traces come without a G x G matrix. ``nu`` is at most G - 1 (the columns of C sum
+    to ``M a = 0``) and less where a few clusters carry the coefficient (a drift's first and
+    last stretches of time): 2 to 3.5 on recordings of 4 to 6 clusters."""
+    info = float(p @ p)
+    a = p / info
+    S = sparse.csr_matrix((np.ones(len(cluster)), (cluster, np.arange(len(cluster)))),
+                          shape=(n_groups, len(cluster)))
+    aa = S @ (a * a)
+    L = np.column_stack([S @ (U * a[:, None]), (S @ (p * a)) / math.sqrt(info)])
+    row2 = np.einsum("gi,gi->g", L, L)
+    trace = float(aa.sum() - row2.sum())
+    frob2 = float(aa @ aa - 2.0 * aa @ row2 + np.sum((L.T @ L) ** 2))
+    if trace <= 0 or frob2 <= 0:
+        return math.nan, math.nan
+    return trace, trace ** 2 / frob2
+
+
+def slow_scale(fits: list[_ProbeFit]) -> tuple[float, float]:
+    """The variance of slow errors over what the noise model holds, from the drift columns'
+    cluster scores, and its degrees of freedom: ``(sum nu_c * ratio_c / sum nu_c, sum
+    nu_c)`` over the cables' drift columns (nan, nan without one).
+
+    Each cable's drift column is a stretch-of-time contrast of that cable's length entries;
+    its sum of squared cluster scores over the model's expectation (``ratio``) is, where the
+    model holds but for a common scale lambda of the slow errors, lambda times a chi-square
+    of ``nu`` (:func:`cluster_dof`) over ``nu``. The cables' scores are of different entries,
+    so their ``nu``-weighted mean is lambda times a chi-square of ``sum nu`` over ``sum nu``
+    (the ``thermal`` column, a sum of the drift columns weighted by length, adds nothing).
+    One column's own sandwich has ``nu`` <= G - 1: read on its t, no probe on 4 to 6
+    clusters could pass :data:`PROBE_BIC` (a BIC change of -33 asks a t of 2.2 degrees of
+    freedom for ~1e4); pooled over n cables, ``n nu`` (15 to 30 there). A time probe is then
+    read with ``max(lambda, 1)`` times its classical variance on Student's t of ``sum nu``
+    (:func:`t_as_normal`): on four tracker_frame and mast/offset recordings of 4 to 5
+    clusters lambda was 1.7 to 3.7 (slow errors 1.3 to 1.9 times the model's), and their
+    false drifts of z^2 35 to 60 read 9 to 19."""
+    drifts = [f for f in fits if f.name == "drift" and math.isfinite(f.dof)
+              and math.isfinite(f.ratio)]
+    if not drifts:
+        return math.nan, math.nan
+    nu = np.array([f.dof for f in drifts])
+    ratio = np.array([f.ratio for f in drifts])
+    return float(nu @ ratio / nu.sum()), float(nu.sum())
+
+
+def t_as_normal(z2: float, dof: float) -> float:
+    """The squared normal deviate with the tail probability of Student's t of ``dof``
+    degrees of freedom at ``sqrt(z2)``: the chi-square of one degree of freedom a
+    coefficient test on an estimated variance stands for, to compare with a BIC threshold.
+    Never above ``z2`` (many degrees of freedom: the normal)."""
+    if z2 <= 0 or not math.isfinite(z2):
+        return z2
+    p = float(stats.t.sf(math.sqrt(z2), dof))
+    return min(float(stats.norm.isf(p)) ** 2, z2) if p > 0 else z2
 
 
 def _stand(rm: ResidualModel, space: ParamSpace, phi: np.ndarray, idx: np.ndarray | None,
