@@ -409,11 +409,9 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
         if n_groups >= 3:  # cluster-robust (sandwich), never below the classical
             score = np.bincount(cluster, weights=Pp[:, j] * r, minlength=n_groups)
             fit.sandwich = float(score @ score) / info ** 2 * n_groups / (n_groups - 1)
-            if name in IN_TIME:
-                expected, fit.dof = cluster_dof(Pp[:, j], U, cluster, n_groups)
-                fit.ratio = float(score @ score) / (lin.inflation * expected * info ** 2)
         fits.append(fit)
-    scale, dof = slow_scale(fits)
+    scale, dof = slow_scale(lin, Pp, U, [cols[f.j][0] for f in fits], [f.j for f in fits],
+                            cluster, n_groups)
     out: list[ProbeResult] = []
     for f in fits:
         z2 = f.value ** 2 / max(f.classical, f.sandwich)
@@ -438,44 +436,37 @@ def _probe_results(rm: ResidualModel, idx: np.ndarray | None, lin: _Linear,
 class _ProbeFit:
     """One probe column's fit for :func:`_probe_results`: column ``j``, probe ``name``, its
     ``value``, the classical variance of the value (times the reduced chi-square when above
-    1) and the cluster-robust one (``sandwich``, 0 without 3 clusters); for a probe in time
-    its cluster scores' sum of squares over what the noise model expects of it (``ratio``)
-    and that sum's effective degrees of freedom (``dof``), nan where not computed."""
+    1) and the cluster-robust one (``sandwich``, 0 without 3 clusters)."""
 
     j: int
     name: str
     value: float
     classical: float
     sandwich: float = 0.0
-    ratio: float = math.nan
-    dof: float = math.nan
 
 
-def cluster_dof(p: np.ndarray, U: np.ndarray, cluster: np.ndarray,
+def cluster_dof(a: np.ndarray, V: np.ndarray, cluster: np.ndarray,
                 n_groups: int) -> tuple[float, float]:
-    """What the noise model expects of a cluster-robust variance's sum of squared cluster
-    scores, and its effective degrees of freedom (Satterthwaite; Bell and McCaffrey 2002,
-    Imbens and Kolesar 2016 with independent errors as the working model).
+    """What the noise model expects of the sum of squared cluster scores of weights ``a``
+    on a fit's residuals, and that sum's effective degrees of freedom (Satterthwaite; Bell
+    and McCaffrey 2002, Imbens and Kolesar 2016, independent errors the working model).
 
-    ``p`` (m,) is a probe column less its projection on the effects' columns (whitened
-    entries), ``U`` (m, k) an orthonormal basis of the effects' columns, ``cluster`` (m,)
-    each entry's cluster in ``0..n_groups-1``. The probe's coefficient is ``a @ y`` with
-    ``a = p / |p|^2``; its residuals ``r = M e`` with ``M = I - H``, ``H`` the projection on
-    the effects' columns and ``p``. Cluster g's score ``a_g @ r`` (``a_g``: ``a`` on the
-    cluster's entries, 0 elsewhere) is ``(M a_g) @ e``, so the sum of squares is ``e' C C' e``
-    with ``C = [M a_1 ... M a_G]``. For whitened errors of unit variance its mean is
+    ``a`` (m,) weighs the whitened entries, ``V`` (m, k) is an orthonormal basis of the
+    fitted columns, ``cluster`` (m,) each entry's cluster in ``0..n_groups-1``. The
+    residuals are ``r = M e`` with ``M = I - V V'``; cluster g's score ``a_g @ r`` (``a_g``:
+    ``a`` on the cluster's entries, 0 elsewhere) is ``(M a_g) @ e``, and the sum of squares
+    is ``e' C C' e`` with ``C = [M a_1 ... M a_G]``. For errors of unit variance its mean is
     ``tr(C'C)`` and, normal, its variance ``2 tr((C'C)^2)``: it is the mean times a
     chi-square of ``nu = tr(C'C)^2 / tr((C'C)^2)`` degrees of freedom over ``nu``. ``C'C`` is
-    ``diag(|a_g|^2) - L L'`` with ``L``'s row g ``(U' a_g, p @ a_g / |p|)`` (G x (k+1)), so
-    both traces come without a G x G matrix. ``nu`` is at most G - 1 (the columns of C sum
-    to ``M a = 0``) and less where a few clusters carry the coefficient (a drift's first and
-    last stretches of time): 2 to 3.5 on recordings of 4 to 6 clusters."""
-    info = float(p @ p)
-    a = p / info
+    ``diag(|a_g|^2) - L L'`` with ``L``'s row g ``V' a_g`` (G x k), so both traces come
+    without a G x G matrix. Where ``a`` lies in the fitted columns (a coefficient's own
+    sandwich) the columns of C sum to ``M a = 0`` and ``nu`` <= G - 1; it is less where a
+    few clusters carry the weights (a drift's first and last stretches of time): 2 to 3.5
+    on recordings of 4 to 6 clusters."""
     S = sparse.csr_matrix((np.ones(len(cluster)), (cluster, np.arange(len(cluster)))),
                           shape=(n_groups, len(cluster)))
     aa = S @ (a * a)
-    L = np.column_stack([S @ (U * a[:, None]), (S @ (p * a)) / math.sqrt(info)])
+    L = S @ (V * a[:, None])
     row2 = np.einsum("gi,gi->g", L, L)
     trace = float(aa.sum() - row2.sum())
     frob2 = float(aa @ aa - 2.0 * aa @ row2 + np.sum((L.T @ L) ** 2))
@@ -484,31 +475,47 @@ def cluster_dof(p: np.ndarray, U: np.ndarray, cluster: np.ndarray,
     return trace, trace ** 2 / frob2
 
 
-def slow_scale(fits: list[_ProbeFit]) -> tuple[float, float]:
-    """The variance of slow errors over what the noise model holds, from the drift columns'
-    cluster scores, and its degrees of freedom: ``(sum nu_c * ratio_c / sum nu_c, sum
-    nu_c)`` over the cables' drift columns (nan, nan without one).
+def slow_scale(lin: _Linear, Pp: np.ndarray, U: np.ndarray, names: list[str],
+               js: list[int], cluster: np.ndarray, n_groups: int) -> tuple[float, float]:
+    """The variance of slow errors over what the noise model holds (lambda), from the
+    cables' drift columns' cluster scores, and its degrees of freedom (nan, nan without 3
+    clusters or a drift column).
 
-    Each cable's drift column is a stretch-of-time contrast of that cable's length entries;
-    its sum of squared cluster scores over the model's expectation (``ratio``) is, where the
-    model holds but for a common scale lambda of the slow errors, lambda times a chi-square
-    of ``nu`` (:func:`cluster_dof`) over ``nu``. The cables' scores are of different entries,
-    so their ``nu``-weighted mean is lambda times a chi-square of ``sum nu`` over ``sum nu``
-    (the ``thermal`` column, a sum of the drift columns weighted by length, adds nothing).
-    One column's own sandwich has ``nu`` <= G - 1: read on its t, no probe on 4 to 6
-    clusters could pass :data:`PROBE_BIC` (a BIC change of -33 asks a t of 2.2 degrees of
-    freedom for ~1e4); pooled over n cables, ``n nu`` (15 to 30 there). A time probe is then
-    read with ``max(lambda, 1)`` times its classical variance on Student's t of ``sum nu``
-    (:func:`t_as_normal`): on four tracker_frame and mast/offset recordings of 4 to 5
-    clusters lambda was 1.7 to 3.7 (slow errors 1.3 to 1.9 times the model's), and their
-    false drifts of z^2 35 to 60 read 9 to 19."""
-    drifts = [f for f in fits if f.name == "drift" and math.isfinite(f.dof)
-              and math.isfinite(f.ratio)]
-    if not drifts:
+    The residuals are those of the effects with every probe in time (:data:`IN_TIME`,
+    columns ``js`` of ``Pp``, the probe columns less the effects' ``U``) fitted too: a
+    drift or thermal expansion that is real leaves them, the slow errors no line in time
+    holds stay. Each cable's drift column weighs a stretch-of-time contrast of that cable's
+    length entries; its sum of squared cluster scores on those residuals over what the
+    noise model (unit whitened errors times the fit's reduced chi-square) expects of it is,
+    where the model holds but for a scale lambda of its errors, lambda times a chi-square of
+    ``nu`` (:func:`cluster_dof`) over ``nu``. The cables' scores are of different entries:
+    their ``nu``-weighted mean is lambda times a chi-square of ``sum nu`` over ``sum nu``.
+
+    Why pooled: one coefficient's own sandwich has ``nu`` <= G - 1, and read on its t no
+    probe on 4 to 6 clusters could pass :data:`PROBE_BIC` (a BIC change of -33 asks a t of
+    2.2 degrees of freedom for ~1e4); pooled over n cables the degrees of freedom are about
+    n times as many. A time probe is then also read with ``max(lambda, 1)`` times its
+    classical variance on Student's t of ``sum nu`` (:func:`t_as_normal`)."""
+    time = [j for j, name in zip(js, names, strict=True) if name in IN_TIME]
+    drifts = [j for j, name in zip(js, names, strict=True) if name == "drift"]
+    if n_groups < 3 or not drifts:
         return math.nan, math.nan
-    nu = np.array([f.dof for f in drifts])
-    ratio = np.array([f.ratio for f in drifts])
-    return float(nu @ ratio / nu.sum()), float(nu.sum())
+    Q, sv, _ = np.linalg.svd(Pp[:, time], full_matrices=False)
+    Q = Q[:, sv > sv[0] * 1e-10]
+    r = lin.solve(lin.every, None)[2]
+    r = r - Q @ (Q.T @ r)
+    V = np.hstack([U, Q])
+    nus, sums = [], []
+    for j in drifts:
+        score = np.bincount(cluster, weights=Pp[:, j] * r, minlength=n_groups)
+        expected, nu = cluster_dof(Pp[:, j], V, cluster, n_groups)
+        if math.isfinite(nu):
+            nus.append(nu)
+            sums.append(float(score @ score) / (lin.inflation * expected))
+    if not nus:
+        return math.nan, math.nan
+    nu_all = np.array(nus)
+    return float(nu_all @ np.array(sums) / nu_all.sum()), float(nu_all.sum())
 
 
 def t_as_normal(z2: float, dof: float) -> float:
