@@ -78,7 +78,9 @@ class ProbeResult:
     ``direction``), ``cable`` (None for ``thermal``), ``value`` the fitted parameter (strain
     over the recording, or metres), ``delta_bic`` (negative: the probe fits better; its
     chi-square drop is the value's squared z, with the larger of the classical variance
-    times the fit's reduced chi-square when above 1 and the cluster-robust one),
+    times the fit's reduced chi-square when above 1 and the cluster-robust one; for a probe
+    in time, at most the z read with the slow errors' scale on Student's t,
+    :func:`slow_scale`),
     ``size_over_noise`` the largest length change it makes over the length noise."""
 
     name: str
