@@ -216,11 +216,30 @@ def _where(proc: subprocess.Popen, child: int, path: Path) -> str:
                              f"{(task / 'wchan').read_text().strip()}")
         except OSError:
             lines.append(f"{name} {pid}: gone")
+    lines.append("its stdout held open by: " + ", ".join(_holders(proc.stdout.fileno())))
     if proc.poll() is None:
         os.kill(proc.pid, signal.SIGUSR1)
         time.sleep(1.0)
     lines.append(path.with_suffix(".err").read_text())
     return "\n".join(lines)
+
+
+def _holders(fd: int) -> list[str]:
+    """The processes (pid and command line) with the other end of the pipe ``fd`` open: a
+    process forked while the pipe was made (before its write end was closed here) keeps
+    ``communicate`` from seeing its end."""
+    want = f"pipe:[{os.fstat(fd).st_ino}]"
+    found = []
+    for proc_dir in Path("/proc").iterdir():
+        if not proc_dir.name.isdigit() or int(proc_dir.name) == os.getpid():
+            continue
+        try:
+            if any(os.readlink(f) == want for f in (proc_dir / "fd").iterdir()):
+                cmd = (proc_dir / "cmdline").read_bytes().decode(errors="replace")
+                found.append(f"{proc_dir.name} {' '.join(cmd.replace(chr(0), ' ').split())[:80]}")
+        except OSError:
+            continue
+    return found
 
 
 def _gone(pid: int, timeout_s: float) -> bool:
