@@ -53,8 +53,8 @@ def bench_diagnose_no_cells(quick: bool) -> dict[str, float]:
     campaign (:func:`paper_campaign`, 3 visits; 2 with ``--quick``) recorded without load
     cells, whose answer is still the paper's set: the tensions of every sample are fitted to
     the cables' stretch (:mod:`bench.diagnosis.internal_forces`) in every evaluation and
-    every finite-difference column, the costliest path per sample (a sensors-only log: four
-    fifths of its time); ``diagnose_no_cells_cpu_s`` its processor time."""
+    every finite-difference column, the costliest path per sample (three quarters of a
+    sensors-only log's time: 32006); ``diagnose_no_cells_cpu_s`` its processor time."""
     from dataclasses import replace
 
     from bench.campaign import run_campaign
