@@ -216,7 +216,8 @@ def _where(proc: subprocess.Popen, child: int, path: Path) -> str:
                              f"{(task / 'wchan').read_text().strip()}")
         except OSError:
             lines.append(f"{name} {pid}: gone")
-    lines.append("its stdout held open by: " + ", ".join(_holders(proc.stdout.fileno())))
+    lines.append("its stdout: at its end" if proc.stdout.closed else
+                 "its stdout held open by: " + ", ".join(_holders(proc.stdout.fileno())))
     if proc.poll() is None:
         os.kill(proc.pid, signal.SIGUSR1)
         time.sleep(1.0)
