@@ -69,9 +69,25 @@ _I1 = np.array([1, 2, 0])
 _I2 = np.array([2, 0, 1])
 
 
+#: elements of ``a`` and ``b`` together from which :func:`cross` takes the components as
+#: views: gathering them (``take`` on the last axis) costs about 15 ns an element, the views'
+#: six products and ``stack`` about 8 us more at any size; the two cost the same near 1,600
+#: (measured: 8 cables, 50 samples, both (50, 8, 3): 19 us gathered, 13 us as views; 300
+#: samples: 111 against 28 us; one sample: 2.6 against 10 us)
+CROSS_VIEWS_MIN = 1600
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product ``a x b`` along the last axis of (..., 3) arrays (np.cross is slower)."""
-    return a.take(_I1, axis=-1) * b.take(_I2, axis=-1) - a.take(_I2, axis=-1) * b.take(_I1, axis=-1)
+    """Cross product ``a x b`` along the last axis of (..., 3) arrays (np.cross is slower).
+    The same products and differences either way (the same numbers to the last bit): the
+    components gathered for small arrays, taken as views for large ones
+    (:data:`CROSS_VIEWS_MIN`)."""
+    if a.size + b.size < CROSS_VIEWS_MIN:
+        return a.take(_I1, axis=-1) * b.take(_I2, axis=-1) - \
+            a.take(_I2, axis=-1) * b.take(_I1, axis=-1)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def skew(v: np.ndarray) -> np.ndarray:

@@ -161,11 +161,12 @@ def test_a_child_that_cannot_open_its_recording_says_why(tmp_path):
 
 
 PARENT = textwrap.dedent("""
-    import signal, sys, time
+    import faulthandler, signal, sys, time
     import numpy as np
     from bench.dryrun.record import open_recorder
     from bench.mcap.child import Spawned
     from controller.robot import resolve_robot
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # (where it waits: _where)
     robot = resolve_robot("rocaspect")
     child = Spawned()
     rec = open_recorder(sys.argv[1], robot, np.array([10.0, 8.5, 1.0, 0, 0, 0]), {},
@@ -186,15 +187,60 @@ PARENT = textwrap.dedent("""
 
 
 def _parent(path: Path) -> tuple[subprocess.Popen, int]:
-    """A process recording through a child (``PARENT``), in a session of its own; (it,
-    the child's pid) once rows are on their way."""
+    """A process recording through a child (``PARENT``), in a session of its own, its
+    stderr to the file ``path.err`` (a pipe would also wait for the child);
+    (it, the child's pid) once rows are on their way."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-c", PARENT, str(path)], env=env,
-                            stdout=subprocess.PIPE, text=True, start_new_session=True)
+    with open(path.with_suffix(".err"), "w") as err:
+        proc = subprocess.Popen([sys.executable, "-c", PARENT, str(path)], env=env,
+                                stdout=subprocess.PIPE, stderr=err, text=True,
+                                start_new_session=True)
     assert proc.stdout is not None
     child = int(proc.stdout.readline())
     time.sleep(0.5)
     return proc, child
+
+
+def _where(proc: subprocess.Popen, child: int, path: Path) -> str:
+    """What the recording's parent ``proc`` and its ``child`` (pid) are doing: for each,
+    its signal masks (blocked, ignored, caught) and each thread's kernel wait channel; the
+    parent's Python stacks (faulthandler on SIGUSR1, ``PARENT``) (a failure's evidence)."""
+    lines = []
+    for name, pid in (("parent", proc.pid), ("child", child)):
+        try:
+            status = Path(f"/proc/{pid}/status").read_text().splitlines()
+            lines.append(f"{name} {pid}: " + ", ".join(
+                ln for ln in status if ln.startswith(("State", "SigBlk", "SigIgn", "SigCgt"))))
+            for task in sorted(Path(f"/proc/{pid}/task").iterdir()):
+                lines.append(f"  thread {(task / 'comm').read_text().strip()}: "
+                             f"{(task / 'wchan').read_text().strip()}")
+        except OSError:
+            lines.append(f"{name} {pid}: gone")
+    lines.append("its stdout: at its end" if proc.stdout.closed else
+                 "its stdout held open by: " + ", ".join(_holders(proc.stdout.fileno())))
+    if proc.poll() is None:
+        os.kill(proc.pid, signal.SIGUSR1)
+        time.sleep(1.0)
+    lines.append(path.with_suffix(".err").read_text())
+    return "\n".join(lines)
+
+
+def _holders(fd: int) -> list[str]:
+    """The processes (pid and command line) with the other end of the pipe ``fd`` open: a
+    process forked while the pipe was made (before its write end was closed here) keeps
+    ``communicate`` from seeing its end."""
+    want = f"pipe:[{os.fstat(fd).st_ino}]"
+    found = []
+    for proc_dir in Path("/proc").iterdir():
+        if not proc_dir.name.isdigit() or int(proc_dir.name) == os.getpid():
+            continue
+        try:
+            if any(os.readlink(f) == want for f in (proc_dir / "fd").iterdir()):
+                cmd = (proc_dir / "cmdline").read_bytes().decode(errors="replace")
+                found.append(f"{proc_dir.name} {' '.join(cmd.replace(chr(0), ' ').split())[:80]}")
+        except OSError:
+            continue
+    return found
 
 
 def _gone(pid: int, timeout_s: float) -> bool:
@@ -235,7 +281,12 @@ def test_ctrl_c_to_the_process_group_leaves_a_whole_file(tmp_path):
     proc, child = _parent(tmp_path / "rec")
     try:
         os.killpg(proc.pid, signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
+        try:
+            out, _ = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            out = None
+        if out is None:  # (outside the handler: the evidence without the timeout's trace)
+            pytest.fail("no end 30 s after Ctrl-C:\n" + _where(proc, child, tmp_path / "rec"))
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -47,6 +47,37 @@ def bench_diagnose(quick: bool) -> dict[str, float]:
                 "diagnose_samples": float(dg.report["samples"])}
 
 
+@register("diagnose_no_cells")
+def bench_diagnose_no_cells(quick: bool) -> dict[str, float]:
+    """``diagnose_no_cells_s``: wall time of ``cdpr diagnose`` (one process) on the paper's
+    campaign (:func:`paper_campaign`, 3 visits; 2 with ``--quick``) recorded without load
+    cells, whose answer is still the paper's set: the tensions of every sample are fitted to
+    the cables' stretch (:mod:`bench.diagnosis.internal_forces`) in every evaluation and
+    every finite-difference column, the costliest path per sample (three quarters of a
+    sensors-only log's time: 32006); ``diagnose_no_cells_cpu_s`` its processor time."""
+    from dataclasses import replace
+
+    from bench.campaign import run_campaign
+    from bench.diagnosis.report import diagnose
+    from bench.parallel import single_blas_thread
+    from firmware_sim.scenario import load_scenario
+
+    single_blas_thread()  # as `cdpr diagnose` runs
+    sc = load_scenario(Path(str(resources.files("bench") / "data" / "paper_scenario.toml")))
+    sc = replace(sc, recording=replace(sc.recording, load_cells=False),
+                 poses=replace(sc.poses, visits=2 if quick else 3))
+    with tempfile.TemporaryDirectory() as d:
+        rec = run_campaign(sc, Path(d) / "rec")
+        t0, c0 = time.perf_counter(), time.process_time()
+        dg = diagnose(rec)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    named = sorted(e["name"] for e in dg.report["effects"])
+    if named != ["exit_point_offset", "mast_compliance"]:
+        raise RuntimeError(f"benchmark diagnosis without load cells named {named}")
+    return {"diagnose_no_cells_s": wall, "diagnose_no_cells_cpu_s": cpu,
+            "diagnose_no_cells_samples": float(dg.report["samples"])}
+
+
 #: length of the long continuous recording [s] (the issue's "one-hour dry run")
 HOUR_S = 3600.0
 

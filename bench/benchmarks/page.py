@@ -47,6 +47,10 @@ WHAT: dict[str, str] = {
     "diagnose_hour_cpu_s": "the same, processor time",
     "diagnose_hour_recorded_s": "length of that recording",
     "diagnose_hour_rows": "rows of that recording",
+    "diagnose_no_cells_s": "`cdpr diagnose` (one process) of the paper's campaign recorded "
+                           "without load cells (tensions fitted to the cables' stretch)",
+    "diagnose_no_cells_cpu_s": "the same, processor time",
+    "diagnose_no_cells_samples": "samples of that campaign",
     "diagnose_300k_rows_s": "`cdpr diagnose` (2 processes) of a 20-minute three-rate log "
                             "(250 / 50 / 25 Hz, empty fields, no controller columns)",
     "diagnose_300k_rows": "rows of that log",
