@@ -1682,29 +1682,19 @@ def _unbiased_components(Js: np.ndarray, sw: np.ndarray, kinds: list[_KindGroups
     if Q.shape[1] == 0:
         return plain
     A = _expectation_matrix(kinds, traces, PY, PZ, GY, GZ)
-    # the independent groups each component's pairs come from (cd: a quantity's entries)
-    groups = np.concatenate([[kg.n] + [float(np.sum(np.bincount(i) > 1)) for i in kg.index]
-                             + [float(np.sum(np.bincount(kg.index[2]) > 1))] for kg in kinds])
-    return _told_components(A, stats, plain, pairs, groups)
+    return _told_components(A, stats, plain, pairs)
 
 
 def _told_components(A: np.ndarray, stats: np.ndarray, plain: np.ndarray,
-                     pairs: np.ndarray, groups: np.ndarray) -> np.ndarray:
+                     pairs: np.ndarray) -> np.ndarray:
     """The components ``theta`` (kind by kind: v, c1, c2, c3, cd) that the moment system
     ``E[stats] = A theta`` of :func:`_unbiased_components` tells, the plain moments
-    ``plain`` (over ``pairs`` from ``groups``) standing for what it does not: the posterior
-    mean of a Gaussian model of the statistics, in place of a floor on the share the fit
-    leaves.
+    ``plain`` (over ``pairs``) standing for what it does not: the posterior mean of a
+    Gaussian model of the statistics, in place of a floor on the share the fit leaves.
 
     - a statistic ``s_a = u^T P_a u`` of residuals whose errors are independent at their
       kind's level ``v`` has the variance ``2 v^2 tr(P_a R P_a R) = 2 v^2 A_aa`` (``R`` both
       projections); the pair sets are disjoint: ``V`` diagonal (``v`` the plain level);
-    - a shared component ``c_a`` adds the variance of a sum of ``groups`` independent
-      squares (a cable's error over the recording: 8 of them on an 8-cable robot), whose
-      mean ``A_aa c_a`` it carries: ``2 (A_aa c_a)^2 / groups`` (a chi-square's), taken at
-      the estimate (two passes from the plain moment; without it, a pulley case without load
-      cells, 4303 of test_diagnosis_intervals, read its cables' error over the recording
-      from 0.12 of it at 0.37 of the level and its pulley intervals fell under 95 %);
     - a shared component lies in ``[0, v]`` (:func:`error_meat` clips it there): a uniform
       over that range has the standard deviation ``v / sqrt(12)``, the prior's, about the
       plain moment. A level has none; one of a kind left with under
@@ -1729,20 +1719,15 @@ def _told_components(A: np.ndarray, stats: np.ndarray, plain: np.ndarray,
     var = 2.0 * level ** 2 * np.clip(a[used], 1e-12 * max(float(a.max()), 1e-300), None)
     prior = np.where(shared[used], 12.0 / level ** 2, 0.0)
     Au = A[np.ix_(used, used)]
-    g = np.clip(groups[used], 1.0, None)
-    sol = np.clip(plain[used], 0.0, None)
-    for _ in range(2):
-        va = var + 2.0 * (a[used] * np.where(shared[used], np.clip(sol, 0.0, None), 0.0)) ** 2 / g
-        W = Au.T / va
-        try:
-            sol = np.linalg.solve(W @ Au + np.diag(prior),
-                                  W @ (stats[used] - A[np.ix_(used, fixed)] @ theta[fixed])
-                                  + prior * plain[used])
-        except np.linalg.LinAlgError:
-            return plain
-        if not np.all(np.isfinite(sol)):
-            return plain
-    theta[used] = sol
+    W = Au.T / var
+    try:
+        sol = np.linalg.solve(W @ Au + np.diag(prior),
+                              W @ (stats[used] - A[np.ix_(used, fixed)] @ theta[fixed])
+                              + prior * plain[used])
+    except np.linalg.LinAlgError:
+        return plain
+    if np.all(np.isfinite(sol)):
+        theta[used] = sol
     if np.any(theta.reshape(-1, L)[:, 0][used[::L]] <= 0):
         return plain
     return theta
