@@ -33,7 +33,9 @@ Invariants:
 - a drive switched off by a second master is reported in its true state at once, and the
   HAL never enables it again by itself (no enable-operation controlword until enable());
 - (:class:`HalTpdoLossMachine`) a drive whose TPDOs stop is ``drive_lost`` with its state
-  UNKNOWN within 0.1 s.
+  UNKNOWN within 0.1 s while it is OPERATIONAL; outside OPERATIONAL (e.g. pre-operational
+  after its master's heartbeat was lost, 0x1029) it owes no TPDO (CiA 301) and its NMT
+  state (``nmt_state``) is the HAL's report, with the state UNKNOWN.
 
 The number of examples follows the hypothesis profile (tests/conftest.py,
 tests/prop_support.py): enough in ``make test`` that every rule runs many times
@@ -618,7 +620,9 @@ def test_every_rule_ran_many_times():
 
 class HalTpdoLossMachine(HalMachine):
     """The machine above plus a drive whose TPDOs stop (and come back): the HAL must call
-    it ``drive_lost`` with its state UNKNOWN within 0.1 s (its last live state never)."""
+    it ``drive_lost`` with its state UNKNOWN within 0.1 s (its last live state never), or,
+    while it is outside OPERATIONAL, report its NMT state
+    (:meth:`HalMachine._check_tpdos_stopped`)."""
 
     KINDS = HalMachine.KINDS + ("tpdos_stop",)
 
