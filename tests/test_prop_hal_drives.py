@@ -33,7 +33,9 @@ Invariants:
 - a drive switched off by a second master is reported in its true state at once, and the
   HAL never enables it again by itself (no enable-operation controlword until enable());
 - (:class:`HalTpdoLossMachine`) a drive whose TPDOs stop is ``drive_lost`` with its state
-  UNKNOWN within 0.1 s.
+  UNKNOWN within 0.1 s while it is OPERATIONAL; outside OPERATIONAL (e.g. pre-operational
+  after its master's heartbeat was lost, 0x1029) it owes no TPDO (CiA 301) and its NMT
+  state (``nmt_state``) is the HAL's report, with the state UNKNOWN.
 
 The number of examples follows the hypothesis profile (tests/conftest.py,
 tests/prop_support.py): enough in ``make test`` that every rule runs many times
@@ -48,6 +50,7 @@ import time
 
 import can
 import numpy as np
+import pytest
 from hypothesis import Phase, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import (
@@ -75,6 +78,9 @@ T = W.bus.sync_period_s
 LOST = ("heartbeat_lost", "boot_up", "link_lost", "drive_lost")  # state UNKNOWN meanwhile
 HB_CYCLES = int(W.bus.heartbeat_period_s * W.bus.heartbeat_misses / T) + 3  # past timeout
 LOST_WITHIN_S = 0.1  # a drive whose TPDOs stop is drive_lost within this [s]
+#: what the HAL may report for a drive outside OPERATIONAL whose TPDOs stopped (it owes none)
+NO_TPDO_OWED = frozenset((*LOST, "nmt_state"))
+NMT_OPERATIONAL = 0x05  # CiA 301 heartbeat state
 RULES = RuleCounter()
 AT_LEAST = 8  # runs of each rule in CI's profile
 
@@ -106,6 +112,7 @@ class HalMachine(RuleBasedStateMachine):
         self.mhb_stopped_at: float | None = None  # master clock when its heartbeat stopped
         self.mhb_checks = 0  # checks still due after it stopped (drives, then the HAL)
         self.tpdo_stopped: dict[int, float] = {}  # node -> master clock its TPDOs stopped
+        self.nmt_left: dict[int, float] = {}  # node -> last master clock seen outside OP
         self.hal.start()
         self.hal.enable_and_wait()
 
@@ -218,14 +225,40 @@ class HalMachine(RuleBasedStateMachine):
                     if not (d.silent or node in self.tpdo_stopped):
                         assert states[k] != DriveState.OPERATION_ENABLED, node
                 event("master heartbeat lost: every drive stopped in time")
+        if not self.link_down:
+            self._check_tpdos_stopped(states, now)
+
+    def _check_tpdos_stopped(self, states: np.ndarray, now: float) -> None:
+        """A drive whose TPDOs stopped (master clock ``now`` [s]; link up).
+
+        OPERATIONAL, it owes a TPDO per SYNC (CiA 301: PDOs flow only in OPERATIONAL):
+        ``LOST_WITHIN_S`` after they stopped, or after its return to OPERATIONAL (the HAL's
+        own NMT start), it is ``drive_lost`` (or, after the link came back without its
+        TPDOs, still ``link_lost``). Outside OPERATIONAL (pre-operational after its master's
+        heartbeat was lost, 0x1029; a reset) it owes none, and drive_lost would misname a
+        node that still beats: the HAL may report its NMT state (``nmt_state``, ``boot_up``,
+        from its heartbeat) or, until that heartbeat comes, drive_lost. Either way a fault
+        and the state UNKNOWN, never its last live one.
+        """
+        hal = self.hal
         for node, t0 in self.tpdo_stopped.items():
-            if now - t0 > LOST_WITHIN_S + 1e-9 and not self.link_down:
-                k = hal.node_ids.index(node)
-                lost = {f.kind for f in hal.faults() if f.node_id == node}
-                # drive_lost; or, after the link came back without its TPDOs, still the
-                # link's loss: either way a fault and a state unknown
-                assert lost & {"drive_lost", "link_lost"}, (node, lost, now - t0)
-                assert states[k] == DriveState.UNKNOWN, (node, DriveState(states[k]).name)
+            d = self.rig.bank.drive(node)
+            with self.rig.bank.lock:
+                operational = d.nmt_state == NMT_OPERATIONAL
+            if not operational:
+                self.nmt_left[node] = now  # owes no TPDO until the HAL starts it again
+            since = max(t0, self.nmt_left.get(node, t0)) if operational else t0
+            if now - since <= LOST_WITHIN_S + 1e-9:
+                continue
+            k = hal.node_ids.index(node)
+            kinds = {f.kind for f in hal.faults() if f.node_id == node}
+            said = {"drive_lost", "link_lost"} if operational else NO_TPDO_OWED
+            assert kinds & said, (f"node {node}: TPDOs stopped {now - since:.3f} s ago "
+                                  f"({'' if operational else 'not '}OPERATIONAL), faults "
+                                  f"{sorted(kinds)}")
+            assert states[k] == DriveState.UNKNOWN, (
+                f"node {node}: TPDOs stopped {now - since:.3f} s ago, state "
+                f"{DriveState(states[k]).name}")
 
     # ---- the control loop ---------------------------------------------------------------
     @goes_wrong(n=st.integers(1, 15), move=st.booleans())
@@ -483,6 +516,7 @@ class HalMachine(RuleBasedStateMachine):
         self.silent.clear()
         self.hb_stopped.clear()
         self.tpdo_stopped.clear()
+        self.nmt_left.clear()
         self.injected.clear()
         self.master_heartbeat_back()
         self.recover()
@@ -586,7 +620,9 @@ def test_every_rule_ran_many_times():
 
 class HalTpdoLossMachine(HalMachine):
     """The machine above plus a drive whose TPDOs stop (and come back): the HAL must call
-    it ``drive_lost`` with its state UNKNOWN within 0.1 s (its last live state never)."""
+    it ``drive_lost`` with its state UNKNOWN within 0.1 s (its last live state never), or,
+    while it is outside OPERATIONAL, report its NMT state
+    (:meth:`HalMachine._check_tpdos_stopped`)."""
 
     KINDS = HalMachine.KINDS + ("tpdos_stop",)
 
@@ -602,6 +638,7 @@ class HalTpdoLossMachine(HalMachine):
     def tpdos_back(self, node):
         self.rig.bank.drive(node).stop_dropping()
         self.tpdo_stopped.pop(node, None)
+        self.nmt_left.pop(node, None)
         self.cycles(3, move=False)
 
 
@@ -615,10 +652,13 @@ def test_tpdo_loss_is_drive_lost():
                               settings=HalTpdoLossMachine.TestCase.settings)
 
 
-def _run_steps(steps: list[tuple[str, dict]]) -> None:
-    m = HalMachine()
+def _run_steps(steps: list[tuple[str, dict]], machine: type[HalMachine] = HalMachine,
+               first_wrong: int = 0) -> None:
+    """The rules ``steps`` ((name, arguments), in order) of a new ``machine``, its invariants
+    after each, as hypothesis would run them."""
+    m = machine()
     try:
-        m.start()
+        m.start(first_wrong=first_wrong)
         for name, kw in steps:
             getattr(m, name)(**kw)
             m.fault_codes_are_the_causes()
@@ -632,3 +672,41 @@ def test_regression_failed_enable_then_fault_reset_does_not_enable():
     pending enable request used to survive: the next fault reset enabled it by itself."""
     _run_steps([("drive_fault", {"kind": "over_current", "node": 1}), ("enable", {}),
                 ("fault_reset", {})])
+
+
+#: found by HalTpdoLossMachine: the master's heartbeat stops, its drives go pre-operational
+#: (0x1029), then a drive's TPDOs "stop" (none flow outside OPERATIONAL anyway); it is
+#: recovered with its master's heartbeat back and, its TPDOs still stopped, must be lost
+PRE_OP_THEN_TPDOS_STOP = [("master_heartbeat_stops", {"n": 2}),
+                          ("tpdos_stop", {"node": 6, "n": 28}),
+                          ("master_heartbeat_back", {}), ("recover", {}),
+                          ("run", {"n": 30, "move": True})]
+
+
+def test_regression_tpdos_stop_of_a_preoperational_drive():
+    """The HAL reports a pre-operational drive by its NMT state (``nmt_state``, UNKNOWN):
+    it owes no TPDO (CiA 301), so not ``drive_lost``; once recovered to OPERATIONAL with
+    its TPDOs still stopped it is drive_lost within ``LOST_WITHIN_S``."""
+    _run_steps(PRE_OP_THEN_TPDOS_STOP, HalTpdoLossMachine)
+
+
+def test_tpdo_property_finds_a_hal_that_never_loses_a_drive(monkeypatch):
+    """A hand-made bug: the TPDO deadline never passes. The property must fail, for an
+    OPERATIONAL drive and for one recovered from pre-operational."""
+    monkeypatch.setattr("hal.drives_cycle.feedback_lost",
+                        lambda missed, *a, **kw: np.zeros(np.shape(missed), bool))
+    with pytest.raises(AssertionError, match=r"node 3: TPDOs stopped .*\(OPERATIONAL\)"):
+        _run_steps([("tpdos_stop", {"node": 3, "n": 30})], HalTpdoLossMachine)
+    with pytest.raises(AssertionError, match=r"node 6: TPDOs stopped .*\(OPERATIONAL\)"):
+        _run_steps(PRE_OP_THEN_TPDOS_STOP, HalTpdoLossMachine)
+
+
+def test_tpdo_property_finds_a_preoperational_drive_reported_fine(monkeypatch):
+    """A hand-made bug: the HAL hears a drive leave OPERATIONAL (its drive_lost ends, its
+    state is UNKNOWN) but reports no fault for it (no ``nmt_state``). The property must
+    fail."""
+    faults = WinchDrives.faults
+    monkeypatch.setattr(WinchDrives, "faults",
+                        lambda self: [f for f in faults(self) if f.kind != "nmt_state"])
+    with pytest.raises(AssertionError, match=r"node 6: TPDOs stopped .*\(not OPERATIONAL\)"):
+        _run_steps(PRE_OP_THEN_TPDOS_STOP[:2], HalTpdoLossMachine)
