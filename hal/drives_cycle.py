@@ -137,6 +137,9 @@ class CycleMixin:
         for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():
             self._lost[k] = True
             self._have[k] = False  # its state is unknown now, never its last live one
+            # its TPDOs lost for the deadline: its count no longer matches the SYNCs (the
+            # offset kept would stamp its answers the gap early), a new stream when back
+            self._align[k].restart()
             self._setpoint_ok[k] = False
             self._request[k] = RQ.QUICK_STOP  # hold, if it still hears us
             self._event(k, DRIVE_LOST, CODE_PDO_TIMEOUT, self._lost_text(k, now))
