@@ -137,6 +137,9 @@ class CycleMixin:
         for k in np.flatnonzero(lost) if np.count_nonzero(lost) else ():
             self._lost[k] = True
             self._have[k] = False  # its state is unknown now, never its last live one
+            # its TPDOs lost for the deadline: its count no longer matches the SYNCs (the
+            # offset kept would stamp its answers the gap early), a new stream when back
+            self._align[k].restart()
             self._setpoint_ok[k] = False
             self._request[k] = RQ.QUICK_STOP  # hold, if it still hears us
             self._event(k, DRIVE_LOST, CODE_PDO_TIMEOUT, self._lost_text(k, now))
@@ -301,6 +304,14 @@ class CycleMixin:
         (:meth:`ReceiveMixin._sync_answered`)."""
         self._sync_sent.note(time.time(), self._sync_t)
 
+    def _restart_counts(self) -> None:
+        """Every drive's count of TPDOs anew (:meth:`hal.sync_count.CountAlignment.restart`):
+        a SYNC kept in the history that the drives may not have received (its send failed)
+        breaks the count as a lost TPDO does, and would stamp every later answer a period
+        early for the count window."""
+        for align in self._align:
+            align.restart()
+
     def _send_outputs(self) -> None:
         states = self._states
         cw = controlwords(states, self._request).astype(np.int64)
@@ -336,6 +347,7 @@ class CycleMixin:
         # counts SYNCs moves by one period as it is sent
         self._sync_t = ((self._syncs + 1) * self.period_s if self._sync_clocked
                         else self._clock())
+        noted = self._sync_sent.sent
         try:
             with self._send_lock:
                 if hasattr(bus, "send_batch"):  # one write: nothing can answer in between
@@ -352,6 +364,8 @@ class CycleMixin:
         except (can.CanError, OSError) as exc:
             # the bus refused the frames (bus off, link down): report once per streak and
             # keep cycling; the drives' heartbeats and TPDOs tell what happened to them
+            if self._sync_sent.sent != noted:  # a SYNC kept that may not have gone out
+                self._restart_counts()
             if not self._bus_failing:
                 self._bus_event(f"sending RPDOs/SYNC failed: {exc}")
             self._bus_failing = True

@@ -20,7 +20,9 @@ offset grows by one and the minimum, kept over all TPDOs, would stamp every late
 period early. So the minimum is taken over a sliding window of the last ``window`` TPDOs:
 after a loss the stamps are one period early for at most the window, and the window must
 hold one on-time answer (see :data:`COUNT_WINDOW_S`). A new stream (the drive armed anew
-after a start, a reboot) starts a new window (:meth:`CountAlignment.restart`).
+after a start, a reboot; a drive silent beyond its TPDO deadline, whose gap of lost TPDOs
+would stamp its answers that gap early; every drive after a SYNC kept that failed to go
+out) starts a new window (:meth:`CountAlignment.restart`).
 """
 
 from __future__ import annotations
