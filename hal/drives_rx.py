@@ -176,6 +176,8 @@ class ReceiveMixin:
             return  # sent before our NMT start reached it: not news
         if state == NMT_OPERATIONAL:
             self._nmt_wait[k] = -np.inf
+        else:  # no TPDO leaves it: its next ones are a new stream (the SYNCs between unanswered)
+            self._align[k].restart()
         if state != self._nmt[k] and self._started[k] and not self._rebooted[k]:
             if state != NMT_OPERATIONAL:
                 # no PDO leaves a node outside OPERATIONAL: the statusword we hold is old,

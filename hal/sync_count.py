@@ -18,11 +18,12 @@ A starved receiver or a starved answerer (frames in bursts, 5-15 periods late) s
 The count breaks where a TPDO is lost (a bus error, a drive that skipped a SYNC): the
 offset grows by one and the minimum, kept over all TPDOs, would stamp every later one a
 period early. So the minimum is taken over a sliding window of the last ``window`` TPDOs:
-after a loss the stamps are one period early for at most the window, and the window must
-hold one on-time answer (see :data:`COUNT_WINDOW_S`). A new stream (the drive armed anew
-after a start, a reboot; a drive silent beyond its TPDO deadline, whose gap of lost TPDOs
-would stamp its answers that gap early; every drive after a SYNC kept that failed to go
-out) starts a new window (:meth:`CountAlignment.restart`).
+after N TPDOs lost the stamps are N periods early for at most the window, and the window
+must hold one on-time answer (see :data:`COUNT_WINDOW_S`). A new stream (the drive armed
+anew after a start, a reboot; a drive whose heartbeat says it left OPERATIONAL, or silent
+beyond its TPDO deadline, whose gap of unanswered SYNCs would stamp its answers that gap
+early; every drive after a SYNC kept that failed to go out) starts a new window
+(:meth:`CountAlignment.restart`).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import numpy as np
 #: than the longest run of late answers it must see through (a starved answerer or
 #: receiver on a loaded 2-core host: bursts 5-15 SYNC periods late, <= 60 ms at 256 Hz;
 #: the window holds several such runs and the on-time answers between them), and as short
-#: as that allows, because a lost TPDO stamps the drive's positions one period early until
+#: as that allows, because N lost TPDOs stamp the drive's positions N periods early until
 #: the TPDOs before the loss have left the window.
 COUNT_WINDOW_S = 0.5
 

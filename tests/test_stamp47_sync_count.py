@@ -226,3 +226,26 @@ def test_a_sync_that_failed_to_go_out_does_not_shift_the_stamps(rig):
     for _ in range(3):
         hal.step()
         assert hal._sync_t - hal.positions_time() == pytest.approx(lag, abs=1e-9)
+
+
+def test_a_drive_started_again_by_another_master_is_stamped_at_the_sync_it_answers(rig):
+    """Another master puts drive 3 in PRE-OPERATIONAL for 30 SYNCs, then starts it again
+    (NMT commands on the bus): no TPDO leaves it meanwhile, so its count of TPDOs no longer
+    matches the SYNCs. The master starts its count anew when the heartbeat says it left
+    OPERATIONAL; back, its positions answer the last SYNC as the others' do (review47: the
+    offset of before kept for the window, stamped them the gap early)."""
+    hal = rig.hal
+    for _ in range(20):
+        hal.step()
+    node = hal.node_ids[2]
+    hal.network.send_message(0, bytes([0x80, node]))
+    for _ in range(30):
+        hal.step(0.05)
+    assert hal.states()[2] == DriveState.UNKNOWN  # the heartbeat told it
+    hal.network.send_message(0, bytes([0x01, node]))
+    for _ in range(3):
+        hal.step()
+    for _ in range(5):
+        hal.step()
+        t = hal.positions_time()
+        assert np.ptp(t) == 0, np.round((t - t[0]) / hal.period_s)
