@@ -167,6 +167,10 @@ PARENT = textwrap.dedent("""
     from bench.mcap.child import Spawned
     from controller.robot import resolve_robot
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # (where it waits: _where)
+    # as a shell's foreground job starts: Ctrl-C raises KeyboardInterrupt. A process
+    # inherits an ignored SIGINT and Python then leaves it ignored; a test runner's worker
+    # may have it so (a full run's parent once ignored it: no end after Ctrl-C)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     robot = resolve_robot("rocaspect")
     child = Spawned()
     rec = open_recorder(sys.argv[1], robot, np.array([10.0, 8.5, 1.0, 0, 0, 0]), {},
