@@ -99,3 +99,19 @@ def test_a_joint_step_is_no_one_cables_slip(joint):
         assert c.named is None
     else:
         assert c.named == {"effect": "cable_length_offset", "cable": "21", "t_s": 1120.0}
+
+
+def test_with_load_cells_the_load_is_left_to_the_force_columns(tmp_path, monkeypatch):
+    """A recording with load cells: a new load steps the force balance's columns, which
+    `noise.find_changes` tests; the load's own projection is not run there (on an hour-long
+    all-sensor log it read a step of z 17 where nothing changed: --kind new seed 14003)."""
+    from tests.residual_models import campaign_residual_model
+
+    rm = campaign_residual_model(tmp_path / "rec", {})
+    assert rm.any_tau
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the load's direction computed on a recording with load cells")
+
+    monkeypatch.setattr(loadstep, "signature", refused)
+    assert loadstep.find(rm, rm.blocks(rm.model)) is None
