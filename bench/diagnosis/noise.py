@@ -22,9 +22,9 @@ contaminated noise estimate is never the yardstick), Bonferroni-corrected over t
 times scanned and the columns, floored by the row-to-row (white) noise, on independent
 error units averaged (all rows of one move, and the dwell it leaves: they share the stop's
 and the move's slow errors; a dwell alone otherwise). A step is also tried with the
-direction of travel fitted beside it (friction's spread is no noise). Where no block shows
-a step, the residuals are tested along a change of the platform's load
-(:mod:`bench.diagnosis.loadstep`: without load cells). A systematic step splits the
+direction of travel fitted beside it (friction's spread is no noise). Without load cells,
+where no block shows a step, the residuals are tested along a change of the platform's load
+(:mod:`bench.diagnosis.loadstep`). A systematic step splits the
 replicate groups at its time (:func:`split_targets`), so the noise comes
 from what is random; the step is then named (a slip's time) or declared ``unexplained``
 with the time it began (:func:`declare`).
