@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from bench.campaign import run_campaign
 from bench.diagnosis.report import diagnose
 from bench.evaluate import one_blas_thread
@@ -42,6 +44,7 @@ SCENARIO_NO_TRACKER = (Path(__file__).parent / "data" / "scenarios"
                        / "later_slip_no_tracker_rocaspect_12450.json")
 
 
+@pytest.mark.cases  # one whole case recorded and diagnosed (make test-cases)
 def test_a_slip_the_chosen_set_held_is_found_from_the_offset_alone(tmp_path):
     """ROCASPECT dwell campaign without a tracker (case 12450 of `cdpr evaluate --seed
     12400`): cable 41 slips 6.3 mm at 79 s, and the cables are softer (E*A 886 kN). The

@@ -100,6 +100,7 @@ def test_load_cells_at_the_platform_anchors_of_sagging_cables():
     assert rep["mismatch"]["load_cells"] == {"at": "anchor"}
 
 
+@pytest.mark.cases  # one whole case recorded and diagnosed (make test-cases)
 def test_a_tracker_whose_scale_is_off_is_said_so():
     """ROCASPECT with a laser tracker whose length scale is 2e-4 off about its station
     (physics outside the vocabulary): the exit offsets and drum scales that reproduce it

@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from bench.campaign import run_campaign
 from bench.diagnosis.fit import FitResult, parameter_groups
@@ -37,6 +38,7 @@ def test_groups_are_per_owner_and_skip_held_parameters():
     assert got == [["dx_12", "dz_12"], ["dy_31"], ["s_12"]]
 
 
+@pytest.mark.cases  # one whole case recorded and diagnosed (make test-cases)
 def test_a_group_the_likelihood_ratio_cannot_tell_from_the_model_is_held(tmp_path):
     one_blas_thread()
     scenario = json.loads(SCENARIO.read_text())

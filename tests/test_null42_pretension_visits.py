@@ -33,11 +33,13 @@ def _report(record, tmp_path: Path, truth: dict) -> dict:
     return diagnose(record(scenario, tmp_path / "rec")).report
 
 
+@pytest.mark.cases  # one whole case recorded and diagnosed (make test-cases)
 def test_nothing_concealed_names_nothing(record_scenario, tmp_path):
     rep = _report(record_scenario, tmp_path, {})
     assert [e["name"] for e in rep["effects"]] == [], rep["mismatch"]["summary"]
 
 
+@pytest.mark.cases  # one whole case recorded and diagnosed (make test-cases)
 @pytest.mark.parametrize("offsets", [{"dx_31": 0.006, "dz_12": -0.005}])
 def test_a_true_exit_offset_beside_the_pretension_stays(record_scenario, tmp_path, offsets):
     rep = _report(record_scenario, tmp_path, {"exit_point_offset": offsets})

@@ -213,6 +213,7 @@ def test_a_moved_exit_point_is_named_with_the_truth_in_its_intervals(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.cases  # one whole case recorded and diagnosed (make test-cases)
 def test_a_three_rate_log_of_300000_rows_names_the_slip(tmp_path):
     """20 minutes at 250 Hz (encoders), 50 Hz (load cells), 25 Hz (tracker), one file."""
     rec = make_case(tmp_path / "r", Habits(encoders_hz=250.0, load_cells_hz=50.0,
