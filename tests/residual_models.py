@@ -25,3 +25,22 @@ def campaign_residual_model(directory: Path, truth: dict, seed: int = 5) -> Resi
     rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
     rm.estimate_noise(rec.robot)
     return rm
+
+
+def load_change_residual_model(seed: int, factor: float | None, directory: Path
+                               ) -> tuple[ResidualModel, dict]:
+    """The residual model (noise estimated) of ``cdpr evaluate --kind load_change`` case
+    ``seed`` recorded into ``directory`` / "rec", its load changed by ``mass_factor`` =
+    ``factor`` (None: the case's own; 1.0: no change), and the case (its truth:
+    ``case["case"]["change"]["t_s"]``, the change's time [s])."""
+    from bench.evaluate import make_case, record
+
+    case = make_case(seed, kind="load_change")
+    if factor is not None:
+        case["case"]["change"]["mass_factor"] = factor
+    record(case, directory / "rec")
+    rec = read_recording(directory / "rec")
+    s = prepare(rec)
+    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
+    rm.estimate_noise(rec.robot)
+    return rm, case

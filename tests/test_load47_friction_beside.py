@@ -15,10 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.diagnosis import noise, samples
-from bench.diagnosis.residuals import ResidualModel
-from bench.evaluate import make_case, record
-from bench.recording import read_recording
+from bench.diagnosis import noise
+from tests.residual_models import load_change_residual_model
 
 
 @pytest.mark.parametrize("seed", [46103, 46108])
@@ -29,17 +27,10 @@ def test_a_load_change_beside_friction_is_bracketed_and_friction_alone_is_no_ste
     every pose: a step of the force balance placed between the last sample before the
     change and the first after it. The same campaigns without the change (mass factor 1),
     friction left: no step (a difference by direction may be said, no time)."""
-    case = make_case(seed, kind="load_change")
+    rm, case = load_change_residual_model(seed, factor, tmp_path)
     assert "friction" in case["case"]["oov"]
-    if factor is not None:
-        case["case"]["change"]["mass_factor"] = factor
-    record(case, tmp_path / "rec")
     t0 = float(case["case"]["change"]["t_s"])
-    rec = read_recording(tmp_path / "rec")
-    s = samples.prepare(rec)
-    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
-    rm.estimate_noise(rec.robot)
-    changes = noise.find_changes(rm, rm.blocks(rec.robot))
+    changes = noise.find_changes(rm, rm.blocks(rm.model))
     steps = [c for c in changes if c.kind == "step"]
     if factor is not None:
         assert steps == [], [c.entry() for c in steps]

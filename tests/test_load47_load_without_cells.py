@@ -13,22 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.diagnosis import loadstep, noise, samples
-from bench.diagnosis.residuals import ResidualModel
-from bench.evaluate import make_case, record
-from bench.recording import read_recording
-
-
-def _residual_model(seed: int, factor: float | None, path) -> tuple[ResidualModel, dict]:
-    case = make_case(seed, kind="load_change")
-    if factor is not None:
-        case["case"]["change"]["mass_factor"] = factor
-    record(case, path / "rec")
-    rec = read_recording(path / "rec")
-    s = samples.prepare(rec)
-    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
-    rm.estimate_noise(rec.robot)
-    return rm, case
+from bench.diagnosis import loadstep, noise
+from tests.residual_models import load_change_residual_model
 
 
 @pytest.mark.parametrize("factor", [None, 1.0])
@@ -37,7 +23,7 @@ def test_a_load_change_without_cells_is_found_with_its_size_and_none_is_not(tmp_
     last sample before the change and the first after; the load's own test
     (`loadstep.find`) does, with its size within 25 % of the truth's (-4.3 kg). The same
     campaign without the change (mass factor 1): nothing from either."""
-    rm, case = _residual_model(47110, factor, tmp_path)
+    rm, case = load_change_residual_model(47110, factor, tmp_path)
     assert not rm.any_tau
     t0 = float(case["case"]["change"]["t_s"])
     load = loadstep.find(rm, rm.blocks(rm.model))
@@ -58,7 +44,7 @@ def test_the_load_direction_is_the_residuals_change_with_the_mass(tmp_path):
     the model with 1 kg more gives less the model's, the initialisation's change taken out
     (linear: 0.01 and 0.05 of the mass agree within 5 %); `projected`: the residuals
     projected on it, weighted by their noise, over its norm."""
-    rm, _ = _residual_model(47110, 1.0, tmp_path)
+    rm, _ = load_change_residual_model(47110, 1.0, tmp_path)
     b = rm.blocks(rm.model)
     sig = loadstep.signature(rm, b)
     keep = loadstep.MASS_STEP

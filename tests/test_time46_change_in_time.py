@@ -20,6 +20,7 @@ from bench.diagnosis import noise, samples
 from bench.diagnosis.residuals import ResidualModel
 from bench.evaluate import CHANGE_GAP_S, make_case, record
 from bench.recording import read_recording
+from tests.residual_models import load_change_residual_model
 
 
 def test_a_gap_in_the_log_ends_a_dwell_and_jitter_does_not():
@@ -37,16 +38,12 @@ def test_a_load_change_at_a_standing_pose_is_bracketed_by_its_samples(tmp_path):
     campaign starts at the pose where the first ended. No sample holds rows from both sides
     of the change, and the force balance's step is placed between the last sample before
     the change and the first after it."""
-    case = make_case(32013, kind="load_change")
-    record(case, tmp_path / "rec")
+    rm, case = load_change_residual_model(32013, None, tmp_path)
     t0 = float(case["case"]["change"]["t_s"])
-    rec = read_recording(tmp_path / "rec")
-    s = samples.prepare(rec)
+    s = rm.s
     gap_start = t0 - CHANGE_GAP_S  # (the first campaign's last row)
     assert not np.any((s.t > gap_start) & (s.t < t0)), "a sample straddles the change"
-    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
-    rm.estimate_noise(rec.robot)
-    steps = [c for c in noise.find_changes(rm, rm.blocks(rec.robot)) if c.kind == "step"]
+    steps = [c for c in noise.find_changes(rm, rm.blocks(rm.model)) if c.kind == "step"]
     assert steps, "the load change was not found"
     assert steps[0].before_s < t0 <= steps[0].after_s
 
@@ -59,17 +56,10 @@ def test_a_load_change_on_four_poses_is_found_and_no_change_is_not(tmp_path, fac
     correction for three columns: missed); its small-sample tail decides at P_FALSE. The step
     is placed between the last sample before the change and the first after. The same
     campaign without the change (mass factor 1): nothing."""
-    case = make_case(32010, kind="load_change")
-    if factor is not None:
-        case["case"]["change"]["mass_factor"] = factor
-    record(case, tmp_path / "rec")
+    rm, case = load_change_residual_model(32010, factor, tmp_path)
     t0 = float(case["case"]["change"]["t_s"])
-    rec = read_recording(tmp_path / "rec")
-    s = samples.prepare(rec)
-    assert not (s.kind == 1).any()  # a dwell campaign: independent visits
-    rm = ResidualModel(s, rec.robot, rec.init_pose, rec.init_tensions, rows=s.triples)
-    rm.estimate_noise(rec.robot)
-    changes = noise.find_changes(rm, rm.blocks(rec.robot))
+    assert not (rm.s.kind == 1).any()  # a dwell campaign: independent visits
+    changes = noise.find_changes(rm, rm.blocks(rm.model))
     if factor is not None:
         assert changes == [], [c.entry() for c in changes]
         return
